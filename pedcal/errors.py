@@ -1,0 +1,31 @@
+"""Errors a user can cause. The CLI turns these into a message and exit code 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class PedcalInputError(ValueError):
+    """Bad input: names the file, and where known the row and column, and what was expected.
+
+    ``row`` is the 0-based data row (the header is not counted), as in truth_observations.csv.
+    """
+
+    def __init__(self, message: str, *, path: str | Path | None = None, row: int | None = None,
+                 column: str | None = None):
+        self.path = None if path is None else str(path)
+        self.row = row
+        self.column = column
+        where = []
+        if self.path is not None:
+            where.append(self.path)
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column '{column}'")
+        self.detail = message
+        super().__init__(f"{': '.join([', '.join(where), message]) if where else message}")
+
+
+class DegenerateDataWarning(UserWarning):
+    """The data leave something unestimable; the message says what."""
