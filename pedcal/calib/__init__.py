@@ -1,0 +1,35 @@
+"""Calibration of ceiling sensor extrinsics.
+
+``calibrate(log, method=...)`` is the public entry point; each method lives in its own module:
+
+- ``factorgraph``: pedcal's estimator, one GTSAM factor graph (default)
+- ``gridsearch``: Kimoto et al.'s decoupled grid search, eqs. 1-9 (baseline and initializer)
+- ``alternative``: SNAPCAT-3D style shared observations of people (Glas et al. 2015)
+- ``closedform``: per-sensor Horn/Umeyama fit on the robot's observations
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from pedcal.calib.common import CalibrationResult
+from pedcal.model import Log
+
+METHODS = {
+    "factorgraph": ("pedcal.calib.factorgraph", "calibrate_factorgraph"),
+    "gridsearch": ("pedcal.calib.gridsearch", "calibrate_gridsearch"),
+    "alternative": ("pedcal.calib.alternative", "calibrate_alternative"),
+    "closedform": ("pedcal.calib.closedform", "calibrate_closedform"),
+}
+
+
+def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, **options) -> CalibrationResult:
+    """Calibrate every sensor of ``log`` with ``method``; returns a CalibrationResult whose
+    ``network`` is the calibrated schema of LOG_FORMAT.md."""
+    if method not in METHODS:
+        raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")
+    module, func = METHODS[method]
+    return getattr(importlib.import_module(module), func)(log, progress=progress, **options)
+
+
+__all__ = ["calibrate", "CalibrationResult", "METHODS"]
