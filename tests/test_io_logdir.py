@@ -1,0 +1,331 @@
+"""Log directory (LOG_FORMAT.md) and sensors YAML: exact round trips and every bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from pedcal.errors import PedcalInputError
+from pedcal.io import read_log, read_people_csv, read_sensors_yaml, write_log, write_people_csv, write_sensors_yaml
+from pedcal.model import Log, Meta, SensorExtrinsics, SensorNetwork
+
+
+def make_network(rng, ids=("s01", "s02", "1")) -> SensorNetwork:
+    return SensorNetwork([SensorExtrinsics(i, rng.uniform(-5, 5, 3) + [0, 0, 2.6],
+                                           rng.uniform([-180, 30, -5], [180, 60, 5])) for i in ids])
+
+
+def make_log(seed=0) -> Log:
+    rng = np.random.default_rng(seed)
+    sensors = make_network(rng)
+    n = 50
+    t = np.sort(rng.uniform(0, 100, n))
+    robot = pd.DataFrame({"t": t, "x": rng.normal(size=n), "y": rng.normal(size=n),
+                          "yaw": rng.uniform(-np.pi, np.pi, n), "cov_xx": rng.uniform(0, 1e-2, n),
+                          "cov_xy": rng.normal(0, 1e-3, n), "cov_xyaw": rng.normal(0, 1e-4, n),
+                          "cov_yy": rng.uniform(0, 1e-2, n), "cov_yyaw": rng.normal(0, 1e-4, n),
+                          "cov_yawyaw": rng.uniform(0, 1e-3, n)})
+    m = 120
+    sensor = rng.choice(sensors.ids, m)
+    track = rng.choice(["7", "12", "walker-3"], m)
+    obs = pd.DataFrame({"t": np.sort(rng.uniform(0, 100, m)), "sensor": sensor, "track": track,
+                        "x": rng.normal(size=m), "y": rng.normal(size=m), "z": 1.35 + rng.normal(0, .01, m)})
+    # File order is not time order across tracks: shuffle whole tracks, keeping order within each.
+    order = np.concatenate([g.index.to_numpy() for _, g in obs.groupby(["sensor", "track"])])
+    obs = obs.loc[order].reset_index(drop=True).astype({"sensor": str, "track": str})
+    odometry = pd.DataFrame({"t": t + 0.01, "x": np.cumsum(rng.normal(size=n)),
+                             "y": np.cumsum(rng.normal(size=n)), "yaw": rng.normal(size=n)})
+    truth_robot = robot[["t", "x", "y", "yaw"]] + 1e-3
+    truth_obs = pd.DataFrame({"row": np.arange(m, dtype=np.int64),
+                              "who": rng.choice(["robot", "17", "false"], m)}).astype({"who": str})
+    truth = make_network(rng)
+    return Log(sensors=sensors, robot=robot, observations=obs, odometry=odometry,
+               meta=Meta(np.array([0.01, -0.02, 1.351]), {"robot": "sim", "seed": seed}), truth=truth,
+               truth_robot=truth_robot, truth_observations=truth_obs)
+
+
+def assert_networks_equal(a: SensorNetwork, b: SensorNetwork):
+    assert a.ids == b.ids and a.frame == b.frame and a.extra == b.extra
+    for sa, sb in zip(a, b, strict=True):
+        np.testing.assert_array_equal(sa.position_m, sb.position_m)
+        np.testing.assert_array_equal(sa.ypr_deg, sb.ypr_deg)
+        for f in ("sigma_position_m", "sigma_ypr_deg"):
+            va, vb = getattr(sa, f), getattr(sb, f)
+            assert (va is None) == (vb is None)
+            if va is not None:
+                np.testing.assert_array_equal(va, vb)
+        assert (sa.observations, sa.status, sa.unobservable) == (sb.observations, sb.status, sb.unobservable)
+
+
+def assert_tables_equal(a: pd.DataFrame, b: pd.DataFrame):
+    assert list(a.columns) == list(b.columns) and len(a) == len(b)
+    for c in a.columns:
+        if a[c].dtype.kind == "f":
+            np.testing.assert_array_equal(a[c].to_numpy(), b[c].to_numpy())   # exact, bit for bit
+        else:
+            assert a[c].astype(str).tolist() == b[c].astype(str).tolist()
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_log_round_trip_is_exact(tmp_path, fmt):
+    log = make_log(1)
+    written = write_log(log, tmp_path / "log", fmt=fmt)
+    assert written["robot"].suffix == f".{fmt}"
+    back = read_log(tmp_path / "log")
+    assert_networks_equal(log.sensors, back.sensors)
+    assert_networks_equal(log.truth, back.truth)
+    for name in ("robot", "observations", "odometry", "truth_robot", "truth_observations"):
+        assert_tables_equal(getattr(log, name), getattr(back, name))
+    np.testing.assert_array_equal(back.meta.head_offset_m, log.meta.head_offset_m)
+    assert back.meta.notes == log.meta.notes
+    assert back.truth_observations["row"].dtype == np.int64
+    assert back.observations["sensor"].map(type).eq(str).all()
+
+
+def test_rewrite_in_other_format_removes_stale_tables(tmp_path):
+    log = make_log(2)
+    write_log(log, tmp_path, fmt="csv")
+    log.odometry = None
+    write_log(log, tmp_path, fmt="parquet")
+    assert not list(tmp_path.glob("*.csv"))
+    back = read_log(tmp_path)
+    assert back.odometry is None
+    assert_tables_equal(log.robot, back.robot)
+
+
+def test_numeric_sensor_ids_match_between_yaml_and_csv(tmp_path):
+    (tmp_path / "sensors.yaml").write_text(
+        "sensors:\n  - {id: 1, position: [0, 0, 2.6], ypr_deg: [0, 45, 0]}\n"
+        "  - {id: 02, position: [1, 0, 2.6], ypr_deg: [0, 45, 0]}\n")
+    (tmp_path / "robot.csv").write_text("t,x,y,yaw,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw\n"
+                                        "1,0,0,0,1,0,0,1,0,1\n0.5,0,0,0,1,0,0,1,0,1\n")
+    # Columns in another order, an extra column, rows not sorted across tracks.
+    (tmp_path / "observations.csv").write_text("sensor,track,t,x,y,z,extra\n02,5,2.0,1,1,1,a\n"
+                                               "1,5,1.0,1,1,1,b\n02,5,3.0,1,1,1,c\n")
+    log = read_log(tmp_path)
+    assert log.sensors.ids == ["1", "02"]
+    assert log.observations["sensor"].tolist() == ["02", "1", "02"]
+    assert list(log.observations.columns) == ["t", "sensor", "track", "x", "y", "z"]
+    assert log.robot["t"].tolist() == [0.5, 1.0]          # pose tables come back sorted by time
+    assert log.meta.head_offset_m.tolist() == [0.0, 0.0, 1.35]
+    assert log.odometry is None and log.truth is None
+
+
+def test_calibrated_yaml_schema_round_trip_and_usable_as_sensors_yaml(tmp_path):
+    rng = np.random.default_rng(3)
+    net = make_network(rng)
+    net.sensors[0].sigma_position_m = np.array([0.004, 0.005, 0.003])
+    net.sensors[0].sigma_ypr_deg = np.array([0.2, 0.1, 0.1])
+    net.sensors[0].observations, net.sensors[0].status = 812, "ok"
+    net.sensors[1].sigma_position_m = np.array([0.1, 2.0, 0.003])
+    net.sensors[1].sigma_ypr_deg = np.array([5.0, 0.1, 0.1])
+    net.sensors[1].observations, net.sensors[1].status = 40, "degenerate"
+    net.sensors[1].unobservable = ["y", "yaw"]
+    net.sensors[2].observations, net.sensors[2].status = 0, "no-data"
+    net.extra["method"] = "factorgraph"
+    p = write_sensors_yaml(net, tmp_path / "calibrated.yaml")
+    text = p.read_text()
+    assert "position: [" in text and "unobservable: [y, yaw]" in text     # flow-style vectors
+    assert_networks_equal(net, read_sensors_yaml(p))
+    # Usable as the sensors.yaml of a log.
+    log = make_log(3)
+    log.sensors = read_sensors_yaml(p)
+    log.observations["sensor"] = log.observations["sensor"].map(dict(zip(make_network(
+        np.random.default_rng(1)).ids, net.ids, strict=True)))
+    write_log(log, tmp_path / "log")
+    assert read_log(tmp_path / "log").sensors.ids == net.ids
+
+
+def test_people_csv_round_trip(tmp_path):
+    rng = np.random.default_rng(4)
+    df = pd.DataFrame({"t": rng.uniform(0, 10, 30), "person": rng.choice(["1", "b"], 30),
+                       "x": rng.normal(size=30), "y": rng.normal(size=30)})
+    write_people_csv(df, tmp_path / "p.csv")
+    assert_tables_equal(df, read_people_csv(tmp_path / "p.csv"))
+
+
+# ------------------------------------------------------------------------------------ bad input
+def write_good(tmp_path: Path) -> Path:
+    log = make_log(5)
+    write_log(log, tmp_path, fmt="csv")
+    return tmp_path
+
+
+def edit_csv(path: Path, fn):
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    df = fn(df)
+    df.to_csv(path, index=False)
+
+
+def expect_error(tmp_path, match, row=None, column=None, file=None):
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_log(tmp_path)
+    e = ei.value
+    if file is not None:
+        assert e.path is not None and Path(e.path).name == file
+    if row is not None:
+        assert e.row == row and f"row {row}" in str(e)
+    if column is not None:
+        assert e.column == column and f"'{column}'" in str(e)
+    return e
+
+
+def set_cell(row, column, value):
+    def fn(df):
+        df.loc[row, column] = value
+        return df
+    return fn
+
+
+def test_missing_required_column(tmp_path):
+    write_good(tmp_path)
+    edit_csv(tmp_path / "robot.csv", lambda df: df.drop(columns=["cov_yy"]))
+    expect_error(tmp_path, "missing required column", column="cov_yy", file="robot.csv")
+
+
+@pytest.mark.parametrize("value,match", [("abc", "expected a number, got 'abc'"), ("", "empty cell"),
+                                         ("nan", "finite"), ("inf", "finite")])
+def test_bad_cell(tmp_path, value, match):
+    write_good(tmp_path)
+    edit_csv(tmp_path / "observations.csv", set_cell(17, "x", value))
+    expect_error(tmp_path, match, row=17, column="x", file="observations.csv")
+
+
+def test_bad_cell_in_parquet(tmp_path):
+    log = make_log(6)
+    log.robot.loc[3, "y"] = np.nan
+    write_log(log, tmp_path, fmt="parquet")
+    expect_error(tmp_path, "finite", row=3, column="y", file="robot.parquet")
+
+
+def test_empty_track_id(tmp_path):
+    write_good(tmp_path)
+    edit_csv(tmp_path / "observations.csv", set_cell(4, "track", ""))
+    expect_error(tmp_path, "empty cell", row=4, column="track")
+
+
+def test_unknown_sensor(tmp_path):
+    write_good(tmp_path)
+    edit_csv(tmp_path / "observations.csv", set_cell(9, "sensor", "s99"))
+    e = expect_error(tmp_path, "unknown sensor id 's99'", row=9, column="sensor", file="observations.csv")
+    assert "sensors.yaml" in str(e)
+
+
+def test_duplicate_sensor_id_in_yaml(tmp_path):
+    write_good(tmp_path)
+    text = (tmp_path / "sensors.yaml").read_text().replace("id: s02", "id: s01")
+    (tmp_path / "sensors.yaml").write_text(text)
+    expect_error(tmp_path, "duplicate sensor id", file="sensors.yaml")
+
+
+@pytest.mark.parametrize("name", ["robot.csv", "observations.csv"])
+def test_empty_required_table(tmp_path, name):
+    write_good(tmp_path)
+    edit_csv(tmp_path / name, lambda df: df.iloc[:0])
+    expect_error(tmp_path, "no data rows", file=name)
+
+
+def test_completely_empty_file(tmp_path):
+    write_good(tmp_path)
+    (tmp_path / "robot.csv").write_text("")
+    expect_error(tmp_path, "missing required column", file="robot.csv")
+
+
+def test_clock_going_back_within_a_track(tmp_path):
+    write_good(tmp_path)
+    obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)
+    key = obs["sensor"] + "/" + obs["track"]
+    rows = np.flatnonzero(key == key.iloc[0])
+    bad = int(rows[2])
+    edit_csv(tmp_path / "observations.csv", set_cell(bad, "t", obs.loc[rows[1], "t"]))   # repeats
+    expect_error(tmp_path, "does not increase", row=bad, column="t")
+
+
+def test_clock_may_go_back_across_tracks(tmp_path):
+    write_good(tmp_path)   # make_log interleaves tracks so t goes back between them
+    obs = pd.read_csv(tmp_path / "observations.csv")
+    assert (np.diff(obs["t"]) < 0).any()
+    assert len(read_log(tmp_path).observations) == len(obs)
+
+
+def test_duplicate_robot_time(tmp_path):
+    write_good(tmp_path)
+    robot = pd.read_csv(tmp_path / "robot.csv", dtype=str)
+    edit_csv(tmp_path / "robot.csv", set_cell(8, "t", robot.loc[2, "t"]))
+    e = expect_error(tmp_path, "repeats row 2", row=8, column="t", file="robot.csv")
+    assert e.row == 8
+
+
+def test_negative_variance(tmp_path):
+    write_good(tmp_path)
+    edit_csv(tmp_path / "robot.csv", set_cell(5, "cov_yawyaw", "-0.01"))
+    expect_error(tmp_path, "negative variance", row=5, column="cov_yawyaw")
+
+
+@pytest.mark.parametrize("text,match", [
+    ("frame: map\n", "'sensors' list"),
+    ("sensors:\n  - {id: a, ypr_deg: [0, 45, 0]}\n", "missing 'position'"),
+    ("sensors:\n  - {id: a, position: [0, 0, 2.6]}\n", "missing 'ypr_deg'"),
+    ("sensors:\n  - {id: a, position: [0, 2.6], ypr_deg: [0, 45, 0]}\n", "position: expected a list of 3"),
+    ("sensors:\n  - {id: a, position: [0, 0, 2.6], ypr_deg: [0, x, 0]}\n", "ypr_deg: expected a list of 3"),
+    ("sensors:\n  - {id: a, position: [0, 0, 2.6], ypr_deg: [0, 45, 0], status: fine}\n", "status"),
+    ("sensors: [\n", "not valid YAML"),
+])
+def test_bad_sensors_yaml(tmp_path, text, match):
+    p = tmp_path / "sensors.yaml"
+    p.write_text(text)
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_sensors_yaml(p)
+    assert ei.value.path == str(p)
+
+
+def test_yaml_error_names_line(tmp_path):
+    p = tmp_path / "s.yaml"
+    p.write_text("sensors:\n  - {id: a, position: [0, 0, 2.6], ypr_deg: [0, 45, 0]}\n"
+                 "  - {id: b, position: [0, 0], ypr_deg: [0, 45, 0]}\n")
+    with pytest.raises(PedcalInputError, match=r"sensor 'b' \(line 3\) position"):
+        read_sensors_yaml(p)
+
+
+def test_truth_observation_rows_out_of_range(tmp_path):
+    write_good(tmp_path)
+    n = len(pd.read_csv(tmp_path / "observations.csv"))
+    edit_csv(tmp_path / "truth_observations.csv", set_cell(6, "row", str(n)))
+    expect_error(tmp_path, "out of range", row=6, column="row", file="truth_observations.csv")
+
+
+def test_missing_directory_and_files(tmp_path):
+    with pytest.raises(PedcalInputError, match="not found"):
+        read_log(tmp_path / "nope")
+    write_good(tmp_path)
+    (tmp_path / "observations.csv").unlink()
+    expect_error(tmp_path, "required file missing", file="observations.csv")
+    (tmp_path / "sensors.yaml").unlink()
+    expect_error(tmp_path, "required file missing", file="sensors.yaml")
+
+
+def test_csv_and_parquet_of_one_table(tmp_path):
+    write_good(tmp_path)
+    pd.read_csv(tmp_path / "robot.csv").to_parquet(tmp_path / "robot.parquet")
+    expect_error(tmp_path, "both robot.csv and robot.parquet")
+
+
+def test_bad_meta(tmp_path):
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text(yaml.safe_dump({"head_offset": [0, 1.35]}))
+    expect_error(tmp_path, "head_offset", file="meta.yaml")
+
+
+def test_failed_write_leaves_previous_file(tmp_path):
+    log = make_log(7)
+    write_log(log, tmp_path)
+    before = (tmp_path / "robot.csv").read_bytes()
+    log.robot = log.robot.drop(columns=["cov_xx"])
+    with pytest.raises(ValueError, match="cov_xx"):
+        write_log(log, tmp_path)
+    assert (tmp_path / "robot.csv").read_bytes() == before
+    assert not list(tmp_path.glob(".*.tmp"))
