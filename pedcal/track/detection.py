@@ -1,0 +1,226 @@
+"""Person detection in a 3-D LIDAR frame, step by step as Misu and Miura (Sec. 3):
+
+1. ``grid_cells``: the points go onto a horizontal 2-D grid (``cell_size_m``, ~0.1 m);
+2. ``object_cells``: a cell is an object cell when its highest and lowest points differ by more
+   than ``min_cell_span_m`` (0.2 m); flat cells (floor, low clutter) are not;
+3. ``cluster_cells``: Euclidean clustering of the object cells = connected components with
+   8-connectivity (``scipy.ndimage.label``), optionally bridging gaps of ``gap_cells`` cells;
+4. ``cluster_points``: a cluster's points are all the points in its cells above the floor;
+5. ``min_area_box``: the minimum-area box of the points' horizontal convex hull by rotating
+   calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
+6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m;
+7. the RealAdaBoost classifier on Kidono et al.'s 213 features (``pedcal.track.features``).
+
+Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
+and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
+
+from pedcal.track.adaboost import RealAdaBoost
+from pedcal.track.features import features_matrix
+
+CELL_SIZE_M = 0.1
+MIN_CELL_SPAN_M = 0.2
+FLOOR_TOLERANCE_M = 0.05
+GATE_HEIGHT_M = (0.8, 2.0)
+GATE_MAX_WIDTH_M = 1.2
+GATE_MAX_DEPTH_M = 1.2
+
+
+@dataclass(frozen=True)
+class Detection:
+    x: float  # box centre, m
+    y: float
+    height: float  # m above the floor (max z)
+    width: float  # longer horizontal side of the box, m
+    depth: float  # shorter side, m
+    yaw: float  # direction of the width side, rad in [-pi/2, pi/2)
+    score: float  # P(person) from the classifier (nan when no classifier ran)
+    is_person: bool
+    n_points: int
+
+    def to_dict(self) -> dict:
+        return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class Box:
+    cx: float
+    cy: float
+    width: float
+    depth: float
+    yaw: float
+
+
+# ------------------------------------------------------------------------------------------ steps
+def grid_cells(points: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> tuple[np.ndarray, tuple[int, int],
+                                                                                np.ndarray]:
+    """Step 1: per point (row, col) cell index on a grid anchored at the cloud's minimum corner.
+
+    Returns ``(ij (N, 2) int, shape (rows, cols), origin_xy (2,))``.
+    """
+    xy = points[:, :2]
+    origin = xy.min(axis=0) if len(xy) else np.zeros(2)
+    ij = np.floor((xy - origin) / cell_size_m).astype(np.int64)
+    shape = tuple(int(v) for v in (ij.max(axis=0) + 1)) if len(ij) else (0, 0)
+    return ij, shape, origin
+
+
+def object_cells(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int],
+                 min_cell_span_m: float = MIN_CELL_SPAN_M) -> np.ndarray:
+    """Step 2: boolean (rows, cols) map of the cells whose max z - min z > ``min_cell_span_m``."""
+    flat = ij[:, 0] * shape[1] + ij[:, 1]
+    n = shape[0] * shape[1]
+    z_hi = np.full(n, -np.inf)
+    z_lo = np.full(n, np.inf)
+    np.maximum.at(z_hi, flat, z)
+    np.minimum.at(z_lo, flat, z)
+    return ((z_hi - z_lo) > min_cell_span_m).reshape(shape)
+
+
+def cluster_cells(occupied: np.ndarray, gap_cells: int = 0) -> tuple[np.ndarray, int]:
+    """Step 3: label connected object cells (8-connectivity). With ``gap_cells`` > 0, cells up to
+    that many empty cells apart join one cluster (the labels stay on the object cells only)."""
+    structure = np.ones((3, 3), dtype=bool)
+    if gap_cells > 0:
+        grown = ndimage.binary_dilation(occupied, structure=structure, iterations=gap_cells)
+        labels, n = ndimage.label(grown, structure=structure)
+        labels = np.where(occupied, labels, 0)
+        # relabel to 1..k without the labels that only covered dilated cells
+        used = np.unique(labels[labels > 0])
+        remap = np.zeros(labels.max() + 1, dtype=np.int64)
+        remap[used] = np.arange(1, len(used) + 1)
+        return remap[labels], len(used)
+    labels, n = ndimage.label(occupied, structure=structure)
+    return labels, int(n)
+
+
+def cluster_points(points: np.ndarray, ij: np.ndarray, labels: np.ndarray,
+                   floor_tolerance_m: float = FLOOR_TOLERANCE_M) -> list[np.ndarray]:
+    """Step 4: indices into ``points`` of each cluster (label 1..k): all points in its cells
+    higher than ``floor_tolerance_m`` above the floor."""
+    point_label = labels[ij[:, 0], ij[:, 1]]
+    keep = (point_label > 0) & (points[:, 2] > floor_tolerance_m)
+    idx = np.flatnonzero(keep)
+    lab = point_label[idx]
+    order = np.argsort(lab, kind="stable")
+    idx, lab = idx[order], lab[order]
+    splits = np.flatnonzero(np.diff(lab)) + 1
+    return [g for g in np.split(idx, splits) if len(g)]
+
+
+def min_area_box(xy: np.ndarray) -> Box:
+    """Step 5: minimum-area enclosing box by rotating calipers on the convex hull.
+
+    One side of the minimum box lies on a hull edge (Freeman and Shapira 1975), so every edge
+    direction is tried at once. Width is the longer side, ``yaw`` its direction in [-pi/2, pi/2).
+    Degenerate inputs (fewer than 3 points, collinear) fall back to the principal axes.
+    """
+    xy = np.asarray(xy, dtype=float)
+    try:
+        hull = xy[ConvexHull(xy).vertices]
+    except (QhullError, ValueError):
+        hull = xy
+    if len(hull) >= 3:
+        edges = np.roll(hull, -1, axis=0) - hull
+        angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+    else:
+        d = xy - xy.mean(axis=0)
+        _, vecs = np.linalg.eigh(d.T @ d + 1e-12 * np.eye(2))
+        angles = np.array([np.arctan2(vecs[1, 1], vecs[0, 1])])
+    c, s = np.cos(angles), np.sin(angles)
+    # coordinates of every hull point along each candidate axis pair: (K, M)
+    a = c[:, None] * hull[None, :, 0] + s[:, None] * hull[None, :, 1]
+    b = -s[:, None] * hull[None, :, 0] + c[:, None] * hull[None, :, 1]
+    ea = a.max(axis=1) - a.min(axis=1)
+    eb = b.max(axis=1) - b.min(axis=1)
+    k = int(np.argmin(ea * eb))
+    ca = 0.5 * (a[k].max() + a[k].min())
+    cb = 0.5 * (b[k].max() + b[k].min())
+    cx, cy = c[k] * ca - s[k] * cb, s[k] * ca + c[k] * cb
+    yaw = angles[k] if ea[k] >= eb[k] else angles[k] + np.pi / 2
+    yaw = float(np.mod(yaw + np.pi / 2, np.pi) - np.pi / 2)
+    return Box(float(cx), float(cy), float(max(ea[k], eb[k])), float(min(ea[k], eb[k])), yaw)
+
+
+def passes_gate(height_m: float, width_m: float, depth_m: float) -> bool:
+    """Step 6: the size gate 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m."""
+    return (GATE_HEIGHT_M[0] <= height_m <= GATE_HEIGHT_M[1]
+            and width_m <= GATE_MAX_WIDTH_M and depth_m <= GATE_MAX_DEPTH_M)
+
+
+@dataclass
+class Candidate:
+    """A clustered object that passed (or failed) the gate, before classification."""
+
+    indices: np.ndarray  # into the frame's points
+    box: Box
+    height: float
+    gated: bool
+
+
+def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_m: float = MIN_CELL_SPAN_M,
+            gap_cells: int = 0, floor_tolerance_m: float = FLOOR_TOLERANCE_M) -> list[Candidate]:
+    """Steps 1-6: every cluster of the frame with its box, height and gate verdict."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise ValueError(f"points must be (N, 4) x, y, z, intensity; got shape {pts.shape}")
+    if len(pts) == 0:
+        return []
+    ij, shape, _ = grid_cells(pts, cell_size_m)
+    occ = object_cells(ij, pts[:, 2], shape, min_cell_span_m)
+    labels, n = cluster_cells(occ, gap_cells)
+    if n == 0:
+        return []
+    out = []
+    for idx in cluster_points(pts, ij, labels, floor_tolerance_m):
+        box = min_area_box(pts[idx, :2])
+        h = float(pts[idx, 2].max())
+        out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth)))
+    return out
+
+
+# ------------------------------------------------------------------------------------- classifier
+DEFAULT_MODEL_PATH = Path(str(resources.files("pedcal") / "data" / "detector_model.npz"))
+
+
+@functools.lru_cache(maxsize=4)
+def _load_cached(path: str, mtime: float) -> RealAdaBoost:
+    return RealAdaBoost.load(path)
+
+
+def load_model(path: str | Path | None = None) -> RealAdaBoost:
+    """The classifier at ``path`` (default: the shipped ``pedcal/data/detector_model.npz``)."""
+    p = Path(path) if path is not None else DEFAULT_MODEL_PATH
+    mtime = p.stat().st_mtime if p.exists() else 0.0
+    return _load_cached(str(p), mtime)
+
+
+def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
+           threshold: float = 0.5, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0) -> list[Detection]:
+    """People in one frame: the gated clusters, each scored by the classifier.
+
+    ``points`` is (N, 4) ``x, y, z, intensity`` with z = 0 at the floor (N, 3 gets intensity 0);
+    ``model`` a RealAdaBoost, a path to one, or None for the shipped model. Returns every gated
+    cluster as a Detection; ``is_person`` is ``score >= threshold``.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim == 2 and pts.shape[1] == 3:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
+    cands = [c for c in segment(pts, cell_size_m=cell_size_m, gap_cells=gap_cells) if c.gated]
+    if not cands:
+        return []
+    clf = model if isinstance(model, RealAdaBoost) else load_model(model)
+    score = clf.predict_proba(features_matrix([pts[c.indices] for c in cands]))
+    return [Detection(c.box.cx, c.box.cy, c.height, c.box.width, c.box.depth, c.box.yaw,
+                      float(s), bool(s >= threshold), len(c.indices)) for c, s in zip(cands, score)]

@@ -1,0 +1,58 @@
+"""RealAdaBoost learns, is deterministic, and round-trips through its .npz."""
+
+import numpy as np
+import pytest
+
+from pedcal.errors import PedcalInputError
+from pedcal.track.adaboost import RealAdaBoost
+
+
+def toy(seed, n=2000, F=20):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, F))
+    y = ((X[:, 4] > 0.3) | (X[:, 11] < -1.0)).astype(int)  # separable by two thresholds
+    return X, y
+
+
+def test_learns_a_separable_problem():
+    X, y = toy(0)
+    m = RealAdaBoost(n_rounds=30, n_bins=32).fit(X, y)
+    Xt, yt = toy(1)
+    acc = (m.predict(Xt) == yt).mean()
+    assert acc > 0.97
+    assert set(m.feature_[:2]) <= {4, 11}
+    p = m.predict_proba(Xt)
+    assert ((p > 0.5) == (m.decision_function(Xt) > 0)).all()
+    assert (p >= 0).all() and (p <= 1).all()
+
+
+def test_deterministic_and_save_load(tmp_path):
+    X, y = toy(2)
+    a = RealAdaBoost(n_rounds=20, seed=3, max_edge_samples=500).fit(X, y)
+    b = RealAdaBoost(n_rounds=20, seed=3, max_edge_samples=500).fit(X, y)
+    assert np.array_equal(a.feature_, b.feature_) and np.array_equal(a.h_, b.h_)
+    path = tmp_path / "m.npz"
+    a.save(path)
+    c = RealAdaBoost.load(path)
+    np.testing.assert_array_equal(a.decision_function(X), c.decision_function(X))
+    assert c.n_rounds == 20 and c.seed == 3
+
+
+def test_bad_inputs():
+    X, y = toy(3, n=50)
+    with pytest.raises(ValueError):
+        RealAdaBoost().fit(X, np.ones(50))
+    X[0, 0] = np.nan
+    with pytest.raises(ValueError):
+        RealAdaBoost().fit(X, y)
+    with pytest.raises(RuntimeError):
+        RealAdaBoost().decision_function(X)
+
+
+def test_load_rejects_a_bad_file(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(PedcalInputError, match="bad.npz"):
+        RealAdaBoost.load(bad)
+    with pytest.raises(PedcalInputError):
+        RealAdaBoost.load(tmp_path / "missing.npz")

@@ -1,0 +1,127 @@
+"""Each step of the detection pipeline on constructed clouds, and the real KITTI pedestrian."""
+
+import numpy as np
+import pytest
+
+from pedcal.track import detection as det
+from pedcal.track.adaboost import RealAdaBoost
+from pedcal.track.features import N_FEATURES
+
+
+def box_surface(rng, cx, cy, w, d, h, yaw, n=3000):
+    """Points on the four vertical faces and the top of a w x d x h box yawed by ``yaw``."""
+    u = rng.uniform(-0.5, 0.5, n) * w
+    v = rng.uniform(-0.5, 0.5, n) * d
+    face = rng.integers(0, 5, n)
+    u = np.where(face == 0, -w / 2, np.where(face == 1, w / 2, u))
+    v = np.where(face == 2, -d / 2, np.where(face == 3, d / 2, v))
+    z = np.where(face == 4, h, rng.uniform(0.0, h, n))
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.column_stack([cx + c * u - s * v, cy + s * u + c * v, z, np.full(n, 0.3)])
+
+
+def cylinder_person(rng, cx, cy, radius=0.22, h=1.7, n=1500):
+    a = rng.uniform(0, 2 * np.pi, n)
+    z = rng.uniform(0.0, h, n)
+    return np.column_stack([cx + radius * np.cos(a), cy + radius * np.sin(a), z, rng.uniform(0.1, 0.5, n)])
+
+
+def floor(rng, n=2000, extent=5.0):
+    xy = rng.uniform(0, extent, (n, 2)) - [0, extent / 2]
+    return np.column_stack([xy, rng.normal(0, 0.01, n), np.full(n, 0.1)])
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 17.0, 45.0, -63.0, 89.0])
+def test_min_area_box_recovers_size_and_yaw(yaw_deg):
+    rng = np.random.default_rng(1)
+    pts = box_surface(rng, 2.0, -1.0, 0.9, 0.4, 1.0, np.radians(yaw_deg))
+    box = det.min_area_box(pts[:, :2])
+    assert box.width == pytest.approx(0.9, abs=0.01)
+    assert box.depth == pytest.approx(0.4, abs=0.01)
+    assert (box.cx, box.cy) == pytest.approx((2.0, -1.0), abs=0.01)
+    err = (np.degrees(box.yaw) - yaw_deg + 90) % 180 - 90
+    assert abs(err) < 1.0
+
+
+def test_min_area_box_degenerate_inputs_are_finite():
+    for xy in (np.array([[1.0, 2.0]]), np.array([[0.0, 0.0], [1.0, 1.0]]),
+               np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])):
+        box = det.min_area_box(xy)
+        assert np.isfinite([box.cx, box.cy, box.width, box.depth, box.yaw]).all()
+    box = det.min_area_box(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]))
+    assert box.width == pytest.approx(2.0) and box.depth == pytest.approx(0.0, abs=1e-9)
+
+
+def test_flat_patch_has_no_object_cells_and_a_post_has_one():
+    rng = np.random.default_rng(2)
+    pts = floor(rng)
+    pts[:, 2] += rng.uniform(0, 0.15, len(pts))  # bumpy but lower than the 0.2 m rule
+    ij, shape, _ = det.grid_cells(pts, 0.1)
+    assert not det.object_cells(ij, pts[:, 2], shape).any()
+    post = np.column_stack([np.full(50, 2.03), np.full(50, 0.03), np.linspace(0, 1.0, 50), np.zeros(50)])
+    pts = np.vstack([pts, post])
+    ij, shape, _ = det.grid_cells(pts, 0.1)
+    occ = det.object_cells(ij, pts[:, 2], shape)
+    assert occ.sum() == 1
+
+
+def test_clustering_separates_objects_and_gap_tolerance_joins_them():
+    occ = np.zeros((10, 10), bool)
+    occ[1:3, 1:3] = True
+    occ[3, 3] = True  # diagonal neighbour: 8-connectivity joins it
+    occ[1:3, 5:7] = True  # two empty cells away
+    labels, n = det.cluster_cells(occ)
+    assert n == 2 and labels[3, 3] == labels[1, 1]
+    labels, n = det.cluster_cells(occ, gap_cells=1)
+    assert n == 1 and (labels[occ] == 1).all() and (labels[~occ] == 0).all()
+
+
+def test_cluster_points_drop_the_floor():
+    rng = np.random.default_rng(3)
+    pts = np.vstack([floor(rng), cylinder_person(rng, 2.0, 0.0)])
+    cands = det.segment(pts)
+    assert len(cands) == 1
+    c = cands[0]
+    assert (pts[c.indices, 2] > det.FLOOR_TOLERANCE_M).all()
+    assert len(c.indices) == pytest.approx((pts[2000:, 2] > det.FLOOR_TOLERANCE_M).sum(), abs=0)
+
+
+def test_gate_rejects_wall_and_passes_person_cylinder():
+    rng = np.random.default_rng(4)
+    wall = box_surface(rng, 3.0, 0.0, 3.0, 0.1, 1.8, 0.3)
+    low = box_surface(rng, 1.5, -1.5, 0.5, 0.5, 0.5, 0.0)
+    person = cylinder_person(rng, 2.0, 2.0)
+    pts = np.vstack([floor(rng), wall, low, person])
+    cands = det.segment(pts)
+    assert len(cands) == 3
+    gated = [c for c in cands if c.gated]
+    assert len(gated) == 1
+    g = gated[0]
+    assert (g.box.cx, g.box.cy) == pytest.approx((2.0, 2.0), abs=0.02)
+    assert g.height == pytest.approx(1.7, abs=0.02)
+    assert g.box.width == pytest.approx(0.44, abs=0.03)
+    assert not det.passes_gate(1.8, 3.0, 0.1)
+    assert not det.passes_gate(0.5, 0.5, 0.5)
+    assert not det.passes_gate(2.2, 0.5, 0.5)
+    assert det.passes_gate(1.7, 0.5, 0.3)
+
+
+def test_detect_scores_gated_clusters_with_a_given_model():
+    rng = np.random.default_rng(5)
+    # a toy model: F(x) > 0 when the cluster is taller than the 1.2 m of the boxes below
+    X = np.zeros((200, N_FEATURES))
+    y = np.arange(200) % 2
+    X[:, 166 + 2 * 9] = np.where(y == 1, 0.4, 0.0)  # top slice length: a head-size extent
+    model = RealAdaBoost(n_rounds=5, n_bins=4).fit(X, y)
+    pts = np.vstack([floor(rng), cylinder_person(rng, 2.0, 1.0), box_surface(rng, 2.0, -1.0, 1.0, 0.6, 1.2, 0.0)])
+    dets = det.detect(pts, model)
+    assert len(dets) == 2
+    assert all(np.isfinite(d.score) for d in dets)
+    assert {d.n_points > 0 for d in dets} == {True}
+    assert dets[0].to_dict()["x"] == pytest.approx(dets[0].x)
+
+
+def test_detect_empty_and_three_column_input():
+    assert det.detect(np.zeros((0, 4))) == []
+    rng = np.random.default_rng(6)
+    assert det.detect(floor(rng)[:, :3]) == []
