@@ -223,4 +223,4 @@ def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *
     clf = model if isinstance(model, RealAdaBoost) else load_model(model)
     score = clf.predict_proba(features_matrix([pts[c.indices] for c in cands]))
     return [Detection(c.box.cx, c.box.cy, c.height, c.box.width, c.box.depth, c.box.yaw,
-                      float(s), bool(s >= threshold), len(c.indices)) for c, s in zip(cands, score)]
+                      float(s), bool(s >= threshold), len(c.indices)) for c, s in zip(cands, score, strict=True)]
