@@ -1,0 +1,628 @@
+"""Seeded 3D scenes for the LIDAR simulator: people and the things that fool a person detector.
+
+Frame: the scene frame is a floor-level frame, z up, metres (z = 0 on the floor). Every object
+stands on the floor; its pose is its footprint centre ``(x_m, y_m)`` and a heading ``yaw_rad``
+(its local +x axis, the way a person faces). Meshes are built from open3d primitives and
+carry one reflectance (0..1) per triangle, which the LIDAR turns into intensity.
+
+People follow the shapes the tracking paper's detector must accept (Misu and Miura: gate
+0.8 <= h <= 2.0 m, w, d <= 1.2 m); clutter includes objects inside that gate (potted plants,
+coat stands, signs, pillars) so that a shape classifier has something to reject.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from functools import cache
+
+import numpy as np
+import open3d as o3d
+
+from pedcal.errors import PedcalInputError
+
+PERSON_POSES = ("standing", "walking", "carrying", "walking_carrying")
+CLUTTER_KINDS = (
+    "wall", "pillar", "pole", "chair", "potted_plant", "sign", "trolley", "box", "coat_stand",
+)
+# Relative frequency of each clutter kind in random_scene (person-sized blobs are common on purpose).
+CLUTTER_WEIGHTS = {
+    "wall": 1.0, "pillar": 1.0, "pole": 1.0, "chair": 1.5, "potted_plant": 1.5, "sign": 1.0,
+    "trolley": 1.0, "box": 1.5, "coat_stand": 1.0,
+}
+FLOOR_ID = -1
+CEILING_ID = -2
+
+
+# --------------------------------------------------------------------------------------------
+# Meshes
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Mesh:
+    """Triangle mesh with one reflectance per triangle (local or scene frame, metres)."""
+
+    vertices: np.ndarray  # (V, 3) float64
+    triangles: np.ndarray  # (T, 3) int32
+    reflectance: np.ndarray  # (T,) float32, 0..1
+
+    @staticmethod
+    def concat(meshes: list[Mesh]) -> Mesh:
+        """One mesh from several (triangle indices offset by the vertex counts)."""
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        return Mesh(
+            np.concatenate([m.vertices for m in meshes]),
+            np.concatenate([m.triangles + o for m, o in zip(meshes, offsets, strict=True)]).astype(np.int32),
+            np.concatenate([m.reflectance for m in meshes]).astype(np.float32),
+        )
+
+    def placed(self, x_m: float, y_m: float, yaw_rad: float) -> Mesh:
+        """The mesh rotated by yaw about z and moved to (x, y) on the floor."""
+        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return Mesh(self.vertices @ R.T + np.array([x_m, y_m, 0.0]), self.triangles, self.reflectance)
+
+    @property
+    def z_max_m(self) -> float:
+        return float(self.vertices[:, 2].max())
+
+
+@cache
+def _unit_primitive(kind: str, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices/triangles of an open3d unit primitive: sphere r=1, cylinder r=1 z in [-.5,.5],
+    box [-.5,.5]^3."""
+    if kind == "sphere":
+        m = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=resolution)
+    elif kind == "cylinder":
+        m = o3d.geometry.TriangleMesh.create_cylinder(radius=1.0, height=1.0, resolution=resolution, split=1)
+    elif kind == "box":
+        m = o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0)
+        m.translate((-0.5, -0.5, -0.5))
+    else:  # pragma: no cover - internal
+        raise ValueError(kind)
+    v = np.asarray(m.vertices, dtype=float).copy()
+    t = np.asarray(m.triangles, dtype=np.int32).copy()
+    v.setflags(write=False)
+    t.setflags(write=False)
+    return v, t
+
+
+def _mesh(kind: str, scale, R: np.ndarray, center, reflectance: float, resolution: int = 8) -> Mesh:
+    v, t = _unit_primitive(kind, resolution)
+    verts = (v * np.asarray(scale, dtype=float)) @ R.T + np.asarray(center, dtype=float)
+    return Mesh(verts, t, np.full(len(t), reflectance, dtype=np.float32))
+
+
+def _rot_z(yaw_rad: float) -> np.ndarray:
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_y(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def ellipsoid(center, radii, reflectance: float, resolution: int = 8) -> Mesh:
+    """Axis-aligned ellipsoid (a scaled open3d sphere)."""
+    return _mesh("sphere", radii, np.eye(3), center, reflectance, resolution)
+
+
+def box(center, size, reflectance: float, yaw_rad: float = 0.0) -> Mesh:
+    """Box of size (sx, sy, sz) centred at ``center``, turned by yaw about z."""
+    return _mesh("box", size, _rot_z(yaw_rad), center, reflectance)
+
+
+def cylinder(p0, p1, radius_m: float, reflectance: float, resolution: int = 8) -> Mesh:
+    """Capped cylinder of the given radius from point p0 to point p1."""
+    p0, p1 = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
+    axis = p1 - p0
+    length = float(np.linalg.norm(axis))
+    z = axis / length
+    # Any orthonormal frame whose third column is the axis.
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z])
+    return _mesh("cylinder", (radius_m, radius_m, length), R, (p0 + p1) / 2.0, reflectance, resolution)
+
+
+def floor_mesh(half_extent_m: float, z_m: float, reflectance: float) -> Mesh:
+    """A square horizontal plane (two triangles) centred on the origin."""
+    e = half_extent_m
+    v = np.array([[-e, -e, z_m], [e, -e, z_m], [e, e, z_m], [-e, e, z_m]], dtype=float)
+    return Mesh(v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32), np.full(2, reflectance, np.float32))
+
+
+# --------------------------------------------------------------------------------------------
+# People
+# --------------------------------------------------------------------------------------------
+
+
+def person_mesh(height_m: float, width_m: float, depth_m: float, pose: str = "standing",
+                reflectance=0.5, rng: np.random.Generator | None = None, *,
+                gait_phase: float | None = None) -> Mesh:
+    """Mesh of a person in its local frame: feet on z = 0, facing +x, top of the head at height_m.
+
+    ``width_m`` is the shoulder width (y), ``depth_m`` the chest depth (x).
+    ``pose``: standing, walking (legs apart, arms swinging), carrying (a bag at the hand),
+    walking_carrying. ``reflectance``: one value for the clothes, or (upper, lower) clothing;
+    the head (skin/hair) gets its own value drawn from ``rng``. ``gait_phase`` in [-1, 1] sets
+    the stride (+1: right leg forward); drawn from ``rng`` for walking poses when None.
+    """
+    if pose not in PERSON_POSES:
+        raise PedcalInputError(f"person pose must be one of {PERSON_POSES}, got {pose!r}", column="pose")
+    if not (0.5 <= height_m <= 2.5 and 0.1 <= width_m <= 1.0 and 0.05 <= depth_m <= 1.0):
+        raise PedcalInputError(
+            f"person size out of range: height {height_m} m (0.5-2.5), width {width_m} m (0.1-1.0), "
+            f"depth {depth_m} m (0.05-1.0)")
+    rng = np.random.default_rng(0) if rng is None else rng
+    upper, lower = (reflectance, reflectance) if np.isscalar(reflectance) else reflectance
+    head_refl = float(rng.uniform(0.15, 0.6))
+    walking = pose in ("walking", "walking_carrying")
+    if gait_phase is None:
+        gait_phase = float(rng.uniform(-1.0, 1.0)) if walking else 0.0
+    h = height_m
+    parts: list[Mesh] = []
+
+    # Head: the sphere's pole is the top of the head, exactly at height_m.
+    head_r = 0.058 * h
+    parts.append(ellipsoid((0.0, 0.0, h - head_r), (0.9 * head_r, 0.8 * head_r, head_r), head_refl))
+    neck_top, neck_bottom = h - 1.8 * head_r, 0.815 * h
+    parts.append(cylinder((0, 0, neck_bottom - 0.02), (0, 0, neck_top), 0.045, head_refl, 6))
+
+    # Torso: an ellipsoid from hip (0.48 h) to shoulder (0.82 h), narrower than the shoulders.
+    arm_r = 0.035 + 0.02 * (width_m - 0.35) / 0.2
+    shoulder_z, hip_z = 0.82 * h, 0.48 * h
+    torso_half_w = width_m / 2.0 - 2.0 * arm_r
+    parts.append(ellipsoid((0.0, 0.0, (shoulder_z + hip_z) / 2.0),
+                           (depth_m / 2.0, torso_half_w, (shoulder_z - hip_z) / 2.0 + 0.03), upper))
+    # Shoulders: a flattened ellipsoid spanning the full shoulder width.
+    parts.append(ellipsoid((0.0, 0.0, shoulder_z - 0.04), (0.42 * depth_m, width_m / 2.0 - arm_r, 0.06), upper))
+
+    # Arms hang from the shoulders and swing opposite to the legs when walking.
+    arm_len = 0.36 * h
+    arm_swing = 0.35 * gait_phase if walking else 0.0
+    for side, sign in ((1.0, 1.0), (-1.0, -1.0)):
+        top = np.array([0.0, side * (width_m / 2.0 - arm_r), shoulder_z - 0.05])
+        angle = -sign * arm_swing  # right arm (y < 0) forward when the left leg is forward
+        direction = _rot_y(angle) @ np.array([0.0, 0.0, -1.0])
+        parts.append(cylinder(top, top + arm_len * direction, arm_r, upper, 6))
+
+    # Legs: from the hip to the floor, apart by the stride when walking.
+    leg_r = 0.055 + 0.02 * (width_m - 0.35) / 0.2
+    stride = 0.4 * gait_phase if walking else 0.0  # leg angle from vertical, rad
+    leg_len = (hip_z + 0.03) / np.cos(stride)  # both feet reach the floor
+    for side, sign in ((1.0, 1.0), (-1.0, -1.0)):
+        top = np.array([0.0, side * 0.09 * width_m / 0.45, hip_z + 0.03])
+        foot = top + leg_len * (_rot_y(sign * stride) @ np.array([0.0, 0.0, -1.0]))
+        parts.append(cylinder(top, foot, leg_r, lower, 6))
+        parts.append(box((foot[0] + 0.05, foot[1], 0.04), (0.24, 0.09, 0.08), lower * 0.5))
+
+    if pose in ("carrying", "walking_carrying"):
+        # A bag held at the right hand or slung at the hip, its own reflectance.
+        bag = np.array([rng.uniform(0.25, 0.45), rng.uniform(0.08, 0.18), rng.uniform(0.2, 0.4)])
+        hand_z = shoulder_z - 0.05 - arm_len
+        centre = (0.0, -(width_m / 2.0 + bag[1] / 2.0 + 0.01), max(hand_z - bag[2] / 2.0 + 0.05, bag[2] / 2.0))
+        parts.append(box(centre, (bag[0], bag[1], bag[2]), float(rng.uniform(0.1, 0.9))))
+    return Mesh.concat(parts)
+
+
+# --------------------------------------------------------------------------------------------
+# Clutter
+# --------------------------------------------------------------------------------------------
+
+
+def clutter_mesh(kind: str, rng: np.random.Generator, *, ceiling_height_m: float = 2.7
+                 ) -> tuple[Mesh, dict]:
+    """A random instance of a clutter kind in its local frame; returns (mesh, size parameters).
+
+    The parameters hold ``width_m``, ``depth_m`` (footprint extents in local x and y... as
+    width along y, depth along x) and ``radius_m`` (collision radius; for walls, their half
+    thickness, walls being handled as segments of length ``length_m`` along local x).
+    """
+    u = rng.uniform
+    refl = float(u(0.1, 0.9))
+    parts: list[Mesh]
+    if kind == "wall":
+        length, thick = u(3.0, 10.0), 0.12
+        parts = [box((0, 0, ceiling_height_m / 2), (length, thick, ceiling_height_m), refl)]
+        return Mesh.concat(parts), dict(width_m=thick, depth_m=length, length_m=length, radius_m=thick / 2)
+    if kind == "pillar":
+        side = u(0.3, 0.6)
+        if rng.random() < 0.5:
+            parts = [box((0, 0, ceiling_height_m / 2), (side, side, ceiling_height_m), refl)]
+            r = side / np.sqrt(2)
+        else:
+            parts = [cylinder((0, 0, 0), (0, 0, ceiling_height_m), side / 2, refl, 16)]
+            r = side / 2
+        return Mesh.concat(parts), dict(width_m=side, depth_m=side, radius_m=r)
+    if kind == "pole":
+        radius, height = u(0.02, 0.05), u(1.0, 2.5)
+        parts = [cylinder((0, 0, 0), (0, 0, height), radius, refl, 8)]
+        return Mesh.concat(parts), dict(width_m=2 * radius, depth_m=2 * radius, radius_m=radius)
+    if kind == "chair":
+        w, seat_h, back_h = u(0.4, 0.55), u(0.42, 0.48), u(0.8, 1.05)
+        leg = 0.02
+        parts = [box((0, 0, seat_h), (w, w, 0.05), refl),
+                 box((-w / 2 + 0.02, 0, (seat_h + back_h) / 2), (0.04, w, back_h - seat_h), refl)]
+        for dx in (-1, 1):
+            for dy in (-1, 1):
+                parts.append(cylinder((dx * (w / 2 - 0.03), dy * (w / 2 - 0.03), 0),
+                                      (dx * (w / 2 - 0.03), dy * (w / 2 - 0.03), seat_h), leg, refl * 0.7, 6))
+        return Mesh.concat(parts), dict(width_m=w, depth_m=w, radius_m=w / np.sqrt(2))
+    if kind == "potted_plant":
+        pot_r, pot_h = u(0.15, 0.25), u(0.3, 0.5)
+        total = u(1.0, 1.9)
+        blob_w = u(0.35, 0.7)
+        foliage = float(u(0.2, 0.6))
+        parts = [cylinder((0, 0, 0), (0, 0, pot_h), pot_r, refl, 12),
+                 ellipsoid((0, 0, (pot_h + total) / 2), (blob_w / 2, blob_w / 2 * u(0.8, 1.0),
+                                                         (total - pot_h) / 2), foliage, 10)]
+        # A few leafy lumps make the outline irregular.
+        for _ in range(int(rng.integers(2, 5))):
+            a = u(0, 2 * np.pi)
+            zc = u(pot_h + 0.2 * (total - pot_h), pot_h + 0.8 * (total - pot_h))
+            rr = u(0.1, 0.2)
+            parts.append(ellipsoid((0.3 * blob_w * np.cos(a), 0.3 * blob_w * np.sin(a), min(zc, total - rr)),
+                                   (rr, rr, rr), foliage, 6))
+        return Mesh.concat(parts), dict(width_m=blob_w, depth_m=blob_w, radius_m=max(blob_w / 2 + 0.1, pot_r))
+    if kind == "sign":
+        height, board_w, board_h = u(1.2, 1.9), u(0.4, 0.8), u(0.5, 0.9)
+        parts = [cylinder((0, 0, 0), (0, 0, 0.03), 0.2, refl * 0.5, 12),
+                 cylinder((0, 0, 0.03), (0, 0, height - board_h / 2), 0.02, refl * 0.5, 6),
+                 box((0, 0, height - board_h / 2), (0.02, board_w, board_h), refl)]
+        return Mesh.concat(parts), dict(width_m=board_w, depth_m=0.4, radius_m=max(board_w / 2, 0.2))
+    if kind == "trolley":
+        length, w, h = u(0.6, 1.0), u(0.4, 0.6), u(0.8, 1.1)
+        parts = [box((0, 0, 0.15), (length, w, 0.03), refl),  # bottom deck
+                 box((0, 0, 0.55 * h), (length, w, 0.03), refl),  # middle deck
+                 box((-length / 2, 0, h / 2), (0.03, w, h), refl),  # end frame with handle
+                 cylinder((-length / 2, -w / 2, h), (-length / 2, w / 2, h), 0.015, refl, 6)]
+        for dx in (-1, 1):
+            for dy in (-1, 1):
+                corner = (dx * length / 2.1, dy * w / 2.1)
+                parts.append(cylinder((*corner, 0.0), (*corner, 0.6 * h), 0.012, refl, 6))
+        if rng.random() < 0.6:  # a load on the deck
+            lh = u(0.2, 0.5)
+            parts.append(box((0.05, 0, 0.15 + lh / 2), (0.7 * length, 0.8 * w, lh), float(u(0.1, 0.9))))
+        return Mesh.concat(parts), dict(width_m=w, depth_m=length, radius_m=np.hypot(length, w) / 2)
+    if kind == "box":
+        n = int(rng.integers(1, 4))
+        parts, z = [], 0.0
+        size = u(0.3, 0.8)
+        for _ in range(n):
+            s = size * u(0.7, 1.0)
+            parts.append(box((u(-0.05, 0.05), u(-0.05, 0.05), z + s / 2), (s, s * u(0.8, 1.2), s),
+                             float(u(0.2, 0.8)), yaw_rad=u(-0.2, 0.2)))
+            z += s
+            if z > 1.5:
+                break
+        return Mesh.concat(parts), dict(width_m=size * 1.2, depth_m=size, radius_m=size * 0.85)
+    if kind == "coat_stand":
+        height = u(1.6, 1.9)
+        parts = [cylinder((0, 0, 0), (0, 0, height), 0.025, refl, 8)]
+        for a in np.linspace(0, 2 * np.pi, 4, endpoint=False):
+            d = np.array([np.cos(a), np.sin(a)])
+            parts.append(cylinder((0, 0, 0.02), (*(0.3 * d), 0.0), 0.02, refl, 6))  # feet
+            parts.append(cylinder((0, 0, height - 0.1), (*(0.15 * d), height - 0.02), 0.012, refl, 6))
+        for _ in range(int(rng.integers(0, 3))):  # hanging coats: person-like upper bodies
+            a = u(0, 2 * np.pi)
+            clen = u(0.6, 1.0)
+            parts.append(ellipsoid((0.17 * np.cos(a), 0.17 * np.sin(a), height - 0.12 - clen / 2),
+                                   (0.12, 0.22, clen / 2), float(u(0.1, 0.9))))
+        return Mesh.concat(parts), dict(width_m=0.6, depth_m=0.6, radius_m=0.4)
+    raise PedcalInputError(f"clutter kind must be one of {CLUTTER_KINDS}, got {kind!r}", column="kind")
+
+
+# --------------------------------------------------------------------------------------------
+# Scene
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class SceneObject:
+    """One object of a scene with its ground truth. ``mesh_local`` is in the object's frame."""
+
+    kind: str
+    is_person: bool
+    mesh_local: Mesh
+    x_m: float = 0.0
+    y_m: float = 0.0
+    yaw_rad: float = 0.0
+    width_m: float = 0.0  # extent along local y (shoulder width for people)
+    depth_m: float = 0.0  # extent along local x
+    radius_m: float = 0.3  # collision radius of the footprint (half thickness for walls)
+    reflectance: float = 0.5  # mean reflectance of the surface (area-weighted is not needed)
+    velocity_mps: tuple[float, float] = (0.0, 0.0)
+    pose: str = ""  # person pose, "" for clutter
+    length_m: float = 0.0  # walls: segment length along local x
+    id: int | None = None
+    params: dict = field(default_factory=dict)  # what rebuilds the mesh (person size, gait phase)
+
+    @property
+    def height_m(self) -> float:
+        return self.mesh_local.z_max_m
+
+    def mesh_scene(self) -> Mesh:
+        return self.mesh_local.placed(self.x_m, self.y_m, self.yaw_rad)
+
+    def collision_circles(self) -> np.ndarray:
+        """(K, 3) circles [x, y, r] covering the footprint in the scene frame (walls as chains)."""
+        if self.kind != "wall":
+            return np.array([[self.x_m, self.y_m, self.radius_m]])
+        s = np.arange(-self.length_m / 2, self.length_m / 2 + 1e-9, 0.1)
+        return np.column_stack([self.x_m + s * np.cos(self.yaw_rad), self.y_m + s * np.sin(self.yaw_rad),
+                                np.full(len(s), self.radius_m)])
+
+    def truth(self) -> dict:
+        """Ground truth as plain values."""
+        return dict(id=self.id, kind=self.kind, is_person=self.is_person, x_m=self.x_m, y_m=self.y_m,
+                    yaw_rad=self.yaw_rad, height_m=self.height_m, width_m=self.width_m,
+                    depth_m=self.depth_m, reflectance=self.reflectance,
+                    vx_mps=self.velocity_mps[0], vy_mps=self.velocity_mps[1], pose=self.pose)
+
+
+def make_person(height_m: float, width_m: float, depth_m: float, pose: str, reflectance,
+                rng: np.random.Generator, *, x_m: float = 0.0, y_m: float = 0.0, yaw_rad: float = 0.0,
+                velocity_mps=(0.0, 0.0), gait_phase: float | None = None) -> SceneObject:
+    """A person SceneObject (mesh from ``person_mesh``) standing at (x, y) facing yaw."""
+    walking = pose in ("walking", "walking_carrying")
+    if gait_phase is None:
+        gait_phase = float(rng.uniform(-1.0, 1.0)) if walking else 0.0
+    mesh = person_mesh(height_m, width_m, depth_m, pose, reflectance, rng, gait_phase=gait_phase)
+    refl = float(reflectance) if np.isscalar(reflectance) else float(np.mean(reflectance))
+    return SceneObject(kind="person", is_person=True, mesh_local=mesh, x_m=x_m, y_m=y_m, yaw_rad=yaw_rad,
+                       width_m=width_m, depth_m=depth_m, radius_m=max(width_m, depth_m) / 2 + 0.1,
+                       reflectance=refl, velocity_mps=tuple(velocity_mps), pose=pose,
+                       params=dict(height_m=height_m, reflectance=reflectance, gait_phase=gait_phase))
+
+
+def make_clutter(kind: str, rng: np.random.Generator, *, x_m: float = 0.0, y_m: float = 0.0,
+                 yaw_rad: float = 0.0, ceiling_height_m: float = 2.7) -> SceneObject:
+    """A random clutter SceneObject of the given kind at (x, y) turned by yaw."""
+    mesh, size = clutter_mesh(kind, rng, ceiling_height_m=ceiling_height_m)
+    return SceneObject(kind=kind, is_person=False, mesh_local=mesh, x_m=x_m, y_m=y_m, yaw_rad=yaw_rad,
+                       reflectance=float(np.mean(mesh.reflectance)), **size)
+
+
+class Scene:
+    """Objects on a floor (and optionally under a ceiling), with a cached open3d raycasting scene.
+
+    ``add``/``move``/``remove``/``step`` invalidate the cache; the next ``raycasting()`` rebuilds
+    it (one ``add_triangles`` per object; measured in benchmarks/bench_lidar_sim.py).
+    """
+
+    def __init__(self, objects: list[SceneObject] | None = None, *, floor_reflectance: float = 0.3,
+                 floor_half_extent_m: float = 60.0, ceiling_height_m: float | None = None,
+                 ceiling_reflectance: float = 0.6):
+        self.objects: list[SceneObject] = []
+        self.floor_reflectance = float(floor_reflectance)
+        self.floor_half_extent_m = float(floor_half_extent_m)
+        self.ceiling_height_m = ceiling_height_m
+        self.ceiling_reflectance = float(ceiling_reflectance)
+        self._next_id = 0
+        self._cache = None
+        for obj in objects or []:
+            self.add(obj)
+
+    # -- editing ---------------------------------------------------------------------------
+    def add(self, obj: SceneObject) -> int:
+        """Add an object; gives it the next free id unless it has one. Returns the id."""
+        if obj.id is None:
+            obj.id = self._next_id
+        elif any(o.id == obj.id for o in self.objects) or obj.id < 0:
+            raise PedcalInputError(f"object id {obj.id} is taken or negative (ids < 0 are the floor/ceiling)",
+                                   column="id")
+        self._next_id = max(self._next_id, obj.id + 1)
+        self.objects.append(obj)
+        self._cache = None
+        return obj.id
+
+    def get(self, obj_id: int) -> SceneObject:
+        for o in self.objects:
+            if o.id == obj_id:
+                return o
+        raise PedcalInputError(f"no object with id {obj_id} in the scene", column="id")
+
+    def remove(self, obj_id: int) -> None:
+        self.objects.remove(self.get(obj_id))
+        self._cache = None
+
+    def move(self, obj_id: int, x_m: float, y_m: float, yaw_rad: float | None = None) -> None:
+        """Put an object at a new footprint position (and heading); its mesh is only re-placed."""
+        o = self.get(obj_id)
+        o.x_m, o.y_m = float(x_m), float(y_m)
+        if yaw_rad is not None:
+            o.yaw_rad = float(yaw_rad)
+        self._cache = None
+
+    def step(self, dt_s: float, *, animate: bool = True, stride_hz: float = 0.9) -> None:
+        """Move every object with a velocity by dt; walking people also advance their gait."""
+        for o in self.objects:
+            vx, vy = o.velocity_mps
+            if vx == 0.0 and vy == 0.0:
+                continue
+            o.x_m += vx * dt_s
+            o.y_m += vy * dt_s
+            if animate and o.is_person and o.pose in ("walking", "walking_carrying"):
+                p = o.params
+                p["gait_phase"] = float(np.sin(np.arcsin(np.clip(p["gait_phase"], -1, 1))
+                                               + 2 * np.pi * stride_hz * dt_s))
+                rng = np.random.default_rng(o.id)  # same head/bag every frame
+                o.mesh_local = person_mesh(p["height_m"], o.width_m, o.depth_m, o.pose, p["reflectance"], rng,
+                                           gait_phase=p["gait_phase"])
+        self._cache = None
+
+    @property
+    def people(self) -> list[SceneObject]:
+        return [o for o in self.objects if o.is_person]
+
+    def truth(self) -> list[dict]:
+        return [o.truth() for o in self.objects]
+
+    # -- raycasting ------------------------------------------------------------------------
+    def raycasting(self):
+        """(RaycastingScene, object id per geometry id, reflectance per (geometry, triangle)).
+
+        Returns ``(scene, geom_object_id, geom_offset, triangle_reflectance)``: the reflectance
+        of triangle p of geometry g is ``triangle_reflectance[geom_offset[g] + p]``.
+        """
+        if self._cache is not None:
+            return self._cache
+        rc = o3d.t.geometry.RaycastingScene()
+        meshes: list[tuple[int, Mesh]] = [(FLOOR_ID, floor_mesh(self.floor_half_extent_m, 0.0, self.floor_reflectance))]
+        if self.ceiling_height_m is not None:
+            meshes.append((CEILING_ID, floor_mesh(self.floor_half_extent_m, self.ceiling_height_m,
+                                                  self.ceiling_reflectance)))
+        meshes += [(o.id, o.mesh_scene()) for o in self.objects]
+        geom_object_id, offsets, refl = [], [], []
+        offset = 0
+        for obj_id, m in meshes:
+            gid = rc.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)),
+                                   o3d.core.Tensor(m.triangles.astype(np.uint32)))
+            assert gid == len(geom_object_id)
+            geom_object_id.append(obj_id)
+            offsets.append(offset)
+            refl.append(m.reflectance)
+            offset += len(m.triangles)
+        self._cache = (rc, np.array(geom_object_id, dtype=np.int32), np.array(offsets, dtype=np.int64),
+                       np.concatenate(refl).astype(np.float32))
+        return self._cache
+
+
+# --------------------------------------------------------------------------------------------
+# Random scenes
+# --------------------------------------------------------------------------------------------
+
+
+def _range_draw(rng: np.random.Generator, value, name: str) -> int:
+    lo, hi = (value, value) if np.isscalar(value) else value
+    if not (0 <= lo <= hi):
+        raise PedcalInputError(f"{name} must be a count or (min, max) with 0 <= min <= max, got {value!r}",
+                               column=name)
+    return int(rng.integers(lo, hi + 1))
+
+
+def _clear(candidate: np.ndarray, placed: list[np.ndarray], margin_m: float) -> bool:
+    if not placed:
+        return True
+    others = np.concatenate(placed)
+    d = np.hypot(candidate[:, None, 0] - others[None, :, 0], candidate[:, None, 1] - others[None, :, 1])
+    return bool(np.all(d > candidate[:, None, 2] + others[None, :, 2] + margin_m))
+
+
+def _angular_interval(obj: SceneObject) -> tuple[float, float, float]:
+    """(bearing, half width, range) of an object's footprint seen from the origin."""
+    c = obj.collision_circles()
+    bearings = np.arctan2(c[:, 1], c[:, 0])
+    ranges = np.hypot(c[:, 0], c[:, 1])
+    half = np.arcsin(np.clip(c[:, 2] / np.maximum(ranges, 1e-6), 0, 1))
+    lo, hi = np.min(bearings - half), np.max(bearings + half)
+    return (lo + hi) / 2, (hi - lo) / 2, float(ranges.min())
+
+
+def _occludes(a: SceneObject, b: SceneObject) -> bool:
+    """Whether a and b overlap in bearing from the origin (one hides part of the other)."""
+    ba, ha, _ = _angular_interval(a)
+    bb, hb, _ = _angular_interval(b)
+    return abs(np.angle(np.exp(1j * (ba - bb)))) < ha + hb
+
+
+def random_person(rng: np.random.Generator, *, static: bool) -> SceneObject:
+    """A person of random height (1.45-1.95 m), build, clothing and pose (not yet placed)."""
+    height = rng.uniform(1.45, 1.95)
+    width = rng.uniform(0.35, 0.55)
+    depth = rng.uniform(0.2, 0.35)
+    carrying = rng.random() < 0.3
+    if static:
+        pose = "carrying" if carrying else "standing"
+    else:
+        pose = "walking_carrying" if carrying else "walking"
+    reflectance = (float(rng.uniform(0.05, 0.95)), float(rng.uniform(0.05, 0.95)))
+    return make_person(height, width, depth, pose, reflectance, rng)
+
+
+def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(3, 10),
+                 area=(0.8, 5.0, -4.0, 4.0), fov_half_angle_deg: float = 60.0,
+                 static_fraction: float = 0.4, allow_occlusion: bool = True,
+                 walking_speed_mps=(0.4, 1.5), ceiling_height_m: float | None = None,
+                 margin_m: float = 0.05) -> Scene:
+    """A random scene in front of the robot (robot base at the origin facing +x).
+
+    People are placed inside ``area`` = (x_min, x_max, y_min, y_max) and within
+    ``fov_half_angle_deg`` of the +x axis (what the two front FX8s see); clutter anywhere in
+    ``area`` (walls may extend beyond it). No footprints interpenetrate. A fraction
+    ``static_fraction`` of the people stand still, the others walk along their heading at a speed
+    from ``walking_speed_mps``. With ``allow_occlusion=False`` no object overlaps a person in
+    bearing from the origin. Objects that cannot be placed after many draws are left out with a
+    warning.
+    """
+    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
+    x_min, x_max, y_min, y_max = area
+    if not (x_min < x_max and y_min < y_max):
+        raise PedcalInputError(f"area must be (x_min, x_max, y_min, y_max) with min < max, got {area!r}",
+                               column="area")
+    if not 0.0 <= static_fraction <= 1.0:
+        raise PedcalInputError(f"static_fraction must be in [0, 1], got {static_fraction}", column="static_fraction")
+    n_p = _range_draw(rng, n_people, "n_people")
+    n_c = _range_draw(rng, n_clutter, "n_clutter")
+    ceiling = 2.7 if ceiling_height_m is None else ceiling_height_m
+    scene = Scene(floor_reflectance=float(rng.uniform(0.15, 0.5)), ceiling_height_m=ceiling_height_m)
+    # The robot's own footprint.
+    placed: list[np.ndarray] = [np.array([[0.0, 0.0, 0.5]])]
+    kinds = list(CLUTTER_KINDS)
+    weights = np.array([CLUTTER_WEIGHTS[k] for k in kinds])
+    clutter_kinds = [str(k) for k in rng.choice(kinds, size=n_c, p=weights / weights.sum())]
+    # Walls first (they are long), then people, then the rest of the clutter.
+    order = sorted(clutter_kinds, key=lambda k: k != "wall")
+    walls = [k for k in order if k == "wall"]
+    rest = [k for k in order if k != "wall"]
+    half_fov = np.radians(fov_half_angle_deg)
+    dropped: list[str] = []
+
+    def place(obj: SceneObject, person: bool) -> bool:
+        for _ in range(200):
+            if person:
+                r = rng.uniform(max(x_min, 0.8), np.hypot(x_max, max(abs(y_min), abs(y_max))))
+                b = rng.uniform(-half_fov, half_fov)
+                x, y = r * np.cos(b), r * np.sin(b)
+                if not (x_min <= x <= x_max and y_min <= y <= y_max):
+                    continue
+            else:
+                x, y = rng.uniform(x_min, x_max), rng.uniform(y_min, y_max)
+            obj.x_m, obj.y_m, obj.yaw_rad = float(x), float(y), float(rng.uniform(-np.pi, np.pi))
+            circles = obj.collision_circles()
+            if not _clear(circles, placed, margin_m):
+                continue
+            if not allow_occlusion:
+                others = scene.objects
+                if person and any(_occludes(obj, o) for o in others):
+                    continue
+                if not person and any(_occludes(obj, o) for o in scene.people):
+                    continue
+            placed.append(circles)
+            scene.add(obj)
+            return True
+        return False
+
+    for kind in walls:
+        if not place(make_clutter(kind, rng, ceiling_height_m=ceiling), False):
+            dropped.append(kind)
+    for _ in range(n_p):
+        static = bool(rng.random() < static_fraction)
+        person = random_person(rng, static=static)
+        if not place(person, True):
+            dropped.append("person")
+            continue
+        if not static:
+            speed = rng.uniform(*walking_speed_mps)
+            person.velocity_mps = (float(speed * np.cos(person.yaw_rad)), float(speed * np.sin(person.yaw_rad)))
+    for kind in rest:
+        if not place(make_clutter(kind, rng, ceiling_height_m=ceiling), False):
+            dropped.append(kind)
+    if dropped:
+        warnings.warn(f"random_scene: could not place {len(dropped)} object(s) without overlap "
+                      f"({', '.join(dropped)}); the scene holds {len(scene.objects)}", stacklevel=2)
+    return scene
