@@ -1,0 +1,161 @@
+"""The papers' accuracy figures.
+
+Calibration (Kimoto et al., Tables I and II):
+- sensor position RMS: root mean square over sensors of the position error against the truth,
+  per axis (x, y, z) and combined (the 3-D error), in mm; orientation error is the geodesic angle
+  between the estimated and true rotations, in degrees.
+- head tracking RMS: the robot's observations recomputed with the given extrinsics
+  (p_world = T_given · p_sensor, with p_sensor undone from the installed extrinsics) against the
+  robot's head at the same instants: the true head (truth_robot.csv) when the log has it, else the
+  AMCL head (robot.csv) as the paper did.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from pedcal import frames
+from pedcal.calib.common import robot_head_at
+from pedcal.model import Log, SensorNetwork
+
+# Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
+# Observation stamps are that much later than the instant the head was where it was seen.
+LATENCY_KEY = "tracker_latency_s"
+
+
+@dataclass
+class SensorError:
+    id: str
+    position_error_mm: list[float]      # estimated - true, world axes
+    position_error_norm_mm: float
+    orientation_error_deg: float
+    head_rms_mm: float | None
+    head_observations: int
+
+
+@dataclass
+class EvaluationResult:
+    sensor_position_rms_mm: dict | None          # x, y, z, combined
+    orientation_rms_deg: float | None
+    head_tracking_rms_mm: float | None
+    head_reference: str                           # truth_robot | robot (AMCL)
+    head_observations: int
+    robot_rows: str                               # how the robot's observations were picked
+    sensors: list[SensorError] = field(default_factory=list)
+    missing_sensors: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def format_table(self) -> str:
+        out = []
+        if self.sensor_position_rms_mm is not None:
+            r = self.sensor_position_rms_mm
+            out.append(f"sensor position RMS (mm): x {r['x']:.2f}  y {r['y']:.2f}  z {r['z']:.2f}  "
+                       f"combined {r['combined']:.2f}")
+            out.append(f"orientation RMS (deg):    {self.orientation_rms_deg:.3f}")
+        if self.head_tracking_rms_mm is not None:
+            out.append(f"head tracking RMS (mm):   {self.head_tracking_rms_mm:.2f}  "
+                       f"(against {self.head_reference}, {self.head_observations} observations; "
+                       f"robot rows from {self.robot_rows})")
+        out.append(f"{'sensor':>8s} {'pos err (mm)':>14s} {'orient (deg)':>13s} {'head RMS (mm)':>14s} {'obs':>6s}")
+        for s in self.sensors:
+            head = "-" if s.head_rms_mm is None else f"{s.head_rms_mm:.1f}"
+            out.append(f"{s.id:>8s} {s.position_error_norm_mm:14.1f} {s.orientation_error_deg:13.3f} "
+                       f"{head:>14s} {s.head_observations:6d}")
+        if self.missing_sensors:
+            out.append(f"not in the extrinsics file (not scored): {', '.join(self.missing_sensors)}")
+        return "\n".join(out)
+
+
+def robot_rows(log: Log) -> tuple[np.ndarray, str]:
+    """Mask of the robot's observations: from truth_observations.csv when present, else picked
+    out by pedcal's association."""
+    if log.truth_observations is not None:
+        who = log.truth_observations.set_index("row")["who"].astype(str)
+        mask = np.zeros(len(log.observations), dtype=bool)
+        rows = who.index[who == "robot"].to_numpy(int)
+        mask[rows] = True
+        return mask, "truth_observations"
+    from pedcal.calib.association import associate_robot
+
+    return associate_robot(log).is_robot, "association"
+
+
+def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
+    """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
+    extrinsics do not name)."""
+    p_sensor = log.observation_points_sensor()
+    sensor_col = log.observations["sensor"].astype(str).to_numpy()
+    out = np.full_like(p_sensor, np.nan)
+    for s in extrinsics:
+        m = sensor_col == s.id
+        if mask is not None:
+            m &= mask
+        if m.any():
+            out[m] = s.to_world(p_sensor[m])
+    return out
+
+
+def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
+    """The papers' figures of ``extrinsics`` on ``log`` (see the module docstring)."""
+    missing = [sid for sid in log.sensors.ids if sid not in extrinsics]
+    per_sensor: dict[str, dict] = {}
+
+    pos_rms = orient_rms = None
+    if log.truth is not None:
+        errs, angs = [], []
+        for s in extrinsics:
+            if s.id not in log.truth:
+                continue
+            true = log.truth[s.id]
+            e_mm = 1000.0 * (s.position_m - true.position_m)
+            ang = frames.rotation_angle_deg(true.R_world_sensor, s.R_world_sensor)
+            errs.append(e_mm)
+            angs.append(ang)
+            per_sensor[s.id] = dict(position_error_mm=e_mm.tolist(),
+                                    position_error_norm_mm=float(np.linalg.norm(e_mm)),
+                                    orientation_error_deg=ang)
+        if errs:
+            E = np.array(errs)
+            pos_rms = {"x": float(np.sqrt(np.mean(E[:, 0] ** 2))), "y": float(np.sqrt(np.mean(E[:, 1] ** 2))),
+                       "z": float(np.sqrt(np.mean(E[:, 2] ** 2))),
+                       "combined": float(np.sqrt(np.mean(np.sum(E ** 2, axis=1))))}
+            orient_rms = float(np.sqrt(np.mean(np.square(angs))))
+
+    mask, how = robot_rows(log)
+    latency_s = float(extrinsics.extra.get(LATENCY_KEY, 0.0) or 0.0)
+    head_rms = None
+    n_head = 0
+    sensor_col = log.observations["sensor"].astype(str).to_numpy()
+    if mask.any():
+        p_world = reproject_observations(log, extrinsics, mask)
+        t = log.observations["t"].to_numpy(float) - latency_s
+        use = mask & np.isfinite(p_world[:, 0])
+        reference = "truth_robot" if log.truth_robot is not None else "robot (AMCL)"
+        head = np.full_like(p_world, np.nan)
+        head[use] = robot_head_at(log, t[use], truth=log.truth_robot is not None)
+        d2 = np.sum((p_world - head) ** 2, axis=1)
+        n_head = int(use.sum())
+        if n_head:
+            head_rms = float(1000.0 * np.sqrt(np.mean(d2[use])))
+        for s in extrinsics:
+            m = use & (sensor_col == s.id)
+            per_sensor.setdefault(s.id, dict(position_error_mm=[np.nan] * 3, position_error_norm_mm=np.nan,
+                                             orientation_error_deg=np.nan))
+            per_sensor[s.id]["head_rms_mm"] = float(1000.0 * np.sqrt(np.mean(d2[m]))) if m.any() else None
+            per_sensor[s.id]["head_observations"] = int(m.sum())
+    else:
+        reference = "none: no robot observations"
+
+    sensors = [SensorError(id=sid, head_rms_mm=v.get("head_rms_mm"), head_observations=v.get("head_observations", 0),
+                           position_error_mm=v["position_error_mm"],
+                           position_error_norm_mm=v["position_error_norm_mm"],
+                           orientation_error_deg=v["orientation_error_deg"])
+               for sid, v in per_sensor.items()]
+    return EvaluationResult(sensor_position_rms_mm=pos_rms, orientation_rms_deg=orient_rms,
+                            head_tracking_rms_mm=head_rms, head_reference=reference,
+                            head_observations=n_head, robot_rows=how, sensors=sensors,
+                            missing_sensors=missing)
