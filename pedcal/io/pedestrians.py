@@ -1,0 +1,165 @@
+"""Recorded pedestrian datasets -> people trajectories ``t, person, x, y`` (s, id, m, m).
+
+Readers for the layouts in ``shared/data`` (README.md there): ATC (Brščić et al. 2013), ETH/UCY
+and THÖR. Rows keep file order; ``person`` is text. Bad cells raise PedcalInputError naming the
+file, the 0-based data row and the column.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pedcal.errors import PedcalInputError
+from pedcal.io.logdir import parse_float_column, parse_text_column
+from pedcal.io.people import read_people_csv
+from pedcal.model import PEOPLE_COLUMNS
+
+ATC_COLUMNS = ("time_unix_s", "person_id", "x", "y", "velocity", "motion_angle")
+ETH_UCY_COLUMNS = ("frame", "ped_id", "x", "y")
+THOR_COLUMNS = ("time", "person_id", "x", "y", "velocity", "motion_angle")
+KINDS = ("atc", "eth_ucy", "thor", "people")
+
+# ETH/UCY as vendored for trajectory prediction: annotations at 2.5 fps, frame numbers step 10,
+# so t = frame / 25. The biwi_eth file is the exception: its frames were renumbered by linear
+# interpolation of the original annotation, which stepped 6 frames per 0.4 s (frames 780, 786, ...;
+# the positions at a shared frame number are identical), so there t = frame * 0.4 / 6 = frame / 15.
+# With /25 its median walking speed comes out at 2.45 m/s, with /15 at 1.47 m/s.
+ETH_UCY_FRAMES_PER_S = 25.0
+ETH_UCY_FRAMES_PER_S_BY_NAME = {"biwi_eth": 15.0}
+# Positions larger than this (in absolute value) cannot be metres in one building: millimetres.
+MAX_PLAUSIBLE_M = 1000.0
+
+
+def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: bool) -> pd.DataFrame:
+    if not path.is_file():
+        raise PedcalInputError("file not found", path=path)
+    try:
+        raw = pd.read_csv(path, sep=sep, header=0 if header else None, dtype=str, keep_default_na=False,
+                          skipinitialspace=True, engine="python" if sep == r"\s+" else "c")
+    except pd.errors.EmptyDataError:
+        raise PedcalInputError("empty file, expected pedestrian rows", path=path) from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise PedcalInputError(f"cannot read: {e}", path=path) from None
+    if header:
+        raw.columns = [str(c).strip() for c in raw.columns]
+        missing = [c for c in columns[:4] if c not in raw.columns]
+        if missing:
+            raise PedcalInputError(f"missing column(s) {', '.join(missing)}; expected header "
+                                   f"{','.join(columns)}", path=path, column=missing[0])
+    else:
+        if raw.shape[1] < 4:
+            raise PedcalInputError(f"expected {len(columns)} columns ({', '.join(columns)}), found "
+                                   f"{raw.shape[1]}", path=path)
+        raw = raw.iloc[:, : len(columns)]
+        raw.columns = list(columns[: raw.shape[1]])
+    if len(raw) == 0:
+        raise PedcalInputError("no data rows", path=path)
+    return raw
+
+
+def _people(path: Path, raw: pd.DataFrame, t_col: str, id_col: str, *, t_scale: float = 1.0,
+            xy_scale: float = 1.0) -> pd.DataFrame:
+    ids = pd.Series(parse_float_column(raw[id_col], path, id_col), index=raw.index)
+    return pd.DataFrame({
+        "t": parse_float_column(raw[t_col], path, t_col) * t_scale,
+        "person": parse_text_column(ids, path, id_col).to_numpy(),
+        "x": parse_float_column(raw["x"], path, "x") * xy_scale,
+        "y": parse_float_column(raw["y"], path, "y") * xy_scale,
+    }, columns=list(PEOPLE_COLUMNS))
+
+
+def _metres_scale(path: Path, raw: pd.DataFrame) -> float:
+    xy = np.abs(np.column_stack([parse_float_column(raw[c], path, c) for c in ("x", "y")]))
+    return 1e-3 if np.median(xy) > MAX_PLAUSIBLE_M else 1.0
+
+
+def read_atc(path: str | Path) -> pd.DataFrame:
+    """ATC shopping-centre tracks: CSV without header (time_unix_s, person_id, x, y, velocity,
+    motion_angle). The original ATC release gives x, y in millimetres; the copy in shared/data is
+    already in metres (|x| < 50, velocity column ~1 m/s). Millimetres are recognised by magnitude
+    (positions beyond 1 km) and converted to metres."""
+    path = Path(path)
+    raw = _read_text_table(path, ATC_COLUMNS, ",", header=False)
+    return _people(path, raw, "time_unix_s", "person_id", xy_scale=_metres_scale(path, raw))
+
+
+def eth_ucy_frames_per_s(path: Path) -> float:
+    return ETH_UCY_FRAMES_PER_S_BY_NAME.get(path.stem, ETH_UCY_FRAMES_PER_S)
+
+
+def read_eth_ucy(path: str | Path, frames_per_s: float | None = None) -> pd.DataFrame:
+    """ETH/UCY TSV ``frame ped_id x y`` (metres). t = frame / frames_per_s (25 by default, 15 for
+    biwi_eth: see ETH_UCY_FRAMES_PER_S_BY_NAME)."""
+    path = Path(path)
+    raw = _read_text_table(path, ETH_UCY_COLUMNS, r"\s+", header=False)
+    fps = eth_ucy_frames_per_s(path) if frames_per_s is None else float(frames_per_s)
+    return _people(path, raw, "frame", "ped_id", t_scale=1.0 / fps)
+
+
+def _has_header(path: Path) -> bool:
+    first = _first_line(path)
+    return bool(first) and not re.fullmatch(r"[\s,;\t0-9eE.+\-]*", first)
+
+
+def _first_line(path: Path) -> str:
+    if not path.is_file():
+        raise PedcalInputError("file not found", path=path)
+    with path.open("r", encoding="utf-8", errors="replace") as f:
+        for line in f:
+            if line.strip():
+                return line.strip()
+    return ""
+
+
+def read_thor(path: str | Path) -> pd.DataFrame:
+    """THÖR CSV ``time, person_id, x, y, velocity, motion_angle`` (s, id, m, m, m/s, rad), with or
+    without the header line."""
+    path = Path(path)
+    raw = _read_text_table(path, THOR_COLUMNS, ",", header=_has_header(path))
+    return _people(path, raw, "time", "person_id")
+
+
+def detect_kind(path: str | Path) -> str:
+    """Recognise a file's layout from its content: a header naming ``person`` (people CSV) or
+    ``person_id`` (THÖR); whitespace-separated 4 columns (ETH/UCY); comma-separated 6 columns with
+    unix times (ATC) or times from zero (THÖR without header)."""
+    path = Path(path)
+    first = _first_line(path)
+    if not first:
+        raise PedcalInputError("empty file, expected pedestrian rows", path=path)
+    if _has_header(path):
+        names = [c.strip() for c in first.split(",")]
+        if set(PEOPLE_COLUMNS) <= set(names):
+            return "people"
+        if set(THOR_COLUMNS[:4]) <= set(names):
+            return "thor"
+        raise PedcalInputError(f"unrecognised header {first!r}; expected {','.join(PEOPLE_COLUMNS)} or "
+                               f"{','.join(THOR_COLUMNS)}", path=path)
+    if "," not in first and len(first.split()) == 4:
+        return "eth_ucy"
+    fields = first.split(",")
+    if len(fields) == 6:
+        try:
+            t0 = float(fields[0])
+        except ValueError:
+            t0 = None
+        if t0 is not None:
+            return "atc" if t0 > 1e8 else "thor"
+    raise PedcalInputError(f"cannot tell the layout from the first line {first!r}; pass kind= one of "
+                           f"{', '.join(KINDS)}", path=path)
+
+
+def read_pedestrians(path: str | Path, kind: str = "auto") -> pd.DataFrame:
+    """Read any supported recording into ``t, person, x, y``; ``kind`` is auto, atc, eth_ucy, thor
+    or people (pedcal's own CSV)."""
+    path = Path(path)
+    if kind == "auto":
+        kind = detect_kind(path)
+    readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}
+    if kind not in readers:
+        raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)
+    return readers[kind](path)

@@ -1,0 +1,94 @@
+"""Recorded pedestrian datasets read into t, person, x, y: row and person counts, and walking
+speeds that catch unit errors (a median outside 0.5-2 m/s means wrong time or length units)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pedcal.errors import PedcalInputError
+from pedcal.io import write_people_csv
+from pedcal.io.pedestrians import detect_kind, read_atc, read_eth_ucy, read_pedestrians, read_thor
+from pedcal.model import PEOPLE_COLUMNS
+
+# file -> (kind, rows, people)
+REAL_FILES = {
+    "atc/atc-1024-10_test.csv": ("atc", 4914, 132),
+    "atc/atc-1024-9_test.csv": ("atc", 2504, 57),
+    "eth_ucy/biwi_eth.txt": ("eth_ucy", 5492, 360),
+    "eth_ucy/biwi_hotel.txt": ("eth_ucy", 6543, 389),
+    "eth_ucy/crowds_zara01.txt": ("eth_ucy", 5153, 148),
+    "thor/exp-1-run-2.csv": ("thor", 2180, 87),
+}
+READERS = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor}
+
+
+def median_speed_mps(people: pd.DataFrame) -> float:
+    df = people.sort_values(["person", "t"], kind="stable")
+    g = df.groupby("person", sort=False)
+    v = np.hypot(g["x"].diff(), g["y"].diff()) / g["t"].diff()
+    return float(np.nanmedian(v.to_numpy()))
+
+
+@pytest.mark.parametrize("name", sorted(REAL_FILES))
+def test_real_recordings(shared_data, name):
+    kind, rows, people_n = REAL_FILES[name]
+    path = shared_data / name
+    assert detect_kind(path) == kind
+    people = read_pedestrians(path)
+    assert list(people.columns) == list(PEOPLE_COLUMNS)
+    assert len(people) == rows and people["person"].nunique() == people_n
+    assert people["person"].map(type).eq(str).all()
+    assert np.isfinite(people[["t", "x", "y"]].to_numpy()).all()
+    assert 0.5 <= median_speed_mps(people) <= 2.0
+    pd.testing.assert_frame_equal(people, READERS[kind](path))
+
+
+def test_eth_ucy_time_from_frames(shared_data):
+    hotel = read_eth_ucy(shared_data / "eth_ucy" / "biwi_hotel.txt")
+    assert hotel["t"].iloc[0] == 0.0 and hotel["person"].iloc[0] == "1"
+    steps = hotel.sort_values(["person", "t"]).groupby("person")["t"].diff().dropna()
+    assert steps.min() == pytest.approx(0.4)                 # 2.5 fps
+    eth = read_eth_ucy(shared_data / "eth_ucy" / "biwi_eth.txt")
+    assert eth["t"].iloc[0] == pytest.approx(780 / 15)       # interpolated frame numbers, see module
+    assert median_speed_mps(read_eth_ucy(shared_data / "eth_ucy" / "biwi_eth.txt", frames_per_s=25)) > 2.0
+
+
+def test_atc_millimetres_converted(tmp_path, shared_data):
+    raw = pd.read_csv(shared_data / "atc" / "atc-1024-9_test.csv", header=None)
+    raw[[2, 3]] *= 1000.0
+    raw.to_csv(tmp_path / "atc_mm.csv", header=False, index=False)
+    in_m = read_atc(shared_data / "atc" / "atc-1024-9_test.csv")
+    from_mm = read_atc(tmp_path / "atc_mm.csv")
+    np.testing.assert_allclose(from_mm[["x", "y"]], in_m[["x", "y"]], rtol=1e-12)
+
+
+def test_people_csv_kind_and_cli_round_trip(tmp_path, shared_data):
+    people = read_thor(shared_data / "thor" / "exp-1-run-2.csv")
+    write_people_csv(people, tmp_path / "p.csv")
+    assert detect_kind(tmp_path / "p.csv") == "people"
+    pd.testing.assert_frame_equal(read_pedestrians(tmp_path / "p.csv"), people, check_dtype=False)
+    header = tmp_path / "thor_header.csv"
+    header.write_text("time,person_id,x,y,velocity,motion_angle\n"
+                      + (shared_data / "thor" / "exp-1-run-2.csv").read_text())
+    assert detect_kind(header) == "thor"
+    pd.testing.assert_frame_equal(read_pedestrians(header), people)
+
+
+@pytest.mark.parametrize("content,kind,match,row,column", [
+    ("1351040437.965,10003800,-25.397,abc,2.007,0.45\n", "atc", "'abc'", 0, "y"),
+    ("780\t1.0\t8.46\t3.59\n790\t1.0\t\t3.79\n", "eth_ucy", None, None, None),
+    ("0.02,12001,-0.046,-3.443,0.141,2.356\n0.43,,-0.077,-3.491,0.1,-1.571\n", "thor", "empty", 1, "person_id"),
+    ("", "auto", "empty file", None, None),
+    ("hello,world\n", "auto", "unrecognised header", None, None),
+    ("1,2,3\n", "auto", "cannot tell the layout", None, None),
+])
+def test_bad_pedestrian_files(tmp_path, content, kind, match, row, column):
+    p = tmp_path / "bad.txt"
+    p.write_text(content)
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_pedestrians(p, kind=kind)
+    assert ei.value.path == str(p)
+    if row is not None:
+        assert (ei.value.row, ei.value.column) == (row, column)
