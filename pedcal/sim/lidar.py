@@ -145,8 +145,12 @@ class Mount:
 
 
 def fx8_pair_mounts(height_m: float = 1.0, yaw_deg: float = 30.0, pitch_deg: float = 0.0,
-                    x_m: float = 0.2, y_m: float = 0.08) -> tuple[Mount, Mount]:
-    """Two FX8s on the robot's front at ~1 m, yawed +-30 deg: together 120 deg of azimuth."""
+                    x_m: float = 0.2, y_m: float = 0.05) -> tuple[Mount, Mount]:
+    """Two FX8s on the robot's front at ~1 m, yawed +-30 deg: together 120 deg of azimuth.
+
+    The left one (y = +y_m) looks left, so the pair's inner edge rays run parallel to x at
+    y = +-y_m: a 2·y_m wide blind strip straight ahead (0.1 m by default, narrower than a person).
+    """
     return (Mount(x_m, y_m, height_m, yaw_deg, pitch_deg), Mount(x_m, -y_m, height_m, -yaw_deg, pitch_deg))
 
 

@@ -206,7 +206,9 @@ def person_mesh(height_m: float, width_m: float, depth_m: float, pose: str = "st
         hand_z = shoulder_z - 0.05 - arm_len
         centre = (0.0, -(width_m / 2.0 + bag[1] / 2.0 + 0.01), max(hand_z - bag[2] / 2.0 + 0.05, bag[2] / 2.0))
         parts.append(box(centre, (bag[0], bag[1], bag[2]), float(rng.uniform(0.1, 0.9))))
-    return Mesh.concat(parts)
+    mesh = Mesh.concat(parts)
+    mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)  # tilted leg caps stop at the floor
+    return mesh
 
 
 # --------------------------------------------------------------------------------------------
