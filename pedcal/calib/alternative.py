@@ -319,8 +319,8 @@ def _solve(installed: SensorNetwork, initial: SensorNetwork, matches: list[Share
                                          partial(coincidence_error, p_i.copy(), p_j.copy())))
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(100)
-    lm.setRelativeErrorTol(1e-12)
-    lm.setAbsoluteErrorTol(1e-14)
+    lm.setRelativeErrorTol(1e-8)
+    lm.setAbsoluteErrorTol(1e-10)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, lm)
     result = optimizer.optimize()
     poses = {sid: result.atPose3(key[sid]) for sid in active}
