@@ -150,3 +150,36 @@ def test_amcl_covariance_into_body_frame():
     C = np.array([[0.04, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.001]])
     Cb = amcl_cov_body(C, np.pi / 2)
     assert Cb[3, 3] == pytest.approx(0.01) and Cb[4, 4] == pytest.approx(0.04) and Cb[2, 2] == 0.001
+
+
+def test_online_ends_near_batch_and_reports_convergence():
+    log = make_exact_log(seed=5)
+    mask = np.ones(len(log.observations), bool)
+    recipe = _exact_recipe(range_sigma_floor_m=0.005, lateral_sigma_m=0.005)
+    batch = calibrate_factorgraph(log, graph=recipe, is_robot=mask)
+    online = calibrate_factorgraph(log, graph=recipe, is_robot=mask, online=True)
+    for s in batch.network:
+        o = online.network[s.id]
+        assert np.linalg.norm(o.position_m - s.position_m) < 2e-3
+        assert frames.rotation_angle_deg(o.R_world_sensor, s.R_world_sensor) < 0.05
+    steps = online.diagnostics["online_trace"].steps
+    assert len(steps) >= 5
+    # early on some sensor still waits for the robot; at the end every sensor has converged
+    assert steps[0].waiting
+    assert not steps[-1].waiting
+
+
+def test_shipped_recipes_load_and_bad_recipe_is_reported(tmp_path):
+    from pedcal.errors import PedcalInputError
+
+    for name in ("default", "robot-only", "people-only"):
+        r = GraphRecipe.load(name)
+        assert r.name == name
+    assert GraphRecipe.load("robot-only").people is False
+    bad = tmp_path / "bad.toml"
+    bad.write_text("robots = true\n")
+    with pytest.raises(PedcalInputError, match="unknown key 'robots'"):
+        GraphRecipe.load(bad)
+    bad.write_text("robot = 3\n")
+    with pytest.raises(PedcalInputError, match="must be bool"):
+        GraphRecipe.load(bad)

@@ -66,7 +66,8 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     t_start = finite.min() if len(finite) else 0.0
     t_end = finite.max() if len(finite) else 0.0
     params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(0.01)
+    params.setRelinearizeThreshold(0.001)
+    params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
     added: set[int] = set()
     trace = OnlineTrace()
