@@ -260,22 +260,21 @@ def match_shared_observations(tracks: dict[str, list[Track]], network: SensorNet
 
 
 # ----------------------------------------------------------------------------------------- solving
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def coincidence_error(p_i_sensor: np.ndarray, p_j_sensor: np.ndarray, this: gtsam.CustomFactor,
                       values: gtsam.Values, H) -> np.ndarray:
     """Point coincidence T_world_i · p_i − T_world_j · p_j (world axes, m), with the Jacobians
     in GTSAM's Pose3 tangent order [rotation, translation], body frame:
     d(T·p)/dξ = [−R [p]×, R]."""
-    T_i = values.atPose3(this.keys()[0])
-    T_j = values.atPose3(this.keys()[1])
-    R_i, R_j = T_i.rotation().matrix(), T_j.rotation().matrix()
-    err = (R_i @ p_i_sensor + T_i.translation()) - (R_j @ p_j_sensor + T_j.translation())
-    if H is not None:
-        H[0] = np.hstack([-R_i @ _skew(p_i_sensor), R_i])
-        H[1] = -np.hstack([-R_j @ _skew(p_j_sensor), R_j])
+    keys = this.keys()
+    T_i, T_j = values.atPose3(keys[0]), values.atPose3(keys[1])
+    if H is None:
+        return T_i.transformFrom(p_i_sensor) - T_j.transformFrom(p_j_sensor)
+    # GTSAM's own transformFrom Jacobians (the expression above), far cheaper than numpy here.
+    H_i, H_j, H_point = (np.zeros((3, 6), order="F"), np.zeros((3, 6), order="F"),
+                         np.zeros((3, 3), order="F"))
+    err = T_i.transformFrom(p_i_sensor, H_i, H_point) - T_j.transformFrom(p_j_sensor, H_j, H_point)
+    H[0] = H_i
+    H[1] = -H_j
     return err
 
 
