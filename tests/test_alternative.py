@@ -228,3 +228,29 @@ def test_bad_input_names_row_and_column(noise_free):
         calibrate(log, method="alternative", graph="x.toml")
     with pytest.raises(PedcalInputError, match="min_overlap_s"):
         calibrate(log, method="alternative", min_overlap_s=-1)
+
+
+def test_one_straight_walk_is_degenerate_and_no_people_is_no_data():
+    rng = np.random.default_rng(5)
+    truth = SensorNetwork([TRUTH["s0"], TRUTH["s1"]])
+    installed = _perturb(truth, rng, 0.2, 3.0)
+    walk = [(np.array([0.0, 10.0]), np.array([[0.5, 0.1, 1.7], [3.5, 0.3, 1.7]]))]
+    result, caught = _calibrate(_observe(truth, installed, walk, rng, duration_s=10.0))
+    assert [s.status for s in result.network] == ["degenerate", "degenerate"]
+    assert result.network["s0"].unobservable
+    assert any("one line" in str(w.message) for w in caught)
+
+    empty = Log(sensors=installed, robot=pd.DataFrame(columns=list(ROBOT_COLUMNS)),
+                observations=pd.DataFrame({c: [] for c in ("t", "sensor", "track", "x", "y", "z")}))
+    result, caught = _calibrate(empty)
+    assert [s.status for s in result.network] == ["no-data", "no-data"]
+    assert any("s0, s1" in str(w.message) for w in caught)
+
+
+def test_text_in_a_number_column_is_an_input_error(noise_free):
+    log = noise_free[0]
+    obs = log.observations.astype({"x": object})
+    obs.loc[11, "x"] = "1,5"
+    with pytest.raises(PedcalInputError) as err:
+        calibrate(Log(sensors=log.sensors, robot=log.robot, observations=obs), method="alternative")
+    assert err.value.row == 11 and err.value.column == "x" and "1,5" in str(err.value)

@@ -42,6 +42,7 @@ from functools import partial
 
 import gtsam
 import numpy as np
+import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.common import CalibrationResult, Timer
@@ -135,7 +136,7 @@ def _check_observations(log: Log) -> None:
             raise PedcalInputError(f"missing column '{col}' (expected t, sensor, track, x, y, z)",
                                    path=where, column=col)
     for col in ("t", "x", "y", "z"):
-        values = np.asarray(obs[col].to_numpy(), dtype=float)
+        values = pd.to_numeric(obs[col], errors="coerce").to_numpy(dtype=float)
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
             raise PedcalInputError(f"expected a finite number, got {obs[col].iloc[bad[0]]!r}",
