@@ -185,6 +185,14 @@ def test_step_moves_walking_people_and_animates_their_gait():
     assert (scene.get(sid).x_m, scene.get(sid).y_m) == (3.0, 1.0)
     assert not np.allclose(scene.get(pid).mesh_local.vertices, mesh_before)
     assert scene.get(pid).height_m == pytest.approx(1.7)
+    # Over a stride the legs swing both ways, the head and clothes keep their reflectance.
+    refl = np.unique(scene.get(pid).mesh_local.reflectance)
+    phases = []
+    for _ in range(8):
+        scene.step(0.2)
+        phases.append(scene.get(pid).params["gait_phase"])
+        np.testing.assert_array_equal(np.unique(scene.get(pid).mesh_local.reflectance), refl)
+    assert min(phases) < -0.5 and max(phases) > 0.5
 
 
 def test_person_mesh_sizes_and_poses():

@@ -371,14 +371,21 @@ def make_person(height_m: float, width_m: float, depth_m: float, pose: str, refl
                 velocity_mps=(0.0, 0.0), gait_phase: float | None = None) -> SceneObject:
     """A person SceneObject (mesh from ``person_mesh``) standing at (x, y) facing yaw."""
     walking = pose in ("walking", "walking_carrying")
+    gait_angle_rad = float(rng.uniform(-np.pi, np.pi)) if walking else 0.0
     if gait_phase is None:
-        gait_phase = float(rng.uniform(-1.0, 1.0)) if walking else 0.0
-    mesh = person_mesh(height_m, width_m, depth_m, pose, reflectance, rng, gait_phase=gait_phase)
+        gait_phase = float(np.sin(gait_angle_rad))
+    else:
+        gait_angle_rad = float(np.arcsin(np.clip(gait_phase, -1.0, 1.0)))
+    # The head and bag are drawn from their own seed, so re-posing the person keeps them.
+    mesh_seed = int(rng.integers(2**62))
+    mesh = person_mesh(height_m, width_m, depth_m, pose, reflectance, np.random.default_rng(mesh_seed),
+                       gait_phase=gait_phase)
     refl = float(reflectance) if np.isscalar(reflectance) else float(np.mean(reflectance))
     return SceneObject(kind="person", is_person=True, mesh_local=mesh, x_m=x_m, y_m=y_m, yaw_rad=yaw_rad,
                        width_m=width_m, depth_m=depth_m, radius_m=max(width_m, depth_m) / 2 + 0.1,
                        reflectance=refl, velocity_mps=tuple(velocity_mps), pose=pose,
-                       params=dict(height_m=height_m, reflectance=reflectance, gait_phase=gait_phase))
+                       params=dict(height_m=height_m, reflectance=reflectance, gait_phase=gait_phase,
+                                   gait_angle_rad=gait_angle_rad, mesh_seed=mesh_seed))
 
 
 def make_clutter(kind: str, rng: np.random.Generator, *, x_m: float = 0.0, y_m: float = 0.0,
@@ -450,11 +457,10 @@ class Scene:
             o.y_m += vy * dt_s
             if animate and o.is_person and o.pose in ("walking", "walking_carrying"):
                 p = o.params
-                p["gait_phase"] = float(np.sin(np.arcsin(np.clip(p["gait_phase"], -1, 1))
-                                               + 2 * np.pi * stride_hz * dt_s))
-                rng = np.random.default_rng(o.id)  # same head/bag every frame
-                o.mesh_local = person_mesh(p["height_m"], o.width_m, o.depth_m, o.pose, p["reflectance"], rng,
-                                           gait_phase=p["gait_phase"])
+                p["gait_angle_rad"] = float(p["gait_angle_rad"] + 2 * np.pi * stride_hz * dt_s)
+                p["gait_phase"] = float(np.sin(p["gait_angle_rad"]))
+                o.mesh_local = person_mesh(p["height_m"], o.width_m, o.depth_m, o.pose, p["reflectance"],
+                                           np.random.default_rng(p["mesh_seed"]), gait_phase=p["gait_phase"])
         self._cache = None
 
     @property
@@ -518,18 +524,19 @@ def _clear(candidate: np.ndarray, placed: list[np.ndarray], margin_m: float) -> 
 def _angular_interval(obj: SceneObject) -> tuple[float, float, float]:
     """(bearing, half width, range) of an object's footprint seen from the origin."""
     c = obj.collision_circles()
-    bearings = np.arctan2(c[:, 1], c[:, 0])
+    b0 = np.arctan2(obj.y_m, obj.x_m)
+    bearings = b0 + np.angle(np.exp(1j * (np.arctan2(c[:, 1], c[:, 0]) - b0)))  # unwrapped around b0
     ranges = np.hypot(c[:, 0], c[:, 1])
     half = np.arcsin(np.clip(c[:, 2] / np.maximum(ranges, 1e-6), 0, 1))
     lo, hi = np.min(bearings - half), np.max(bearings + half)
     return (lo + hi) / 2, (hi - lo) / 2, float(ranges.min())
 
 
-def _occludes(a: SceneObject, b: SceneObject) -> bool:
-    """Whether a and b overlap in bearing from the origin (one hides part of the other)."""
-    ba, ha, _ = _angular_interval(a)
-    bb, hb, _ = _angular_interval(b)
-    return abs(np.angle(np.exp(1j * (ba - bb)))) < ha + hb
+def _occludes(front: SceneObject, back: SceneObject) -> bool:
+    """Whether ``front`` hides part of ``back`` from the origin: overlapping bearings, nearer."""
+    bf, hf, rf = _angular_interval(front)
+    bb, hb, rb = _angular_interval(back)
+    return abs(np.angle(np.exp(1j * (bf - bb)))) < hf + hb and rf < rb
 
 
 def random_person(rng: np.random.Generator, *, static: bool) -> SceneObject:
@@ -550,11 +557,12 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
                  area=(0.8, 5.0, -4.0, 4.0), fov_half_angle_deg: float = 60.0,
                  static_fraction: float = 0.4, allow_occlusion: bool = True,
                  walking_speed_mps=(0.4, 1.5), ceiling_height_m: float | None = None,
-                 margin_m: float = 0.05) -> Scene:
+                 max_person_range_m: float | None = None, margin_m: float = 0.05) -> Scene:
     """A random scene in front of the robot (robot base at the origin facing +x).
 
-    People are placed inside ``area`` = (x_min, x_max, y_min, y_max) and within
-    ``fov_half_angle_deg`` of the +x axis (what the two front FX8s see); clutter anywhere in
+    People are placed inside ``area`` = (x_min, x_max, y_min, y_max), within
+    ``fov_half_angle_deg`` of the +x axis (what the two front FX8s see) and at most
+    ``max_person_range_m`` (default x_max) from the origin; clutter anywhere in
     ``area`` (walls may extend beyond it). No footprints interpenetrate. A fraction
     ``static_fraction`` of the people stand still, the others walk along their heading at a speed
     from ``walking_speed_mps``. With ``allow_occlusion=False`` no object overlaps a person in
@@ -582,12 +590,17 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
     walls = [k for k in order if k == "wall"]
     rest = [k for k in order if k != "wall"]
     half_fov = np.radians(fov_half_angle_deg)
+    r_min = max(x_min, 0.8)
+    r_max = x_max if max_person_range_m is None else float(max_person_range_m)
+    if r_max <= r_min:
+        raise PedcalInputError(f"people need room between {r_min} m and max_person_range_m = {r_max} m",
+                               column="max_person_range_m")
     dropped: list[str] = []
 
     def place(obj: SceneObject, person: bool) -> bool:
         for _ in range(200):
             if person:
-                r = rng.uniform(max(x_min, 0.8), np.hypot(x_max, max(abs(y_min), abs(y_max))))
+                r = rng.uniform(r_min, r_max)
                 b = rng.uniform(-half_fov, half_fov)
                 x, y = r * np.cos(b), r * np.sin(b)
                 if not (x_min <= x <= x_max and y_min <= y <= y_max):
@@ -599,8 +612,7 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
             if not _clear(circles, placed, margin_m):
                 continue
             if not allow_occlusion:
-                others = scene.objects
-                if person and any(_occludes(obj, o) for o in others):
+                if person and any(_occludes(o, obj) or (o.is_person and _occludes(obj, o)) for o in scene.objects):
                     continue
                 if not person and any(_occludes(obj, o) for o in scene.people):
                     continue
