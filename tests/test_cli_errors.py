@@ -1,0 +1,122 @@
+"""A user's bad input reaches the command line as exit code 2 and one message naming the file,
+row and column, never as a traceback."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pedcal.cli import EXIT_BAD_INPUT, main
+from pedcal.io import write_log
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+
+
+def small_log(seed=0) -> Log:
+    rng = np.random.default_rng(seed)
+    sensors = SensorNetwork([SensorExtrinsics("s01", [0, 0, 2.6], [0, 45, 0]),
+                             SensorExtrinsics("s02", [3, 0, 2.6], [180, 45, 0])])
+    n = 20
+    robot = pd.DataFrame({"t": np.arange(n, dtype=float), "x": rng.normal(size=n), "y": rng.normal(size=n),
+                          "yaw": rng.normal(size=n), "cov_xx": 1e-3, "cov_xy": 0.0, "cov_xyaw": 0.0,
+                          "cov_yy": 1e-3, "cov_yyaw": 0.0, "cov_yawyaw": 1e-4})
+    obs = pd.DataFrame({"t": np.arange(n, dtype=float), "sensor": ["s01", "s02"] * (n // 2), "track": "1",
+                        "x": rng.normal(size=n), "y": rng.normal(size=n), "z": 1.35})
+    return Log(sensors=sensors, robot=robot, observations=obs)
+
+
+def corrupt(path, row, column, value):
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    df.loc[row, column] = value
+    df.to_csv(path, index=False)
+
+
+def run(capsys, argv):
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err
+
+
+def bad_log(tmp_path, case):
+    log_dir = tmp_path / "log"
+    write_log(small_log(), log_dir)
+    if case == "missing column":
+        df = pd.read_csv(log_dir / "observations.csv")
+        df.drop(columns=["z"]).to_csv(log_dir / "observations.csv", index=False)
+        return log_dir, ("observations.csv", "column 'z'")
+    if case == "nan":
+        corrupt(log_dir / "robot.csv", 7, "yaw", "nan")
+        return log_dir, ("robot.csv", "row 7", "column 'yaw'")
+    if case == "unknown sensor":
+        corrupt(log_dir / "observations.csv", 3, "sensor", "s03")
+        return log_dir, ("observations.csv", "row 3", "column 'sensor'", "s03")
+    if case == "text in x":
+        corrupt(log_dir / "observations.csv", 11, "x", "1,5")
+        return log_dir, ("observations.csv", "row 11", "column 'x'", "'1,5'")
+    raise AssertionError(case)
+
+
+CASES = ["missing column", "nan", "unknown sensor", "text in x"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_calibrate_bad_log(tmp_path, capsys, case):
+    log_dir, expected = bad_log(tmp_path, case)
+    code, err = run(capsys, ["calibrate", str(log_dir), "-o", str(tmp_path / "out.yaml"), "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert err.startswith("pedcal calibrate: error:")
+    for text in expected:
+        assert text in err
+    assert not (tmp_path / "out.yaml").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pedcal.metrics") is None, reason="pedcal.metrics not present")
+@pytest.mark.parametrize("case", CASES)
+def test_evaluate_bad_log(tmp_path, capsys, case):
+    log_dir, expected = bad_log(tmp_path, case)
+    code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(log_dir / "sensors.yaml")])
+    assert code == EXIT_BAD_INPUT
+    for text in expected:
+        assert text in err
+
+
+def test_missing_log_directory(tmp_path, capsys):
+    code, err = run(capsys, ["calibrate", str(tmp_path / "nope"), "-o", str(tmp_path / "o.yaml")])
+    assert code == EXIT_BAD_INPUT and "nope" in err and "not found" in err
+
+
+def test_import_bag_bad_input(tmp_path, capsys):
+    code, err = run(capsys, ["import-bag", str(tmp_path / "nope.bag"), "-o", str(tmp_path / "out")])
+    assert code == EXIT_BAD_INPUT and "nope.bag" in err and "bag not found" in err
+    (tmp_path / "junk.bag").write_bytes(b"#ROSBAG V2.0\nnot really")
+    code, err = run(capsys, ["import-bag", str(tmp_path / "junk.bag"), "-o", str(tmp_path / "out")])
+    assert code == EXIT_BAD_INPUT and "junk.bag" in err and "cannot open" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_import_bag_wrong_topic(tmp_path, capsys, shared_data):
+    bag = shared_data / "turtlebot4_ros2_bag"
+    code, err = run(capsys, ["import-bag", str(bag), "-o", str(tmp_path / "out"), "--odom-topic", "/nope"])
+    assert code == EXIT_BAD_INPUT and "/nope not in the bag" in err and "/odom (nav_msgs/msg/Odometry)" in err
+
+
+def test_import_people_bad_input(tmp_path, capsys):
+    bad = tmp_path / "atc.csv"
+    bad.write_text("1351040437.965,10003800,-25.397,6.412,2.007,0.45\n1351040438.996,10003800,x7,6.991,0.9,0.2\n")
+    out = tmp_path / "people.csv"
+    code, err = run(capsys, ["import-people", str(bad), "-o", str(out)])
+    assert code == EXIT_BAD_INPUT
+    assert "atc.csv" in err and "row 1" in err and "column 'x'" in err and "'x7'" in err
+    assert not out.exists()
+    code, err = run(capsys, ["import-people", str(tmp_path / "none.csv"), "-o", str(out)])
+    assert code == EXIT_BAD_INPUT and "none.csv" in err
+
+
+def test_import_people_good_file(tmp_path, capsys, shared_data):
+    out = tmp_path / "people.csv"
+    code = main(["import-people", str(shared_data / "thor" / "exp-1-run-2.csv"), "-o", str(out)])
+    assert code == 0 and "2180 rows, 87 people" in capsys.readouterr().out
+    assert len(pd.read_csv(out)) == 2180
