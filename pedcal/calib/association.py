@@ -1,0 +1,478 @@
+"""Picking out the robot's observations among everything the ceiling trackers saw.
+
+observations.csv holds every person a ceiling sensor tracked: the robot, pedestrians (some of
+them walking right beside the robot), short false tracks. The robot is recognised by its
+motion, not by proximity: a whole (sensor, track) segment belongs to the robot when its
+sensor-frame head points follow the AMCL head trajectory under the ONE rigid transform
+T_world_sensor that all of that sensor's robot segments share.
+
+Per sensor the transform is found by consensus (RANSAC over segments, Fischler & Bolles 1981):
+hypotheses are Horn/Umeyama fits to the longest plausible segments and to pairs of them, each
+gated by the prior that the installed extrinsics are within ~1 m / 15 deg of the truth, and
+scored by how many segment-seconds they explain (head within ``inlier_m`` in 3D, so the head
+height counts). The winner is refined on all the points it explains (locally optimised
+RANSAC). A pedestrian walking 0.5-1 m beside the robot fits a per-segment transform as well as
+the robot does, but with a shifted one that the sensor's other robot passes reject.
+
+The tracker's latency (observation stamps late by up to ~0.3 s) is estimated once for the whole
+log, pooling every sensor: for a straight pass a time offset is indistinguishable from a shift
+along the line, so one sensor alone cannot tell them apart.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize_scalar
+
+from pedcal.calib.common import Timer, head_world
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+
+DEFAULT_PARAMS = {
+    "gate_m": 2.5,            # installed-world head within this of the AMCL head (~1 m + 15 deg at ~4 m)
+    "max_offset_m": 1.5,      # a hypothesis' sensor position stays this close to the installed one
+    "max_angle_deg": 25.0,    # ... and its orientation this close
+    "inlier_m": 0.3,          # 3D head residual of an observation the transform explains
+    "max_latency_s": 0.4,     # observation stamps may be late (or early) by up to this
+    "latency_step_s": 0.1,    # coarse latency grid of the first consensus pass
+    "n_seed_segments": 8,     # longest plausible segments that seed hypotheses (alone and in pairs)
+    "min_segment_points": 3,  # a segment needs this many points to be the robot
+    "min_run_s": 1.0,         # a part of a segment (after a track swap) needs this duration
+    "whole_fraction": 0.6,    # explained fraction above which the whole segment is the robot
+    "max_gap_points": 2,      # unexplained runs this short inside an explained run are closed
+    "min_support_s": 1.0,     # a sensor needs this many explained seconds to have seen the robot
+    "prior_weight": 1e-3,     # weight of the installed pose in the refit, relative to the data
+    "collinear_spread_m": 0.1,  # second principal spread below which the pairs are a line
+    "refine_iterations": 6,
+}
+
+
+@dataclass
+class AssociationResult:
+    """Which observations are the robot, and what that says of each sensor.
+
+    ``is_robot``: bool mask over the rows of ``log.observations`` (file order).
+    ``extrinsics``: per sensor the consensus T_world_sensor (status ok / degenerate / no-data;
+    installed pose kept where the robot was not found). ``segments``: one row per
+    (sensor, track) segment with its score. ``latency_s``: observation stamp minus the time
+    the robot was really there, estimated over the whole log."""
+
+    is_robot: np.ndarray
+    extrinsics: SensorNetwork
+    segments: pd.DataFrame
+    latency_s: float
+    runtime_s: float = 0.0
+    params: dict = field(default_factory=dict)
+
+    def T_world_sensor(self, sensor_id: str) -> gtsam.Pose3:
+        return self.extrinsics[sensor_id].T_world_sensor
+
+
+# --------------------------------------------------------------------------- rigid fitting
+
+
+def rigid_from_moments(w, sum_p, sum_q, sum_pq):
+    """Batched weighted Horn/Umeyama fit (Umeyama 1991, eqs. 34-42, no scale) from moments.
+
+    ``w`` (...,), ``sum_p``, ``sum_q`` (..., 3) and ``sum_pq`` (..., 3, 3) = sum w p q^T of the
+    pairs (p, q); returns R (..., 3, 3), t (..., 3) minimising sum w |R p + t - q|^2."""
+    w = np.asarray(w, float)[..., None]
+    mean_p, mean_q = sum_p / w, sum_q / w
+    # cross-covariance sum w (p - mean_p)(q - mean_q)^T
+    H = sum_pq - w[..., None] * mean_p[..., :, None] * mean_q[..., None, :]
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, -1, -2)
+    d = np.sign(np.linalg.det(V @ np.swapaxes(U, -1, -2)))
+    d = np.where(d == 0, 1.0, d)
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = 1.0
+    D[..., 1, 1] = 1.0
+    D[..., 2, 2] = d
+    R = V @ D @ np.swapaxes(U, -1, -2)
+    t = mean_q - np.einsum("...ij,...j->...i", R, mean_p)
+    return R, t
+
+
+def moments(p, q, w=None):
+    """(w, sum p, sum q, sum p q^T) of pairs (N, 3); inputs of :func:`rigid_from_moments`."""
+    w = np.ones(len(p)) if w is None else np.asarray(w, float)
+    return (w.sum(), w @ p, w @ q, np.einsum("n,ni,nj->ij", w, p, q))
+
+
+def _anchor_moments(center_sensor, sensor: SensorExtrinsics, weight):
+    """Moments of six virtual pairs pinning the fit to the installed pose: the points
+    c +- 1 m along each sensor axis around ``center_sensor`` c (..., 3), paired with where the
+    installed extrinsics (R0, t0) put them, sharing ``weight`` (...,). In closed form, since the
+    offsets e_k sum to 0 and sum e_k e_k^T = 2 I: sum p = W c, sum q = W (R0 c + t0),
+    sum p q^T = W c (R0 c + t0)^T + (W / 3) R0^T."""
+    R0, t0 = sensor.R_world_sensor, sensor.position_m
+    c = np.asarray(center_sensor, float)
+    w = np.asarray(weight, float)
+    q = c @ R0.T + t0
+    spq = w[..., None, None] * (c[..., :, None] * q[..., None, :]) + (w / 3.0)[..., None, None] * R0.T
+    return w, w[..., None] * c, w[..., None] * q, spq
+
+
+# --------------------------------------------------------------------------- per-sensor data
+
+
+class _SensorRows:
+    """One sensor's observations sorted by segment then time, with per-segment bookkeeping."""
+
+    def __init__(self, sensor, rows, t, seg_codes, tracks, p_sensor, p_installed, in_range):
+        order = np.lexsort((t, seg_codes))
+        self.sensor = sensor
+        self.rows = rows[order]
+        self.t = t[order]
+        self.p = p_sensor[order]
+        self.p_installed = p_installed[order]
+        self.in_range = in_range[order]
+        codes = seg_codes[order]
+        self.seg_start = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
+        self.seg_end = np.r_[self.seg_start[1:], len(codes)]
+        self.seg_of_point = np.repeat(np.arange(len(self.seg_start)), self.seg_end - self.seg_start)
+        self.seg_track = tracks[order][self.seg_start]
+        self.seg_n = self.seg_end - self.seg_start
+        self.seg_duration = self.t[self.seg_end - 1] - self.t[self.seg_start]
+        self.set_in_range(self.in_range)
+
+    def set_in_range(self, in_range):
+        """Points the robot track covers; each stands for segment-seconds (a segment's points
+        sum to its duration)."""
+        self.in_range = in_range
+        self.w_time = (self.seg_duration / self.seg_n)[self.seg_of_point] * in_range
+
+    def __len__(self):
+        return len(self.t)
+
+    def seg_sum(self, values):
+        return np.add.reduceat(values, self.seg_start, axis=0)
+
+
+def _residuals(R, t, p, q):
+    """|R p + t - q| for hypotheses R (H, 3, 3), t (H, 3) and points (N, 3): (H, N)."""
+    return np.linalg.norm(np.einsum("hij,nj->hni", R, p) + t[:, None, :] - q[None], axis=2)
+
+
+def _prior_ok(R, t, sensor: SensorExtrinsics, params):
+    R0 = sensor.R_world_sensor
+    cos_angle = (np.einsum("ij,hij->h", R0, R) - 1.0) / 2.0
+    angle_deg = np.degrees(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+    offset_m = np.linalg.norm(t - sensor.position_m, axis=1)
+    ok = (offset_m <= params["max_offset_m"]) & (angle_deg <= params["max_angle_deg"])
+    return ok, offset_m + np.radians(angle_deg)
+
+
+def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
+    """RANSAC over segments: best (R, t, latency index, explained seconds) or None."""
+    q0 = heads_by_latency[len(heads_by_latency) // 2]
+    gated = sd.in_range & (np.linalg.norm(sd.p_installed - q0, axis=1) <= params["gate_m"])
+    gated_s = sd.seg_sum(sd.w_time * gated)
+    plausible = (sd.seg_sum(gated.astype(float)) >= np.maximum(params["min_segment_points"], 3)) & (
+        gated_s >= 0.5 * sd.seg_duration)
+    cands = np.flatnonzero(plausible)
+    if len(cands) == 0:
+        return None
+    seeds = cands[np.argsort(-gated_s[cands], kind="stable")][: params["n_seed_segments"]]
+    k = len(seeds)
+    members = [np.array([i]) for i in range(k)] + [np.array([i, j]) for i in range(k) for j in range(i + 1, k)]
+    M = np.zeros((len(members), k))
+    for h, m in enumerate(members):
+        M[h, m] = 1.0
+    seed_point_mask = np.isin(sd.seg_of_point, seeds) & sd.in_range
+    col_of_seg = np.full(len(sd.seg_start), -1)
+    col_of_seg[seeds] = np.arange(k)
+    seed_col = col_of_seg[sd.seg_of_point]
+    best = None
+    for li, q in enumerate(heads_by_latency):
+        w = sd.in_range.astype(float)
+        seg_w = sd.seg_sum(w)[seeds]
+        seg_p = sd.seg_sum(w[:, None] * sd.p)[seeds]
+        seg_q = sd.seg_sum(w[:, None] * q)[seeds]
+        seg_pq = sd.seg_sum(w[:, None, None] * sd.p[:, :, None] * q[:, None, :])[seeds]
+        hw, hp, hq, hpq = M @ seg_w, M @ seg_p, M @ seg_q, np.einsum("hk,kij->hij", M, seg_pq)
+        # a weak pull toward the installed pose fixes the rotation about a straight seed segment
+        anchors = _anchor_moments(hp / hw[:, None], sensor, params["prior_weight"] * hw)
+        R, t = rigid_from_moments(*(x + y for x, y in zip((hw, hp, hq, hpq), anchors, strict=True)))
+        ok, prior_cost = _prior_ok(R, t, sensor, params)
+        if not ok.any():
+            continue
+        R, t, prior_cost, hyp = R[ok], t[ok], prior_cost[ok], np.flatnonzero(ok)
+        r = _residuals(R, t, sd.p, q)
+        inlier = r < params["inlier_m"]
+        # a seed must itself follow the robot: most of its points explained
+        seed_inlier = np.zeros((len(hyp), k))
+        np.add.at(seed_inlier.T, seed_col[seed_point_mask], inlier[:, seed_point_mask].T)
+        seed_frac = seed_inlier / np.maximum(seg_w, 1.0)
+        seeds_follow = ((seed_frac >= 0.5) | (M[hyp] == 0)).all(axis=1)
+        score = (inlier * sd.w_time).sum(axis=1) - 1e-3 * prior_cost
+        score[~seeds_follow] = -np.inf
+        h = int(np.argmax(score))
+        if np.isfinite(score[h]) and (best is None or score[h] > best[3]):
+            best = (R[h], t[h], li, score[h])
+    if best is None or best[3] < params["min_support_s"]:
+        return None
+    return best
+
+
+def _select(sd: _SensorRows, inlier, params):
+    """Which points are the robot, given which ones the transform explains: whole segments
+    when most of a segment is explained, else only its explained runs (a track swap)."""
+    selected = np.zeros(len(sd), bool)
+    kind = np.full(len(sd.seg_start), "no", dtype=object)
+    for s in np.flatnonzero(sd.seg_sum(inlier.astype(int)) > 0):
+        a, b = sd.seg_start[s], sd.seg_end[s]
+        f = inlier[a:b].copy()
+        # close short unexplained gaps between explained points
+        edges = np.diff(np.r_[0, f.astype(int), 0])
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        for e, s2 in zip(ends[:-1], starts[1:], strict=True):
+            if s2 - e <= params["max_gap_points"]:
+                f[e:s2] = True
+        if sd.seg_n[s] >= params["min_segment_points"] and f.mean() >= params["whole_fraction"]:
+            selected[a:b] = sd.in_range[a:b]
+            kind[s] = "whole"
+            continue
+        edges = np.diff(np.r_[0, f.astype(int), 0])
+        for r0, r1 in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+            tt = sd.t[a + r0: a + r1]
+            if r1 - r0 >= params["min_segment_points"] and tt[-1] - tt[0] >= params["min_run_s"]:
+                selected[a + r0: a + r1] = True
+                kind[s] = "part"
+    return selected & sd.in_range, kind
+
+
+def _refine(sd: _SensorRows, sensor, R, t, q, params):
+    """Locally optimised consensus: refit on everything the transform explains, repeat."""
+    selected = None
+    for _ in range(params["refine_iterations"]):
+        r = _residuals(R[None], t[None], sd.p, q)[0]
+        new_selected, kind = _select(sd, (r < params["inlier_m"]) & sd.in_range, params)
+        fit_mask = new_selected & (r < params["inlier_m"])
+        if fit_mask.sum() < 3 or (selected is not None and np.array_equal(new_selected, selected)):
+            selected = new_selected
+            break
+        selected = new_selected
+        m = moments(sd.p[fit_mask], q[fit_mask])
+        a = _anchor_moments(m[1] / m[0], sensor, params["prior_weight"] * m[0])
+        R, t = rigid_from_moments(*(x + y for x, y in zip(m, a, strict=True)))
+    r = _residuals(R[None], t[None], sd.p, q)[0]
+    return R, t, r, selected, kind
+
+
+# --------------------------------------------------------------------------- latency
+
+
+def _head_interpolator(log: Log):
+    """t -> AMCL head (N, 3), as :func:`robot_head_at` but sorting robot.csv once."""
+    track = log.robot.sort_values("t")
+    tt, x, y = (track[c].to_numpy(float) for c in ("t", "x", "y"))
+    yaw = np.unwrap(track["yaw"].to_numpy(float))
+
+    def head_at(t):
+        pose2 = np.column_stack([np.interp(t, tt, x), np.interp(t, tt, y), np.interp(t, tt, yaw)])
+        return head_world(pose2, log.meta.head_offset_m)
+
+    return head_at
+
+
+def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0.4,
+                     p_sensor: np.ndarray | None = None) -> float:
+    """Tracker latency (observation stamp minus the time the robot was there, s) minimising the
+    pooled residual of per-sensor rigid fits of the robot's observations to the AMCL head."""
+    is_robot = np.asarray(is_robot, bool)
+    if is_robot.sum() < 4:
+        return 0.0
+    sensor_col = log.observations["sensor"].astype(str).to_numpy()[is_robot]
+    codes, _ = pd.factorize(sensor_col)
+    counts = np.bincount(codes)
+    keep = counts[codes] >= 3               # sensors with enough pairs for a fit
+    order = np.argsort(codes[keep], kind="stable")
+    p = (log.observation_points_sensor() if p_sensor is None else p_sensor)[is_robot][keep][order]
+    t = log.observations["t"].to_numpy(float)[is_robot][keep][order]
+    codes = codes[keep][order]
+    if len(codes) == 0:
+        return 0.0
+    starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
+    group = np.cumsum(np.r_[False, codes[1:] != codes[:-1]])
+    w = np.diff(np.r_[starts, len(codes)]).astype(float)
+    sum_p = np.add.reduceat(p, starts, axis=0)
+    head_at = _head_interpolator(log)
+
+    def sse(latency_s):
+        q = head_at(t - latency_s)
+        sum_pq = np.add.reduceat(p[:, :, None] * q[:, None, :], starts, axis=0)
+        R, tr = rigid_from_moments(w, sum_p, np.add.reduceat(q, starts, axis=0), sum_pq)
+        pred = np.einsum("nij,nj->ni", R[group], p) + tr[group]
+        return float(np.sum((pred - q) ** 2))
+
+    grid = np.arange(-max_latency_s, max_latency_s + 1e-9, 0.02)
+    values = [sse(x) for x in grid]
+    i = int(np.argmin(values))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    if hi <= lo:
+        return float(grid[i])
+    res = minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": 1e-5})
+    return float(res.x) if res.fun <= values[i] else float(grid[i])
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def _validate(log: Log):
+    obs_path = None if log.path is None else log.path / "observations.csv"
+    robot_path = None if log.path is None else log.path / "robot.csv"
+    if log.robot is None or len(log.robot) < 2:
+        raise PedcalInputError("the robot's localization needs at least 2 rows to find the robot's "
+                               "observations", path=robot_path)
+    known = set(log.sensors.ids)
+    sensor_col = log.observations["sensor"].astype(str).to_numpy()
+    unknown = ~np.isin(sensor_col, list(known))
+    if unknown.any():
+        row = int(np.flatnonzero(unknown)[0])
+        raise PedcalInputError(f"sensor '{sensor_col[row]}' is not in sensors.yaml (expected one of "
+                               f"{', '.join(sorted(known))})", path=obs_path, row=row, column="sensor")
+
+
+def associate_robot(log: Log, *, progress: bool = False, **params) -> AssociationResult:
+    """Find the robot's observations in ``log.observations`` (see the module docstring).
+
+    ``params`` override :data:`DEFAULT_PARAMS`."""
+    unknown = set(params) - set(DEFAULT_PARAMS)
+    if unknown:
+        raise TypeError(f"unknown association parameter(s): {', '.join(sorted(unknown))}")
+    params = {**DEFAULT_PARAMS, **params}
+    _validate(log)
+    with Timer() as timer:
+        obs = log.observations
+        n_obs = len(obs)
+        t_all = obs["t"].to_numpy(float)
+        sensor_col = obs["sensor"].astype(str).to_numpy()
+        track_col = obs["track"].astype(str).to_numpy()
+        seg_codes, _ = pd.factorize(pd.Series(sensor_col) + "\x00" + pd.Series(track_col))
+        p_sensor = log.observation_points_sensor()
+        p_installed = obs[["x", "y", "z"]].to_numpy(float)
+        robot_t = log.robot["t"].to_numpy(float)
+        # observations the robot track covers at every latency considered (pass 1)
+        in_range = (t_all >= robot_t.min() + params["max_latency_s"]) & (
+            t_all <= robot_t.max() - params["max_latency_s"])
+
+        n_lat = int(round(params["max_latency_s"] / params["latency_step_s"]))
+        latencies = params["latency_step_s"] * np.arange(-n_lat, n_lat + 1)
+        head_at = _head_interpolator(log)
+        heads = np.stack([head_at(t_all - lat) for lat in latencies])
+
+        per_sensor = {}
+        for s in log.sensors:
+            rows = np.flatnonzero(sensor_col == s.id)
+            if len(rows):
+                per_sensor[s.id] = _SensorRows(s.id, rows, t_all[rows], seg_codes[rows], track_col[rows],
+                                               p_sensor[rows], p_installed[rows], in_range[rows])
+
+        # pass 1: consensus per sensor over a coarse latency grid
+        is_robot = np.zeros(n_obs, bool)
+        found = {}
+        for i, (sid, sd) in enumerate(per_sensor.items()):
+            best = _consensus(sd, log.sensors[sid], heads[:, sd.rows], params)
+            if best is not None:
+                R, t, li, _ = best
+                R, t, _, sel, _ = _refine(sd, log.sensors[sid], R, t, heads[li, sd.rows], params)
+                found[sid] = (R, t)
+                is_robot[sd.rows[sel]] = True
+            if progress:
+                print(f"association pass 1: sensor {sid} ({i + 1}/{len(per_sensor)})", file=sys.stderr)
+
+        # one latency for the whole log, pooled over the sensors
+        latency_s = estimate_latency(log, is_robot, max_latency_s=params["max_latency_s"], p_sensor=p_sensor)
+        if progress:
+            print(f"association: tracker latency {latency_s:+.3f} s", file=sys.stderr)
+        q_all = head_at(t_all - latency_s)
+        in_range = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
+        for sd in per_sensor.values():
+            sd.set_in_range(in_range[sd.rows])
+
+        # pass 2: refine every sensor at that latency (a fresh consensus where pass 1 found nothing)
+        is_robot[:] = False
+        sensors_out, seg_rows = [], []
+        for s in log.sensors:
+            sd = per_sensor.get(s.id)
+            status, n_used, R, t = "no-data", 0, None, None
+            if sd is not None:
+                q = q_all[sd.rows]
+                if s.id in found:
+                    R, t = found[s.id]
+                else:
+                    best = _consensus(sd, s, q[None], params)
+                    if best is not None:
+                        R, t = best[0], best[1]
+                if R is not None:
+                    R, t, r, sel, kind = _refine(sd, s, R, t, q, params)
+                    n_used = int(sel.sum())
+                    is_robot[sd.rows[sel]] = True
+                else:
+                    r = np.full(len(sd), np.inf)
+                    sel = np.zeros(len(sd), bool)
+                    kind = np.full(len(sd.seg_start), "no", dtype=object)
+                seg_rows.append(_segment_table(sd, r, sel, kind, params))
+            if R is None or n_used < 3:
+                sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n_used,
+                                                    status="no-data"))
+                continue
+            spread = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(sd.p[sel].T)), 0.0))
+            status = "degenerate" if spread[1] < params["collinear_spread_m"] else "ok"
+            ext = SensorExtrinsics.from_pose3(s.id, gtsam.Pose3(gtsam.Rot3(R), t), observations=n_used,
+                                              status=status)
+            if status == "degenerate":
+                ext.unobservable = ["rotation about the robot's line of travel"]
+            sensors_out.append(ext)
+        segments = pd.concat(seg_rows, ignore_index=True) if seg_rows else _segment_table(None, None, None, None,
+                                                                                            params)
+    if progress:
+        print(f"association: {int(is_robot.sum())} of {n_obs} observations are the robot "
+              f"({timer.elapsed_s:.2f} s)", file=sys.stderr)
+    return AssociationResult(is_robot, SensorNetwork(sensors_out, log.sensors.frame), segments, latency_s,
+                             timer.elapsed_s, params)
+
+
+def _segment_table(sd, r, sel, kind, params) -> pd.DataFrame:
+    cols = ["sensor", "track", "n", "t_start", "t_end", "duration_s", "explained_fraction",
+            "median_residual_m", "robot", "robot_points"]
+    if sd is None:
+        return pd.DataFrame(columns=cols)
+    inl = (r < params["inlier_m"]).astype(int)
+    r_sorted_med = [float(np.median(r[a:b])) for a, b in zip(sd.seg_start, sd.seg_end, strict=True)]
+    return pd.DataFrame({
+        "sensor": sd.sensor, "track": sd.seg_track, "n": sd.seg_n,
+        "t_start": sd.t[sd.seg_start], "t_end": sd.t[sd.seg_end - 1], "duration_s": sd.seg_duration,
+        "explained_fraction": sd.seg_sum(inl) / sd.seg_n, "median_residual_m": r_sorted_med,
+        "robot": kind, "robot_points": sd.seg_sum(sel.astype(int)),
+    }, columns=cols)
+
+
+def score_association(log: Log, is_robot) -> dict:
+    """Precision and recall of ``is_robot`` against truth_observations.csv (who == "robot")."""
+    if log.truth_observations is None:
+        raise PedcalInputError("scoring the association needs truth_observations.csv, which the log lacks",
+                               path=log.path)
+    is_robot = np.asarray(is_robot, bool)
+    if is_robot.shape != (len(log.observations),):
+        raise PedcalInputError(f"is_robot has {is_robot.size} entries, expected one per observation "
+                               f"({len(log.observations)})", path=log.path)
+    truth = np.zeros(len(log.observations), bool)
+    to = log.truth_observations
+    rows = to["row"].to_numpy(int)
+    truth[rows[to["who"].astype(str).to_numpy() == "robot"]] = True
+    tp = int((is_robot & truth).sum())
+    n_pred, n_true = int(is_robot.sum()), int(truth.sum())
+    if n_true == 0:
+        warnings.warn("truth_observations.csv has no robot rows: recall is undefined", DegenerateDataWarning,
+                      stacklevel=2)
+    return {"precision": tp / n_pred if n_pred else float("nan"),
+            "recall": tp / n_true if n_true else float("nan"),
+            "true_positives": tp, "predicted": n_pred, "robot_rows": n_true}

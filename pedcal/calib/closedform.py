@@ -1,0 +1,106 @@
+"""Closed-form baseline: per sensor, a Horn/Umeyama rigid fit of the robot's observations.
+
+Each robot observation pairs the head point the sensor saw (sensor frame, installed extrinsics
+undone) with the AMCL head position at that time (world frame). The sensor's pose
+T_world_sensor is the rotation and translation minimising sum |R p_sensor + t - p_world|^2,
+solved by the SVD of the cross-covariance (Horn 1987; Umeyama 1991, eqs. 34-42 without scale).
+The fit needs pairs that span a plane: when the robot passed a sensor in a straight line the
+rotation about that line is unconstrained, and the installed pose is kept.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+import gtsam
+import numpy as np
+
+from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
+from pedcal.calib.common import CalibrationResult, Timer, robot_head_at
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+
+MIN_PAIRS = 5
+COLLINEAR_SPREAD_M = 0.1   # second principal spread (1 sigma) of the pairs below which they are a line
+
+
+def fit_rigid(p_sensor, p_world, weights=None) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform (R (3, 3), t (3,)) minimising sum w |R p_sensor + t - p_world|^2
+    (Umeyama 1991, no scale). Needs at least 3 non-collinear pairs for a unique answer."""
+    p_sensor = np.asarray(p_sensor, float).reshape(-1, 3)
+    p_world = np.asarray(p_world, float).reshape(-1, 3)
+    if len(p_sensor) != len(p_world) or len(p_sensor) == 0:
+        raise ValueError(f"fit_rigid needs as many sensor points as world points, got {len(p_sensor)} "
+                         f"and {len(p_world)}")
+    return rigid_from_moments(*moments(p_sensor, p_world, weights))
+
+
+def _line_direction(points):
+    """(second principal spread in m, principal direction) of (N, 3) points."""
+    evals, evecs = np.linalg.eigh(np.cov(points.T))
+    return float(np.sqrt(max(evals[1], 0.0))), evecs[:, 2]
+
+
+def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, latency_s: float | None = None,
+                         min_pairs: int = MIN_PAIRS, collinear_spread_m: float = COLLINEAR_SPREAD_M,
+                         **association_params) -> CalibrationResult:
+    """Per-sensor Horn/Umeyama fit of the robot's observations to the AMCL head positions.
+
+    ``is_robot``: bool mask over log.observations rows; None finds the robot with
+    :func:`pedcal.calib.association.associate_robot` (``association_params`` go to it).
+    ``latency_s``: tracker latency (observation stamp minus the robot's time); None takes the
+    association's estimate, or estimates it from the given ``is_robot``."""
+    with Timer() as timer:
+        diagnostics = {}
+        if is_robot is None:
+            from pedcal.calib.association import associate_robot
+
+            assoc = associate_robot(log, progress=progress, **association_params)
+            is_robot = assoc.is_robot
+            diagnostics["association_runtime_s"] = assoc.runtime_s
+            if latency_s is None:
+                latency_s = assoc.latency_s
+        else:
+            is_robot = np.asarray(is_robot)
+            if is_robot.shape != (len(log.observations),) or is_robot.dtype != bool:
+                raise PedcalInputError(f"is_robot must be a boolean mask with one entry per observation "
+                                       f"({len(log.observations)}), got dtype {is_robot.dtype} and shape "
+                                       f"{is_robot.shape}", path=log.path)
+            if latency_s is None:
+                latency_s = estimate_latency(log, is_robot)
+        diagnostics["latency_s"] = float(latency_s)
+
+        sensor_col = log.observations["sensor"].astype(str).to_numpy()
+        p_sensor_all = log.observation_points_sensor()
+        t_all = log.observations["t"].to_numpy(float)
+        sensors_out = []
+        for i, s in enumerate(log.sensors):
+            rows = np.flatnonzero(is_robot & (sensor_col == s.id))
+            n = len(rows)
+            if progress:
+                print(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs", file=sys.stderr)
+            if n < min_pairs:
+                sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n,
+                                                    status="no-data"))
+                continue
+            p_sensor = p_sensor_all[rows]
+            p_world = robot_head_at(log, t_all[rows] - latency_s)
+            spread_m, direction = _line_direction(p_world)
+            if spread_m < collinear_spread_m:
+                axis = ", ".join(f"{v:.2f}" for v in direction * np.sign(direction[np.argmax(np.abs(direction))]))
+                what = f"rotation about the robot's line of travel (world direction [{axis}])"
+                warnings.warn(f"sensor {s.id}: the robot's {n} observations lie on a line (spread "
+                              f"{1000 * spread_m:.0f} mm across it): {what} cannot be estimated; the "
+                              f"installed pose is kept", DegenerateDataWarning, stacklevel=2)
+                sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n,
+                                                    status="degenerate", unobservable=[what]))
+                continue
+            R, t = fit_rigid(p_sensor, p_world)
+            residual_m = np.linalg.norm(p_sensor @ R.T + t - p_world, axis=1)
+            diagnostics.setdefault("rms_residual_m", {})[s.id] = float(np.sqrt(np.mean(residual_m ** 2)))
+            sensors_out.append(SensorExtrinsics.from_pose3(s.id, gtsam.Pose3(gtsam.Rot3(R), t),
+                                                           observations=n, status="ok"))
+    return CalibrationResult(SensorNetwork(sensors_out, log.sensors.frame, dict(log.sensors.extra)),
+                             method="closedform", runtime_s=timer.elapsed_s, is_robot=is_robot,
+                             diagnostics=diagnostics)
