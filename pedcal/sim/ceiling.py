@@ -1,0 +1,212 @@
+"""The ceiling sensor network: layout, hand-measured (installed) extrinsics, field of view, and
+the tracking system that turns true head positions into observations.csv rows.
+
+Sensors are ASUS Xtion Pro Live-like depth cameras (58 x 45 deg, 0.8-3.5 m reliable, noisy to
+~5 m). Frames follow :mod:`pedcal.frames`: sensor x is the optical axis, y left, z up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pedcal import frames
+from pedcal.model import SensorExtrinsics, SensorNetwork
+from pedcal.sim.scenario import Scenario
+
+
+def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
+    """True extrinsics: ``grid_rows`` rows of ``grid_cols`` sensors over the area. Rows look
+    alternately along +x and -x (each row starts at the end it looks away from), with
+    ``pitch_deg`` cycled over the sensors, so neighbouring fields of view overlap partly.
+    Ids run s01, s02, ... in x order."""
+    area_x, area_y = sc.area_m
+    rows = np.arange(sc.grid_rows)
+    row_y = (np.asarray(sc.row_y_m, float) if sc.row_y_m is not None
+             else area_y * (rows + 0.5) / sc.grid_rows)
+    if len(row_y) != sc.grid_rows:
+        raise ValueError(f"row_y_m has {len(row_y)} entries for {sc.grid_rows} rows")
+    row, col = np.divmod(np.arange(sc.grid_rows * sc.grid_cols), sc.grid_cols)
+    forward = row % 2 == 0                                   # row looks along +x
+    dx = area_x / sc.grid_cols
+    x = np.where(forward, dx * (col + 0.2), area_x - dx * (col + 0.2))
+    n = len(x)
+    xy = np.column_stack([x, row_y[row]]) + rng.normal(0.0, sc.position_jitter_m, (n, 2))
+    z = sc.sensor_height_m + rng.normal(0.0, sc.height_jitter_m, n)
+    yaw = np.where(forward, 0.0, 180.0) + rng.normal(0.0, sc.yaw_jitter_deg, n)
+    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    pitch = np.resize(np.asarray(sc.pitch_deg, float), n)
+    sensors = [SensorExtrinsics(f"s{k + 1:02d}", [xy[i, 0], xy[i, 1], z[i]],
+                                [frames.wrap_angle_rad(np.radians(yaw[i])) * 180 / np.pi, pitch[k], 0.0])
+               for k, i in enumerate(order)]
+    net = SensorNetwork(sensors)
+    if sc.sensor_ids is not None:
+        missing = [s for s in sc.sensor_ids if s not in net]
+        if missing:
+            raise ValueError(f"sensor_ids {missing} are not in the layout ({', '.join(net.ids)})")
+        net = SensorNetwork([net[s] for s in sc.sensor_ids])
+    return net
+
+
+def _small_rotation(rng: np.random.Generator, sigma_ypr_deg, cap_deg: float) -> np.ndarray:
+    """A random rotation with per-axis std ``sigma_ypr_deg``, its angle capped at ``cap_deg``."""
+    ypr = rng.normal(0.0, sigma_ypr_deg)
+    angle = frames.rotation_angle_deg(np.eye(3), frames.rot_from_ypr_deg(ypr))
+    if angle > cap_deg:
+        ypr = ypr * cap_deg / angle
+    return frames.rot_from_ypr_deg(ypr)
+
+
+def installed_network(truth: SensorNetwork, sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
+    """Extrinsics as a person measured them: the whole network shifted and turned coherently
+    about its centroid (a survey whose origin and axes are off), then each sensor's own
+    position and angle errors, capped at ``installed_cap_m`` and ``installed_cap_deg``."""
+    P = np.array([s.position_m for s in truth])
+    centroid = P.mean(axis=0)
+    turn = frames.rot_from_ypr_deg([rng.normal(0.0, sc.installed_turn_deg), 0.0, 0.0])
+    shift = np.array([*rng.normal(0.0, sc.installed_shift_m, 2), 0.0])
+    out = []
+    for s, p in zip(truth, P, strict=True):
+        d = rng.normal(0.0, sc.installed_sigma_position_m)
+        norm = np.linalg.norm(d)
+        if norm > sc.installed_cap_m:
+            d *= sc.installed_cap_m / norm
+        own = _small_rotation(rng, sc.installed_sigma_ypr_deg, sc.installed_cap_deg)
+        p_inst = turn @ (p - centroid) + centroid + shift + d
+        R_inst = turn @ s.R_world_sensor @ own
+        # The coherent turn adds to the own error; cap the total error as well.
+        total_err = p_inst - p
+        if np.linalg.norm(total_err) > sc.installed_cap_m:
+            p_inst = p + total_err * sc.installed_cap_m / np.linalg.norm(total_err)
+        out.append(SensorExtrinsics(s.id, p_inst, frames.ypr_deg_from_rot(R_inst)))
+    return SensorNetwork(out)
+
+
+def in_frustum(p_sensor: np.ndarray, sc: Scenario) -> np.ndarray:
+    """Mask of sensor-frame points (N, 3) inside the field of view and the range limits."""
+    x, y, z = p_sensor[..., 0], p_sensor[..., 1], p_sensor[..., 2]
+    r = np.linalg.norm(p_sensor, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return ((x > 0)
+                & (np.abs(np.arctan2(y, x)) <= np.radians(sc.hfov_deg / 2))
+                & (np.abs(np.arctan2(z, x)) <= np.radians(sc.vfov_deg / 2))
+                & (r >= sc.min_range_m) & (r <= sc.max_range_m))
+
+
+def coverage(net: SensorNetwork, sc: Scenario, p_world: np.ndarray) -> np.ndarray:
+    """(n_sensors, N) mask: which sensor sees which world point."""
+    return np.stack([in_frustum(s.to_sensor(p_world), sc) for s in net])
+
+
+def dome_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, head_radius_m: float) -> np.ndarray:
+    """The point of a head dome (a sphere of radius r under the head top) that faces the sensor:
+    the centre plus r along the unit vector toward the sensor. It is shifted r cos(e)
+    horizontally toward the sensor and r (1 - sin e) down, e the sensor's elevation."""
+    if head_radius_m == 0.0:
+        return p_top_world
+    centre = p_top_world - np.array([0.0, 0.0, head_radius_m])
+    u = sensor_pos - centre
+    return centre + head_radius_m * u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
+def measure(p_sensor: np.ndarray, sc: Scenario, rng: np.random.Generator) -> np.ndarray:
+    """Add the depth sensor's noise to true sensor-frame points (N, 3): along the ray
+    sigma = k r^2 (times far_noise_factor beyond reliable_range_m), plus lateral noise."""
+    r = np.linalg.norm(p_sensor, axis=1)
+    ray = p_sensor / r[:, None]
+    sigma_depth = sc.depth_noise_k_per_m * r**2 * np.where(r > sc.reliable_range_m, sc.far_noise_factor, 1.0)
+    along = ray * (rng.standard_normal(len(r)) * sigma_depth)[:, None]
+    lateral = rng.normal(0.0, sc.lateral_noise_m, p_sensor.shape) if sc.lateral_noise_m > 0 else 0.0
+    lateral = lateral - ray * np.sum(lateral * ray, axis=1, keepdims=True) if sc.lateral_noise_m > 0 else 0.0
+    return p_sensor + along + lateral
+
+
+# ------------------------------------------------------------------------------------ tracker
+def frame_times(sc: Scenario, n_sensors: int, t0: float, t1: float, rng: np.random.Generator) -> np.ndarray:
+    """(n_sensors, n_frames) capture times: each sensor runs at frame_rate_hz with its own phase."""
+    period = 1.0 / sc.frame_rate_hz
+    k = np.arange(int(np.floor((t1 - t0) / period)))
+    return t0 + rng.uniform(0.0, period, (n_sensors, 1)) + k * period
+
+
+def _first_in_group(keys: list[np.ndarray]) -> np.ndarray:
+    """For rows sorted by ``keys``, True where any key differs from the previous row's."""
+    first = np.zeros(len(keys[0]), dtype=bool)
+    first[:1] = True
+    for k in keys:
+        first[1:] |= k[1:] != k[:-1]
+    return first
+
+
+def _track_losses(t: np.ndarray, first: np.ndarray, sc: Scenario, rng: np.random.Generator) -> np.ndarray:
+    """Mask of detections lost while a head is temporarily not tracked (occlusion, merging):
+    a loss starts at rate track_loss_rate_hz and lasts a time drawn from track_loss_s. Rows are
+    sorted by (sensor, entity, t); ``first`` marks the start of each (sensor, entity) group."""
+    if sc.track_loss_rate_hz <= 0 or len(t) == 0:
+        return np.zeros(len(t), dtype=bool)
+    starts = rng.random(len(t)) < sc.track_loss_rate_hz / sc.frame_rate_hz
+    ends = np.where(starts, t + rng.uniform(*sc.track_loss_s, len(t)), -np.inf)
+    # Running maximum of loss ends within each group: offset each group far beyond the last.
+    group = np.cumsum(first)
+    offset = group * (10.0 * (t.max() - t.min() + 100.0))
+    running = np.maximum.accumulate(ends + offset) - offset
+    return t < running
+
+
+def tracker_observations(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario,
+                         frames_t: np.ndarray, entity: np.ndarray, sensor: np.ndarray, t_capture: np.ndarray,
+                         p_top_world: np.ndarray, is_head: np.ndarray,
+                         rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The ceiling tracking system: from candidate (entity, sensor, capture time, true head top)
+    rows, keep what the sensor sees, drop lost frames, misses and temporary track losses, take
+    the dome point facing the sensor, add depth noise in the sensor frame (true extrinsics),
+    map to the world with the INSTALLED extrinsics (p_world = R_inst p_sensor + t_inst,
+    LOG_FORMAT.md), stamp with the latency and number the tracks per sensor.
+
+    Returns arrays sorted by stamp: t, sensor (index), track, xyz, entity.
+    """
+    R_true = np.stack([s.R_world_sensor for s in true_net])
+    t_true = np.stack([s.position_m for s in true_net])
+    R_inst = np.stack([s.R_world_sensor for s in installed])
+    t_inst = np.stack([s.position_m for s in installed])
+
+    p_s = np.einsum("nji,nj->ni", R_true[sensor], p_top_world - t_true[sensor])
+    keep = in_frustum(p_s, sc)
+    # Lost frames: the whole frame of that sensor is gone.
+    frame_k = np.rint((t_capture - frames_t[sensor, 0]) * sc.frame_rate_hz).astype(int)
+    lost = rng.random(frames_t.shape) < sc.frame_loss_prob
+    keep &= ~lost[sensor, np.clip(frame_k, 0, frames_t.shape[1] - 1)]
+    keep &= rng.random(len(keep)) >= sc.miss_prob
+    idx = np.flatnonzero(keep)
+    order = idx[np.lexsort((t_capture[idx], entity[idx], sensor[idx]))]
+    s_o, e_o, t_o = sensor[order], entity[order], t_capture[order]
+    order = order[~_track_losses(t_o, _first_in_group([s_o, e_o]), sc, rng)]
+    s_o, e_o, t_o = sensor[order], entity[order], t_capture[order]
+
+    # Track ids: a new id at a new (sensor, entity) or after a gap longer than track_gap_s.
+    new_track = _first_in_group([s_o, e_o])
+    new_track[1:] |= np.diff(t_o) > sc.track_gap_s
+    # Number each sensor's tracks 1, 2, ... in the order they start, as a tracker does.
+    segment = np.cumsum(new_track) - 1
+    seg_sensor, seg_start = s_o[new_track], t_o[new_track]
+    seg_order = np.lexsort((seg_start, seg_sensor))
+    first_of_sensor = _first_in_group([seg_sensor[seg_order]])
+    rank = np.arange(len(seg_order)) - np.maximum.accumulate(
+        np.where(first_of_sensor, np.arange(len(seg_order)), 0))
+    seg_id = np.empty(len(seg_order), dtype=int)
+    seg_id[seg_order] = rank + 1
+    track = seg_id[segment]
+
+    p_top = p_top_world[order]
+    head = is_head[order]
+    p_seen = p_top.copy()
+    p_seen[head] = dome_point(p_top[head], t_true[s_o[head]], sc.head_radius_m)
+    p_sensor = np.einsum("nji,nj->ni", R_true[s_o], p_seen - t_true[s_o])
+    if len(p_sensor):
+        p_sensor = measure(p_sensor, sc, rng)
+    p_world = np.einsum("nij,nj->ni", R_inst[s_o], p_sensor) + t_inst[s_o]
+    jitter = np.clip(rng.normal(0.0, sc.latency_jitter_s, len(t_o)), -3 * sc.latency_jitter_s,
+                     3 * sc.latency_jitter_s) if sc.latency_jitter_s > 0 else 0.0
+    stamp = t_o + sc.latency_s + jitter
+    by_time = np.argsort(stamp, kind="stable")
+    return {"t": stamp[by_time], "sensor": s_o[by_time], "track": track[by_time],
+            "xyz": p_world[by_time], "entity": e_o[by_time]}

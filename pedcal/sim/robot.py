@@ -1,0 +1,168 @@
+"""The robot: its route, the true trajectory, AMCL's estimates and wheel odometry.
+
+The route is a lawnmower along x, a lawnmower along y and a loop round the area the other way,
+driven by a pure-pursuit follower, so every sensor sees the robot pass in several directions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+from scipy.signal import lfilter
+
+from pedcal.calib.common import interpolate_pose2
+from pedcal.frames import wrap_angle_rad
+from pedcal.sim.scenario import Scenario
+
+
+def route_waypoints(sc: Scenario) -> np.ndarray:
+    """(N, 2) waypoints: lanes along x, lanes along y, then the border loop reversed."""
+    m, (ax, ay) = sc.route_margin_m, sc.area_m
+    x0, x1, y0, y1 = m, ax - m, m, ay - m
+    ys = np.linspace(y0, y1, max(2, int(round((y1 - y0) / sc.lane_spacing_m)) + 1))
+    xs = np.linspace(x1, x0, max(2, int(round((x1 - x0) / sc.lane_spacing_m)) + 1))
+    pts = []
+    for k, y in enumerate(ys):                                    # lawnmower along x
+        pts += [(x0, y), (x1, y)] if k % 2 == 0 else [(x1, y), (x0, y)]
+    start_top = pts[-1][0] > (x0 + x1) / 2                        # continue from where we are
+    xs = xs if start_top else xs[::-1]
+    for k, x in enumerate(xs):                                    # lawnmower along y
+        pts += [(x, y1), (x, y0)] if k % 2 == 0 else [(x, y0), (x, y1)]
+    last = pts[-1]
+    corners = [(x0, y0), (x0, y1), (x1, y1), (x1, y0)]            # loop, clockwise
+    k0 = int(np.argmin([np.hypot(c[0] - last[0], c[1] - last[1]) for c in corners]))
+    pts += [corners[(k0 + i) % 4] for i in range(5)]
+    wp = np.asarray(pts, float)
+    keep = np.r_[True, np.linalg.norm(np.diff(wp, axis=0), axis=1) > 1e-6]
+    return wp[keep]
+
+
+def _densify(wp: np.ndarray, step_m: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """A polyline resampled every ``step_m`` and its arc length."""
+    seg = np.linalg.norm(np.diff(wp, axis=0), axis=1)
+    s_wp = np.r_[0.0, np.cumsum(seg)]
+    s = np.arange(0.0, s_wp[-1], step_m)
+    s = np.r_[s, s_wp[-1]]
+    return np.column_stack([np.interp(s, s_wp, wp[:, 0]), np.interp(s, s_wp, wp[:, 1])]), s
+
+
+def drive_route(sc: Scenario) -> np.ndarray:
+    """True base poses (N, 3) [x, y, yaw] every 1/truth_rate_hz s, from a pure-pursuit
+    follower of the route (a unicycle: v slows in sharp turns, turn rate capped)."""
+    step_m = 0.02
+    path, s_path = _densify(route_waypoints(sc), step_m)
+    dt = 1.0 / sc.truth_rate_hz
+    L = sc.lookahead_m
+    n_ahead = int(round(L / step_m))
+    w_max = np.radians(sc.max_turn_rate_dps)
+    d0 = path[min(len(path) - 1, 10)] - path[0]
+    x, y, yaw = path[0, 0], path[0, 1], np.arctan2(d0[1], d0[0])
+    i_near, end = 0, s_path[-1]
+    max_steps = int(10 * end / (sc.robot_speed_mps * dt)) + 1000
+    t_limit = np.inf if sc.duration_s is None else sc.duration_s
+    px, py = path[:, 0].tolist(), path[:, 1].tolist()
+    n_path = len(px)
+    out = []
+    for k in range(max_steps):     # scalar math: this loop runs ~20 times per simulated second
+        out.append((x, y, yaw))
+        if k * dt >= t_limit:
+            break
+        best = math.inf
+        for j in range(i_near, min(i_near + 25, n_path)):
+            d2 = (px[j] - x) ** 2 + (py[j] - y) ** 2
+            if d2 < best:
+                best, i_best = d2, j
+        i_near = i_best
+        if s_path[i_near] >= end - 0.05:
+            break
+        j = min(i_near + n_ahead, n_path - 1)
+        alpha = math.atan2(py[j] - y, px[j] - x) - yaw
+        alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
+        v = sc.robot_speed_mps * min(1.0, max(0.05, math.cos(alpha)))
+        w = min(w_max, max(-w_max, 2.0 * sc.robot_speed_mps * math.sin(alpha) / L))
+        x += v * math.cos(yaw) * dt
+        y += v * math.sin(yaw) * dt
+        yaw = (yaw + w * dt + math.pi) % (2 * math.pi) - math.pi
+    return np.asarray(out)
+
+
+def truth_table(poses: np.ndarray, t0: float, sc: Scenario) -> pd.DataFrame:
+    """truth_robot.csv: t, x, y, yaw."""
+    t = t0 + np.arange(len(poses)) / sc.truth_rate_hz
+    return pd.DataFrame({"t": t, "x": poses[:, 0], "y": poses[:, 1], "yaw": poses[:, 2]})
+
+
+def ou_process(rng: np.random.Generator, n: int, dt: float, sigma: float, tau_s: float) -> np.ndarray:
+    """n samples every dt of a stationary Gauss-Markov (Ornstein-Uhlenbeck) process with std
+    ``sigma`` and correlation time ``tau_s``: e_k = a e_(k-1) + sigma sqrt(1 - a^2) w_k,
+    a = exp(-dt / tau) (its exact discretization)."""
+    if sigma == 0.0 or n == 0:
+        return np.zeros(n)
+    a = np.exp(-dt / tau_s)
+    w = rng.standard_normal(n)
+    e0 = sigma * w[0]
+    rest = lfilter([sigma * np.sqrt(1.0 - a * a)], [1.0, -a], w[1:], zi=[a * e0])[0]
+    return np.r_[e0, rest]
+
+
+def _slow_wave(rng: np.random.Generator, t: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """A smooth value between lo and hi, varying over tens of seconds (two random sines)."""
+    periods = rng.uniform(40.0, 150.0, 2)
+    phases = rng.uniform(0.0, 2 * np.pi, 2)
+    u = 0.5 + 0.25 * (np.sin(2 * np.pi * t / periods[0] + phases[0])
+                      + np.sin(2 * np.pi * t / periods[1] + phases[1]))
+    return lo + (hi - lo) * u
+
+
+def amcl_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> pd.DataFrame:
+    """robot.csv: the true pose plus an Ornstein-Uhlenbeck error (per axis and yaw), published
+    at amcl_rate_hz, with a reported covariance that varies with time independently of the
+    actual error, as amcl's does."""
+    t_true = truth["t"].to_numpy()
+    dt = 1.0 / sc.amcl_rate_hz
+    t = np.arange(t_true[0], t_true[-1] + 1e-9, dt)
+    pose = interpolate_pose2(truth, t)
+    n = len(t)
+    err_x = ou_process(rng, n, dt, sc.amcl_sigma_m, sc.amcl_tau_s)
+    err_y = ou_process(rng, n, dt, sc.amcl_sigma_m, sc.amcl_tau_s)
+    err_yaw = ou_process(rng, n, dt, np.radians(sc.amcl_sigma_yaw_deg), sc.amcl_tau_s)
+    sx = _slow_wave(rng, t, *sc.amcl_reported_sigma_m)
+    sy = sx * _slow_wave(rng, t, 0.8, 1.25)
+    rho = _slow_wave(rng, t, -0.3, 0.3)
+    syaw = np.radians(_slow_wave(rng, t, *sc.amcl_reported_sigma_yaw_deg))
+    zero = np.zeros(n)
+    return pd.DataFrame({
+        "t": t, "x": pose[:, 0] + err_x, "y": pose[:, 1] + err_y,
+        "yaw": wrap_angle_rad(pose[:, 2] + err_yaw),
+        "cov_xx": sx**2, "cov_xy": rho * sx * sy, "cov_xyaw": zero,
+        "cov_yy": sy**2, "cov_yyaw": zero, "cov_yawyaw": syaw**2,
+    })
+
+
+def odometry_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> pd.DataFrame:
+    """odometry.csv: the true body-frame increments with a scale error, a heading drift per
+    metre and per second (signs drawn at random) and white noise, integrated from the origin
+    of the odom frame at truth_rate_hz."""
+    t = truth["t"].to_numpy()
+    p = truth[["x", "y"]].to_numpy()
+    yaw = truth["yaw"].to_numpy()
+    c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
+    d = np.diff(p, axis=0)
+    fwd = c * d[:, 0] + s * d[:, 1]                   # increments in the body frame
+    left = -s * d[:, 0] + c * d[:, 1]
+    dyaw = wrap_angle_rad(np.diff(yaw))
+    dist = np.hypot(fwd, left)
+    sign = rng.choice([-1.0, 1.0], 3)
+    scale = 1.0 + sign[0] * sc.odom_scale_error
+    fwd = scale * fwd + rng.normal(0.0, sc.odom_noise_m, len(fwd))
+    left = scale * left + rng.normal(0.0, sc.odom_noise_m, len(left))
+    dyaw = (dyaw + sign[1] * np.radians(sc.odom_yaw_drift_deg_per_m) * dist
+            + sign[2] * np.radians(sc.odom_gyro_bias_dps) * np.diff(t)
+            + rng.normal(0.0, np.radians(sc.odom_noise_yaw_deg), len(dyaw)))
+    yaw_o = np.r_[0.0, np.cumsum(dyaw)]
+    co, so = np.cos(yaw_o[:-1]), np.sin(yaw_o[:-1])
+    x_o = np.r_[0.0, np.cumsum(co * fwd - so * left)]
+    y_o = np.r_[0.0, np.cumsum(so * fwd + co * left)]
+    return pd.DataFrame({"t": t, "x": x_o, "y": y_o, "yaw": wrap_angle_rad(yaw_o)})

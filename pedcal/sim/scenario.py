@@ -1,0 +1,309 @@
+"""Simulation scenarios: every parameter of the ceiling-network simulator, typed and documented.
+
+A scenario is a YAML file in ``datasets/`` (``paper``, ``sparse``, ``mall``) or any YAML file whose
+keys are the fields of :class:`Scenario`. A file may start from another one with ``base: <name>``.
+Unknown keys are rejected, naming the file and the key.
+
+Nuisances (everything that makes the logs differ from the truth, apart from the installed
+extrinsics, which are what a calibration estimates) carry ``metadata={"off": value}``:
+``Scenario.resolve(noise_free=True)`` sets every one of them to its "off" value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from pedcal.errors import PedcalInputError
+
+DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
+WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
+
+
+def _nuisance(default, off=0.0):
+    return field(default=default, metadata={"off": off})
+
+
+@dataclass
+class Scenario:
+    """Parameters of one simulated installation and its two robot runs (calib, eval)."""
+
+    name: str = "custom"
+    """Scenario name, recorded in scenario.yaml."""
+
+    # ---- geometry -------------------------------------------------------------------------
+    area_m: list = field(default_factory=lambda: [8.2, 4.5])
+    """Size [x, y] of the covered floor area (m); the area spans [0, x] x [0, y]. The paper's
+    experiment covered 8.2 x 4.5 m with 10 sensors."""
+    grid_rows: int = 2
+    """Rows of ceiling sensors (along y)."""
+    grid_cols: int = 5
+    """Sensors per row (along x)."""
+    sensor_height_m: float = 2.6
+    """Mounting height of the sensors (m); 2.6 m in the paper."""
+    height_jitter_m: float = 0.05
+    """Std of each sensor's height around sensor_height_m (m): ceilings and mounts differ."""
+    row_y_m: list | None = None
+    """y of each sensor row (m); None spaces the rows evenly over the area."""
+    pitch_deg: list = field(default_factory=lambda: [45.0])
+    """Downward tilt of the sensors (deg), cycled over the sensors in id order; the paper's
+    sensors look 30-60 deg down. Steep ones see a small patch under them, shallow ones far."""
+    yaw_jitter_deg: float = 2.0
+    """Std of each sensor's yaw around its row's look direction (deg): mounts are not aligned."""
+    position_jitter_m: float = 0.05
+    """Std of each sensor's horizontal offset from its grid slot (m): mounts sit where the
+    ceiling allows."""
+    sensor_ids: list | None = None
+    """Keep only these sensors of the layout (None: all). ``sparse`` keeps the 5 middle ones."""
+
+    # ---- depth sensor (ASUS Xtion Pro Live) -----------------------------------------------------
+    hfov_deg: float = 58.0
+    """Horizontal field of view (deg), Xtion Pro Live datasheet."""
+    vfov_deg: float = 45.0
+    """Vertical field of view (deg), Xtion Pro Live datasheet."""
+    min_range_m: float = 0.8
+    """Closest range the sensor measures (m), Xtion datasheet (0.8 m)."""
+    max_range_m: float = 5.0
+    """Farthest range a head is still tracked (m); beyond the reliable range depth is noisy."""
+    reliable_range_m: float = 3.5
+    """Range up to which depth is reliable (m), Xtion datasheet (0.8-3.5 m)."""
+
+    # ---- tracker --------------------------------------------------------------------------------
+    frame_rate_hz: float = 15.0
+    """Rate of the ceiling tracking system's reports per sensor (Hz)."""
+    latency_s: float = _nuisance(0.1)
+    """Time by which a report's stamp is later than the instant its position belongs to (s);
+    depth capture, segmentation and the network delay add up to ~0.1 s."""
+    latency_jitter_s: float = _nuisance(0.01)
+    """Std of the per-report latency around latency_s (s)."""
+    depth_noise_k_per_m: float = _nuisance(1.5e-3)
+    """Depth noise along the ray, sigma = k r^2 (1/m): structured-light sensors (Khoshelham and
+    Elberink 2012 report ~1.5e-3 r^2 for the Kinect/Xtion)."""
+    far_noise_factor: float = _nuisance(2.0, off=1.0)
+    """Multiplier of the depth noise beyond reliable_range_m: depth degrades past 3.5 m."""
+    lateral_noise_m: float = _nuisance(0.01)
+    """Std of the head-top estimate across the ray, per axis (m): the blob's top is found on a
+    sparse, noisy point cloud."""
+    head_radius_m: float = _nuisance(0.1)
+    """Radius of the head dome (m). The tracker reports the point of the dome facing the
+    sensor, so the reported head moves toward the sensor horizontally and down with
+    obliquity (by r cos(e) and r (1 - sin e), e the elevation of the sensor seen from the head)."""
+    frame_loss_prob: float = _nuisance(0.02)
+    """Probability a whole frame of a sensor is lost (-): network and processing drops."""
+    miss_prob: float = _nuisance(0.05)
+    """Probability a visible head is missed in a frame (-): segmentation failures."""
+    track_loss_rate_hz: float = _nuisance(0.03)
+    """Rate at which a tracked head is lost for a while (1/s of tracking): occlusion, merge."""
+    track_loss_s: list = field(default_factory=lambda: [0.3, 2.0])
+    """Range [min, max] of the duration of such a loss (s), drawn uniformly."""
+    track_gap_s: float = 0.5
+    """A gap longer than this (s) makes the tracker start a new track id for the same head."""
+    false_track_rate_hz: float = _nuisance(1.0 / 60.0)
+    """Rate of false tracks per sensor (1/s): reflections, furniture, bags; one a minute."""
+    false_track_duration_s: list = field(default_factory=lambda: [0.3, 3.0])
+    """Range [min, max] of a false track's life (s)."""
+    false_track_height_m: list = field(default_factory=lambda: [0.5, 2.0])
+    """Range [min, max] of a false track's height above the floor (m)."""
+    false_track_jitter_m: float = 0.03
+    """Std of a false track's frame-to-frame jitter (m)."""
+
+    # ---- pedestrians ----------------------------------------------------------------------------
+    walkers: str = _nuisance("builtin", off="none")
+    """Where pedestrians come from: builtin (random walkers), atc / eth_ucy / thor (recorded
+    tracks from the shared data folder; falls back to builtin when absent) or none."""
+    walker_rate_hz: float = _nuisance(1.0 / 30.0)
+    """Builtin walkers: arrival rate of new pedestrians in the area (1/s)."""
+    walker_speed_mps: list = field(default_factory=lambda: [1.2, 0.2])
+    """Builtin walkers: mean and std of the walking speed (m/s), typical indoor walking."""
+    person_height_m: list = field(default_factory=lambda: [1.5, 1.9])
+    """Range [min, max] of pedestrians' head-top heights (m), drawn uniformly."""
+    companion_fraction: float = _nuisance(0.0)
+    """Fraction of the run during which a pedestrian walks beside the robot (-), default 0."""
+    companion_offset_m: float = 0.7
+    """Lateral distance of that companion from the robot's centre (m)."""
+
+    # ---- robot ----------------------------------------------------------------------------------
+    head_offset_m: list = field(default_factory=lambda: [0.0, 0.0, 1.35])
+    """Top of the robot's head in its base frame (m), written to meta.yaml (1.35 m in the paper)."""
+    robot_speed_mps: float = 0.3
+    """Cruise speed of the robot (m/s)."""
+    lane_spacing_m: float = 0.9
+    """Spacing of the lawnmower lanes of the route (m)."""
+    route_margin_m: float = 0.5
+    """Distance the route keeps from the area's border (m)."""
+    lookahead_m: float = 0.5
+    """Pure-pursuit lookahead distance (m): sets how smoothly corners are cut."""
+    max_turn_rate_dps: float = 40.0
+    """Cap of the robot's turn rate (deg/s)."""
+    truth_rate_hz: float = 20.0
+    """Rate of the true robot poses (truth_robot.csv) and of wheel odometry (Hz)."""
+    duration_s: float | None = None
+    """Cut each run after this time (s); None drives the whole route."""
+    start_time_s: float = 1000.0
+    """Clock time at which the calibration run starts (s)."""
+    eval_gap_s: float = 60.0
+    """Time between the end of the calibration run and the start of the evaluation run (s)."""
+
+    # ---- AMCL -----------------------------------------------------------------------------------
+    amcl_rate_hz: float = 5.0
+    """Rate at which AMCL publishes its estimate (Hz)."""
+    amcl_sigma_m: float = _nuisance(0.05)
+    """Stationary std of AMCL's position error per axis (m); ~5 cm in the paper."""
+    amcl_sigma_yaw_deg: float = _nuisance(1.0)
+    """Stationary std of AMCL's heading error (deg)."""
+    amcl_tau_s: float = 20.0
+    """Correlation time of AMCL's error, a Gauss-Markov (Ornstein-Uhlenbeck) process (s): the
+    particle cloud drifts slowly between scan matches, 10-30 s."""
+    amcl_reported_sigma_m: list = field(default_factory=lambda: [0.02, 0.08])
+    """Range [min, max] of the std AMCL *reports* (m); it varies with time and is uncorrelated
+    with the actual error, as amcl's covariance is."""
+    amcl_reported_sigma_yaw_deg: list = field(default_factory=lambda: [0.5, 2.0])
+    """Range [min, max] of the heading std AMCL reports (deg)."""
+
+    # ---- wheel odometry -------------------------------------------------------------------------
+    odom_scale_error: float = _nuisance(0.01)
+    """Relative error of the distance the wheels report (-): tyre radius, ~1 %."""
+    odom_yaw_drift_deg_per_m: float = _nuisance(0.5)
+    """Heading drift per metre driven (deg/m): wheel-base error and slip."""
+    odom_gyro_bias_dps: float = _nuisance(0.02)
+    """Heading drift per second (deg/s): gyro bias of a fused odometry."""
+    odom_noise_m: float = _nuisance(0.001)
+    """Std of white noise on each position increment (m)."""
+    odom_noise_yaw_deg: float = _nuisance(0.05)
+    """Std of white noise on each heading increment (deg)."""
+
+    # ---- installed extrinsics (what a person measured) --------------------------------------------
+    installed_shift_m: float = 0.2
+    """Std per horizontal axis of the whole network's shift (m): the survey's origin is off."""
+    installed_turn_deg: float = 2.0
+    """Std of the whole network's turn about its centroid (deg): the survey's axes are off."""
+    installed_sigma_position_m: list = field(default_factory=lambda: [0.2, 0.2, 0.08])
+    """Std per axis [x, y, z] of each sensor's own position error (m): tape-measure work on a
+    ladder; heights are easier to measure."""
+    installed_sigma_ypr_deg: list = field(default_factory=lambda: [4.0, 3.0, 1.5])
+    """Std of each sensor's own [yaw, pitch, roll] error (deg): angles are guessed by eye."""
+    installed_cap_m: float = 1.0
+    """Cap of a sensor's total position error (m)."""
+    installed_cap_deg: float = 15.0
+    """Cap of a sensor's total rotation error (deg)."""
+
+    # ---- bookkeeping ----------------------------------------------------------------------------
+    seed: int = 0
+    """Seed of every random generator; the same seed gives identical logs."""
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    @classmethod
+    def nuisances(cls) -> dict:
+        """{name: off value} of every nuisance parameter."""
+        return {f.name: f.metadata["off"] for f in dataclasses.fields(cls) if "off" in f.metadata}
+
+    def resolve(self, *, noise_free: bool = False, source: str | Path | None = None,
+                **overrides) -> Scenario:
+        """A copy with ``overrides`` applied (unknown names rejected) and, with
+        ``noise_free=True``, every nuisance set to its off value."""
+        values = dataclasses.asdict(self)
+        if noise_free:
+            values.update(self.nuisances())
+        for key, value in overrides.items():
+            if key not in values:
+                raise PedcalInputError(f"unknown scenario parameter '{key}'", path=source, column=key)
+            values[key] = value
+        return _typed(values, source)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+_OPTIONAL_TYPES = {"duration_s": float, "sensor_ids": list, "row_y_m": list}
+_VARIABLE_LISTS = ("pitch_deg",)
+
+
+def _typed(values: dict, source) -> Scenario:
+    """Build a Scenario, checking each value against its default's type."""
+    defaults = dataclasses.asdict(Scenario())
+    out = {}
+    for key, value in values.items():
+        default = defaults[key]
+        try:
+            if value is None:
+                out[key] = None
+            elif default is None:
+                out[key] = _OPTIONAL_TYPES[key](value)
+            elif isinstance(default, bool):
+                out[key] = bool(value)
+            elif isinstance(default, int) and not isinstance(default, bool):
+                if float(value) != int(value):
+                    raise ValueError
+                out[key] = int(value)
+            elif isinstance(default, float):
+                out[key] = float(value)
+            elif isinstance(default, str):
+                if not isinstance(value, str):
+                    raise ValueError
+                out[key] = value
+            elif isinstance(default, list):
+                value = [float(v) for v in value]
+                if len(value) != len(default) and not (key in _VARIABLE_LISTS and value):
+                    raise ValueError
+                out[key] = value
+            else:
+                out[key] = value
+        except (TypeError, ValueError):
+            raise PedcalInputError(f"expected a value like {default!r}, got {value!r}",
+                                   path=source, column=key) from None
+    if out["walkers"] not in WALKER_SOURCES:
+        raise PedcalInputError(f"expected one of {', '.join(WALKER_SOURCES)}, got {out['walkers']!r}",
+                               path=source, column="walkers")
+    if out["row_y_m"] is not None:
+        try:
+            out["row_y_m"] = [float(v) for v in out["row_y_m"]]
+        except (TypeError, ValueError):
+            raise PedcalInputError("expected a list of numbers", path=source, column="row_y_m") from None
+    if out["sensor_ids"] is not None:
+        out["sensor_ids"] = [str(s) for s in out["sensor_ids"]]
+    return Scenario(**out)
+
+
+def scenario_path(name_or_path: str | Path) -> Path:
+    """A scenario name of ``datasets/`` (paper, sparse, mall) or a YAML file path."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        if not p.is_file():
+            raise PedcalInputError("scenario file not found", path=p)
+        return p
+    candidate = DATASETS_DIR / f"{name_or_path}.yaml"
+    if not candidate.is_file():
+        known = sorted(q.stem for q in DATASETS_DIR.glob("*.yaml"))
+        raise PedcalInputError(f"unknown scenario '{name_or_path}', expected one of {', '.join(known)} "
+                               "or a path to a YAML file", path=candidate)
+    return candidate
+
+
+def load_scenario(name_or_path: str | Path | Scenario, *, _seen: tuple = ()) -> Scenario:
+    """Load a scenario by name or path; ``base:`` inherits another scenario's values."""
+    if isinstance(name_or_path, Scenario):
+        return name_or_path
+    path = scenario_path(name_or_path)
+    if path.resolve() in _seen:
+        raise PedcalInputError("scenario files include each other in a loop", path=path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except yaml.YAMLError as exc:
+        raise PedcalInputError(f"not valid YAML ({exc})", path=path) from None
+    if not isinstance(data, dict):
+        raise PedcalInputError("expected a mapping of scenario parameters", path=path)
+    base = Scenario()
+    if "base" in data:
+        base_ref = data.pop("base")
+        base_path = Path(base_ref) if Path(str(base_ref)).suffix else base_ref
+        if isinstance(base_path, Path) and not base_path.is_absolute():
+            base_path = path.parent / base_path
+        base = load_scenario(base_path, _seen=_seen + (path.resolve(),))
+    data.setdefault("name", path.stem)
+    return base.resolve(source=path, **data)
