@@ -44,7 +44,8 @@ def make_log(seed=0) -> Log:
                               "who": rng.choice(["robot", "17", "false"], m)}).astype({"who": str})
     truth = make_network(rng)
     return Log(sensors=sensors, robot=robot, observations=obs, odometry=odometry,
-               meta=Meta(np.array([0.01, -0.02, 1.351]), {"robot": "sim", "seed": seed}), truth=truth,
+               meta=Meta(np.array([0.01, -0.02, 1.351]), {"robot": "sim", "seed": seed, "area_m": [20.0, 10.0]}),
+               truth=truth,
                truth_robot=truth_robot, truth_observations=truth_obs)
 
 
@@ -84,6 +85,14 @@ def test_log_round_trip_is_exact(tmp_path, fmt):
     assert back.meta.notes == log.meta.notes
     assert back.truth_observations["row"].dtype == np.int64
     assert back.observations["sensor"].map(type).eq(str).all()
+
+
+def test_numpy_values_in_notes_are_written_as_plain_yaml(tmp_path):
+    log = make_log(8)
+    log.meta.notes = {"seed": np.int64(8), "area_m": np.array([20.0, 10.0]), "rate": np.float64(0.5)}
+    write_log(log, tmp_path)
+    assert "area_m: [20.0, 10.0]" in (tmp_path / "meta.yaml").read_text()
+    assert read_log(tmp_path).meta.notes == {"seed": 8, "area_m": [20.0, 10.0], "rate": 0.5}
 
 
 def test_rewrite_in_other_format_removes_stale_tables(tmp_path):

@@ -300,7 +300,7 @@ def write_log(log: Log, path: str | Path, fmt: str = "csv") -> dict[str, Path]:
         if df is not None:
             written[name] = write_table(table_for_writing(df, name), directory / f"{name}.{fmt}")
     meta_path = directory / "meta.yaml"
-    write_text_atomic(meta_path, meta_yaml_text(log.meta))
+    write_text_atomic(meta_path, meta_yaml_text(log.meta if log.meta is not None else Meta()))
     written["meta"] = meta_path
     if log.truth is not None:
         written["truth"] = write_sensors_yaml(log.truth, directory / "truth.yaml")

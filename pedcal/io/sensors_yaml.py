@@ -153,6 +153,10 @@ class _Dumper(yaml.SafeDumper):
 
 
 _Dumper.add_representer(_FlowList, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
+# Notes and extra keys may carry numpy values (a simulator's seed, a vector): write them as plain YAML.
+_Dumper.add_multi_representer(np.generic, lambda d, v: d.represent_data(v.item()))
+_Dumper.add_representer(np.ndarray, lambda d, v: d.represent_data(_FlowList(v.tolist()) if v.ndim == 1
+                                                                  else v.tolist()))
 
 
 def flow_vector(values) -> _FlowList:
