@@ -223,7 +223,7 @@ def test_random_scene_places_without_overlap(seed):
             d = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
             assert np.all(d > a[:, None, 2] + b[None, :, 2])
     for p in scene.people:
-        assert abs(np.degrees(np.arctan2(p.y_m, p.x_m))) <= 60.0 and np.hypot(p.x_m, p.y_m) >= 0.8
+        assert abs(np.degrees(np.arctan2(p.y_m, p.x_m))) <= 60.0 and 0.8 <= np.hypot(p.x_m, p.y_m) <= 5.0
         assert 1.45 <= p.height_m <= 1.95 and 0.35 <= p.width_m <= 0.55 and 0.2 <= p.depth_m <= 0.35
     static = [p for p in scene.people if p.velocity_mps == (0.0, 0.0)]
     assert all(p.pose in ("standing", "carrying") for p in static)

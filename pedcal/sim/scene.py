@@ -30,6 +30,7 @@ CLUTTER_WEIGHTS = {
     "wall": 1.0, "pillar": 1.0, "pole": 1.0, "chair": 1.5, "potted_plant": 1.5, "sign": 1.0,
     "trolley": 1.0, "box": 1.5, "coat_stand": 1.0,
 }
+CLUTTER_IN_VIEW = 0.75  # share of non-wall clutter random_scene puts inside the sensors' cone
 FLOOR_ID = -1
 CEILING_ID = -2
 
@@ -562,12 +563,12 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
 
     People are placed inside ``area`` = (x_min, x_max, y_min, y_max), within
     ``fov_half_angle_deg`` of the +x axis (what the two front FX8s see) and at most
-    ``max_person_range_m`` (default x_max) from the origin; clutter anywhere in
-    ``area`` (walls may extend beyond it). No footprints interpenetrate. A fraction
-    ``static_fraction`` of the people stand still, the others walk along their heading at a speed
-    from ``walking_speed_mps``. With ``allow_occlusion=False`` no object overlaps a person in
-    bearing from the origin. Objects that cannot be placed after many draws are left out with a
-    warning.
+    ``max_person_range_m`` (default x_max) from the origin; three quarters of the other clutter
+    in that cone too, the rest and the walls anywhere in ``area`` (walls may extend beyond it).
+    No footprints interpenetrate. A fraction ``static_fraction`` of the people stand still, the
+    others walk along their heading at a speed from ``walking_speed_mps``. With
+    ``allow_occlusion=False`` nothing nearer overlaps a person in bearing from the origin.
+    Objects that cannot be placed after many draws are left out with a warning.
     """
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x_min, x_max, y_min, y_max = area
@@ -598,9 +599,11 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
     dropped: list[str] = []
 
     def place(obj: SceneObject, person: bool) -> bool:
+        # People always, most clutter too, go in the sensors' cone; the rest of the clutter anywhere.
+        in_cone = person or (obj.kind != "wall" and rng.random() < CLUTTER_IN_VIEW)
         for _ in range(200):
-            if person:
-                r = rng.uniform(r_min, r_max)
+            if in_cone:
+                r = rng.uniform(r_min, r_max if person else max(r_max, x_max))
                 b = rng.uniform(-half_fov, half_fov)
                 x, y = r * np.cos(b), r * np.sin(b)
                 if not (x_min <= x <= x_max and y_min <= y <= y_max):
