@@ -48,13 +48,13 @@ def _walkers(rng, n_people, duration_s):
     return people
 
 
-def _observe(truth, installed, people, rng, noise_m=0.0, false_tracks=0, duration_s=60.0):
+def _observe(truth, installed, people, rng, noise_m=0.0, false_tracks=0, duration_s=60.0, t0_s=0.0):
     """observations.csv as the trackers report it: unsynchronized 15 Hz samples, a new track id
     per contiguous visible stretch, world points computed with the installed extrinsics."""
     rows = []
     next_id = 0
     for s in truth:
-        t = rng.uniform(0, 1 / RATE_HZ) + np.arange(0, duration_s, 1 / RATE_HZ)
+        t = t0_s + rng.uniform(0, 1 / RATE_HZ) + np.arange(0, duration_s, 1 / RATE_HZ)
         for t_knots, xyz_knots in people:
             inside = (t >= t_knots[0]) & (t <= t_knots[-1])
             tt = t[inside]
@@ -72,7 +72,7 @@ def _observe(truth, installed, people, rng, noise_m=0.0, false_tracks=0, duratio
                                           "x": w[:, 0], "y": w[:, 1], "z": w[:, 2]}))
                 next_id += 1
         for _ in range(false_tracks):
-            t0 = rng.uniform(0, duration_s - 3)
+            t0 = t0_s + rng.uniform(0, duration_s - 3)
             tt = t[(t >= t0) & (t < t0 + 3)]
             p_sensor = np.array([2.0, 0.0, -1.0]) + np.cumsum(rng.normal(0, 0.05, (len(tt), 3)), axis=0)
             w = installed[s.id].to_world(p_sensor)
@@ -254,3 +254,29 @@ def test_text_in_a_number_column_is_an_input_error(noise_free):
     with pytest.raises(PedcalInputError) as err:
         calibrate(Log(sensors=log.sensors, robot=log.robot, observations=obs), method="alternative")
     assert err.value.row == 11 and err.value.column == "x" and "1,5" in str(err.value)
+
+
+def test_real_pedestrian_flow_atc(shared_data):
+    """Real walkers (ATC shopping centre, 1 Hz tracks, groups included) through a simulated
+    four-sensor network over the busiest corridor cell: relative poses come back."""
+    from pedcal.io.pedestrians import read_atc
+
+    people_table = read_atc(shared_data / "atc" / "atc-1024-10_test.csv")
+    rng = np.random.default_rng(6)
+    centre = np.array([-22.5, 2.5])   # busiest 5 m cell of this recording
+    shift = np.r_[centre - np.array([2.0, 0.0]), 0.0]
+    truth = SensorNetwork([SensorExtrinsics(s.id, s.position_m + shift, s.ypr_deg) for s in TRUTH])
+    people = []
+    for _, walk in people_table.sort_values("t").groupby("person"):
+        if len(walk) >= 2:
+            xy = walk[["x", "y"]].to_numpy(float)
+            people.append((walk["t"].to_numpy(float), np.column_stack([xy, np.full(len(xy), rng.uniform(1.5, 1.9))])))
+    t0_s = people_table["t"].min()
+    duration_s = people_table["t"].max() - t0_s
+    log = _observe(truth, _perturb(truth, rng, 0.5, 8.0), people, rng, duration_s=duration_s, t0_s=t0_s)
+    result, _ = _calibrate(log, sample_period_s=1.0)   # one shared point a second keeps it fast
+    assert result.diagnostics["rounds"][0]["ambiguous"] > 0   # walkers in groups
+    assert {"s0-s1", "s0-s2", "s0-s3"} <= set(result.diagnostics["pairs"])
+    for sid, (d_mm, d_deg) in _relative_errors(result.network, truth, "s0", ["s1", "s2", "s3"]).items():
+        assert d_mm < 10.0, (sid, d_mm)
+        assert d_deg < 0.2, (sid, d_deg)
