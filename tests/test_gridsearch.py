@@ -55,6 +55,30 @@ def test_fast_search_equals_exhaustive_search(seed, noise_m):
         (brute.zdev_m, brute.zdist_m, brute.xydev_m, brute.xydist_m)
 
 
+def test_full_scan_fallback_equals_exhaustive_search(monkeypatch):
+    """With branch and bound disabled, the chunked closed-form scan of every pitch/roll cell."""
+    truth, p, head, initial = _pairs(8, 90, 0.02, offset_m=0.06, angle_deg=1.5)
+    opts = dict(angle_range_deg=2.0, offset_range_m=0.1)
+    brute = gs.brute_force_grid_search_sensor(p, head, initial, **opts)
+    monkeypatch.setattr(gs, "BNB_MAX_BLOCKS", 1)
+    monkeypatch.setattr(gs, "CHUNK_ELEMENTS", 5000)    # many chunks, the minimum in a late one
+    fast = gs.grid_search_sensor(p, head, initial, **opts)
+    assert fast.index == brute.index and fast.zdev_m == brute.zdev_m
+
+
+@pytest.mark.filterwarnings("ignore:sensor s1. grid optimum on the edge:UserWarning")
+def test_flat_objective_warns(monkeypatch):
+    """Every sensor point identical: ZDev is the same everywhere, pitch/roll are not determined."""
+    p = np.tile([2.0, 0.1, -0.3], (30, 1))
+    head = np.column_stack([np.linspace(0, 1, 30), np.zeros(30), np.full(30, 1.35)])
+    initial = SensorExtrinsics("s1", [0.0, 0.0, 2.6], [0.0, 45.0, 0.0])
+    monkeypatch.setattr(gs, "MAX_SCREEN_CANDIDATES", 1000)
+    monkeypatch.setattr(gs, "BNB_MAX_BLOCKS", 100)
+    with pytest.warns(DegenerateDataWarning, match="ZDev over pitch/roll is flat"):
+        res = gs.grid_search_sensor(p, head, initial, angle_range_deg=1.0, offset_range_m=0.05)
+    assert res.zdev_m < 1e-12 and abs(res.index["pitch"]) <= 100 and abs(res.index["roll"]) <= 100
+
+
 def test_fast_search_equals_exhaustive_search_on_unstructured_points():
     """Points that no pose explains: the optimum sits anywhere, also on the range edge."""
     rng = np.random.default_rng(7)

@@ -25,10 +25,13 @@ cells, bit for bit, much faster:
 
 - ZDev: ``var = r3^T S r3 - 2 r3^T c + v`` with S = cov(p), c = cov(p, z_head), v = var(z_head)
   is, on the pitch/roll grid, ``A(pitch) + B(pitch) g(roll) + C(pitch) h(roll) + D(pitch) k(roll)``:
-  a rank-4 product evaluated in bounded chunks, O(1) per cell after one O(N) pass. Every cell
-  whose closed-form value is within a rounding bound ``tol`` of the minimum is then evaluated
-  with the plain definition, which picks the winner. Since both computations err by less than
-  tol / 2, the plain argmin is always among these candidates.
+  O(1) per cell after one O(N) pass. Its slope is at most ``2 (|S| + |c|)`` per radian in pitch
+  and in roll, so a branch and bound over blocks of the 12001^2 grid (a block's centre value
+  minus slope x its angular reach bounds every cell in it) evaluates only the cells near the
+  minimum; a flat objective falls back to a chunked scan of every cell. Every cell whose
+  closed-form value is within a rounding bound ``tol`` of the minimum is then evaluated with the
+  plain definition, which picks the winner. Since both computations err by less than tol / 2,
+  the plain argmin is always among these candidates.
 - XYDev: the same screening with ``var = T_q - 2 (cos yaw a + sin yaw b) + T_h``.
 - ZDist: the plain definition on all 401 values (cheap).
 - XYDist: branch and bound over blocks of the x/y grid. XYDist is 1-Lipschitz, so a block whose
@@ -59,6 +62,7 @@ DEGENERATE_MINOR_RATIO = 0.10    # ... or below this fraction of the spread alon
 # bound costs a few extra evaluations and nothing in exactness.
 SCREEN_RTOL = 1e-9
 MAX_SCREEN_CANDIDATES = 2_000_000
+BNB_MAX_BLOCKS = 1_000_000       # more open blocks than this: the objective is flat, scan instead
 CHUNK_ELEMENTS = 4_000_000       # cells x points (or cells) held in memory at once
 
 
@@ -235,35 +239,92 @@ class _Grids:
         self.offset_step_m = float(offset_step_m)
 
 
-def _screened_argmin(chunks, evaluate_plain, tol: float, what: str) -> tuple[float, int]:
+def _screen_tol(scale: float, magnitude: float) -> float:
+    """Bound on the closed-form and plain rounding errors (see SCREEN_RTOL)."""
+    return SCREEN_RTOL * (scale + np.sqrt(scale) * magnitude) + 1e-300
+
+
+def _verify_candidates(flat, vals, best: float, tol: float, evaluate_plain, what: str,
+                       overflow: bool = False) -> tuple[float, int]:
     """First plain argmin among the cells whose closed-form value is within ``tol`` of the
-    closed-form minimum. ``chunks`` yields (flat indices, closed-form values) in grid order."""
-    best = np.inf
-    kept_flat, kept_val, n_kept = [], [], 0
-    for flat, vals in chunks:
-        vmin = vals.min()
-        if vmin <= best + tol:
-            best = min(best, float(vmin))
-            sel = vals <= best + tol
-            kept_flat.append(flat[sel])
-            kept_val.append(vals[sel])
-            n_kept += int(sel.sum())
-            if n_kept > 4 * MAX_SCREEN_CANDIDATES:          # prune what the new minimum excludes
-                f, v = np.concatenate(kept_flat), np.concatenate(kept_val)
-                keep = v <= best + tol
-                kept_flat, kept_val, n_kept = [f[keep]], [v[keep]], int(keep.sum())
-    flat = np.concatenate(kept_flat)
-    vals = np.concatenate(kept_val)
-    flat = flat[vals <= best + tol]
-    if len(flat) > MAX_SCREEN_CANDIDATES:
-        warnings.warn(f"{what} is flat to rounding over {len(flat)} grid cells: it is not determined "
+    closed-form minimum ``best``: it is the exhaustive plain argmin (module docstring).
+    ``overflow``: too many such cells were found to keep (``flat`` holds the first minimum)."""
+    sel = vals <= best + tol
+    flat, vals = flat[sel], vals[sel]
+    if overflow or len(flat) > MAX_SCREEN_CANDIDATES:
+        warnings.warn(f"{what} is flat to rounding over more than {MAX_SCREEN_CANDIDATES} grid cells: "
+                      "it is not determined "
                       "by the data; taking the first closed-form minimum", DegenerateDataWarning,
-                      stacklevel=3)
-        vals = vals[vals <= best + tol]
-        vmin = vals.min()
-        return float(vmin), int(flat[vals == vmin].min())
+                      stacklevel=4)
+        return _first_min(vals, flat)
+    flat = np.unique(flat)
     plain = np.concatenate([evaluate_plain(flat[s:s + 65536]) for s in range(0, len(flat), 65536)])
     return _first_min(plain, flat)
+
+
+def _screened_scan(chunks, tol: float):
+    """Scan (flat indices, closed-form values) chunks in grid order, keeping the cells within tol
+    of the running minimum: (kept flat, kept values, minimum). When more than
+    MAX_SCREEN_CANDIDATES stay within tol (a flat objective), only the first minimum is kept."""
+    best, first = np.inf, -1
+    kept_flat, kept_val, n_kept, overflow = [], [], 0, False
+    for flat, vals in chunks:
+        vmin = float(vals.min())
+        if vmin < best:
+            first = int(flat[np.argmin(vals)])
+        if vmin > best + tol or overflow:
+            best = min(best, vmin)
+            continue
+        best = min(best, vmin)
+        sel = vals <= best + tol
+        kept_flat.append(flat[sel])
+        kept_val.append(vals[sel])
+        n_kept += int(sel.sum())
+        if n_kept > MAX_SCREEN_CANDIDATES:               # drop what the new minimum excludes
+            f, v = np.concatenate(kept_flat), np.concatenate(kept_val)
+            keep = v <= best + tol
+            kept_flat, kept_val, n_kept = [f[keep]], [v[keep]], int(keep.sum())
+            overflow = n_kept > MAX_SCREEN_CANDIDATES
+    if overflow:
+        return np.array([first]), np.array([best]), best, True
+    return np.concatenate(kept_flat), np.concatenate(kept_val), best, False
+
+
+def _branch_and_bound(evaluate, nx: int, ny: int, reach, slack: float, keep_tol: float,
+                      max_blocks: int | None = None, show=None):
+    """Cells of an nx x ny grid (flat index ix * ny + iy) within keep_tol of the minimum of a
+    function with a Lipschitz-type bound: |f(cell) - f(centre)| <= reach(|dix|, |diy|) + slack
+    (slack: rounding). Returns (flat, values, minimum) of every evaluated cell within keep_tol of
+    the running minimum, a superset of the cells within keep_tol of the grid minimum: a block is
+    dropped only when its centre value minus the reach of its farthest cell minus slack exceeds
+    the best cell seen plus keep_tol; the others are halved until they are single cells.
+    Returns None when more than max_blocks blocks stay open (a flat function: scan instead)."""
+    max_blocks = BNB_MAX_BLOCKS if max_blocks is None else max_blocks
+    blocks = np.array([[0, nx, 0, ny]])   # half-open index ranges ix0, ix1, iy0, iy1
+    best = np.inf
+    kept_flat, kept_val = [], []
+    level = 0
+    while len(blocks):
+        if len(blocks) > max_blocks:
+            return None
+        ix0, ix1, iy0, iy1 = blocks.T
+        cx, cy = (ix0 + ix1 - 1) // 2, (iy0 + iy1 - 1) // 2
+        vals = np.concatenate([evaluate(cx[s:s + 16384], cy[s:s + 16384]) for s in range(0, len(blocks), 16384)])
+        best = min(best, float(vals.min()))
+        sel = vals <= best + keep_tol
+        kept_flat.append((cx * ny + cy)[sel])
+        kept_val.append(vals[sel])
+        bound = vals - reach(np.maximum(cx - ix0, ix1 - 1 - cx), np.maximum(cy - iy0, iy1 - 1 - cy)) - slack
+        b = blocks[(bound <= best + keep_tol) & ((ix1 - ix0) * (iy1 - iy0) > 1)]
+        mx, my = (b[:, 0] + b[:, 1]) // 2, (b[:, 2] + b[:, 3]) // 2
+        children = np.concatenate([
+            np.column_stack([b[:, 0], mx, b[:, 2], my]), np.column_stack([b[:, 0], mx, my, b[:, 3]]),
+            np.column_stack([mx, b[:, 1], b[:, 2], my]), np.column_stack([mx, b[:, 1], my, b[:, 3]])])
+        blocks = children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])]
+        level += 1
+        if show is not None:
+            show(min(1.0, level / np.ceil(np.log2(max(nx, ny, 2)) + 1)))
+    return np.concatenate(kept_flat), np.concatenate(kept_val), best
 
 
 def _zdev_fast(p, head_z, grids: _Grids, show) -> tuple[float, int, int]:
@@ -283,23 +344,37 @@ def _zdev_fast(p, head_z, grids: _Grids, show) -> tuple[float, int, int]:
                       S[1, 1] * sr * sr + 2 * S[1, 2] * sr * cr + S[2, 2] * cr * cr,
                       S[0, 1] * sr + S[0, 2] * cr,
                       c[1] * sr + c[2] * cr])
+    cols_t = np.ascontiguousarray(cols.T)
     scale = (np.sqrt(np.trace(S)) + np.sqrt(v)) ** 2
-    magnitude = np.abs(p).sum(axis=1).max() + abs(float(grids.z[grids.kz0][0])) + np.abs(head_z).max()
-    tol = SCREEN_RTOL * (scale + np.sqrt(scale) * magnitude) + 1e-300
-    n_pitch, n_roll = len(pitch), len(roll)
-    chunk = _rows_per_chunk(n_roll)
-
-    def chunks():
-        for start in range(0, n_pitch, chunk):
-            stop = min(n_pitch, start + chunk)
-            vals = (rows[start:stop] @ cols).ravel()
-            yield np.arange(start * n_roll, stop * n_roll), vals
-            show("pitch/roll", stop / n_pitch)
-
     tz = grids.z[grids.kz0]
-    zdev, k = _screened_argmin(
-        chunks(), lambda f: _zdev_cells(p, head_z, tz, pitch, roll, f // n_roll, f % n_roll),
-        tol, "ZDev over pitch/roll")
+    magnitude = np.abs(p).sum(axis=1).max() + abs(float(tz[0])) + np.abs(head_z).max()
+    tol = _screen_tol(scale, magnitude)
+    n_pitch, n_roll = len(pitch), len(roll)
+
+    # |dvar/dangle| = |2 (S r3 - c) . dr3/dangle| <= 2 (|S| + |c|) per radian, for pitch and roll
+    # (|dr3/dpitch| = 1, |dr3/droll| = |cos pitch| <= 1).
+    slope = 2.0 * (np.linalg.norm(S, 2) + np.linalg.norm(c)) * (1.0 + 1e-9)
+    step_p = np.radians(np.abs(np.diff(pitch.deg)).max(initial=0.0))
+    step_r = np.radians(np.abs(np.diff(roll.deg)).max(initial=0.0))
+    found = _branch_and_bound(lambda ip, ir: np.einsum("ij,ij->i", rows[ip], cols_t[ir]), n_pitch, n_roll,
+                              lambda di, dj: slope * (step_p * di + step_r * dj), tol, tol,
+                              show=lambda x: show("pitch/roll", x))
+    if found is None:
+        chunk = _rows_per_chunk(n_roll)
+
+        def chunks():
+            for start in range(0, n_pitch, chunk):
+                stop = min(n_pitch, start + chunk)
+                yield np.arange(start * n_roll, stop * n_roll), (rows[start:stop] @ cols).ravel()
+                show("pitch/roll (full scan)", stop / n_pitch)
+
+        found = _screened_scan(chunks(), tol)
+    else:
+        found = (*found, False)
+    flat, vals, best, overflow = found
+    zdev, k = _verify_candidates(
+        flat, vals, best, tol, lambda f: _zdev_cells(p, head_z, tz, pitch, roll, f // n_roll, f % n_roll),
+        "ZDev over pitch/roll", overflow)
     ip, ir = divmod(k, n_roll)
     return zdev, ip, ir
 
@@ -315,43 +390,26 @@ def _xydev_fast(q, head_xy, t_xy, yaw: _AngleTable) -> tuple[float, int]:
     vals = t_q - 2 * (yaw.cos * a + yaw.sin * b) + t_h
     scale = (np.sqrt(t_q) + np.sqrt(t_h)) ** 2
     magnitude = np.abs(q[:, :2]).sum(axis=1).max() + np.abs(t_xy).sum() + np.abs(head_xy).sum(axis=1).max()
-    tol = SCREEN_RTOL * (scale + np.sqrt(scale) * magnitude) + 1e-300
-    return _screened_argmin([(np.arange(len(yaw)), vals)],
-                            lambda f: _xydev_cells(q, head_xy, t_xy, yaw, f), tol, "XYDev over yaw")
+    tol = _screen_tol(scale, magnitude)
+    return _verify_candidates(np.arange(len(yaw)), vals, float(vals.min()), tol,
+                              lambda f: _xydev_cells(q, head_xy, t_xy, yaw, f), "XYDev over yaw")
 
 
 def _xydist_branch_and_bound(r_xy, head_xy, x_grid, y_grid, step_m: float) -> tuple[float, int, int]:
     """First-in-grid-order (x-major) argmin of XYDist (eqs. 8-9) over x_grid x y_grid, exact.
 
     XYDist is 1-Lipschitz in (x, y), so a block whose centre cell has plain value f holds no cell
-    below f - r, r the farthest cell of the block from its centre. Blocks that cannot beat the best
-    cell seen are dropped; the rest are halved until they are single cells."""
-    nx, ny = len(x_grid), len(y_grid)
+    below f - r, r the farthest cell of the block from its centre: blocks that cannot reach the
+    best cell seen are dropped (:func:`_branch_and_bound`), every other cell is evaluated."""
+    ny = len(y_grid)
     scale = np.abs(r_xy).sum(axis=1).max() + np.abs(head_xy).sum(axis=1).max() + np.abs(x_grid).max() \
         + np.abs(y_grid).max()
-    margin = 1e-9 * (1.0 + scale)     # covers the rounding of two plain evaluations, generously
-    blocks = np.array([[0, nx, 0, ny]])   # half-open index ranges ix0, ix1, iy0, iy1
-    best_val, best_flat = np.inf, -1
-    while len(blocks):
-        ix0, ix1, iy0, iy1 = blocks.T
-        cx, cy = (ix0 + ix1 - 1) // 2, (iy0 + iy1 - 1) // 2
-        vals = np.concatenate([
-            _xydist_cells(r_xy, head_xy, x_grid, y_grid, cx[s:s + 4096], cy[s:s + 4096])
-            for s in range(0, len(blocks), 4096)])
-        flat = cx * ny + cy
-        v, f = _first_min(vals, flat)
-        if v < best_val or (v == best_val and f < best_flat):
-            best_val, best_flat = v, f
-        reach = step_m * np.hypot(np.maximum(cx - ix0, ix1 - 1 - cx), np.maximum(cy - iy0, iy1 - 1 - cy))
-        open_ = (vals - reach - margin <= best_val) & ((ix1 - ix0) * (iy1 - iy0) > 1)
-        b = blocks[open_]
-        mx, my = (b[:, 0] + b[:, 1]) // 2, (b[:, 2] + b[:, 3]) // 2
-        children = np.concatenate([
-            np.column_stack([b[:, 0], mx, b[:, 2], my]), np.column_stack([b[:, 0], mx, my, b[:, 3]]),
-            np.column_stack([mx, b[:, 1], b[:, 2], my]), np.column_stack([mx, b[:, 1], my, b[:, 3]])])
-        blocks = children[(children[:, 1] > children[:, 0]) & (children[:, 3] > children[:, 2])]
-    ix, iy = divmod(best_flat, ny)
-    return best_val, ix, iy
+    slack = 1e-9 * (1.0 + scale)      # covers the rounding of two plain evaluations, generously
+    flat, vals, best = _branch_and_bound(
+        lambda ix, iy: _xydist_cells(r_xy, head_xy, x_grid, y_grid, ix, iy), len(x_grid), ny,
+        lambda di, dj: step_m * (1.0 + 1e-9) * np.hypot(di, dj), slack, 0.0, max_blocks=len(x_grid) * ny)
+    value, k = _first_min(vals, flat)
+    return value, k // ny, k % ny
 
 
 def _finish_stages(p, head, grids: _Grids, ip: int, ir: int, zdev: float, timings: dict, *, brute: bool,
