@@ -83,20 +83,29 @@ def parse_float_column(values: pd.Series, path: Path, column: str) -> np.ndarray
     if pd.api.types.is_numeric_dtype(values.dtype) and not pd.api.types.is_bool_dtype(values.dtype):
         out = values.to_numpy(dtype=float, na_value=np.nan)
     else:
-        text = values.astype(object).where(values.notna(), "").astype(str).str.strip()
-        empty = (text == "").to_numpy()
-        if empty.any():
-            row = _first_bad(empty)
-            raise PedcalInputError("empty cell, expected a number", path=path, row=row, column=column)
-        out = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
-        bad = np.isnan(out) & ~text.str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
-        if bad.any():
-            row = _first_bad(bad)
-            raise PedcalInputError(f"expected a number, got {text.iloc[row]!r}", path=path, row=row,
-                                   column=column)
+        try:   # fast path: every cell parses (Python's correctly rounded float(), so CSV round trips exactly)
+            out = values.to_numpy(dtype=object).astype(float)
+        except (ValueError, TypeError):
+            out = _locate_bad_number(values, path, column)
     if not np.isfinite(out).all():
         row = _first_bad(~np.isfinite(out))
         raise PedcalInputError(f"expected a finite number, got {out[row]}", path=path, row=row, column=column)
+    return out
+
+
+def _locate_bad_number(values: pd.Series, path: Path, column: str) -> np.ndarray:
+    """Slow path of parse_float_column: find and report the first cell that is not a number."""
+    text = values.astype(object).where(values.notna(), "").astype(str).str.strip()
+    empty = (text == "").to_numpy()
+    if empty.any():
+        row = _first_bad(empty)
+        raise PedcalInputError("empty cell, expected a number", path=path, row=row, column=column)
+    out = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float)
+    bad = np.isnan(out) & ~text.str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
+    if bad.any():
+        row = _first_bad(bad)
+        raise PedcalInputError(f"expected a number, got {text.iloc[row]!r}", path=path, row=row,
+                               column=column)
     return out
 
 
