@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 import pandas as pd
+from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from pedcal.calib.common import Timer, head_world
@@ -42,7 +43,7 @@ DEFAULT_PARAMS = {
     "max_latency_s": 0.4,     # observation stamps may be late (or early) by up to this
     "latency_step_s": 0.1,    # coarse latency grid of the first consensus pass
     "n_seed_segments": 8,     # longest plausible segments that seed hypotheses (alone and in pairs)
-    "min_segment_points": 3,  # a segment needs this many points to be the robot
+    "min_segment_points": 3,  # points of a seed segment, and of a part of a segment after a swap
     "min_run_s": 1.0,         # a part of a segment (after a track swap) needs this duration
     "whole_fraction": 0.6,    # explained fraction above which the whole segment is the robot
     "max_gap_points": 2,      # unexplained runs this short inside an explained run are closed
@@ -235,8 +236,9 @@ def _select(sd: _SensorRows, inlier, params):
         for e, s2 in zip(ends[:-1], starts[1:], strict=True):
             if s2 - e <= params["max_gap_points"]:
                 f[e:s2] = True
-        if sd.seg_n[s] >= params["min_segment_points"] and f.mean() >= params["whole_fraction"]:
-            selected[a:b] = sd.in_range[a:b]
+        if f[sd.in_range[a:b]].mean() >= params["whole_fraction"]:
+            # the whole segment, also its points past either end of robot.csv
+            selected[a:b] = True
             kind[s] = "whole"
             continue
         edges = np.diff(np.r_[0, f.astype(int), 0])
@@ -245,7 +247,7 @@ def _select(sd: _SensorRows, inlier, params):
             if r1 - r0 >= params["min_segment_points"] and tt[-1] - tt[0] >= params["min_run_s"]:
                 selected[a + r0: a + r1] = True
                 kind[s] = "part"
-    return selected & sd.in_range, kind
+    return selected, kind
 
 
 def _refine(sd: _SensorRows, sensor, R, t, q, params):
@@ -254,7 +256,7 @@ def _refine(sd: _SensorRows, sensor, R, t, q, params):
     for _ in range(params["refine_iterations"]):
         r = _residuals(R[None], t[None], sd.p, q)[0]
         new_selected, kind = _select(sd, (r < params["inlier_m"]) & sd.in_range, params)
-        fit_mask = new_selected & (r < params["inlier_m"])
+        fit_mask = new_selected & (r < params["inlier_m"]) & sd.in_range
         if fit_mask.sum() < 3 or (selected is not None and np.array_equal(new_selected, selected)):
             selected = new_selected
             break
@@ -269,14 +271,23 @@ def _refine(sd: _SensorRows, sensor, R, t, q, params):
 # --------------------------------------------------------------------------- latency
 
 
-def _head_interpolator(log: Log):
-    """t -> AMCL head (N, 3), as :func:`robot_head_at` but sorting robot.csv once."""
-    track = log.robot.sort_values("t")
-    tt, x, y = (track[c].to_numpy(float) for c in ("t", "x", "y"))
-    yaw = np.unwrap(track["yaw"].to_numpy(float))
+def head_interpolator(log: Log):
+    """t -> the AMCL head top in the world (N, 3). Like :func:`pedcal.calib.common.robot_head_at`
+    but with a cubic spline through robot.csv (its estimates come at a few Hz: on a turn a
+    straight chord between them is off by centimetres, the spline by under a millimetre).
+    Times outside robot.csv are clamped to its ends."""
+    track = log.robot.groupby("t", sort=True)[["x", "y", "yaw"]].mean()   # one row per time
+    tt = track.index.to_numpy(float)
+    xy_yaw = np.column_stack([track["x"].to_numpy(float), track["y"].to_numpy(float),
+                              np.unwrap(track["yaw"].to_numpy(float))])
+    spline = CubicSpline(tt, xy_yaw, axis=0) if len(tt) >= 4 else None
 
     def head_at(t):
-        pose2 = np.column_stack([np.interp(t, tt, x), np.interp(t, tt, y), np.interp(t, tt, yaw)])
+        t = np.clip(np.asarray(t, float), tt[0], tt[-1])
+        if spline is None:
+            pose2 = np.column_stack([np.interp(t, tt, xy_yaw[:, i]) for i in range(3)])
+        else:
+            pose2 = spline(t)
         return head_world(pose2, log.meta.head_offset_m)
 
     return head_at
@@ -303,7 +314,7 @@ def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0
     group = np.cumsum(np.r_[False, codes[1:] != codes[:-1]])
     w = np.diff(np.r_[starts, len(codes)]).astype(float)
     sum_p = np.add.reduceat(p, starts, axis=0)
-    head_at = _head_interpolator(log)
+    head_at = head_interpolator(log)
 
     def sse(latency_s):
         q = head_at(t - latency_s)
@@ -365,7 +376,7 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
 
         n_lat = int(round(params["max_latency_s"] / params["latency_step_s"]))
         latencies = params["latency_step_s"] * np.arange(-n_lat, n_lat + 1)
-        head_at = _head_interpolator(log)
+        head_at = head_interpolator(log)
         heads = np.stack([head_at(t_all - lat) for lat in latencies])
 
         per_sensor = {}

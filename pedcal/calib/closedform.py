@@ -16,9 +16,10 @@ import warnings
 import gtsam
 import numpy as np
 
-from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
-from pedcal.calib.common import CalibrationResult, Timer, robot_head_at
+from pedcal.calib.association import estimate_latency, head_interpolator, moments, rigid_from_moments
+from pedcal.calib.common import CalibrationResult, Timer
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 MIN_PAIRS = 5
@@ -74,9 +75,14 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         sensor_col = log.observations["sensor"].astype(str).to_numpy()
         p_sensor_all = log.observation_points_sensor()
         t_all = log.observations["t"].to_numpy(float)
+        head_at = head_interpolator(log)
+        # robot observations past either end of robot.csv have no AMCL position to pair with
+        robot_t = log.robot["t"].to_numpy(float)
+        covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
+        diagnostics["unpaired_robot_observations"] = int((is_robot & ~covered).sum())
         sensors_out = []
         for i, s in enumerate(log.sensors):
-            rows = np.flatnonzero(is_robot & (sensor_col == s.id))
+            rows = np.flatnonzero(is_robot & (sensor_col == s.id) & covered)
             n = len(rows)
             if progress:
                 print(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs", file=sys.stderr)
@@ -85,7 +91,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                                                     status="no-data"))
                 continue
             p_sensor = p_sensor_all[rows]
-            p_world = robot_head_at(log, t_all[rows] - latency_s)
+            p_world = head_at(t_all[rows] - latency_s)
             spread_m, direction = _line_direction(p_world)
             if spread_m < collinear_spread_m:
                 axis = ", ".join(f"{v:.2f}" for v in direction * np.sign(direction[np.argmax(np.abs(direction))]))
@@ -101,6 +107,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             diagnostics.setdefault("rms_residual_m", {})[s.id] = float(np.sqrt(np.mean(residual_m ** 2)))
             sensors_out.append(SensorExtrinsics.from_pose3(s.id, gtsam.Pose3(gtsam.Rot3(R), t),
                                                            observations=n, status="ok"))
-    return CalibrationResult(SensorNetwork(sensors_out, log.sensors.frame, dict(log.sensors.extra)),
+    extra = {**log.sensors.extra, LATENCY_KEY: round(float(latency_s), 4)}
+    return CalibrationResult(SensorNetwork(sensors_out, log.sensors.frame, extra),
                              method="closedform", runtime_s=timer.elapsed_s, is_robot=is_robot,
                              diagnostics=diagnostics)
