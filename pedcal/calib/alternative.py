@@ -377,7 +377,7 @@ def calibrate_alternative(log: Log, *, progress: bool = False, **options) -> Cal
             matches = report.matches
             n_points = sum(len(m.t) for m in matches)
             say(f"round {rnd + 1}: {report.candidates} candidate track pairs, {report.gated} gated, "
-                f"{report.ambiguous} ambiguous, {len(matches)} matched, {n_points} shared points; solving")
+                f"{report.ambiguous} ambiguous, {len(matches)} matched, {n_points} shared points")
             if not matches:
                 rounds_info.append({"candidates": report.candidates, "gated": report.gated,
                                     "ambiguous": report.ambiguous, "matched": 0, "points": 0})
