@@ -109,3 +109,23 @@ def test_mask_of_wrong_length_is_an_input_error():
     log, _ = make_log(noise=False, pedestrian=False, false_tracks=False, swap=False, walkers=0)
     with pytest.raises(PedcalInputError, match="one entry per observation"):
         calibrate_closedform(log, is_robot=np.ones(5, bool))
+
+
+@pytest.fixture(scope="module")
+def paper_noise_free():
+    from pedcal.sim import simulate_logs
+
+    return simulate_logs("paper", seed=0, noise_free=True).calib
+
+
+def test_noise_free_paper_scenario_association_and_closed_form_are_exact(paper_noise_free):
+    from pedcal.calib.association import score_association
+
+    log = paper_noise_free
+    res = calibrate_closedform(log)
+    score = score_association(log, res.is_robot)
+    assert score["precision"] == 1.0 and score["recall"] == 1.0
+    pos_mm, ang_deg = _errors(res.network, log.truth)
+    assert max(pos_mm.values()) < 1.0
+    assert max(ang_deg.values()) < 0.01
+    assert abs(res.diagnostics["latency_s"]) < 1e-3
