@@ -56,3 +56,11 @@ def test_load_rejects_a_bad_file(tmp_path):
         RealAdaBoost.load(bad)
     with pytest.raises(PedcalInputError):
         RealAdaBoost.load(tmp_path / "missing.npz")
+
+
+def test_saved_file_is_byte_reproducible(tmp_path):
+    X, y = toy(4, n=300)
+    m = RealAdaBoost(n_rounds=5).fit(X, y)
+    m.save(tmp_path / "a.npz")
+    m.save(tmp_path / "b.npz")
+    assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()

@@ -20,7 +20,9 @@ Bin statistics are computed for all features at once with one ``np.bincount`` pe
 
 from __future__ import annotations
 
+import io
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -114,11 +116,18 @@ class RealAdaBoost:
 
     # ---------------------------------------------------------------------------------------- I/O
     def save(self, path: str | Path) -> None:
-        """Write the model to a small .npz, atomically."""
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, feature=self.feature_, edges=self.edges_, h=self.h_,
-                     n_features=np.int64(self.n_features_), n_bins=np.int64(self.n_bins),
-                     n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed))
+        """Write the model to a small .npz, atomically and byte-reproducibly (fixed zip timestamps,
+        unlike ``np.savez``, so the same training gives the same file)."""
+        arrays = dict(feature=self.feature_, edges=self.edges_, h=self.h_,
+                      n_features=np.int64(self.n_features_), n_bins=np.int64(self.n_bins),
+                      n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed))
+        with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+            for name, arr in arrays.items():
+                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = zipfile.ZIP_DEFLATED
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
+                zf.writestr(info, buf.getvalue())
 
     @classmethod
     def load(cls, path: str | Path) -> RealAdaBoost:

@@ -32,6 +32,7 @@ from pedcal.track.features import features_matrix
 CELL_SIZE_M = 0.1
 MIN_CELL_SPAN_M = 0.2
 FLOOR_TOLERANCE_M = 0.05
+MIN_CLUSTER_POINTS = 5  # fewer points above the floor: a fragment, not gated
 GATE_HEIGHT_M = (0.8, 2.0)
 GATE_MAX_WIDTH_M = 1.2
 GATE_MAX_DEPTH_M = 1.2
@@ -153,9 +154,10 @@ def min_area_box(xy: np.ndarray) -> Box:
     return Box(float(cx), float(cy), float(max(ea[k], eb[k])), float(min(ea[k], eb[k])), yaw)
 
 
-def passes_gate(height_m: float, width_m: float, depth_m: float) -> bool:
-    """Step 6: the size gate 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m."""
-    return (GATE_HEIGHT_M[0] <= height_m <= GATE_HEIGHT_M[1]
+def passes_gate(height_m: float, width_m: float, depth_m: float, n_points: int = MIN_CLUSTER_POINTS) -> bool:
+    """Step 6: the size gate 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m (and at least
+    MIN_CLUSTER_POINTS points, so one stray point in a cell is no candidate)."""
+    return (n_points >= MIN_CLUSTER_POINTS and GATE_HEIGHT_M[0] <= height_m <= GATE_HEIGHT_M[1]
             and width_m <= GATE_MAX_WIDTH_M and depth_m <= GATE_MAX_DEPTH_M)
 
 
@@ -186,7 +188,7 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
     for idx in cluster_points(pts, ij, labels, floor_tolerance_m):
         box = min_area_box(pts[idx, :2])
         h = float(pts[idx, 2].max())
-        out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth)))
+        out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx))))
     return out
 
 

@@ -1,0 +1,47 @@
+"""Speed of ``pedcal.track.detection.detect`` on simulated frames of the paper's FX8 pair.
+
+Run: .venv/bin/python benchmarks/bench_detection.py [--frames N] [--repeats R]
+Prints the points per frame and the median / p90 time of one ``detect`` call (segmentation,
+gate, features and classification with the shipped model), and of the segmentation alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from pedcal.track.detection import detect, load_model, segment
+from pedcal.track.train import EVAL_STREAM, simulated_frame
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=50)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    model = load_model()
+    frames = [simulated_frame(EVAL_STREAM, 777, k, preset="fx8").points.astype(float) for k in range(args.frames)]
+    detect(frames[0], model)  # warm up (imports, caches)
+    t_detect, t_segment = [], []
+    for pts in frames:
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            detect(pts, model)
+            t1 = time.perf_counter()
+            segment(pts)
+            t2 = time.perf_counter()
+            t_detect.append(t1 - t0)
+            t_segment.append(t2 - t1)
+    n = np.array([len(p) for p in frames])
+    ms = 1e3 * np.array(t_detect)
+    ms_seg = 1e3 * np.array(t_segment)
+    print(f"frames: {len(frames)} of two FX8s, points per frame median {np.median(n):.0f} "
+          f"(min {n.min()}, max {n.max()}), {args.repeats} repeats each")
+    print(f"detect:  median {np.median(ms):.2f} ms, p90 {np.percentile(ms, 90):.2f} ms")
+    print(f"segment: median {np.median(ms_seg):.2f} ms, p90 {np.percentile(ms_seg, 90):.2f} ms")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,146 @@
+"""pedcal detect / detect-eval / train-detector end to end, point-cloud readers, the KITTI pedestrian."""
+
+import json
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from pedcal.cli import main
+from pedcal.errors import PedcalInputError
+from pedcal.track import detection as det
+from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
+from pedcal.track.train import train_detector
+
+
+def person_cloud(rng, cx=2.0, cy=0.5, n=1500, with_floor=True):
+    a = rng.uniform(-np.pi / 2, np.pi / 2, n) + np.pi  # the half facing the sensor
+    z = rng.uniform(0.0, 1.7, n)
+    r = np.where(z > 1.45, 0.1, 0.22)
+    pts = np.column_stack([cx + r * np.cos(a), cy + r * np.sin(a), z, rng.uniform(0.2, 0.5, n)])
+    if with_floor:
+        xy = rng.uniform([0.5, -2.0], [4.5, 2.0], (1500, 2))
+        pts = np.vstack([pts, np.column_stack([xy, rng.normal(0, 0.01, 1500), np.full(1500, 0.2)])])
+    return pts
+
+
+def test_bin_and_pcd_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    pts = person_cloud(rng)
+    pts[:, :3] = np.round(pts[:, :3], 4)
+    bin_path = tmp_path / "frame.bin"
+    pts.astype("<f4").tofile(bin_path)
+    np.testing.assert_allclose(read_point_cloud(bin_path), pts.astype(np.float32), atol=1e-6)
+    pcd = o3d.t.geometry.PointCloud()
+    pcd.point.positions = o3d.core.Tensor(pts[:, :3].astype(np.float32))
+    pcd.point.intensity = o3d.core.Tensor(pts[:, 3:4].astype(np.float32))
+    pcd_path = tmp_path / "frame.pcd"
+    o3d.t.io.write_point_cloud(str(pcd_path), pcd)
+    back = read_point_cloud(pcd_path)
+    np.testing.assert_allclose(back, pts, atol=1e-5)
+    # the same detections from both files and from the array
+    d_arr = det.detect(pts.astype(np.float32).astype(float))
+    for path in (bin_path, pcd_path):
+        assert main(["detect", str(path), "--json"]) == 0
+    assert len(d_arr) == 1 and d_arr[0].height == pytest.approx(1.7, abs=0.01)
+
+
+def test_detect_cli_json_output(tmp_path, capsys):
+    rng = np.random.default_rng(1)
+    path = tmp_path / "f.bin"
+    person_cloud(rng).astype("<f4").tofile(path)
+    capsys.readouterr()
+    assert main(["detect", str(path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out) == 1
+    assert set(out[0]) == {"x", "y", "height", "width", "depth", "yaw", "score", "is_person", "n_points"}
+    assert out[0]["x"] == pytest.approx(1.9, abs=0.15)
+    assert main(["detect", str(path)]) == 0
+    assert "is_person" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content,suffix", [(b"\x00" * 17, ".bin"), (b"garbage", ".pcd"), (b"x", ".xyz")])
+def test_bad_file_exits_2(tmp_path, capsys, content, suffix):
+    path = tmp_path / f"bad{suffix}"
+    path.write_bytes(content)
+    assert main(["detect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "Traceback" not in err
+    assert main(["detect", str(tmp_path / "missing.bin")]) == 2
+
+
+def test_nan_points_are_rejected(tmp_path):
+    path = tmp_path / "nan.bin"
+    pts = np.ones((10, 4), "<f4")
+    pts[3, 2] = np.nan
+    pts.tofile(path)
+    with pytest.raises(PedcalInputError, match="row 3"):
+        read_point_cloud(path)
+
+
+def test_sensor_referenced_cloud_is_shifted_to_the_floor():
+    rng = np.random.default_rng(2)
+    pts = person_cloud(rng)
+    shifted = pts.copy()
+    shifted[:, 2] -= 1.73  # a KITTI-like frame: z = 0 at the sensor
+    back, dz = floor_referenced(shifted)
+    assert dz == pytest.approx(1.73, abs=0.02)
+    np.testing.assert_allclose(back[:, 2], pts[:, 2], atol=0.02)
+    same, dz0 = floor_referenced(pts)
+    assert dz0 == 0.0 and same is pts
+
+
+def test_kitti_pedestrian_is_a_person(shared_data, capsys):
+    path = shared_data / "kitti_pedestrian" / "0_Pedestrian_0.bin"
+    pts = read_point_cloud(path)
+    floor_pts, dz = floor_referenced(pts)
+    assert dz == 0.0  # the crop is already floor-referenced
+    cands = det.segment(floor_pts)
+    assert any(c.gated for c in cands)
+    dets = det.detect(floor_pts)
+    assert len(dets) == 1
+    d = dets[0]
+    assert d.height == pytest.approx(1.83, abs=0.02)
+    assert d.is_person and d.score > 0.5
+    assert main(["detect", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["is_person"] is True
+
+
+def test_training_is_deterministic_by_seed(tmp_path):
+    a = train_detector(frames=12, seed=5, n_rounds=20)
+    b = train_detector(frames=12, seed=5, n_rounds=20)
+    c = train_detector(frames=12, seed=6, n_rounds=20)
+    a.save(tmp_path / "a.npz")
+    b.save(tmp_path / "b.npz")
+    c.save(tmp_path / "c.npz")
+    assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
+    assert (tmp_path / "a.npz").read_bytes() != (tmp_path / "c.npz").read_bytes()
+
+
+def test_train_detector_cli_and_labelled_inputs(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(60, 213))
+    y = (X[:, 0] > 0).astype(int)
+    np.savez(tmp_path / "lab.npz", features=X, labels=y)
+    out = tmp_path / "m.npz"
+    assert main(["train-detector", "--labelled", str(tmp_path / "lab.npz"), "-o", str(out)]) == 0
+    assert "training accuracy" in capsys.readouterr().out and out.is_file()
+    # a directory of clusters
+    for sub, n in (("person", 3), ("other", 3)):
+        (tmp_path / "dir" / sub).mkdir(parents=True)
+        for i in range(n):
+            pts = person_cloud(rng, n=200, with_floor=False) if sub == "person" else rng.uniform(0, 1, (50, 4))
+            np.save(tmp_path / "dir" / sub / f"{i}.npy", pts)
+    assert main(["train-detector", "--labelled", str(tmp_path / "dir"), "-o", str(tmp_path / "d.npz")]) == 0
+    # bad labelled input: exit 2, no output written
+    np.savez(tmp_path / "bad.npz", features=X[:, :10], labels=y)
+    assert main(["train-detector", "--labelled", str(tmp_path / "bad.npz"), "-o", str(tmp_path / "x.npz")]) == 2
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_detect_eval_json_keys(capsys):
+    assert main(["detect-eval", "--frames", "3", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"recall", "precision", "frames", "bands"}
+    assert out["frames"] == 3 and len(out["bands"]) == 3
+    assert 0.0 <= out["recall"] <= 1.0
