@@ -62,8 +62,12 @@ def installed_network(truth: SensorNetwork, sc: Scenario, rng: np.random.Generat
     position and angle errors, capped at ``installed_cap_m`` and ``installed_cap_deg``."""
     P = np.array([s.position_m for s in truth])
     centroid = P.mean(axis=0)
-    turn = frames.rot_from_ypr_deg([rng.normal(0.0, sc.installed_turn_deg), 0.0, 0.0])
-    shift = np.array([*rng.normal(0.0, sc.installed_shift_m, 2), 0.0])
+    # Sizes between half and 1.5 times the nominal ones, random direction and sense: a survey
+    # is off by about so much, never by several times it.
+    size = rng.uniform(0.5, 1.5, 2)
+    heading = rng.uniform(0.0, 2.0 * np.pi)
+    turn = frames.rot_from_ypr_deg([rng.choice([-1.0, 1.0]) * size[0] * sc.installed_turn_deg, 0.0, 0.0])
+    shift = size[1] * sc.installed_shift_m * np.array([np.cos(heading), np.sin(heading), 0.0])
     out = []
     for s, p in zip(truth, P, strict=True):
         d = rng.normal(0.0, sc.installed_sigma_position_m)
