@@ -23,6 +23,10 @@ from pedcal.model import Log, SensorNetwork
 # Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
 # Observation stamps are that much later than the instant the head was where it was seen.
 LATENCY_KEY = "tracker_latency_s"
+# Extra top-level key of a calibrated YAML: the radius (m) of the head dome the calibration
+# modelled. A tracker sees the point of the dome that faces it; the head top is that point moved
+# r along the viewing ray (to the dome centre) and r up. Absent or 0: points are taken as seen.
+HEAD_RADIUS_KEY = "head_radius_m"
 
 
 @dataclass
@@ -86,7 +90,8 @@ def robot_rows(log: Log) -> tuple[np.ndarray, str]:
 
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
-    extrinsics do not name)."""
+    extrinsics do not name), with the head-dome correction the extrinsics file carries."""
+    head_radius_m = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -95,7 +100,12 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
         if mask is not None:
             m &= mask
         if m.any():
-            out[m] = s.to_world(p_sensor[m])
+            p = p_sensor[m]
+            if head_radius_m > 0.0:    # dome-facing point -> dome centre -> head top
+                p = p + head_radius_m * p / np.linalg.norm(p, axis=1, keepdims=True)
+                out[m] = s.to_world(p) + np.array([0.0, 0.0, head_radius_m])
+            else:
+                out[m] = s.to_world(p)
     return out
 
 

@@ -48,7 +48,7 @@ from scipy.spatial.transform import Rotation
 from pedcal import frames
 from pedcal.calib.common import CalibrationResult, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
-from pedcal.metrics import LATENCY_KEY
+from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 try:
@@ -84,7 +84,7 @@ class GraphRecipe:
     range_sigma_floor_m: float = 0.01
     range_sigma_k_per_m: float = 1.5e-3
     lateral_sigma_m: float = 0.015
-    head_radius_m: float = 0.08     # dome radius of the robot's head (visible top faces the sensor)
+    head_radius_m: float = 0.1      # dome radius of the robot's head (visible top faces the sensor)
     robust_kernel: str = "huber"    # huber | cauchy | tukey | none
     robust_k: float = 1.345
     # AMCL error process
@@ -93,6 +93,10 @@ class GraphRecipe:
     # odometry noise
     odometry_sigma_per_m: float = 0.02
     odometry_yaw_sigma_deg_per_m: float = 1.0
+    # Wheel odometry errors are systematic (wheel radius, gyro bias), not independent per step:
+    # each step's noise is inflated so that over this distance the accumulated sigma equals
+    # the per-metre figures above (the information of one independent stretch per length).
+    odometry_correlation_m: float = 5.0
     smoothness_sigma_mps: float = 0.05
     # robot planarity
     planar_sigma_deg: float = 0.5
@@ -108,6 +112,7 @@ class GraphRecipe:
     # initializer: closedform | gridsearch | installed
     init: str = "closedform"
     max_iterations: int = 50
+    relative_error_tol: float = 1e-5
 
     @classmethod
     def load(cls, path: str | Path) -> GraphRecipe:
@@ -324,8 +329,11 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
                 d = float(np.hypot(*(src[k + 1, :2] - src[k, :2])))
                 dt = times[k + 1] - times[k]
                 if sig_per_m > 0:
-                    st = sig_per_m * d + floor
-                    sy = yaw_per_m * d + np.radians(0.05) * dt + 1e-4
+                    # sigma over a stretch of length Lc is sig_per_m * Lc when every step of
+                    # length d carries sig_per_m * sqrt(Lc * d) (see odometry_correlation_m)
+                    lc = rec.odometry_correlation_m
+                    st = sig_per_m * np.sqrt(lc * d) + floor
+                    sy = yaw_per_m * np.sqrt(lc * d) + np.radians(0.05) * dt + 1e-4
                 else:   # smoothness: AMCL's short-term increments, error grows with sqrt(dt)
                     st = rec.smoothness_sigma_mps * dt + 1e-3
                     sy = np.radians(2.0) * dt + 1e-4
@@ -524,18 +532,22 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     _log(progress, f"optimizing {fg.size()} factors over {values.size()} variables")
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(recipe.max_iterations)
-    params.setRelativeErrorTol(1e-6)
+    params.setRelativeErrorTol(recipe.relative_error_tol)
+    t_opt = time.perf_counter()
     opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
     result = opt.optimize()
+    t_opt = time.perf_counter() - t_opt
     _log(progress, f"converged in {opt.iterations()} iterations, "
                    f"error {fg.error(values):.1f} -> {fg.error(result):.1f}")
     network = _network_from_result(log, prob, fg, result, progress)
     network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
+    network.extra[HEAD_RADIUS_KEY] = recipe.head_radius_m
     mask = np.zeros(len(log.observations), bool)
     mask[prob.rows_used] = True
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
                                                              iterations=opt.iterations(), factors=fg.size(),
+                                                             optimize_s=t_opt,
                                                              variables=values.size(),
                                                              shared_people=len(prob.people)))
 

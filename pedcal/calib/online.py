@@ -18,7 +18,7 @@ import numpy as np
 
 from pedcal.calib.common import CalibrationResult
 from pedcal.calib.factorgraph import GraphRecipe, S, _network_from_result, build_graph, prepare
-from pedcal.metrics import LATENCY_KEY
+from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
 from pedcal.model import Log
 
 
@@ -106,6 +106,7 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     marg = gtsam.Marginals(graph, result)
     network = _network_from_result(log, prob, graph, result, progress, marginals=marg)
     network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
+    network.extra[HEAD_RADIUS_KEY] = recipe.head_radius_m
     mask = np.zeros(len(log.observations), bool)
     mask[prob.rows_used] = True
     return CalibrationResult(network=network, method="factorgraph-online", runtime_s=time.perf_counter() - t0,
