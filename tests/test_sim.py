@@ -252,6 +252,8 @@ def test_scenario_files_reject_unknown_keys_and_bad_values(tmp_path):
         simulate_logs("paper", seed=0, no_such_parameter=1)
     with pytest.raises(PedcalInputError, match="unknown scenario 'nowhere'"):
         load_scenario("nowhere")
+    with pytest.raises(PedcalInputError, match="sensor_ids"):
+        simulate_logs("paper", seed=0, duration_s=1.0, sensor_ids=["s99"])
     sparse = load_scenario("sparse")
     assert sparse.sensor_ids == ["s04", "s05", "s06", "s07", "s08"] and sparse.area_m == [8.2, 4.5]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from pedcal import frames
+from pedcal.errors import PedcalInputError
 from pedcal.model import SensorExtrinsics, SensorNetwork
 from pedcal.sim.scenario import Scenario
 
@@ -24,7 +25,7 @@ def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
     row_y = (np.asarray(sc.row_y_m, float) if sc.row_y_m is not None
              else area_y * (rows + 0.5) / sc.grid_rows)
     if len(row_y) != sc.grid_rows:
-        raise ValueError(f"row_y_m has {len(row_y)} entries for {sc.grid_rows} rows")
+        raise PedcalInputError(f"{len(row_y)} entries for {sc.grid_rows} rows (grid_rows)", column="row_y_m")
     row, col = np.divmod(np.arange(sc.grid_rows * sc.grid_cols), sc.grid_cols)
     forward = row % 2 == 0                                   # row looks along +x
     dx = area_x / sc.grid_cols
@@ -42,7 +43,8 @@ def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
     if sc.sensor_ids is not None:
         missing = [s for s in sc.sensor_ids if s not in net]
         if missing:
-            raise ValueError(f"sensor_ids {missing} are not in the layout ({', '.join(net.ids)})")
+            raise PedcalInputError(f"{missing} are not in the layout ({', '.join(net.ids)})",
+                                   column="sensor_ids")
         net = SensorNetwork([net[s] for s in sc.sensor_ids])
     return net
 
