@@ -151,6 +151,13 @@ def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses:
                truth=true_net.copy(), truth_robot=truth, truth_observations=truth_obs)
 
 
+def networks(sc: Scenario) -> tuple[SensorNetwork, SensorNetwork]:
+    """The true and the installed extrinsics of a resolved scenario (seeded by ``sc.seed``)."""
+    ss_layout, ss_installed = np.random.SeedSequence(sc.seed).spawn(4)[:2]
+    true_net = ceiling.layout_network(sc, np.random.default_rng(ss_layout))
+    return true_net, ceiling.installed_network(true_net, sc, np.random.default_rng(ss_installed))
+
+
 def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, progress: bool = False,
                   **overrides) -> SimulationResult:
     """Simulate the calibration and evaluation logs of ``scenario`` (a name in datasets/, a YAML
@@ -158,9 +165,8 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     ``noise_free=True`` turns every nuisance off. The same seed gives identical logs."""
     noise_free = bool(overrides.pop("noise_free", False))
     sc = load_scenario(scenario).resolve(noise_free=noise_free, seed=seed, **overrides)
-    ss_layout, ss_installed, ss_calib, ss_eval = np.random.SeedSequence(seed).spawn(4)
-    true_net = ceiling.layout_network(sc, np.random.default_rng(ss_layout))
-    installed = ceiling.installed_network(true_net, sc, np.random.default_rng(ss_installed))
+    true_net, installed = networks(sc)
+    ss_calib, ss_eval = np.random.SeedSequence(sc.seed).spawn(4)[2:]
     _progress(progress, f"scenario {sc.name}: {len(true_net)} sensors, driving the route")
     poses = robot.drive_route(sc)
     t0_calib = sc.start_time_s
@@ -186,4 +192,5 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
     return result
 
 
-__all__ = ["simulate", "simulate_logs", "SimulationResult", "Scenario", "load_scenario", "log_summary"]
+__all__ = ["simulate", "simulate_logs", "SimulationResult", "Scenario", "load_scenario", "log_summary",
+           "networks"]
