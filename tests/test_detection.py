@@ -125,3 +125,11 @@ def test_detect_empty_and_three_column_input():
     assert det.detect(np.zeros((0, 4))) == []
     rng = np.random.default_rng(6)
     assert det.detect(floor(rng)[:, :3]) == []
+
+
+def test_a_few_stray_points_are_no_candidate():
+    assert not det.passes_gate(1.5, 0.3, 0.2, n_points=det.MIN_CLUSTER_POINTS - 1)
+    rng = np.random.default_rng(7)
+    stray = np.array([[2.0, 0.0, 1.2, 0.3], [2.02, 0.01, 1.0, 0.3]])
+    cands = det.segment(np.vstack([floor(rng), stray]))
+    assert len(cands) == 1 and not cands[0].gated

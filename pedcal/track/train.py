@@ -38,7 +38,7 @@ TRAIN_STREAM = 7101
 EVAL_STREAM = 7202
 DEFAULT_FRAMES = 3000
 N_ROUNDS = 200
-N_BINS = 32
+N_BINS = 16
 
 # (preset, probability); mounts are drawn per frame in ``random_rig``.
 TRAIN_PRESETS = (("fx8", 0.6), ("fx8_far", 0.1), ("spin16", 0.1), ("spin32", 0.1), ("solid_dense", 0.1))
