@@ -540,16 +540,23 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     _log(progress, f"converged in {opt.iterations()} iterations, "
                    f"error {fg.error(values):.1f} -> {fg.error(result):.1f}")
     network = _network_from_result(log, prob, fg, result, progress)
-    network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
-    network.extra[HEAD_RADIUS_KEY] = recipe.head_radius_m
-    mask = np.zeros(len(log.observations), bool)
-    mask[prob.rows_used] = True
+    mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
                                                              iterations=opt.iterations(), factors=fg.size(),
                                                              optimize_s=t_opt,
                                                              variables=values.size(),
                                                              shared_people=len(prob.people)))
+
+
+def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork) -> np.ndarray:
+    """Record the tracker model the graph used (latency, head dome) in the calibrated network and
+    return the mask of the observations used as the robot's."""
+    network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
+    network.extra[HEAD_RADIUS_KEY] = prob.recipe.head_radius_m
+    mask = np.zeros(len(log.observations), bool)
+    mask[prob.rows_used] = True
+    return mask
 
 
 def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progress: bool,

@@ -17,8 +17,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.common import CalibrationResult
-from pedcal.calib.factorgraph import GraphRecipe, S, _network_from_result, build_graph, prepare
-from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
+from pedcal.calib.factorgraph import GraphRecipe, S, _network_from_result, build_graph, finish_network, prepare
 from pedcal.model import Log
 
 
@@ -105,10 +104,7 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     result = isam.calculateEstimate()
     marg = gtsam.Marginals(graph, result)
     network = _network_from_result(log, prob, graph, result, progress, marginals=marg)
-    network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
-    network.extra[HEAD_RADIUS_KEY] = recipe.head_radius_m
-    mask = np.zeros(len(log.observations), bool)
-    mask[prob.rows_used] = True
+    mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph-online", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
                                                              online_trace=trace))
