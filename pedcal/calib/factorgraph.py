@@ -43,9 +43,9 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pedcal import frames
+from pedcal.calib.closedform import fit_rigid
 from pedcal.calib.common import CalibrationResult, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
@@ -162,12 +162,8 @@ def _robust(recipe: GraphRecipe, base):
 
 
 def rigid_fit(p_sensor: np.ndarray, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares rigid transform p_world ~ R p_sensor + t (Kabsch via scipy); returns
-    (R, t, rms residual)."""
-    cs, cw = p_sensor.mean(axis=0), p_world.mean(axis=0)
-    rot, _ = Rotation.align_vectors(p_world - cw, p_sensor - cs)
-    R = rot.as_matrix()
-    t = cw - R @ cs
+    """The closed form's rigid fit p_world ~ R p_sensor + t, with its rms residual (m)."""
+    R, t = fit_rigid(p_sensor, p_world)
     res = p_world - (p_sensor @ R.T + t)
     return R, t, float(np.sqrt(np.mean(np.sum(res ** 2, axis=1))))
 
