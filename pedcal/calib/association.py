@@ -28,10 +28,9 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 import pandas as pd
-from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
-from pedcal.calib.common import Timer, head_world
+from pedcal.calib.common import Timer, head_interpolator
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
@@ -269,28 +268,6 @@ def _refine(sd: _SensorRows, sensor, R, t, q, params):
 
 
 # --------------------------------------------------------------------------- latency
-
-
-def head_interpolator(log: Log):
-    """t -> the AMCL head top in the world (N, 3). Like :func:`pedcal.calib.common.robot_head_at`
-    but with a cubic spline through robot.csv (its estimates come at a few Hz: on a turn a
-    straight chord between them is off by centimetres, the spline by under a millimetre).
-    Times outside robot.csv are clamped to its ends."""
-    track = log.robot.groupby("t", sort=True)[["x", "y", "yaw"]].mean()   # one row per time
-    tt = track.index.to_numpy(float)
-    xy_yaw = np.column_stack([track["x"].to_numpy(float), track["y"].to_numpy(float),
-                              np.unwrap(track["yaw"].to_numpy(float))])
-    spline = CubicSpline(tt, xy_yaw, axis=0) if len(tt) >= 4 else None
-
-    def head_at(t):
-        t = np.clip(np.asarray(t, float), tt[0], tt[-1])
-        if spline is None:
-            pose2 = np.column_stack([np.interp(t, tt, xy_yaw[:, i]) for i in range(3)])
-        else:
-            pose2 = spline(t)
-        return head_world(pose2, log.meta.head_offset_m)
-
-    return head_at
 
 
 def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0.4,

@@ -16,8 +16,8 @@ import warnings
 import gtsam
 import numpy as np
 
-from pedcal.calib.association import estimate_latency, head_interpolator, moments, rigid_from_moments
-from pedcal.calib.common import CalibrationResult, Timer
+from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
+from pedcal.calib.common import CalibrationResult, Timer, head_interpolator
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork

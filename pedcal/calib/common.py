@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy.interpolate import CubicSpline
 
 from pedcal.model import Log, SensorNetwork
 
@@ -66,10 +67,34 @@ def head_world(pose2: np.ndarray, head_offset_m) -> np.ndarray:
                             np.full(len(pose2), off[2])])
 
 
-def robot_head_at(log: Log, t: np.ndarray, *, truth: bool = False) -> np.ndarray:
-    """The robot's head top in the world at times ``t``, from robot.csv (AMCL) or, with
-    ``truth=True``, from truth_robot.csv."""
+def head_interpolator(log: Log, *, truth: bool = False):
+    """t -> the robot's head top in the world (N, 3), from robot.csv (AMCL) or, with
+    ``truth=True``, from truth_robot.csv. AMCL's estimates come at a few Hz: on a turn a straight
+    chord between them is off by centimetres, so robot.csv is interpolated with a cubic spline
+    (x, y and unwrapped yaw; one row per time stamp). truth_robot.csv is dense and the simulator
+    interpolates it linearly, so it is read the same way. Times outside the table are clamped to
+    its ends."""
     track = log.truth_robot if truth else log.robot
     if track is None:
-        raise ValueError("the log has no truth_robot.csv")
-    return head_world(interpolate_pose2(track, np.asarray(t, float)), log.meta.head_offset_m)
+        raise ValueError("the log has no truth_robot.csv" if truth else "the log has no robot.csv")
+    track = track.groupby("t", sort=True)[["x", "y", "yaw"]].mean()
+    tt = track.index.to_numpy(float)
+    xy_yaw = np.column_stack([track["x"].to_numpy(float), track["y"].to_numpy(float),
+                              np.unwrap(track["yaw"].to_numpy(float))])
+    spline = CubicSpline(tt, xy_yaw, axis=0) if len(tt) >= 4 and not truth else None
+    head_offset_m = log.meta.head_offset_m
+
+    def head_at(t):
+        t = np.clip(np.asarray(t, float), tt[0], tt[-1])
+        if spline is None:
+            pose2 = np.column_stack([np.interp(t, tt, xy_yaw[:, i]) for i in range(3)])
+        else:
+            pose2 = spline(t)
+        return head_world(np.atleast_2d(pose2), head_offset_m)
+
+    return head_at
+
+
+def robot_head_at(log: Log, t: np.ndarray, *, truth: bool = False) -> np.ndarray:
+    """The robot's head top in the world at times ``t`` (see :func:`head_interpolator`)."""
+    return head_interpolator(log, truth=truth)(t)

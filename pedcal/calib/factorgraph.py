@@ -4,10 +4,12 @@ Variables
 - ``s(i)``: ``Pose3`` T_world_sensor of every ceiling sensor, with a weak prior at the installed
   (hand-measured) extrinsics.
 - ``x(k)``: ``Pose3`` of the robot's head frame (the base pose lifted to the head's dome centre)
-  at every instant something was observed or localized: AMCL stamps and the (latency-corrected)
-  instants of the robot's observations.
-- ``a(j)``: ``Pose3`` of AMCL's error at AMCL stamp j (world frame, inverted: see below).
-- ``l(m)``: ``Point3`` of a person's head seen by two or more sensors at once.
+  at the AMCL stamps (gaps longer than ``max_pose_gap_s`` are filled). An observation made
+  between two stamps is carried to the nearest one by the robot's own short-term motion (wheel
+  odometry over at most half a stamp period, a few centimetres), so the trajectory has one pose
+  per AMCL stamp, not one per observation: there is nothing for it to bend with locally.
+- ``a(j)``: ``Pose3`` (a pure world translation) of AMCL's slowly wandering error at stamp j.
+- ``l(m)``: ``Point3`` of a person's head seen by two sensors at once.
 
 Factors (all GTSAM built-in C++ factors)
 - AMCL: AMCL reports ``Z_j = E_j · X(t_j)`` where E_j is a slowly wandering world-frame error, a
@@ -17,20 +19,32 @@ Factors (all GTSAM built-in C++ factors)
   prior: ``BetweenFactorPose3(a(j), a(j+1), I)`` with variance q = 2 sigma^2 dt / tau and a zero
   prior per node with variance 2 sigma^2 tau / dt (the precision operator of an OU process of
   stationary std sigma and correlation time tau). sigma comes from AMCL's reported covariance.
-  So the graph learns the run-average of AMCL, not its wander.
-- Odometry: ``BetweenFactorPose3`` between consecutive robot poses from the interpolated wheel
-  odometry, noise growing with the distance travelled (scale error, yaw drift); without
-  odometry a motion-smoothness factor from AMCL's short-term increments.
+  AMCL's heading error is an OU process as well; it cannot be a world-frame rotation (that
+  would swing the position about the map origin), so it is a white error per stamp inflated to
+  2 tau / dt times its variance: the information an OU process holds about its mean over a run
+  of length T >> tau (variance 2 sigma^2 tau / T). So the graph learns the run-average of AMCL,
+  not its wander: sensors and trajectory are one rigid structure tied to the map by the average
+  of all AMCL estimates.
+- Odometry: ``BetweenFactorPose3`` between consecutive robot poses from the wheel odometry
+  after its systematic errors are estimated and removed (:func:`calibrate_odometry`: distance
+  scale, heading drift per metre and per second, fitted against AMCL over the whole run). What
+  is left is white per step (a random walk growing with sqrt(dt)) plus a small residual scale
+  and heading-drift term; without odometry a motion-smoothness factor from AMCL's increments.
 - Planarity: roll, pitch and height of the robot are held by the priors of each pose.
 - Robot observations: ``BearingRangeFactorPose3(s(i), x(k))`` measuring the sensor-frame head
   point as a bearing and a range; the visible head top is the point of the head dome that faces
   the sensor, so the bearing is that of the dome centre and the range is ``|p| + r_head``. Depth
-  noise grows with range squared; a robust kernel keeps mis-associations from dragging.
-- People seen by two sensors at once: ``BearingRangeFactor3D(s(i), l(m))`` for each sensor.
+  noise grows with range squared (doubled past the reliable range); a robust kernel keeps
+  mis-associations (a pedestrian beside the robot) from dragging.
+- People seen by two sensors at once (matched by
+  :func:`pedcal.calib.alternative.match_shared_observations`): ``BearingRangeFactor3D(s(i),
+  l(m))`` for each sensor.
 
-Tracker latency is estimated, not assumed zero: the rigid fit residual of every sensor's pairs
-is minimized over a latency grid before the graph is built (a 1-D search), and the estimate is
-written to the calibrated YAML (``tracker_latency_s``).
+Tracker latency is estimated once, by the association's pooled estimator
+(:func:`pedcal.calib.association.estimate_latency`: per-sensor rigid fits against the AMCL spline,
+minimized over the latency), and written to the calibrated YAML (``tracker_latency_s``). Within
+the graph a latency error is mostly absorbed by the trajectory (a few millimetres along the
+track), so re-solving for it buys little.
 """
 
 from __future__ import annotations
@@ -43,10 +57,10 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+import pandas as pd
 
 from pedcal import frames
-from pedcal.calib.closedform import fit_rigid
-from pedcal.calib.common import CalibrationResult, head_world, interpolate_pose2
+from pedcal.calib.common import CalibrationResult, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
@@ -80,34 +94,36 @@ class GraphRecipe:
     # sensor prior from the installed extrinsics (how far a hand measurement can be off)
     sensor_prior_sigma_m: float = 0.5
     sensor_prior_sigma_deg: float = 10.0
-    # depth sensor model: sigma_range = floor + k r^2, lateral sigma of the head-top extraction
-    range_sigma_floor_m: float = 0.01
+    # depth sensor model: sigma_range = floor + k r^2 (x far_factor past reliable_range_m),
+    # lateral sigma of the head-top extraction (plus the latency jitter times the robot's speed)
+    range_sigma_floor_m: float = 0.005
     range_sigma_k_per_m: float = 1.5e-3
-    lateral_sigma_m: float = 0.015
-    head_radius_m: float = 0.1      # dome radius of the robot's head (visible top faces the sensor)
+    reliable_range_m: float = 3.5
+    far_factor: float = 2.0
+    lateral_sigma_m: float = 0.012
+    head_radius_m: float = 0.1      # dome radius of a head (the visible top faces the sensor)
     robust_kernel: str = "huber"    # huber | cauchy | tukey | none
     robust_k: float = 1.345
-    # AMCL error process
-    amcl_correlation_s: float = 15.0
+    # AMCL error process (std from AMCL's reported covariance)
+    amcl_correlation_s: float = 20.0
     amcl_white_fraction: float = 0.2   # share of AMCL's reported std that is white, per stamp
-    # odometry noise
-    odometry_sigma_per_m: float = 0.02
-    odometry_yaw_sigma_deg_per_m: float = 1.0
-    # Wheel odometry errors are systematic (wheel radius, gyro bias), not independent per step:
-    # each step's noise is inflated so that over this distance the accumulated sigma equals
-    # the per-metre figures above (the information of one independent stretch per length).
-    odometry_correlation_m: float = 5.0
+    # robot poses: one per AMCL stamp, gaps longer than this filled
+    max_pose_gap_s: float = 0.25
+    # odometry: systematic errors estimated and removed, then white noise per sqrt(second)
+    # and a residual scale / heading drift
+    odometry_calibrate: bool = True
+    odometry_white_sigma_m: float = 0.005          # per sqrt(s)
+    odometry_white_yaw_sigma_deg: float = 0.25     # per sqrt(s)
+    odometry_sigma_per_m: float = 0.003            # residual scale error
+    odometry_yaw_sigma_deg_per_m: float = 0.05     # residual heading drift
     smoothness_sigma_mps: float = 0.05
     # robot planarity
     planar_sigma_deg: float = 0.5
     head_height_sigma_m: float = 0.02
-    # tracker latency search
+    # tracker latency
     estimate_latency: bool = True
-    latency_min_s: float = -0.1
-    latency_max_s: float = 0.5
-    latency_step_s: float = 0.005
-    # people association for shared observations
-    people_gate_m: float = 0.5
+    latency_max_s: float = 0.4
+    # people association for shared observations (at most one shared point per period)
     people_sample_s: float = 0.5
     # initializer: closedform | gridsearch | installed
     init: str = "closedform"
@@ -161,22 +177,12 @@ def _robust(recipe: GraphRecipe, base):
     return gtsam.noiseModel.Robust.Create(est.Create(recipe.robust_k), base)
 
 
-def rigid_fit(p_sensor: np.ndarray, p_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The closed form's rigid fit p_world ~ R p_sensor + t, with its rms residual (m)."""
-    R, t = fit_rigid(p_sensor, p_world)
-    res = p_world - (p_sensor @ R.T + t)
-    return R, t, float(np.sqrt(np.mean(np.sum(res ** 2, axis=1))))
-
-
-def pose2_to_pose3(x: float, y: float, yaw: float, z: float = 0.0) -> gtsam.Pose3:
-    return gtsam.Pose3(gtsam.Rot3.Yaw(yaw), np.array([x, y, z]))
-
-
 def head_frame(x: float, y: float, yaw: float, head_m: np.ndarray) -> gtsam.Pose3:
     """The robot's head frame: the base pose (x, y, yaw) composed with the head offset
     ``head_m`` (base frame; its z is the dome centre's height)."""
-    return gtsam.Pose3(gtsam.Rot3.Yaw(yaw), np.array([x, y, 0.0])).compose(
-        gtsam.Pose3(gtsam.Rot3(), np.asarray(head_m, float)))
+    c, s = np.cos(yaw), np.sin(yaw)
+    return gtsam.Pose3(gtsam.Rot3.Yaw(yaw), np.array([x + c * head_m[0] - s * head_m[1],
+                                                      y + s * head_m[0] + c * head_m[1], head_m[2]]))
 
 
 def amcl_cov_body(cov_world: np.ndarray, yaw: float) -> np.ndarray:
@@ -193,26 +199,110 @@ def amcl_cov_body(cov_world: np.ndarray, yaw: float) -> np.ndarray:
     return out
 
 
-# ------------------------------------------------------------------------------- latency + init
-def estimate_latency(p_sensor, t_obs, sensor_ids, log: Log, recipe: GraphRecipe):
-    """Tracker latency (s) minimizing the summed per-sensor rigid-fit residual of the robot's
-    pairs over a grid of latencies; returns (latency_s, curve)."""
-    grid = np.arange(recipe.latency_min_s, recipe.latency_max_s + 1e-12, recipe.latency_step_s)
-    groups = [np.flatnonzero(sensor_ids == sid) for sid in np.unique(sensor_ids)]
-    groups = [g for g in groups if len(g) >= 6]
-    cost = np.zeros(len(grid))
-    for n, lat in enumerate(grid):
-        head = head_world(interpolate_pose2(log.robot, t_obs - lat), log.meta.head_offset_m)
-        for g in groups:
-            _, _, rms = rigid_fit(p_sensor[g], head[g])
-            cost[n] += rms ** 2 * len(g)
-    i = int(np.argmin(cost))
-    if 0 < i < len(grid) - 1:            # parabolic refinement between grid points
-        c0, c1, c2 = cost[i - 1], cost[i], cost[i + 1]
-        den = c0 - 2 * c1 + c2
-        off = 0.5 * (c0 - c2) / den if den > 0 else 0.0
-        return float(grid[i] + off * recipe.latency_step_s), (grid, cost)
-    return float(grid[i]), (grid, cost)
+def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
+    """(N, 3) sigmas [bearing rad, bearing rad, range m] of a head seen at ``range_m``:
+    structured-light depth noise grows with range squared (Khoshelham and Elberink 2012),
+    doubled past the reliable range; the lateral error is a distance across the ray."""
+    r = np.asarray(range_m, float)
+    sig_r = recipe.range_sigma_floor_m + recipe.range_sigma_k_per_m * r ** 2
+    sig_r = np.where(r > recipe.reliable_range_m, recipe.far_factor * sig_r, sig_r)
+    sig_b = recipe.lateral_sigma_m / np.maximum(r, 0.3)
+    return np.column_stack([sig_b, sig_b, sig_r])
+
+
+class _NoiseCache:
+    """Noise models of observations, built once per (rounded) range: a few hundred C++ objects
+    instead of one per observation."""
+
+    def __init__(self, recipe: GraphRecipe, step_m: float = 0.01):
+        self.recipe, self.step_m, self.cache = recipe, step_m, {}
+
+    def __call__(self, range_m: float):
+        key = int(round(range_m / self.step_m))
+        nm = self.cache.get(key)
+        if nm is None:
+            sig = observation_sigmas(self.recipe, np.array([key * self.step_m]))[0]
+            nm = self.cache[key] = _robust(self.recipe, gtsam.noiseModel.Diagonal.Sigmas(sig))
+        return nm
+
+
+# -------------------------------------------------------------------------------------- odometry
+def calibrate_odometry(odometry: pd.DataFrame, amcl: pd.DataFrame, window_s: float = 20.0):
+    """Wheel odometry with its systematic errors removed: a heading drift per metre driven and
+    per second (wheel-base error, gyro bias) from a least-squares fit of the odometry-minus-AMCL
+    heading against distance and time over the whole run, and the distance scale from the
+    displacements over ``window_s`` windows (AMCL's wander averages out over many windows).
+    Returns (DataFrame t, x, y, yaw in the odometry frame, dict of the estimates)."""
+    odo = odometry.sort_values("t")
+    t = odo["t"].to_numpy(float)
+    xy = odo[["x", "y"]].to_numpy(float)
+    yaw = np.unwrap(odo["yaw"].to_numpy(float))
+    c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
+    d = np.diff(xy, axis=0)
+    fwd, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+    dyaw, dt = np.diff(yaw), np.diff(t)
+    dist = np.hypot(fwd, left)
+    s_m = np.r_[0.0, np.cumsum(dist)]
+    est = dict(scale=1.0, yaw_drift_deg_per_m=0.0, yaw_drift_deg_per_s=0.0)
+    at = amcl.sort_values("t")
+    ta = at["t"].to_numpy(float)
+    inside = (t >= ta[0]) & (t <= ta[-1])
+    if inside.sum() >= 10 and t[inside][-1] - t[inside][0] > 2 * window_s:
+        yaw_a = np.interp(t[inside], ta, np.unwrap(at["yaw"].to_numpy(float)))
+        diff = np.unwrap(yaw[inside] - yaw_a)
+        cols = [np.ones(inside.sum()), s_m[inside], t[inside] - t[inside][0]]
+        M = np.column_stack(cols)
+        scale_cols = np.maximum(np.abs(M).max(axis=0), 1e-9)
+        coef = np.linalg.lstsq(M / scale_cols, diff, rcond=1e-6)[0] / scale_cols
+        est["yaw_drift_deg_per_m"] = float(np.degrees(coef[1]))
+        est["yaw_drift_deg_per_s"] = float(np.degrees(coef[2]))
+        dyaw = dyaw - coef[1] * dist - coef[2] * dt
+    yaw_c = np.r_[yaw[0], yaw[0] + np.cumsum(dyaw)]
+    cc, sc = np.cos(yaw_c[:-1]), np.sin(yaw_c[:-1])
+    xy_c = xy[0] + np.r_[np.zeros((1, 2)), np.cumsum(np.column_stack([cc * fwd - sc * left, sc * fwd + cc * left]),
+                                                     axis=0)]
+    if inside.sum() >= 10:
+        edges = np.arange(max(t[0], ta[0]), min(t[-1], ta[-1]), window_s)
+        if len(edges) >= 3:
+            da = np.diff(np.column_stack([np.interp(edges, ta, at["x"].to_numpy(float)),
+                                          np.interp(edges, ta, at["y"].to_numpy(float))]), axis=0)
+            do = np.diff(np.column_stack([np.interp(edges, t, xy_c[:, 0]), np.interp(edges, t, xy_c[:, 1])]), axis=0)
+            na, no = np.linalg.norm(da, axis=1), np.linalg.norm(do, axis=1)
+            if np.sum(no ** 2) > 1.0:        # the robot drove at least a metre per window on average
+                est["scale"] = float(np.sum(na * no) / np.sum(no ** 2))
+    xy_c = xy_c[0] + est["scale"] * (xy_c - xy_c[0])
+    return pd.DataFrame({"t": t, "x": xy_c[:, 0], "y": xy_c[:, 1], "yaw": yaw_c}), est
+
+
+class _RobotMotion:
+    """The robot's short-term motion: where the head moves between two nearby instants, from
+    the (calibrated) wheel odometry rotated into the map by AMCL's heading, or from the AMCL
+    spline when there is no odometry."""
+
+    def __init__(self, log: Log, odometry: pd.DataFrame | None):
+        self.head_offset = np.asarray(log.meta.head_offset_m, float)
+        self.amcl_head = head_interpolator(log)
+        self.odo = odometry
+        if odometry is not None:
+            amcl = log.robot.sort_values("t")
+            self.ta = amcl["t"].to_numpy(float)
+            self.yaw_a = np.unwrap(amcl["yaw"].to_numpy(float))
+
+    def displacement(self, t_from: np.ndarray, t_to: np.ndarray) -> np.ndarray:
+        """World displacement (N, 3) of the head top from ``t_from`` to ``t_to``."""
+        if self.odo is None:
+            return self.amcl_head(t_to) - self.amcl_head(t_from)
+        h0 = head_world(interpolate_pose2(self.odo, t_from), self.head_offset)
+        h1 = head_world(interpolate_pose2(self.odo, t_to), self.head_offset)
+        mid = 0.5 * (t_from + t_to)
+        # heading of the map relative to the odometry frame at that time (AMCL minus odometry)
+        rot = np.interp(mid, self.ta, self.yaw_a) - interpolate_pose2(self.odo, mid)[:, 2]
+        c, s = np.cos(rot), np.sin(rot)
+        d = h1 - h0
+        return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]])
+
+    def velocity(self, t: np.ndarray, h: float = 0.02) -> np.ndarray:
+        return self.displacement(t - h, t + h) / (2 * h)
 
 
 # ----------------------------------------------------------------------------------- the solver
@@ -224,23 +314,53 @@ class FactorGraphProblem:
     latency_s: float
     sensor_ids: list[str]
     obs_sensor: np.ndarray          # sensor id per robot observation
-    obs_p_sensor: np.ndarray        # (N, 3) measured head points in the sensor frame
-    obs_t: np.ndarray               # latency-corrected instants
-    obs_key_index: np.ndarray       # index into pose_times per observation
+    obs_p_raw: np.ndarray           # (N, 3) measured head points in the sensor frame
+    obs_t_raw: np.ndarray           # observation stamps (s)
     pose_times: np.ndarray          # times of the robot pose variables
     init_sensors: dict[str, gtsam.Pose3]
+    motion: _RobotMotion
+    odometry: pd.DataFrame | None = None     # calibrated wheel odometry (odometry frame)
+    odometry_estimates: dict = field(default_factory=dict)
     people: list = field(default_factory=list)   # [(t, [(sensor, p_sensor), ...]), ...]
     rows_used: np.ndarray | None = None
+    # derived by carry_observations: latency-corrected instants, the pose each observation is
+    # carried to, and the sensor-frame point carried there
+    obs_t: np.ndarray | None = None
+    obs_key_index: np.ndarray | None = None
+    obs_p_sensor: np.ndarray | None = None
+
+    def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
+        """Carry every robot observation to its nearest pose variable: the head seen at
+        t = stamp - latency is the head at the pose's time t_k minus the robot's motion from t
+        to t_k, p_sensor(t_k) = p_sensor(t) + R_world_sensor^T (h(t_k) - h(t)). ``rotations``:
+        current R_world_sensor per sensor (an error of a degree moves a point carried a few
+        centimetres by under a millimetre)."""
+        self.obs_t = self.obs_t_raw - self.latency_s
+        tk = self.pose_times
+        i = np.clip(np.searchsorted(tk, self.obs_t), 1, max(len(tk) - 1, 1))
+        if len(tk) > 1:
+            i = np.where(np.abs(tk[i - 1] - self.obs_t) <= np.abs(tk[i] - self.obs_t), i - 1, i)
+        else:
+            i = np.zeros(len(self.obs_t), int)
+        self.obs_key_index = i
+        disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
+        R = np.stack([rotations[s] for s in self.obs_sensor]) if len(self.obs_t) else np.zeros((0, 3, 3))
+        self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
 
 
-def _observation_noise(recipe: GraphRecipe, range_m: float):
-    sig_r = recipe.range_sigma_floor_m + recipe.range_sigma_k_per_m * range_m ** 2
-    sig_b = recipe.lateral_sigma_m / max(range_m, 0.3)
-    return gtsam.noiseModel.Diagonal.Sigmas(np.array([sig_b, sig_b, sig_r]))
+def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """The AMCL stamps, with gaps longer than ``max_gap_s`` filled evenly."""
+    t = np.unique(amcl_t)
+    gaps = np.diff(t)
+    fill = [np.linspace(a, b, int(np.ceil((b - a) / max_gap_s)) + 1)[1:-1]
+            for a, b, g in zip(t[:-1], t[1:], gaps, strict=True) if g > max_gap_s]
+    return np.unique(np.concatenate([t, *fill])) if fill else t
 
 
-def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None):
-    """Build the factor graph and the initial values (optionally only with data up to t_max)."""
+def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None,
+                values_from: gtsam.Values | None = None):
+    """Build the factor graph and the initial values (optionally only with data up to t_max;
+    ``values_from``: initial values to reuse where they exist, e.g. a previous solution)."""
     rec = prob.recipe
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
@@ -257,99 +377,88 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     n_pose = len(times)
     amcl = log.robot.sort_values("t")
     amcl_t = amcl["t"].to_numpy(float)
+    spline_head = head_interpolator(log)
+    # head frames on the AMCL spline: its position and the spline's heading
+    pose_xy = spline_head(times)[:, :2] if n_pose else np.zeros((0, 2))
     base = interpolate_pose2(amcl, times)
-    # Robot pose variables, initialized on AMCL, with planarity priors (roll, pitch, height).
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
     for k in range(n_pose):
-        P = head_frame(*base[k], head_m)
+        P = gtsam.Pose3(gtsam.Rot3.Yaw(base[k, 2]), np.array([pose_xy[k, 0], pose_xy[k, 1], head_m[2]]))
         values.insert(X(k), P)
         graph.add(gtsam.PriorFactorPose3(X(k), P, planar))
 
     # AMCL as a measurement with a Gauss-Markov error (module docstring).
-    key_of_time = {float(t): k for k, t in enumerate(times)}
-    if rec.amcl:
+    if rec.amcl and n_pose:
         cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
-        sig_xy = np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 3])))
-        sig_xy = max(sig_xy, 1e-3)
+        sig_xy = max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 3])))), 1e-3)
         tau = rec.amcl_correlation_s
-        use = amcl_t <= (times[-1] if n_pose else -np.inf)
-        j_prev, t_prev = None, None
-        tiny = [np.radians(0.05)] * 2
+        k_of = np.searchsorted(times, amcl_t)
+        use = np.flatnonzero((k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t))
         dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
-        for j in np.flatnonzero(use):
-            k = key_of_time.get(float(amcl_t[j]))
-            if k is None:
-                continue
-            row = amcl.iloc[j]
+        tiny = np.radians(0.05)
+        yaw_a = amcl["yaw"].to_numpy(float)
+        x_a, y_a = amcl["x"].to_numpy(float), amcl["y"].to_numpy(float)
+        j_prev, t_prev = None, None
+        for j in use:
             C = np.array([[cov[j, 0], cov[j, 1], cov[j, 2]], [cov[j, 1], cov[j, 3], cov[j, 4]],
                           [cov[j, 2], cov[j, 4], cov[j, 5]]])
-            # The slow error is a world-frame translation (F is held to a pure translation), so
-            # AMCL's heading error is treated as white, inflated to the information of one
-            # independent reading per correlation time.
-            Cb = amcl_cov_body(C, row["yaw"])
+            # The slow error is a world-frame translation (F is held to a pure translation);
+            # the heading error is white, inflated to the information of an OU mean.
+            Cb = amcl_cov_body(C, yaw_a[j])
             Cb[3:5, 3:5] *= rec.amcl_white_fraction ** 2
             Cb[2, 3:5] = Cb[3:5, 2] = 0.0
-            Cb[2, 2] *= max(1.0, tau / dt_amcl)
-            Cb[0, 0] = Cb[1, 1] = tiny[0] ** 2
+            Cb[2, 2] *= max(1.0, 2.0 * tau / dt_amcl)
+            Cb[0, 0] = Cb[1, 1] = tiny ** 2
             Cb[5, 5] = 1e-6
-            Z = head_frame(row["x"], row["y"], row["yaw"], head_m)
-            graph.add(gtsam.BetweenFactorPose3(A(j), X(k), Z, gtsam.noiseModel.Gaussian.Covariance(Cb)))
+            Z = head_frame(x_a[j], y_a[j], yaw_a[j], head_m)
+            graph.add(gtsam.BetweenFactorPose3(A(j), X(int(k_of[j])), Z, gtsam.noiseModel.Gaussian.Covariance(Cb)))
             values.insert(A(j), gtsam.Pose3())
             dt = dt_amcl if t_prev is None else max(amcl_t[j] - t_prev, 1e-3)
             # discretized OU prior on the error process (module docstring)
             sp = np.sqrt(2.0 * tau / dt)
-            prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[tiny, 1e-4, sig_xy * sp, sig_xy * sp, 1e-3])
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp, 1e-3])
             graph.add(gtsam.PriorFactorPose3(A(j), gtsam.Pose3(), prior))
             if j_prev is not None:
                 sq = np.sqrt(2.0 * dt / tau)
-                q = gtsam.noiseModel.Diagonal.Sigmas(np.r_[tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3])
+                q = gtsam.noiseModel.Diagonal.Sigmas(np.r_[tiny, tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3])
                 graph.add(gtsam.BetweenFactorPose3(A(j_prev), A(j), gtsam.Pose3(), q))
             j_prev, t_prev = j, amcl_t[j]
 
     # Odometry (or smoothness) between consecutive robot poses.
     if n_pose > 1:
-        if rec.odometry and log.odometry is not None and len(log.odometry) > 1:
-            odo = interpolate_pose2(log.odometry, times)
-            sig_per_m, yaw_per_m, floor = rec.odometry_sigma_per_m, np.radians(rec.odometry_yaw_sigma_deg_per_m), 1e-3
-            src = odo
+        src = None
+        if rec.odometry and prob.odometry is not None:
+            src = interpolate_pose2(prob.odometry, times)
+            dt = np.diff(times)
+            d = np.hypot(*np.diff(src[:, :2], axis=0).T)
+            st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * d) ** 2) + 1e-4
+            sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
+                         + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * d) ** 2) + 1e-5
         elif rec.smoothness:
             src = base
-            sig_per_m, yaw_per_m, floor = 0.0, 0.0, 0.0
-        else:
-            src = None
+            dt = np.diff(times)
+            # AMCL's short-term increments: error grows with dt
+            st = rec.smoothness_sigma_mps * dt + 1e-3
+            sy = np.radians(2.0) * dt + 1e-4
         if src is not None:
+            P = [head_frame(*src[k], head_m) for k in range(n_pose)]
             for k in range(n_pose - 1):
-                P0 = head_frame(*src[k], head_m)
-                P1 = head_frame(*src[k + 1], head_m)
-                d = float(np.hypot(*(src[k + 1, :2] - src[k, :2])))
-                dt = times[k + 1] - times[k]
-                if sig_per_m > 0:
-                    # sigma over a stretch of length Lc is sig_per_m * Lc when every step of
-                    # length d carries sig_per_m * sqrt(Lc * d) (see odometry_correlation_m)
-                    lc = rec.odometry_correlation_m
-                    st = sig_per_m * np.sqrt(lc * d) + floor
-                    sy = yaw_per_m * np.sqrt(lc * d) + np.radians(0.05) * dt + 1e-4
-                else:   # smoothness: AMCL's short-term increments, error grows with sqrt(dt)
-                    st = rec.smoothness_sigma_mps * dt + 1e-3
-                    sy = np.radians(2.0) * dt + 1e-4
-                nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy, st, st, 1e-3]))
-                graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), P0.between(P1), nm))
+                nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
+                graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), P[k].between(P[k + 1]), nm))
 
-    # Robot observations.
+    # Robot observations, carried to their pose variables (FactorGraphProblem.carry_observations).
     sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    noise = _NoiseCache(rec)
     if rec.robot:
-        for n in range(len(prob.obs_t)):
-            k = int(prob.obs_key_index[n])
-            if k >= n_pose:
-                continue
-            p = prob.obs_p_sensor[n]
-            r = float(np.linalg.norm(p))
-            nm = _robust(rec, _observation_noise(rec, r))
-            graph.add(gtsam.BearingRangeFactorPose3(S(sid_index[prob.obs_sensor[n]]), X(k), gtsam.Unit3(p),
-                                                   r + rec.head_radius_m, nm))
+        rng_m = np.linalg.norm(prob.obs_p_sensor, axis=1)
+        keys = [S(sid_index[s]) for s in prob.obs_sensor]
+        for n in np.flatnonzero(prob.obs_key_index < n_pose):
+            graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(prob.obs_key_index[n])),
+                                                   gtsam.Unit3(prob.obs_p_sensor[n]),
+                                                   rng_m[n] + rec.head_radius_m, noise(rng_m[n])))
 
-    # People seen by two or more sensors at once.
+    # People seen by two or more sensors at once (the dome centre of their head).
     if rec.people:
         for m, (t, seen) in enumerate(prob.people):
             if t_max is not None and t > t_max:
@@ -357,112 +466,110 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
             pts = []
             for sid, p in seen:
                 r = float(np.linalg.norm(p))
-                nm = _robust(rec, _observation_noise(rec, r))
-                graph.add(gtsam.BearingRangeFactor3D(S(sid_index[sid]), L(m), gtsam.Unit3(p), r, nm))
-                pts.append(prob.init_sensors[sid].transformFrom(p))
+                graph.add(gtsam.BearingRangeFactor3D(S(sid_index[sid]), L(m), gtsam.Unit3(p),
+                                                     r + rec.head_radius_m, noise(r)))
+                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rec.head_radius_m / r)))
             values.insert(L(m), np.mean(pts, axis=0))
+    if values_from is not None:
+        for key in values.keys():
+            if values_from.exists(key):
+                _copy_value(values, values_from, key)
     return graph, values
+
+
+def _copy_value(values: gtsam.Values, src: gtsam.Values, key: int) -> None:
+    c = chr(gtsam.Symbol(key).chr())
+    values.update(key, src.atPoint3(key) if c == "l" else src.atPose3(key))
+
+
+def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork) -> list:
+    """Instants where two sensors see the same (non-robot) person, matched by the alternative's
+    shared-observation matcher on tracks that hold no robot observation.
+    Returns [(t, [(sensor, p_sensor), ...]), ...]."""
+    from pedcal.calib.alternative import build_tracks, match_shared_observations
+
+    tracks = {sid: [tr for tr in trs if not is_robot[tr.rows].any()] for sid, trs in build_tracks(log).items()}
+    report = match_shared_observations(tracks, network, sample_period_s=recipe.people_sample_s)
+    out = []
+    for m in report.matches:
+        for n in range(len(m.t)):
+            out.append((float(m.t[n]), [(m.sensor_i, m.p_i_sensor[n]), (m.sensor_j, m.p_j_sensor[n])]))
+    return sorted(out, key=lambda x: x[0])
+
+
+def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
+                     init_network: SensorNetwork | None) -> dict[str, gtsam.Pose3]:
+    if init_network is not None:
+        init = {s.id: s.T_world_sensor for s in init_network}
+    elif recipe.init in ("gridsearch", "closedform"):
+        from pedcal.calib import calibrate
+
+        opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
+                                                                                latency_s=latency_s)
+        with warnings.catch_warnings():     # the graph reports degenerate sensors itself
+            warnings.simplefilter("ignore", DegenerateDataWarning)
+            res = calibrate(log, method=recipe.init, progress=progress, **opts)
+        init = {s.id: s.T_world_sensor for s in res.network if s.status == "ok"}
+    elif recipe.init == "installed":
+        init = {}
+    else:
+        raise PedcalInputError(f"unknown initializer '{recipe.init}', expected closedform, gridsearch or "
+                               "installed", column="init")
+    for s in log.sensors:
+        init.setdefault(s.id, s.T_world_sensor)
+    return init
 
 
 def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, progress: bool = False,
             init_network: SensorNetwork | None = None) -> FactorGraphProblem:
-    """Association, latency, initial values and the people's shared observations."""
-    if is_robot is None:
-        from pedcal.calib.association import associate_robot
+    """Association, latency, odometry calibration, initial values, the pose grid, the robot's
+    observations carried to it, and the people's shared observations."""
+    from pedcal.calib.association import associate_robot, estimate_latency
 
+    latency = None
+    if is_robot is None:
         _log(progress, "picking out the robot's observations")
-        is_robot = associate_robot(log).is_robot
+        assoc = associate_robot(log)
+        is_robot, latency = assoc.is_robot, assoc.latency_s
     is_robot = np.asarray(is_robot, bool)
+    if not recipe.estimate_latency:
+        latency = 0.0
+    elif latency is None:
+        latency = estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s) if is_robot.sum() >= 12 else 0.0
+    _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
     p_all = log.observation_points_sensor()
     sensor_col = obs["sensor"].astype(str).to_numpy()
     t_all = obs["t"].to_numpy(float)
     rows = np.flatnonzero(is_robot)
-    t_lo, t_hi = log.robot["t"].min(), log.robot["t"].max()
-    rows = rows[(t_all[rows] >= t_lo) & (t_all[rows] <= t_hi)]
-    p_sensor, t_obs, sids = p_all[rows], t_all[rows], sensor_col[rows]
-    latency = 0.0
-    if recipe.estimate_latency and len(rows) >= 12:
-        latency, _ = estimate_latency(p_sensor, t_obs, sids, log, recipe)
-        _log(progress, f"tracker latency estimated at {1000 * latency:.0f} ms")
-    t_corr = t_obs - latency
-
-    # Initial sensor poses.
-    init = {}
-    if init_network is not None:
-        init = {s.id: s.T_world_sensor for s in init_network}
-    elif recipe.init == "gridsearch":
-        from pedcal.calib.gridsearch import calibrate_gridsearch
-
-        res = calibrate_gridsearch(log, is_robot=is_robot, progress=progress)
-        init = {s.id: s.T_world_sensor for s in res.network}
-    elif recipe.init == "closedform":
-        head = head_world(interpolate_pose2(log.robot, t_corr), log.meta.head_offset_m)
-        for sid in log.sensors.ids:
-            g = sids == sid
-            if g.sum() >= 6 and np.linalg.matrix_rank(p_sensor[g] - p_sensor[g].mean(0), tol=0.05) == 3:
-                R, t, _ = rigid_fit(p_sensor[g], head[g])
-                init[sid] = gtsam.Pose3(gtsam.Rot3(R), t)
-    for s in log.sensors:
-        init.setdefault(s.id, s.T_world_sensor)
-
     amcl_t = log.robot["t"].to_numpy(float)
-    pose_times, inv = np.unique(np.concatenate([amcl_t, np.round(t_corr, 4)]), return_inverse=True)
-    obs_key_index = inv[len(amcl_t):]
-    people = _shared_people(log, is_robot, recipe, p_all, init) if recipe.people else []
+    t_lo, t_hi = amcl_t.min(), amcl_t.max()
+    rows = rows[(t_all[rows] - latency >= t_lo) & (t_all[rows] - latency <= t_hi)]
+
+    odometry, odo_est = None, {}
+    if recipe.odometry and log.odometry is not None and len(log.odometry) > 1:
+        if recipe.odometry_calibrate:
+            odometry, odo_est = calibrate_odometry(log.odometry, log.robot)
+            _log(progress, "odometry: scale {scale:.4f}, heading drift {yaw_drift_deg_per_m:+.3f} deg/m "
+                           "{yaw_drift_deg_per_s:+.4f} deg/s".format(**odo_est))
+        else:
+            odometry = log.odometry.sort_values("t")
+
+    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network)
+    pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s)
+    prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
+                              obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
+                              pose_times=pose_times, init_sensors=init,
+                              motion=_RobotMotion(log, odometry), odometry=odometry,
+                              odometry_estimates=odo_est, rows_used=rows)
+    prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()})
+    if recipe.people:
+        net = SensorNetwork([SensorExtrinsics.from_pose3(sid, init[sid]) for sid in log.sensors.ids],
+                            frame=log.sensors.frame)
+        prob.people = _shared_people(log, is_robot, recipe, net)
     _log(progress, f"{len(rows)} robot observations, {len(pose_times)} robot poses, "
-                   f"{len(people)} shared person sightings")
-    return FactorGraphProblem(recipe=recipe, latency_s=latency, sensor_ids=log.sensors.ids,
-                              obs_sensor=sids, obs_p_sensor=p_sensor, obs_t=t_corr,
-                              obs_key_index=obs_key_index, pose_times=pose_times, init_sensors=init,
-                              people=people, rows_used=rows)
-
-
-def _shared_people(log: Log, is_robot, recipe: GraphRecipe, p_all, init) -> list:
-    """Instants where two sensors see the same (non-robot) person: tracks of different sensors,
-    interpolated to a common time grid, whose heads (with the initial extrinsics) agree within
-    the gate for the whole overlap. Returns [(t, [(sensor, p_sensor), ...]), ...]."""
-    obs = log.observations
-    keep = ~np.asarray(is_robot, bool)
-    if keep.sum() == 0:
-        return []
-    sensor_col = obs["sensor"].astype(str).to_numpy()
-    track_col = obs["track"].astype(str).to_numpy()
-    t_all = obs["t"].to_numpy(float)
-    tracks = {}
-    for key in sorted(set(zip(sensor_col[keep], track_col[keep], strict=True))):
-        m = keep & (sensor_col == key[0]) & (track_col == key[1])
-        idx = np.flatnonzero(m)
-        idx = idx[np.argsort(t_all[idx])]
-        if len(idx) < 4:
-            continue
-        T = init[key[0]]
-        pw = p_all[idx] @ T.rotation().matrix().T + T.translation()
-        tracks[key] = (t_all[idx], p_all[idx], pw)
-    keys = list(tracks)
-    out = []
-    dt = recipe.people_sample_s
-    for a in range(len(keys)):
-        for b in range(a + 1, len(keys)):
-            ka, kb = keys[a], keys[b]
-            if ka[0] == kb[0]:
-                continue
-            ta, pa, wa = tracks[ka]
-            tb, pb, wb = tracks[kb]
-            lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
-            if hi - lo < 1.0:
-                continue
-            grid = np.arange(lo, hi, dt)
-            wa_i = np.column_stack([np.interp(grid, ta, wa[:, c]) for c in range(3)])
-            wb_i = np.column_stack([np.interp(grid, tb, wb[:, c]) for c in range(3)])
-            d = np.linalg.norm((wa_i - wb_i)[:, :2], axis=1)
-            if np.median(d) > recipe.people_gate_m or np.max(d) > 2 * recipe.people_gate_m:
-                continue
-            pa_i = np.column_stack([np.interp(grid, ta, pa[:, c]) for c in range(3)])
-            pb_i = np.column_stack([np.interp(grid, tb, pb[:, c]) for c in range(3)])
-            for n, t in enumerate(grid):
-                out.append((float(t), [(ka[0], pa_i[n]), (kb[0], pb_i[n])]))
-    return out
+                   f"{len(prob.people)} shared person sightings")
+    return prob
 
 
 def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -524,25 +631,31 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         return calibrate_online(log, recipe=recipe, is_robot=is_robot, progress=progress)
 
     prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network)
+    t_build = time.perf_counter()
     fg, values = build_graph(log, prob)
+    t_build = time.perf_counter() - t_build
     _log(progress, f"optimizing {fg.size()} factors over {values.size()} variables")
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(recipe.max_iterations)
-    params.setRelativeErrorTol(recipe.relative_error_tol)
     t_opt = time.perf_counter()
-    opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    result = opt.optimize()
+    result, iterations = _optimize(fg, values, recipe)
+    _log(progress, f"converged in {iterations} iterations, error {fg.error(values):.1f} -> {fg.error(result):.1f}")
     t_opt = time.perf_counter() - t_opt
-    _log(progress, f"converged in {opt.iterations()} iterations, "
-                   f"error {fg.error(values):.1f} -> {fg.error(result):.1f}")
     network = _network_from_result(log, prob, fg, result, progress)
     mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
-                                                             iterations=opt.iterations(), factors=fg.size(),
-                                                             optimize_s=t_opt,
+                                                             iterations=iterations, factors=fg.size(),
+                                                             build_s=t_build, optimize_s=t_opt,
                                                              variables=values.size(),
-                                                             shared_people=len(prob.people)))
+                                                             shared_people=len(prob.people),
+                                                             odometry=prob.odometry_estimates))
+
+
+def _optimize(fg, values, recipe: GraphRecipe):
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(recipe.max_iterations)
+    params.setRelativeErrorTol(recipe.relative_error_tol)
+    opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
+    return opt.optimize(), opt.iterations()
 
 
 def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork) -> np.ndarray:
