@@ -43,6 +43,7 @@ from pedcal.track.kalman import (
     rot2,
     update_bearing,
 )
+from pedcal.track.recovery import FactorGraphTracker
 from pedcal.track.types import FollowFrame, Tracker, TrackerOutput, TrackEstimate
 
 
@@ -347,12 +348,13 @@ class PaperTracker:
         if self.state == "Tracking":
             tr = self.core.tracks[self.target_id]
             return TrackerOutput("Tracking", self.target_id, tr.xy.copy(), tr.P[:2, :2].copy(), tracks)
-        searching = self.state == "Searching"
-        xy = self.goal_xy if (searching and self.goal_xy is not None) else self.last_xy
+        # Lost: drive to the last estimate; Searching: stand still until the grid gives a goal.
+        stop = self.state == "Searching" and self.goal_xy is None
+        xy = self.goal_xy if self.state == "Searching" and not stop else self.last_xy
+        goal = None if xy is None or stop or self.state == "Initialize" else xy.copy()
         return TrackerOutput(self.state, None, None if xy is None else xy.copy(),
                              None if xy is None or xy is self.goal_xy else self.last_cov, tracks,
-                             stop_robot=searching and self.goal_xy is None,
-                             goal_xy_world_m=None if xy is None or self.state == "Initialize" else xy.copy())
+                             stop_robot=stop, goal_xy_world_m=goal)
 
 
 # ----------------------------------------------------------------------------- LIDAR-only tracker
@@ -413,7 +415,8 @@ class LidarOnlyTracker:
 
 
 # --------------------------------------------------------------------------------------- factory
-TRACKERS: dict[str, Callable[..., Tracker]] = {"paper": PaperTracker, "lidar-only": LidarOnlyTracker}
+TRACKERS: dict[str, Callable[..., Tracker]] = {"paper": PaperTracker, "lidar-only": LidarOnlyTracker,
+                                              "factorgraph": FactorGraphTracker}
 
 
 def make_tracker(name: str, **options) -> Tracker:
