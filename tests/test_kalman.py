@@ -124,3 +124,21 @@ def test_confirmed_filter_is_deleted_when_its_entropy_rises_20_percent_above_its
     assert renyi2_entropy_mm(tr.P) > 1.2 * h_min
     # On the area scale that is a growth of exp(0.2 H_min) over the minimum.
     assert area_m2(tr.P) > np.exp(h_min) / (4e6 * np.pi) * np.exp(0.2 * h_min)
+
+
+def test_batched_detections_and_distances_match_the_single_ones():
+    from pedcal.track.kalman import detections_world, mahalanobis_matrix
+
+    rng = np.random.default_rng(1)
+    pose, cov = np.array([0.5, -1.0, 2.0]), np.diag([0.01, 0.02, 0.003])
+    xy = rng.uniform(-4, 4, (5, 2))
+    z, R = detections_world(xy, pose, cov)
+    for j in range(5):
+        zj, Rj = detection_world(xy[j], pose, cov)
+        np.testing.assert_allclose(z[j], zj)
+        np.testing.assert_allclose(R[j], Rj)
+    X = np.c_[rng.uniform(-4, 4, (3, 2)), np.zeros((3, 2))]
+    Ps = np.stack([P_AXIS * s for s in (0.1, 0.5, 1.0)])
+    D = mahalanobis_matrix(X, Ps, z, R)
+    for t in range(3):
+        np.testing.assert_allclose(D[t], [mahalanobis(X[t], Ps[t], z[j], R[j])[0] for j in range(5)])

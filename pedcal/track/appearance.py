@@ -77,26 +77,34 @@ class OnlineBoost:
             self.n_pos += 1
         else:
             self.n_neg += 1
+        # Plain floats in the chain: it is sequential in m by construction.
+        xs = x.tolist()
+        w_pos, w_neg = self.w_pos.tolist(), self.w_neg.tolist()
+        s_pos, s_neg = self.sum_pos.tolist(), self.sum_neg.tolist()
+        lam_c, lam_w = self.lam_correct.tolist(), self.lam_wrong.tolist()
         lam = 1.0
         for m in range(self.n_bins):
             if positive:
-                self.w_pos[m] += lam
-                self.sum_pos[m] += lam * x[m]
+                w_pos[m] += lam
+                s_pos[m] += lam * xs[m]
             else:
-                self.w_neg[m] += lam
-                self.sum_neg[m] += lam * x[m]
-            mu_pos = self.sum_pos[m] / self.w_pos[m] if self.w_pos[m] > 0 else x[m]
-            mu_neg = self.sum_neg[m] / self.w_neg[m] if self.w_neg[m] > 0 else x[m]
+                w_neg[m] += lam
+                s_neg[m] += lam * xs[m]
+            mu_pos = s_pos[m] / w_pos[m] if w_pos[m] > 0 else xs[m]
+            mu_neg = s_neg[m] / w_neg[m] if w_neg[m] > 0 else xs[m]
             pol = 1.0 if mu_pos >= mu_neg else -1.0
-            h = 1.0 if pol * (x[m] - 0.5 * (mu_pos + mu_neg)) >= 0.0 else -1.0
+            h = 1.0 if pol * (xs[m] - 0.5 * (mu_pos + mu_neg)) >= 0.0 else -1.0
             if h == y:
-                self.lam_correct[m] += lam
-                eps = self.lam_wrong[m] / (self.lam_correct[m] + self.lam_wrong[m])
+                lam_c[m] += lam
+                eps = lam_w[m] / (lam_c[m] + lam_w[m])
                 lam /= 2.0 * (1.0 - min(max(eps, EPS_CLIP), 1 - EPS_CLIP))
             else:
-                self.lam_wrong[m] += lam
-                eps = self.lam_wrong[m] / (self.lam_correct[m] + self.lam_wrong[m])
+                lam_w[m] += lam
+                eps = lam_w[m] / (lam_c[m] + lam_w[m])
                 lam /= 2.0 * min(max(eps, EPS_CLIP), 1 - EPS_CLIP)
+        self.w_pos, self.w_neg = np.array(w_pos), np.array(w_neg)
+        self.sum_pos, self.sum_neg = np.array(s_pos), np.array(s_neg)
+        self.lam_correct, self.lam_wrong = np.array(lam_c), np.array(lam_w)
 
     def update_many(self, X: np.ndarray, positive: np.ndarray) -> None:
         for x, p in zip(np.atleast_2d(X), np.asarray(positive, dtype=bool), strict=True):

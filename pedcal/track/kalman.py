@@ -43,11 +43,8 @@ def cv_transition(dt_s: float) -> np.ndarray:
 
 def cv_process_noise(dt_s: float, sigma_accel_mps2: float = SIGMA_ACCEL_MPS2) -> np.ndarray:
     """Q of piecewise-constant white acceleration: G G^T sigma_a^2 with G = (dt^2/2, dt) per axis."""
-    q = sigma_accel_mps2 ** 2 * np.array([[dt_s ** 4 / 4, dt_s ** 3 / 2], [dt_s ** 3 / 2, dt_s ** 2]])
-    Q = np.zeros((4, 4))
-    Q[np.ix_([0, 2], [0, 2])] = q
-    Q[np.ix_([1, 3], [1, 3])] = q
-    return Q
+    a, b, c = sigma_accel_mps2 ** 2 * np.array([dt_s ** 4 / 4, dt_s ** 3 / 2, dt_s ** 2])
+    return np.array([[a, 0, b, 0], [0, a, 0, b], [b, 0, c, 0], [0, b, 0, c]])
 
 
 def predict(x: np.ndarray, P: np.ndarray, dt_s: float,
@@ -80,6 +77,14 @@ def mahalanobis(x: np.ndarray, P: np.ndarray, z_world: np.ndarray, R_world: np.n
     return np.sqrt(np.einsum("mi,mi->m", nu, np.linalg.solve(S, nu[..., None])[..., 0]))
 
 
+def mahalanobis_matrix(X: np.ndarray, Ps: np.ndarray, z_world: np.ndarray, R_world: np.ndarray) -> np.ndarray:
+    """(T, M) Mahalanobis distances of M detections from T filters' predicted positions at once
+    (states ``X`` (T, 4), covariances ``Ps`` (T, 4, 4), detections (M, 2) with ``R_world`` (M, 2, 2))."""
+    S = Ps[:, None, :2, :2] + R_world[None]
+    nu = z_world[None, :, :] - X[:, None, :2]
+    return np.sqrt(np.einsum("tmi,tmi->tm", nu, np.linalg.solve(S, nu[..., None])[..., 0]))
+
+
 def rot2(yaw_rad: float) -> np.ndarray:
     c, s = np.cos(yaw_rad), np.sin(yaw_rad)
     return np.array([[c, -s], [s, c]])
@@ -89,11 +94,21 @@ def detection_world(xy_robot_m: np.ndarray, pose_world_robot: np.ndarray, cov_wo
                     sigma_lidar_m: float = SIGMA_LIDAR_M) -> tuple[np.ndarray, np.ndarray]:
     """A robot-frame detection in the world frame and its covariance: p_world = t + R(yaw) p_robot,
     R_world = R(yaw) sigma_lidar^2 I R(yaw)^T + J cov_pose J^T with J = d p_world / d(x, y, yaw)."""
-    p_robot = np.asarray(xy_robot_m, dtype=float)[:2]
+    z, R = detections_world(np.asarray(xy_robot_m, dtype=float)[None, :2], pose_world_robot, cov_world_robot,
+                            sigma_lidar_m)
+    return z[0], R[0]
+
+
+def detections_world(xy_robot_m: np.ndarray, pose_world_robot: np.ndarray, cov_world_robot: np.ndarray,
+                     sigma_lidar_m: float = SIGMA_LIDAR_M) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`detection_world` for M detections (M, 2) at once: (M, 2) points, (M, 2, 2) covariances."""
+    p_robot = np.asarray(xy_robot_m, dtype=float).reshape(-1, 2)
     Rot = rot2(float(pose_world_robot[2]))
-    z = pose_world_robot[:2] + Rot @ p_robot
-    J = np.hstack([np.eye(2), (Rot @ np.array([-p_robot[1], p_robot[0]]))[:, None]])
-    return z, sigma_lidar_m ** 2 * np.eye(2) + J @ np.asarray(cov_world_robot) @ J.T
+    z = pose_world_robot[:2] + p_robot @ Rot.T
+    J = np.zeros((len(p_robot), 2, 3))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0
+    J[:, :, 2] = np.column_stack([-p_robot[:, 1], p_robot[:, 0]]) @ Rot.T
+    return z, sigma_lidar_m ** 2 * np.eye(2) + J @ np.asarray(cov_world_robot) @ J.transpose(0, 2, 1)
 
 
 def bearing_h(x: np.ndarray, xy_antenna_world_m: np.ndarray, yaw_robot_rad: float) -> float:
@@ -194,5 +209,5 @@ class CVTrack:
 
 
 __all__ = ["SIGMA_LIDAR_M", "cv_transition", "cv_process_noise", "predict", "update_position", "mahalanobis",
-           "detection_world", "bearing_h", "bearing_jacobian", "update_bearing", "area_m2", "renyi2_entropy_mm",
-           "CVTrack", "rot2"]
+           "mahalanobis_matrix", "detection_world", "detections_world", "bearing_h", "bearing_jacobian",
+           "update_bearing", "area_m2", "renyi2_entropy_mm", "CVTrack", "rot2"]

@@ -38,8 +38,8 @@ from pedcal.track.kalman import (
     SIGMA_ACCEL_MPS2,
     SIGMA_LIDAR_M,
     CVTrack,
-    detection_world,
-    mahalanobis,
+    detections_world,
+    mahalanobis_matrix,
     rot2,
     update_bearing,
 )
@@ -165,13 +165,13 @@ class MultiPersonCore:
             tr.detected = False
         dets = frame.detections
         if dets:
-            zR = [detection_world(dt.xy_robot_m, frame.pose_world_robot, frame.cov_world_robot, c.sigma_lidar_m)
-                  for dt in dets]
-            z = np.array([v[0] for v in zR])
-            R = np.array([v[1] for v in zR])
+            z, R = detections_world(np.array([dt.xy_robot_m for dt in dets], dtype=float),
+                                    np.asarray(frame.pose_world_robot, dtype=float), frame.cov_world_robot,
+                                    c.sigma_lidar_m)
             pairs = []
             if ids:
-                d = np.array([mahalanobis(self.tracks[i].x, self.tracks[i].P, z, R) for i in ids])
+                d = mahalanobis_matrix(np.array([self.tracks[i].x for i in ids]),
+                                       np.array([self.tracks[i].P for i in ids]), z, R)
                 e = np.full(d.shape, 0.5)
                 hists = np.array([dt.reflectance_hist for dt in dets], dtype=float)
                 if self.target_id in self.tracks and self.appearance is not None:
