@@ -114,6 +114,12 @@ def cmd_detect_eval(args) -> int:
     return detect_eval_cli(args)
 
 
+def cmd_report(args) -> int:
+    from pedcal.report.command import report_command
+
+    return report_command(args)
+
+
 # ------------------------------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pedcal", description=__doc__.splitlines()[0])
@@ -180,6 +186,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_detect_eval)
+
+    s = sub.add_parser("report", help="accuracy report (methods x scenarios x seeds vs the papers' tables), "
+                                      "or compare extrinsics files on a log")
+    s.add_argument("log", nargs="?", type=Path, default=None, help="compare --extrinsics files on this log")
+    s.add_argument("--extrinsics", action="append", type=Path, default=[], help="calibrated YAML (repeatable)")
+    s.add_argument("--scenarios", nargs="+", default=None, metavar="NAME[:SEEDS]",
+                   help="default: paper sparse mall:3")
+    s.add_argument("--seeds", type=int, default=10, help="seeds 0..N-1 per scenario (default 10)")
+    s.add_argument("--methods", nargs="+", default=None, help="default: every method and the installed extrinsics")
+    s.add_argument("--out", type=Path, default=None, help="output directory (default reports/default)")
+    s.add_argument("--from-results", type=Path, default=None, help="rebuild the report from saved results")
+    s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
+    s.add_argument("--workers", type=int, default=None, help="local Dask worker processes (default: cores)")
+    s.add_argument("--serial", action="store_true", help="run in this process, without Dask")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_report)
     return p
 
 

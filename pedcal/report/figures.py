@@ -1,0 +1,191 @@
+"""Report figures: matplotlib on the Agg canvas (no pyplot state, no display), saved atomically
+as PNG without a date or software stamp, so the same results give the same bytes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Ellipse
+from matplotlib.ticker import MaxNLocator
+
+from pedcal.io.atomic import atomic_path
+
+METHOD_COLORS = {"installed": "#7f7f7f", "alternative": "#d62728", "gridsearch": "#1f77b4",
+                 "closedform": "#2ca02c", "factorgraph": "#9467bd"}
+PNG_METADATA = {"Software": None}
+DPI = 100
+
+
+def new_figure(width_in: float, height_in: float) -> Figure:
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_png(fig: Figure, path: Path) -> None:
+    """Write ``fig`` atomically as a PNG without metadata that changes from run to run."""
+    with matplotlib.rc_context({"svg.hashsalt": "pedcal", "path.simplify": True}), atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI, metadata=PNG_METADATA)
+
+
+def color(method: str, k: int = 0) -> str:
+    return METHOD_COLORS.get(method, f"C{k % 10}")
+
+
+def per_sensor_bars(sensors: pd.DataFrame, methods: list[str], title: str) -> Figure:
+    """Mean position error per sensor over seeds, one bar per method, with the mean reported
+    3-D 1-sigma as the error bar for methods that report one."""
+    ids = sorted(sensors["sensor"].unique())
+    fig = new_figure(max(7.0, 0.22 * len(ids) * len(methods) + 1.5), 3.8)
+    ax = fig.add_subplot()
+    width = 0.8 / len(methods)
+    x = np.arange(len(ids))
+    sig3 = np.sqrt(sensors["sigma_x_mm"] ** 2 + sensors["sigma_y_mm"] ** 2 + sensors["sigma_z_mm"] ** 2)
+    df = sensors.assign(sigma_3d_mm=sig3)
+    for k, m in enumerate(methods):
+        g = df[df["method"] == m].groupby("sensor")
+        err = g["err_mm"].mean().reindex(ids).to_numpy()
+        sig = g["sigma_3d_mm"].mean().reindex(ids).to_numpy()
+        yerr = sig if np.isfinite(sig).any() else None
+        label = m + (" (bar: reported 1σ)" if yerr is not None else "")
+        ax.bar(x + (k - (len(methods) - 1) / 2) * width, err, width, color=color(m, k), label=label,
+               yerr=yerr, capsize=2, error_kw={"elinewidth": 0.8})
+    ax.set_xticks(x, ids, rotation=90 if len(ids) > 12 else 0, fontsize=8 if len(ids) > 12 else 10)
+    ax.set_xlabel("sensor")
+    ax.set_ylabel("position error |estimated − true| (mm)")
+    ax.set_yscale("log")
+    ax.set_title(title)
+    fig.legend(fontsize=8, ncols=min(len(methods), 5), loc="outside lower center")
+    ax.grid(axis="y", which="both", alpha=0.3)
+    return fig
+
+
+def error_histograms(sensors: pd.DataFrame, methods: list[str], title: str) -> Figure:
+    """Histogram of per-sensor position errors over all seeds, one outline per method."""
+    fig = new_figure(7.0, 3.8)
+    ax = fig.add_subplot()
+    e = sensors["err_mm"].to_numpy()
+    e = e[np.isfinite(e) & (e > 0)]
+    bins = np.geomspace(max(1.0, np.floor(e.min())), np.ceil(e.max()) * 1.01, 40) if len(e) else 10
+    for k, m in enumerate(methods):
+        v = sensors.loc[sensors["method"] == m, "err_mm"].to_numpy()
+        ax.hist(v[np.isfinite(v)], bins=bins, histtype="step", linewidth=1.6, color=color(m, k),
+                label=f"{m} (n={np.isfinite(v).sum()})")
+    ax.set_xscale("log")
+    ax.set_xlabel("sensor position error (mm, log scale)")
+    ax.set_ylabel("sensors × seeds")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _sensor_markers(ax, truth: pd.DataFrame, label: str | None = "sensor (true position, arrow: view)",
+                    arrow_color: str = "k") -> None:
+    yaw = np.radians(truth["true_yaw_deg"].to_numpy())
+    ax.scatter(truth["true_x_m"], truth["true_y_m"], marker="^", s=30, color="k", zorder=5, label=label)
+    ax.quiver(truth["true_x_m"], truth["true_y_m"], np.cos(yaw), np.sin(yaw), angles="xy", scale_units="xy",
+              scale=2.0, width=0.004, color=arrow_color, zorder=4)
+
+
+def head_trajectories(heads: pd.DataFrame, robot: pd.DataFrame, sensors: pd.DataFrame, methods: list[str],
+                      title: str, ref_label: str = "robot's true head path",
+                      sensor_label: str = "sensor (true position, arrow: view)") -> Figure:
+    """One panel per method: the robot's head positions computed with that method's extrinsics
+    over the robot's path (Kimoto et al., Figs. 5 and 6)."""
+    truth = sensors.drop_duplicates("sensor")
+    xs = np.r_[robot["x_m"], truth["true_x_m"]]
+    ys = np.r_[robot["y_m"], truth["true_y_m"]]
+    span = max(np.ptp(xs), 1.0), max(np.ptp(ys), 1.0)
+    ncols = min(len(methods), 3 if span[0] < 2 * span[1] else 2)
+    nrows = -(-len(methods) // ncols)
+    panel_w = 4.2
+    panel_h = float(np.clip(panel_w * span[1] / span[0], 1.8, 5.0)) + 0.6
+    fig = new_figure(panel_w * ncols, panel_h * nrows + 0.4)
+    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True, sharey=True)
+    for k, m in enumerate(methods):
+        ax = axes.flat[k]
+        ax.plot(robot["x_m"], robot["y_m"], color="0.6", lw=0.8, label=ref_label if k == 0 else None)
+        h = heads[heads["method"] == m]
+        ax.scatter(h["x_m"], h["y_m"], s=1.5, color=color(m, k), alpha=0.6)
+        _sensor_markers(ax, truth, label=sensor_label if k == 0 else None)
+        ax.set_title(f"head from {m}", fontsize=10)
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(methods):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("x (m)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("y (m)")
+    fig.suptitle(title)
+    fig.legend(fontsize=8, ncols=2, loc="outside lower center")
+    return fig
+
+
+def covariance_floorplan(sensors: pd.DataFrame, methods: list[str], title: str) -> Figure | None:
+    """Floor plan: true sensors, each method's position error as an arrow and its reported
+    1-sigma (x, y) ellipse around the estimate, both magnified by one stated factor.
+    None when no method reports a sigma."""
+    with_sigma = [m for m in methods if np.isfinite(sensors.loc[sensors["method"] == m, "sigma_x_mm"]).any()]
+    if not with_sigma:
+        return None
+    truth = sensors.drop_duplicates("sensor")
+    span_m = max(np.ptp(truth["true_x_m"]), np.ptp(truth["true_y_m"]), 1.0)
+    sub = sensors[sensors["method"].isin(with_sigma)]
+    sizes = np.r_[sub["err_mm"], sub["sigma_x_mm"], sub["sigma_y_mm"]] / 1000.0
+    biggest = np.nanpercentile(sizes, 90) if np.isfinite(sizes).any() else 0.1
+    # One power of ten such that a typical error or sigma is drawn a few percent of the area.
+    gain = float(10.0 ** np.floor(np.log10(0.15 * span_m / max(biggest, 1e-6))))
+    fig = new_figure(8.0, 8.0 * float(np.clip(np.ptp(truth["true_y_m"]) / max(np.ptp(truth["true_x_m"]), 1e-3),
+                                              0.4, 1.0)) + 0.8)
+    ax = fig.add_subplot()
+    _sensor_markers(ax, truth, label="sensor (true position, grey arrow: view)", arrow_color="0.75")
+    for k, m in enumerate(with_sigma):
+        d = sensors[sensors["method"] == m]
+        c = color(m, k)
+        ex, ey = gain * d["err_x_mm"] / 1000.0, gain * d["err_y_mm"] / 1000.0
+        ax.quiver(d["true_x_m"], d["true_y_m"], ex, ey, angles="xy", scale_units="xy", scale=1.0, width=0.003,
+                  color=c, label=f"{m}: error × {gain:g}")
+        for x0, y0, dx, dy, sx, sy in zip(d["true_x_m"], d["true_y_m"], ex, ey, d["sigma_x_mm"], d["sigma_y_mm"],
+                                          strict=True):
+            if np.isfinite(sx) and np.isfinite(sy):
+                ax.add_patch(Ellipse((x0 + dx, y0 + dy), 2 * gain * sx / 1000.0, 2 * gain * sy / 1000.0,
+                                     fill=False, color=c, lw=1.0))
+        ax.plot([], [], color=c, lw=1.0, label=f"{m}: reported 1σ (x, y) × {gain:g}")
+    ax.set_aspect("equal")
+    pad_m = 0.6 + 0.05 * span_m
+    ax.set_xlim(truth["true_x_m"].min() - pad_m, truth["true_x_m"].max() + pad_m)
+    ax.set_ylim(truth["true_y_m"].min() - pad_m, truth["true_y_m"].max() + pad_m)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def head_rms_bars(rows: pd.DataFrame, title: str) -> Figure:
+    """Per-sensor head tracking RMS, one bar per extrinsics file (``rows``: label, sensor, head_rms_mm)."""
+    labels = list(dict.fromkeys(rows["label"]))
+    ids = sorted(rows["sensor"].unique())
+    fig = new_figure(max(6.0, 0.3 * len(ids) * len(labels) + 1.5), 3.8)
+    ax = fig.add_subplot()
+    width = 0.8 / len(labels)
+    x = np.arange(len(ids))
+    for k, lab in enumerate(labels):
+        v = rows[rows["label"] == lab].set_index("sensor")["head_rms_mm"].reindex(ids).to_numpy(float)
+        ax.bar(x + (k - (len(labels) - 1) / 2) * width, v, width, color=f"C{k % 10}", label=lab)
+    ax.set_xticks(x, ids, rotation=90 if len(ids) > 12 else 0)
+    ax.set_xlabel("sensor")
+    ax.set_ylabel("head tracking RMS (mm)")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    return fig

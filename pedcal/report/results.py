@@ -1,0 +1,100 @@
+"""Saved sweep results: what the report is rebuilt from.
+
+A results directory holds
+
+- ``results.json``: the sweep's configuration (and the command that regenerates it), the per-run
+  table (one row per scenario, seed and method) and the per-sensor table, sorted keys, NaN as null;
+- ``runs.parquet``, ``sensors.parquet``: the same two tables as Parquet;
+- ``heads.parquet``, ``robot.parquet``: the calibrated head tracks of every method and the true
+  robot path on the evaluation log of each scenario's first seed (for the trajectory figures);
+- ``timings.json``: solve times per run. They vary from run to run, so the report never reads
+  them and the reproducible files never hold them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from pedcal.errors import PedcalInputError
+from pedcal.io.atomic import atomic_path, write_text_atomic
+from pedcal.report.sweep import SweepConfig
+
+FORMAT_VERSION = 1
+TABLES = ("runs", "sensors", "heads", "robot")
+
+
+@dataclass
+class SweepResults:
+    config: SweepConfig
+    runs: pd.DataFrame
+    sensors: pd.DataFrame
+    heads: pd.DataFrame
+    robot: pd.DataFrame
+    path: Path | None = None
+
+
+def _clean(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _records(df: pd.DataFrame) -> list[dict]:
+    return [{k: _clean(v) for k, v in r.items()} for r in df.to_dict(orient="records")]
+
+
+def json_text(obj) -> str:
+    """Reproducible JSON: sorted keys, fixed indentation, no NaN (null instead)."""
+    return json.dumps(obj, indent=1, sort_keys=True, allow_nan=False) + "\n"
+
+
+def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        df.to_parquet(tmp, index=False, engine="pyarrow", compression="zstd")
+
+
+def results_from_cases(config: SweepConfig, cases: list[dict]) -> SweepResults:
+    """Tables of the task results of ``run_sweep`` (already in their sorted order)."""
+    frames = {name: pd.DataFrame([r for c in cases for r in c[name]]) for name in TABLES}
+    return SweepResults(config=config, **frames)
+
+
+def save_results(results: SweepResults, out_dir: str | Path, timings: dict | None = None) -> Path:
+    """Write the results files (module docstring) into ``out_dir``, each atomically."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name in TABLES:
+        write_parquet_atomic(getattr(results, name), out_dir / f"{name}.parquet")
+    write_text_atomic(out_dir / "results.json", json_text({
+        "format_version": FORMAT_VERSION, "config": results.config.to_dict(),
+        "runs": _records(results.runs), "sensors": _records(results.sensors)}))
+    if timings is not None:
+        write_text_atomic(out_dir / "timings.json", json_text(timings))
+    return out_dir
+
+
+def load_results(results_dir: str | Path) -> SweepResults:
+    """Read a results directory written by ``save_results``."""
+    results_dir = Path(results_dir)
+    path = results_dir / "results.json"
+    if not path.is_file():
+        raise PedcalInputError("no results.json: expected a directory written by `pedcal report`", path=results_dir)
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+        config = SweepConfig.from_dict(meta["config"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise PedcalInputError(f"not a pedcal report results file ({exc})", path=path) from None
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise PedcalInputError(f"format_version {meta.get('format_version')!r}, expected {FORMAT_VERSION}", path=path)
+    tables = {}
+    for name in TABLES:
+        p = results_dir / f"{name}.parquet"
+        if not p.is_file():
+            raise PedcalInputError(f"missing {p.name}, which `pedcal report` writes beside results.json", path=p)
+        tables[name] = pd.read_parquet(p)
+    return SweepResults(config=config, path=results_dir, **tables)
