@@ -231,3 +231,24 @@ def test_online_boost_separates_two_histograms():
         ob.update(np.clip(hist(1) + rng.normal(0, 0.03, B), 0, None), False)
     e = ob.error(np.stack([hist(0), hist(1), hist(2)]))
     assert e[0] < 0.1 and e[1] > 0.9
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_paper_tracker_recovers_the_target_with_simulated_noisy_readings(seed):
+    """The occlusion of Fig. 7 with the antenna simulator's noise and multipath: the passer-by is in
+    the target's 30 deg direction, so it may be taken for a while; the target must be back once
+    it is seen again."""
+    from dataclasses import replace
+
+    from pedcal.sim.espar import EsparParams, EsparSimulator
+
+    sim = EsparSimulator(EsparParams(), np.random.default_rng(seed))
+    passer = TARGET + np.array([-0.6, 0.5])
+    frames = []
+    for k in range(1, 40):
+        people = {0: TARGET, 1: OTHER} if k < 9 else {1: OTHER, 2: passer} if k < 14 else \
+            {0: TARGET, 1: OTHER, 2: passer + [0.0, 0.6]}
+        frames.append(replace(frame(k, people), espar=sim.readings((k - 1) * DT, k * DT, TARGET)))
+    outs = run(PaperTracker(), frames)
+    assert all(o.state == "Tracking" for o in outs[-10:])
+    np.testing.assert_allclose(outs[-1].target_xy_world_m, TARGET, atol=0.1)
