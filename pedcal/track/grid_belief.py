@@ -263,6 +263,13 @@ class GridBelief:
         self.belief *= np.exp(-0.5 * m2) + floor
         self._normalize()
 
+    def copy(self) -> GridBelief:
+        """An independent belief on the same window (the map masks are shared, read-only)."""
+        other = object.__new__(GridBelief)
+        other.__dict__.update(self.__dict__)
+        other.belief = self.belief.copy()
+        return other
+
     # ---- answers ----------------------------------------------------------------------------
     def mode(self) -> np.ndarray:
         """Centre of the most probable cell (always a free cell)."""

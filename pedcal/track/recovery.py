@@ -36,7 +36,8 @@ from gtsam.symbol_shorthand import A, T, V, X
 
 from pedcal.errors import PedcalInputError
 from pedcal.track.espar import DEFAULT_LIKELIHOOD
-from pedcal.track.types import EsparReading
+from pedcal.track.grid_belief import GridBelief, GridBeliefConfig
+from pedcal.track.types import EsparReading, FollowFrame, TrackerOutput
 
 ESPAR_QUANTIZATION_SIGMA_RAD = math.radians(30.0) / math.sqrt(12.0)
 _I2 = np.eye(2)
@@ -51,7 +52,7 @@ class SmootherConfig:
     velocity_tau_s: float = 3.0            # how long the target keeps its velocity (Gauss-Markov time)
     position_noise_m: float = 0.05         # unmodelled motion per step on top of constant velocity
     espar_sigma_rad: float = max(DEFAULT_LIKELIHOOD.sigma_rad, ESPAR_QUANTIZATION_SIGMA_RAD)
-    espar_cauchy_k: float = 1.0            # Cauchy kernel scale, in sigmas
+    espar_cauchy_k: float = 2.0            # Cauchy kernel scale, in sigmas
     lidar_bearing_sigma_rad: float = math.radians(3.0)
     lidar_range_sigma_m: float = 0.1       # box centre vs the person's centre
     mount_sigma_m: float = 1e-3
@@ -124,11 +125,13 @@ class TargetSmoother:
         return self._k >= 0
 
     def add_frame(self, t_s: float, pose_world_robot, cov_world_robot, detection_xy_robot_m=None,
-                  espar: tuple[EsparReading, ...] = (), seed_xy_world_m=None, seed_sigma_m: float | None = None
-                  ) -> np.ndarray | None:
+                  espar: tuple[EsparReading, ...] = (), seed_xy_world_m=None, seed_sigma_m: float | None = None,
+                  seed_velocity_world_mps=None) -> np.ndarray | None:
         """Add one frame's robot pose and measurements, update, and return the target's latest position.
 
-        The first frame needs a detection or a seed (something must say where the target starts).
+        The first frame needs a detection or a seed (something must say where the target starts);
+        ``seed_velocity_world_mps`` (e.g. the Kalman filter's last velocity) is the first velocity's
+        prior mean, with the walking speed as its spread.
         Returns None while nothing has started the smoother.
         """
         cfg = self.config
@@ -145,6 +148,8 @@ class TargetSmoother:
             else:
                 return None
             self._xy_latest = start
+            if seed_velocity_world_mps is not None:
+                self._v_latest = np.asarray(seed_velocity_world_mps, dtype=float).copy()
             seed_xy_world_m, seed_sigma_m = start, start_sigma
         if self._t_prev_s is not None and t_s <= self._t_prev_s:
             raise PedcalInputError(f"smoother: frame times must increase, got {t_s} after {self._t_prev_s}")
@@ -214,3 +219,181 @@ class TargetSmoother:
 
     def latest_velocity(self) -> np.ndarray:
         return self._v_latest.copy()
+
+
+# ------------------------------------------------------------------------------------------ tracker
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """When the factor-graph tracker re-takes a detection, and when it gives up moving."""
+
+    reacquire_gate: float = 3.0            # Mahalanobis distance of a detection from the estimate
+    reacquire_radius_m: float = 2.5        # and never farther than this, however spread the belief
+    reacquire_max_error: float = 0.5       # the target's appearance classifier error e (eq. 3) at most
+    reacquire_p_target: float = 0.7        # P(T = i) given to the re-taken filter (the paper's threshold)
+    lost_sigma0_m: float = 0.5             # grid belief around the last estimate at the loss
+    sharpen_floor: float = 0.05            # the grid keeps this much outside the smoother's Gaussian
+    reseed_ratio: float = 0.01             # smoother mean in a cell under this share of the mode: re-seed it
+    stop_spread_m: float = 4.0             # belief spread beyond this (no usable bearings): stop and search
+
+
+class FactorGraphTracker:
+    """The paper's tracker while the target is in view; a smoother + grid belief while it is not.
+
+    In view, every frame goes through :class:`~pedcal.track.tracker.PaperTracker` (its Kalman
+    filters, association, appearance classifier and target probability, eqs. 3-14). Once it
+    declares the target lost, this tracker does not let the robot stop: a :class:`GridBelief` started
+    at the last estimate and a :class:`TargetSmoother` seeded with the Kalman filter's last position
+    and velocity take every frame's ESPAR readings and the LIDAR's negative information, and give
+    ``target_xy_world_m`` and ``goal_xy_world_m`` (a free cell) each frame, so bearings taken while
+    driving triangulate the target. The robot is asked to stop only when the belief is hopelessly
+    spread (``stop_spread_m``: no usable readings for a long time), which the paper's Searching
+    would do always. A detection within the gate of the estimate whose reflectance the target's
+    appearance classifier accepts is re-taken as the target at once, without waiting for the
+    antenna to raise its probability above 0.7.
+    """
+
+    name = "factorgraph"
+
+    def __init__(self, config=None, occupancy=None, smoother_config: SmootherConfig | None = None,
+                 grid_config: GridBeliefConfig | None = None, recovery_config: RecoveryConfig | None = None, **options):
+        from pedcal.track.tracker import PaperTracker
+
+        self.paper = PaperTracker(config, **options)
+        self.occupancy = occupancy
+        self.smoother_config = smoother_config or SmootherConfig()
+        self.grid_config = grid_config
+        self.recovery = recovery_config or RecoveryConfig()
+        self.smoother: TargetSmoother | None = None
+        self.grid = None
+        self._appearance = None          # the target's classifier, kept across the loss
+        self._last_velocity = np.zeros(2)
+        self._t_prev_s: float | None = None
+        self._estimate: tuple[np.ndarray, np.ndarray] | None = None
+
+    # the paper tracker forgets the target's classifier when it loses the target; keep it
+    def _remember_target(self) -> None:
+        core = self.paper.core
+        tr = core.tracks.get(core.target_id)
+        if tr is not None:
+            self._last_velocity = tr.x[2:4].copy()
+        if core.appearance is not None:
+            self._appearance = core.appearance
+
+    def _start_recovery(self, frame: FollowFrame) -> None:
+        xy0 = self.paper.last_xy if self.paper.last_xy is not None else np.asarray(frame.pose_world_robot[:2])
+        cov0 = self.paper.last_cov if self.paper.last_cov is not None else np.eye(2)
+        sigma0 = max(self.recovery.lost_sigma0_m, float(np.sqrt(np.linalg.eigvalsh(cov0).max())))
+        self.grid = GridBelief(self.occupancy, xy0, self.grid_config, self.paper.config.espar)
+        self.grid.reset_gaussian(xy0, sigma0)
+        self.smoother = TargetSmoother(self.smoother_config)
+        self._seed = (np.asarray(xy0, dtype=float), sigma0)
+
+    def _recover(self, frame: FollowFrame) -> None:
+        """One frame of the grid (motion, negative information, antenna) and the smoother."""
+        pose = np.asarray(frame.pose_world_robot, dtype=float)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        R = np.array([[c, -s], [s, c]])
+        grid = self.grid
+        if self._t_prev_s is not None:
+            grid.predict(frame.t_s - self._t_prev_s)
+        people_world = [pose[:2] + R @ np.asarray(d.xy_robot_m, dtype=float) for d in frame.detections]
+        grid.observe_empty(pose, people_world)
+        for r in frame.espar:
+            grid.observe_bearing(pose[:2] + R @ np.asarray(r.xy_antenna_robot_m, dtype=float),
+                                 pose[2] + r.bearing_robot_rad)
+        seed_xy, seed_sigma = (None, None)
+        if not self.smoother.started:
+            seed_xy, seed_sigma = self._seed
+        elif self._estimate is not None:
+            # the smoother drifted where the grid says the target cannot be: give it the grid's answer
+            ij = grid.cell_of(self.smoother.latest()[0])
+            belief_there = grid.belief[ij[0], ij[1]] if grid.in_window(ij) else 0.0
+            if belief_there < self.recovery.reseed_ratio * grid.belief.max():
+                xy_g, cov_g, _ = grid.estimate()
+                seed_xy, seed_sigma = xy_g, float(np.sqrt(np.trace(cov_g)))
+        self.smoother.add_frame(frame.t_s, pose, frame.cov_world_robot, espar=frame.espar,
+                                seed_xy_world_m=seed_xy, seed_sigma_m=seed_sigma,
+                                seed_velocity_world_mps=self._last_velocity if seed_xy is not None else None)
+        xy_s, cov_s = self.smoother.latest()
+        # the answer: the grid sharpened by the smoother's Gaussian. The product is not stored back in
+        # the grid, which already holds the same readings; multiplying every frame would count them again
+        fused = grid.copy()
+        fused.observe_gaussian(xy_s, cov_s, floor=self.recovery.sharpen_floor)
+        xy, cov, _ = fused.estimate()
+        grid.keep_in_window(xy)
+        self._estimate = (xy, cov)
+        self._smoother_xy, self._grid_xy = xy_s, grid.estimate()[0]
+
+    def _reacquire(self, frame: FollowFrame) -> int | None:
+        """A filter detected this frame at the estimate (gate) that looks like the target."""
+        if self._estimate is None or not frame.detections:
+            return None
+        core = self.paper.core
+        xy_est, cov_est = self._estimate
+        cand = [tr for tr in core.tracks.values() if tr.detected]
+        if not cand:
+            return None
+        xy = np.array([tr.xy for tr in cand])
+        S = cov_est + np.array([tr.P[:2, :2] for tr in cand])
+        diff = xy - xy_est
+        d = np.sqrt(np.einsum("ni,nij,nj->n", diff, np.linalg.inv(S), diff))
+        dist = np.linalg.norm(diff, axis=1)
+        ok = (d < self.recovery.reacquire_gate) & (dist < self.recovery.reacquire_radius_m)
+        if not ok.any():
+            return None
+        if self._appearance is None or not self._appearance.ready:
+            return None          # nothing tells the target from a passer-by: leave it to the antenna (eq. 9)
+        # the detection nearest each candidate filter carries its reflectance histogram
+        pose = np.asarray(frame.pose_world_robot, dtype=float)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        det_world = np.array([d_.xy_robot_m for d_ in frame.detections]) @ np.array([[c, s], [-s, c]]) + pose[:2]
+        hists = np.array([d_.reflectance_hist for d_ in frame.detections], dtype=float)
+        nearest = np.argmin(np.linalg.norm(det_world[None, :, :] - xy[:, None, :], axis=2), axis=1)
+        ok &= self._appearance.error(hists[nearest]) <= self.recovery.reacquire_max_error
+        if not ok.any():
+            return None
+        return cand[int(np.argmin(np.where(ok, d, np.inf)))].track_id
+
+    def _take(self, track_id: int) -> None:
+        """Make ``track_id`` the paper tracker's target with P(T = i) = ``reacquire_p_target``."""
+        paper = self.paper
+        prob = paper.prob
+        p_new = self.recovery.reacquire_p_target
+        rest = sum(v for k, v in prob.p.items() if k != track_id) + prob.p_lost
+        scale = (1.0 - p_new) / rest if rest > 0 else 0.0
+        prob.p = {k: v * scale for k, v in prob.p.items() if k != track_id}
+        prob.p[track_id] = p_new
+        prob.p_lost *= scale
+        paper._track(track_id)
+        if self._appearance is not None:
+            paper.core.appearance = self._appearance
+
+    def _reset_recovery(self) -> None:
+        self.smoother = self.grid = self._estimate = None
+
+    def step(self, frame: FollowFrame) -> TrackerOutput:
+        was = self.paper.state
+        out = self.paper.step(frame)
+        if out.state == "Tracking":
+            self._remember_target()
+            self._reset_recovery()
+            self._t_prev_s = frame.t_s
+            return out
+        if was == "Initialize" and out.state == "Initialize":
+            self._t_prev_s = frame.t_s
+            return out
+        # lost: the paper tracker would wait and then stop; we keep moving
+        if self.grid is None:
+            self._start_recovery(frame)
+        take = self._reacquire(frame)
+        if take is not None:
+            self._take(take)
+            self._reset_recovery()
+            self._t_prev_s = frame.t_s
+            return self.paper._output()
+        self._recover(frame)
+        self._t_prev_s = frame.t_s
+        xy, cov = self._estimate
+        hopeless = self.grid.spread_m() > self.recovery.stop_spread_m and not frame.espar
+        return TrackerOutput("Searching" if hopeless else "Lost", None, xy.copy(), cov.copy(), out.tracks,
+                             stop_robot=hopeless, goal_xy_world_m=xy.copy())
