@@ -64,3 +64,18 @@ def test_saved_file_is_byte_reproducible(tmp_path):
     m.save(tmp_path / "a.npz")
     m.save(tmp_path / "b.npz")
     assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
+
+
+def test_threshold_offset_moves_the_boundary_and_is_saved(tmp_path):
+    X, y = toy(5, n=500)
+    m = RealAdaBoost(n_rounds=10).fit(X, y)
+    F = m.decision_function(X)
+    t = float(np.median(F))
+    m.set_threshold(t)
+    np.testing.assert_allclose(m.decision_function(X), F - t)
+    assert m.predict(X).sum() == (F > t).sum()
+    assert m.predict_proba(X[F == t]).tolist() == [0.5] * int((F == t).sum())
+    m.save(tmp_path / "m.npz")
+    back = RealAdaBoost.load(tmp_path / "m.npz")
+    assert back.bias_ == pytest.approx(-t)
+    np.testing.assert_array_equal(back.decision_function(X), m.decision_function(X))

@@ -133,3 +133,24 @@ def test_a_few_stray_points_are_no_candidate():
     stray = np.array([[2.0, 0.0, 1.2, 0.3], [2.02, 0.01, 1.0, 0.3]])
     cands = det.segment(np.vstack([floor(rng), stray]))
     assert len(cands) == 1 and not cands[0].gated
+
+
+def test_person_against_a_tall_wall_is_split_off_by_height():
+    rng = np.random.default_rng(8)
+    wall = box_surface(rng, 3.0, 0.0, 0.1, 3.0, 2.5, 0.0, n=6000)  # thin along x, 3 m along y, 2.5 m tall
+    person = cylinder_person(rng, 2.75, 0.5, radius=0.2, h=1.7)  # touching the wall's cells
+    pts = np.vstack([floor(rng), wall, person])
+    whole = det.segment(pts, split_tall=False)
+    assert len(whole) == 1 and not whole[0].gated  # one cluster, 3 m wide and 2.5 m tall
+    cands = det.segment(pts)
+    gated = [c for c in cands if c.gated]
+    assert len(gated) == 1
+    g = gated[0]
+    assert (g.box.cx, g.box.cy) == pytest.approx((2.75, 0.5), abs=0.08)
+    assert g.height == pytest.approx(1.7, abs=0.02)
+    # the part keeps most of the person (not the cells it shares with the wall), none of the wall
+    assert (pts[g.indices, 2] <= det.GATE_HEIGHT_M[1]).all()
+    assert len(g.indices) >= 0.7 * (person[:, 2] > det.FLOOR_TOLERANCE_M).sum()
+    # a pillar alone leaves no part behind
+    pillar = box_surface(rng, 2.0, -1.0, 0.4, 0.4, 2.5, 0.0)
+    assert not any(c.gated for c in det.segment(np.vstack([floor(rng), pillar])))

@@ -12,8 +12,9 @@ sample in bin j,
     h_t(x) = 1/2 * ln((W+_j + eps) / (W-_j + eps))            (S&S eq. 11, smoothed)
 
 The weights are updated w <- w * exp(-y h_t(x)) and renormalized. The strong classifier is
-F(x) = sum_t h_t(x), whose sign is the class; F estimates half the log-odds, so
-P(y = +1 | x) = 1 / (1 + exp(-2 F(x))).
+F(x) = sum_t h_t(x) + b, whose sign is the class; F estimates half the log-odds, so
+P(y = +1 | x) = 1 / (1 + exp(-2 F(x))). The offset b (``bias_``, 0 after ``fit``) moves the
+decision threshold: ``set_threshold`` puts P = 0.5 at a decision value chosen on validation data.
 
 Bin statistics are computed for all features at once with one ``np.bincount`` per round.
 """
@@ -43,6 +44,7 @@ class RealAdaBoost:
         self.edges_: np.ndarray | None = None  # (T, B-1) bin edges of each round's feature
         self.h_: np.ndarray | None = None  # (T, B) output per bin
         self.n_features_: int = 0
+        self.bias_: float = 0.0  # b of F(x), moves the decision threshold
 
     # ------------------------------------------------------------------------------------ training
     def _bin_edges(self, X: np.ndarray) -> np.ndarray:
@@ -92,11 +94,12 @@ class RealAdaBoost:
         self.edges_ = edges[self.feature_]
         self.h_ = np.vstack(hs)
         self.n_features_ = F
+        self.bias_ = 0.0
         return self
 
     # ---------------------------------------------------------------------------------- prediction
     def decision_function(self, X: np.ndarray) -> np.ndarray:
-        """F(x) = sum_t h_t(x) for each row of X."""
+        """F(x) = sum_t h_t(x) + b for each row of X."""
         if self.feature_ is None:
             raise RuntimeError("the classifier is not trained")
         X = np.atleast_2d(np.asarray(X, dtype=float))
@@ -105,7 +108,12 @@ class RealAdaBoost:
         vals = X[:, self.feature_]  # (n, T)
         # bin = number of edges <= value (searchsorted side='right'), for every round at once
         bins = (vals[:, :, None] >= self.edges_[None, :, :]).sum(axis=2)
-        return self.h_[np.arange(len(self.feature_))[None, :], bins].sum(axis=1)
+        return self.h_[np.arange(len(self.feature_))[None, :], bins].sum(axis=1) + self.bias_
+
+    def set_threshold(self, decision_value: float) -> RealAdaBoost:
+        """Make ``decision_value`` (of the current F) the class boundary: F = 0, P = 0.5 there."""
+        self.bias_ = float(self.bias_ - decision_value)
+        return self
 
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         """P(person | x) = 1 / (1 + exp(-2 F(x)))."""
@@ -120,7 +128,7 @@ class RealAdaBoost:
         unlike ``np.savez``, so the same training gives the same file)."""
         arrays = dict(feature=self.feature_, edges=self.edges_, h=self.h_,
                       n_features=np.int64(self.n_features_), n_bins=np.int64(self.n_bins),
-                      n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed))
+                      n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed), bias=np.float64(self.bias_))
         with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
             for name, arr in arrays.items():
                 info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -141,6 +149,7 @@ class RealAdaBoost:
                 m.edges_ = d["edges"].astype(float)
                 m.h_ = d["h"].astype(float)
                 m.n_features_ = int(d["n_features"])
+                m.bias_ = float(d["bias"]) if "bias" in d.files else 0.0  # files before the offset
         except (OSError, ValueError, KeyError) as e:
             raise PedcalInputError(f"not a RealAdaBoost model .npz (feature, edges, h, n_features, "
                                    f"n_bins, n_rounds, seed): {e}", path=path) from None

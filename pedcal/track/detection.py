@@ -77,16 +77,22 @@ def grid_cells(points: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> tuple[np
     return ij, shape, origin
 
 
-def object_cells(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int],
-                 min_cell_span_m: float = MIN_CELL_SPAN_M) -> np.ndarray:
-    """Step 2: boolean (rows, cols) map of the cells whose max z - min z > ``min_cell_span_m``."""
+def cell_z_range(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(highest z, lowest z) of the points in each cell, (rows, cols) maps (-inf / +inf when empty)."""
     flat = ij[:, 0] * shape[1] + ij[:, 1]
     n = shape[0] * shape[1]
     z_hi = np.full(n, -np.inf)
     z_lo = np.full(n, np.inf)
     np.maximum.at(z_hi, flat, z)
     np.minimum.at(z_lo, flat, z)
-    return ((z_hi - z_lo) > min_cell_span_m).reshape(shape)
+    return z_hi.reshape(shape), z_lo.reshape(shape)
+
+
+def object_cells(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int],
+                 min_cell_span_m: float = MIN_CELL_SPAN_M) -> np.ndarray:
+    """Step 2: boolean (rows, cols) map of the cells whose max z - min z > ``min_cell_span_m``."""
+    z_hi, z_lo = cell_z_range(ij, z, shape)
+    return (z_hi - z_lo) > min_cell_span_m
 
 
 def cluster_cells(occupied: np.ndarray, gap_cells: int = 0) -> tuple[np.ndarray, int]:
@@ -172,24 +178,44 @@ class Candidate:
 
 
 def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_m: float = MIN_CELL_SPAN_M,
-            gap_cells: int = 0, floor_tolerance_m: float = FLOOR_TOLERANCE_M) -> list[Candidate]:
-    """Steps 1-6: every cluster of the frame with its box, height and gate verdict."""
+            gap_cells: int = 0, floor_tolerance_m: float = FLOOR_TOLERANCE_M,
+            split_tall: bool = True) -> list[Candidate]:
+    """Steps 1-6: every cluster of the frame with its box, height and gate verdict.
+
+    With ``split_tall``, a cluster taller than the gate's 2.0 m is split by its height profile:
+    its cells whose highest point is above 2.0 m (a wall or pillar seen up to that height) are
+    dropped and the rest is clustered again, so a person standing against a wall or beside a
+    pillar becomes a candidate of its own. The parts follow the rejected cluster in the
+    list (which stays, ungated); each part is gated as any cluster.
+    """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise ValueError(f"points must be (N, 4) x, y, z, intensity; got shape {pts.shape}")
     if len(pts) == 0:
         return []
     ij, shape, _ = grid_cells(pts, cell_size_m)
-    occ = object_cells(ij, pts[:, 2], shape, min_cell_span_m)
+    z_hi, z_lo = cell_z_range(ij, pts[:, 2], shape)
+    occ = (z_hi - z_lo) > min_cell_span_m
     labels, n = cluster_cells(occ, gap_cells)
     if n == 0:
         return []
-    out = []
-    for idx in cluster_points(pts, ij, labels, floor_tolerance_m):
-        box = min_area_box(pts[idx, :2])
-        h = float(pts[idx, 2].max())
-        out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx))))
+    out = [_candidate(pts, idx) for idx in cluster_points(pts, ij, labels, floor_tolerance_m)]
+    oversized = [c for c in out if c.height > GATE_HEIGHT_M[1]]
+    if split_tall and oversized:
+        in_oversized = np.zeros(len(pts), dtype=bool)
+        in_oversized[np.concatenate([c.indices for c in oversized])] = True
+        low_labels, m = cluster_cells(occ & (z_hi <= GATE_HEIGHT_M[1]), gap_cells)
+        if m:
+            # a part's cells all lie in one cluster's cells: test its first point
+            out += [_candidate(pts, idx) for idx in cluster_points(pts, ij, low_labels, floor_tolerance_m)
+                    if in_oversized[idx[0]]]
     return out
+
+
+def _candidate(pts: np.ndarray, idx: np.ndarray) -> Candidate:
+    box = min_area_box(pts[idx, :2])
+    h = float(pts[idx, 2].max())
+    return Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx)))
 
 
 # ------------------------------------------------------------------------------------- classifier
