@@ -84,7 +84,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
 
     rows = {m: [] for m in methods}
-    ratios, d2, floors, bounds = [], [], [], []
+    ratios, d2, floors, bounds, replaced = [], [], [], [], []
     print(f"{args.scenario}, seeds {args.first_seed}..{args.first_seed + args.seeds - 1}, overrides {overrides}")
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         sim = simulate_logs(args.scenario, seed=seed, **overrides)
@@ -108,6 +108,10 @@ def main() -> None:
                 ratios.extend(r)
                 d2.extend(d)
         line.append(f"AMCL floor {floors[-1]:5.1f} mm")
+        who = sim.calib.truth_observations["who"].astype(str)
+        if (who == "companion").any():
+            replaced.append(float((who == "companion").sum() / who.isin(["robot", "companion"]).sum()))
+            line.append(f"companion {100 * replaced[-1]:4.1f}% of the robot's")
         if args.crlb:
             from pedcal.calib.crlb import sensor_position_crlb
 
@@ -122,6 +126,8 @@ def main() -> None:
               f"head {a[:, 1].mean():7.1f}  time mean {a[:, 2].mean():6.2f} min {a[:, 2].min():6.2f} "
               f"max {a[:, 2].max():6.2f}")
     print(f"  AMCL floor (|mean AMCL error| of the calibration run): mean {np.mean(floors):.1f} mm")
+    if replaced:
+        print(f"  companion rows among the robot's (robot + companion): mean {100 * np.mean(replaced):.1f}%")
     if "factorgraph" in methods and "gridsearch" in methods:
         fg, gs = np.array(rows["factorgraph"])[:, 0], np.array(rows["gridsearch"])[:, 0]
         print(f"  factor graph / grid search sensor RMS: {fg.mean() / gs.mean():.3f} (ratio of means)")

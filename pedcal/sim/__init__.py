@@ -98,6 +98,9 @@ def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses:
     amcl = robot.amcl_table(truth, sc, rng_amcl)
     odom = robot.odometry_table(truth, sc, rng_odom)
     people = walkers.pedestrians(sc, truth, rng_people, rank=rank)
+    swap = people[people["person"] == "companion"] if sc.companion_replaces_robot else people.iloc[:0]
+    if len(swap):
+        people = people[people["person"] != "companion"]
     _progress(progress, f"{name}: {t1 - t0:.0f} s of driving, {people['person'].nunique()} pedestrians")
 
     frames_t = ceiling.frame_times(sc, len(true_net), t0, t1, rng_track)
@@ -109,6 +112,14 @@ def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses:
     entity_parts = [np.zeros(n_s * n_k, dtype=int)]
     head_parts = [np.ones(n_s * n_k, dtype=bool)]
     labels = [ROBOT]
+    if len(swap):       # the tracker reports the companion where it would report the robot
+        inside = (t_parts[0] >= swap["t"].min()) & (t_parts[0] <= swap["t"].max())
+        ts = swap["t"].to_numpy(float)
+        p_parts[0][inside] = np.column_stack([np.interp(t_parts[0][inside], ts, swap["x"].to_numpy(float)),
+                                              np.interp(t_parts[0][inside], ts, swap["y"].to_numpy(float)),
+                                              np.full(inside.sum(), float(swap["z"].iloc[0]))])
+        labels.append("companion")
+        entity_parts[0][inside] = 1
     sensor_xy = np.stack([s.position_m[:2] for s in true_net])
     reach_m = sc.max_range_m + 2.0
     for person, track in people.groupby("person", sort=True):

@@ -124,6 +124,10 @@ class Scenario:
     """Fraction of the run during which a pedestrian walks beside the robot (-), default 0."""
     companion_offset_m: float = 0.7
     """Lateral distance of that companion from the robot's centre (m)."""
+    companion_replaces_robot: bool = False
+    """While the companion walks beside the robot the ceiling trackers report the companion's
+    head instead of the robot's (the robot occluded, the tracker locked on the person): that
+    fraction of what would be the robot's observations is the companion (labelled so)."""
 
     # ---- robot ----------------------------------------------------------------------------------
     head_offset_m: list = field(default_factory=lambda: [0.0, 0.0, 1.35])
