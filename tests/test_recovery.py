@@ -17,11 +17,12 @@ COV_ROBOT = np.diag([0.05 ** 2, 0.05 ** 2, np.radians(1.0) ** 2])
 STATIC = SmootherConfig(walk_speed_mps=0.2)      # a target standing still: velocity spread 0.2 m/s
 
 
-def drive_past(seed: int, extra: dict | None = None, n: int = 24, target=(1.5, 3.0)) -> TargetSmoother:
+def drive_past(seed: int, extra: dict | None = None, n: int = 24, target=(1.5, 3.0),
+               config: SmootherConfig = STATIC) -> TargetSmoother:
     """Robot drives 3 m along x at 0.5 m/s past a static target 3 m to its side; ESPAR readings only."""
     target = np.asarray(target)
     sim = EsparSimulator(EsparParams(), np.random.default_rng(seed))
-    smoother = TargetSmoother(STATIC)
+    smoother = TargetSmoother(config)
     t_prev = 0.0
     for k in range(1, n + 1):
         t = 0.25 * k
@@ -49,12 +50,17 @@ def test_a_multipath_reading_does_not_drag_the_estimate():
     mount = np.array([0.0, 0.15])
     true_bearing = np.arctan2(3.0 - mount[1], 1.5 - 1.5)
     wrong = EsparReading(0, 0, float(np.angle(np.exp(1j * (true_bearing + np.radians(150))))), mount)
-    shifts = []
+    plain = SmootherConfig(walk_speed_mps=0.2, espar_robust=False)
+    shifts, shifts_plain = [], []
     for seed in range(4):
         clean = drive_past(seed).latest()[0]
         dirty = drive_past(seed, extra={12: (wrong, wrong)}).latest()[0]
         shifts.append(np.linalg.norm(dirty - clean))
+        clean = drive_past(seed, config=plain).latest()[0]
+        dirty = drive_past(seed, extra={12: (wrong, wrong)}, config=plain).latest()[0]
+        shifts_plain.append(np.linalg.norm(dirty - clean))
     assert max(shifts) < 0.15, shifts
+    assert min(shifts_plain) > 0.5, shifts_plain          # without the Cauchy kernel the pair drags it
 
 
 def test_lidar_detections_track_a_walking_target():

@@ -53,6 +53,7 @@ class SmootherConfig:
     position_noise_m: float = 0.05         # unmodelled motion per step on top of constant velocity
     espar_sigma_rad: float = max(DEFAULT_LIKELIHOOD.sigma_rad, ESPAR_QUANTIZATION_SIGMA_RAD)
     espar_cauchy_k: float = 2.0            # Cauchy kernel scale, in sigmas
+    espar_robust: bool = True              # False: plain Gaussian bearings (for comparison only)
     lidar_bearing_sigma_rad: float = math.radians(3.0)
     lidar_range_sigma_m: float = 0.1       # box centre vs the person's centre
     mount_sigma_m: float = 1e-3
@@ -113,8 +114,8 @@ class TargetSmoother:
         self._xy_latest: np.ndarray | None = None
         self._v_latest = np.zeros(2)
         cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(cfg.espar_cauchy_k)
-        self._espar_noise = gtsam.noiseModel.Robust.Create(
-            cauchy, gtsam.noiseModel.Isotropic.Sigma(1, cfg.espar_sigma_rad))
+        bearing_noise = gtsam.noiseModel.Isotropic.Sigma(1, cfg.espar_sigma_rad)
+        self._espar_noise = gtsam.noiseModel.Robust.Create(cauchy, bearing_noise) if cfg.espar_robust else bearing_noise
         self._lidar_noise = gtsam.noiseModel.Diagonal.Sigmas(
             np.array([cfg.lidar_bearing_sigma_rad, cfg.lidar_range_sigma_m]))
         self._mount_noise = gtsam.noiseModel.Diagonal.Sigmas(
