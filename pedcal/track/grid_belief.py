@@ -56,6 +56,42 @@ class GridBeliefConfig:
             raise PedcalInputError(f"grid belief: p_detect must be in [0, 1), got {self.p_detect}")
 
 
+_MAP_BLOCKED: dict[tuple[int, float, bool], tuple[OccupancyMap, np.ndarray, np.ndarray]] = {}
+
+
+def _map_blocked(occupancy: OccupancyMap, resolution_m: float, block_unknown: bool) -> tuple[np.ndarray, np.ndarray]:
+    """World-aligned cells of ``resolution_m`` over the whole map: (origin_xy_world_m, blocked[iy, ix]).
+
+    A cell is blocked when any occupied map cell falls in it (sub-sampled at the map's resolution). The
+    origin is a multiple of the cell size, as every window's. Cached per map object: a tracker starts a
+    grid at every loss of the target.
+    """
+    key = (id(occupancy), resolution_m, block_unknown)
+    hit = _MAP_BLOCKED.get(key)
+    if hit is not None and hit[0] is occupancy:
+        return hit[1], hit[2]
+    rows, cols = occupancy.shape
+    corners = occupancy.cell_to_world(np.array([[-0.5, -0.5], [-0.5, cols - 0.5], [rows - 0.5, -0.5],
+                                                [rows - 0.5, cols - 0.5]]))
+    lo = np.floor(corners.min(axis=0) / resolution_m) * resolution_m
+    shape = np.ceil((corners.max(axis=0) - lo) / resolution_m).astype(int)[::-1]     # (ny, nx)
+    k = max(1, int(math.ceil(resolution_m / occupancy.resolution_m)))
+    ny, nx = int(shape[0]), int(shape[1])
+    blocked = np.zeros((ny, nx), dtype=bool)
+    sub_x = lo[0] + (np.arange(nx * k) + 0.5) * (resolution_m / k)
+    for r0 in range(0, ny, 64):                       # bands of rows keep the sub-sample arrays small
+        r1 = min(r0 + 64, ny)
+        sub_y = lo[1] + (np.arange(r0 * k, r1 * k) + 0.5) * (resolution_m / k)
+        xx, yy = np.meshgrid(sub_x, sub_y)
+        xy = np.stack([xx, yy], axis=-1)
+        bad = occupancy.is_occupied(xy)
+        if block_unknown:
+            bad |= ~occupancy.is_free(xy)
+        blocked[r0:r1] = bad.reshape(r1 - r0, k, nx, k).any(axis=(1, 3))
+    _MAP_BLOCKED[key] = (occupancy, lo, blocked)
+    return lo, blocked
+
+
 class GridBelief:
     """Belief over the target's cell in a local window; see the module notes."""
 
@@ -83,19 +119,18 @@ class GridBelief:
         self.y_m = self.origin_xy_world_m[1] + axis          # (ny,)
 
     def _blocked_mask(self, origin_xy_world_m: np.ndarray) -> np.ndarray:
-        """Cells holding any occupied map cell (sub-sampled at the map's resolution)."""
+        """The window's slice of the whole map's blocked cells (computed once per map and cell size)."""
         n = self.n_cells
         if self.occupancy is None:
             return np.zeros((n, n), dtype=bool)
-        res = self.config.resolution_m
-        k = max(1, int(math.ceil(res / self.occupancy.resolution_m)))
-        sub = (np.arange(n * k) + 0.5) * (res / k)
-        xx, yy = np.meshgrid(origin_xy_world_m[0] + sub, origin_xy_world_m[1] + sub)
-        xy = np.stack([xx, yy], axis=-1)
-        bad = self.occupancy.is_occupied(xy)
-        if self.config.block_unknown:
-            bad |= ~self.occupancy.is_free(xy)
-        return bad.reshape(n, k, n, k).any(axis=(1, 3))
+        map_origin, map_blocked = _map_blocked(self.occupancy, self.config.resolution_m, self.config.block_unknown)
+        i0, j0 = np.rint((origin_xy_world_m[::-1] - map_origin[::-1]) / self.config.resolution_m).astype(int)
+        out = np.zeros((n, n), dtype=bool)
+        ny, nx = map_blocked.shape
+        ys, xs = slice(max(i0, 0), min(i0 + n, ny)), slice(max(j0, 0), min(j0 + n, nx))
+        if ys.start < ys.stop and xs.start < xs.stop:
+            out[ys.start - i0:ys.stop - i0, xs.start - j0:xs.stop - j0] = map_blocked[ys, xs]
+        return out
 
     def cell_of(self, xy_world_m) -> np.ndarray:
         """World points (..., 2) -> [iy, ix] (may fall outside the window)."""
