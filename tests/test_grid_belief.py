@@ -116,3 +116,14 @@ def test_recenter_keeps_the_belief_in_place():
     before = g.estimate()[0]
     g.recenter((3.0, -2.0))
     np.testing.assert_allclose(g.estimate()[0], before, atol=1e-9)
+
+
+def test_window_partly_off_the_map():
+    occ = wall_map(size_m=20.0)                                # map spans [-10, 10] in x and y
+    g = GridBelief(occ, (8.0, 0.0))                            # window [0, 16] in x: half of it off the map
+    assert g.is_blocked(np.array([2.02, 0.0])) and not g.is_blocked(np.array([12.0, 0.0]))
+    ij = np.argwhere(occ.occupied)
+    xy = occ.cell_to_world(ij)
+    inside = (np.abs(xy - [8.0, 0.0]) < 7.9).all(axis=1)
+    assert inside.sum() > 50 and g.is_blocked(xy[inside]).all()
+    assert g.blocked.sum() == pytest.approx(inside.sum() / 4, rel=0.3)   # 0.05 m map cells in 0.1 m cells
