@@ -183,3 +183,23 @@ def test_shipped_recipes_load_and_bad_recipe_is_reported(tmp_path):
     bad.write_text("robot = 3\n")
     with pytest.raises(PedcalInputError, match="must be bool"):
         GraphRecipe.load(bad)
+
+
+def test_companion_beside_the_robot_does_not_drag_the_graph():
+    # a person beside the robot replaces a fifth of its observations: the graph with its own
+    # association ends where it ends with the true association of the same log
+    from pedcal.metrics import evaluate
+    from pedcal.sim import simulate_logs
+
+    sim = simulate_logs("paper", seed=2, companion_fraction=0.5, companion_replaces_robot=True)
+    who = sim.calib.truth_observations["who"].astype(str).to_numpy()
+    share = (who == "companion").sum() / np.isin(who, ["robot", "companion"]).sum()
+    assert 0.15 < share < 0.3
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        own = calibrate_factorgraph(sim.calib)
+        oracle = calibrate_factorgraph(sim.calib, is_robot=who == "robot")
+    rms_own = evaluate(sim.eval, own.network).sensor_position_rms_mm["combined"]
+    rms_oracle = evaluate(sim.eval, oracle.network).sensor_position_rms_mm["combined"]
+    assert rms_own < 1.2 * rms_oracle
+    assert rms_own < 60.0

@@ -47,6 +47,11 @@ DEFAULT_PARAMS = {
     "whole_fraction": 0.6,    # explained fraction above which the whole segment is the robot
     "max_gap_points": 2,      # unexplained runs this short inside an explained run are closed
     "min_support_s": 1.0,     # a sensor needs this many explained seconds to have seen the robot
+    # how far a hand measurement is off (1 sigma): hypotheses are weighted by this prior, so a
+    # person beside the robot (offset sideways, head 0.2-0.5 m higher: a sensor height off by
+    # that much) loses to the robot's own passes even with more seconds
+    "prior_sigma_position_m": (0.5, 0.5, 0.15),
+    "prior_sigma_deg": 10.0,
     "prior_weight": 1e-3,     # weight of the installed pose in the refit, relative to the data
     "collinear_spread_m": 0.1,  # second principal spread below which the pairs are a line
     "refine_iterations": 6,
@@ -162,12 +167,16 @@ def _residuals(R, t, p, q):
 
 
 def _prior_ok(R, t, sensor: SensorExtrinsics, params):
+    """(within the gates, squared Mahalanobis distance to the installed pose under the prior)."""
     R0 = sensor.R_world_sensor
     cos_angle = (np.einsum("ij,hij->h", R0, R) - 1.0) / 2.0
     angle_deg = np.degrees(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
-    offset_m = np.linalg.norm(t - sensor.position_m, axis=1)
+    offset = t - sensor.position_m
+    offset_m = np.linalg.norm(offset, axis=1)
     ok = (offset_m <= params["max_offset_m"]) & (angle_deg <= params["max_angle_deg"])
-    return ok, offset_m + np.radians(angle_deg)
+    d2 = np.sum((offset / np.asarray(params["prior_sigma_position_m"], float)) ** 2, axis=1) + (
+        angle_deg / params["prior_sigma_deg"]) ** 2
+    return ok, d2
 
 
 def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
@@ -201,10 +210,10 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
         # a weak pull toward the installed pose fixes the rotation about a straight seed segment
         anchors = _anchor_moments(hp / hw[:, None], sensor, params["prior_weight"] * hw)
         R, t = rigid_from_moments(*(x + y for x, y in zip((hw, hp, hq, hpq), anchors, strict=True)))
-        ok, prior_cost = _prior_ok(R, t, sensor, params)
+        ok, prior_d2 = _prior_ok(R, t, sensor, params)
         if not ok.any():
             continue
-        R, t, prior_cost, hyp = R[ok], t[ok], prior_cost[ok], np.flatnonzero(ok)
+        R, t, prior_d2, hyp = R[ok], t[ok], prior_d2[ok], np.flatnonzero(ok)
         r = _residuals(R, t, sd.p, q)
         inlier = r < params["inlier_m"]
         # a seed must itself follow the robot: most of its points explained
@@ -212,14 +221,16 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
         np.add.at(seed_inlier.T, seed_col[seed_point_mask], inlier[:, seed_point_mask].T)
         seed_frac = seed_inlier / np.maximum(seg_w, 1.0)
         seeds_follow = ((seed_frac >= 0.5) | (M[hyp] == 0)).all(axis=1)
-        score = (inlier * sd.w_time).sum(axis=1) - 1e-3 * prior_cost
+        support_s = (inlier * sd.w_time).sum(axis=1)
+        # explained seconds weighted by the installed prior (a Gaussian likelihood ratio)
+        score = support_s * np.exp(-0.5 * prior_d2)
         score[~seeds_follow] = -np.inf
         h = int(np.argmax(score))
         if np.isfinite(score[h]) and (best is None or score[h] > best[3]):
-            best = (R[h], t[h], li, score[h])
-    if best is None or best[3] < params["min_support_s"]:
+            best = (R[h], t[h], li, score[h], support_s[h])
+    if best is None or best[4] < params["min_support_s"]:
         return None
-    return best
+    return best[:4]
 
 
 def _select(sd: _SensorRows, inlier, params):
