@@ -37,31 +37,37 @@ def color(method: str, k: int = 0) -> str:
     return METHOD_COLORS.get(method, f"C{k % 10}")
 
 
-def per_sensor_bars(sensors: pd.DataFrame, methods: list[str], title: str) -> Figure:
+def per_sensor_bars(sensors: pd.DataFrame, methods: list[str], title: str, per_row: int = 10) -> Figure:
     """Mean position error per sensor over seeds, one bar per method, with the mean reported
-    3-D 1-sigma as the error bar for methods that report one."""
+    3-D 1-sigma as a black dash for methods that report one; ``per_row`` sensors per panel."""
     ids = sorted(sensors["sensor"].unique())
-    fig = new_figure(max(7.0, 0.22 * len(ids) * len(methods) + 1.5), 3.8)
-    ax = fig.add_subplot()
+    rows = [ids[i:i + per_row] for i in range(0, len(ids), per_row)]
+    fig = new_figure(max(7.0, 0.14 * min(len(ids), per_row) * len(methods) + 1.5), 2.6 * len(rows) + 1.2)
+    axes = fig.subplots(len(rows), 1, squeeze=False, sharey=True)[:, 0]
     width = 0.8 / len(methods)
-    x = np.arange(len(ids))
     sig3 = np.sqrt(sensors["sigma_x_mm"] ** 2 + sensors["sigma_y_mm"] ** 2 + sensors["sigma_z_mm"] ** 2)
     df = sensors.assign(sigma_3d_mm=sig3)
-    for k, m in enumerate(methods):
-        g = df[df["method"] == m].groupby("sensor")
-        err = g["err_mm"].mean().reindex(ids).to_numpy()
-        sig = g["sigma_3d_mm"].mean().reindex(ids).to_numpy()
-        yerr = sig if np.isfinite(sig).any() else None
-        label = m + (" (bar: reported 1σ)" if yerr is not None else "")
-        ax.bar(x + (k - (len(methods) - 1) / 2) * width, err, width, color=color(m, k), label=label,
-               yerr=yerr, capsize=2, error_kw={"elinewidth": 0.8})
-    ax.set_xticks(x, ids, rotation=90 if len(ids) > 12 else 0, fontsize=8 if len(ids) > 12 else 10)
-    ax.set_xlabel("sensor")
-    ax.set_ylabel("position error |estimated − true| (mm)")
-    ax.set_yscale("log")
-    ax.set_title(title)
-    fig.legend(fontsize=8, ncols=min(len(methods), 5), loc="outside lower center")
-    ax.grid(axis="y", which="both", alpha=0.3)
+    sigma_labelled = False
+    for ax, row_ids in zip(axes, rows, strict=True):
+        x = np.arange(len(row_ids))
+        for k, m in enumerate(methods):
+            g = df[df["method"] == m].groupby("sensor")
+            err = g["err_mm"].mean().reindex(row_ids).to_numpy()
+            sig = g["sigma_3d_mm"].mean().reindex(row_ids).to_numpy()
+            xk = x + (k - (len(methods) - 1) / 2) * width
+            ax.bar(xk, err, width, color=color(m, k), label=m if ax is axes[0] else None)
+            if np.isfinite(sig).any():
+                ax.scatter(xk, sig, marker="_", s=120, linewidths=2.0, color="k", zorder=3,
+                           label="reported 3-D 1σ (mean)" if ax is axes[0] and not sigma_labelled else None)
+                sigma_labelled = sigma_labelled or ax is axes[0]
+        ax.set_xticks(x, row_ids)
+        ax.set_xlim(-0.5, per_row - 0.5 if len(rows) > 1 else len(row_ids) - 0.5)
+        ax.set_yscale("log")
+        ax.set_ylabel("error (mm)")
+        ax.grid(axis="y", which="both", alpha=0.3)
+    axes[-1].set_xlabel("sensor")
+    axes[0].set_title(title + "\n(position error |estimated − true| per sensor, log scale)")
+    fig.legend(fontsize=8, ncols=min(len(methods) + 1, 6), loc="outside lower center")
     return fig
 
 
@@ -89,9 +95,11 @@ def error_histograms(sensors: pd.DataFrame, methods: list[str], title: str) -> F
 def _sensor_markers(ax, truth: pd.DataFrame, label: str | None = "sensor (true position, arrow: view)",
                     arrow_color: str = "k") -> None:
     yaw = np.radians(truth["true_yaw_deg"].to_numpy())
+    span_m = max(np.ptp(truth["true_x_m"]), np.ptp(truth["true_y_m"]), 1.0)
+    arrow_m = max(0.5, 0.05 * span_m)
     ax.scatter(truth["true_x_m"], truth["true_y_m"], marker="^", s=30, color="k", zorder=5, label=label)
-    ax.quiver(truth["true_x_m"], truth["true_y_m"], np.cos(yaw), np.sin(yaw), angles="xy", scale_units="xy",
-              scale=2.0, width=0.004, color=arrow_color, zorder=4)
+    ax.quiver(truth["true_x_m"], truth["true_y_m"], arrow_m * np.cos(yaw), arrow_m * np.sin(yaw), angles="xy",
+              scale_units="xy", scale=1.0, width=0.004, color=arrow_color, zorder=4)
 
 
 def head_trajectories(heads: pd.DataFrame, robot: pd.DataFrame, sensors: pd.DataFrame, methods: list[str],
@@ -130,44 +138,54 @@ def head_trajectories(heads: pd.DataFrame, robot: pd.DataFrame, sensors: pd.Data
 
 
 def covariance_floorplan(sensors: pd.DataFrame, methods: list[str], title: str) -> Figure | None:
-    """Floor plan: true sensors, each method's position error as an arrow and its reported
-    1-sigma (x, y) ellipse around the estimate, both magnified by one stated factor.
+    """Floor plan, one panel per method that reports a sigma: true sensors, each calibrated
+    sensor's position error as an arrow and its reported 1-sigma (x, y) ellipse around the
+    estimate, both magnified by the panel's stated factor; sensors left without data are crossed.
     None when no method reports a sigma."""
     with_sigma = [m for m in methods if np.isfinite(sensors.loc[sensors["method"] == m, "sigma_x_mm"]).any()]
     if not with_sigma:
         return None
     truth = sensors.drop_duplicates("sensor")
-    span_m = max(np.ptp(truth["true_x_m"]), np.ptp(truth["true_y_m"]), 1.0)
-    sub = sensors[sensors["method"].isin(with_sigma)]
-    sizes = np.r_[sub["err_mm"], sub["sigma_x_mm"], sub["sigma_y_mm"]] / 1000.0
-    biggest = np.nanpercentile(sizes, 90) if np.isfinite(sizes).any() else 0.1
-    # One power of ten such that a typical error or sigma is drawn a few percent of the area.
-    gain = float(10.0 ** np.floor(np.log10(0.15 * span_m / max(biggest, 1e-6))))
-    fig = new_figure(8.0, 8.0 * float(np.clip(np.ptp(truth["true_y_m"]) / max(np.ptp(truth["true_x_m"]), 1e-3),
-                                              0.4, 1.0)) + 0.8)
-    ax = fig.add_subplot()
-    _sensor_markers(ax, truth, label="sensor (true position, grey arrow: view)", arrow_color="0.75")
-    for k, m in enumerate(with_sigma):
+    span_x, span_y = max(np.ptp(truth["true_x_m"]), 1.0), max(np.ptp(truth["true_y_m"]), 1.0)
+    span_m = max(span_x, span_y)
+    pad_m = 0.6 + 0.05 * span_m
+    axes_w = 5.4        # of the 8.5 in width; the legends take the rest
+    panel_h = axes_w * (span_y + 2 * pad_m) / (span_x + 2 * pad_m) + 0.7
+    fig = new_figure(9.0, panel_h * len(with_sigma) + 0.4)
+    axes = fig.subplots(len(with_sigma), 1, squeeze=False)[:, 0]
+    for k, (ax, m) in enumerate(zip(axes, with_sigma, strict=True)):
         d = sensors[sensors["method"] == m]
-        c = color(m, k)
-        ex, ey = gain * d["err_x_mm"] / 1000.0, gain * d["err_y_mm"] / 1000.0
-        ax.quiver(d["true_x_m"], d["true_y_m"], ex, ey, angles="xy", scale_units="xy", scale=1.0, width=0.003,
-                  color=c, label=f"{m}: error × {gain:g}")
-        for x0, y0, dx, dy, sx, sy in zip(d["true_x_m"], d["true_y_m"], ex, ey, d["sigma_x_mm"], d["sigma_y_mm"],
-                                          strict=True):
+        calibrated = d[d["status"] != "no-data"]
+        sizes = np.r_[calibrated["err_mm"], calibrated["sigma_x_mm"], calibrated["sigma_y_mm"]] / 1000.0
+        sizes = sizes[np.isfinite(sizes)]
+        typical_m = float(np.median(sizes)) if len(sizes) else 0.1
+        # One power of ten such that a typical error or sigma is drawn about 5 % of the area.
+        gain = float(10.0 ** np.round(np.log10(0.05 * span_m / max(typical_m, 1e-6))))
+        c = color(m, methods.index(m))
+        _sensor_markers(ax, truth, label="true sensor (grey: view)" if k == 0 else None,
+                        arrow_color="0.75")
+        ex, ey = gain * calibrated["err_x_mm"] / 1000.0, gain * calibrated["err_y_mm"] / 1000.0
+        ax.quiver(calibrated["true_x_m"], calibrated["true_y_m"], ex, ey, angles="xy", scale_units="xy", scale=1.0,
+                  width=0.003, color=c, label="position error (magnified)")
+        for x0, y0, dx, dy, sx, sy in zip(calibrated["true_x_m"], calibrated["true_y_m"], ex, ey,
+                                          calibrated["sigma_x_mm"], calibrated["sigma_y_mm"], strict=True):
             if np.isfinite(sx) and np.isfinite(sy):
                 ax.add_patch(Ellipse((x0 + dx, y0 + dy), 2 * gain * sx / 1000.0, 2 * gain * sy / 1000.0,
                                      fill=False, color=c, lw=1.0))
-        ax.plot([], [], color=c, lw=1.0, label=f"{m}: reported 1σ (x, y) × {gain:g}")
-    ax.set_aspect("equal")
-    pad_m = 0.6 + 0.05 * span_m
-    ax.set_xlim(truth["true_x_m"].min() - pad_m, truth["true_x_m"].max() + pad_m)
-    ax.set_ylim(truth["true_y_m"].min() - pad_m, truth["true_y_m"].max() + pad_m)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+        ax.plot([], [], color=c, lw=1.0, label="reported 1σ in x, y (magnified)")
+        none = d[d["status"] == "no-data"]
+        if len(none):
+            ax.scatter(none["true_x_m"], none["true_y_m"], marker="x", s=80, color=c, zorder=6,
+                       label="no data: not calibrated")
+        ax.set_aspect("equal")
+        ax.set_xlim(truth["true_x_m"].min() - pad_m, truth["true_x_m"].max() + pad_m)
+        ax.set_ylim(truth["true_y_m"].min() - pad_m, truth["true_y_m"].max() + pad_m)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title(f"{m}: error and reported 1σ, both × {gain:g}", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    fig.suptitle(title)
     return fig
 
 

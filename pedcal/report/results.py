@@ -3,10 +3,12 @@
 A results directory holds
 
 - ``results.json``: the sweep's configuration (and the command that regenerates it), the per-run
-  table (one row per scenario, seed and method) and the per-sensor table, sorted keys, NaN as null;
+  table (one row per scenario, seed and method) and the per-sensor table as columns and rows
+  (floats to 6 decimals, NaN as null);
 - ``runs.parquet``, ``sensors.parquet``: the same two tables as Parquet;
 - ``heads.parquet``, ``robot.parquet``: the calibrated head tracks of every method and the true
   robot path on the evaluation log of each scenario's first seed (for the trajectory figures);
+- ``bounds.parquet``: per scenario, seed and sensor the Cramér-Rao bound of its position;
 - ``timings.json``: solve times per run. They vary from run to run, so the report never reads
   them and the reproducible files never hold them.
 """
@@ -25,7 +27,8 @@ from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.report.sweep import SweepConfig
 
 FORMAT_VERSION = 1
-TABLES = ("runs", "sensors", "heads", "robot")
+JSON_DECIMALS = 6        # results.json rounds floats (mm, deg, m); the Parquet tables keep every digit
+TABLES = ("runs", "sensors", "heads", "robot", "bounds")
 
 
 @dataclass
@@ -35,17 +38,22 @@ class SweepResults:
     sensors: pd.DataFrame
     heads: pd.DataFrame
     robot: pd.DataFrame
+    bounds: pd.DataFrame
     path: Path | None = None
 
 
 def _clean(v):
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
+    if isinstance(v, float):
+        return round(v, JSON_DECIMALS) if math.isfinite(v) else None
     return v
 
 
-def _records(df: pd.DataFrame) -> list[dict]:
-    return [{k: _clean(v) for k, v in r.items()} for r in df.to_dict(orient="records")]
+def table_json(df: pd.DataFrame) -> str:
+    """A table as ``{"columns": [...], "rows": [[...], ...]}``, one row a line (readable diffs),
+    floats rounded to JSON_DECIMALS, NaN as null."""
+    rows = [json.dumps([_clean(v) for v in r], allow_nan=False) for r in df.itertuples(index=False, name=None)]
+    return ('{"columns": ' + json.dumps(list(map(str, df.columns))) + ',\n "rows": [\n  '
+            + ",\n  ".join(rows) + "\n ]}")
 
 
 def json_text(obj) -> str:
@@ -70,9 +78,12 @@ def save_results(results: SweepResults, out_dir: str | Path, timings: dict | Non
     out_dir.mkdir(parents=True, exist_ok=True)
     for name in TABLES:
         write_parquet_atomic(getattr(results, name), out_dir / f"{name}.parquet")
-    write_text_atomic(out_dir / "results.json", json_text({
-        "format_version": FORMAT_VERSION, "config": results.config.to_dict(),
-        "runs": _records(results.runs), "sensors": _records(results.sensors)}))
+    # Keys in sorted order, as json_text writes them.
+    write_text_atomic(out_dir / "results.json", "{\n" + ",\n".join([
+        '"config": ' + json.dumps(results.config.to_dict(), sort_keys=True),
+        f'"format_version": {FORMAT_VERSION}',
+        '"runs": ' + table_json(results.runs),
+        '"sensors": ' + table_json(results.sensors)]) + "\n}\n")
     if timings is not None:
         write_text_atomic(out_dir / "timings.json", json_text(timings))
     return out_dir

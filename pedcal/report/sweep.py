@@ -193,7 +193,21 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
             heads += head_track_records(sim.eval, network, keep, scenario=scenario, seed=seed, method=method)
     robot_path = robot_path_records(sim.eval, scenario=scenario, seed=seed) if keep_heads else []
     return dict(scenario=scenario, seed=seed, runs=runs, sensors=sensors, heads=heads, robot=robot_path,
-                timings=timings)
+                bounds=crlb_records(sim.calib, scenario=scenario, seed=seed), timings=timings)
+
+
+def crlb_records(log, **labels) -> list[dict]:
+    """Per sensor the Cramér-Rao bound (1-sigma per world axis and the 3-D sqrt(trace), mm) of its
+    position from the calibration log (``pedcal.calib.crlb``, the factor graph's noise models)."""
+    from pedcal.calib.crlb import sensor_position_crlb
+
+    res = sensor_position_crlb(log)
+    out = []
+    for sid, cov in res.position_cov_world_m2.items():
+        sig = res.sigma_mm(sid)
+        out.append(dict(labels, sensor=str(sid), crlb_x_mm=float(sig[0]), crlb_y_mm=float(sig[1]),
+                        crlb_z_mm=float(sig[2]), crlb_3d_mm=float(1000.0 * np.sqrt(np.trace(cov)))))
+    return out
 
 
 def _progress(enabled: bool, text: str) -> None:
@@ -222,7 +236,8 @@ def run_sweep(config: SweepConfig, *, scheduler: str | None = None, workers: int
         if scheduler is None:
             n = workers or os.cpu_count() or 1
             _progress(progress, f"starting a local Dask cluster: {n} worker processes, 1 thread each")
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+            # ":0": any free port for the scheduler's HTTP endpoint, so parallel sweeps do not collide.
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
         try:
             with Client(scheduler or cluster) as client:
                 futures = [client.submit(run_case, *a, key=f"pedcal-report-{a[0]}-{a[1]}", pure=False)
