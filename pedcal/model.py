@@ -132,8 +132,7 @@ class Log:
         out = np.empty((len(self.observations), 3))
         xyz = self.observations[["x", "y", "z"]].to_numpy(dtype=float)
         sensor_col = self.observations["sensor"].astype(str).to_numpy()
-        for s in self.sensors:
-            m = sensor_col == s.id
-            if m.any():
-                out[m] = s.to_sensor(xyz[m])
+        for sid, rows in pd.Series(sensor_col).groupby(sensor_col, sort=False).indices.items():
+            if sid in self.sensors:     # one pass over the rows, not one per sensor
+                out[rows] = self.sensors[sid].to_sensor(xyz[rows])
         return out

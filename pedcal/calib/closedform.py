@@ -15,6 +15,7 @@ import warnings
 
 import gtsam
 import numpy as np
+import pandas as pd
 
 from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
 from pedcal.calib.common import CalibrationResult, Timer, head_interpolator
@@ -81,8 +82,10 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
         diagnostics["unpaired_robot_observations"] = int((is_robot & ~covered).sum())
         sensors_out = []
+        use = np.flatnonzero(is_robot & covered)
+        rows_of = pd.Series(use).groupby(sensor_col[use], sort=False).indices     # positions in use
         for i, s in enumerate(log.sensors):
-            rows = np.flatnonzero(is_robot & (sensor_col == s.id) & covered)
+            rows = use[rows_of.get(s.id, np.zeros(0, int))]
             n = len(rows)
             if progress:
                 print(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs", file=sys.stderr)

@@ -218,8 +218,11 @@ class _NoiseCache:
     def __init__(self, recipe: GraphRecipe, step_m: float = 0.01):
         self.recipe, self.step_m, self.cache = recipe, step_m, {}
 
-    def __call__(self, range_m: float):
-        key = int(round(range_m / self.step_m))
+    def keys(self, range_m: np.ndarray) -> np.ndarray:
+        return np.round(np.asarray(range_m, float) / self.step_m).astype(int)
+
+    def __call__(self, range_m: float | None = None, key: int | None = None):
+        key = int(round(range_m / self.step_m)) if key is None else int(key)
         nm = self.cache.get(key)
         if nm is None:
             sig = observation_sigmas(self.recipe, np.array([key * self.step_m]))[0]
@@ -473,10 +476,11 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     if rec.robot:
         rng_m = np.linalg.norm(prob.obs_p_sensor, axis=1)
         keys = [S(sid_index[s]) for s in prob.obs_sensor]
+        noise_keys = noise.keys(rng_m)
         for n in np.flatnonzero(prob.obs_key_index < n_pose):
             graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(prob.obs_key_index[n])),
                                                    gtsam.Unit3(prob.obs_p_sensor[n]),
-                                                   rng_m[n] + rec.head_radius_m, noise(rng_m[n])))
+                                                   rng_m[n] + rec.head_radius_m, noise(key=noise_keys[n])))
 
     # People seen by two or more sensors at once (the dome centre of their head).
     if rec.people:
