@@ -116,7 +116,9 @@ def compare_extrinsics(log_path: str | Path, extrinsics: list[str | Path], out_d
         fig_lines.append(f"![head trajectories]({FIG_DIR}/trajectories.png)")
     if fig_lines:
         lines += ["", "## Figures", "", "Triangles: the sensors' " + ("true" if has_truth else "installed")
-                  + " positions and viewing directions.", "", *fig_lines]
+                  + " positions and viewing directions."]
+        for line in fig_lines:
+            lines += ["", line]
     write_text_atomic(out_dir / "results.json", json_text({"command": command, "summary": _clean(summary),
                                                             "sensors": _clean(per_sensor)}))
     path = out_dir / "report.md"

@@ -199,7 +199,7 @@ def head_rms_bars(rows: pd.DataFrame, title: str) -> Figure:
     x = np.arange(len(ids))
     for k, lab in enumerate(labels):
         v = rows[rows["label"] == lab].set_index("sensor")["head_rms_mm"].reindex(ids).to_numpy(float)
-        ax.bar(x + (k - (len(labels) - 1) / 2) * width, v, width, color=f"C{k % 10}", label=lab)
+        ax.bar(x + (k - (len(labels) - 1) / 2) * width, v, width, color=color(lab, k), label=lab)
     ax.set_xticks(x, ids, rotation=90 if len(ids) > 12 else 0)
     ax.set_xlabel("sensor")
     ax.set_ylabel("head tracking RMS (mm)")
