@@ -11,6 +11,12 @@ import tempfile
 from pathlib import Path
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(target: str | Path):
     """Yield a temporary path in the target's directory; on success rename it to ``target``."""
@@ -21,6 +27,9 @@ def atomic_path(target: str | Path):
     tmp = Path(tmp)
     try:
         yield tmp
+        # mkstemp creates the file owner-only (0600); give it the mode a plain open() would.
+        if tmp.exists():
+            os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, target)
     finally:
         if tmp.exists():
