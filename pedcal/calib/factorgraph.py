@@ -498,8 +498,9 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
 
 
 def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork) -> list:
-    """Instants where two sensors see the same (non-robot) person, matched by the alternative's
-    shared-observation matcher on tracks that hold no robot observation.
+    """Instants where two sensors see the same person, matched by the alternative's
+    shared-observation matcher on tracks that hold no robot observation (``is_robot``; all of
+    them when the graph leaves the robot's poses out and the robot is one more person).
     Returns [(t, [(sensor, p_sensor), ...]), ...]."""
     from pedcal.calib.alternative import build_tracks, match_shared_observations
 
@@ -516,7 +517,7 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
                      init_network: SensorNetwork | None) -> dict[str, gtsam.Pose3]:
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
-    elif recipe.init in ("gridsearch", "closedform"):
+    elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
         from pedcal.calib import calibrate
 
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
@@ -525,7 +526,7 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
             warnings.simplefilter("ignore", DegenerateDataWarning)
             res = calibrate(log, method=recipe.init, progress=progress, **opts)
         init = {s.id: s.T_world_sensor for s in res.network if s.status == "ok"}
-    elif recipe.init == "installed":
+    elif recipe.init in ("installed", "gridsearch", "closedform"):   # the latter two need the robot
         init = {}
     else:
         raise PedcalInputError(f"unknown initializer '{recipe.init}', expected closedform, gridsearch or "
@@ -542,7 +543,12 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     from pedcal.calib.association import associate_robot, estimate_latency
 
     latency = None
-    if is_robot is None:
+    if not recipe.robot:
+        # Without the robot's observations the robot is one more unlocalized person, as in the
+        # alternative (SNAPCAT-3D): its tracks are shared sightings like anyone's, and no
+        # association or latency is needed (a latency common to all sensors cancels between two).
+        is_robot, latency = np.zeros(len(log.observations), bool), 0.0
+    elif is_robot is None:
         _log(progress, "picking out the robot's observations")
         assoc = associate_robot(log)
         is_robot, latency = assoc.is_robot, assoc.latency_s
@@ -572,7 +578,8 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
             odometry = log.odometry.sort_values("t")
 
     init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network)
-    pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s)
+    # robot poses only when something observes them (people-only graphs hold the sensors alone)
+    pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
                               obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
