@@ -183,6 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("detect-eval", help="recall and precision on freshly simulated frames")
     s.add_argument("--frames", type=int, default=200)
     s.add_argument("--seed", type=int, default=12345)
+    s.add_argument("--preset", default="fx8", help="LIDAR preset (default: the paper's FX8 pair)")
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_detect_eval)

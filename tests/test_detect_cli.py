@@ -9,8 +9,9 @@ import pytest
 from pedcal.cli import main
 from pedcal.errors import PedcalInputError
 from pedcal.track import detection as det
+from pedcal.track.features import N_FEATURES
 from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
-from pedcal.track.train import train_detector
+from pedcal.track.train import choose_threshold, train_detector
 
 
 def person_cloud(rng, cx=2.0, cy=0.5, n=1500, with_floor=True):
@@ -115,11 +116,13 @@ def test_training_is_deterministic_by_seed(tmp_path):
     c.save(tmp_path / "c.npz")
     assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
     assert (tmp_path / "a.npz").read_bytes() != (tmp_path / "c.npz").read_bytes()
+    # the threshold chosen on validation frames is the model's offset
+    assert a.validation_["clusters"] > 0 and a.bias_ == -a.validation_["decision_threshold"]
 
 
 def test_train_detector_cli_and_labelled_inputs(tmp_path, capsys):
     rng = np.random.default_rng(3)
-    X = rng.normal(size=(60, 213))
+    X = rng.normal(size=(60, N_FEATURES))
     y = (X[:, 0] > 0).astype(int)
     np.savez(tmp_path / "lab.npz", features=X, labels=y)
     out = tmp_path / "m.npz"
@@ -141,6 +144,21 @@ def test_train_detector_cli_and_labelled_inputs(tmp_path, capsys):
 def test_detect_eval_json_keys(capsys):
     assert main(["detect-eval", "--frames", "3", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"recall", "precision", "frames", "bands"}
-    assert out["frames"] == 3 and len(out["bands"]) == 3
+    assert set(out) == {"recall", "precision", "frames", "bands", "poses", "preset"}
+    assert out["frames"] == 3 and len(out["bands"]) == 3 and out["preset"] == "fx8"
     assert 0.0 <= out["recall"] <= 1.0
+    assert sum(p["people"] for p in out["poses"].values()) == sum(b["people"] for b in out["bands"])
+    # a preset left out of training; an unknown one is an input error
+    assert main(["detect-eval", "--frames", "2", "--preset", "sparse_tof", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["preset"] == "sparse_tof"
+    assert main(["detect-eval", "--frames", "2", "--preset", "nope"]) == 2
+    assert "sparse_tof" in capsys.readouterr().err
+
+
+def test_threshold_is_the_best_f1_cut():
+    decision = np.array([2.0, 1.5, 1.0, 0.5, 0.0, -0.5, -1.0, -1.5])
+    labels = np.array([1, 1, 0, 1, 1, 0, 0, 0])
+    t, recall, precision = choose_threshold(decision, labels)
+    assert t == 0.0 and recall == 1.0 and precision == pytest.approx(0.8)  # F1 8/9, the best cut
+    t, recall, precision = choose_threshold(np.array([1.0, 1.0, 0.0]), np.array([1, 0, 0]))
+    assert t == 1.0 and recall == 1.0 and precision == 0.5  # tied scores are cut together

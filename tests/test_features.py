@@ -1,24 +1,25 @@
-"""Kidono et al.'s 213 features: layout, finiteness on tiny clusters, and known values."""
+"""Kidono et al.'s 213 features and the metric profiles after them: layout, finiteness on tiny
+clusters, and known values."""
 
 import numpy as np
 import pytest
 
-from pedcal.track.features import BLOCKS, N_FEATURES, block_slices, cluster_features, features_matrix
+from pedcal.track.features import BLOCKS, N_FEATURES, N_KIDONO, block_slices, cluster_features, features_matrix
 
 
-def test_blocks_sum_to_213():
-    assert sum(n for _, n in BLOCKS) == N_FEATURES == 213
+def test_blocks_sum_to_213_plus_47():
+    assert sum(n for _, n in BLOCKS) == N_FEATURES == 260
     b = block_slices()
-    assert b["intensity_hist"].stop == 213
-    shape = sum(n for name, n in BLOCKS if not name.startswith("intensity"))
-    assert shape == 186
+    assert b["intensity_hist"].stop == N_KIDONO == 213
+    shape = sum(n for name, n in BLOCKS[:8])
+    assert shape == 186 and BLOCKS[7][0] == "slices"
 
 
 @pytest.mark.parametrize("n", [1, 2, 3])
 def test_tiny_clusters_are_finite(n):
     pts = np.array([[1.0, 0.5, 0.2, 0.3], [1.1, 0.5, 1.0, 0.4], [1.0, 0.6, 1.5, 0.2]])[:n]
     f = cluster_features(pts)
-    assert f.shape == (213,)
+    assert f.shape == (N_FEATURES,)
     assert np.isfinite(f).all()
 
 
@@ -65,8 +66,33 @@ def test_slices_measure_a_box_cross_section():
 
 
 def test_features_matrix_and_bad_input():
-    assert features_matrix([]).shape == (0, 213)
+    assert features_matrix([]).shape == (0, N_FEATURES)
     m = features_matrix([np.ones((3, 4)), np.ones((5, 4)) * 2])
-    assert m.shape == (2, 213)
+    assert m.shape == (2, N_FEATURES)
     with pytest.raises(ValueError):
         cluster_features(np.zeros((0, 4)))
+
+
+def test_height_bands_and_top_profile_of_two_legs_under_a_head():
+    # two 'legs' 0.3 m apart along y up to 0.8 m, a 0.2 m 'head' at 1.5-1.7 m, seen along x
+    rng = np.random.default_rng(2)
+    n = 3000
+    z_leg = rng.uniform(0.0, 0.8, n)
+    y_leg = np.where(rng.random(n) < 0.5, -0.15, 0.15) + rng.uniform(-0.03, 0.03, n)
+    z_head = rng.uniform(1.5, 1.7, n // 3)
+    y_head = rng.uniform(-0.1, 0.1, n // 3)
+    pts = np.column_stack([np.full(n + n // 3, 3.0), np.concatenate([y_leg, y_head]),
+                           np.concatenate([z_leg, z_head]), np.full(n + n // 3, 0.4)])
+    pts[:, 0] += rng.uniform(-0.02, 0.02, len(pts))
+    f = cluster_features(pts)
+    b = block_slices()
+    bands = f[b["height_bands"]].reshape(10, 2)  # (length along e1 = y here, largest gap)
+    assert bands[:4, 0] == pytest.approx(np.full(4, 0.36), abs=0.01)
+    assert bands[:4, 1] == pytest.approx(np.full(4, 0.24), abs=0.02)  # the gap between the legs
+    assert bands[4:7].max() == 0.0  # nothing between 0.8 and 1.4 m
+    assert bands[8, 0] == pytest.approx(0.2, abs=0.01) and bands[8, 1] < 0.02
+    top = f[b["top_profile"]].reshape(8, 3)
+    assert top[:2, 0] == pytest.approx([0.2, 0.2], abs=0.01)
+    assert top[3:, 2].sum() == pytest.approx(0.0)  # 0.225-0.6 m below the top: the empty gap
+    assert top[:, 2].sum() == pytest.approx((n // 3) / len(pts), abs=1e-9)
+    assert f[b["z_extent_distance"]] == pytest.approx([0.0, 1.7, 3.0], abs=0.02)

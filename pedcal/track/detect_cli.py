@@ -1,5 +1,5 @@
 """``pedcal detect`` (people in a point-cloud file) and ``pedcal detect-eval`` (recall and precision
-on freshly simulated frames of the paper's FX8 pair)."""
+on freshly simulated frames of the paper's FX8 pair, or of another LIDAR preset)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedcal.errors import PedcalInputError
 from pedcal.track.detection import Detection, detect, load_model
 from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
 
@@ -52,24 +53,32 @@ def match_detections(det_xy: np.ndarray, truth_xy: np.ndarray, radius_m: float =
     return np.column_stack([r[ok], c[ok]])
 
 
-def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress: bool = False) -> dict:
-    """Recall and precision of ``detect`` on ``frames`` held-out simulated frames of the FX8 pair.
+def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress: bool = False,
+                      preset: str = "fx8") -> dict:
+    """Recall and precision of ``detect`` on ``frames`` held-out simulated frames of the FX8 pair
+    (or of another LIDAR ``preset``, see ``pedcal.track.train.simulated_frame``).
 
     Truth: the people with at least MIN_VISIBLE_POINTS points in the frame; a person detection
     within MATCH_RADIUS_M of one (one-to-one) is a true positive. Bands are by the true person's
-    horizontal distance from the robot (recall) and the detection's (precision).
+    horizontal distance from the robot (recall) and the detection's (precision); ``poses`` gives
+    the recall of static (standing, carrying) and walking people apart.
     """
+    from pedcal.sim.lidar import LIDAR_PRESETS
     from pedcal.track.train import EVAL_STREAM, simulated_frame
 
+    if preset not in LIDAR_PRESETS:
+        raise PedcalInputError(f"unknown LIDAR preset {preset!r}; expected one of {sorted(LIDAR_PRESETS)}",
+                               column="preset")
     clf = load_model(model) if not hasattr(model, "predict_proba") else model
     n_bands = len(DISTANCE_BANDS_M)
     tp = fn = fp = 0
     band_tp_truth, band_truth = np.zeros(n_bands, int), np.zeros(n_bands, int)
     band_tp_det, band_det = np.zeros(n_bands, int), np.zeros(n_bands, int)
     edges = np.array([b[1] for b in DISTANCE_BANDS_M[:-1]])
+    pose_people, pose_tp = {}, {}
     t0 = time.monotonic()
     for k in range(frames):
-        frame = simulated_frame(EVAL_STREAM, seed, k, preset="fx8")
+        frame = simulated_frame(EVAL_STREAM, seed, k, preset=preset)
         people = frame.visible_people(MIN_VISIBLE_POINTS)
         truth_xy = np.array([[o["x_m"], o["y_m"]] for o in people]).reshape(-1, 2)
         dets = [d for d in detect(frame.points.astype(float), clf) if d.is_person]
@@ -84,6 +93,11 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
         np.add.at(band_det, db, 1)
         np.add.at(band_tp_truth, tb[pairs[:, 1]], 1)
         np.add.at(band_tp_det, db[pairs[:, 0]], 1)
+        found = set(pairs[:, 1].tolist())
+        for j, o in enumerate(people):
+            motion = "walking" if o["pose"].startswith("walking") else "static"
+            pose_people[motion] = pose_people.get(motion, 0) + 1
+            pose_tp[motion] = pose_tp.get(motion, 0) + (j in found)
         if progress and ((k + 1) % 100 == 0 or k + 1 == frames):
             print(f"  evaluated {k + 1}/{frames} frames ({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
 
@@ -93,20 +107,25 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
     bands = [dict(band_m=[lo, hi], people=int(band_truth[i]), detections=int(band_det[i]),
                   recall=ratio(band_tp_truth[i], band_truth[i]), precision=ratio(band_tp_det[i], band_det[i]))
              for i, (lo, hi) in enumerate(DISTANCE_BANDS_M)]
+    poses = {m: dict(people=pose_people[m], recall=ratio(pose_tp[m], pose_people[m])) for m in sorted(pose_people)}
     return dict(recall=ratio(tp, tp + fn), precision=ratio(tp, tp + fp), frames=int(frames), bands=bands,
-                true_positives=tp, false_negatives=fn, false_positives=fp)
+                poses=poses, preset=preset, true_positives=tp, false_negatives=fn, false_positives=fp)
 
 
 def detect_eval_cli(args) -> int:
-    """``pedcal detect-eval [--frames N] [--seed S] [--model M] [--json]``."""
-    res = evaluate_detector(args.frames, args.seed, args.model, progress=not args.json)
+    """``pedcal detect-eval [--frames N] [--seed S] [--model M] [--preset P] [--json]``."""
+    res = evaluate_detector(args.frames, args.seed, args.model, progress=not args.json,
+                            preset=getattr(args, "preset", "fx8"))
     if args.json:
-        print(json.dumps({k: res[k] for k in ("recall", "precision", "frames", "bands")}, indent=2))
+        print(json.dumps({k: res[k] for k in ("recall", "precision", "frames", "bands", "poses", "preset")},
+                         indent=2))
         return 0
-    print(f"frames {res['frames']}: recall {res['recall']:.4f}, precision {res['precision']:.4f} "
+    print(f"{res['preset']} frames {res['frames']}: recall {res['recall']:.4f}, precision {res['precision']:.4f} "
           f"(TP {res['true_positives']}, FN {res['false_negatives']}, FP {res['false_positives']})")
     for b in res["bands"]:
         lo, hi = b["band_m"]
         print(f"  {lo:.1f}-{hi:.1f} m: recall {b['recall']:.4f} of {b['people']} people, "
               f"precision {b['precision']:.4f} of {b['detections']} detections")
+    for motion, p in res["poses"].items():
+        print(f"  {motion} people: recall {p['recall']:.4f} of {p['people']}")
     return 0
