@@ -299,3 +299,21 @@ def test_missing_recordings_fall_back_to_builtin_walkers(monkeypatch, tmp_path):
         res = simulate_logs("paper", seed=0, duration_s=120.0, walkers="atc", walker_rate_hz=0.2)
     who = set(res.calib.truth_observations["who"])
     assert any(w.startswith("p") for w in who)
+
+
+def test_companion_swaps_replace_the_stated_share_in_short_stretches():
+    res = simulate_logs("paper", seed=3, duration_s=150.0, companion_swap_fraction=0.2)
+    log = res.calib
+    who = log.truth_observations["who"].astype(str).to_numpy()
+    share = (who == "companion").sum() / np.isin(who, ["robot", "companion"]).sum()
+    assert 0.17 < share < 0.23
+    # several stretches of a few seconds, not one span
+    t = np.sort(log.observations["t"].to_numpy(float)[who == "companion"])
+    breaks = np.flatnonzero(np.diff(t) > 1.0)
+    starts, ends = np.r_[t[0], t[breaks + 1]], np.r_[t[breaks], t[-1]]
+    assert len(starts) >= 3
+    assert (ends - starts).max() <= res.scenario.companion_swap_s[1] + 0.5
+    # the companion is also tracked as itself around the swaps; default runs hold no companion
+    assert (who == "companion-beside").sum() > 20
+    plain = simulate_logs("paper", seed=3, duration_s=30.0).calib.truth_observations["who"].astype(str)
+    assert not plain.str.startswith("companion").any()

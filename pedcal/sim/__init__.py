@@ -89,6 +89,12 @@ def _false_tracks(true_net: SensorNetwork, sc: Scenario, frames_t: np.ndarray,
     return out
 
 
+def _in_spans(t: np.ndarray, spans: np.ndarray) -> np.ndarray:
+    """Mask of times inside any of the sorted [start, end] ``spans`` (K, 2) (ends sorted too)."""
+    k = np.searchsorted(spans[:, 0], t, side="right") - 1
+    return (k >= 0) & (t <= spans[np.maximum(k, 0), 1])
+
+
 def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses: np.ndarray, t0: float,
          rng_seq: np.random.SeedSequence, rank: int, progress: bool, name: str) -> Log:
     """One drive of the route: truth, AMCL, odometry, and what the ceiling tracker reports."""
@@ -101,6 +107,18 @@ def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses:
     swap = people[people["person"] == "companion"] if sc.companion_replaces_robot else people.iloc[:0]
     if len(swap):
         people = people[people["person"] != "companion"]
+    swaps = np.zeros((0, 2))
+    if sc.companion_swap_fraction > 0:
+        # how many sensors see the robot and the companion at each true pose: the swaps take
+        # the stated share of the robot track's sightings
+        z_companion = rng_people.uniform(*sc.person_height_m)
+        pose = truth[["x", "y", "yaw"]].to_numpy(float)
+        robot_seen = ceiling.coverage(true_net, sc, head_world(pose, sc.head_offset_m)).sum(axis=0)
+        beside = np.column_stack([walkers.beside_robot(sc, truth, truth["t"].to_numpy(float)),
+                                  np.full(len(truth), z_companion)])
+        companion_seen = ceiling.coverage(true_net, sc, beside).sum(axis=0)
+        swaps = walkers.companion_swaps(sc, truth, robot_seen.astype(float), companion_seen.astype(float),
+                                        rng_people)
     _progress(progress, f"{name}: {t1 - t0:.0f} s of driving, {people['person'].nunique()} pedestrians")
 
     frames_t = ceiling.frame_times(sc, len(true_net), t0, t1, rng_track)
@@ -120,6 +138,22 @@ def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses:
                                               np.full(inside.sum(), float(swap["z"].iloc[0]))])
         labels.append("companion")
         entity_parts[0][inside] = 1
+    if len(swaps):      # identity swaps: the robot's track reports the companion beside it
+        inside = _in_spans(t_parts[0], swaps)
+        p_parts[0][inside] = np.column_stack([walkers.beside_robot(sc, truth, t_parts[0][inside]),
+                                              np.full(inside.sum(), z_companion)])
+        labels.append("companion")
+        entity_parts[0][inside] = len(labels) - 1
+        # ... and around each swap the companion is tracked as itself (labelled apart, so the
+        # replaced share of the robot's rows can be counted)
+        near = _in_spans(t_parts[0], swaps + np.array([-sc.companion_beside_s, sc.companion_beside_s])) & ~inside
+        labels.append("companion-beside")
+        sensor_parts.append(sensor_parts[0][near])
+        t_parts.append(t_parts[0][near])
+        p_parts.append(np.column_stack([walkers.beside_robot(sc, truth, t_parts[0][near]),
+                                        np.full(near.sum(), z_companion)]))
+        entity_parts.append(np.full(near.sum(), len(labels) - 1))
+        head_parts.append(np.ones(near.sum(), dtype=bool))
     sensor_xy = np.stack([s.position_m[:2] for s in true_net])
     reach_m = sc.max_range_m + 2.0
     for person, track in people.groupby("person", sort=True):

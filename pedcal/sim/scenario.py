@@ -128,6 +128,19 @@ class Scenario:
     """While the companion walks beside the robot the ceiling trackers report the companion's
     head instead of the robot's (the robot occluded, the tracker locked on the person): that
     fraction of what would be the robot's observations is the companion (labelled so)."""
+    companion_swap_fraction: float = _nuisance(0.0)
+    """Fraction of the robot's observations (-) that the ceiling trackers report as a companion
+    walking beside the robot instead (they lose the robot and pick up the person, on a track of
+    its own): swaps of a few seconds each (companion_swap_s),
+    spread through the run, their total set so that this share of the robot's sightings (frames
+    times sensors that see it) falls in them. Around each swap the companion is tracked as
+    itself. truth_observations.csv labels the replaced rows ``companion``, the companion's own
+    track ``companion-beside``."""
+    companion_swap_s: list = field(default_factory=lambda: [2.0, 6.0])
+    """Range [min, max] of the duration of one identity swap (s), drawn uniformly."""
+    companion_beside_s: float = 2.0
+    """Time (s) the companion walks beside the robot, tracked as itself, before and after each
+    swap."""
 
     # ---- robot ----------------------------------------------------------------------------------
     head_offset_m: list = field(default_factory=lambda: [0.0, 0.0, 1.35])

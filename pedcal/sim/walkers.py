@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pedcal.calib.common import interpolate_pose2
 from pedcal.sim.scenario import Scenario
 
 SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -115,6 +116,55 @@ def companion(sc: Scenario, truth: pd.DataFrame, rng: np.random.Generator) -> pd
                          "x": part["x"].to_numpy() - np.sin(yaw) * sc.companion_offset_m,
                          "y": part["y"].to_numpy() + np.cos(yaw) * sc.companion_offset_m,
                          "z": rng.uniform(*sc.person_height_m)})
+
+
+def beside_robot(sc: Scenario, truth: pd.DataFrame, t: np.ndarray) -> np.ndarray:
+    """(N, 2) floor position of a person walking companion_offset_m to the robot's left at ``t``."""
+    pose = interpolate_pose2(truth, np.asarray(t, float))
+    return np.column_stack([pose[:, 0] - np.sin(pose[:, 2]) * sc.companion_offset_m,
+                            pose[:, 1] + np.cos(pose[:, 2]) * sc.companion_offset_m])
+
+
+def companion_swaps(sc: Scenario, truth: pd.DataFrame, robot_seen: np.ndarray, companion_seen: np.ndarray,
+                    rng: np.random.Generator) -> np.ndarray:
+    """(K, 2) [start, end] times of the identity swaps: stretches of companion_swap_s at random,
+    non-overlapping places of the run, added until the companion's sightings inside them make
+    companion_swap_fraction of all the sightings the robot's track gives (the robot's outside the
+    swaps, the companion's inside); the last one is cut to hit the fraction. ``robot_seen`` and
+    ``companion_seen``: per row of ``truth``, how many sensors see the robot / the companion."""
+    t = truth["t"].to_numpy(float)
+    frac = min(max(sc.companion_swap_fraction, 0.0), 1.0)
+
+    def cumulative(seen):
+        return np.r_[0.0, np.cumsum(0.5 * (seen[1:] + seen[:-1]) * np.diff(t))]
+
+    cum_r, cum_c = cumulative(robot_seen), cumulative(companion_seen)
+    if frac <= 0 or cum_r[-1] <= 0 or cum_c[-1] <= 0:
+        return np.zeros((0, 2))
+
+    def excess(held_r, held_c, a, b):
+        """Companion share above the target with a swap [a, b] added (times its denominator)."""
+        w_r = np.interp(b, t, cum_r) - np.interp(a, t, cum_r)
+        w_c = np.interp(b, t, cum_c) - np.interp(a, t, cum_c)
+        return (held_c + w_c) - frac * (cum_r[-1] - held_r - w_r + held_c + w_c), w_r, w_c
+
+    swaps: list[tuple[float, float]] = []
+    held_r = held_c = 0.0
+    for _ in range(10000):
+        if excess(held_r, held_c, t[0], t[0])[0] >= 0:
+            break
+        a = rng.uniform(t[0], t[-1])
+        b = min(a + rng.uniform(*sc.companion_swap_s), t[-1])
+        if any(a < d + 1.0 and c < b + 1.0 for c, d in swaps):    # a second apart at least
+            continue
+        e, w_r, w_c = excess(held_r, held_c, a, b)
+        if e > 0:       # cut the last one where the share reaches the stated one
+            grid = np.linspace(a, b, 200)
+            b = float(grid[np.argmax(excess(held_r, held_c, a, grid)[0] >= 0)])
+            _, w_r, w_c = excess(held_r, held_c, a, b)
+        swaps.append((a, b))
+        held_r, held_c = held_r + w_r, held_c + w_c
+    return np.array(sorted(swaps)).reshape(-1, 2)
 
 
 def pedestrians(sc: Scenario, truth: pd.DataFrame, rng: np.random.Generator, *, rank: int = 0) -> pd.DataFrame:
