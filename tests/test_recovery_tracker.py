@@ -44,9 +44,14 @@ def visible(occ: OccupancyMap, pose: np.ndarray, xy: np.ndarray) -> bool:
     return not occ.is_occupied(line).any()
 
 
-def run(name: str, seed: int, n_frames: int = 100, **options):
+def walk_straight(t: float) -> np.ndarray:
+    return np.array([1.2 + 0.8 * t, 0.0])
+
+
+def run(name: str, seed: int, n_frames: int = 100, target_at=target_at, passer_frames=range(0), **options):
     """Closed loop: the robot drives toward the tracker's goal (else its estimate) at up to 1.5 m/s,
-    stopping 2 m short and facing it, sliding along walls, and stands still when asked; a bystander stands in view."""
+    stopping 2 m short and facing it, sliding along walls, and stands still when asked; a bystander stands in view.
+    During ``passer_frames`` a passer-by walks in the middle between the robot and the target, hiding it."""
     rng = np.random.default_rng(seed)
     espar = EsparSimulator(EsparParams(), np.random.default_rng(seed + 100))
     occ = corner_map()
@@ -60,9 +65,14 @@ def run(name: str, seed: int, n_frames: int = 100, **options):
         target = target_at(t)
         c, s = np.cos(pose[2]), np.sin(pose[2])
         to_robot = np.array([[c, s], [-s, c]])
+        people = [(bystander, 11)]
+        if k in passer_frames:
+            people.append((0.5 * (pose[:2] + target), 13))
+        else:
+            people.append((target, 3))
         dets = [PersonDetection(to_robot @ (xy - pose[:2]) + rng.normal(0, 0.04, 2), 1.7, 0.9, hist(peak, rng))
-                for xy, peak in ((bystander, 11), (target, 3)) if visible(occ, pose, xy)]
-        seen.append(visible(occ, pose, target))
+                for xy, peak in people if visible(occ, pose, xy)]
+        seen.append(k not in passer_frames and visible(occ, pose, target))
         readings = espar.readings(t - DT_S, t, to_robot @ (target - pose[:2]))
         out = tracker.step(FollowFrame(t, pose.copy(), cov, tuple(dets), readings, robot_stopped=stopped))
         outs.append(out)
@@ -108,3 +118,15 @@ def test_factorgraph_reacquires_sooner_than_the_paper_tracker():
         k0, k1 = lost_span(*run("factorgraph", seed, occupancy=corner_map())[::2])
         p0, p1 = lost_span(*run("paper", seed)[::2])
         assert k1 - k0 < p1 - p0
+
+
+def test_a_passer_by_in_the_target_direction_is_not_taken_for_it():
+    """The antenna cannot tell a passer-by hiding the target from the target; its reflectance can."""
+    wrong = {}
+    for name in ("factorgraph", "paper"):
+        wrong[name] = 0
+        for seed in range(3):
+            outs, truth, _ = run(name, seed, n_frames=70, target_at=walk_straight, passer_frames=range(30, 45))
+            wrong[name] += sum(o.state == "Tracking" and np.linalg.norm(o.target_xy_world_m - truth[k]) > 0.5
+                               for k, o in enumerate(outs))
+    assert wrong["factorgraph"] == 0 and wrong["paper"] > 0, wrong

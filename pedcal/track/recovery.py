@@ -230,6 +230,7 @@ class RecoveryConfig:
     reacquire_gate: float = 3.0            # Mahalanobis distance of a detection from the estimate
     reacquire_radius_m: float = 2.5        # and never farther than this, however spread the belief
     reacquire_max_error: float = 0.5       # the target's appearance classifier error e (eq. 3) at most
+    veto_min_error: float = 0.8            # the paper tracker's re-take is undone above this e
     reacquire_p_target: float = 0.7        # P(T = i) given to the re-taken filter (the paper's threshold)
     lost_sigma0_m: float = 0.5             # grid belief around the last estimate at the loss
     sharpen_floor: float = 0.05            # the grid keeps this much outside the smoother's Gaussian
@@ -250,7 +251,9 @@ class FactorGraphTracker:
     spread (``stop_spread_m``: no usable readings for a long time), which the paper's Searching
     would do always. A detection within the gate of the estimate whose reflectance the target's
     appearance classifier accepts is re-taken as the target at once, without waiting for the
-    antenna to raise its probability above 0.7.
+    antenna to raise its probability above 0.7. Conversely, when the paper tracker re-takes a filter
+    on the antenna's word alone (a passer-by in the target's direction has the same bearing), the
+    re-take stands only if that filter is detected and the classifier does not reject it.
     """
 
     name = "factorgraph"
@@ -344,16 +347,38 @@ class FactorGraphTracker:
             return None
         if self._appearance is None or not self._appearance.ready:
             return None          # nothing tells the target from a passer-by: leave it to the antenna (eq. 9)
-        # the detection nearest each candidate filter carries its reflectance histogram
-        pose = np.asarray(frame.pose_world_robot, dtype=float)
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        det_world = np.array([d_.xy_robot_m for d_ in frame.detections]) @ np.array([[c, s], [-s, c]]) + pose[:2]
-        hists = np.array([d_.reflectance_hist for d_ in frame.detections], dtype=float)
-        nearest = np.argmin(np.linalg.norm(det_world[None, :, :] - xy[:, None, :], axis=2), axis=1)
-        ok &= self._appearance.error(hists[nearest]) <= self.recovery.reacquire_max_error
+        ok &= self._appearance_error(frame, xy) <= self.recovery.reacquire_max_error
         if not ok.any():
             return None
         return cand[int(np.argmin(np.where(ok, d, np.inf)))].track_id
+
+    def _appearance_error(self, frame: FollowFrame, xy_world_m: np.ndarray) -> np.ndarray:
+        """e of eq. 3 (the target's classifier) for the detection nearest each of the points (N, 2)."""
+        pose = np.asarray(frame.pose_world_robot, dtype=float)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        det_world = np.array([d.xy_robot_m for d in frame.detections]) @ np.array([[c, s], [-s, c]]) + pose[:2]
+        hists = np.array([d.reflectance_hist for d in frame.detections], dtype=float)
+        nearest = np.argmin(np.linalg.norm(det_world[None, :, :] - xy_world_m[:, None, :], axis=2), axis=1)
+        return self._appearance.error(hists[nearest])
+
+    def _vetoed(self, frame: FollowFrame, was: str, lost_since_s: float | None) -> bool:
+        """Undo the paper tracker's re-take of a filter on the antenna's word alone when the target's
+        classifier rejects its detection (a passer-by in the target's direction) or nothing detected it
+        this frame; True if undone."""
+        paper = self.paper
+        tr = paper.core.tracks.get(paper.target_id)
+        if self.grid is None or tr is None or self._appearance is None or not self._appearance.ready:
+            return False
+        # a filter nobody detected this frame cannot be checked: wait until a detection shows who it is
+        if tr.detected and self._appearance_error(frame, tr.xy[None, :])[0] <= self.recovery.veto_min_error:
+            return False
+        prob = paper.prob
+        p_keep = 0.5 * paper.config.lost_threshold
+        prob.p_lost += prob.p.get(tr.track_id, 0.0) - p_keep
+        prob.p[tr.track_id] = p_keep
+        paper.core.set_target(None)
+        paper.state, paper.lost_since_s = was, lost_since_s
+        return True
 
     def _take(self, track_id: int) -> None:
         """Make ``track_id`` the paper tracker's target with P(T = i) = ``reacquire_p_target``."""
@@ -373,8 +398,10 @@ class FactorGraphTracker:
         self.smoother = self.grid = self._estimate = None
 
     def step(self, frame: FollowFrame) -> TrackerOutput:
-        was = self.paper.state
+        was, lost_since_s = self.paper.state, self.paper.lost_since_s
         out = self.paper.step(frame)
+        if out.state == "Tracking" and was in ("Lost", "Searching") and self._vetoed(frame, was, lost_since_s):
+            out = self.paper._output()
         if out.state == "Tracking":
             self._remember_target()
             self._reset_recovery()
