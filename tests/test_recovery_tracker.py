@@ -6,6 +6,7 @@ import numpy as np
 
 from pedcal.io.maps import OccupancyMap
 from pedcal.sim.espar import EsparParams, EsparSimulator
+from pedcal.track.recovery import RecoveryConfig
 from pedcal.track.tracker import make_tracker
 from pedcal.track.types import FollowFrame, PersonDetection
 
@@ -130,3 +131,24 @@ def test_a_passer_by_in_the_target_direction_is_not_taken_for_it():
             wrong[name] += sum(o.state == "Tracking" and np.linalg.norm(o.target_xy_world_m - truth[k]) > 0.5
                                for k, o in enumerate(outs))
     assert wrong["factorgraph"] == 0 and wrong["paper"] > 0, wrong
+
+
+def test_stops_only_when_the_belief_is_spread_and_the_antenna_silent():
+    """Transmitter out of the antenna's range (no readings): the belief spreads and the robot stops."""
+    tracker = make_tracker("factorgraph", recovery_config=RecoveryConfig(stop_spread_m=2.0))
+    rng = np.random.default_rng(0)
+    cov = np.diag([0.03 ** 2, 0.03 ** 2, np.radians(1.0) ** 2])
+    espar = EsparSimulator(EsparParams(), np.random.default_rng(1))
+    outs = []
+    for k in range(140):
+        t = k * DT_S
+        target = np.array([2.0, 0.0])
+        seen = k < 40
+        dets = (PersonDetection(target + rng.normal(0, 0.04, 2), 1.7, 0.9, hist(3, rng)),) if seen else ()
+        readings = espar.readings(t - DT_S, t, target) if k < 60 else ()
+        outs.append(tracker.step(FollowFrame(t, np.zeros(3), cov, dets, readings, robot_stopped=False)))
+    lost = outs[41:]
+    assert all(o.state != "Tracking" for o in lost)
+    first_stop = next(k for k, o in enumerate(outs) if o.stop_robot)
+    assert first_stop >= 60 + 2.0 / DT_S                      # never while readings still arrive
+    assert outs[first_stop].state == "Searching" and outs[-1].stop_robot

@@ -235,7 +235,8 @@ class RecoveryConfig:
     lost_sigma0_m: float = 0.5             # grid belief around the last estimate at the loss
     sharpen_floor: float = 0.05            # the grid keeps this much outside the smoother's Gaussian
     reseed_ratio: float = 0.01             # smoother mean in a cell under this share of the mode: re-seed it
-    stop_spread_m: float = 4.0             # belief spread beyond this (no usable bearings): stop and search
+    stop_spread_m: float = 4.0             # belief spread beyond this ...
+    stop_silence_s: float = 2.0            # ... and no antenna reading for this long: stop and search
 
 
 class FactorGraphTracker:
@@ -247,9 +248,10 @@ class FactorGraphTracker:
     at the last estimate and a :class:`TargetSmoother` seeded with the Kalman filter's last position
     and velocity take every frame's ESPAR readings and the LIDAR's negative information, and give
     ``target_xy_world_m`` and ``goal_xy_world_m`` (a free cell) each frame, so bearings taken while
-    driving triangulate the target. The robot is asked to stop only when the belief is hopelessly
-    spread (``stop_spread_m``: no usable readings for a long time), which the paper's Searching
-    would do always. A detection within the gate of the estimate whose reflectance the target's
+    driving triangulate the target. The robot is asked to stop (state "Searching") only when the
+    belief is hopelessly spread: wider than ``stop_spread_m`` with no antenna reading for
+    ``stop_silence_s`` (the transmitter out of the antenna's range), where the paper's Searching
+    stops after 2 s lost, always. A detection within the gate of the estimate whose reflectance the target's
     appearance classifier accepts is re-taken as the target at once, without waiting for the
     antenna to raise its probability above 0.7. Conversely, when the paper tracker re-takes a filter
     on the antenna's word alone (a passer-by in the target's direction has the same bearing), the
@@ -273,6 +275,7 @@ class FactorGraphTracker:
         self._last_velocity = np.zeros(2)
         self._t_prev_s: float | None = None
         self._estimate: tuple[np.ndarray, np.ndarray] | None = None
+        self._t_last_reading_s: float | None = None
 
     # the paper tracker forgets the target's classifier when it loses the target; keep it
     def _remember_target(self) -> None:
@@ -398,6 +401,8 @@ class FactorGraphTracker:
         self.smoother = self.grid = self._estimate = None
 
     def step(self, frame: FollowFrame) -> TrackerOutput:
+        if frame.espar:
+            self._t_last_reading_s = frame.t_s
         was, lost_since_s = self.paper.state, self.paper.lost_since_s
         out = self.paper.step(frame)
         if out.state == "Tracking" and was in ("Lost", "Searching") and self._vetoed(frame, was, lost_since_s):
@@ -422,6 +427,7 @@ class FactorGraphTracker:
         self._recover(frame)
         self._t_prev_s = frame.t_s
         xy, cov = self._estimate
-        hopeless = self.grid.spread_m() > self.recovery.stop_spread_m and not frame.espar
+        silent_s = frame.t_s - (self._t_last_reading_s if self._t_last_reading_s is not None else -np.inf)
+        hopeless = self.grid.spread_m() > self.recovery.stop_spread_m and silent_s > self.recovery.stop_silence_s
         return TrackerOutput("Searching" if hopeless else "Lost", None, xy.copy(), cov.copy(), out.tracks,
                              stop_robot=hopeless, goal_xy_world_m=xy.copy())
