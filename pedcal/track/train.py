@@ -1,5 +1,5 @@
 """Training the person classifier: gated clusters of simulated LIDAR frames, or a user's labelled
-clusters, -> Kidono features -> RealAdaBoost.
+clusters, -> Kidono features (and the metric profiles after them) -> RealAdaBoost.
 
 Simulated training set. Frame k of seed s draws everything (LIDAR preset, mounts, scene, noise)
 from ``np.random.default_rng([TRAIN_STREAM, s, k])``; ``pedcal detect-eval`` uses the stream tag
@@ -10,6 +10,10 @@ dense LIDARs, so the classifier sees people at many resolutions. Scenes come fro
 (walls, pillars, poles, chairs, plants, signs, trolleys, boxes, coat stands). Each gated cluster is
 labelled by the majority ground-truth object id of its points: a person or not; ambiguous
 clusters (mixed objects, small fragments of a person) are left out (``label_clusters``).
+The decision threshold is chosen afterwards on frames of a third stream, ``VALIDATION_STREAM``
+(``choose_threshold``), so neither the training nor the evaluation frames set it. The
+``sparse_tof`` preset is left out of training: ``pedcal detect-eval --preset sparse_tof`` shows
+how the classifier carries over to a LIDAR it has not seen.
 
 Labelled clusters (``--labelled PATH``), either
 
