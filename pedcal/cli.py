@@ -120,6 +120,20 @@ def cmd_report(args) -> int:
     return report_command(args)
 
 
+def cmd_follow(args) -> int:
+    from pedcal.track.follow import run_follow
+
+    res = run_follow(args.scenario, tracker=args.tracker, seed=args.seed, people_csv=args.people,
+                     target_id=args.target, progress=not args.json)
+    if args.output is not None:
+        res.save(args.output)
+    if args.json:
+        _print_json(res.to_dict())
+    else:
+        print(res.format_table())
+    return 0
+
+
 # ------------------------------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pedcal", description=__doc__.splitlines()[0])
@@ -203,6 +217,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--serial", action="store_true", help="run in this process, without Dask")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_report)
+
+    s = sub.add_parser("follow", help="follow one person in simulation and score the tracker")
+    s.add_argument("scenario", nargs="?", default="passing", help="passing, corner, crossing, crowd, recorded")
+    s.add_argument("--people", type=Path, default=None, help="trajectories CSV (t, person, x, y) instead")
+    s.add_argument("--target", default=None, help="with --people: the person carrying the transmitter")
+    s.add_argument("--tracker", default="paper", choices=["paper", "lidar-only", "factorgraph"])
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--json", action="store_true")
+    s.add_argument("-o", "--output", type=Path, default=None, help="save follow.json and follow_log.parquet here")
+    s.set_defaults(func=cmd_follow)
     return p
 
 

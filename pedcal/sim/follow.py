@@ -1,0 +1,487 @@
+"""Following one person in simulation: scenes, scripted episodes, walkers, per-frame sensing, the robot.
+
+World frame: the map frame (x, y metres, yaw radians counter-clockwise). People are discs
+(``PERSON_RADIUS_M``) with a height and a clothing reflectance (a Beta distribution of LIDAR
+intensities in [0, 1]); walls are an :class:`~pedcal.io.maps.OccupancyMap`.
+
+Sensing at ``FRAME_HZ`` (4 Hz, Misu and Miura's FX8 pair): a person is in view when within
+``FOV_RAD`` (120 deg) in front and 0.3-5 m, and the ray from the robot to its centre crosses no
+occupied cell and no other person's disc (:func:`visible_people`). A person in view is detected with a
+range-dependent probability, its position with ``SIGMA_POS_M`` noise; clutter adds false detections
+near walls. ESPAR readings come from :class:`~pedcal.sim.espar.EsparSimulator` with the target's true
+position in the robot frame; the localization estimate is the truth plus a correlated (AR(1)) error.
+
+The robot is a unicycle with speed and turn limits (:class:`RobotController`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pedcal.errors import PedcalInputError
+from pedcal.frames import wrap_angle_rad
+from pedcal.io.maps import OccupancyMap
+from pedcal.sim.espar import EsparSimulator
+from pedcal.track.types import FollowFrame, PersonDetection, TrackerOutput
+
+FRAME_HZ = 4.0
+PERSON_RADIUS_M = 0.25
+FOV_RAD = np.radians(120.0)
+MIN_RANGE_M, MAX_RANGE_M = 0.3, 5.0
+SIGMA_POS_M = 0.05
+N_REFLECTANCE_BINS = 25
+N_REFLECTANCE_POINTS = 80  # LIDAR points on a person whose intensities make the histogram
+FOLLOW_DISTANCE_M = 1.2
+MAP_RESOLUTION_M = 0.05
+
+
+# ------------------------------------------------------------------------------------------ people
+@dataclass
+class Walker:
+    """One person: a trajectory sampled in time (present only within ``t_s``'s span)."""
+
+    person_id: str
+    t_s: np.ndarray  # (N,) increasing
+    xy_world_m: np.ndarray  # (N, 2)
+    height_m: float = 1.7
+    reflectance_ab: tuple[float, float] = (2.0, 5.0)  # Beta(a, b) of the clothing's intensities
+    stays: bool = False  # stands at its last position after the span (scripted routes)
+
+    def at(self, t_s: float) -> np.ndarray | None:
+        """Position at ``t_s`` (linear interpolation), None outside the recorded span (after it,
+        the last position if ``stays``)."""
+        if len(self.t_s) == 0 or t_s < self.t_s[0] or (t_s > self.t_s[-1] and not self.stays):
+            return None
+        return np.array([np.interp(t_s, self.t_s, self.xy_world_m[:, 0]),
+                         np.interp(t_s, self.t_s, self.xy_world_m[:, 1])])
+
+
+def route_walker(person_id: str, waypoints_xy_m, speeds_mps, t0_s: float = 0.0, *, waits_s=None,
+                 height_m: float = 1.7, reflectance_ab=(2.0, 5.0)) -> Walker:
+    """A walker along ``waypoints_xy_m`` (K, 2); leg k at ``speeds_mps[k]``; ``waits_s[k]`` seconds
+    standing at waypoint k before leg k (default none)."""
+    wp = np.asarray(waypoints_xy_m, dtype=float)
+    speeds = np.broadcast_to(np.asarray(speeds_mps, dtype=float), (len(wp) - 1,))
+    waits = np.zeros(len(wp)) if waits_s is None else np.asarray(waits_s, dtype=float)
+    t, pts = [t0_s], [wp[0]]
+    for k in range(len(wp) - 1):
+        if waits[k] > 0:
+            t.append(t[-1] + waits[k])
+            pts.append(wp[k])
+        t.append(t[-1] + np.linalg.norm(wp[k + 1] - wp[k]) / speeds[k])
+        pts.append(wp[k + 1])
+    return Walker(person_id, np.array(t), np.array(pts), height_m, tuple(reflectance_ab), stays=True)
+
+
+def random_walkers(n: int, area_xy_m: tuple[float, float, float, float], t1_s: float, rng: np.random.Generator,
+                   occupancy: OccupancyMap | None = None) -> list[Walker]:
+    """Built-in walker model: each walker goes straight between random free points of the area
+    (x0, y0, x1, y1) at 0.6-1.4 m/s, pausing 0-3 s at each, from t = 0 to ``t1_s``."""
+    x0, y0, x1, y1 = area_xy_m
+    out = []
+    for i in range(n):
+        def point():
+            for _ in range(50):
+                p = rng.uniform([x0, y0], [x1, y1])
+                if occupancy is None or not occupancy.is_occupied(p):
+                    return p
+            return p
+        wp, waits, speeds = [point()], [], []
+        t = 0.0
+        while t < t1_s:
+            nxt = point()
+            v = rng.uniform(0.6, 1.4)
+            w = rng.uniform(0.0, 3.0)
+            t += w + np.linalg.norm(nxt - wp[-1]) / v
+            wp.append(nxt)
+            speeds.append(v)
+            waits.append(w)
+        waits.append(0.0)
+        out.append(route_walker(f"w{i}", wp, speeds, waits_s=waits, height_m=float(rng.uniform(1.5, 1.9)),
+                                reflectance_ab=_random_clothing(rng)))
+    return out
+
+
+def _random_clothing(rng: np.random.Generator) -> tuple[float, float]:
+    mean = rng.uniform(0.1, 0.9)
+    conc = rng.uniform(6.0, 20.0)
+    return (mean * conc, (1.0 - mean) * conc)
+
+
+def reflectance_histogram(ab: tuple[float, float], rng: np.random.Generator, n_points: int = N_REFLECTANCE_POINTS,
+                          n_bins: int = N_REFLECTANCE_BINS, noise: float = 0.03) -> np.ndarray:
+    """Normalized histogram of ``n_points`` intensities drawn from Beta(a, b) plus Gaussian noise."""
+    x = np.clip(rng.beta(ab[0], ab[1], n_points) + rng.normal(0.0, noise, n_points), 0.0, 1.0)
+    h, _ = np.histogram(x, bins=n_bins, range=(0.0, 1.0))
+    return h / h.sum()
+
+
+# ------------------------------------------------------------------------------------------- walls
+def box_map(extent_xy_m: tuple[float, float, float, float], walls_xy_m: list[tuple[float, float, float, float]],
+            resolution_m: float = MAP_RESOLUTION_M) -> OccupancyMap:
+    """An occupancy map over ``extent`` (x0, y0, x1, y1) whose occupied cells are the given
+    rectangles (x0, y0, x1, y1) plus a one-cell border."""
+    x0, y0, x1, y1 = extent_xy_m
+    cols = int(np.ceil((x1 - x0) / resolution_m))
+    rows = int(np.ceil((y1 - y0) / resolution_m))
+    m = OccupancyMap(np.zeros((rows, cols), bool), np.ones((rows, cols), bool), np.zeros((rows, cols), bool),
+                     resolution_m, np.array([x0, y0, 0.0]))
+    ii, jj = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    c = m.cell_to_world(np.stack([ii, jj], axis=-1))
+    occ = np.zeros((rows, cols), bool)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = True
+    for wx0, wy0, wx1, wy1 in walls_xy_m:
+        occ |= (c[..., 0] >= wx0) & (c[..., 0] <= wx1) & (c[..., 1] >= wy0) & (c[..., 1] <= wy1)
+    m.occupied, m.free = occ, ~occ
+    return m
+
+
+def segments_blocked(occupancy: OccupancyMap | None, a_xy_m: np.ndarray, b_xy_m: np.ndarray) -> np.ndarray:
+    """For segments a[i] -> b[i] (N, 2): True where the segment crosses an occupied cell (sampled at
+    half the map's resolution; the end point itself is not tested)."""
+    a = np.atleast_2d(np.asarray(a_xy_m, dtype=float))
+    b = np.atleast_2d(np.asarray(b_xy_m, dtype=float))
+    if occupancy is None or len(b) == 0:
+        return np.zeros(len(b), bool)
+    n = max(2, int(np.ceil(np.linalg.norm(b - a, axis=1).max() / (0.5 * occupancy.resolution_m))))
+    s = np.linspace(0.0, 1.0, n, endpoint=False)[1:]
+    pts = a[:, None, :] + s[None, :, None] * (b - a)[:, None, :]
+    return occupancy.is_occupied(pts).any(axis=1)
+
+
+# ----------------------------------------------------------------------------------------- sensing
+def to_robot(xy_world_m: np.ndarray, pose_world_robot: np.ndarray) -> np.ndarray:
+    """World points (N, 2) in the robot frame of ``pose_world_robot`` (x, y, yaw)."""
+    c, s = np.cos(pose_world_robot[2]), np.sin(pose_world_robot[2])
+    d = np.atleast_2d(xy_world_m) - pose_world_robot[:2]
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+
+
+def to_world(xy_robot_m: np.ndarray, pose_world_robot: np.ndarray) -> np.ndarray:
+    c, s = np.cos(pose_world_robot[2]), np.sin(pose_world_robot[2])
+    p = np.atleast_2d(xy_robot_m)
+    return np.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]], axis=1) + pose_world_robot[:2]
+
+
+def in_field_of_view(xy_robot_m: np.ndarray) -> np.ndarray:
+    """Within 0.3-5 m and 120 deg in front of the robot."""
+    p = np.atleast_2d(xy_robot_m)
+    r = np.hypot(p[:, 0], p[:, 1])
+    return (r >= MIN_RANGE_M) & (r <= MAX_RANGE_M) & (np.abs(np.arctan2(p[:, 1], p[:, 0])) <= FOV_RAD / 2)
+
+
+def visible_people(pose_world_robot: np.ndarray, xy_world_m: np.ndarray, occupancy: OccupancyMap | None,
+                   radius_m: float = PERSON_RADIUS_M) -> np.ndarray:
+    """Which people (N, 2) the LIDAR sees from the true pose: in the field of view, the ray to the
+    centre crossing no wall, and no other person's disc nearer than the person covering that ray."""
+    xy = np.atleast_2d(np.asarray(xy_world_m, dtype=float)).reshape(-1, 2)
+    if len(xy) == 0:
+        return np.zeros(0, bool)
+    origin = np.asarray(pose_world_robot[:2], dtype=float)
+    vis = in_field_of_view(to_robot(xy, pose_world_robot))
+    vis &= ~segments_blocked(occupancy, np.broadcast_to(origin, xy.shape), xy)
+    # people occlusion: distance of every other centre j from segment origin -> i, before i
+    d = xy - origin
+    L2 = np.maximum((d ** 2).sum(axis=1), 1e-12)
+    u = ((xy[None, :, :] - origin) * d[:, None, :]).sum(axis=2) / L2[:, None]  # (i, j) projection of j on ray i
+    closest = origin + np.clip(u, 0.0, 1.0)[..., None] * d[:, None, :]
+    dist = np.linalg.norm(xy[None, :, :] - closest, axis=2)
+    blocks = (dist < radius_m) & (u > 0.0) & (u < 1.0)
+    np.fill_diagonal(blocks, False)
+    return vis & ~blocks.any(axis=1)
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Detection and localization error model."""
+
+    p_detect: float = 0.95  # within 4 m; falls linearly to p_detect_far at 5 m
+    p_detect_far: float = 0.8
+    sigma_pos_m: float = SIGMA_POS_M
+    clutter_per_frame: float = 0.05  # expected false detections per frame (near walls when any)
+    loc_sigma_xy_m: float = 0.05  # stationary std of the localization error
+    loc_sigma_yaw_rad: float = np.radians(1.0)
+    loc_tau_s: float = 3.0  # correlation time of the localization error
+
+
+class Sensing:
+    """Per-frame detections, ESPAR readings and localization estimate for one episode (seeded)."""
+
+    def __init__(self, occupancy: OccupancyMap | None, rng: np.random.Generator, model: SensorModel | None = None,
+                 espar: EsparSimulator | None = None):
+        self.occupancy = occupancy
+        self.rng = rng
+        self.model = model or SensorModel()
+        self.espar = espar or EsparSimulator(rng=np.random.default_rng(rng.integers(2 ** 32)))
+        m = self.model
+        self.loc_sigma = np.array([m.loc_sigma_xy_m, m.loc_sigma_xy_m, m.loc_sigma_yaw_rad])
+        self.loc_err = rng.normal(0.0, 1.0, 3) * self.loc_sigma
+        self.t_prev_s: float | None = None
+
+    def _p_detect(self, r_m: np.ndarray) -> np.ndarray:
+        m = self.model
+        return np.where(r_m <= 4.0, m.p_detect, m.p_detect + (m.p_detect_far - m.p_detect) * (r_m - 4.0))
+
+    def _clutter(self, pose: np.ndarray) -> list[PersonDetection]:
+        out = []
+        for _ in range(self.rng.poisson(self.model.clutter_per_frame)):
+            bearing = self.rng.uniform(-FOV_RAD / 2, FOV_RAD / 2)
+            r = np.linspace(MIN_RANGE_M, MAX_RANGE_M, 100)
+            ray = np.stack([r * np.cos(bearing), r * np.sin(bearing)], axis=1)
+            hit = (self.occupancy.is_occupied(to_world(ray, pose)) if self.occupancy is not None
+                   else np.zeros(len(r), bool))
+            rng_m = r[np.argmax(hit)] - 0.3 if hit.any() else self.rng.uniform(1.0, MAX_RANGE_M)
+            if rng_m < MIN_RANGE_M:
+                continue
+            xy = np.array([rng_m * np.cos(bearing), rng_m * np.sin(bearing)])
+            out.append(PersonDetection(xy, float(self.rng.uniform(1.0, 1.9)), float(self.rng.uniform(0.5, 0.8)),
+                                       reflectance_histogram(_random_clothing(self.rng), self.rng)))
+        return out
+
+    def frame(self, t_s: float, pose_world_robot: np.ndarray, people: list[tuple[Walker, np.ndarray]],
+              target_xy_world_m: np.ndarray | None, robot_stopped: bool) -> tuple[FollowFrame, np.ndarray]:
+        """The frame at ``t_s`` seen from the true pose; also which of ``people`` were in view."""
+        m = self.model
+        pose = np.asarray(pose_world_robot, dtype=float)
+        xy = np.array([p for _, p in people]).reshape(-1, 2)
+        vis = visible_people(pose, xy, self.occupancy)
+        xy_robot = to_robot(xy, pose)
+        r = np.hypot(xy_robot[:, 0], xy_robot[:, 1])
+        detected = vis & (self.rng.random(len(xy)) < self._p_detect(r))
+        dets = [PersonDetection(xy_robot[i] + self.rng.normal(0.0, m.sigma_pos_m, 2), people[i][0].height_m,
+                                float(self.rng.uniform(0.8, 1.0)),
+                                reflectance_histogram(people[i][0].reflectance_ab, self.rng))
+                for i in np.flatnonzero(detected)]
+        dets += self._clutter(pose)
+        order = self.rng.permutation(len(dets))
+        # localization error: AR(1) with correlation time loc_tau_s
+        dt = 1.0 / FRAME_HZ if self.t_prev_s is None else t_s - self.t_prev_s
+        a = np.exp(-dt / m.loc_tau_s)
+        self.loc_err = a * self.loc_err + np.sqrt(1 - a * a) * self.rng.normal(0.0, 1.0, 3) * self.loc_sigma
+        est = pose + self.loc_err
+        est[2] = wrap_angle_rad(est[2])
+        t_prev = t_s - 1.0 / FRAME_HZ if self.t_prev_s is None else self.t_prev_s
+        target_robot = None if target_xy_world_m is None else to_robot(target_xy_world_m, pose)[0]
+        espar = self.espar.readings(t_prev, t_s, target_robot)
+        self.t_prev_s = t_s
+        return (FollowFrame(float(t_s), est, np.diag(self.loc_sigma ** 2), tuple(dets[i] for i in order), espar,
+                            bool(robot_stopped)), vis)
+
+
+# ------------------------------------------------------------------------------------------- robot
+@dataclass(frozen=True)
+class RobotController:
+    """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking, to
+    the tracker's goal when the target is not in view, still when asked to stop."""
+
+    v_max_mps: float = 1.2
+    w_max_radps: float = 1.5
+    k_v: float = 1.0
+    k_w: float = 2.0
+    follow_distance_m: float = FOLLOW_DISTANCE_M
+    goal_tolerance_m: float = 0.3
+    clearance_m: float = 0.35  # the step is refused when this far ahead is occupied
+
+    def command(self, pose_est: np.ndarray, out: TrackerOutput) -> tuple[float, float]:
+        """(v_mps, w_radps) from the estimated pose and the tracker's output."""
+        if out.stop_robot:
+            return 0.0, 0.0
+        if out.target_track_id is not None and out.target_xy_world_m is not None:
+            aim, stand_off = np.asarray(out.target_xy_world_m, float), self.follow_distance_m
+        elif out.goal_xy_world_m is not None:
+            aim, stand_off = np.asarray(out.goal_xy_world_m, float), self.goal_tolerance_m
+        else:
+            return 0.0, 0.0
+        d = aim - pose_est[:2]
+        dist = float(np.hypot(*d))
+        heading_err = float(wrap_angle_rad(np.arctan2(d[1], d[0]) - pose_est[2]))
+        w = float(np.clip(self.k_w * heading_err, -self.w_max_radps, self.w_max_radps))
+        v = float(np.clip(self.k_v * (dist - stand_off), 0.0, self.v_max_mps)) * max(0.0, np.cos(heading_err))
+        return v, w
+
+    def step(self, pose_true: np.ndarray, v: float, w: float, dt_s: float,
+             occupancy: OccupancyMap | None) -> tuple[np.ndarray, bool]:
+        """Integrate the unicycle; a step that would bring an occupied cell within ``clearance_m``
+        ahead only turns. Returns the new pose and whether the robot stood still."""
+        yaw = pose_true[2] + w * dt_s
+        nxt = pose_true[:2] + v * dt_s * np.array([np.cos(yaw), np.sin(yaw)])
+        if occupancy is not None and v > 0:
+            ahead = nxt + self.clearance_m * np.array([np.cos(yaw), np.sin(yaw)])
+            if occupancy.is_occupied(np.stack([nxt, ahead])).any():
+                nxt, v = pose_true[:2], 0.0
+        return np.array([nxt[0], nxt[1], wrap_angle_rad(yaw)]), v == 0.0 and w == 0.0
+
+
+# ---------------------------------------------------------------------------------------- episodes
+@dataclass
+class Episode:
+    """A scene: walls, walkers (one of them the target), the robot's start, the duration."""
+
+    name: str
+    walkers: list[Walker]
+    target_id: str
+    robot_pose0: np.ndarray  # (3,) x, y, yaw
+    duration_s: float
+    occupancy: OccupancyMap | None = None
+    t0_s: float = 0.0
+    notes: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def people_at(self, t_s: float) -> list[tuple[Walker, np.ndarray]]:
+        out = []
+        for w in self.walkers:
+            p = w.at(t_s)
+            if p is not None:
+                out.append((w, p))
+        return out
+
+    def walker(self, person_id: str) -> Walker:
+        return next(w for w in self.walkers if w.person_id == person_id)
+
+
+TARGET_CLOTHING = (8.0, 3.0)  # bright clothing (mean 0.73)
+
+
+def passing_episode(rng: np.random.Generator) -> Episode:
+    """Fig. 7: the target walks ahead of the robot; a person crosses between them."""
+    target = route_walker("target", [[1.6, 0.0], [1.6, 0.0], [13.0, 0.0]], [1.0, 0.7], waits_s=[4.0, 0.0],
+                          reflectance_ab=TARGET_CLOTHING)
+    # the passer reaches the line robot-target about 0.6 m behind the target at t = 12 s
+    x_c = 1.6 + 0.7 * 8.0 - 0.6
+    passer = route_walker("passer", [[x_c + 1.5, 3.5], [x_c, 0.0], [x_c - 1.2, -2.8]], [1.0, 1.0],
+                          t0_s=12.0 - np.hypot(1.5, 3.5) / 1.0, reflectance_ab=(3.0, 8.0), height_m=1.75)
+    occ = box_map((-3.0, -5.0, 17.0, 5.0), [])
+    return Episode("passing", [target, passer], "target", np.array([0.0, 0.0, 0.0]), 25.0, occ,
+                   notes="a person passes between the robot and the target (Misu and Miura, Fig. 7)")
+
+
+def corner_episode(rng: np.random.Generator) -> Episode:
+    """Fig. 8: the target turns a corner and leaves the field of view behind a wall."""
+    # corridor along +x (y in [-1.5, 1.5]) up to x = 12; then a corridor along +y at x in [9, 12]
+    walls = [(-3.0, -5.0, 12.0, -1.5),        # south wall
+             (-3.0, 1.5, 9.0, 14.0)]          # north-west block: the inner corner at (9, 1.5)
+    occ = box_map((-3.0, -5.0, 13.0, 14.0), walls)
+    target = route_walker("target", [[1.4, 0.0], [1.4, 0.0], [10.5, 0.0], [10.5, 12.0]], [1.0, 0.8, 1.3],
+                          waits_s=[4.0, 0.0, 0.0, 0.0], reflectance_ab=TARGET_CLOTHING)
+    other = route_walker("bystander", [[11.5, 13.0], [11.5, 10.0], [11.0, 8.0]], [0.5, 0.5], t0_s=0.0,
+                         reflectance_ab=(3.0, 8.0))
+    return Episode("corner", [target, other], "target", np.array([0.0, 0.0, 0.0]), 35.0, occ,
+                   notes="the target turns a corner out of view (Misu and Miura, Fig. 8)")
+
+
+def crossing_episode(rng: np.random.Generator) -> Episode:
+    """Fig. 9: two people walk side by side, then cross (swap sides) and part."""
+    target = route_walker("target", [[1.6, 0.35], [1.6, 0.35], [6.0, 0.35], [8.0, -0.35], [14.0, -2.5]],
+                          [1.0, 0.7, 0.7, 0.7], waits_s=[4.0, 0, 0, 0, 0], reflectance_ab=TARGET_CLOTHING)
+    other = route_walker("companion", [[1.6, -0.35], [1.6, -0.35], [6.0, -0.35], [8.0, 0.35], [14.0, 2.5]],
+                         [1.0, 0.7, 0.7, 0.7], waits_s=[4.0, 0, 0, 0, 0], reflectance_ab=(7.0, 4.0))
+    occ = box_map((-3.0, -6.0, 17.0, 6.0), [])
+    return Episode("crossing", [target, other], "target", np.array([0.0, 0.0, 0.0]), 25.0, occ,
+                   notes="two people walk side by side and cross (Misu and Miura, Fig. 9)")
+
+
+TARGET_ROUTE = [[1.5, 0.0], [1.5, 0.0], [12.0, 0.0], [12.0, 8.0], [2.0, 8.0], [2.0, 2.0]]
+
+
+def _target_on_route(route=TARGET_ROUTE) -> Walker:
+    return route_walker("target", route, 0.8, waits_s=[4.0] + [0.0] * (len(route) - 1),
+                        reflectance_ab=TARGET_CLOTHING)
+
+
+def crowd_episode(rng: np.random.Generator, n_walkers: int = 12) -> Episode:
+    """The target walks a loop in a hall while ``n_walkers`` built-in random walkers cross it."""
+    occ = box_map((-4.0, -4.0, 16.0, 12.0), [])
+    target = _target_on_route()
+    others = random_walkers(n_walkers, (-3.0, -3.0, 15.0, 11.0), target.t_s[-1], rng, occ)
+    return Episode("crowd", [target, *others], "target", np.array([0.0, 0.0, 0.0]),
+                   float(min(45.0, target.t_s[-1])), occ, notes="built-in random walkers")
+
+
+RECORDED_FILE = "eth_ucy/biwi_hotel.txt"
+
+
+def recorded_episode(rng: np.random.Generator, data_dir: str | Path = "/work/shared/data",
+                     file: str = RECORDED_FILE) -> Episode:
+    """The target walks a loop while real pedestrians (ETH/UCY, THOR or ATC recording ``file``
+    under ``data_dir``) walk around it: a random 45 s window of the recording, rotated randomly and
+    shifted so its centre sits on the route's centre."""
+    from pedcal.io.pedestrians import read_pedestrians
+
+    path = Path(data_dir) / file
+    if not path.is_file():
+        raise PedcalInputError("recorded pedestrian file not found (the recorded scene needs it)", path=path)
+    df = read_pedestrians(path)
+    target = _target_on_route()
+    duration = float(min(45.0, target.t_s[-1]))
+    t_rec = df["t"].to_numpy(float)
+    t_start = float(rng.uniform(t_rec.min(), max(t_rec.min(), t_rec.max() - duration)))
+    win = df[(df["t"] >= t_start) & (df["t"] <= t_start + duration)]
+    yaw = rng.uniform(-np.pi, np.pi)
+    c, s = np.cos(yaw), np.sin(yaw)
+    xy = win[["x", "y"]].to_numpy(float)
+    xy = (xy - xy.mean(axis=0)) @ np.array([[c, s], [-s, c]]) + np.array([7.0, 4.0])
+    walkers = []
+    for pid, idx in win.groupby("person", sort=True).indices.items():
+        t = win["t"].to_numpy(float)[idx] - t_start
+        if len(t) < 2:
+            continue
+        walkers.append(Walker(f"p{pid}", t, xy[idx], float(rng.uniform(1.5, 1.9)), _random_clothing(rng)))
+    occ = box_map((-4.0, -4.0, 18.0, 12.0), [])
+    return Episode("recorded", [target, *walkers], "target", np.array([0.0, 0.0, 0.0]), duration, occ,
+                   notes=f"pedestrians from {file}, window at {t_start:.1f} s, turned {np.degrees(yaw):.0f} deg")
+
+
+def people_episode(people: pd.DataFrame, target_id: str, source: str | Path | None = None) -> Episode:
+    """An episode from a people table (``t, person, x, y``): the robot starts 1.5 m behind the
+    target's first position, facing its first motion; no walls."""
+    ids = people["person"].astype(str)
+    if target_id not in set(ids):
+        raise PedcalInputError(f"--target {target_id!r} is not a person of the file (people: "
+                               f"{', '.join(sorted(set(ids))[:10])}{', ...' if ids.nunique() > 10 else ''})",
+                               path=source, column="person")
+    tgt = people[ids == target_id].sort_values("t")
+    if len(tgt) < 2:
+        raise PedcalInputError(f"target {target_id!r} has fewer than 2 rows", path=source, column="person")
+    t0, t1 = float(tgt["t"].iloc[0]), float(tgt["t"].iloc[-1])
+    walkers = []
+    for pid, g in people.assign(person=ids).sort_values("t").groupby("person", sort=True):
+        t = g["t"].to_numpy(float) - t0
+        if len(t) < 2:
+            continue
+        walkers.append(Walker(str(pid), t, g[["x", "y"]].to_numpy(float),
+                              reflectance_ab=TARGET_CLOTHING if pid == target_id else (3.0, 8.0)))
+    txy = tgt[["x", "y"]].to_numpy(float)
+    moved = np.flatnonzero(np.linalg.norm(txy - txy[0], axis=1) > 0.3)
+    head = txy[moved[0]] - txy[0] if len(moved) else np.array([1.0, 0.0])
+    yaw = float(np.arctan2(head[1], head[0]))
+    start = txy[0] - 1.5 * np.array([np.cos(yaw), np.sin(yaw)])
+    return Episode("people", walkers, target_id, np.array([start[0], start[1], yaw]), t1 - t0, None,
+                   notes=f"people from {source}")
+
+
+SCENARIOS: dict[str, Callable[[np.random.Generator], Episode]] = {
+    "passing": passing_episode,
+    "corner": corner_episode,
+    "crossing": crossing_episode,
+    "crowd": crowd_episode,
+    "recorded": recorded_episode,
+}
+
+
+def make_episode(name: str, seed: int = 0) -> Episode:
+    """The episode registered as ``name`` (``SCENARIOS``), seeded."""
+    if name not in SCENARIOS:
+        raise PedcalInputError(f"unknown scenario {name!r}; expected one of {', '.join(SCENARIOS)}")
+    return SCENARIOS[name](np.random.default_rng(seed))
+
+
+__all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route_walker", "random_walkers",
+           "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world", "in_field_of_view",
+           "visible_people", "SensorModel", "Sensing", "RobotController", "Episode", "SCENARIOS", "make_episode",
+           "people_episode", "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
+           "recorded_episode"]
