@@ -255,7 +255,12 @@ class FactorGraphTracker:
     appearance classifier accepts is re-taken as the target at once, without waiting for the
     antenna to raise its probability above 0.7. Conversely, when the paper tracker re-takes a filter
     on the antenna's word alone (a passer-by in the target's direction has the same bearing), the
-    re-take stands only if that filter is detected and the classifier does not reject it.
+    re-take stands only if that filter is detected and the classifier does not reject it. The
+    classifier is trusted only if the target was lost because its filter ended (occlusion), not
+    because the antenna's probability of it fell below the lost threshold: then the filter followed
+    was not the target, the classifier learned the wrong person, and it is dropped (the paper
+    tracker's antenna-driven re-take decides alone). The fast re-take also needs the filter's target
+    probability not below the lost threshold.
     """
 
     name = "factorgraph"
@@ -346,6 +351,10 @@ class FactorGraphTracker:
         d = np.sqrt(np.einsum("ni,nij,nj->n", diff, np.linalg.inv(S), diff))
         dist = np.linalg.norm(diff, axis=1)
         ok = (d < self.recovery.reacquire_gate) & (dist < self.recovery.reacquire_radius_m)
+        # nor a filter the antenna already rules out (eq. 9: its probability fell below the lost threshold;
+        # the classifier may have learned the wrong person if the target was mistaken at the start)
+        p_min = self.paper.config.lost_threshold
+        ok &= np.array([self.paper.prob.p.get(tr.track_id, p_min) >= p_min for tr in cand])
         if not ok.any():
             return None
         if self._appearance is None or not self._appearance.ready:
@@ -403,8 +412,10 @@ class FactorGraphTracker:
     def step(self, frame: FollowFrame) -> TrackerOutput:
         if frame.espar:
             self._t_last_reading_s = frame.t_s
-        was, lost_since_s = self.paper.state, self.paper.lost_since_s
+        was, lost_since_s, was_target = self.paper.state, self.paper.lost_since_s, self.paper.target_id
         out = self.paper.step(frame)
+        if was == "Tracking" and out.state != "Tracking" and was_target in self.paper.core.tracks:
+            self._appearance = None        # lost on the antenna's word: the filter was somebody else
         if out.state == "Tracking" and was in ("Lost", "Searching") and self._vetoed(frame, was, lost_since_s):
             out = self.paper._output()
         if out.state == "Tracking":
