@@ -21,6 +21,7 @@ from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.sim.follow import (
     FRAME_HZ,
     Episode,
+    Planner,
     RobotController,
     Sensing,
     in_field_of_view,
@@ -191,6 +192,7 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     trk = _make_tracker(tracker, episode)
     sensing = Sensing(episode.occupancy, rng)
     ctrl = RobotController()
+    planner = Planner(episode.occupancy) if episode.occupancy is not None else None
     pose = np.asarray(episode.robot_pose0, dtype=float).copy()
     stopped = True
     mot = MotAccumulator()
@@ -225,7 +227,7 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
                      "est_target_x": np.nan if est_t is None else float(est_t[0]),
                      "est_target_y": np.nan if est_t is None else float(est_t[1]),
                      "stop_robot": bool(out.stop_robot)})
-        v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out)
+        v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner)
         pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, episode.occupancy)
         if progress and (k % 40 == 0 or k == n_frames - 1):
             print(f"follow {episode.name}: frame {k + 1}/{n_frames} t={t:.1f}s state={out.state}", file=sys.stderr)
