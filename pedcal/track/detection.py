@@ -9,7 +9,8 @@
 5. ``min_area_box``: the minimum-area box of the points' horizontal convex hull by rotating
    calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
 6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m;
-7. the RealAdaBoost classifier on Kidono et al.'s 213 features (``pedcal.track.features``).
+7. the RealAdaBoost classifier on Kidono et al.'s 213 features and 47 metric height profiles
+   (``pedcal.track.features``).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
 and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
