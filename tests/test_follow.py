@@ -128,3 +128,62 @@ def test_cli_follow_bad_csv_exits_2(capsys, tmp_path):
 def test_cli_follow_unknown_scenario_exits_2(capsys):
     assert main(["follow", "nowhere"]) == 2
     assert "passing" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------- robot and planner
+def test_planner_leads_around_a_wall():
+    from pedcal.sim.follow import Planner, segments_blocked
+
+    occ = box_map((-1.0, -3.0, 9.0, 3.0), [(3.0, -3.0, 3.3, 1.5)])  # a wall with a gap at y > 1.5
+    start, goal = np.array([1.0, 0.0]), np.array([6.0, 0.0])
+    assert segments_blocked(occ, start, goal)[0]
+    pl = Planner(occ)
+    xy, steps = start.copy(), 0
+    while np.linalg.norm(xy - goal) > 0.3 and steps < 200:
+        aim = pl.aim(xy, goal) if segments_blocked(occ, xy, goal)[0] else goal
+        step = aim - xy
+        xy = xy + step / max(np.linalg.norm(step), 1e-9) * min(0.2, np.linalg.norm(step))
+        assert not occ.is_occupied(xy)
+        steps += 1
+    assert np.linalg.norm(xy - goal) <= 0.3
+
+
+# ------------------------------------------------------------------------------- episode outcomes
+@pytest.fixture(scope="module")
+def outcomes():
+    from pedcal.track.follow import run_follow
+
+    return {(sc, tr): run_follow(sc, tracker=tr, seed=0).to_dict()
+            for sc in ("passing", "crossing", "corner") for tr in ("paper", "lidar-only")}
+
+
+def test_passing_paper_keeps_target_lidar_only_switches(outcomes):
+    paper, lidar = outcomes["passing", "paper"], outcomes["passing", "lidar-only"]
+    assert paper["id_switches"] == 0 and paper["followed_to_end"]
+    assert paper["target_correct_fraction"] >= 0.9 and paper["max_reacquire_s"] <= 3.0
+    assert lidar["id_switches"] >= 1 and not lidar["followed_to_end"]
+    assert lidar["target_correct_fraction"] < 0.7
+
+
+def test_crossing_paper_keeps_target_lidar_only_switches(outcomes):
+    paper, lidar = outcomes["crossing", "paper"], outcomes["crossing", "lidar-only"]
+    assert paper["id_switches"] == 0 and paper["followed_to_end"] and paper["target_correct_fraction"] >= 0.9
+    assert lidar["id_switches"] >= 1 and not lidar["followed_to_end"]
+
+
+def test_corner_paper_recovers_lidar_only_does_not(outcomes):
+    paper, lidar = outcomes["corner", "paper"], outcomes["corner", "lidar-only"]
+    assert paper["lost_episodes"] >= 1 and paper["searching_frames"] > 0  # the target did leave the view
+    assert paper["followed_to_end"] and paper["max_reacquire_s"] is not None
+    assert not lidar["followed_to_end"] and lidar["target_correct_fraction"] < 0.7
+
+
+def test_recorded_scene_uses_real_pedestrians(shared_data):
+    from pedcal.sim.follow import recorded_episode
+
+    ep = recorded_episode(np.random.default_rng(3), data_dir=shared_data)
+    others = [w for w in ep.walkers if w.person_id != "target"]
+    assert len(others) >= 3 and all(not w.stays for w in others)
+    # the window is shifted onto the route's area: some walkers come within 3 m of the route centre
+    near = [w for w in others if np.min(np.linalg.norm(w.xy_world_m - [7.0, 4.0], axis=1)) < 3.0]
+    assert near

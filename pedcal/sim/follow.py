@@ -494,14 +494,15 @@ def crowd_episode(rng: np.random.Generator, n_walkers: int = 12) -> Episode:
 RECORDED_FILE = "eth_ucy/biwi_hotel.txt"
 
 
-def recorded_episode(rng: np.random.Generator, data_dir: str | Path = "/work/shared/data",
+def recorded_episode(rng: np.random.Generator, data_dir: str | Path | None = None,
                      file: str = RECORDED_FILE) -> Episode:
     """The target walks a loop while real pedestrians (ETH/UCY, THOR or ATC recording ``file``
     under ``data_dir``) walk around it: a random 45 s window of the recording, rotated randomly and
     shifted so its centre sits on the route's centre."""
     from pedcal.io.pedestrians import read_pedestrians
+    from pedcal.sim.walkers import SHARED_DATA
 
-    path = Path(data_dir) / file
+    path = Path(data_dir if data_dir is not None else SHARED_DATA) / file
     if not path.is_file():
         raise PedcalInputError("recorded pedestrian file not found (the recorded scene needs it)", path=path)
     df = read_pedestrians(path)
