@@ -107,6 +107,52 @@ def random_walkers(n: int, area_xy_m: tuple[float, float, float, float], t1_s: f
     return out
 
 
+def avoid_collisions(walkers: list[Walker], fixed: list[Walker], duration_s: float, dt_s: float = 0.25,
+                     occupancy: OccupancyMap | None = None, strength_mps: float = 2.0, range_m: float = 0.3,
+                     max_speed_mps: float = 2.0) -> list[Walker]:
+    """Re-play ``walkers`` so they keep out of each other's and the ``fixed`` people's way (the
+    scripted target): each step a walker heads for where its own trajectory is one step later and is
+    pushed off every other person by ``strength_mps * exp((2 r - d) / range_m)`` (a social force on
+    the velocity, Helbing and Molnar's exponential repulsion); a step into a wall is not taken."""
+    t = np.arange(0.0, duration_s + dt_s / 2, dt_s)
+    present = np.array([[w.at(ti) is not None for ti in t] for w in walkers]).reshape(len(walkers), len(t))
+    orig = np.array([[w.at(ti) if ok else (np.nan, np.nan) for ti, ok in zip(t, row, strict=True)]
+                     for w, row in zip(walkers, present, strict=True)]).reshape(len(walkers), len(t), 2)
+    fixed_xy = np.array([[f.at(ti) if f.at(ti) is not None else (np.nan, np.nan) for ti in t] for f in fixed]
+                        ).reshape(len(fixed), len(t), 2)
+    out = orig.copy()
+    for k in range(1, len(t)):
+        cur = out[:, k - 1].copy()
+        start = present[:, k] & ~present[:, k - 1]
+        cur[start] = orig[start, k]
+        others = np.concatenate([cur, fixed_xy[:, k - 1]])
+        d = cur[:, None, :] - others[None, :, :]
+        dist = np.linalg.norm(d, axis=2)
+        np.fill_diagonal(dist[:, :len(walkers)], np.inf)
+        dist = np.where(np.isnan(dist), np.inf, dist)
+        push = strength_mps * np.exp((2 * PERSON_RADIUS_M - dist) / range_m)
+        rep = np.nansum(np.where(np.isfinite(dist)[..., None], push[..., None] * d / np.maximum(dist, 1e-6)[..., None],
+                                 0.0), axis=1)
+        nxt = orig[:, min(k + 1, len(t) - 1)]
+        nxt = np.where(np.isnan(nxt), cur, nxt)
+        own_speed = np.nan_to_num(np.linalg.norm(nxt - orig[:, k], axis=1) / dt_s)
+        want = (nxt - cur) / dt_s  # back onto its own trajectory, at most 0.5 m/s faster than it walks
+        want_speed = np.linalg.norm(want, axis=1, keepdims=True)
+        v = want * np.minimum(1.0, (own_speed[:, None] + 0.5) / np.maximum(want_speed, 1e-9)) + rep
+        speed = np.linalg.norm(v, axis=1, keepdims=True)
+        v *= np.minimum(1.0, max_speed_mps / np.maximum(speed, 1e-9))
+        step = cur + v * dt_s
+        if occupancy is not None:
+            bad = occupancy.is_occupied(np.nan_to_num(step))
+            step[bad] = cur[bad]
+        out[:, k] = np.where(present[:, k, None], step, np.nan)
+    res = []
+    for w, row, xy in zip(walkers, present, out, strict=True):
+        if row.sum() >= 2:
+            res.append(Walker(w.person_id, t[row], xy[row], w.height_m, w.reflectance_ab, w.stays))
+    return res
+
+
 def _random_clothing(rng: np.random.Generator) -> tuple[float, float]:
     mean = rng.uniform(0.1, 0.9)
     conc = rng.uniform(6.0, 20.0)
@@ -486,9 +532,11 @@ def crowd_episode(rng: np.random.Generator, n_walkers: int = 12) -> Episode:
     """The target walks a loop in a hall while ``n_walkers`` built-in random walkers cross it."""
     occ = box_map((-4.0, -4.0, 16.0, 12.0), [])
     target = _target_on_route()
+    duration = float(min(45.0, target.t_s[-1]))
     others = random_walkers(n_walkers, (-3.0, -3.0, 15.0, 11.0), target.t_s[-1], rng, occ)
-    return Episode("crowd", [target, *others], "target", np.array([0.0, 0.0, 0.0]),
-                   float(min(45.0, target.t_s[-1])), occ, notes="built-in random walkers")
+    others = avoid_collisions(others, [target], duration, occupancy=occ)
+    return Episode("crowd", [target, *others], "target", np.array([0.0, 0.0, 0.0]), duration, occ,
+                   notes="built-in random walkers")
 
 
 RECORDED_FILE = "eth_ucy/biwi_hotel.txt"
@@ -522,6 +570,7 @@ def recorded_episode(rng: np.random.Generator, data_dir: str | Path | None = Non
             continue
         walkers.append(Walker(f"p{pid}", t, xy[idx], float(rng.uniform(1.5, 1.9)), _random_clothing(rng)))
     occ = box_map((-4.0, -4.0, 18.0, 12.0), [])
+    walkers = avoid_collisions(walkers, [target], duration, occupancy=occ)
     return Episode("recorded", [target, *walkers], "target", np.array([0.0, 0.0, 0.0]), duration, occ,
                    notes=f"pedestrians from {file}, window at {t_start:.1f} s, turned {np.degrees(yaw):.0f} deg")
 
@@ -571,7 +620,8 @@ def make_episode(name: str, seed: int = 0) -> Episode:
 
 
 __all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route_walker", "random_walkers",
-           "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world", "in_field_of_view",
+           "avoid_collisions", "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
+           "in_field_of_view",
            "visible_people", "SensorModel", "Sensing", "RobotController", "Episode", "SCENARIOS", "make_episode",
            "people_episode", "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
            "recorded_episode"]
