@@ -187,3 +187,21 @@ def test_recorded_scene_uses_real_pedestrians(shared_data):
     # the window is shifted onto the route's area: some walkers come within 3 m of the route centre
     near = [w for w in others if np.min(np.linalg.norm(w.xy_world_m - [7.0, 4.0], axis=1)) < 3.0]
     assert near
+
+
+def test_walkers_keep_out_of_the_targets_way():
+    from pedcal.sim.follow import avoid_collisions, route_walker
+
+    target = route_walker("target", [[0.0, 0.0], [10.0, 0.0]], 1.0)
+    head_on = route_walker("w", [[10.0, 0.05], [0.0, 0.05]], 1.0)  # would walk straight through it
+    (moved,) = avoid_collisions([head_on], [target], 10.0)
+    t = moved.t_s
+    gap = np.linalg.norm(moved.xy_world_m - np.array([target.at(ti) for ti in t]), axis=1)
+    assert gap.min() > 0.4  # two 0.25 m discs hardly touch
+    assert np.linalg.norm(moved.xy_world_m[-1] - [0.0, 0.05]) < 0.5  # and it still gets where it went
+
+
+def test_cli_follow_people_without_target_exits_2(capsys, tmp_path):
+    p = people_csv(tmp_path / "people.csv")
+    assert main(["follow", "--people", str(p)]) == 2
+    assert "--target" in capsys.readouterr().err
