@@ -44,6 +44,7 @@ class GridBeliefConfig:
     min_range_m: float = 0.3
     p_detect: float = 0.9               # chance the detector finds the target in a cell it saw empty
     person_radius_m: float = 0.3        # people occlude the LIDAR over this radius
+    robot_clear_m: float = 0.5          # nobody stands within this of the robot's centre (robot + person radius)
     block_unknown: bool = False         # also give zero belief to cells the map does not know free
     n_rays: int = 241                   # rays cast over the field of view
     recenter_margin_m: float = 3.0      # shift the window when the estimate is this close to its edge
@@ -266,12 +267,17 @@ class GridBelief:
         return iy + iy0, ix + ix0
 
     def observe_empty(self, pose_world_sensor, occluders_xy_world_m=()) -> int:
-        """Negative information: the target was not detected, so cells seen empty lose belief.
+        """Negative information: the target was not detected, so cells seen empty lose belief, and
+        the robot's footprint (``robot_clear_m`` around the sensor) holds nobody.
 
         Returns how many cells were seen.
         """
         iy, ix = self.visible_cells(pose_world_sensor, occluders_xy_world_m)
         self.belief[iy, ix] *= 1.0 - self.config.p_detect
+        # the robot's own footprint: the sensor never sees it (min range, behind), yet nobody is there
+        x0, y0 = float(pose_world_sensor[0]), float(pose_world_sensor[1])
+        near = ((self.x_m[None, :] - x0) ** 2 + (self.y_m[:, None] - y0) ** 2) <= self.config.robot_clear_m ** 2
+        self.belief[near] = 0.0
         self._normalize()
         return len(iy)
 

@@ -229,6 +229,7 @@ class RecoveryConfig:
 
     reacquire_gate: float = 3.0            # Mahalanobis distance of a detection from the estimate
     reacquire_radius_m: float = 2.5        # and never farther than this, however spread the belief
+    reacquire_close_m: float = 1.0         # without a trained classifier, only this close to the estimate
     reacquire_max_error: float = 0.5       # the target's appearance classifier error e (eq. 3) at most
     veto_min_error: float = 0.8            # the paper tracker's re-take is undone above this e
     reacquire_p_target: float = 0.7        # P(T = i) given to the re-taken filter (the paper's threshold)
@@ -256,11 +257,11 @@ class FactorGraphTracker:
     antenna to raise its probability above 0.7. Conversely, when the paper tracker re-takes a filter
     on the antenna's word alone (a passer-by in the target's direction has the same bearing), the
     re-take stands only if that filter is detected and the classifier does not reject it. The
-    classifier is trusted only if the target was lost because its filter ended (occlusion), not
-    because the antenna's probability of it fell below the lost threshold: then the filter followed
-    was not the target, the classifier learned the wrong person, and it is dropped (the paper
-    tracker's antenna-driven re-take decides alone). The fast re-take also needs the filter's target
-    probability not below the lost threshold.
+    classifier is trusted unless the antenna's probability disowned the target's filter while the
+    LIDAR still detected it: then the filter followed was not the target, the classifier learned the
+    wrong person, and it is dropped (the paper tracker's antenna-driven re-take decides alone). A
+    coasting filter disowned by the antenna (the target turned out of view) keeps it. The fast
+    re-take also needs the filter's target probability not below the lost threshold.
     """
 
     name = "factorgraph"
@@ -281,6 +282,7 @@ class FactorGraphTracker:
         self._t_prev_s: float | None = None
         self._estimate: tuple[np.ndarray, np.ndarray] | None = None
         self._t_last_reading_s: float | None = None
+        self._ids_at_loss: set[int] = set()
 
     # the paper tracker forgets the target's classifier when it loses the target; keep it
     def _remember_target(self) -> None:
@@ -298,6 +300,7 @@ class FactorGraphTracker:
         self.grid = GridBelief(self.occupancy, xy0, self.grid_config, self.paper.config.espar)
         self.grid.reset_gaussian(xy0, sigma0)
         self.smoother = TargetSmoother(self.smoother_config)
+        self._ids_at_loss = set(self.paper.core.tracks)
         self._seed = (np.asarray(xy0, dtype=float), sigma0)
 
     def _recover(self, frame: FollowFrame) -> None:
@@ -351,15 +354,18 @@ class FactorGraphTracker:
         d = np.sqrt(np.einsum("ni,nij,nj->n", diff, np.linalg.inv(S), diff))
         dist = np.linalg.norm(diff, axis=1)
         ok = (d < self.recovery.reacquire_gate) & (dist < self.recovery.reacquire_radius_m)
-        # nor a filter the antenna already rules out (eq. 9: its probability fell below the lost threshold;
-        # the classifier may have learned the wrong person if the target was mistaken at the start)
+        # nor a filter the antenna ruled out while the target was lost (eq. 9: probability below the lost
+        # threshold). Filters born after the loss are exempt: they enter with a share of P_lost, which
+        # the lost target's filter had drained, so their probability says nothing yet
         p_min = self.paper.config.lost_threshold
-        ok &= np.array([self.paper.prob.p.get(tr.track_id, p_min) >= p_min for tr in cand])
-        if not ok.any():
-            return None
-        if self._appearance is None or not self._appearance.ready:
-            return None          # nothing tells the target from a passer-by: leave it to the antenna (eq. 9)
-        ok &= self._appearance_error(frame, xy) <= self.recovery.reacquire_max_error
+        ok &= np.array([tr.track_id not in self._ids_at_loss or self.paper.prob.p.get(tr.track_id, p_min) >= p_min
+                        for tr in cand])
+        if not ok.any() or self._appearance is None:
+            return None          # classifier dropped (it learned somebody else): the antenna decides (eq. 9)
+        if self._appearance.ready:
+            ok &= self._appearance_error(frame, xy) <= self.recovery.reacquire_max_error
+        else:                    # it never saw anybody else: nothing to tell people apart, take only a close one
+            ok &= dist < self.recovery.reacquire_close_m
         if not ok.any():
             return None
         return cand[int(np.argmin(np.where(ok, d, np.inf)))].track_id
@@ -414,8 +420,9 @@ class FactorGraphTracker:
             self._t_last_reading_s = frame.t_s
         was, lost_since_s, was_target = self.paper.state, self.paper.lost_since_s, self.paper.target_id
         out = self.paper.step(frame)
-        if was == "Tracking" and out.state != "Tracking" and was_target in self.paper.core.tracks:
-            self._appearance = None        # lost on the antenna's word: the filter was somebody else
+        lost_tr = self.paper.core.tracks.get(was_target)
+        if was == "Tracking" and out.state != "Tracking" and lost_tr is not None and lost_tr.detected:
+            self._appearance = None        # the antenna disowned a filter still in view: it was somebody else
         if out.state == "Tracking" and was in ("Lost", "Searching") and self._vetoed(frame, was, lost_since_s):
             out = self.paper._output()
         if out.state == "Tracking":
