@@ -1,6 +1,7 @@
 """Speed of one recovery step of the factor-graph tracker: grid belief + fixed-lag smoother.
 
 Run: .venv/bin/python benchmarks/bench_recovery.py [--steps N] [--map PATH.yaml]
+     .venv/bin/python benchmarks/bench_recovery.py --compare [--seeds N] [--scenes passing,corner,...]
 
 A target walks out of the robot's view; the robot drives after it at 0.8 m/s while the target is
 out of sight, and every 0.25 s LIDAR frame runs what ``FactorGraphTracker`` runs when the target is
@@ -78,11 +79,57 @@ def bench(steps: int, map_path: Path | None, seed: int = 0) -> dict:
                for stat, f in (("median", np.median), ("p90", lambda a: np.percentile(a, 90)))}}
 
 
+TRACKER_NAMES = ("paper", "factorgraph", "lidar-only")
+
+
+def compare(scenes: list[str], n_seeds: int) -> None:
+    """``run_follow`` on every scene x seed x tracker; per scene (and all): mean target_correct_fraction,
+    mean of the runs' mean reacquire times, the largest reacquire time, median lost_position_error_m,
+    searching frames, losses, and runs that lost the target and did not end holding it."""
+    import warnings
+
+    from pedcal.track.follow import run_follow
+
+    runs: dict[tuple[str, str], list[dict]] = {}
+    for scene in scenes:
+        for name in TRACKER_NAMES:
+            for seed in range(n_seeds):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    m = run_follow(scene, tracker=name, seed=seed).metrics
+                runs.setdefault((scene, name), []).append(m)
+                runs.setdefault(("all", name), []).append(m)
+
+    def fmt(v) -> str:
+        return "n/a" if v is None else f"{v:.2f}"
+
+    print(f"{'scene':9s} {'tracker':12s} {'runs':>4s} {'correct':>8s} {'reacq_mean_s':>12s} {'reacq_max_s':>11s} "
+          f"{'lost_err_m':>10s} {'searching':>9s} {'losses':>6s} {'unrecovered':>11s}")
+    for scene in [*scenes, "all"]:
+        for name in TRACKER_NAMES:
+            ms = runs[(scene, name)]
+            reacq = [m["mean_reacquire_s"] for m in ms if m["mean_reacquire_s"] is not None]
+            reacq_max = [m["max_reacquire_s"] for m in ms if m["max_reacquire_s"] is not None]
+            lost_err = [m["lost_position_error_m"] for m in ms if m["lost_position_error_m"] is not None]
+            unrecovered = sum(m["lost_episodes"] > 0 and not m["followed_to_end"] for m in ms)
+            print(f"{scene:9s} {name:12s} {len(ms):4d} {np.mean([m['target_correct_fraction'] for m in ms]):8.3f} "
+                  f"{fmt(np.mean(reacq) if reacq else None):>12s} {fmt(max(reacq_max) if reacq_max else None):>11s} "
+                  f"{fmt(np.median(lost_err) if lost_err else None):>10s} "
+                  f"{sum(m['searching_frames'] for m in ms):9d} {sum(m['lost_episodes'] for m in ms):6d} "
+                  f"{unrecovered:11d}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--map", type=Path, default=TURTLEBOT_MAP if TURTLEBOT_MAP.is_file() else None)
+    ap.add_argument("--compare", action="store_true", help="tracker comparison on the follow scenes instead")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--scenes", default="passing,corner,crossing,recorded")
     args = ap.parse_args()
+    if args.compare:
+        compare(args.scenes.split(","), args.seeds)
+        return
     r = bench(args.steps, args.map)
     print(f"map: {args.map or 'none (empty window)'}; {r['cells']} cells; "
           f"{r['readings_per_step']:.2f} ESPAR readings per step; {args.steps} steps")
