@@ -215,6 +215,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
     s.add_argument("--workers", type=int, default=None, help="local Dask worker processes (default: cores)")
     s.add_argument("--serial", action="store_true", help="run in this process, without Dask")
+    s.add_argument("--follow-scenes", nargs="+", default=None, metavar="SCENE",
+                   help="following scenes for the tracking tables (default: passing corner crossing crowd recorded)")
+    s.add_argument("--follow-trackers", nargs="+", default=None, metavar="TRACKER",
+                   help="default: paper lidar-only factorgraph")
+    s.add_argument("--follow-seeds", type=int, default=None,
+                   help="following seeds 0..N-1 per scene (default 5; 0 leaves the tracking tables out)")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_report)
 

@@ -29,9 +29,11 @@ from pedcal.report.build import accuracy_section, header_section, sigma_consiste
 from pedcal.report.results import TABLES
 from pedcal.report.sweep import parse_scenarios
 
-# The cheap methods on the smallest scenario: a sweep of two seeds takes a few seconds.
+# The cheap methods on the smallest scenario: a sweep of two seeds takes a few seconds; one short
+# following episode with two trackers for the tracking table.
 CONFIG = SweepConfig(scenarios=[("sparse", 2)], methods=["installed", "alternative", "closedform"], seeds=2,
-                     out="reports/test")
+                     out="reports/test", follow_scenes=["passing"], follow_trackers=["paper", "lidar-only"],
+                     follow_seeds=1)
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +56,8 @@ def _files(directory: Path) -> dict[str, bytes]:
 @pytest.mark.slow
 def test_dask_sweep_equals_serial(serial_cases):
     dask_cases = run_sweep(CONFIG, workers=2, progress=False)
-    assert [(c["scenario"], c["seed"]) for c in dask_cases] == [("sparse", 0), ("sparse", 1)]
+    assert [(c.get("scenario", c.get("scene")), c["seed"]) for c in dask_cases] == [
+        ("sparse", 0), ("sparse", 1), ("passing", 0)]
     serial, parallel = results_from_cases(CONFIG, serial_cases), results_from_cases(CONFIG, dask_cases)
     for name in TABLES:
         pd.testing.assert_frame_equal(getattr(parallel, name), getattr(serial, name), check_exact=True)
@@ -223,6 +226,9 @@ def test_bad_extrinsics_file_exits_2_naming_it(sim_log, tmp_path, capsys):
     (["--scenarios", "sparse:0"], "sparse:0"),
     (["--methods", "magic"], "magic"),
     (["--extrinsics", "a.yaml"], "LOG"),
+    (["--follow-scenes", "nowhere"], "nowhere"),
+    (["--follow-trackers", "psychic"], "psychic"),
+    (["--follow-seeds", "-1"], "-1"),
 ])
 def test_bad_report_arguments_exit_2(argv, message, tmp_path, capsys):
     assert main(["report", *argv, "--out", str(tmp_path / "r"), "--serial", "-q"]) == 2
@@ -253,3 +259,20 @@ def test_crlb_row_is_the_ratio_of_the_saved_errors_to_the_saved_bound(results_di
     m = re.search(r"\| ([\d.]+) ± ([\d.]+) \(", row)
     assert float(m.group(1)) == pytest.approx(np.mean(ratios), abs=0.0051)
     assert float(m.group(1)) > 0.5       # no unbiased estimate beats the bound by much
+
+
+def test_tracking_table_holds_the_follow_metrics_of_each_tracker(results_dir):
+    from pedcal.track.follow import run_follow
+
+    text = (results_dir / "report.md").read_text(encoding="utf-8")
+    block = text.split("## Following a specific person", 1)[1].split("\n\n")[2]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in block.splitlines()[2:]]
+    saved = load_results(results_dir).tracking
+    assert sorted(saved["tracker"]) == ["lidar-only", "paper"]
+    for tracker in ("paper", "lidar-only"):
+        expected = run_follow("passing", tracker=tracker, seed=0).to_dict()
+        row = saved[saved["tracker"] == tracker].iloc[0]
+        assert row["target_correct_fraction"] == pytest.approx(expected["target_correct_fraction"])
+        assert row["id_switches"] == expected["id_switches"]
+        cells = [r for r in rows if r[:2] == ["passing", tracker]][0]
+        assert cells[2].startswith(f"{expected['target_correct_fraction']:.3f}")

@@ -9,14 +9,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pedcal.errors import PedcalInputError
 from pedcal.report.build import SECTIONS, ReportContext, build_report, register_section
 from pedcal.report.compare import compare_extrinsics
 from pedcal.report.results import SweepResults, load_results, results_from_cases, save_results
 from pedcal.report.sweep import (
+    DEFAULT_FOLLOW_SCENES,
+    DEFAULT_FOLLOW_SEEDS,
+    DEFAULT_FOLLOW_TRACKERS,
     DEFAULT_SCENARIOS,
     DEFAULT_SEEDS,
     METHOD_ORDER,
     SweepConfig,
+    check_follow,
     check_methods,
     parse_scenarios,
     run_sweep,
@@ -25,15 +30,22 @@ from pedcal.report.sweep import (
 
 def run_report(scenarios=DEFAULT_SCENARIOS, seeds: int = DEFAULT_SEEDS, methods=METHOD_ORDER,
                out: str | Path = "reports/default", *, scheduler: str | None = None, workers: int | None = None,
-               serial: bool = False, progress: bool = True) -> Path:
+               serial: bool = False, progress: bool = True, follow_scenes=DEFAULT_FOLLOW_SCENES,
+               follow_trackers=DEFAULT_FOLLOW_TRACKERS, follow_seeds: int = DEFAULT_FOLLOW_SEEDS) -> Path:
     """Run ``scenarios`` (names, or ``NAME:SEEDS`` for a scenario's own seed count) x seeds
-    0..seeds-1 x ``methods``, save the results into ``out`` and build ``out/report.md``.
-    Returns the report's path."""
+    0..seeds-1 x ``methods``, and, when ``follow_seeds`` > 0, the following scenes x trackers x
+    seeds 0..follow_seeds-1 (``pedcal follow``); save the results into ``out`` and build
+    ``out/report.md``. Returns the report's path."""
+    if follow_seeds < 0:
+        raise PedcalInputError(f"--follow-seeds {follow_seeds}: expected 0 or more")
+    scenes, trackers = check_follow(follow_scenes, follow_trackers)
     config = SweepConfig(scenarios=parse_scenarios(scenarios, seeds), methods=check_methods(methods),
-                         seeds=seeds, out=str(out))
+                         seeds=seeds, out=str(out), follow_scenes=scenes, follow_trackers=trackers,
+                         follow_seeds=follow_seeds)
     cases = run_sweep(config, scheduler=scheduler, workers=workers, serial=serial, progress=progress)
-    timings = {c["scenario"]: {} for c in cases}
-    for c in cases:
+    calib_cases = [c for c in cases if "scenario" in c]
+    timings = {c["scenario"]: {} for c in calib_cases}
+    for c in calib_cases:
         timings[c["scenario"]][str(c["seed"])] = c["timings"]
     save_results(results_from_cases(config, cases), out, timings={"solve_time_s": timings})
     return build_report(out)

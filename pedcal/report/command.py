@@ -10,7 +10,13 @@ def report_command(args) -> int:
     ``pedcal report --from-results DIR``: rebuild the report from saved results;
     ``pedcal report [--scenarios ...] [--seeds N] ...``: run the sweep and build the report."""
     from pedcal.report import build_report, compare_extrinsics, run_report
-    from pedcal.report.sweep import DEFAULT_SCENARIOS, METHOD_ORDER
+    from pedcal.report.sweep import (
+        DEFAULT_FOLLOW_SCENES,
+        DEFAULT_FOLLOW_SEEDS,
+        DEFAULT_FOLLOW_TRACKERS,
+        DEFAULT_SCENARIOS,
+        METHOD_ORDER,
+    )
 
     if args.log is not None:
         if args.from_results is not None:
@@ -23,6 +29,9 @@ def report_command(args) -> int:
     else:
         path = run_report(args.scenarios or DEFAULT_SCENARIOS, args.seeds, args.methods or METHOD_ORDER,
                           args.out or "reports/default", scheduler=args.scheduler, workers=args.workers,
-                          serial=args.serial, progress=not args.quiet)
+                          serial=args.serial, progress=not args.quiet,
+                          follow_scenes=args.follow_scenes or DEFAULT_FOLLOW_SCENES,
+                          follow_trackers=args.follow_trackers or DEFAULT_FOLLOW_TRACKERS,
+                          follow_seeds=DEFAULT_FOLLOW_SEEDS if args.follow_seeds is None else args.follow_seeds)
     print(f"wrote {path}")
     return 0

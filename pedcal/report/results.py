@@ -9,6 +9,8 @@ A results directory holds
 - ``heads.parquet``, ``robot.parquet``: the calibrated head tracks of every method and the true
   robot path on the evaluation log of each scenario's first seed (for the trajectory figures);
 - ``bounds.parquet``: per scenario, seed and sensor the Cramér-Rao bound of its position;
+- ``tracking.parquet``: per following scene, seed and tracker the metrics of ``pedcal follow``
+  (also in results.json when the sweep ran the tracking part);
 - ``timings.json``: solve times per run. They vary from run to run, so the report never reads
   them and the reproducible files never hold them.
 """
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -28,7 +30,8 @@ from pedcal.report.sweep import SweepConfig
 
 FORMAT_VERSION = 1
 JSON_DECIMALS = 6        # results.json rounds floats (mm, deg, m); the Parquet tables keep every digit
-TABLES = ("runs", "sensors", "heads", "robot", "bounds")
+TABLES = ("runs", "sensors", "heads", "robot", "bounds", "tracking")
+OPTIONAL_TABLES = ("tracking",)  # absent from results written before the tracking part existed
 
 
 @dataclass
@@ -39,6 +42,7 @@ class SweepResults:
     heads: pd.DataFrame
     robot: pd.DataFrame
     bounds: pd.DataFrame
+    tracking: pd.DataFrame = field(default_factory=pd.DataFrame)  # follow metrics per scene, seed, tracker
     path: Path | None = None
 
 
@@ -68,7 +72,7 @@ def write_parquet_atomic(df: pd.DataFrame, path: Path) -> None:
 
 def results_from_cases(config: SweepConfig, cases: list[dict]) -> SweepResults:
     """Tables of the task results of ``run_sweep`` (already in their sorted order)."""
-    frames = {name: pd.DataFrame([r for c in cases for r in c[name]]) for name in TABLES}
+    frames = {name: pd.DataFrame([r for c in cases for r in c.get(name, [])]) for name in TABLES}
     return SweepResults(config=config, **frames)
 
 
@@ -83,7 +87,8 @@ def save_results(results: SweepResults, out_dir: str | Path, timings: dict | Non
         '"config": ' + json.dumps(results.config.to_dict(), sort_keys=True),
         f'"format_version": {FORMAT_VERSION}',
         '"runs": ' + table_json(results.runs),
-        '"sensors": ' + table_json(results.sensors)]) + "\n}\n")
+        '"sensors": ' + table_json(results.sensors)]
+        + (['"tracking": ' + table_json(results.tracking)] if not results.tracking.empty else [])) + "\n}\n")
     if timings is not None:
         write_text_atomic(out_dir / "timings.json", json_text(timings))
     return out_dir
@@ -105,6 +110,9 @@ def load_results(results_dir: str | Path) -> SweepResults:
     tables = {}
     for name in TABLES:
         p = results_dir / f"{name}.parquet"
+        if not p.is_file() and name in OPTIONAL_TABLES:
+            tables[name] = pd.DataFrame()
+            continue
         if not p.is_file():
             raise PedcalInputError(f"missing {p.name}, which `pedcal report` writes beside results.json", path=p)
         tables[name] = pd.read_parquet(p)

@@ -26,6 +26,13 @@ DEFAULT_SEEDS = 10
 # robot observations per method, and this many robot poses.
 MAX_HEAD_POINTS = 3000
 MAX_ROBOT_POINTS = 2000
+# Person following (pedcal follow): scenes x trackers x seeds, one task per (scene, seed).
+DEFAULT_FOLLOW_SCENES = ("passing", "corner", "crossing", "crowd", "recorded")
+DEFAULT_FOLLOW_TRACKERS = ("paper", "lidar-only", "factorgraph")
+DEFAULT_FOLLOW_SEEDS = 5
+FOLLOW_KEYS = ("frames", "target_correct_fraction", "id_switches", "lost_episodes", "searching_episodes",
+               "searching_frames", "mean_reacquire_s", "max_reacquire_s", "followed_to_end",
+               "lost_position_error_m", "mota", "motp", "idf1")
 
 
 @dataclass
@@ -36,24 +43,39 @@ class SweepConfig:
     methods: list[str] = field(default_factory=lambda: list(METHOD_ORDER))
     seeds: int = DEFAULT_SEEDS                 # the --seeds the command line gave
     out: str = "reports/default"
+    follow_scenes: list[str] = field(default_factory=lambda: list(DEFAULT_FOLLOW_SCENES))
+    follow_trackers: list[str] = field(default_factory=lambda: list(DEFAULT_FOLLOW_TRACKERS))
+    follow_seeds: int = 0                      # following seeds 0 .. n-1 per scene (0: no tracking part)
 
     def cases(self) -> list[tuple[str, int]]:
         return [(name, seed) for name, n in self.scenarios for seed in range(n)]
 
+    def follow_cases(self) -> list[tuple[str, int]]:
+        return [(scene, seed) for scene in self.follow_scenes for seed in range(self.follow_seeds)]
+
     def command(self) -> str:
         """The command line that regenerates this sweep (the report's header)."""
         names = [name if n == self.seeds else f"{name}:{n}" for name, n in self.scenarios]
+        follow = f" --follow-seeds {self.follow_seeds}"
+        if self.follow_seeds:
+            follow = (f" --follow-scenes {' '.join(self.follow_scenes)} "
+                      f"--follow-trackers {' '.join(self.follow_trackers)}" + follow)
         return (f"pedcal report --scenarios {' '.join(names)} --seeds {self.seeds} "
-                f"--methods {' '.join(self.methods)} --out {self.out}")
+                f"--methods {' '.join(self.methods)}{follow} --out {self.out}")
 
     def to_dict(self) -> dict:
         return {"scenarios": [[name, n] for name, n in self.scenarios], "methods": list(self.methods),
-                "seeds": self.seeds, "out": self.out, "command": self.command()}
+                "seeds": self.seeds, "out": self.out, "follow_scenes": list(self.follow_scenes),
+                "follow_trackers": list(self.follow_trackers), "follow_seeds": self.follow_seeds,
+                "command": self.command()}
 
     @classmethod
     def from_dict(cls, d: dict) -> SweepConfig:
         return cls(scenarios=[(str(a), int(b)) for a, b in d["scenarios"]], methods=list(d["methods"]),
-                   seeds=int(d["seeds"]), out=str(d["out"]))
+                   seeds=int(d["seeds"]), out=str(d["out"]),
+                   follow_scenes=list(d.get("follow_scenes", DEFAULT_FOLLOW_SCENES)),
+                   follow_trackers=list(d.get("follow_trackers", DEFAULT_FOLLOW_TRACKERS)),
+                   follow_seeds=int(d.get("follow_seeds", 0)))
 
 
 def parse_scenarios(specs, seeds: int) -> list[tuple[str, int]]:
@@ -196,6 +218,41 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
                 bounds=crlb_records(sim.calib, scenario=scenario, seed=seed), timings=timings)
 
 
+def run_follow_case(scene: str, seed: int, trackers: list[str]) -> dict:
+    """Run the following episode (scene, seed) with each tracker (``pedcal.track.follow.run_follow``);
+    one record of the follow metrics per tracker."""
+    from pedcal.track.follow import run_follow
+
+    rows = []
+    for tracker in trackers:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = run_follow(scene, tracker=tracker, seed=seed).to_dict()
+        rows.append(dict(scene=scene, seed=seed, tracker=tracker,
+                         **{k: (None if m.get(k) is None else float(m[k])) for k in FOLLOW_KEYS}))
+    return dict(kind="follow", scene=scene, seed=seed, tracking=rows)
+
+
+def check_follow(scenes, trackers) -> tuple[list[str], list[str]]:
+    """The following scenes and trackers, checked against the simulator's and the tracker registry."""
+    from pedcal.sim.follow import SCENARIOS
+    from pedcal.track.tracker import TRACKERS
+
+    for name in scenes:
+        if name not in SCENARIOS:
+            raise PedcalInputError(f"--follow-scenes: unknown scene {name!r}; expected one of {', '.join(SCENARIOS)}")
+    for name in trackers:
+        if name not in TRACKERS:
+            raise PedcalInputError(f"--follow-trackers: unknown tracker {name!r}; expected one of "
+                                   f"{', '.join(TRACKERS)}")
+    return list(scenes), list(trackers)
+
+
+def _run_task(task: tuple) -> dict:
+    """One sweep task: ("calib", scenario, seed, methods, keep_heads) or ("follow", scene, seed, trackers)."""
+    return run_case(*task[1:]) if task[0] == "calib" else run_follow_case(*task[1:])
+
+
 def crlb_records(log, **labels) -> list[dict]:
     """Per sensor the Cramér-Rao bound (1-sigma per world axis and the 3-D sqrt(trace), mm) of its
     position from the calibration log (``pedcal.calib.crlb``, the factor graph's noise models)."""
@@ -220,15 +277,19 @@ def run_sweep(config: SweepConfig, *, scheduler: str | None = None, workers: int
     """Run every (scenario, seed) task of ``config``: serially, on the Dask scheduler at
     ``scheduler`` (an address), or on a LocalCluster of ``workers`` processes (default: the cores
     present), one thread each. Returns the task results sorted by (scenario order, seed)."""
-    cases = config.cases()
     first_seed = {name: 0 for name, _ in config.scenarios}
-    args = [(name, seed, list(config.methods), seed == first_seed[name]) for name, seed in cases]
+    tasks = [("calib", name, seed, list(config.methods), seed == first_seed[name]) for name, seed in config.cases()]
+    tasks += [("follow", scene, seed, list(config.follow_trackers)) for scene, seed in config.follow_cases()]
     t0 = time.perf_counter()
     done: list[dict] = []
+
+    def label(r: dict) -> str:
+        return f"{r['scenario']} seed {r['seed']}" if "scenario" in r else f"following {r['scene']} seed {r['seed']}"
+
     if serial:
-        for k, a in enumerate(args, 1):
-            done.append(run_case(*a))
-            _progress(progress, f"{k}/{len(args)} done ({a[0]} seed {a[1]}, {time.perf_counter() - t0:.0f} s)")
+        for k, task in enumerate(tasks, 1):
+            done.append(_run_task(task))
+            _progress(progress, f"{k}/{len(tasks)} done ({label(done[-1])}, {time.perf_counter() - t0:.0f} s)")
     else:
         from dask.distributed import Client, LocalCluster, as_completed
 
@@ -240,15 +301,19 @@ def run_sweep(config: SweepConfig, *, scheduler: str | None = None, workers: int
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
         try:
             with Client(scheduler or cluster) as client:
-                futures = [client.submit(run_case, *a, key=f"pedcal-report-{a[0]}-{a[1]}", pure=False)
-                           for a in args]
+                futures = [client.submit(_run_task, task, key=f"pedcal-report-{task[0]}-{task[1]}-{task[2]}",
+                                         pure=False) for task in tasks]
                 for k, fut in enumerate(as_completed(futures), 1):
                     r = fut.result()
                     done.append(r)
-                    _progress(progress, f"{k}/{len(args)} done ({r['scenario']} seed {r['seed']}, "
-                                        f"{time.perf_counter() - t0:.0f} s)")
+                    _progress(progress, f"{k}/{len(tasks)} done ({label(r)}, {time.perf_counter() - t0:.0f} s)")
         finally:
             if cluster is not None:
                 cluster.close()
     order = {name: i for i, (name, _) in enumerate(config.scenarios)}
-    return sorted(done, key=lambda r: (order[r["scenario"]], r["seed"]))
+    follow_order = {name: i for i, name in enumerate(config.follow_scenes)}
+
+    def key(r: dict) -> tuple:
+        return (0, order[r["scenario"]], r["seed"]) if "scenario" in r else (1, follow_order[r["scene"]], r["seed"])
+
+    return sorted(done, key=key)
