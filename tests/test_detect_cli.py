@@ -9,6 +9,7 @@ import pytest
 from pedcal.cli import main
 from pedcal.errors import PedcalInputError
 from pedcal.track import detection as det
+from pedcal.track.adaboost import RealAdaBoost
 from pedcal.track.features import N_FEATURES
 from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
 from pedcal.track.train import choose_threshold, train_detector
@@ -162,3 +163,15 @@ def test_threshold_balances_recall_and_precision_against_their_targets():
     assert t == 0.0 and recall == 1.0 and precision == pytest.approx(0.8)  # min(1/0.95, 0.8/0.97) is the best
     t, recall, precision = choose_threshold(np.array([1.0, 1.0, 0.0]), np.array([1, 0, 0]))
     assert t == 1.0 and recall == 1.0 and precision == 0.5  # tied scores are cut together
+
+
+def test_a_model_of_another_feature_set_is_an_input_error(tmp_path, capsys):
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(80, 213))  # Kidono's features alone, as older model files hold
+    old = RealAdaBoost(n_rounds=3).fit(X, (X[:, 0] > 0).astype(int))
+    old.save(tmp_path / "old.npz")
+    path = tmp_path / "f.bin"
+    person_cloud(rng).astype("<f4").tofile(path)
+    assert main(["detect", str(path), "--model", str(tmp_path / "old.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "old.npz" in err and "213" in err and "train-detector" in err and "Traceback" not in err

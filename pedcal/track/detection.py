@@ -27,8 +27,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
+from pedcal.errors import PedcalInputError
 from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import features_matrix
+from pedcal.track.features import N_FEATURES, features_matrix
 
 CELL_SIZE_M = 0.1
 MIN_CELL_SPAN_M = 0.2
@@ -232,7 +233,11 @@ def load_model(path: str | Path | None = None) -> RealAdaBoost:
     """The classifier at ``path`` (default: the shipped ``pedcal/data/detector_model.npz``)."""
     p = Path(path) if path is not None else DEFAULT_MODEL_PATH
     mtime = p.stat().st_mtime if p.exists() else 0.0
-    return _load_cached(str(p), mtime)
+    model = _load_cached(str(p), mtime)
+    if model.n_features_ != N_FEATURES:
+        raise PedcalInputError(f"the model was trained on {model.n_features_} features per cluster, the "
+                               f"detector computes {N_FEATURES}; retrain it with pedcal train-detector", path=p)
+    return model
 
 
 def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
