@@ -20,10 +20,22 @@ PAPER = {  # Kimoto et al., Tables I and II: sensor position RMS, head tracking 
 METHOD_ORDER = ("installed", "alternative", "gridsearch", "closedform", "factorgraph")
 
 
-def run_methods(sim, out_dir: Path, progress: bool = True) -> dict:
-    """Calibrate ``sim.calib`` with every method, evaluate on ``sim.eval``; returns the results."""
+def calibrate_scored(sim, method: str):
+    """``method``'s extrinsics for ``sim.calib`` ("installed": the log's own), its solve time (s) and,
+    when the method picks the robot's observations, their precision/recall against the simulator's
+    labels. Shared by the demo and the report's sweep."""
     from pedcal.calib import calibrate
     from pedcal.calib.association import score_association
+
+    if method == "installed":
+        return sim.calib.sensors, 0.0, None
+    res = calibrate(sim.calib, method=method, progress=False)
+    assoc = score_association(sim.calib, res.is_robot) if res.is_robot is not None else None
+    return res.network, res.runtime_s, assoc
+
+
+def run_methods(sim, out_dir: Path, progress: bool = True) -> dict:
+    """Calibrate ``sim.calib`` with every method, evaluate on ``sim.eval``; returns the results."""
     from pedcal.io import write_sensors_yaml
     from pedcal.metrics import evaluate
 
@@ -31,12 +43,8 @@ def run_methods(sim, out_dir: Path, progress: bool = True) -> dict:
     for method in METHOD_ORDER:
         if progress:
             print(f"[demo] {method} ...", file=sys.stderr, flush=True)
-        if method == "installed":
-            network, runtime, assoc = sim.calib.sensors, 0.0, None
-        else:
-            res = calibrate(sim.calib, method=method, progress=False)
-            network, runtime = res.network, res.runtime_s
-            assoc = score_association(sim.calib, res.is_robot) if res.is_robot is not None else None
+        network, runtime, assoc = calibrate_scored(sim, method)
+        if method != "installed":
             write_sensors_yaml(network, out_dir / f"calibrated_{method}.yaml")
         ev = evaluate(sim.eval, network)
         results[method] = dict(sensor_position_rms_mm=ev.sensor_position_rms_mm["combined"],

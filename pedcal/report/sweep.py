@@ -177,8 +177,7 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
     Returns plain records: ``runs`` (one per method), ``sensors`` (one per method and sensor),
     ``heads`` / ``robot`` (the calibrated head tracks and the true robot path, when
     ``keep_heads``) and ``timings`` (solve times, kept apart: they vary from run to run)."""
-    from pedcal.calib import calibrate
-    from pedcal.calib.association import score_association
+    from pedcal.demo import calibrate_scored
     from pedcal.metrics import evaluate, robot_rows
     from pedcal.sim import simulate_logs
 
@@ -190,12 +189,7 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
         with warnings.catch_warnings():
             # What a method cannot estimate is in each sensor's status, which the report counts.
             warnings.simplefilter("ignore", DegenerateDataWarning)
-            if method == "installed":
-                network, runtime_s, assoc = sim.calib.sensors, 0.0, None
-            else:
-                res = calibrate(sim.calib, method=method, progress=False)
-                network, runtime_s = res.network, res.runtime_s
-                assoc = score_association(sim.calib, res.is_robot) if res.is_robot is not None else None
+            network, runtime_s, assoc = calibrate_scored(sim, method)
             ev = evaluate(sim.eval, network)
         statuses = [s.status or "installed" for s in network]
         rms = ev.sensor_position_rms_mm
@@ -230,7 +224,7 @@ def run_follow_case(scene: str, seed: int, trackers: list[str]) -> dict:
             m = run_follow(scene, tracker=tracker, seed=seed).to_dict()
         rows.append(dict(scene=scene, seed=seed, tracker=tracker,
                          **{k: (None if m.get(k) is None else float(m[k])) for k in FOLLOW_KEYS}))
-    return dict(kind="follow", scene=scene, seed=seed, tracking=rows)
+    return dict(scene=scene, seed=seed, tracking=rows)
 
 
 def check_follow(scenes, trackers) -> tuple[list[str], list[str]]:
