@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -137,6 +138,8 @@ def cmd_follow(args) -> int:
 # ------------------------------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pedcal", description=__doc__.splitlines()[0])
+    p.add_argument("-q", "--quiet", dest="log_quiet", action="store_true", help="warnings and errors only")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more detail (debug messages)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a scenario: a calibration log and an evaluation log")
@@ -236,8 +239,33 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes to the current ``sys.stderr`` (not the one at creation), so redirections apply."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value):
+        pass
+
+
+def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
+    """The command line's logging: the ``pedcal`` logger to stderr, INFO (progress) by default,
+    WARNING with ``-q``, DEBUG with ``-v``."""
+    logger = logging.getLogger("pedcal")
+    for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
+        logger.removeHandler(h)
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(quiet=args.log_quiet, verbose=args.verbose)
     try:
         return int(args.func(args) or 0)
     except PedcalInputError as e:
