@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -75,7 +76,12 @@ def cmd_calibrate(args) -> int:
 def cmd_import_bag(args) -> int:
     from pedcal.io.ros import import_bag
 
-    written = import_bag(args.bag, args.output, amcl_topic=args.amcl_topic, odom_topic=args.odom_topic)
+    pose_sigma = None if args.pose_sigma is None else (args.pose_sigma[0], math.radians(args.pose_sigma[1]))
+    written = import_bag(args.bag, args.output, amcl_topic=args.amcl_topic, odom_topic=args.odom_topic,
+                         sensors=args.sensors, head_offset_m=args.head_offset, localization=args.localization,
+                         localization_topic=args.localization_topic, map_frame=args.map_frame,
+                         base_frame=args.base_frame, head_frame=args.head_frame, people=args.people,
+                         people_frame=args.people_frame, pose_sigma=pose_sigma)
     for path, n in written.items():
         print(f"wrote {path} ({n} rows)")
     return 0
@@ -165,11 +171,27 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_calibrate)
 
-    s = sub.add_parser("import-bag", help="ROS 1/2 bag -> robot.csv / odometry.csv")
+    s = sub.add_parser("import-bag", help="ROS 1/2 bag or rostopic echo -p CSV -> a log directory")
     s.add_argument("bag", type=Path)
     s.add_argument("-o", "--output", required=True, type=Path, help="log directory")
     s.add_argument("--amcl-topic", default=None)
     s.add_argument("--odom-topic", default=None)
+    s.add_argument("--localization", default="auto", choices=["auto", "amcl", "odometry", "tf"],
+                   help="robot.csv from /amcl_pose, an Odometry topic in the map frame, or /tf map -> base_link")
+    s.add_argument("--localization-topic", default=None, help="the AMCL or map-frame Odometry topic")
+    s.add_argument("--map-frame", default="map")
+    s.add_argument("--base-frame", default="base_link")
+    s.add_argument("--head-frame", default=None, help="head offset from /tf (base frame -> this frame)")
+    s.add_argument("--head-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="head top in the base frame (m), written to meta.yaml")
+    s.add_argument("--people", action="append", default=None, metavar="TOPIC=SENSOR",
+                   help="people-tracker topic of one ceiling sensor -> observations.csv (repeatable)")
+    s.add_argument("--people-frame", default="auto", choices=["auto", "world", "sensor", "optical"],
+                   help="frame of the people points (auto: from each header)")
+    s.add_argument("--sensors", type=Path, default=None,
+                   help="installed sensors.yaml: maps sensor/optical-frame points, copied into the log")
+    s.add_argument("--pose-sigma", type=float, nargs=2, default=None, metavar=("M", "DEG"),
+                   help="localization sigma when the source has no covariance (/tf)")
     s.set_defaults(func=cmd_import_bag)
 
     s = sub.add_parser("import-people", help="recorded pedestrian file (ATC, ETH/UCY, THOR) -> people CSV")
