@@ -11,6 +11,8 @@ Logs and files (docs/LOG_FORMAT.md):
     read_people_csv, write_people_csv      people trajectories ``t, person, x, y``
     read_pedestrians                       ATC, ETH/UCY, THOR recordings -> people table
     read_bag, import_bag                   ROS 1 / ROS 2 bags (and ``rostopic echo -p`` CSV) -> log tables
+    export_extrinsics                      calibrated extrinsics -> ROS static-transform launch, URDF, JSON
+    write_tum                              robot and head paths -> TUM trajectory files (for evo)
 
 Estimation and scoring:
     simulate, simulate_logs                seeded simulated logs (to disk / in memory)
@@ -44,6 +46,8 @@ _EXPORTS = {
     "read_pedestrians": ("pedcal.io.pedestrians", "read_pedestrians"),
     "read_bag": ("pedcal.io.ros", "read_bag"),
     "import_bag": ("pedcal.io.ros", "import_bag"),
+    "export_extrinsics": ("pedcal.io.export", "export_extrinsics"),
+    "write_tum": ("pedcal.io.tum", "write_tum"),
     "Log": ("pedcal.model", "Log"),
     "Meta": ("pedcal.model", "Meta"),
     "SensorNetwork": ("pedcal.model", "SensorNetwork"),

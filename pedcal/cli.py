@@ -87,6 +87,26 @@ def cmd_import_bag(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    if args.format == "tum":
+        from pedcal.io import read_log, read_sensors_yaml
+        from pedcal.io.tum import write_tum
+
+        log = read_log(args.input)
+        nets = {p.stem: read_sensors_yaml(p) for p in args.extrinsics}
+        for name, path in write_tum(log, args.output, nets).items():
+            print(f"wrote {path} ({name})")
+        return 0
+    from pedcal.io.export import export_extrinsics
+
+    if args.extrinsics:
+        raise PedcalInputError("--extrinsics goes with --format tum; give the calibrated YAML as INPUT",
+                               path=args.input)
+    path = export_extrinsics(args.input, args.output, args.format, ros_version=args.ros, prefix=args.prefix)
+    print(f"wrote {path}")
+    return 0
+
+
 def cmd_import_people(args) -> int:
     from pedcal.io import write_people_csv
     from pedcal.io.pedestrians import read_pedestrians
@@ -193,6 +213,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--pose-sigma", type=float, nargs=2, default=None, metavar=("M", "DEG"),
                    help="localization sigma when the source has no covariance (/tf)")
     s.set_defaults(func=cmd_import_bag)
+
+    s = sub.add_parser("export", help="calibrated extrinsics as a ROS launch file, URDF or JSON; a log's paths as TUM")
+    s.add_argument("input", type=Path, help="calibrated YAML (tf-launch, urdf, json) or a log directory (tum)")
+    s.add_argument("--format", required=True, choices=["tf-launch", "urdf", "json", "tum"])
+    s.add_argument("-o", "--output", required=True, type=Path, help="output file (tum: a directory)")
+    s.add_argument("--ros", type=int, default=1, choices=[1, 2], help="tf-launch: ROS 1 or ROS 2 launch XML")
+    s.add_argument("--prefix", default="", help="child frame = prefix + sensor id")
+    s.add_argument("--extrinsics", action="append", type=Path, default=[],
+                   help="tum: also the head path seen with these extrinsics (repeatable)")
+    s.set_defaults(func=cmd_export)
 
     s = sub.add_parser("import-people", help="recorded pedestrian file (ATC, ETH/UCY, THOR) -> people CSV")
     s.add_argument("input", type=Path)
