@@ -111,7 +111,7 @@ def cmd_import_people(args) -> int:
     from pedcal.io import write_people_csv
     from pedcal.io.pedestrians import read_pedestrians
 
-    people = read_pedestrians(args.input, kind=args.kind)
+    people = read_pedestrians(args.input, kind=args.kind, fps=args.fps)
     write_people_csv(people, args.output)
     print(f"wrote {args.output} ({len(people)} rows, {people['person'].nunique()} people)")
     return 0
@@ -228,6 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("input", type=Path)
     s.add_argument("-o", "--output", required=True, type=Path)
     s.add_argument("--kind", default="auto", choices=["auto", "atc", "eth_ucy", "thor", "people"])
+    s.add_argument("--fps", type=float, default=None,
+                   help="frame rate of a frame-numbered (ETH/UCY) file whose name does not identify the recording")
     s.set_defaults(func=cmd_import_people)
 
     s = sub.add_parser("demo", help="simulate the paper scenario, calibrate it, print the accuracy table")
