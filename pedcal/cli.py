@@ -293,25 +293,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-class _StderrHandler(logging.StreamHandler):
-    """Writes to the current ``sys.stderr`` (not the one at creation), so redirections apply."""
-
-    @property
-    def stream(self):
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, _value):
-        pass
-
-
 def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
-    """The command line's logging: the ``pedcal`` logger to stderr, INFO (progress) by default,
-    WARNING with ``-q``, DEBUG with ``-v``."""
+    """The command line's logging: the ``pedcal`` logger to stderr, INFO (progress, drawn as bars
+    on a terminal) by default, WARNING with ``-q``, DEBUG with ``-v``."""
+    from pedcal.progress import ProgressHandler
+
     logger = logging.getLogger("pedcal")
-    for h in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
+    for h in [h for h in logger.handlers if isinstance(h, ProgressHandler)]:
         logger.removeHandler(h)
-    handler = _StderrHandler()
+    handler = ProgressHandler()
     handler.setFormatter(logging.Formatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
     logger.addHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)

@@ -104,3 +104,33 @@ def test_compare_extrinsics_and_follow_take_objects(small_sim, tmp_path):
                            "x": [0.8 * v for v in t] + [6.0 - 0.5 * v for v in t], "y": [0.0] * 150 + [1.5] * 150})
     res = pedcal.follow(None, people_csv=people, target_id="a")
     assert res.metrics["frames"] > 0 and res.metrics["target_correct_fraction"] > 0.5
+
+
+def test_progress_bar_on_a_terminal_plain_lines_elsewhere(monkeypatch):
+    import io
+
+    from pedcal.progress import ProgressHandler
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    log = logging.getLogger("pedcal.test_progress")
+    log.propagate = False
+    handler = ProgressHandler()
+    log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    try:
+        for stream, tty in ((Tty(), True), (io.StringIO(), False)):
+            monkeypatch.setattr(sys, "stderr", stream)
+            for k in range(1, 5):
+                log.info(f"step {k}", extra={"progress": (k, 4)})
+            log.info("done")
+            out = stream.getvalue()
+            if tty:      # one line redrawn in place, closed at 4/4, then the plain record
+                assert out.count("\r") == 4 and "step 2 [" + "#" * 12 + "." * 12 + "]  50%" in out
+                assert out.endswith("step 4 [" + "#" * 24 + "] 100%\ndone\n")
+            else:
+                assert out == "step 1\nstep 2\nstep 3\nstep 4\ndone\n"
+    finally:
+        log.removeHandler(handler)

@@ -386,7 +386,8 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
                 found[sid] = (R, t)
                 is_robot[sd.rows[sel]] = True
             if progress:
-                logging.getLogger(__name__).info(f"association pass 1: sensor {sid} ({i + 1}/{len(per_sensor)})")
+                logging.getLogger(__name__).info(f"association pass 1: sensor {sid} ({i + 1}/{len(per_sensor)})",
+                                                 extra={"progress": (i + 1, len(per_sensor))})
 
         # one latency for the whole log, pooled over the sensors
         latency_s = estimate_latency(log, is_robot, max_latency_s=params["max_latency_s"], p_sensor=p_sensor)

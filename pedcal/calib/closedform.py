@@ -88,7 +88,8 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             rows = use[rows_of.get(s.id, np.zeros(0, int))]
             n = len(rows)
             if progress:
-                logging.getLogger(__name__).info(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs")
+                logging.getLogger(__name__).info(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs",
+                                                 extra={"progress": (i + 1, len(log.sensors))})
             if n < min_pairs:
                 sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n,
                                                     status="no-data"))

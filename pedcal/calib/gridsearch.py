@@ -156,7 +156,8 @@ class _Progress:
         pct = int(100 * fraction) // 10 * 10
         if pct != self.last or fraction >= 1.0:
             self.last = pct
-            logging.getLogger(__name__).info(f"gridsearch {self.label}: {stage} {pct:3d}%")
+            logging.getLogger(__name__).info(f"gridsearch {self.label}: {stage} {pct:3d}%",
+                                             extra={"progress": (pct, 100)})
 
 
 def _first_min(values: np.ndarray, flat: np.ndarray) -> tuple[float, int]:

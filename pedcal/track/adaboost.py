@@ -89,7 +89,7 @@ class RealAdaBoost:
             hs.append(h)
             if progress and (t + 1) % 25 == 0:
                 logging.getLogger(__name__).info(f"  boosting round {t + 1}/{self.n_rounds}: feature {f}, "
-                                                 f"Z={Z[f]:.4f}")
+                                                 f"Z={Z[f]:.4f}", extra={"progress": (t + 1, self.n_rounds)})
         self.feature_ = np.asarray(feats, dtype=np.int64)
         self.edges_ = edges[self.feature_]
         self.h_ = np.vstack(hs)

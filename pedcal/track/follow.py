@@ -231,7 +231,7 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
         pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, episode.occupancy)
         if progress and (k % 40 == 0 or k == n_frames - 1):
             logging.getLogger(__name__).info(f"follow {episode.name}: frame {k + 1}/{n_frames} t={t:.1f}s "
-                                             f"state={out.state}")
+                                             f"state={out.state}", extra={"progress": (k + 1, n_frames)})
     log = pd.DataFrame(rows)
     log["target_track_id"] = log["target_track_id"].astype("Int64")
     log["claimed_person"] = log["claimed_person"].astype(object)

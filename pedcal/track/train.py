@@ -129,7 +129,7 @@ def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *
         if progress and ((k + 1) % 250 == 0 or k + 1 == frames):
             n = sum(len(v) for v in labels)
             logging.getLogger(__name__).info(f"  simulated {k + 1}/{frames} frames, {n} gated clusters "
-                                             f"({time.monotonic() - t0:.0f} s)")
+                                             f"({time.monotonic() - t0:.0f} s)", extra={"progress": (k + 1, frames)})
     if not feats:
         return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
     return np.vstack(feats), np.concatenate(labels)
