@@ -83,7 +83,7 @@ def cmd_import_bag(args) -> int:
                          base_frame=args.base_frame, head_frame=args.head_frame, people=args.people,
                          people_frame=args.people_frame, pose_sigma=pose_sigma)
     for path, n in written.items():
-        print(f"wrote {path} ({n} rows)")
+        print(f"wrote {path} ({n} {'rows' if path.suffix in ('.csv', '.parquet') else 'entries'})")
     return 0
 
 
@@ -205,7 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--head-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="head top in the base frame (m), written to meta.yaml")
     s.add_argument("--people", action="append", default=None, metavar="TOPIC=SENSOR",
-                   help="people-tracker topic of one ceiling sensor -> observations.csv (repeatable)")
+                   help="people-tracker topic of one ceiling sensor -> observations.csv (repeatable; SENSOR "
+                        "defaults to the topic name)")
     s.add_argument("--people-frame", default="auto", choices=["auto", "world", "sensor", "optical"],
                    help="frame of the people points (auto: from each header)")
     s.add_argument("--sensors", type=Path, default=None,

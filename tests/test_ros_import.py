@@ -19,6 +19,7 @@ from pedcal.io.ros import (
     POSE_ARRAY_MSGTYPE,
     SPENCER_MSGTYPE,
     TF_MSGTYPE,
+    import_bag,
     read_bag,
     read_rostopic_amcl_csv,
 )
@@ -237,3 +238,62 @@ def test_real_amcl_csv_through_import_bag(shared_data, tmp_path):
     robot = pd.read_csv(tmp_path / "log" / "robot.csv")
     direct = read_rostopic_amcl_csv(path).sort_values("t").reset_index(drop=True)
     pd.testing.assert_frame_equal(robot, direct, check_exact=True)
+
+
+@pytest.mark.parametrize("version", [1, 2], ids=["ros1", "ros2"])
+def test_simulated_log_through_a_bag_calibrates_alike(tmp_path, version):
+    """A simulated log published as a deployment would (AMCL, wheel odometry, one people_msgs topic
+    per ceiling sensor, one sensor reporting in its own frame) comes back through import-bag as the
+    same tables, and calibrates to the same extrinsics."""
+    import pedcal
+    from tests.rosbag_fixture import BagWriter
+
+    log = pedcal.simulate_logs("sparse", seed=1, duration_s=120).calib
+    path = tmp_path / ("sim.bag" if version == 1 else "sim_ros2")
+    local_sensor = log.sensors.ids[0]
+    with BagWriter(path, version) as w:
+        ts = w.ts
+        for r in log.robot.itertuples():
+            cov = np.zeros((6, 6))
+            for (i, j), v in {(0, 0): r.cov_xx, (0, 1): r.cov_xy, (0, 5): r.cov_xyaw, (1, 1): r.cov_yy,
+                              (1, 5): r.cov_yyaw, (5, 5): r.cov_yawyaw}.items():
+                cov[i, j] = cov[j, i] = v
+            msg = make(ts, AMCL_MSGTYPE, header=header(ts, r.t, "map"),
+                       pose=make(ts, "geometry_msgs/msg/PoseWithCovariance",
+                                 pose=pose(ts, (r.x, r.y, 0), q_yaw(r.yaw)), covariance=cov.reshape(36)))
+            w.write("/amcl_pose", AMCL_MSGTYPE, r.t, msg)
+        for r in log.odometry.itertuples():
+            twc = make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=pose(ts, (r.x, r.y, 0), q_yaw(r.yaw)))
+            w.write("/odom", ODOM_MSGTYPE, r.t, make(ts, ODOM_MSGTYPE, header=header(ts, r.t, "odom"),
+                                                     pose=twc))
+        obs = log.observations
+        for (t, sid), g in obs.groupby(["t", "sensor"], sort=True):
+            xyz = g[["x", "y", "z"]].to_numpy()
+            frame = "map"
+            if sid == local_sensor:
+                xyz, frame = log.sensors[sid].to_sensor(xyz), f"{sid}_link"
+            people = [make(ts, "people_msgs/msg/Person", name=str(k), position=point(ts, p))
+                      for k, p in zip(g["track"], xyz, strict=True)]
+            w.write(f"/{sid}/people", PEOPLE_MSGTYPE, t, make(ts, PEOPLE_MSGTYPE, header=header(ts, t, frame),
+                                                             people=people))
+    out = tmp_path / "log"
+    import_bag(path, out, sensors=log.sensors, head_offset_m=log.meta.head_offset_m,
+               people={f"/{s}/people": s for s in log.sensors.ids})
+    back = read_log(out)
+    ref = log.robot.sort_values("t").reset_index(drop=True)
+    np.testing.assert_allclose(back.robot["t"], ref["t"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(back.robot[["x", "y"]], ref[["x", "y"]], rtol=0, atol=0)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (back.robot["yaw"] - ref["yaw"]))), 0, atol=1e-12)
+    np.testing.assert_allclose(back.robot.iloc[:, 4:], ref.iloc[:, 4:], rtol=0, atol=0)
+    assert len(back.odometry) == len(log.odometry)
+    key = ["sensor", "track", "t"]
+    a = back.observations.sort_values(key).reset_index(drop=True)
+    b = log.observations.astype({"track": str}).sort_values(key).reset_index(drop=True)
+    assert len(a) == len(b) and (a["sensor"] == b["sensor"]).all() and (a["track"] == b["track"]).all()
+    np.testing.assert_allclose(a[["x", "y", "z"]], b[["x", "y", "z"]], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.meta.head_offset_m, log.meta.head_offset_m)
+    direct = pedcal.calibrate(log, method="closedform").network
+    via_bag = pedcal.calibrate(back, method="closedform").network
+    for s in direct:
+        assert np.linalg.norm(via_bag[s.id].position_m - s.position_m) < 1e-3, s.id
+        assert via_bag[s.id].status == s.status

@@ -587,7 +587,10 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
     bag = Path(bag)
     network = read_sensors_yaml(sensors) if isinstance(sensors, (str, Path)) else sensors
     if _is_rostopic_csv(bag):
-        tables = BagLog(robot=read_rostopic_amcl_csv(bag), sources={"robot": str(bag)})
+        robot = read_rostopic_amcl_csv(bag)
+        if not (robot[["cov_xx", "cov_yy", "cov_yawyaw"]].to_numpy() > 0).all():
+            robot = _fill_covariance(robot, options.get("pose_sigma"), f"the rostopic CSV {bag.name}")
+        tables = BagLog(robot=robot, sources={"robot": str(bag)})
     else:
         tables = read_bag(bag, amcl_topic=amcl_topic, odom_topic=odom_topic, sensors=network, **options)
     if tables.robot is None:
@@ -623,6 +626,9 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
         written[p] = 1
     if network is not None:
         written[write_sensors_yaml(network, out_dir / "sensors.yaml")] = len(network)
+    elif not (out_dir / "sensors.yaml").is_file():
+        logging.getLogger(__name__).warning(f"{out_dir} has no sensors.yaml: add the installed extrinsics "
+                                            "(--sensors) before calibrating")
     for name, src in tables.sources.items():
         logging.getLogger(__name__).info(f"import-bag: {name} from {src}")
     return written
