@@ -344,7 +344,7 @@ def tf_poses(edges: dict[tuple[str, str], _Edge], source: str, target: str, path
 # ----------------------------------------------------------------------------------------- people
 def _people_points(msgtype: str, msg, t_log_s: float) -> list[tuple[float, str, str, tuple[float, float, float]]]:
     """(t, track, frame, point) of each person in one tracker message; ``track`` "" when the type has none."""
-    t = _stamp_s(msg.header.stamp) if hasattr(msg, "header") else t_log_s
+    t = (_stamp_s(msg.header.stamp) if hasattr(msg, "header") else 0.0) or t_log_s   # unstamped: receive time
     frame = msg.header.frame_id.lstrip("/") if hasattr(msg, "header") else ""
     if msgtype == PEOPLE_MSGTYPE:
         return [(t, str(p.name), frame, (p.position.x, p.position.y, p.position.z)) for p in msg.people]
