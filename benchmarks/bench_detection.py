@@ -1,4 +1,4 @@
-"""Speed of ``pedcal.track.detection.detect`` on simulated frames of the paper's FX8 pair.
+"""Speed of ``pedcal.detect.detection.detect`` on simulated frames of the paper's FX8 pair.
 
 Run: .venv/bin/python benchmarks/bench_detection.py [--frames N] [--repeats R]
 Prints the points per frame and the median / p90 time of one ``detect`` call (segmentation,
@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from pedcal.track.detection import detect, load_model, segment
-from pedcal.track.train import EVAL_STREAM, simulated_frame
+from pedcal.detect.detection import detect, load_model, segment
+from pedcal.detect.train import EVAL_STREAM, simulated_frame
 
 
 def main() -> None:

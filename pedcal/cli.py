@@ -97,19 +97,19 @@ def cmd_demo(args) -> int:
 
 
 def cmd_train_detector(args) -> int:
-    from pedcal.track.train import train_detector_cli
+    from pedcal.detect.train import train_detector_cli
 
     return train_detector_cli(args)
 
 
 def cmd_detect(args) -> int:
-    from pedcal.track.detect_cli import detect_cli
+    from pedcal.detect.detect_cli import detect_cli
 
     return detect_cli(args)
 
 
 def cmd_detect_eval(args) -> int:
-    from pedcal.track.detect_cli import detect_eval_cli
+    from pedcal.detect.detect_cli import detect_eval_cli
 
     return detect_eval_cli(args)
 

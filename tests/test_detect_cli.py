@@ -7,12 +7,12 @@ import open3d as o3d
 import pytest
 
 from pedcal.cli import main
+from pedcal.detect import detection as det
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.features import N_FEATURES
+from pedcal.detect.pointcloud_io import floor_referenced, read_point_cloud
+from pedcal.detect.train import choose_threshold, train_detector
 from pedcal.errors import PedcalInputError
-from pedcal.track import detection as det
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import N_FEATURES
-from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
-from pedcal.track.train import choose_threshold, train_detector
 
 
 def person_cloud(rng, cx=2.0, cy=0.5, n=1500, with_floor=True):

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from pedcal.track import detection as det
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import N_FEATURES
+from pedcal.detect import detection as det
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.features import N_FEATURES
 
 
 def box_surface(rng, cx, cy, w, d, h, yaw, n=3000):

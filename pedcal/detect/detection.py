@@ -10,7 +10,7 @@
    calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
 6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m;
 7. the RealAdaBoost classifier on Kidono et al.'s 213 features and 47 metric height profiles
-   (``pedcal.track.features``).
+   (``pedcal.detect.features``).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
 and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
@@ -27,9 +27,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.features import N_FEATURES, features_matrix
 from pedcal.errors import PedcalInputError
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import N_FEATURES, features_matrix
 
 CELL_SIZE_M = 0.1
 MIN_CELL_SPAN_M = 0.2

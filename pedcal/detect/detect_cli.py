@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedcal.detect.detection import Detection, detect, load_model
+from pedcal.detect.pointcloud_io import floor_referenced, read_point_cloud
 from pedcal.errors import PedcalInputError
-from pedcal.track.detection import Detection, detect, load_model
-from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
 
 MATCH_RADIUS_M = 0.5
 MIN_VISIBLE_POINTS = 10
@@ -56,15 +56,15 @@ def match_detections(det_xy: np.ndarray, truth_xy: np.ndarray, radius_m: float =
 def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress: bool = False,
                       preset: str = "fx8") -> dict:
     """Recall and precision of ``detect`` on ``frames`` held-out simulated frames of the FX8 pair
-    (or of another LIDAR ``preset``, see ``pedcal.track.train.simulated_frame``).
+    (or of another LIDAR ``preset``, see ``pedcal.detect.train.simulated_frame``).
 
     Truth: the people with at least MIN_VISIBLE_POINTS points in the frame; a person detection
     within MATCH_RADIUS_M of one (one-to-one) is a true positive. Bands are by the true person's
     horizontal distance from the robot (recall) and the detection's (precision); ``poses`` gives
     the recall of static (standing, carrying) and walking people apart.
     """
+    from pedcal.detect.train import EVAL_STREAM, simulated_frame
     from pedcal.sim.lidar import LIDAR_PRESETS
-    from pedcal.track.train import EVAL_STREAM, simulated_frame
 
     if preset not in LIDAR_PRESETS:
         raise PedcalInputError(f"unknown LIDAR preset {preset!r}; expected one of {sorted(LIDAR_PRESETS)}",

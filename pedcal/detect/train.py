@@ -17,7 +17,7 @@ how the classifier carries over to a LIDAR it has not seen.
 
 Labelled clusters (``--labelled PATH``), either
 
-- an ``.npz`` with ``features`` (n, 260) float (``pedcal.track.features``) and ``labels`` (n,)
+- an ``.npz`` with ``features`` (n, 260) float (``pedcal.detect.features``) and ``labels`` (n,)
   int (1 = person, 0 = not), or
 - a directory with sub-directories ``person/`` and ``other/`` holding one cluster per file
   (``.bin``, ``.pcd``, ``.ply`` as ``pedcal detect`` reads them, or ``.npy`` (N, 4)
@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.detection import DEFAULT_MODEL_PATH, segment
+from pedcal.detect.features import N_FEATURES, features_matrix
 from pedcal.errors import PedcalInputError
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.detection import DEFAULT_MODEL_PATH, segment
-from pedcal.track.features import N_FEATURES, features_matrix
 
 TRAIN_STREAM = 7101
 EVAL_STREAM = 7202
@@ -136,7 +136,7 @@ def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *
 
 
 def _read_cluster(path: Path) -> np.ndarray:
-    from pedcal.track.pointcloud_io import read_point_cloud
+    from pedcal.detect.pointcloud_io import read_point_cloud
 
     if path.suffix.lower() == ".npy":
         try:
