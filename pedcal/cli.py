@@ -188,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--labelled", type=Path, default=None, help="a user's labelled clusters instead")
     s.set_defaults(func=cmd_train_detector)
 
-    s = sub.add_parser("detect", help="detect people in a point cloud file (.pcd, .ply, KITTI .bin)")
+    s = sub.add_parser("detect", help="detect people in a point cloud file (.pcd, .ply, KITTI .bin, .npy)")
     s.add_argument("file", type=Path)
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
@@ -200,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--preset", default="fx8", help="LIDAR preset (default: the paper's FX8 pair)")
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
+    s.add_argument("--real", type=Path, default=None,
+                   help="a folder of real frames (NAME.pcd + NAME.json boxes) instead of simulated ones")
+    s.add_argument("-o", "--output", type=Path, default=None, help="with --real: bird's-eye pictures here")
     s.set_defaults(func=cmd_detect_eval)
 
     s = sub.add_parser("report", help="accuracy report (methods x scenarios x seeds vs the papers' tables), "

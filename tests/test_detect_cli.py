@@ -12,7 +12,7 @@ from pedcal.detect.adaboost import RealAdaBoost
 from pedcal.detect.features import N_FEATURES
 from pedcal.detect.pointcloud_io import floor_referenced, read_point_cloud
 from pedcal.detect.train import choose_threshold, train_detector
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 
 
 def person_cloud(rng, cx=2.0, cy=0.5, n=1500, with_floor=True):
@@ -71,12 +71,16 @@ def test_bad_file_exits_2(tmp_path, capsys, content, suffix):
     assert main(["detect", str(tmp_path / "missing.bin")]) == 2
 
 
-def test_nan_points_are_rejected(tmp_path):
+def test_nan_points_are_dropped_and_counted(tmp_path):
     path = tmp_path / "nan.bin"
     pts = np.ones((10, 4), "<f4")
     pts[3, 2] = np.nan
     pts.tofile(path)
-    with pytest.raises(PedcalInputError, match="row 3"):
+    with pytest.warns(DegenerateDataWarning, match="1 points without a valid return"):
+        assert len(read_point_cloud(path)) == 9
+    pts[:, 0] = np.nan
+    pts.tofile(path)
+    with pytest.raises(PedcalInputError, match="no valid points"):
         read_point_cloud(path)
 
 

@@ -65,6 +65,20 @@ def test_flat_patch_has_no_object_cells_and_a_post_has_one():
     assert occ.sum() == 1
 
 
+def test_far_points_do_not_blow_up_the_grid_and_leave_the_clusters_unchanged():
+    rng = np.random.default_rng(5)
+    pts = floor(rng)
+    post = np.column_stack([np.full(50, 2.03), np.full(50, 0.03), np.linspace(0, 1.0, 50), np.zeros(50)])
+    pts = np.vstack([pts, post])
+    near = det.segment(pts)
+    far = np.vstack([pts, [[900.0, -900.0, 1.0, 0.0], [-900.0, 900.0, 0.5, 0.0]]])
+    ij, shape, _ = det.grid_cells(far, 0.1)
+    assert shape[0] * shape[1] <= det.MAX_GRID_CELLS  # not the 18000 x 18000 of a dense grid
+    got = det.segment(far)
+    assert [len(c.indices) for c in got] == [len(c.indices) for c in near]
+    assert [c.box for c in got] == [c.box for c in near]
+
+
 def test_clustering_separates_objects_and_gap_tolerance_joins_them():
     occ = np.zeros((10, 10), bool)
     occ[1:3, 1:3] = True

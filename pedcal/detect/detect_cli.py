@@ -6,13 +6,14 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pedcal.detect.detection import Detection, detect, load_model
-from pedcal.detect.pointcloud_io import floor_referenced, read_point_cloud
+from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, read_point_cloud_report
 from pedcal.errors import PedcalInputError
 
 MATCH_RADIUS_M = 0.5
@@ -20,16 +21,31 @@ MIN_VISIBLE_POINTS = 10
 DISTANCE_BANDS_M = ((0.0, 2.0), (2.0, 3.5), (3.5, 5.0))
 
 
-def detect_file(path: str | Path, model=None) -> tuple[list[Detection], float]:
-    """Detections in a .pcd/.ply/.bin file and the z shift that put its floor at z = 0."""
-    pts = read_point_cloud(path)
-    pts, dz = floor_referenced(pts)
-    return detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model), dz
+@dataclass
+class FileDetections:
+    """What ``detect_file`` found and how it read the file."""
+
+    detections: list[Detection]
+    points: np.ndarray  # (N, 4) floor-referenced points the detector saw
+    raw_points: np.ndarray  # (N, 4) the valid points in the file's frame
+    floor_shift_m: float  # added to the file's z to put the floor at z = 0
+    read: CloudRead
+
+
+def detect_file(path: str | Path, model=None) -> FileDetections:
+    """Detections in a .pcd/.ply/.bin/.npy file, its floor put at z = 0."""
+    read = read_point_cloud_report(path)
+    pts, dz = floor_referenced(read.points)
+    dets = detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model)
+    return FileDetections(dets, pts, read.points, dz, read)
 
 
 def detect_cli(args) -> int:
     """``pedcal detect FILE [--model M] [--json]``."""
-    dets, dz = detect_file(args.file, args.model)
+    res = detect_file(args.file, args.model)
+    dets, dz = res.detections, res.floor_shift_m
+    if res.read.summary():
+        print(f"{args.file}: {res.read.summary()}", file=sys.stderr)
     if args.json:
         print(json.dumps([d.to_dict() for d in dets], indent=2))
         return 0
@@ -113,7 +129,14 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
 
 
 def detect_eval_cli(args) -> int:
-    """``pedcal detect-eval [--frames N] [--seed S] [--model M] [--preset P] [--json]``."""
+    """``pedcal detect-eval [--frames N] [--seed S] [--model M] [--preset P] [--json]``, or
+    ``pedcal detect-eval --real DIR [-o PICTURES] [--json]`` on real labelled frames."""
+    if getattr(args, "real", None) is not None:
+        from pedcal.detect.real_eval import evaluate_real, format_real
+
+        res = evaluate_real(args.real, args.model, out_dir=args.output)
+        print(json.dumps(res, indent=2) if args.json else format_real(res))
+        return 0
     res = evaluate_detector(args.frames, args.seed, args.model, progress=not args.json,
                             preset=getattr(args, "preset", "fx8"))
     if args.json:

@@ -34,6 +34,7 @@ from pedcal.errors import PedcalInputError
 CELL_SIZE_M = 0.1
 MIN_CELL_SPAN_M = 0.2
 FLOOR_TOLERANCE_M = 0.05
+MAX_GRID_CELLS = 1 << 24  # a denser grid is compacted (``grid_cells``)
 MIN_CLUSTER_POINTS = 5  # fewer points above the floor: a fragment, not gated
 GATE_HEIGHT_M = (0.8, 2.0)
 GATE_MAX_WIDTH_M = 1.2
@@ -76,7 +77,23 @@ def grid_cells(points: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> tuple[np
     origin = xy.min(axis=0) if len(xy) else np.zeros(2)
     ij = np.floor((xy - origin) / cell_size_m).astype(np.int64)
     shape = tuple(int(v) for v in (ij.max(axis=0) + 1)) if len(ij) else (0, 0)
+    if shape[0] * shape[1] > MAX_GRID_CELLS:
+        ij = np.column_stack([_compact_axis(ij[:, 0]), _compact_axis(ij[:, 1])])
+        shape = tuple(int(v) for v in (ij.max(axis=0) + 1))
+        if shape[0] * shape[1] > 4 * MAX_GRID_CELLS:
+            raise PedcalInputError(f"the cloud spreads over {np.ptp(xy[:, 0]):.0f} x {np.ptp(xy[:, 1]):.0f} m "
+                                   f"with too many distinct {cell_size_m} m cells for the detection grid; crop it "
+                                   "to the sensor's range")
     return ij, shape, origin
+
+
+def _compact_axis(k: np.ndarray, max_gap: int = 8) -> np.ndarray:
+    """Cell indices along one axis with every run of empty rows longer than ``max_gap`` shortened
+    to ``max_gap``: neighbourhoods (and gaps up to ``max_gap`` - 1 cells) are unchanged, but a cloud
+    spread over kilometres (a few far or corrupt points) no longer needs a grid of that size."""
+    used, inverse = np.unique(k, return_inverse=True)
+    step = np.minimum(np.diff(used, prepend=used[0]), max_gap)
+    return np.cumsum(step)[inverse]
 
 
 def cell_z_range(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
