@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pedcal.detect.detection import Detection, detect, load_model
-from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, read_point_cloud_report
+from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, ground_referenced, read_point_cloud_report
 from pedcal.errors import PedcalInputError
 
 MATCH_RADIUS_M = 0.5
@@ -32,17 +32,44 @@ class FileDetections:
     read: CloudRead
 
 
-def detect_file(path: str | Path, model=None) -> FileDetections:
-    """Detections in a .pcd/.ply/.bin/.npy file, its floor put at z = 0."""
+FLOOR_MODES = ("auto", "plane", "none")
+
+
+def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sensor_pose: str | None = None,
+                floor: str = "auto") -> FileDetections:
+    """Detections in a .pcd/.ply/.bin/.npy file.
+
+    The cloud is first thinned to the trained density when its sensor is denser
+    (``pedcal.detect.sensors.normalize_density``; ``sensor`` names it, else its ray spacing is
+    estimated). Then the floor goes to z = 0: with ``sensor_pose`` ("x,y,z,roll,pitch,yaw", m and
+    deg) the points are mapped into the base frame, whose z = 0 is the floor; otherwise ``floor``
+    "auto" subtracts the local ground height (``ground_referenced``: sloped streets, kerbs),
+    "plane" one RANSAC floor plane (``floor_referenced``), "none" takes the file's z as it is.
+    """
+    from pedcal.detect.sensors import normalize_density, parse_sensor_pose, to_base_frame
+
+    if floor not in FLOOR_MODES:
+        raise PedcalInputError(f"--floor {floor!r}: expected one of {', '.join(FLOOR_MODES)}", column="floor")
     read = read_point_cloud_report(path)
-    pts, dz = floor_referenced(read.points)
+    pts = normalize_density(read.points, sensor)
+    if sensor_pose is not None:
+        position_m, ypr_deg = parse_sensor_pose(sensor_pose)
+        pts, dz = to_base_frame(pts, position_m, ypr_deg), float(position_m[2])
+    elif floor == "auto":
+        pts, dz = ground_referenced(pts)
+    elif floor == "plane":
+        pts, dz = floor_referenced(pts)
+    else:
+        dz = 0.0
     dets = detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model)
     return FileDetections(dets, pts, read.points, dz, read)
 
 
 def detect_cli(args) -> int:
-    """``pedcal detect FILE [--model M] [--json]``."""
-    res = detect_file(args.file, args.model)
+    """``pedcal detect FILE [--sensor S] [--sensor-pose x,y,z,roll,pitch,yaw | --floor MODE] [--model M]
+    [--json]``."""
+    res = detect_file(args.file, args.model, sensor=getattr(args, "sensor", None),
+                      sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"))
     dets, dz = res.detections, res.floor_shift_m
     if res.read.summary():
         print(f"{args.file}: {res.read.summary()}", file=sys.stderr)
@@ -50,7 +77,7 @@ def detect_cli(args) -> int:
         print(json.dumps([d.to_dict() for d in dets], indent=2))
         return 0
     if dz:
-        print(f"# floor estimated {-dz:.3f} m below the file's z = 0; heights are above the floor")
+        print(f"# floor {-dz:.3f} m below the file's z = 0 (median); heights are above the floor")
     print(f"{'x_m':>8} {'y_m':>8} {'height_m':>8} {'width_m':>8} {'depth_m':>8} {'score':>6}  is_person")
     for d in dets:
         print(f"{d.x:8.3f} {d.y:8.3f} {d.height:8.3f} {d.width:8.3f} {d.depth:8.3f} {d.score:6.3f}  {d.is_person}")

@@ -15,12 +15,13 @@ Every reader returns an (N, 4) float64 array ``x, y, z, intensity`` in the file'
 
 Intensity comes from a field named ``intensity`` (or ``reflectance``, ``scalar_intensity``,
 ``i``) when present, else the mean of the colour channels (0..1) when the file has colours,
-else 0. Points with a NaN or infinite coordinate (the invalid pixels of an organized depth
-cloud) are dropped; ``read_point_cloud_report`` says how many. Points farther than
-``MAX_RANGE_M`` horizontally (no LIDAR sees that far; such values are corrupt) are dropped too.
+else 0; it is put on a 0..1 scale (``reflectance_scale``). Points with a NaN or infinite
+coordinate (the invalid pixels of an organized depth cloud) are dropped;
+``read_point_cloud_report`` says how many. Points farther than ``MAX_RANGE_M`` (no LIDAR sees
+that far; such values are corrupt) are dropped too.
 
-``floor_referenced`` then puts z = 0 on the floor (see its docstring for how both kinds of file
-are told apart).
+``ground_referenced`` (local ground height) or ``floor_referenced`` (one floor plane) then puts
+z = 0 on the floor.
 """
 
 from __future__ import annotations
@@ -327,6 +328,16 @@ def read_npy(path: Path) -> tuple[np.ndarray, tuple[int, int] | None]:
     return pts, organized
 
 
+def reflectance_scale(intensity: np.ndarray) -> np.ndarray:
+    """Intensities on the detector's 0..1 reflectance scale: values already within [0, 1] are
+    kept; 8-bit intensities (max <= 255, as most automotive LIDARs report) are divided by 255;
+    larger scales (16-bit) by their maximum."""
+    top = float(intensity.max(initial=0.0))
+    if top <= 1.0:
+        return intensity
+    return intensity / (255.0 if top <= 255.0 else top)
+
+
 def read_point_cloud_report(path: str | Path) -> CloudRead:
     """Read a .pcd, .ply, .bin or .npy file: the finite points and what was dropped."""
     path = Path(path)
@@ -353,6 +364,7 @@ def read_point_cloud_report(path: str | Path) -> CloudRead:
         far |= finite & ~(np.abs(pts[:, 2]) <= MAX_RANGE_M)
     keep = finite & ~far
     out = np.ascontiguousarray(pts[keep], dtype=float)
+    out[:, 3] = reflectance_scale(out[:, 3])
     if len(out) == 0:
         raise PedcalInputError(f"no valid points: {n_file} in the file, {int((~finite).sum())} NaN or infinite, "
                                f"{int(far.sum())} farther than {MAX_RANGE_M:.0f} m", path=path)
@@ -368,21 +380,73 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
     return res.points
 
 
+GROUND_CELL_M = 1.0
+GROUND_MAX_STEP_M = 0.3
+
+
+def local_ground_z(points: np.ndarray, cell_m: float = GROUND_CELL_M, max_step_m: float = GROUND_MAX_STEP_M,
+                   window_cells: int = 5) -> np.ndarray:
+    """(N,) height of the ground under each point, for ground that is not one plane (a sloped
+    street, a ramp, a kerb).
+
+    The lowest point of each ``cell_m`` cell is its ground candidate; a candidate more than
+    ``max_step_m`` above the lowest candidate within ``window_cells`` x ``window_cells`` cells is an
+    object that hides the ground (a car's body, a wall's foot seen from above) and takes that
+    neighbourhood's lowest value instead; empty cells take the nearest filled cell's value. The
+    ground under a point is the bilinear interpolation of the cell values at their centres, so a
+    person standing across two cells is not cut by a step.
+    """
+    from scipy import ndimage
+
+    xy = points[:, :2]
+    origin = xy.min(axis=0)
+    ij = np.floor((xy - origin) / cell_m).astype(np.int64)
+    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
+    z_min = np.full(shape, np.inf)
+    np.minimum.at(z_min, (ij[:, 0], ij[:, 1]), points[:, 2])
+    filled = np.isfinite(z_min)
+    nb_min = ndimage.minimum_filter(z_min, size=window_cells, mode="nearest")
+    ground = np.where(z_min > nb_min + max_step_m, nb_min, z_min)
+    if not filled.all():
+        _, (ri, ci) = ndimage.distance_transform_edt(~filled, return_indices=True)
+        ground = ground[ri, ci]
+    uv = ((xy - origin) / cell_m - 0.5).T
+    return ndimage.map_coordinates(ground, uv, order=1, mode="nearest")
+
+
+def is_floor_referenced(points: np.ndarray) -> bool:
+    """Whether the cloud already has z = 0 on the floor: its lowest points (1st percentile of z)
+    lie within 0.1 m of z = 0 and none is below -0.1 m (the simulator's frames, a crop such as
+    KITTI's labelled pedestrian)."""
+    z = points[:, 2]
+    return abs(float(np.percentile(z, 1.0))) <= 0.1 and z.min() >= -0.1
+
+
+def ground_referenced(points: np.ndarray, **kwargs) -> tuple[np.ndarray, float]:
+    """The points with the local ground height (``local_ground_z``) subtracted from z, and the
+    median shift added to z (for a message). An already floor-referenced cloud is unchanged."""
+    if is_floor_referenced(points):
+        return points, 0.0
+    g = local_ground_z(points, **kwargs)
+    out = points.copy()
+    out[:, 2] -= g
+    return out, -float(np.median(g))
+
+
 def floor_referenced(points: np.ndarray, *, distance_threshold_m: float = 0.05,
                      seed: int = 0) -> tuple[np.ndarray, float]:
-    """The points shifted so that z = 0 on the floor, and the shift that was added to z.
+    """The points shifted so that z = 0 on one floor plane, and the shift that was added to z.
 
-    A cloud whose lowest points (1st percentile of z) lie within 0.1 m of z = 0 and which has no
-    points below -0.1 m is taken as already floor-referenced (the simulator's frames, or a crop
-    such as KITTI's labelled pedestrian) and returned unchanged. Otherwise (a KITTI scan has z = 0
-    at the sensor, the floor some 1.7 m below) the floor is the largest near-horizontal plane
-    found by RANSAC (open3d ``segment_plane``) among the lowest 30 % of the points; its height
-    under the sensor is subtracted. Without such a plane the 1st percentile of z is taken as
-    the floor and a DegenerateDataWarning says so.
+    A cloud already floor-referenced (``is_floor_referenced``) is returned unchanged. Otherwise
+    (a KITTI scan has z = 0 at the sensor, the floor some 1.7 m below) the floor is the largest
+    near-horizontal plane found by RANSAC (open3d ``segment_plane``) among the lowest 30 % of the
+    points; its height under the sensor is subtracted. Without such a plane the 1st percentile of z
+    is taken as the floor and a DegenerateDataWarning says so. For ground that is not one plane
+    see ``ground_referenced``.
     """
     z = points[:, 2]
     z_low = float(np.percentile(z, 1.0))
-    if abs(z_low) <= 0.1 and z.min() >= -0.1:
+    if is_floor_referenced(points):
         return points, 0.0
     floor_z = z_low
     low = points[z <= np.percentile(z, 30.0), :3]
