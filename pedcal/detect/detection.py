@@ -230,7 +230,7 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
     labels, n = cluster_cells(occ, gap_cells)
     if n == 0:
         return []
-    out = [_candidate(pts, idx) for idx in cluster_points(pts, ij, labels, floor_tolerance_m)]
+    out = _candidates(pts, cluster_points(pts, ij, labels, floor_tolerance_m))
     oversized = [c for c in out if c.height > GATE_HEIGHT_M[1]]
     if split_tall and oversized:
         in_oversized = np.zeros(len(pts), dtype=bool)
@@ -238,8 +238,8 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
         low_labels, m = cluster_cells(occ & (z_hi <= GATE_HEIGHT_M[1]), gap_cells)
         if m:
             # a part's cells all lie in one cluster's cells: test its first point
-            out += [_candidate(pts, idx) for idx in cluster_points(pts, ij, low_labels, floor_tolerance_m)
-                    if in_oversized[idx[0]]]
+            out += _candidates(pts, [idx for idx in cluster_points(pts, ij, low_labels, floor_tolerance_m)
+                                     if in_oversized[idx[0]]])
     if split_wide:
         for i in range(len(out)):
             c = out[i]
@@ -247,7 +247,7 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
                 parts = split_by_heads(pts, c.indices, cell_size_m)
                 if len(parts) >= 2:
                     out[i] = replace(c, gated=False)
-                    out += [_candidate(pts, idx) for idx in parts]
+                    out += _candidates(pts, parts)
     return out
 
 
@@ -298,18 +298,35 @@ def _separate_heads(z_hi: np.ndarray, a: np.ndarray, ha: float, b: np.ndarray, h
     return bool(len(z) and z.min() <= min(ha, hb) - HEAD_DIP_M)
 
 
-def _candidate(pts: np.ndarray, idx: np.ndarray) -> Candidate:
-    h = float(pts[idx, 2].max())
-    if len(idx) < MIN_CLUSTER_POINTS or h < GATE_HEIGHT_M[0]:
-        # fails the gate whatever its box: the axis-aligned box is enough (a real scan holds
-        # thousands of such fragments, and the rotating calipers would dominate the run time)
-        lo, hi = pts[idx, :2].min(axis=0), pts[idx, :2].max(axis=0)
-        ext = hi - lo
-        cx, cy = 0.5 * (lo + hi)
-        box = Box(float(cx), float(cy), float(ext.max()), float(ext.min()), 0.0 if ext[0] >= ext[1] else -np.pi / 2)
-        return Candidate(idx, box, h, False)
-    box = min_area_box(pts[idx, :2])
-    return Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx)))
+def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
+    """A Candidate per group of point indices (extents of all groups in one vectorized pass)."""
+    if not groups:
+        return []
+    sizes = np.array([len(g) for g in groups])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    sub = pts[np.concatenate(groups), :3]
+    top = np.maximum.reduceat(sub, starts, axis=0)
+    low = np.minimum.reduceat(sub[:, :2], starts, axis=0)
+    # Any enclosing rectangle's longer side is >= the points' diameter / sqrt(2) >= the longer
+    # axis-aligned extent / sqrt(2): beyond SPLIT_WIDTH_M[1] * sqrt(2) the cluster can neither pass
+    # the gate nor be cut at heads.
+    ext = top[:, :2] - low
+    cheap = ((sizes < MIN_CLUSTER_POINTS) | (top[:, 2] < GATE_HEIGHT_M[0])
+             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2)))
+    out = []
+    for k, idx in enumerate(groups):
+        h = float(top[k, 2])
+        if cheap[k]:
+            # fails the gate whatever its box: the axis-aligned box is enough (a real scan holds
+            # thousands of such fragments and walls; the rotating calipers would dominate the run time)
+            cx, cy = 0.5 * (low[k] + top[k, :2])
+            e = ext[k]
+            box = Box(float(cx), float(cy), float(e.max()), float(e.min()), 0.0 if e[0] >= e[1] else -np.pi / 2)
+            out.append(Candidate(idx, box, h, False))
+        else:
+            box = min_area_box(pts[idx, :2])
+            out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx))))
+    return out
 
 
 # ------------------------------------------------------------------------------------- classifier
