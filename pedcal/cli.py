@@ -210,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--real", type=Path, default=None,
                    help="a folder of real frames (NAME.pcd + NAME.json boxes) instead of simulated ones")
     s.add_argument("-o", "--output", type=Path, default=None, help="with --real: bird's-eye pictures here")
+    s.add_argument("--sensor", default=None, help="with --real: the sensor, as for pedcal detect")
+    s.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],
+                   help="with --real: as for pedcal detect")
     s.set_defaults(func=cmd_detect_eval)
 
     s = sub.add_parser("report", help="accuracy report (methods x scenarios x seeds vs the papers' tables), "

@@ -72,6 +72,8 @@ def test_real_eval_table_and_pictures(tmp_path, capsys):
     assert (tmp_path / "bev" / "000001_bev.png").stat().st_size > 10_000
     assert main(["detect-eval", "--real", str(folder)]) == 0
     assert "within 15 m: recall 1.000 of 1 pedestrians" in capsys.readouterr().out
+    assert main(["detect-eval", "--real", str(folder), "--floor", "plane", "--sensor", "hdl32"]) == 0
+    assert "within 15 m: recall 1.000 of 1 pedestrians" in capsys.readouterr().out
     (folder / "000001.json").write_text("[{")
     assert main(["detect-eval", "--real", str(folder)]) == 2
     assert main(["detect-eval", "--real", str(tmp_path / "nowhere")]) == 2

@@ -161,7 +161,8 @@ def detect_eval_cli(args) -> int:
     if getattr(args, "real", None) is not None:
         from pedcal.detect.real_eval import evaluate_real, format_real
 
-        res = evaluate_real(args.real, args.model, out_dir=args.output)
+        options = dict(sensor=getattr(args, "sensor", None), floor=getattr(args, "floor", "auto"))
+        res = evaluate_real(args.real, args.model, out_dir=args.output, detect_options=options)
         print(json.dumps(res, indent=2) if args.json else format_real(res))
         return 0
     res = evaluate_detector(args.frames, args.seed, args.model, progress=not args.json,
