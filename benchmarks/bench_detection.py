@@ -1,20 +1,26 @@
-"""Speed of ``pedcal.track.detection.detect`` on simulated frames of the paper's FX8 pair.
+"""Speed of ``pedcal.detect.detection.detect`` on simulated frames of the paper's FX8 pair, and
+on the real 67k-point automotive frames in ../shared/data/sustech_points.
 
 Run: .venv/bin/python benchmarks/bench_detection.py [--frames N] [--repeats R]
 Prints the points per frame and the median / p90 time of one ``detect`` call (segmentation,
 gate, features and classification with the shipped model), and of the segmentation alone, in
 wall-clock time and in this process's CPU time (which other jobs on a busy machine inflate less).
+For the real frames (skipped when the folder is absent) it prints ``detect`` on the
+floor-referenced points and the whole file pipeline (``detect_file``: read, local ground, detect),
+and the peak resident memory of the process.
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
 import time
+from pathlib import Path
 
 import numpy as np
 
-from pedcal.track.detection import detect, load_model, segment
-from pedcal.track.train import EVAL_STREAM, simulated_frame
+from pedcal.detect.detection import detect, load_model, segment
+from pedcal.detect.train import EVAL_STREAM, simulated_frame
 
 
 def main() -> None:
@@ -45,6 +51,36 @@ def main() -> None:
     print(f"detect:  median {np.median(ms):.2f} ms, p90 {np.percentile(ms, 90):.2f} ms "
           f"(CPU time median {np.median(cpu):.2f} ms, p90 {np.percentile(cpu, 90):.2f} ms)")
     print(f"segment: median {np.median(ms_seg):.2f} ms, p90 {np.percentile(ms_seg, 90):.2f} ms")
+    bench_real(model, args.repeats)
+    print(f"peak resident memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+
+
+def bench_real(model, repeats: int) -> None:
+    from pedcal.detect.detect_cli import detect_file
+
+    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "sustech_points"
+    files = sorted(folder.glob("*.pcd"))
+    if not files:
+        print(f"real frames: {folder} not found, skipped")
+        return
+    wall, cpu, wall_file, cpu_file, n = [], [], [], [], []
+    for f in files:
+        res = detect_file(f, model)  # warm up, and the floor-referenced points
+        n.append(len(res.points))
+        for _ in range(repeats):
+            c0, t0 = time.process_time(), time.perf_counter()
+            detect(res.points, model)
+            c1, t1 = time.process_time(), time.perf_counter()
+            detect_file(f, model)
+            c2, t2 = time.process_time(), time.perf_counter()
+            wall.append(t1 - t0)
+            cpu.append(c1 - c0)
+            wall_file.append(t2 - t1)
+            cpu_file.append(c2 - c1)
+    for name, w, c in (("detect", wall, cpu), ("detect_file", wall_file, cpu_file)):
+        w, c = 1e3 * np.array(w), 1e3 * np.array(c)
+        print(f"real {name}: {len(files)} frames of {int(np.median(n))} points: median {np.median(w):.1f} ms, "
+              f"p90 {np.percentile(w, 90):.1f} ms (CPU time median {np.median(c):.1f} ms)")
 
 
 if __name__ == "__main__":

@@ -124,19 +124,19 @@ def cmd_demo(args) -> int:
 
 
 def cmd_train_detector(args) -> int:
-    from pedcal.track.train import train_detector_cli
+    from pedcal.detect.train import train_detector_cli
 
     return train_detector_cli(args)
 
 
 def cmd_detect(args) -> int:
-    from pedcal.track.detect_cli import detect_cli
+    from pedcal.detect.detect_cli import detect_cli
 
     return detect_cli(args)
 
 
 def cmd_detect_eval(args) -> int:
-    from pedcal.track.detect_cli import detect_eval_cli
+    from pedcal.detect.detect_cli import detect_eval_cli
 
     return detect_eval_cli(args)
 
@@ -246,10 +246,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--labelled", type=Path, default=None, help="a user's labelled clusters instead")
     s.set_defaults(func=cmd_train_detector)
 
-    s = sub.add_parser("detect", help="detect people in a point cloud file (.pcd, .ply, KITTI .bin)")
+    s = sub.add_parser("detect", help="detect people in a point cloud file (.pcd, .ply, KITTI .bin, .npy)")
     s.add_argument("file", type=Path)
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
+    s.add_argument("--sensor", default=None, help="fx8, depth-camera, vlp16, os1-32, hdl32, hdl64, solid-dense, "
+                                                  "sparse-tof (default: ray spacing estimated from the cloud)")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--sensor-pose", default=None, metavar="x,y,z,roll,pitch,yaw",
+                   help="the sensor's pose above the floor (m, deg; positive pitch looks down)")
+    g.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],
+                   help="auto: local ground height (default); plane: one RANSAC plane; none: z is already floor height")
     s.set_defaults(func=cmd_detect)
 
     s = sub.add_parser("detect-eval", help="recall and precision on freshly simulated frames")
@@ -258,6 +265,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--preset", default="fx8", help="LIDAR preset (default: the paper's FX8 pair)")
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
+    s.add_argument("--real", type=Path, default=None,
+                   help="a folder of real frames (NAME.pcd + NAME.json boxes) instead of simulated ones")
+    s.add_argument("-o", "--output", type=Path, default=None, help="with --real: bird's-eye pictures here")
+    s.add_argument("--sensor", default=None, help="with --real: the sensor, as for pedcal detect")
+    s.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],
+                   help="with --real: as for pedcal detect")
     s.set_defaults(func=cmd_detect_eval)
 
     s = sub.add_parser("report", help="accuracy report (methods x scenarios x seeds vs the papers' tables), "

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from pedcal.detect.adaboost import RealAdaBoost
 from pedcal.errors import PedcalInputError
-from pedcal.track.adaboost import RealAdaBoost
 
 
 def toy(seed, n=2000, F=20):

@@ -7,12 +7,12 @@ import open3d as o3d
 import pytest
 
 from pedcal.cli import main
-from pedcal.errors import PedcalInputError
-from pedcal.track import detection as det
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import N_FEATURES
-from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
-from pedcal.track.train import choose_threshold, train_detector
+from pedcal.detect import detection as det
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.features import N_FEATURES
+from pedcal.detect.pointcloud_io import floor_referenced, read_point_cloud
+from pedcal.detect.train import choose_threshold, train_detector
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 
 
 def person_cloud(rng, cx=2.0, cy=0.5, n=1500, with_floor=True):
@@ -71,12 +71,16 @@ def test_bad_file_exits_2(tmp_path, capsys, content, suffix):
     assert main(["detect", str(tmp_path / "missing.bin")]) == 2
 
 
-def test_nan_points_are_rejected(tmp_path):
+def test_nan_points_are_dropped_and_counted(tmp_path):
     path = tmp_path / "nan.bin"
     pts = np.ones((10, 4), "<f4")
     pts[3, 2] = np.nan
     pts.tofile(path)
-    with pytest.raises(PedcalInputError, match="row 3"):
+    with pytest.warns(DegenerateDataWarning, match="1 points without a valid return"):
+        assert len(read_point_cloud(path)) == 9
+    pts[:, 0] = np.nan
+    pts.tofile(path)
+    with pytest.raises(PedcalInputError, match="no valid points"):
         read_point_cloud(path)
 
 
@@ -142,13 +146,15 @@ def test_train_detector_cli_and_labelled_inputs(tmp_path, capsys):
     assert not (tmp_path / "x.npz").exists()
 
 
-def test_detect_eval_json_keys(capsys):
-    assert main(["detect-eval", "--frames", "3", "--json"]) == 0
+def test_detect_eval_recall_and_precision_on_a_fixed_seed(capsys):
+    # 30 FX8 frames of seed 12345 hold 94 visible people; the shipped model finds 91 with 5
+    # false detections (recall 0.968, precision 0.948); the floors leave room for small changes
+    assert main(["detect-eval", "--frames", "30", "--seed", "12345", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"recall", "precision", "frames", "bands", "poses", "preset"}
-    assert out["frames"] == 3 and len(out["bands"]) == 3 and out["preset"] == "fx8"
-    assert 0.0 <= out["recall"] <= 1.0
-    assert sum(p["people"] for p in out["poses"].values()) == sum(b["people"] for b in out["bands"])
+    assert out["frames"] == 30 and len(out["bands"]) == 3 and out["preset"] == "fx8"
+    assert out["recall"] >= 0.9 and out["precision"] >= 0.9
+    assert sum(p["people"] for p in out["poses"].values()) == sum(b["people"] for b in out["bands"]) == 94
     # a preset left out of training; an unknown one is an input error
     assert main(["detect-eval", "--frames", "2", "--preset", "sparse_tof", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["preset"] == "sparse_tof"

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from pedcal.track import detection as det
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import N_FEATURES
+from pedcal.detect import detection as det
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.features import N_FEATURES
 
 
 def box_surface(rng, cx, cy, w, d, h, yaw, n=3000):
@@ -65,6 +65,20 @@ def test_flat_patch_has_no_object_cells_and_a_post_has_one():
     assert occ.sum() == 1
 
 
+def test_far_points_do_not_blow_up_the_grid_and_leave_the_clusters_unchanged():
+    rng = np.random.default_rng(5)
+    pts = floor(rng)
+    post = np.column_stack([np.full(50, 2.03), np.full(50, 0.03), np.linspace(0, 1.0, 50), np.zeros(50)])
+    pts = np.vstack([pts, post])
+    near = det.segment(pts)
+    far = np.vstack([pts, [[900.0, -900.0, 1.0, 0.0], [-900.0, 900.0, 0.5, 0.0]]])
+    ij, shape, _ = det.grid_cells(far, 0.1)
+    assert shape[0] * shape[1] <= det.MAX_GRID_CELLS  # not the 18000 x 18000 of a dense grid
+    got = det.segment(far)
+    assert [len(c.indices) for c in got] == [len(c.indices) for c in near]
+    assert [c.box for c in got] == [c.box for c in near]
+
+
 def test_clustering_separates_objects_and_gap_tolerance_joins_them():
     occ = np.zeros((10, 10), bool)
     occ[1:3, 1:3] = True
@@ -108,17 +122,43 @@ def test_gate_rejects_wall_and_passes_person_cylinder():
 
 def test_detect_scores_gated_clusters_with_a_given_model():
     rng = np.random.default_rng(5)
-    # a toy model: F(x) > 0 when the cluster is taller than the 1.2 m of the boxes below
+    # a toy model: a person's top slice is head-size (0.4 m), a box's top is its whole width (1 m)
     X = np.zeros((200, N_FEATURES))
     y = np.arange(200) % 2
-    X[:, 166 + 2 * 9] = np.where(y == 1, 0.4, 0.0)  # top slice length: a head-size extent
+    X[:, 166 + 2 * 9] = np.where(y == 1, 0.4, 1.0)  # length of the top tenth of the height
     model = RealAdaBoost(n_rounds=5, n_bins=4).fit(X, y)
     pts = np.vstack([floor(rng), cylinder_person(rng, 2.0, 1.0), box_surface(rng, 2.0, -1.0, 1.0, 0.6, 1.2, 0.0)])
     dets = det.detect(pts, model)
     assert len(dets) == 2
-    assert all(np.isfinite(d.score) for d in dets)
-    assert {d.n_points > 0 for d in dets} == {True}
-    assert dets[0].to_dict()["x"] == pytest.approx(dets[0].x)
+    person, box = sorted(dets, key=lambda d: -d.y)
+    assert person.y == pytest.approx(1.0, abs=0.05) and box.y == pytest.approx(-1.0, abs=0.05)
+    assert person.score > 0.9 > 0.1 > box.score
+    assert person.is_person and not box.is_person
+    assert person.n_points > 1000 and box.n_points > 1000
+    assert person.to_dict()["x"] == pytest.approx(person.x)
+
+
+def test_people_side_by_side_are_cut_at_their_heads():
+    rng = np.random.default_rng(9)
+    # two people whose shoulders touch (centres 0.5 m apart): one cluster 0.95 m wide
+    pair = np.vstack([cylinder_person(rng, 3.0, 0.25, radius=0.22, h=1.8),
+                      cylinder_person(rng, 3.0, -0.25, radius=0.22, h=1.6)])
+    head = lambda cx, cy, top: np.column_stack([cx + rng.normal(0, 0.06, 300), cy + rng.normal(0, 0.06, 300),  # noqa: E731
+                                                 rng.uniform(top - 0.25, top, 300), np.full(300, 0.3)])
+    body = np.vstack([pair[pair[:, 2] < 1.35], head(3.0, 0.25, 1.8), head(3.0, -0.25, 1.6)])
+    pts = np.vstack([floor(rng), body])
+    whole = det.segment(pts, split_wide=False)
+    assert len(whole) == 1 and whole[0].box.width > 0.8
+    gated = [c for c in det.segment(pts) if c.gated]
+    assert len(gated) == 2
+    assert sorted(c.box.cy for c in gated) == pytest.approx([-0.25, 0.25], abs=0.08)
+    assert sorted(c.height for c in gated) == pytest.approx([1.6, 1.8], abs=0.02)
+    # a wide object with a flat top (a cabinet) and one person with a bag have one head at most
+    cabinet = box_surface(rng, 3.0, 0.0, 1.0, 0.5, 1.5, 0.0)
+    assert det.split_by_heads(np.vstack([floor(rng), cabinet]), np.arange(2000, 5000)) == []
+    one = np.vstack([pair[pair[:, 1] > 0], head(3.0, 0.25, 1.8),
+                     box_surface(rng, 3.0, -0.35, 0.3, 0.15, 0.9, 0.0, n=400)])
+    assert det.split_by_heads(one, np.arange(len(one))) == []
 
 
 def test_detect_empty_and_three_column_input():

@@ -4,7 +4,7 @@ clusters, and known values."""
 import numpy as np
 import pytest
 
-from pedcal.track.features import BLOCKS, N_FEATURES, N_KIDONO, block_slices, cluster_features, features_matrix
+from pedcal.detect.features import BLOCKS, N_FEATURES, N_KIDONO, block_slices, cluster_features, features_matrix
 
 
 def test_blocks_sum_to_213_plus_47():

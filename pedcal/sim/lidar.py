@@ -121,6 +121,17 @@ LIDAR_PRESETS: dict[str, LidarModel] = {
     # Dense solid-state.
     "solid_dense": LidarModel("solid_dense", 160, 100, 70.0, 55.0, 0.2, 10.0, range_noise_std_m=0.02,
                               range_noise="gaussian", rate_hz=10.0),
+    # Automotive spinning LIDARs at the resolution of their data sheets (0.2 deg azimuth at 10 Hz):
+    # 32 beams over +10.67..-30.67 deg (HDL-32E-like) and 64 beams over +2..-24.9 deg (HDL-64E-like).
+    "hdl32": LidarModel("hdl32", 1800, 32, 360.0, 41.33, 0.5, 70.0, range_noise_std_m=0.02,
+                        range_noise="gaussian", rate_hz=10.0, dropout_prob=0.005, vertical_center_deg=-10.0),
+    "hdl64": LidarModel("hdl64", 2000, 64, 360.0, 26.9, 0.9, 80.0, range_noise_std_m=0.02,
+                        range_noise="gaussian", rate_hz=10.0, dropout_prob=0.005, vertical_center_deg=-11.45),
+    # Structured-light / ToF depth camera (Kinect-class): 640 x 480 over 58 x 45 deg, 0.5-6 m. Far
+    # denser than anything the detector is trained on; ``pedcal detect --sensor depth-camera``
+    # thins it to the training density first.
+    "depth_camera": LidarModel("depth_camera", 640, 480, 58.0, 45.0, 0.5, 6.0, range_noise_std_m=0.01,
+                               range_noise="gaussian", rate_hz=30.0, dropout_prob=0.02),
     # Sparse time-of-flight camera, coarser than the FX8 (0.95 x 1.15 deg a ray); the detector's
     # training leaves it out, so ``pedcal detect-eval --preset sparse_tof`` tests generalization.
     "sparse_tof": LidarModel("sparse_tof", 64, 40, 60.0, 45.0, 0.3, 6.0, range_noise_std_m=0.04, rate_hz=10.0),

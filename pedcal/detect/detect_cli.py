@@ -6,35 +6,78 @@ from __future__ import annotations
 import json
 import logging
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedcal.detect.detection import Detection, detect, load_model
+from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, ground_referenced, read_point_cloud_report
 from pedcal.errors import PedcalInputError
-from pedcal.track.detection import Detection, detect, load_model
-from pedcal.track.pointcloud_io import floor_referenced, read_point_cloud
 
 MATCH_RADIUS_M = 0.5
 MIN_VISIBLE_POINTS = 10
 DISTANCE_BANDS_M = ((0.0, 2.0), (2.0, 3.5), (3.5, 5.0))
 
 
-def detect_file(path: str | Path, model=None) -> tuple[list[Detection], float]:
-    """Detections in a .pcd/.ply/.bin file and the z shift that put its floor at z = 0."""
-    pts = read_point_cloud(path)
-    pts, dz = floor_referenced(pts)
-    return detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model), dz
+@dataclass
+class FileDetections:
+    """What ``detect_file`` found and how it read the file."""
+
+    detections: list[Detection]
+    points: np.ndarray  # (N, 4) floor-referenced points the detector saw
+    raw_points: np.ndarray  # (N, 4) the valid points in the file's frame
+    floor_shift_m: float  # added to the file's z to put the floor at z = 0
+    read: CloudRead
+
+
+FLOOR_MODES = ("auto", "plane", "none")
+
+
+def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sensor_pose: str | None = None,
+                floor: str = "auto") -> FileDetections:
+    """Detections in a .pcd/.ply/.bin/.npy file.
+
+    The cloud is first thinned to the trained density when its sensor is denser
+    (``pedcal.detect.sensors.normalize_density``; ``sensor`` names it, else its ray spacing is
+    estimated). Then the floor goes to z = 0: with ``sensor_pose`` ("x,y,z,roll,pitch,yaw", m and
+    deg) the points are mapped into the base frame, whose z = 0 is the floor; otherwise ``floor``
+    "auto" subtracts the local ground height (``ground_referenced``: sloped streets, kerbs),
+    "plane" one RANSAC floor plane (``floor_referenced``), "none" takes the file's z as it is.
+    """
+    from pedcal.detect.sensors import normalize_density, parse_sensor_pose, to_base_frame
+
+    if floor not in FLOOR_MODES:
+        raise PedcalInputError(f"--floor {floor!r}: expected one of {', '.join(FLOOR_MODES)}", column="floor")
+    read = read_point_cloud_report(path)
+    pts = normalize_density(read.points, sensor)
+    if sensor_pose is not None:
+        position_m, ypr_deg = parse_sensor_pose(sensor_pose)
+        pts, dz = to_base_frame(pts, position_m, ypr_deg), float(position_m[2])
+    elif floor == "auto":
+        pts, dz = ground_referenced(pts)
+    elif floor == "plane":
+        pts, dz = floor_referenced(pts)
+    else:
+        dz = 0.0
+    dets = detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model)
+    return FileDetections(dets, pts, read.points, dz, read)
 
 
 def detect_cli(args) -> int:
-    """``pedcal detect FILE [--model M] [--json]``."""
-    dets, dz = detect_file(args.file, args.model)
+    """``pedcal detect FILE [--sensor S] [--sensor-pose x,y,z,roll,pitch,yaw | --floor MODE] [--model M]
+    [--json]``."""
+    res = detect_file(args.file, args.model, sensor=getattr(args, "sensor", None),
+                      sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"))
+    dets, dz = res.detections, res.floor_shift_m
+    if res.read.summary():
+        print(f"{args.file}: {res.read.summary()}", file=sys.stderr)
     if args.json:
         print(json.dumps([d.to_dict() for d in dets], indent=2))
         return 0
     if dz:
-        print(f"# floor estimated {-dz:.3f} m below the file's z = 0; heights are above the floor")
+        print(f"# floor {-dz:.3f} m below the file's z = 0 (median); heights are above the floor")
     print(f"{'x_m':>8} {'y_m':>8} {'height_m':>8} {'width_m':>8} {'depth_m':>8} {'score':>6}  is_person")
     for d in dets:
         print(f"{d.x:8.3f} {d.y:8.3f} {d.height:8.3f} {d.width:8.3f} {d.depth:8.3f} {d.score:6.3f}  {d.is_person}")
@@ -56,15 +99,15 @@ def match_detections(det_xy: np.ndarray, truth_xy: np.ndarray, radius_m: float =
 def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress: bool = False,
                       preset: str = "fx8") -> dict:
     """Recall and precision of ``detect`` on ``frames`` held-out simulated frames of the FX8 pair
-    (or of another LIDAR ``preset``, see ``pedcal.track.train.simulated_frame``).
+    (or of another LIDAR ``preset``, see ``pedcal.detect.train.simulated_frame``).
 
     Truth: the people with at least MIN_VISIBLE_POINTS points in the frame; a person detection
     within MATCH_RADIUS_M of one (one-to-one) is a true positive. Bands are by the true person's
     horizontal distance from the robot (recall) and the detection's (precision); ``poses`` gives
     the recall of static (standing, carrying) and walking people apart.
     """
+    from pedcal.detect.train import EVAL_STREAM, simulated_frame
     from pedcal.sim.lidar import LIDAR_PRESETS
-    from pedcal.track.train import EVAL_STREAM, simulated_frame
 
     if preset not in LIDAR_PRESETS:
         raise PedcalInputError(f"unknown LIDAR preset {preset!r}; expected one of {sorted(LIDAR_PRESETS)}",
@@ -114,7 +157,15 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
 
 
 def detect_eval_cli(args) -> int:
-    """``pedcal detect-eval [--frames N] [--seed S] [--model M] [--preset P] [--json]``."""
+    """``pedcal detect-eval [--frames N] [--seed S] [--model M] [--preset P] [--json]``, or
+    ``pedcal detect-eval --real DIR [-o PICTURES] [--json]`` on real labelled frames."""
+    if getattr(args, "real", None) is not None:
+        from pedcal.detect.real_eval import evaluate_real, format_real
+
+        options = dict(sensor=getattr(args, "sensor", None), floor=getattr(args, "floor", "auto"))
+        res = evaluate_real(args.real, args.model, out_dir=args.output, detect_options=options)
+        print(json.dumps(res, indent=2) if args.json else format_real(res))
+        return 0
     res = evaluate_detector(args.frames, args.seed, args.model, progress=not args.json,
                             preset=getattr(args, "preset", "fx8"))
     if args.json:

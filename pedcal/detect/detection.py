@@ -8,9 +8,11 @@
 4. ``cluster_points``: a cluster's points are all the points in its cells above the floor;
 5. ``min_area_box``: the minimum-area box of the points' horizontal convex hull by rotating
    calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
-6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m;
+6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m; a cluster taller than 2 m is cut
+   below 2 m (a person against a wall), one 0.8-2.0 m wide at its heads (``split_by_heads``:
+   people side by side), and the parts are gated in turn (``segment``);
 7. the RealAdaBoost classifier on Kidono et al.'s 213 features and 47 metric height profiles
-   (``pedcal.track.features``).
+   (``pedcal.detect.features``).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
 and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
@@ -19,7 +21,7 @@ and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that fr
 from __future__ import annotations
 
 import functools
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from importlib import resources
 from pathlib import Path
 
@@ -27,17 +29,24 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
+from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.features import N_FEATURES, features_matrix
 from pedcal.errors import PedcalInputError
-from pedcal.track.adaboost import RealAdaBoost
-from pedcal.track.features import N_FEATURES, features_matrix
 
 CELL_SIZE_M = 0.1
 MIN_CELL_SPAN_M = 0.2
 FLOOR_TOLERANCE_M = 0.05
+MAX_GRID_CELLS = 1 << 24  # a denser grid is compacted (``grid_cells``)
 MIN_CLUSTER_POINTS = 5  # fewer points above the floor: a fragment, not gated
 GATE_HEIGHT_M = (0.8, 2.0)
+MAX_RANGE_M = 60.0  # detect() leaves out points farther from the sensor
 GATE_MAX_WIDTH_M = 1.2
 GATE_MAX_DEPTH_M = 1.2
+SPLIT_WIDTH_M = (0.8, 2.0)  # clusters this wide are tried for two or three heads (not walls, cars)
+HEAD_DIP_M = 0.15
+HEAD_KMEANS_STEPS = 3
+HEAD_MIN_SHARE = 0.7
+HEAD_SEPARATION_M = 0.45
 
 
 @dataclass(frozen=True)
@@ -76,7 +85,23 @@ def grid_cells(points: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> tuple[np
     origin = xy.min(axis=0) if len(xy) else np.zeros(2)
     ij = np.floor((xy - origin) / cell_size_m).astype(np.int64)
     shape = tuple(int(v) for v in (ij.max(axis=0) + 1)) if len(ij) else (0, 0)
+    if shape[0] * shape[1] > MAX_GRID_CELLS:
+        ij = np.column_stack([_compact_axis(ij[:, 0]), _compact_axis(ij[:, 1])])
+        shape = tuple(int(v) for v in (ij.max(axis=0) + 1))
+        if shape[0] * shape[1] > 4 * MAX_GRID_CELLS:
+            raise PedcalInputError(f"the cloud spreads over {np.ptp(xy[:, 0]):.0f} x {np.ptp(xy[:, 1]):.0f} m "
+                                   f"with too many distinct {cell_size_m} m cells for the detection grid; crop it "
+                                   "to the sensor's range")
     return ij, shape, origin
+
+
+def _compact_axis(k: np.ndarray, max_gap: int = 8) -> np.ndarray:
+    """Cell indices along one axis with every run of empty rows longer than ``max_gap`` shortened
+    to ``max_gap``: neighbourhoods (and gaps up to ``max_gap`` - 1 cells) are unchanged, but a cloud
+    spread over kilometres (a few far or corrupt points) no longer needs a grid of that size."""
+    used, inverse = np.unique(k, return_inverse=True)
+    step = np.minimum(np.diff(used, prepend=used[0]), max_gap)
+    return np.cumsum(step)[inverse]
 
 
 def cell_z_range(ij: np.ndarray, z: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -181,7 +206,7 @@ class Candidate:
 
 def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_m: float = MIN_CELL_SPAN_M,
             gap_cells: int = 0, floor_tolerance_m: float = FLOOR_TOLERANCE_M,
-            split_tall: bool = True) -> list[Candidate]:
+            split_tall: bool = True, split_wide: bool = True) -> list[Candidate]:
     """Steps 1-6: every cluster of the frame with its box, height and gate verdict.
 
     With ``split_tall``, a cluster taller than the gate's 2.0 m is split by its height profile:
@@ -189,6 +214,10 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
     dropped and the rest is clustered again, so a person standing against a wall or beside a
     pillar becomes a candidate of its own. The parts follow the rejected cluster in the
     list (which stays, ungated); each part is gated as any cluster.
+
+    With ``split_wide``, a cluster 0.8-2.0 m wide (``SPLIT_WIDTH_M``: two or three people side by
+    side, who touch in the grid) is cut at its heads (``split_by_heads``); when it has two or more, the parts
+    follow and the whole stays ungated.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] < 3:
@@ -201,7 +230,7 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
     labels, n = cluster_cells(occ, gap_cells)
     if n == 0:
         return []
-    out = [_candidate(pts, idx) for idx in cluster_points(pts, ij, labels, floor_tolerance_m)]
+    out = _candidates(pts, cluster_points(pts, ij, labels, floor_tolerance_m))
     oversized = [c for c in out if c.height > GATE_HEIGHT_M[1]]
     if split_tall and oversized:
         in_oversized = np.zeros(len(pts), dtype=bool)
@@ -209,15 +238,95 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
         low_labels, m = cluster_cells(occ & (z_hi <= GATE_HEIGHT_M[1]), gap_cells)
         if m:
             # a part's cells all lie in one cluster's cells: test its first point
-            out += [_candidate(pts, idx) for idx in cluster_points(pts, ij, low_labels, floor_tolerance_m)
-                    if in_oversized[idx[0]]]
+            out += _candidates(pts, [idx for idx in cluster_points(pts, ij, low_labels, floor_tolerance_m)
+                                     if in_oversized[idx[0]]])
+    if split_wide:
+        for i in range(len(out)):
+            c = out[i]
+            if SPLIT_WIDTH_M[0] < c.box.width <= SPLIT_WIDTH_M[1] and c.height >= GATE_HEIGHT_M[0]:
+                parts = split_by_heads(pts, c.indices, cell_size_m)
+                if len(parts) >= 2:
+                    out[i] = replace(c, gated=False)
+                    out += _candidates(pts, parts)
     return out
 
 
-def _candidate(pts: np.ndarray, idx: np.ndarray) -> Candidate:
-    box = min_area_box(pts[idx, :2])
-    h = float(pts[idx, 2].max())
-    return Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx)))
+def split_by_heads(pts: np.ndarray, idx: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> list[np.ndarray]:
+    """A wide cluster (people walking side by side) cut at its heads.
+
+    Head candidates are the peaks of the cluster's cell height map (cells highest within their
+    3 x 3 neighbourhood that reach ``HEAD_MIN_SHARE`` of the cluster's height). From the highest
+    down, a candidate is kept when it lies at least ``HEAD_SEPARATION_M`` from every kept head and
+    the height map dips by at least ``HEAD_DIP_M`` below the lower of the two on the way between
+    them (a neck and shoulders, not one person's flat top). Each point goes to the nearest kept
+    head, the heads then moved to their points' centroids a few times (k-means). Fewer than two
+    heads: no split (an empty list)."""
+    xyz = pts[idx, :3]
+    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
+    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
+    z_hi = np.full(shape, -np.inf)
+    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    peak = (z_hi == ndimage.maximum_filter(z_hi, size=3, mode="constant", cval=-np.inf))
+    peak &= z_hi >= HEAD_MIN_SHARE * xyz[:, 2].max()
+    r, c = np.nonzero(peak)
+    order = np.argsort(-z_hi[r, c], kind="stable")
+    kept: list[tuple[np.ndarray, float]] = []  # (cell position (row, col), height)
+    for k in order:
+        rc, h = np.array([r[k], c[k]], float), float(z_hi[r[k], c[k]])
+        if all(_separate_heads(z_hi, rc, h, q, hq, cell_size_m) for q, hq in kept):
+            kept.append((rc, h))
+    if len(kept) < 2:
+        return []
+    # Each point to the nearest head, refined by a few k-means (Lloyd) steps on the horizontal
+    # positions so the cut runs midway between the two bodies, not between two peak cells.
+    centres = (np.array([q for q, _ in kept]) + 0.5) * cell_size_m + xyz[:, :2].min(axis=0)
+    for _ in range(HEAD_KMEANS_STEPS):
+        owner = np.argmin(np.linalg.norm(xyz[:, None, :2] - centres[None], axis=2), axis=1)
+        centres = np.array([xyz[owner == k, :2].mean(axis=0) if (owner == k).any() else centres[k]
+                            for k in range(len(centres))])
+    owner = np.argmin(np.linalg.norm(xyz[:, None, :2] - centres[None], axis=2), axis=1)
+    return [idx[owner == k] for k in range(len(kept)) if (owner == k).sum() >= MIN_CLUSTER_POINTS]
+
+
+def _separate_heads(z_hi: np.ndarray, a: np.ndarray, ha: float, b: np.ndarray, hb: float, cell_size_m: float) -> bool:
+    if np.hypot(*(a - b)) * cell_size_m < HEAD_SEPARATION_M:
+        return False
+    n = int(np.ceil(np.hypot(*(a - b)) * 2)) + 1
+    path = np.unique(np.rint(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).astype(int), axis=0)
+    z = z_hi[path[:, 0], path[:, 1]]
+    z = z[np.isfinite(z)]  # empty cells (gaps between scan lines) say nothing
+    return bool(len(z) and z.min() <= min(ha, hb) - HEAD_DIP_M)
+
+
+def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
+    """A Candidate per group of point indices (extents of all groups in one vectorized pass)."""
+    if not groups:
+        return []
+    sizes = np.array([len(g) for g in groups])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    sub = pts[np.concatenate(groups), :3]
+    top = np.maximum.reduceat(sub, starts, axis=0)
+    low = np.minimum.reduceat(sub[:, :2], starts, axis=0)
+    # Any enclosing rectangle's longer side is >= the points' diameter / sqrt(2) >= the longer
+    # axis-aligned extent / sqrt(2): beyond SPLIT_WIDTH_M[1] * sqrt(2) the cluster can neither pass
+    # the gate nor be cut at heads.
+    ext = top[:, :2] - low
+    cheap = ((sizes < MIN_CLUSTER_POINTS) | (top[:, 2] < GATE_HEIGHT_M[0])
+             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2)))
+    out = []
+    for k, idx in enumerate(groups):
+        h = float(top[k, 2])
+        if cheap[k]:
+            # fails the gate whatever its box: the axis-aligned box is enough (a real scan holds
+            # thousands of such fragments and walls; the rotating calipers would dominate the run time)
+            cx, cy = 0.5 * (low[k] + top[k, :2])
+            e = ext[k]
+            box = Box(float(cx), float(cy), float(e.max()), float(e.min()), 0.0 if e[0] >= e[1] else -np.pi / 2)
+            out.append(Candidate(idx, box, h, False))
+        else:
+            box = min_area_box(pts[idx, :2])
+            out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx))))
+    return out
 
 
 # ------------------------------------------------------------------------------------- classifier
@@ -241,16 +350,21 @@ def load_model(path: str | Path | None = None) -> RealAdaBoost:
 
 
 def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
-           threshold: float = 0.5, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0) -> list[Detection]:
+           threshold: float = 0.5, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0,
+           max_range_m: float = MAX_RANGE_M) -> list[Detection]:
     """People in one frame: the gated clusters, each scored by the classifier.
 
     ``points`` is (N, 4) ``x, y, z, intensity`` with z = 0 at the floor (N, 3 gets intensity 0);
-    ``model`` a RealAdaBoost, a path to one, or None for the shipped model. Returns every gated
-    cluster as a Detection; ``is_person`` is ``score >= threshold``.
+    ``model`` a RealAdaBoost, a path to one, or None for the shipped model. Points farther than
+    ``max_range_m`` horizontally from the origin (the sensor) are left out: a person there holds
+    a handful of points from any LIDAR. Returns every gated cluster as a Detection;
+    ``is_person`` is ``score >= threshold``.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim == 2 and pts.shape[1] == 3:
         pts = np.column_stack([pts, np.zeros(len(pts))])
+    if pts.ndim == 2 and len(pts) and max_range_m is not None:
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range_m]
     cands = [c for c in segment(pts, cell_size_m=cell_size_m, gap_cells=gap_cells) if c.gated]
     if not cands:
         return []

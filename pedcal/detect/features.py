@@ -93,9 +93,15 @@ def block_slices() -> dict[str, slice]:
     return out
 
 
+_UPPER3 = np.triu_indices(3)
+
+
+_BLOCK_SLICES = block_slices()
+
+
 def _upper6(c: np.ndarray) -> np.ndarray:
     """The 6 distinct entries of a symmetric 3x3 matrix: xx, xy, xz, yy, yz, zz."""
-    return c[np.triu_indices(3)]
+    return c[_UPPER3]
 
 
 def _cov2(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -138,7 +144,7 @@ def cluster_features(points: np.ndarray) -> np.ndarray:
     xyz = pts[:, :3]
     inten = pts[:, 3] if pts.shape[1] > 3 else np.zeros(n)
     f = np.zeros(N_FEATURES)
-    b = block_slices()
+    b = _BLOCK_SLICES
 
     f[b["n_points"]] = n
     f[b["min_distance_m"]] = np.sqrt((xyz[:, :2] ** 2).sum(axis=1)).min()
