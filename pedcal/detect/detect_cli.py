@@ -72,7 +72,7 @@ def detect_cli(args) -> int:
                       sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"))
     dets, dz = res.detections, res.floor_shift_m
     if res.read.summary():
-        print(f"{args.file}: {res.read.summary()}", file=sys.stderr)
+        logging.getLogger(__name__).warning(f"{args.file}: {res.read.summary()}")
     if args.json:
         print(json.dumps([d.to_dict() for d in dets], indent=2))
         return 0
