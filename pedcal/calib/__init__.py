@@ -28,6 +28,9 @@ def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, 
     ``network`` is the calibrated schema of LOG_FORMAT.md."""
     if method not in METHODS:
         raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")
+    from pedcal.io.preflight import check_calibration
+
+    log = check_calibration(log, options.pop("max_memory_gb", None))   # validated; refused beyond the memory limit
     module, func = METHODS[method]
     return getattr(importlib.import_module(module), func)(log, progress=progress, **options)
 

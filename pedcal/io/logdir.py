@@ -78,12 +78,13 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
     try:
         if path.suffix == ".parquet":
             return pd.read_parquet(path, engine="pyarrow")
-        options = {"keep_default_na": False, "na_values": [], "skipinitialspace": True}
+        # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
+        options = {"na_filter": False}
         names = pd.read_csv(path, nrows=0, **options).columns
         wanted = {str(n).strip() for n in columns}
         use = [n for n in names if str(n).strip() in wanted] if columns else None
         dtype = {n: str for n in names if str(n).strip() in text_columns}
-        return pd.read_csv(path, usecols=use, dtype=dtype, low_memory=False, **options)
+        return pd.read_csv(path, usecols=use, dtype=dtype, **options)
     except pd.errors.EmptyDataError:
         return pd.DataFrame()
     except UnicodeDecodeError as e:
@@ -314,12 +315,13 @@ def check_network(network: SensorNetwork, where) -> None:
                                        f"finite values within +-{lim:g} {unit}", path=where)
 
 
-def validate(log: Log, sources: dict | None = None) -> Log:
+def validate(log: Log, sources: dict | None = None, *, rows_required: bool = True) -> Log:
     """Check a ``Log`` and return it typed: float columns, text ids, pose tables sorted by time.
 
     The same checks and messages as reading a log directory (which calls this); ``sources`` maps a
     table name to the file it came from, otherwise errors name the table (``Log.robot``, row, column).
-    Raises PedcalInputError."""
+    ``rows_required=False`` lets a log without robot poses or observations through (a calibration
+    reports what it cannot estimate). Raises PedcalInputError."""
     sources = dict(sources or {})
 
     def where(name: str):
@@ -334,10 +336,12 @@ def validate(log: Log, sources: dict | None = None) -> Log:
     typed = {}
     for name, (columns, text_columns) in TABLES.items():
         df = getattr(log, name)
-        required = name in ("robot", "observations")
-        if df is None:
+        required = rows_required and name in ("robot", "observations")
+        if df is None and name in ("robot", "observations"):
             if required:
                 raise PedcalInputError(f"the {name} table is required", path=where(name))
+            df = pd.DataFrame(columns=list(columns))
+        if df is None:
             typed[name] = None
             continue
         typed[name] = typed_table(df, columns, text_columns, where(name), required=required)
@@ -349,7 +353,8 @@ def validate(log: Log, sources: dict | None = None) -> Log:
     robot = check_unique_times(robot, where("robot"))
     check_known_sensors(obs, log.sensors, where("observations"), where("sensors"))
     check_track_clocks(obs, where("observations"))
-    check_clocks_overlap(robot, obs, where("robot"), where("observations"))
+    if len(robot) and len(obs):
+        check_clocks_overlap(robot, obs, where("robot"), where("observations"))
     for name in ("odometry", "truth_robot"):
         if typed[name] is not None:
             typed[name] = check_unique_times(typed[name], where(name))
