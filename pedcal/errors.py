@@ -44,6 +44,6 @@ def show(value, limit: int = 40) -> str:
     if isinstance(value, numbers.Real):
         return repr(float(value))
     text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
-    cut = len(text) > limit
-    text = text[:limit].encode("unicode_escape").decode("ascii").replace("'", "\\'")
-    return f"'{text}'" + ("..." if cut else "")
+    escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
+    cut = len(escaped) > limit
+    return f"'{escaped[:limit]}'" + ("..." if cut else "")

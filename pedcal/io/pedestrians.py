@@ -119,6 +119,15 @@ def _first_line(path: Path) -> str:
     if not path.is_file():
         raise PedcalInputError("file not found", path=path)
     try:
+        head = path.read_bytes()[:4096] if path.stat().st_size else b""
+        try:
+            head.decode("utf-8")
+        except UnicodeDecodeError as e:
+            if e.start < len(head) - 4:     # not a character cut at the 4 KB boundary
+                raise PedcalInputError(f"not UTF-8 text (byte 0x{head[e.start]:02x} at offset {e.start}): a binary "
+                                       "file, or a file saved in another encoding", path=path) from None
+        if b"\x00" in head:
+            raise PedcalInputError("not a text file (NUL bytes): expected pedestrian rows", path=path)
         with path.open("r", encoding="utf-8", errors="replace") as f:
             for line in f:
                 if line.strip():

@@ -26,15 +26,13 @@ RADIANS_LIMIT = 2.0 * np.pi
 
 
 def time_unit_hint(t_s: float) -> str:
-    """What a too-large time stamp probably is."""
+    """What a too-large time stamp probably is (unix times in s are ~1.7e9)."""
     a = abs(t_s)
     if a > 1e17:
-        return "nanoseconds"
+        return "unix nanoseconds"
     if a > 1e14:
-        return "microseconds"
-    if a > 1e11:
-        return "milliseconds"
-    return "not seconds"
+        return "unix microseconds, or nanoseconds"
+    return "milliseconds, microseconds or nanoseconds"
 
 
 def angles_look_like_radians(ypr_deg: np.ndarray) -> bool:

@@ -17,8 +17,9 @@ from pedcal.model import Log
 
 # The factor graph (pedcal.calib.factorgraph) holds a robot pose at every AMCL stamp with gaps longer
 # than 0.25 s filled, and a node of the AMCL error process every 1 s; each costs GTSAM values,
-# factors, Jacobians and the elimination's fill-in. Bytes per item are upper figures from peak RSS
-# of simulated logs, rounded up.
+# factors, Jacobians and the elimination's fill-in. Bytes per item are set above the measured peak
+# RSS growth: benchmarks/bench_preflight_memory.py prints both (sparse log driven 4 times: 126 MB
+# estimated, 45-78 MB measured).
 POSE_GAP_S = 0.25
 AMCL_NODE_SPACING_S = 1.0
 BYTES_PER_POSE = 16_000
