@@ -25,7 +25,8 @@ METHODS = {
 
 def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, **options) -> CalibrationResult:
     """Calibrate every sensor of ``log`` with ``method``; returns a CalibrationResult whose
-    ``network`` is the calibrated schema of LOG_FORMAT.md."""
+    ``network`` is the calibrated schema of LOG_FORMAT.md. ``log`` is validated first
+    (pedcal.io.validate) and refused when it would need more than ``max_memory_gb`` (default 4)."""
     if method not in METHODS:
         raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")
     from pedcal.io.preflight import check_calibration

@@ -26,6 +26,9 @@ BYTES_PER_POSE = 16_000
 BYTES_PER_AMCL_NODE = 4_000
 BYTES_PER_OBSERVATION = 1_000
 DEFAULT_MAX_MEMORY_GB = 4.0
+# A robot that never comes this close (horizontally) to any ceiling sensor cannot be seen by one:
+# robot.csv and sensors.yaml are then in different frames or units.
+MAX_NEAREST_APPROACH_M = 100.0
 
 # pedcal follow simulates FRAME_HZ frames per second of the target's trajectory.
 FOLLOW_FRAME_HZ = 4.0
@@ -63,6 +66,7 @@ def check_calibration(log: Log, max_memory_gb: float | None = None) -> Log:
     from pedcal.io.logdir import validate
 
     log = validate(log, _sources(log), rows_required=False)
+    check_robot_near_sensors(log)
     limit_gb = _limits["max_memory_gb"] if max_memory_gb is None else float(max_memory_gb)
     need = calibration_memory_bytes(log)
     if need > limit_gb * 1e9:
@@ -73,6 +77,26 @@ def check_calibration(log: Log, max_memory_gb: float | None = None) -> Log:
             "--max-memory-gb (calibrate(..., max_memory_gb=...)) if the span is right, otherwise check the time unit "
             "(seconds)", path=_sources(log).get("robot", "Log.robot"), column="t")
     return log
+
+
+def check_robot_near_sensors(log: Log) -> None:
+    """The robot must pass within MAX_NEAREST_APPROACH_M of some sensor (one map frame, metres)."""
+    from scipy.spatial import cKDTree
+
+    if len(log.robot) == 0:
+        return
+    sensors_xy = np.array([s.position_m[:2] for s in log.sensors])
+    robot_xy = log.robot[["x", "y"]].to_numpy(dtype=float)
+    dist, _ = cKDTree(sensors_xy).query(robot_xy, k=1)
+    row = int(np.argmin(dist))
+    if dist[row] > MAX_NEAREST_APPROACH_M:
+        sources = _sources(log)
+        raise PedcalInputError(
+            f"the robot never comes within {MAX_NEAREST_APPROACH_M:g} m of a sensor (nearest approach "
+            f"{dist[row]:.6g} m, at x={robot_xy[row, 0]:.6g} m, y={robot_xy[row, 1]:.6g} m; sensors in "
+            f"{Path(str(sources.get('sensors', 'Log.sensors'))).name} lie within x {sensors_xy[:, 0].min():.4g} .. "
+            f"{sensors_xy[:, 0].max():.4g} m, y {sensors_xy[:, 1].min():.4g} .. {sensors_xy[:, 1].max():.4g} m): "
+            "are both in the same map frame and in metres?", path=sources.get("robot", "Log.robot"), column="x")
 
 
 def _sources(log: Log) -> dict:
