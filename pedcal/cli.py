@@ -127,7 +127,7 @@ def cmd_report(args) -> int:
     from pedcal.report.command import report_command
 
     if args.out is not None:
-        check_output(args.out, inputs=[args.log, *args.extrinsics, args.from_results], directory=True)
+        check_output(args.out, inputs=[args.log, *args.extrinsics], directory=True)
     return report_command(args)
 
 

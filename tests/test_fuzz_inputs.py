@@ -648,3 +648,44 @@ def test_no_numpy_repr_in_messages(case):
     set_cell(log / "robot.csv", 6, "t", read_cells(log / "robot.csv")["t"][5])
     _, _, err = run_cli(["calibrate", log, "-o", case.parent / "out" / "c.yaml"], case, names=("robot.csv",))
     assert re.search(r"time \d", err) and "np." not in err
+
+
+# -------------------------------------------------------------------------- real recordings
+REAL_PEDESTRIANS = ["atc/atc-1024-9_test.csv", "atc/atc-1024-10_test.csv", "eth_ucy/biwi_eth.txt",
+                    "eth_ucy/biwi_hotel.txt", "eth_ucy/crowds_zara01.txt", "thor/exp-1-run-2.csv"]
+
+
+@pytest.mark.parametrize("damage", ["none", "cut mid-line", "cp1252 byte", "binary tail"])
+@pytest.mark.parametrize("name", REAL_PEDESTRIANS)
+def test_real_pedestrian_recordings(shared_data, tmp_path, name, damage):
+    """Every recording in shared/data (a copy) through import-people, and its people file through
+    follow; damaged copies exit 0 or 2 naming the file, never a traceback."""
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    src = inputs / Path(name).name
+    data = (shared_data / name).read_bytes()
+    if damage == "cut mid-line":
+        data = data[: len(data) // 2 + 3]
+    elif damage == "cp1252 byte":
+        data = data[:200] + b"\x92" + data[200:]
+    elif damage == "binary tail":
+        data = data + bytes(range(256))
+    src.write_bytes(data)
+    people = tmp_path / "out" / "people.csv"
+    code, _, err = run_cli(["import-people", src, "-o", people], inputs, names=(src.name,))
+    if damage == "none":
+        assert code == 0, err
+        df = pd.read_csv(people, dtype={"person": str})
+        counts = df.groupby("person").size()
+        target = str(counts[counts >= 2].index[0])
+        code, _, err = run_cli(["follow", "--people", people, "--target", target, "--json"], people.parent)
+        assert code == 0, err
+
+
+def test_real_bag_import_and_output_inside_it(shared_data, tmp_path):
+    inputs = tmp_path / "in"
+    shutil.copytree(shared_data / "turtlebot4_ros2_bag", inputs / "bag")
+    code, out, err = run_cli(["import-bag", inputs / "bag", "-o", tmp_path / "out"], inputs)
+    assert code == 0 and "odometry.csv" in out, err
+    code, _, err = run_cli(["import-bag", inputs / "bag", "-o", inputs / "bag"], inputs, names=("bag",))
+    assert code == EXIT_BAD_INPUT, err
