@@ -43,6 +43,12 @@ def show(value, limit: int = 40) -> str:
         return str(int(value))
     if isinstance(value, numbers.Real):
         return repr(float(value))
+    if isinstance(value, (list, tuple, dict, set)):      # bounded: a YAML alias bomb prints small
+        import reprlib
+
+        brief = reprlib.Repr()
+        brief.maxlevel, brief.maxlist, brief.maxdict, brief.maxstring, brief.maxother = 2, 6, 4, limit, limit
+        value = brief.repr(value)
     text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
     escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
     cut = len(escaped) > limit

@@ -465,6 +465,18 @@ def test_temporary_left_by_a_killed_writer_is_removed(case):
 
 
 # ------------------------------------------------------------------ named cases (extrinsics YAML)
+ALIAS_BOMB = "".join(f"{k}: &{k} [{', '.join([f'*{p}' if p else 'x'] * 9)}]\n"
+                     for k, p in zip("abcdefghi", ["", *"abcdefgh"], strict=True))
+
+
+def _alias_bomb(where: str):
+    """Aliases that expand to 9^9 values, in a sensor id or a position (printing them would hang)."""
+    def fn(d):
+        return ALIAS_BOMB + "sensors:\n  - {id: %s, position: %s, ypr_deg: [0, 45, 0]}\n" % (
+            ("*i", "[0, 0, 2.6]") if where == "id" else ("s04", "[*i, 0, 2.6]"))
+    return fn
+
+
 BAD_EXTRINSICS = {
     "tracker_latency_s: fast": lambda d: d.update(tracker_latency_s="fast"),
     "tracker_latency_s: 1e300": lambda d: d.update(tracker_latency_s=1e300),
@@ -475,9 +487,12 @@ BAD_EXTRINSICS = {
 }
 
 
-@pytest.mark.parametrize("name", list(BAD_EXTRINSICS))
+@pytest.mark.parametrize("name", list(BAD_EXTRINSICS) + ["alias bomb in an id", "alias bomb in a position"])
 def test_bad_extrinsics_for_evaluate(case, name):
-    yaml_edit(case / "calibrated.yaml", BAD_EXTRINSICS[name])
+    if name.startswith("alias bomb"):
+        (case / "calibrated.yaml").write_text(_alias_bomb("id" if name.endswith("id") else "position")(None))
+    else:
+        yaml_edit(case / "calibrated.yaml", BAD_EXTRINSICS[name])
     code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
                            names=("calibrated.yaml",))
     assert code == EXIT_BAD_INPUT, err

@@ -13,6 +13,7 @@ DataFrames gets the same checks and messages, naming the table (``Log.robot``) i
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -364,9 +365,9 @@ def validate(log: Log, sources: dict | None = None, *, rows_required: bool = Tru
     if "meta" not in sources:
         read_vector(list(np.asarray(meta.head_offset_m, dtype=float).reshape(-1)), 3, "head_offset", where("meta"),
                     max_abs=plausible.MAX_HEAD_OFFSET_M, unit="m")
-    return Log(sensors=log.sensors, robot=robot, observations=obs, odometry=typed["odometry"], meta=meta,
-               truth=log.truth, truth_robot=typed["truth_robot"], truth_observations=typed["truth_observations"],
-               path=log.path)
+    # replace(): any other field of the Log is carried over untouched
+    return replace(log, robot=robot, observations=obs, odometry=typed["odometry"], meta=meta,
+                   truth_robot=typed["truth_robot"], truth_observations=typed["truth_observations"])
 
 
 # ---------------------------------------------------------------------------------------- meta.yaml

@@ -55,6 +55,31 @@ def _yaml_error_text(e: yaml.YAMLError) -> str:
     return f"{where}{problem}"
 
 
+# A sensors file of 10 000 sensors has ~200 000 values; aliases expanding beyond this are an attack
+# or a mistake, and printing or copying them would hang.
+MAX_YAML_NODES = 2_000_000
+
+
+def _expanded_size(root: yaml.Node) -> int:
+    """Number of values the node tree stands for with every alias expanded (memoized, iterative)."""
+    size: dict[int, int] = {}
+    pending: set[int] = set()      # expanded, children not yet summed (its ancestors on the stack)
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        if id(node) in size or (not done and id(node) in pending):
+            continue
+        children = ([c for kv in node.value for c in kv] if isinstance(node, yaml.MappingNode)
+                    else node.value if isinstance(node, yaml.SequenceNode) else [])
+        if done or not children:     # children first; a recursive alias (its own ancestor) counts 0
+            size[id(node)] = 1 + sum(size.get(id(c), 0) for c in children)
+        else:
+            pending.add(id(node))
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in size and id(c) not in pending)
+    return size[id(root)]
+
+
 def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
     """Parse a YAML file; returns (data, node tree). Syntax errors become PedcalInputError."""
     path = Path(path)
@@ -63,9 +88,14 @@ def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
         loader = yaml.SafeLoader(text)
         try:
             node = loader.get_single_node()
+            if node is not None and _expanded_size(node) > MAX_YAML_NODES:
+                raise PedcalInputError(f"YAML aliases expand to more than {MAX_YAML_NODES} values (an alias bomb?)",
+                                       path=path)
             data = loader.construct_document(node) if node is not None else None
         finally:
             loader.dispose()
+    except PedcalInputError:
+        raise
     except yaml.YAMLError as e:
         raise PedcalInputError(f"not valid YAML at {_yaml_error_text(e)}", path=path) from None
     except (RecursionError, ValueError, OverflowError) as e:
@@ -128,9 +158,11 @@ def read_sensors_yaml(path: str | Path) -> SensorNetwork:
         for key in ("id", "position", "ypr_deg"):
             if entry.get(key) is None:
                 raise PedcalInputError(f"{where}: missing '{key}'", path=path)
+        if isinstance(entry["id"], (list, dict)):
+            raise PedcalInputError(f"{where}: 'id' must be a non-empty string", path=path)
         id_node = _mapping_value_node(item_node, "id")
         sensor_id = id_node.value if isinstance(id_node, yaml.ScalarNode) else str(entry["id"])
-        if isinstance(entry["id"], (list, dict)) or sensor_id == "":
+        if sensor_id == "":
             raise PedcalInputError(f"{where}: 'id' must be a non-empty string", path=path)
         where = f"sensor '{sensor_id}'" + (f" (line {line})" if line else "")
         if sensor_id in line_of_id:
@@ -147,7 +179,7 @@ def read_sensors_yaml(path: str | Path) -> SensorNetwork:
             **extra))
     frame = data.get("frame", "map")
     if not isinstance(frame, str):
-        raise PedcalInputError(f"'frame' must be a string, got {frame!r}", path=path)
+        raise PedcalInputError(f"'frame' must be a string, got {show(frame)}", path=path)
     ypr = np.array([s.ypr_deg for s in sensors])
     if plausible.angles_look_like_radians(ypr):
         raise PedcalInputError(f"every ypr_deg angle lies within +-{plausible.RADIANS_LIMIT:.4f} (largest "
@@ -193,14 +225,14 @@ def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
     n_obs = entry.get("observations")
     if n_obs is not None:
         if isinstance(n_obs, bool) or not isinstance(n_obs, int) or n_obs < 0:
-            raise PedcalInputError(f"{where}: 'observations' must be a non-negative integer, got {n_obs!r}",
+            raise PedcalInputError(f"{where}: 'observations' must be a non-negative integer, got {show(n_obs)}",
                                    path=path)
         out["observations"] = n_obs
     status = entry.get("status")
     if status is not None:
         if status not in SENSOR_STATUSES:
             raise PedcalInputError(f"{where}: 'status' must be one of {', '.join(SENSOR_STATUSES)}, "
-                                   f"got {status!r}", path=path)
+                                   f"got {show(status)}", path=path)
         out["status"] = status
     unobservable = entry.get("unobservable")
     if unobservable is not None:
