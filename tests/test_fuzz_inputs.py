@@ -45,8 +45,14 @@ class CaseTimeout(BaseException):
 
 # --------------------------------------------------------------------------------------- harness
 def checksums(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file() and os.access(p, os.R_OK)}
+    out = {}
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            try:
+                out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
+            except PermissionError:    # an unreadable input of a case: its name stands for it
+                out[str(p.relative_to(root))] = "unreadable"
+    return out
 
 
 def _mapped_bytes() -> int:
@@ -704,3 +710,50 @@ def test_real_bag_import_and_output_inside_it(shared_data, tmp_path):
     assert code == 0 and "odometry.csv" in out, err
     code, _, err = run_cli(["import-bag", inputs / "bag", "-o", inputs / "bag"], inputs, names=("bag",))
     assert code == EXIT_BAD_INPUT, err
+
+
+@pytest.mark.parametrize("which", ["log/sensors.yaml", "log/meta.yaml", "calibrated.yaml", "log/robot.csv"])
+def test_unreadable_input_is_a_clean_error_even_as_root(case, monkeypatch, which):
+    """No read permission (simulated, so the case also runs as root, which ignores file modes)."""
+    import builtins
+    import pathlib
+
+    target = str(case / which)
+    real_read_bytes, real_open = pathlib.Path.read_bytes, builtins.open
+
+    def read_bytes(self):
+        if str(self) == target:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_read_bytes(self)
+
+    def guarded_open(file, *args, **kwargs):
+        if str(file) == target:
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "read_bytes", read_bytes)
+    monkeypatch.setattr(builtins, "open", guarded_open)
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
+                           names=(Path(which).name,))
+    assert code == EXIT_BAD_INPUT and "ermission denied" in err, err
+
+
+def test_unwritable_output_folder_is_refused_even_as_root(case, monkeypatch):
+    """A read-only folder (simulated through os.access and mkstemp, which root would bypass)."""
+    import tempfile
+
+    ro = case.parent / "ro"
+    ro.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if Path(p) == ro else real_access(p, mode, **kw))
+    code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml"], case, names=("c.yaml",))
+    assert code == EXIT_BAD_INPUT and "permission denied" in err, err
+
+    def no_mkstemp(*args, **kwargs):          # the folder turns read-only after the pre-flight
+        raise PermissionError(13, "Permission denied", str(kwargs.get("dir")))
+
+    monkeypatch.setattr(os, "access", real_access)
+    monkeypatch.setattr(tempfile, "mkstemp", no_mkstemp)
+    code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml", "-q"], case, names=("c.yaml",))
+    assert code == EXIT_BAD_INPUT and "permission denied" in err, err
+    assert not (ro / "c.yaml").exists()
