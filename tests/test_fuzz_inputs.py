@@ -393,6 +393,10 @@ def test_bad_log_is_a_clean_error(case, name):
     if (case / "log").is_dir():
         code, _, err = run_cli(["evaluate", log, "--extrinsics", case / "calibrated.yaml"], case, names=(names,))
         assert code == EXIT_BAD_INPUT or name in CALIBRATION_PREFLIGHT_ONLY, err
+        if name not in CALIBRATION_PREFLIGHT_ONLY:
+            code, _, err = run_cli(["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
+                                    case.parent / "out" / "report", "-q"], case, names=(names,))
+            assert code == EXIT_BAD_INPUT, err
 
 
 @pytest.mark.parametrize("name", list(GOOD_LOGS))
@@ -431,13 +435,17 @@ def _output_cases(case: Path) -> dict:
         "follow -o onto the people file": (["follow", "--people", case / "people.csv", "--target", "0", "-o",
                                             case / "people.csv", "--json"], "people.csv"),
         "import-bag -o inside the bag": (["import-bag", case / "log", "-o", case / "log" / "x"], "x"),
+        "report --out inside the log": (["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
+                                         log / "report"], "report"),
+        "report --out onto the extrinsics": (["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
+                                              case / "calibrated.yaml"], "calibrated.yaml"),
     }
 
 
 OUTPUT_CASES = ["-o onto the log's sensors.yaml", "-o onto the log's robot.csv", "-o is the log directory",
                 "-o inside the log directory", "-o an existing folder", "-o under a file",
                 "import-people -o onto its input", "import-people -o a folder", "follow -o onto the people file",
-                "import-bag -o inside the bag"]
+                "import-bag -o inside the bag", "report --out inside the log", "report --out onto the extrinsics"]
 
 
 @pytest.mark.parametrize("name", OUTPUT_CASES)
@@ -526,6 +534,9 @@ def test_calibrated_yaml_evaluates_and_feeds_back(case):
     assert json.loads(out)
     code, _, err = run_cli(["calibrate", case / "log", "-o", case.parent / "out" / "again.yaml", "-q"], case)
     assert code == 0, err
+    code, _, err = run_cli(["report", case / "log", "--extrinsics", case / "calibrated.yaml", "--extrinsics",
+                            case.parent / "out" / "again.yaml", "--out", case.parent / "out" / "report", "-q"], case)
+    assert code == 0 and (case.parent / "out" / "report" / "report.md").exists(), err
 
 
 # --------------------------------------------------------------------- named cases (people files)
