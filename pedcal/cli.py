@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import math
 import sys
 from pathlib import Path
 
@@ -79,10 +81,35 @@ def cmd_import_bag(args) -> int:
     from pedcal.io.atomic import check_output
     from pedcal.io.ros import import_bag
 
-    check_output(args.output, inputs=[args.bag], directory=True)
-    written = import_bag(args.bag, args.output, amcl_topic=args.amcl_topic, odom_topic=args.odom_topic)
+    check_output(args.output, inputs=[args.bag, args.sensors], directory=True)
+    pose_sigma = None if args.pose_sigma is None else (args.pose_sigma[0], math.radians(args.pose_sigma[1]))
+    written = import_bag(args.bag, args.output, amcl_topic=args.amcl_topic, odom_topic=args.odom_topic,
+                         sensors=args.sensors, head_offset_m=args.head_offset, localization=args.localization,
+                         localization_topic=args.localization_topic, map_frame=args.map_frame,
+                         base_frame=args.base_frame, head_frame=args.head_frame, people=args.people,
+                         people_frame=args.people_frame, pose_sigma=pose_sigma)
     for path, n in written.items():
-        print(f"wrote {path} ({n} rows)")
+        print(f"wrote {path} ({n} {'rows' if path.suffix in ('.csv', '.parquet') else 'entries'})")
+    return 0
+
+
+def cmd_export(args) -> int:
+    if args.format == "tum":
+        from pedcal.io import read_log, read_sensors_yaml
+        from pedcal.io.tum import write_tum
+
+        log = read_log(args.input)
+        nets = {p.stem: read_sensors_yaml(p) for p in args.extrinsics}
+        for name, path in write_tum(log, args.output, nets).items():
+            print(f"wrote {path} ({name})")
+        return 0
+    from pedcal.io.export import export_extrinsics
+
+    if args.extrinsics:
+        raise PedcalInputError("--extrinsics goes with --format tum; give the calibrated YAML as INPUT",
+                               path=args.input)
+    path = export_extrinsics(args.input, args.output, args.format, ros_version=args.ros, prefix=args.prefix)
+    print(f"wrote {path}")
     return 0
 
 
@@ -92,7 +119,7 @@ def cmd_import_people(args) -> int:
     from pedcal.io.pedestrians import read_pedestrians
 
     check_output(args.output, inputs=[args.input])
-    people = read_pedestrians(args.input, kind=args.kind)
+    people = read_pedestrians(args.input, kind=args.kind, fps=args.fps)
     write_people_csv(people, args.output)
     print(f"wrote {args.output} ({len(people)} rows, {people['person'].nunique()} people)")
     return 0
@@ -153,6 +180,8 @@ def cmd_follow(args) -> int:
 # ------------------------------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pedcal", description=__doc__.splitlines()[0])
+    p.add_argument("-q", "--quiet", dest="log_quiet", action="store_true", help="warnings and errors only")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more detail (debug messages)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="simulate a scenario: a calibration log and an evaluation log")
@@ -180,17 +209,46 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_calibrate)
 
-    s = sub.add_parser("import-bag", help="ROS 1/2 bag -> robot.csv / odometry.csv")
+    s = sub.add_parser("import-bag", help="ROS 1/2 bag or rostopic echo -p CSV -> a log directory")
     s.add_argument("bag", type=Path)
     s.add_argument("-o", "--output", required=True, type=Path, help="log directory")
     s.add_argument("--amcl-topic", default=None)
     s.add_argument("--odom-topic", default=None)
+    s.add_argument("--localization", default="auto", choices=["auto", "amcl", "odometry", "tf"],
+                   help="robot.csv from /amcl_pose, an Odometry topic in the map frame, or /tf map -> base_link")
+    s.add_argument("--localization-topic", default=None, help="the AMCL or map-frame Odometry topic")
+    s.add_argument("--map-frame", default="map")
+    s.add_argument("--base-frame", default="base_link")
+    s.add_argument("--head-frame", default=None, help="head offset from /tf (base frame -> this frame)")
+    s.add_argument("--head-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="head top in the base frame (m), written to meta.yaml")
+    s.add_argument("--people", action="append", default=None, metavar="TOPIC=SENSOR",
+                   help="people-tracker topic of one ceiling sensor -> observations.csv (repeatable; SENSOR "
+                        "defaults to the topic name)")
+    s.add_argument("--people-frame", default="auto", choices=["auto", "world", "sensor", "optical"],
+                   help="frame of the people points (auto: from each header)")
+    s.add_argument("--sensors", type=Path, default=None,
+                   help="installed sensors.yaml: maps sensor/optical-frame points, copied into the log")
+    s.add_argument("--pose-sigma", type=float, nargs=2, default=None, metavar=("M", "DEG"),
+                   help="localization sigma when the source has no covariance (/tf)")
     s.set_defaults(func=cmd_import_bag)
+
+    s = sub.add_parser("export", help="calibrated extrinsics as a ROS launch file, URDF or JSON; a log's paths as TUM")
+    s.add_argument("input", type=Path, help="calibrated YAML (tf-launch, urdf, json) or a log directory (tum)")
+    s.add_argument("--format", required=True, choices=["tf-launch", "urdf", "json", "tum"])
+    s.add_argument("-o", "--output", required=True, type=Path, help="output file (tum: a directory)")
+    s.add_argument("--ros", type=int, default=1, choices=[1, 2], help="tf-launch: ROS 1 or ROS 2 launch XML")
+    s.add_argument("--prefix", default="", help="child frame = prefix + sensor id")
+    s.add_argument("--extrinsics", action="append", type=Path, default=[],
+                   help="tum: also the head path seen with these extrinsics (repeatable)")
+    s.set_defaults(func=cmd_export)
 
     s = sub.add_parser("import-people", help="recorded pedestrian file (ATC, ETH/UCY, THOR) -> people CSV")
     s.add_argument("input", type=Path)
     s.add_argument("-o", "--output", required=True, type=Path)
     s.add_argument("--kind", default="auto", choices=["auto", "atc", "eth_ucy", "thor", "people"])
+    s.add_argument("--fps", type=float, default=None,
+                   help="frame rate of a frame-numbered (ETH/UCY) file whose name does not identify the recording")
     s.set_defaults(func=cmd_import_people)
 
     s = sub.add_parser("demo", help="simulate the paper scenario, calibrate it, print the accuracy table")
@@ -256,8 +314,23 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
+    """The command line's logging: the ``pedcal`` logger to stderr, INFO (progress, drawn as bars
+    on a terminal) by default, WARNING with ``-q``, DEBUG with ``-v``."""
+    from pedcal.progress import ProgressHandler
+
+    logger = logging.getLogger("pedcal")
+    for h in [h for h in logger.handlers if isinstance(h, ProgressHandler)]:
+        logger.removeHandler(h)
+    handler = ProgressHandler()
+    handler.setFormatter(logging.Formatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(quiet=args.log_quiet, verbose=args.verbose)
     try:
         return int(args.func(args) or 0)
     except PedcalInputError as e:

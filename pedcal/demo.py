@@ -8,7 +8,7 @@ built from them.
 from __future__ import annotations
 
 import json
-import sys
+import logging
 from pathlib import Path
 
 from pedcal.io.atomic import write_text_atomic
@@ -42,7 +42,7 @@ def run_methods(sim, out_dir: Path, progress: bool = True) -> dict:
     results = {}
     for method in METHOD_ORDER:
         if progress:
-            print(f"[demo] {method} ...", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"[demo] {method} ...")
         network, runtime, assoc = calibrate_scored(sim, method)
         if method != "installed":
             write_sensors_yaml(network, out_dir / f"calibrated_{method}.yaml")

@@ -92,3 +92,26 @@ def test_bad_pedestrian_files(tmp_path, content, kind, match, row, column):
     assert ei.value.path == str(p)
     if row is not None:
         assert (ei.value.row, ei.value.column) == (row, column)
+
+
+def test_import_people_fps_for_renamed_recordings(shared_data, tmp_path, capsys):
+    """A renamed ETH/UCY file does not get a guessed rate: the command asks for --fps; with it,
+    every real recording plays at walking speed."""
+    from pedcal.cli import EXIT_BAD_INPUT, main
+
+    for name in ("biwi_eth", "biwi_hotel", "crowds_zara01"):
+        renamed = tmp_path / f"{name}_copy.txt"
+        renamed.write_bytes((shared_data / "eth_ucy" / f"{name}.txt").read_bytes())
+        code = main(["import-people", str(renamed), "-o", str(tmp_path / "p.csv")])
+        err = capsys.readouterr().err
+        assert code == EXIT_BAD_INPUT and renamed.name in err and "--fps" in err
+        fps = 15.0 if name == "biwi_eth" else 25.0
+        assert main(["import-people", str(renamed), "-o", str(tmp_path / f"{name}.csv"), "--fps", str(fps)]) == 0
+        people = pd.read_csv(tmp_path / f"{name}.csv")
+        original = read_eth_ucy(shared_data / "eth_ucy" / f"{name}.txt")
+        np.testing.assert_allclose(people["t"], original["t"])
+        assert 0.5 < median_speed_mps(people.astype({"person": str})) < 1.8       # people walk
+    capsys.readouterr()
+    code = main(["import-people", str(shared_data / "thor" / "exp-1-run-2.csv"),
+                 "-o", str(tmp_path / "t.csv"), "--fps", "10"])
+    assert code == EXIT_BAD_INPUT and "--fps applies to frame-numbered" in capsys.readouterr().err

@@ -57,8 +57,9 @@ def test_rostopic_amcl_csv_bad_input(tmp_path, shared_data):
 def test_ros2_bag_odometry(tmp_path, shared_data):
     bag = shared_data / "turtlebot4_ros2_bag"
     tables = read_bag(bag)
-    assert tables["robot"] is None          # the drive has no AMCL topic
-    odo = tables["odometry"]
+    assert tables.robot is None             # the drive has no localization (only odom -> base_link)
+    assert "no /tf chain 'map' -> 'base_link'" in tables.missing
+    odo = tables.odometry
     assert list(odo.columns) == list(ODOMETRY_COLUMNS) and len(odo) == 920
     assert odo["t"].iloc[0] == pytest.approx(1663967375.744427509, abs=1e-6)   # header stamp
     assert odo["x"].iloc[0] == pytest.approx(6.539614677429199)
@@ -66,12 +67,18 @@ def test_ros2_bag_odometry(tmp_path, shared_data):
     speed = np.hypot(np.diff(odo["x"]), np.diff(odo["y"])) / np.diff(odo["t"])
     assert np.median(speed[np.isfinite(speed)]) < 0.5
     # The .db3 file names the same bag.
-    assert len(read_bag(next(bag.glob("*.db3")))["odometry"]) == 920
+    assert len(read_bag(next(bag.glob("*.db3"))).odometry) == 920
 
-    written = import_bag(bag, tmp_path / "log")
-    assert written == {tmp_path / "log" / "odometry.csv": 920}
-    back = read_table(tmp_path / "log" / "odometry.csv", ODOMETRY_COLUMNS)
+    # Without localization the import is refused (calibrate would need robot.csv) and writes nothing.
+    with pytest.raises(PedcalInputError, match="no localization in the bag"):
+        import_bag(bag, tmp_path / "log")
+    assert not (tmp_path / "log").exists()
+    # Taking the odom frame as the map: robot.csv from the Odometry topic in that frame.
+    written = import_bag(bag, tmp_path / "log", map_frame="odom", pose_sigma=(0.05, 0.03))
+    assert written == {tmp_path / "log" / "robot.csv": 920}
+    back = read_table(tmp_path / "log" / "robot.csv", ROBOT_COLUMNS)
     assert (np.diff(back["t"]) > 0).all()
+    np.testing.assert_allclose(back["cov_xx"], 0.05 ** 2)
 
 
 def test_ros2_bag_bad_topics(shared_data):
@@ -113,7 +120,7 @@ def test_ros1_bag_amcl_round_trip(tmp_path):
         c[np.ix_([0, 1, 5], [0, 1, 5])] = a @ a.T
         covs.append(c.reshape(36))
     write_ros1_bag(tmp_path / "amcl.bag", list(zip(t, x, y, yaw, covs, strict=True)))
-    robot = read_bag(tmp_path / "amcl.bag")["robot"]
+    robot = read_bag(tmp_path / "amcl.bag").robot
     assert len(robot) == n
     np.testing.assert_allclose(robot["t"], t, atol=2e-6)
     np.testing.assert_allclose(robot[["x", "y"]].to_numpy(), np.column_stack([x, y]), atol=0)
@@ -131,7 +138,7 @@ def test_ros1_bag_ambiguous_and_missing(tmp_path):
     write_ros1_bag(tmp_path / "two.bag", pose, topics=("/amcl_pose", "/pose"))
     with pytest.raises(PedcalInputError, match="several geometry_msgs/msg/PoseWithCovarianceStamped topics"):
         read_bag(tmp_path / "two.bag")
-    assert len(read_bag(tmp_path / "two.bag", amcl_topic="/pose")["robot"]) == 1
+    assert len(read_bag(tmp_path / "two.bag", amcl_topic="/pose").robot) == 1
     with pytest.raises(PedcalInputError, match="bag not found"):
         read_bag(tmp_path / "nope.bag")
     (tmp_path / "junk.bag").write_bytes(b"not a bag")

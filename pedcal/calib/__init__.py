@@ -25,7 +25,22 @@ METHODS = {
 
 def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, **options) -> CalibrationResult:
     """Calibrate every sensor of ``log`` with ``method``; returns a CalibrationResult whose
-    ``network`` is the calibrated schema of LOG_FORMAT.md. ``log`` is validated first
+    ``network`` is the calibrated schema of LOG_FORMAT.md.
+
+    ``progress=True`` logs progress at INFO on the ``pedcal`` logger. ``options`` by method:
+
+    - ``factorgraph``: ``graph`` (a recipe name in graphs/, a TOML path or a GraphRecipe),
+      ``online`` (True: incremental iSAM2), ``is_robot`` (bool mask over ``log.observations``
+      rows; None: the association finds the robot), ``init_network`` (a SensorNetwork to start
+      from), and any GraphRecipe field by name to override the recipe
+    - ``gridsearch``: ``is_robot``, ``angle_range_deg`` (60), ``angle_step_deg`` (0.01),
+      ``offset_range_m`` (1.0), ``offset_step_m`` (0.005)
+    - ``alternative``: the keys of ``pedcal.calib.alternative.DEFAULT_PARAMS`` (gates, rounds,
+      noise, priors, ``compute_sigma``)
+    - ``closedform``: ``is_robot``, ``latency_s``, ``min_pairs``, ``collinear_spread_m``, and the
+      association's parameters (``pedcal.calib.association.DEFAULT_PARAMS``)
+
+    An option a method does not take raises an error naming it. ``log`` is validated first
     (pedcal.io.validate) and refused when it would need more than ``max_memory_gb`` (default 4)."""
     if method not in METHODS:
         raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")

@@ -35,7 +35,7 @@ sigma) cheap, and GTSAM gives per-factor robust kernels and the Pose3 manifold d
 
 from __future__ import annotations
 
-import sys
+import logging
 import warnings
 from dataclasses import dataclass, field
 from functools import partial
@@ -357,7 +357,7 @@ def calibrate_alternative(log: Log, *, progress: bool = False, **options) -> Cal
 
     def say(msg: str) -> None:
         if progress:
-            print(f"alternative: {msg}", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"alternative: {msg}")
 
     with Timer() as timer:
         _check_observations(log)

@@ -21,7 +21,7 @@ along the line, so one sensor alone cannot tell them apart.
 
 from __future__ import annotations
 
-import sys
+import logging
 import warnings
 from dataclasses import dataclass, field
 
@@ -386,12 +386,13 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
                 found[sid] = (R, t)
                 is_robot[sd.rows[sel]] = True
             if progress:
-                print(f"association pass 1: sensor {sid} ({i + 1}/{len(per_sensor)})", file=sys.stderr)
+                logging.getLogger(__name__).info(f"association pass 1: sensor {sid} ({i + 1}/{len(per_sensor)})",
+                                                 extra={"progress": (i + 1, len(per_sensor))})
 
         # one latency for the whole log, pooled over the sensors
         latency_s = estimate_latency(log, is_robot, max_latency_s=params["max_latency_s"], p_sensor=p_sensor)
         if progress:
-            print(f"association: tracker latency {latency_s:+.3f} s", file=sys.stderr)
+            logging.getLogger(__name__).info(f"association: tracker latency {latency_s:+.3f} s")
         q_all = head_at(t_all - latency_s)
         in_range = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
         for sd in per_sensor.values():
@@ -434,8 +435,8 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
         segments = pd.concat(seg_rows, ignore_index=True) if seg_rows else _segment_table(None, None, None, None,
                                                                                             params)
     if progress:
-        print(f"association: {int(is_robot.sum())} of {n_obs} observations are the robot "
-              f"({timer.elapsed_s:.2f} s)", file=sys.stderr)
+        logging.getLogger(__name__).info(f"association: {int(is_robot.sum())} of {n_obs} observations are the robot "
+                                         f"({timer.elapsed_s:.2f} s)")
     return AssociationResult(is_robot, SensorNetwork(sensors_out, log.sensors.frame), segments, latency_s,
                              timer.elapsed_s, params)
 

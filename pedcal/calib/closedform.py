@@ -10,7 +10,7 @@ rotation about that line is unconstrained, and the installed pose is kept.
 
 from __future__ import annotations
 
-import sys
+import logging
 import warnings
 
 import gtsam
@@ -88,7 +88,8 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             rows = use[rows_of.get(s.id, np.zeros(0, int))]
             n = len(rows)
             if progress:
-                print(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs", file=sys.stderr)
+                logging.getLogger(__name__).info(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs",
+                                                 extra={"progress": (i + 1, len(log.sensors))})
             if n < min_pairs:
                 sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n,
                                                     status="no-data"))

@@ -49,7 +49,7 @@ track), so re-solving for it buys little.
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 import warnings
 from dataclasses import dataclass, field, fields
@@ -164,7 +164,7 @@ class GraphRecipe:
 # ---------------------------------------------------------------------------------------- helpers
 def _log(progress: bool, msg: str) -> None:
     if progress:
-        print(f"[factorgraph] {msg}", file=sys.stderr, flush=True)
+        logging.getLogger(__name__).info(f"[factorgraph] {msg}")
 
 
 def _robust(recipe: GraphRecipe, base):

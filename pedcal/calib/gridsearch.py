@@ -43,7 +43,7 @@ cells, bit for bit, much faster:
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -156,7 +156,8 @@ class _Progress:
         pct = int(100 * fraction) // 10 * 10
         if pct != self.last or fraction >= 1.0:
             self.last = pct
-            print(f"gridsearch {self.label}: {stage} {pct:3d}%", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"gridsearch {self.label}: {stage} {pct:3d}%",
+                                             extra={"progress": (pct, 100)})
 
 
 def _first_min(values: np.ndarray, flat: np.ndarray) -> tuple[float, int]:
@@ -553,8 +554,8 @@ def calibrate_gridsearch(log: Log, *, progress: bool = False, is_robot=None, **o
             calibrated.append(SensorExtrinsics(sensor.id, sensor.position_m.copy(), sensor.ypr_deg.copy(),
                                                observations=n, status="no-data"))
             if progress:
-                print(f"gridsearch {sensor.id}: {n} robot observations, installed pose kept",
-                      file=sys.stderr, flush=True)
+                logging.getLogger(__name__).warning(f"gridsearch {sensor.id}: {n} robot observations, "
+                                                    "installed pose kept")
             continue
         res = grid_search_sensor(p_sensor_all[rows], head_all[rows], sensor, progress=progress, **options)
         ext = res.extrinsics

@@ -9,7 +9,7 @@ relinearization tolerance.
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -96,8 +96,8 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
                           waiting=[s for s in prob.sensor_ids if s not in conv])
         trace.steps.append(step)
         if progress:
-            print(f"[online] t={step.t - t_start:7.1f} s  converged {len(conv)}/{len(sig)}"
-                  f"  still need the robot: {', '.join(step.waiting) or 'none'}", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"[online] t={step.t - t_start:7.1f} s  converged {len(conv)}/{len(sig)}"
+                                             f"  still need the robot: {', '.join(step.waiting) or 'none'}")
     for _ in range(3):       # a few extra relinearization passes at the end
         isam.update()
     result = isam.calculateEstimate()

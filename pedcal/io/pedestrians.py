@@ -28,8 +28,11 @@ KINDS = ("atc", "eth_ucy", "thor", "people")
 # interpolation of the original annotation, which stepped 6 frames per 0.4 s (frames 780, 786, ...;
 # the positions at a shared frame number are identical), so there t = frame * 0.4 / 6 = frame / 15.
 # With /25 its median walking speed comes out at 2.45 m/s, with /15 at 1.47 m/s.
+# The rate is known only for the recordings named here; a file of another name (a renamed copy,
+# another recording) needs the rate given (--fps): guessing 25 would replay biwi_eth 1.67x too fast.
 ETH_UCY_FRAMES_PER_S = 25.0
-ETH_UCY_FRAMES_PER_S_BY_NAME = {"biwi_eth": 15.0}
+ETH_UCY_FRAMES_PER_S_BY_NAME = {"biwi_eth": 15.0, **{name: ETH_UCY_FRAMES_PER_S for name in (
+    "biwi_hotel", "crowds_zara01", "crowds_zara02", "crowds_zara03", "students001", "students003", "uni_examples")}}
 # Positions larger than this (in absolute value) cannot be metres in one building: millimetres.
 MAX_PLAUSIBLE_M = 1000.0
 
@@ -95,17 +98,29 @@ def read_atc(path: str | Path) -> pd.DataFrame:
     return _people(path, raw, "time_unix_s", "person_id", xy_scale=_metres_scale(path, raw))
 
 
-def eth_ucy_frames_per_s(path: Path) -> float:
-    return ETH_UCY_FRAMES_PER_S_BY_NAME.get(path.stem, ETH_UCY_FRAMES_PER_S)
+def eth_ucy_frames_per_s(path: Path, frames_per_s: float | None = None) -> float:
+    """The frame rate: ``frames_per_s`` when given, else the rate of the recording the file name
+    identifies (ETH_UCY_FRAMES_PER_S_BY_NAME); an unknown name without a rate is an input error."""
+    if frames_per_s is not None:
+        fps = float(frames_per_s)
+        if not (np.isfinite(fps) and fps > 0):
+            raise PedcalInputError(f"frame rate must be a positive number, got {frames_per_s!r}", path=path)
+        return fps
+    if path.stem not in ETH_UCY_FRAMES_PER_S_BY_NAME:
+        raise PedcalInputError(f"frame-numbered (ETH/UCY) file whose name does not identify the recording "
+                               f"(known: {', '.join(sorted(ETH_UCY_FRAMES_PER_S_BY_NAME))}); give its frame rate "
+                               f"with --fps (frames per second of the frame numbers)", path=path)
+    return ETH_UCY_FRAMES_PER_S_BY_NAME[path.stem]
 
 
 def read_eth_ucy(path: str | Path, frames_per_s: float | None = None) -> pd.DataFrame:
-    """ETH/UCY TSV ``frame ped_id x y`` (metres). t = frame / frames_per_s (25 by default, 15 for
-    biwi_eth: see ETH_UCY_FRAMES_PER_S_BY_NAME)."""
+    """ETH/UCY TSV ``frame ped_id x y`` (metres). t = frame / frames_per_s: given, or known from the
+    file name (25, 15 for biwi_eth: see ETH_UCY_FRAMES_PER_S_BY_NAME)."""
     path = Path(path)
     raw = _read_text_table(path, ETH_UCY_COLUMNS, r"\s+", header=False)
-    fps = eth_ucy_frames_per_s(path) if frames_per_s is None else float(frames_per_s)
-    return _people(path, raw, "frame", "ped_id", t_scale=1.0 / fps)
+    people = _people(path, raw, "frame", "ped_id")          # cell errors first, then the rate
+    people["t"] = people["t"] * (1.0 / eth_ucy_frames_per_s(path, frames_per_s))
+    return people
 
 
 def _has_header(path: Path) -> bool:
@@ -175,13 +190,19 @@ def detect_kind(path: str | Path) -> str:
                            f"{', '.join(KINDS)}", path=path)
 
 
-def read_pedestrians(path: str | Path, kind: str = "auto") -> pd.DataFrame:
+def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = None) -> pd.DataFrame:
     """Read any supported recording into ``t, person, x, y``; ``kind`` is auto, atc, eth_ucy, thor
-    or people (pedcal's own CSV)."""
+    or people (pedcal's own CSV). ``fps``: the frame rate of a frame-numbered (ETH/UCY) file,
+    needed when its name does not identify the recording; the other layouts carry seconds."""
     path = Path(path)
     if kind == "auto":
         kind = detect_kind(path)
     readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}
     if kind not in readers:
         raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)
+    if kind == "eth_ucy":
+        return validate_people(read_eth_ucy(path, frames_per_s=fps), path)
+    if fps is not None:
+        raise PedcalInputError(f"--fps applies to frame-numbered (ETH/UCY) files; this {kind} file's times are "
+                               "in seconds", path=path)
     return validate_people(readers[kind](path), path)

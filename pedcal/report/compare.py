@@ -8,7 +8,7 @@ Kimoto et al. did. The log's installed extrinsics (sensors.yaml) are scored besi
 
 from __future__ import annotations
 
-import sys
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -27,25 +27,32 @@ def _labels(paths: list[Path]) -> list[str]:
     return [s if stems.count(s) == 1 and s != "installed" else str(p) for s, p in zip(stems, paths, strict=True)]
 
 
-def compare_extrinsics(log_path: str | Path, extrinsics: list[str | Path], out_dir: str | Path | None = None,
+def compare_extrinsics(log_path, extrinsics, out_dir: str | Path | None = None,
                        *, progress: bool = True) -> Path:
     """Score each extrinsics file (and the installed extrinsics) on the log at ``log_path``;
     write ``report.md``, ``results.json`` and figures into ``out_dir`` (default:
-    ``report-<log name>``). Returns the report's path."""
+    ``report-<log name>``). Returns the report's path.
+
+    ``log_path`` may be a :class:`pedcal.model.Log` in memory; ``extrinsics`` a list of YAML paths
+    and/or SensorNetworks, or a mapping {label: path or SensorNetwork}."""
     from pedcal.errors import PedcalInputError
     from pedcal.io import read_log, read_sensors_yaml
     from pedcal.metrics import evaluate, robot_rows
+    from pedcal.model import Log, SensorNetwork
 
-    log_path = Path(log_path)
-    paths = [Path(p) for p in extrinsics]
+    given_log = log_path if isinstance(log_path, Log) else None
+    log_path = Path(log_path) if given_log is None else Path(given_log.path or "log")
+    names = list(extrinsics) if isinstance(extrinsics, dict) else None
+    items = list(extrinsics.values()) if names is not None else list(extrinsics)
+    paths = [Path(f"extrinsics{i + 1}") if isinstance(p, SensorNetwork) else Path(p) for i, p in enumerate(items)]
     if not paths:
         raise PedcalInputError("give at least one --extrinsics file to compare on the log", path=log_path)
     out_dir = Path(out_dir) if out_dir is not None else Path(f"report-{log_path.resolve().name}")
-    networks = [read_sensors_yaml(p) for p in paths]        # a bad file is an error naming it
-    log = read_log(log_path)
-    labels = ["installed", *_labels(paths)]
+    networks = [p if isinstance(p, SensorNetwork) else read_sensors_yaml(p) for p in items]  # a bad file names it
+    log = given_log if given_log is not None else read_log(log_path)
+    labels = ["installed", *(map(str, names) if names is not None else _labels(paths))]
     networks = [log.sensors, *networks]
-    files = ["sensors.yaml (in the log)", *map(str, paths)]
+    files = ["sensors.yaml (in the log)", *("(in memory)" if isinstance(p, SensorNetwork) else str(p) for p in items)]
 
     has_truth, has_truth_robot = log.truth is not None, log.truth_robot is not None
     mask, how = robot_rows(log)
@@ -53,7 +60,7 @@ def compare_extrinsics(log_path: str | Path, extrinsics: list[str | Path], out_d
     summary, per_sensor, heads = [], [], []
     for label, net, file in zip(labels, networks, files, strict=True):
         if progress:
-            print(f"report: scoring {label}", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"report: scoring {label}")
         ev = evaluate(log, net)
         summary.append(dict(label=label, file=file,
                             sensor_rms_mm=None if ev.sensor_position_rms_mm is None

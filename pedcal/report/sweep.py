@@ -9,8 +9,8 @@ method and evaluates each on the evaluation log (the same route driven again), a
 
 from __future__ import annotations
 
+import logging
 import os
-import sys
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -263,7 +263,7 @@ def crlb_records(log, **labels) -> list[dict]:
 
 def _progress(enabled: bool, text: str) -> None:
     if enabled:
-        print(f"report: {text}", file=sys.stderr, flush=True)
+        logging.getLogger(__name__).info(f"report: {text}")
 
 
 def run_sweep(config: SweepConfig, *, scheduler: str | None = None, workers: int | None = None,

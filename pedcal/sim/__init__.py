@@ -8,7 +8,7 @@ same route driven twice with independent noise, the same sensors and installed e
 
 from __future__ import annotations
 
-import sys
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,7 +57,7 @@ def log_summary(log: Log) -> dict:
 
 def _progress(enabled: bool, text: str) -> None:
     if enabled:
-        print(f"simulate: {text}", file=sys.stderr, flush=True)
+        logging.getLogger(__name__).info(f"simulate: {text}")
 
 
 def _false_tracks(true_net: SensorNetwork, sc: Scenario, frames_t: np.ndarray,

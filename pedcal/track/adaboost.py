@@ -22,7 +22,7 @@ Bin statistics are computed for all features at once with one ``np.bincount`` pe
 from __future__ import annotations
 
 import io
-import sys
+import logging
 import zipfile
 from pathlib import Path
 
@@ -88,8 +88,8 @@ class RealAdaBoost:
             feats.append(f)
             hs.append(h)
             if progress and (t + 1) % 25 == 0:
-                print(f"  boosting round {t + 1}/{self.n_rounds}: feature {f}, Z={Z[f]:.4f}",
-                      file=sys.stderr, flush=True)
+                logging.getLogger(__name__).info(f"  boosting round {t + 1}/{self.n_rounds}: feature {f}, "
+                                                 f"Z={Z[f]:.4f}", extra={"progress": (t + 1, self.n_rounds)})
         self.feature_ = np.asarray(feats, dtype=np.int64)
         self.edges_ = edges[self.feature_]
         self.h_ = np.vstack(hs)

@@ -4,7 +4,7 @@ on freshly simulated frames of the paper's FX8 pair, or of another LIDAR preset)
 from __future__ import annotations
 
 import json
-import sys
+import logging
 import time
 from pathlib import Path
 
@@ -99,7 +99,8 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
             pose_people[motion] = pose_people.get(motion, 0) + 1
             pose_tp[motion] = pose_tp.get(motion, 0) + (j in found)
         if progress and ((k + 1) % 100 == 0 or k + 1 == frames):
-            print(f"  evaluated {k + 1}/{frames} frames ({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"  evaluated {k + 1}/{frames} frames ({time.monotonic() - t0:.0f} s)",
+                                             extra={"progress": (k + 1, frames)})
 
     def ratio(a, b):
         return float(a / b) if b else float("nan")

@@ -9,7 +9,7 @@ scores all people (CLEAR MOT, through ``motmetrics``).
 from __future__ import annotations
 
 import json
-import sys
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -230,7 +230,8 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
         v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner)
         pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, episode.occupancy)
         if progress and (k % 40 == 0 or k == n_frames - 1):
-            print(f"follow {episode.name}: frame {k + 1}/{n_frames} t={t:.1f}s state={out.state}", file=sys.stderr)
+            logging.getLogger(__name__).info(f"follow {episode.name}: frame {k + 1}/{n_frames} t={t:.1f}s "
+                                             f"state={out.state}", extra={"progress": (k + 1, n_frames)})
     log = pd.DataFrame(rows)
     log["target_track_id"] = log["target_track_id"].astype("Int64")
     log["claimed_person"] = log["claimed_person"].astype(object)
@@ -241,7 +242,14 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
 def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: int = 0, people_csv=None,
                target_id: str | None = None, progress: bool = False) -> FollowResult:
     """Run the scenario ``scenario`` (``pedcal.sim.follow.SCENARIOS``), or, with ``people_csv`` (a
-    ``t, person, x, y`` file), those trajectories with ``target_id`` carrying the transmitter."""
+    ``t, person, x, y`` file or such a DataFrame), those trajectories with ``target_id`` carrying
+    the transmitter."""
+    if isinstance(people_csv, pd.DataFrame):
+        from pedcal.errors import PedcalInputError
+
+        if target_id is None:
+            raise PedcalInputError("a people table needs target_id (the person carrying the transmitter)")
+        return run_episode(people_episode(people_csv, str(target_id)), tracker, seed, progress)
     if people_csv is not None:
         from pedcal.io.preflight import check_follow_people
 

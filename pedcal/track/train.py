@@ -27,7 +27,7 @@ Labelled clusters (``--labelled PATH``), either
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 import warnings
 from pathlib import Path
@@ -128,8 +128,8 @@ def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *
             labels.append(lab[lab >= 0])
         if progress and ((k + 1) % 250 == 0 or k + 1 == frames):
             n = sum(len(v) for v in labels)
-            print(f"  simulated {k + 1}/{frames} frames, {n} gated clusters ({time.monotonic() - t0:.0f} s)",
-                  file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"  simulated {k + 1}/{frames} frames, {n} gated clusters "
+                                             f"({time.monotonic() - t0:.0f} s)", extra={"progress": (k + 1, frames)})
     if not feats:
         return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
     return np.vstack(feats), np.concatenate(labels)
@@ -230,15 +230,15 @@ def train_detector(frames: int | None = None, seed: int = 0, labelled: str | Pat
         raise PedcalInputError(f"training needs people and non-people; got {int(y.sum())} people among "
                                f"{len(y)} clusters", path=labelled)
     if progress:
-        print(f"training RealAdaBoost on {len(y)} clusters ({int(y.sum())} people), {n_rounds} rounds",
-              file=sys.stderr, flush=True)
+        logging.getLogger(__name__).info(f"training RealAdaBoost on {len(y)} clusters ({int(y.sum())} people), "
+                                         f"{n_rounds} rounds")
     model = RealAdaBoost(n_rounds=n_rounds, n_bins=n_bins, seed=seed).fit(X, y, progress=progress)
     model.validation_ = None
     n_val = 0 if not n_sim else (max(1, round(VALIDATION_SHARE * n_sim)) if validation_frames is None
                                  else int(validation_frames))
     if n_val:
         if progress:
-            print(f"choosing the threshold on {n_val} validation frames", file=sys.stderr, flush=True)
+            logging.getLogger(__name__).info(f"choosing the threshold on {n_val} validation frames")
         X_val, y_val = simulated_training_set(n_val, seed, progress, stream=VALIDATION_STREAM)
         if len(np.unique(y_val)) == 2:
             t, recall, precision = choose_threshold(model.decision_function(X_val), y_val)
