@@ -94,6 +94,9 @@ def cmd_import_bag(args) -> int:
 
 
 def cmd_export(args) -> int:
+    from pedcal.io.atomic import check_output
+
+    check_output(args.output, inputs=[args.input, *args.extrinsics], directory=args.format == "tum")
     if args.format == "tum":
         from pedcal.io import read_log, read_sensors_yaml
         from pedcal.io.tum import write_tum

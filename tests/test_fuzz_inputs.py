@@ -439,13 +439,17 @@ def _output_cases(case: Path) -> dict:
                                          log / "report"], "report"),
         "report --out onto the extrinsics": (["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
                                               case / "calibrated.yaml"], "calibrated.yaml"),
+        "export -o onto its input": (["export", case / "calibrated.yaml", "--format", "json", "-o",
+                                      case / "calibrated.yaml"], "calibrated.yaml"),
+        "export tum -o inside the log": (["export", log, "--format", "tum", "-o", log / "tum"], "tum"),
     }
 
 
 OUTPUT_CASES = ["-o onto the log's sensors.yaml", "-o onto the log's robot.csv", "-o is the log directory",
                 "-o inside the log directory", "-o an existing folder", "-o under a file",
                 "import-people -o onto its input", "import-people -o a folder", "follow -o onto the people file",
-                "import-bag -o inside the bag", "report --out inside the log", "report --out onto the extrinsics"]
+                "import-bag -o inside the bag", "report --out inside the log", "report --out onto the extrinsics",
+                "export -o onto its input", "export tum -o inside the log"]
 
 
 @pytest.mark.parametrize("name", OUTPUT_CASES)
@@ -510,6 +514,9 @@ def test_bad_extrinsics_for_evaluate(case, name):
     code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
                            names=("calibrated.yaml",))
     assert code == EXIT_BAD_INPUT, err
+    code, _, err = run_cli(["export", case / "calibrated.yaml", "--format", "tf-launch", "-o",
+                            case.parent / "out" / "tf.launch"], case, names=("calibrated.yaml",))
+    assert code == EXIT_BAD_INPUT, err
 
 
 @pytest.mark.parametrize("how", ["cp1252", "directory", "missing"])
@@ -537,6 +544,10 @@ def test_calibrated_yaml_evaluates_and_feeds_back(case):
     code, _, err = run_cli(["report", case / "log", "--extrinsics", case / "calibrated.yaml", "--extrinsics",
                             case.parent / "out" / "again.yaml", "--out", case.parent / "out" / "report", "-q"], case)
     assert code == 0 and (case.parent / "out" / "report" / "report.md").exists(), err
+    for fmt, name in (("json", "c.json"), ("urdf", "c.urdf"), ("tum", "tum")):
+        src = case / "log" if fmt == "tum" else case / "calibrated.yaml"
+        code, _, err = run_cli(["export", src, "--format", fmt, "-o", case.parent / "out" / name], case)
+        assert code == 0 and (case.parent / "out" / name).exists(), err
 
 
 # --------------------------------------------------------------------- named cases (people files)
