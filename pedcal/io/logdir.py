@@ -84,6 +84,8 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
         names = pd.read_csv(path, nrows=0, **options).columns
         wanted = {str(n).strip() for n in columns}
         use = [n for n in names if str(n).strip() in wanted] if columns else None
+        if use is not None and len(use) == len(names):
+            use = None       # usecols turns off the C reader's parallel conversion: only for extra columns
         dtype = {n: str for n in names if str(n).strip() in text_columns}
         return pd.read_csv(path, usecols=use, dtype=dtype, **options)
     except pd.errors.EmptyDataError:
