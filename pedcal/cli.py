@@ -60,9 +60,13 @@ def cmd_evaluate(args) -> int:
 def cmd_calibrate(args) -> int:
     from pedcal.calib import calibrate
     from pedcal.io import read_log, write_sensors_yaml
+    from pedcal.io.atomic import check_output
 
+    check_output(args.output, inputs=[args.log, args.graph])
     log = read_log(args.log)
     kwargs = {}
+    if args.max_memory_gb is not None:
+        kwargs["max_memory_gb"] = args.max_memory_gb
     if args.graph is not None:
         kwargs["graph"] = args.graph
     if args.online:
@@ -74,8 +78,10 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_import_bag(args) -> int:
+    from pedcal.io.atomic import check_output
     from pedcal.io.ros import import_bag
 
+    check_output(args.output, inputs=[args.bag, args.sensors], directory=True)
     pose_sigma = None if args.pose_sigma is None else (args.pose_sigma[0], math.radians(args.pose_sigma[1]))
     written = import_bag(args.bag, args.output, amcl_topic=args.amcl_topic, odom_topic=args.odom_topic,
                          sensors=args.sensors, head_offset_m=args.head_offset, localization=args.localization,
@@ -88,6 +94,9 @@ def cmd_import_bag(args) -> int:
 
 
 def cmd_export(args) -> int:
+    from pedcal.io.atomic import check_output
+
+    check_output(args.output, inputs=[args.input, *args.extrinsics], directory=args.format == "tum")
     if args.format == "tum":
         from pedcal.io import read_log, read_sensors_yaml
         from pedcal.io.tum import write_tum
@@ -109,8 +118,10 @@ def cmd_export(args) -> int:
 
 def cmd_import_people(args) -> int:
     from pedcal.io import write_people_csv
+    from pedcal.io.atomic import check_output
     from pedcal.io.pedestrians import read_pedestrians
 
+    check_output(args.output, inputs=[args.input])
     people = read_pedestrians(args.input, kind=args.kind, fps=args.fps)
     write_people_csv(people, args.output)
     print(f"wrote {args.output} ({len(people)} rows, {people['person'].nunique()} people)")
@@ -142,16 +153,24 @@ def cmd_detect_eval(args) -> int:
 
 
 def cmd_report(args) -> int:
+    from pedcal.io.atomic import check_output
     from pedcal.report.command import report_command
 
+    if args.out is not None:
+        check_output(args.out, inputs=[args.log, *args.extrinsics], directory=True)
     return report_command(args)
 
 
 def cmd_follow(args) -> int:
+    from pedcal.io import preflight
+    from pedcal.io.atomic import check_output
     from pedcal.track.follow import run_follow
 
-    res = run_follow(args.scenario, tracker=args.tracker, seed=args.seed, people_csv=args.people,
-                     target_id=args.target, progress=not args.json)
+    if args.output is not None:
+        check_output(args.output, inputs=[args.people], directory=True)
+    with preflight.limits(max_follow_s=args.max_duration_s):
+        res = run_follow(args.scenario, tracker=args.tracker, seed=args.seed, people_csv=args.people,
+                         target_id=args.target, progress=not args.json)
     if args.output is not None:
         res.save(args.output)
     if args.json:
@@ -188,6 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=["factorgraph", "gridsearch", "alternative", "closedform"])
     s.add_argument("--graph", type=Path, default=None, help="factor-graph recipe (graphs/*.toml)")
     s.add_argument("--online", action="store_true", help="incremental (iSAM2) calibration")
+    s.add_argument("--max-memory-gb", type=float, default=None,
+                   help="refuse a log whose graph would need more memory (default 4)")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_calibrate)
 
@@ -303,6 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--json", action="store_true")
     s.add_argument("-o", "--output", type=Path, default=None, help="save follow.json and follow_log.parquet here")
+    s.add_argument("--max-duration-s", type=float, default=None,
+                   help="with --people: refuse a target trajectory longer than this (default 3600 s)")
     s.set_defaults(func=cmd_follow)
     return p
 
@@ -332,6 +355,15 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as e:
         print(f"pedcal {args.command}: error: {e.filename or e}: no such file or directory", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except OSError as e:
+        if e.filename is None:
+            raise
+        # a path the user gave that cannot be read or written (permission, a directory, under a file)
+        print(f"pedcal {args.command}: error: {e.filename}: {e.strerror or e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print(f"pedcal {args.command}: error: out of memory", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -29,3 +29,27 @@ class PedcalInputError(ValueError):
 
 class DegenerateDataWarning(UserWarning):
     """The data leave something unestimable; the message says what."""
+
+
+def show(value, limit: int = 40) -> str:
+    """A value as a message quotes it: plain numbers (never ``np.float64(...)``), text quoted and
+    cut to ``limit`` characters with unprintable characters escaped (a binary file's bytes are
+    not dumped into a message)."""
+    import numbers
+
+    if isinstance(value, bool):
+        return str(value)
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        return repr(float(value))
+    if isinstance(value, (list, tuple, dict, set)):      # bounded: a YAML alias bomb prints small
+        import reprlib
+
+        brief = reprlib.Repr()
+        brief.maxlevel, brief.maxlist, brief.maxdict, brief.maxstring, brief.maxother = 2, 6, 4, limit, limit
+        value = brief.repr(value)
+    text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
+    escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
+    cut = len(escaped) > limit
+    return f"'{escaped[:limit]}'" + ("..." if cut else "")

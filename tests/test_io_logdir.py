@@ -24,11 +24,13 @@ def make_log(seed=0) -> Log:
     sensors = make_network(rng)
     n = 50
     t = np.sort(rng.uniform(0, 100, n))
+    A = rng.normal(0, [0.05, 0.05, 0.02], (n, 3, 3))      # a positive definite covariance per row
+    cov = A @ A.transpose(0, 2, 1) + np.diag([1e-4, 1e-4, 1e-5])
     robot = pd.DataFrame({"t": t, "x": rng.normal(size=n), "y": rng.normal(size=n),
-                          "yaw": rng.uniform(-np.pi, np.pi, n), "cov_xx": rng.uniform(0, 1e-2, n),
-                          "cov_xy": rng.normal(0, 1e-3, n), "cov_xyaw": rng.normal(0, 1e-4, n),
-                          "cov_yy": rng.uniform(0, 1e-2, n), "cov_yyaw": rng.normal(0, 1e-4, n),
-                          "cov_yawyaw": rng.uniform(0, 1e-3, n)})
+                          "yaw": rng.uniform(-np.pi, np.pi, n), "cov_xx": cov[:, 0, 0],
+                          "cov_xy": cov[:, 0, 1], "cov_xyaw": cov[:, 0, 2],
+                          "cov_yy": cov[:, 1, 1], "cov_yyaw": cov[:, 1, 2],
+                          "cov_yawyaw": cov[:, 2, 2]})
     m = 120
     sensor = rng.choice(sensors.ids, m)
     track = rng.choice(["7", "12", "walker-3"], m)
@@ -244,14 +246,25 @@ def test_completely_empty_file(tmp_path):
     expect_error(tmp_path, "missing required column", file="robot.csv")
 
 
-def test_clock_going_back_within_a_track(tmp_path):
+def test_repeated_time_within_a_track(tmp_path):
     write_good(tmp_path)
     obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)
     key = obs["sensor"] + "/" + obs["track"]
     rows = np.flatnonzero(key == key.iloc[0])
     bad = int(rows[2])
     edit_csv(tmp_path / "observations.csv", set_cell(bad, "t", obs.loc[rows[1], "t"]))   # repeats
-    expect_error(tmp_path, "does not increase", row=bad, column="t")
+    expect_error(tmp_path, f"repeats row {rows[1]}; a track has one position per instant", row=bad, column="t")
+
+
+def test_rows_of_a_track_in_any_order(tmp_path):
+    """LOG_FORMAT.md: rows need not be sorted by time, within a track too; file order is kept."""
+    write_good(tmp_path)
+    obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)
+    shuffled = obs.iloc[np.random.default_rng(3).permutation(len(obs))].reset_index(drop=True)
+    shuffled.to_csv(tmp_path / "observations.csv", index=False)
+    (tmp_path / "truth_observations.csv").unlink()
+    back = read_log(tmp_path).observations
+    assert back["t"].tolist() == shuffled["t"].astype(float).tolist()
 
 
 def test_clock_may_go_back_across_tracks(tmp_path):

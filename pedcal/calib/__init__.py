@@ -40,9 +40,13 @@ def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, 
     - ``closedform``: ``is_robot``, ``latency_s``, ``min_pairs``, ``collinear_spread_m``, and the
       association's parameters (``pedcal.calib.association.DEFAULT_PARAMS``)
 
-    An option a method does not take raises an error naming it."""
+    An option a method does not take raises an error naming it. ``log`` is validated first
+    (pedcal.io.validate) and refused when it would need more than ``max_memory_gb`` (default 4)."""
     if method not in METHODS:
         raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")
+    from pedcal.io.preflight import check_calibration
+
+    log = check_calibration(log, options.pop("max_memory_gb", None))   # validated; refused beyond the memory limit
     module, func = METHODS[method]
     return getattr(importlib.import_module(module), func)(log, progress=progress, **options)
 

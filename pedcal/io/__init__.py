@@ -5,9 +5,9 @@ in :mod:`pedcal.io.pedestrians`, occupancy maps in :mod:`pedcal.io.maps`; all co
 model, never a second code path.
 """
 
-from pedcal.io.logdir import read_log, write_log
+from pedcal.io.logdir import read_log, validate, write_log
 from pedcal.io.people import read_people_csv, write_people_csv
 from pedcal.io.sensors_yaml import read_sensors_yaml, write_sensors_yaml
 
-__all__ = ["read_log", "write_log", "read_sensors_yaml", "write_sensors_yaml", "read_people_csv",
+__all__ = ["read_log", "write_log", "validate", "read_sensors_yaml", "write_sensors_yaml", "read_people_csv",
            "write_people_csv"]

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import PedcalInputError, show
 from pedcal.io.logdir import parse_float_column, parse_text_column
-from pedcal.io.people import read_people_csv
+from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
 
 ATC_COLUMNS = ("time_unix_s", "person_id", "x", "y", "velocity", "motion_angle")
@@ -38,6 +38,8 @@ MAX_PLAUSIBLE_M = 1000.0
 
 
 def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: bool) -> pd.DataFrame:
+    if path.is_dir():
+        raise PedcalInputError("is a directory, expected a pedestrian file", path=path)
     if not path.is_file():
         raise PedcalInputError("file not found", path=path)
     try:
@@ -45,8 +47,14 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
                           skipinitialspace=True, engine="python" if sep == r"\s+" else "c")
     except pd.errors.EmptyDataError:
         raise PedcalInputError("empty file, expected pedestrian rows", path=path) from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as e:
-        raise PedcalInputError(f"cannot read: {e}", path=path) from None
+    except UnicodeDecodeError as e:
+        raise PedcalInputError(f"not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}): a binary "
+                               "file, or a file saved in another encoding", path=path) from None
+    except PermissionError:
+        raise PedcalInputError("cannot read: permission denied", path=path) from None
+    except (pd.errors.ParserError, OSError, ValueError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise PedcalInputError(f"cannot read: {show(first, 160)[1:-1]}", path=path) from None
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
         missing = [c for c in columns[:4] if c not in raw.columns]
@@ -121,12 +129,26 @@ def _has_header(path: Path) -> bool:
 
 
 def _first_line(path: Path) -> str:
+    if path.is_dir():
+        raise PedcalInputError("is a directory, expected a pedestrian file", path=path)
     if not path.is_file():
         raise PedcalInputError("file not found", path=path)
-    with path.open("r", encoding="utf-8", errors="replace") as f:
-        for line in f:
-            if line.strip():
-                return line.strip()
+    try:
+        head = path.read_bytes()[:4096] if path.stat().st_size else b""
+        try:
+            head.decode("utf-8")
+        except UnicodeDecodeError as e:
+            if e.start < len(head) - 4:     # not a character cut at the 4 KB boundary
+                raise PedcalInputError(f"not UTF-8 text (byte 0x{head[e.start]:02x} at offset {e.start}): a binary "
+                                       "file, or a file saved in another encoding", path=path) from None
+        if b"\x00" in head:
+            raise PedcalInputError("not a text file (NUL bytes): expected pedestrian rows", path=path)
+        with path.open("r", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.strip():
+                    return line.strip()
+    except PermissionError:
+        raise PedcalInputError("cannot read: permission denied", path=path) from None
     return ""
 
 
@@ -152,7 +174,7 @@ def detect_kind(path: str | Path) -> str:
             return "people"
         if set(THOR_COLUMNS[:4]) <= set(names):
             return "thor"
-        raise PedcalInputError(f"unrecognised header {first!r}; expected {','.join(PEOPLE_COLUMNS)} or "
+        raise PedcalInputError(f"unrecognised header {show(first, 80)}; expected {','.join(PEOPLE_COLUMNS)} or "
                                f"{','.join(THOR_COLUMNS)}", path=path)
     if "," not in first and len(first.split()) == 4:
         return "eth_ucy"
@@ -164,7 +186,7 @@ def detect_kind(path: str | Path) -> str:
             t0 = None
         if t0 is not None:
             return "atc" if t0 > 1e8 else "thor"
-    raise PedcalInputError(f"cannot tell the layout from the first line {first!r}; pass kind= one of "
+    raise PedcalInputError(f"cannot tell the layout from the first line {show(first, 80)}; pass kind= one of "
                            f"{', '.join(KINDS)}", path=path)
 
 
@@ -179,8 +201,8 @@ def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = N
     if kind not in readers:
         raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)
     if kind == "eth_ucy":
-        return read_eth_ucy(path, frames_per_s=fps)
+        return validate_people(read_eth_ucy(path, frames_per_s=fps), path)
     if fps is not None:
         raise PedcalInputError(f"--fps applies to frame-numbered (ETH/UCY) files; this {kind} file's times are "
                                "in seconds", path=path)
-    return readers[kind](path)
+    return validate_people(readers[kind](path), path)

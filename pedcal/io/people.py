@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 
 from pedcal.errors import PedcalInputError
-from pedcal.io.logdir import read_table, write_table
+from pedcal.io.logdir import check_coordinates, check_times, read_table, typed_table, write_table
 from pedcal.model import PEOPLE_COLUMNS
 
 
@@ -16,7 +16,18 @@ def read_people_csv(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if not path.is_file():
         raise PedcalInputError("file not found", path=path)
-    return read_table(path, PEOPLE_COLUMNS, ("person",))
+    if path.is_dir():
+        raise PedcalInputError("is a directory, expected a people CSV file", path=path)
+    return validate_people(read_table(path, PEOPLE_COLUMNS, ("person",)), path)
+
+
+def validate_people(people: pd.DataFrame, where="people table") -> pd.DataFrame:
+    """A people table typed (``t`` s, ``person`` text, ``x, y`` m) with plausible times (seconds)
+    and coordinates; errors name ``where`` (a file or a table), the row and the column."""
+    people = typed_table(people, PEOPLE_COLUMNS, ("person",), where)
+    check_times(people, where)
+    check_coordinates(people, ("x", "y"), where)
+    return people
 
 
 def write_people_csv(df: pd.DataFrame, path: str | Path) -> Path:

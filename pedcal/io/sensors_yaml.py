@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import PedcalInputError, show
+from pedcal.io import plausible
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import SENSOR_STATUSES, SensorExtrinsics, SensorNetwork
 
@@ -24,21 +25,81 @@ SENSOR_KEYS = ("id", "position", "ypr_deg", "sigma", "observations", "status", "
 
 
 # ------------------------------------------------------------------------------------------- reading
+def read_text_file(path: str | Path, what: str = "file") -> str:
+    """A UTF-8 text file (a BOM is allowed); a missing file, a directory, no permission or bytes
+    that are not UTF-8 raise PedcalInputError naming the file."""
+    path = Path(path)
+    if not path.exists():
+        raise PedcalInputError(f"{what} not found", path=path)
+    if path.is_dir():
+        raise PedcalInputError(f"is a directory, expected a {what}", path=path)
+    try:
+        data = path.read_bytes()
+    except PermissionError:
+        raise PedcalInputError("cannot read: permission denied", path=path) from None
+    except OSError as e:
+        raise PedcalInputError(f"cannot read: {e.strerror or e}", path=path) from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
+        raise PedcalInputError(f"not UTF-8 text: byte 0x{data[e.start]:02x} on line {line} (save the file as "
+                               "UTF-8; a binary file or another encoding such as cp1252)", path=path) from None
+
+
+def _yaml_error_text(e: yaml.YAMLError) -> str:
+    """PyYAML's multi-line error as one line: where and what."""
+    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+    problem = getattr(e, "problem", None) or getattr(e, "context", None) or str(e).splitlines()[0]
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    return f"{where}{problem}"
+
+
+# A sensors file of 10 000 sensors has ~200 000 values; aliases expanding beyond this are an attack
+# or a mistake, and printing or copying them would hang.
+MAX_YAML_NODES = 2_000_000
+
+
+def _expanded_size(root: yaml.Node) -> int:
+    """Number of values the node tree stands for with every alias expanded (memoized, iterative)."""
+    size: dict[int, int] = {}
+    pending: set[int] = set()      # expanded, children not yet summed (its ancestors on the stack)
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        if id(node) in size or (not done and id(node) in pending):
+            continue
+        children = ([c for kv in node.value for c in kv] if isinstance(node, yaml.MappingNode)
+                    else node.value if isinstance(node, yaml.SequenceNode) else [])
+        if done or not children:     # children first; a recursive alias (its own ancestor) counts 0
+            size[id(node)] = 1 + sum(size.get(id(c), 0) for c in children)
+        else:
+            pending.add(id(node))
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if id(c) not in size and id(c) not in pending)
+    return size[id(root)]
+
+
 def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
     """Parse a YAML file; returns (data, node tree). Syntax errors become PedcalInputError."""
     path = Path(path)
-    if not path.is_file():
-        raise PedcalInputError("file not found", path=path)
-    text = path.read_text(encoding="utf-8")
+    text = read_text_file(path)
     try:
         loader = yaml.SafeLoader(text)
         try:
             node = loader.get_single_node()
+            if node is not None and _expanded_size(node) > MAX_YAML_NODES:
+                raise PedcalInputError(f"YAML aliases expand to more than {MAX_YAML_NODES} values (an alias bomb?)",
+                                       path=path)
             data = loader.construct_document(node) if node is not None else None
         finally:
             loader.dispose()
+    except PedcalInputError:
+        raise
     except yaml.YAMLError as e:
-        raise PedcalInputError(f"not valid YAML: {e}", path=path) from None
+        raise PedcalInputError(f"not valid YAML at {_yaml_error_text(e)}", path=path) from None
+    except (RecursionError, ValueError, OverflowError) as e:
+        raise PedcalInputError(f"not valid YAML: {type(e).__name__}", path=path) from None
     return data, node
 
 
@@ -51,17 +112,26 @@ def _mapping_value_node(node: yaml.Node | None, key: str) -> yaml.Node | None:
     return None
 
 
-def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = False) -> np.ndarray:
-    """A list of ``n`` finite numbers (bool is not a number), else PedcalInputError."""
+def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = False,
+                max_abs: float | None = None, unit: str = "") -> np.ndarray:
+    """A list of ``n`` finite numbers (bool is not a number), else PedcalInputError; with ``max_abs``
+    a value beyond it is refused as implausible (``unit`` in the message)."""
     ok = (isinstance(value, (list, tuple)) and len(value) == n
           and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value))
     if ok:
-        arr = np.asarray(value, dtype=float)
+        try:
+            arr = np.asarray(value, dtype=float)
+        except OverflowError:        # an integer beyond float range
+            arr = np.full(n, np.inf)
         ok = bool(np.isfinite(arr).all()) and (not nonnegative or bool((arr >= 0).all()))
     if not ok:
         sign = "non-negative " if nonnegative else ""
-        raise PedcalInputError(f"{what}: expected a list of {n} finite {sign}numbers, got {value!r}",
+        raise PedcalInputError(f"{what}: expected a list of {n} finite {sign}numbers, got {show(value, 80)}",
                                path=path)
+    if max_abs is not None and (np.abs(arr) > max_abs).any():
+        big = float(arr[np.argmax(np.abs(arr))])
+        raise PedcalInputError(f"{what}: {big:g} {unit} is implausible (expected |value| <= {max_abs:g} {unit}; "
+                               "a unit mistake?)", path=path)
     return arr
 
 
@@ -88,9 +158,11 @@ def read_sensors_yaml(path: str | Path) -> SensorNetwork:
         for key in ("id", "position", "ypr_deg"):
             if entry.get(key) is None:
                 raise PedcalInputError(f"{where}: missing '{key}'", path=path)
+        if isinstance(entry["id"], (list, dict)):
+            raise PedcalInputError(f"{where}: 'id' must be a non-empty string", path=path)
         id_node = _mapping_value_node(item_node, "id")
         sensor_id = id_node.value if isinstance(id_node, yaml.ScalarNode) else str(entry["id"])
-        if isinstance(entry["id"], (list, dict)) or sensor_id == "":
+        if sensor_id == "":
             raise PedcalInputError(f"{where}: 'id' must be a non-empty string", path=path)
         where = f"sensor '{sensor_id}'" + (f" (line {line})" if line else "")
         if sensor_id in line_of_id:
@@ -100,14 +172,41 @@ def read_sensors_yaml(path: str | Path) -> SensorNetwork:
         extra = _read_calibrated_fields(entry, where, path)
         sensors.append(SensorExtrinsics(
             sensor_id,
-            read_vector(entry["position"], 3, f"{where} position", path),
-            read_vector(entry["ypr_deg"], 3, f"{where} ypr_deg", path),
+            read_vector(entry["position"], 3, f"{where} position", path, max_abs=plausible.MAX_ABS_COORDINATE_M,
+                        unit="m"),
+            read_vector(entry["ypr_deg"], 3, f"{where} ypr_deg", path, max_abs=plausible.MAX_ABS_ANGLE_DEG,
+                        unit="deg"),
             **extra))
     frame = data.get("frame", "map")
     if not isinstance(frame, str):
-        raise PedcalInputError(f"'frame' must be a string, got {frame!r}", path=path)
+        raise PedcalInputError(f"'frame' must be a string, got {show(frame)}", path=path)
+    ypr = np.array([s.ypr_deg for s in sensors])
+    if plausible.angles_look_like_radians(ypr):
+        raise PedcalInputError(f"every ypr_deg angle lies within +-{plausible.RADIANS_LIMIT:.4f} (largest "
+                               f"|angle| {np.abs(ypr).max():.4g}): these look like radians; ypr_deg is in degrees "
+                               "(LOG_FORMAT.md), multiply by 180/pi", path=path)
     extra_top = {k: v for k, v in data.items() if k not in ("frame", "sensors")}
+    _check_calibration_keys(extra_top, path)
     return SensorNetwork(sensors, frame=frame, extra=extra_top)
+
+
+# Top-level keys of a calibrated YAML that pedcal evaluate applies: (lowest, highest, unit).
+CALIBRATION_KEYS = {
+    "tracker_latency_s": (-plausible.MAX_ABS_LATENCY_S, plausible.MAX_ABS_LATENCY_S, "s"),
+    "head_radius_m": (0.0, plausible.MAX_HEAD_RADIUS_M, "m"),
+}
+
+
+def _check_calibration_keys(extra: dict, path: Path) -> None:
+    for key, (lo, hi, unit) in CALIBRATION_KEYS.items():
+        v = extra.get(key)
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(float(v)):
+            raise PedcalInputError(f"'{key}' must be a number of {unit}, got {show(v)}", path=path)
+        if not lo <= v <= hi:
+            raise PedcalInputError(f"'{key}' = {float(v):g} {unit} is implausible; expected {lo:g} to {hi:g} {unit}",
+                                   path=path)
 
 
 def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
@@ -126,14 +225,14 @@ def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
     n_obs = entry.get("observations")
     if n_obs is not None:
         if isinstance(n_obs, bool) or not isinstance(n_obs, int) or n_obs < 0:
-            raise PedcalInputError(f"{where}: 'observations' must be a non-negative integer, got {n_obs!r}",
+            raise PedcalInputError(f"{where}: 'observations' must be a non-negative integer, got {show(n_obs)}",
                                    path=path)
         out["observations"] = n_obs
     status = entry.get("status")
     if status is not None:
         if status not in SENSOR_STATUSES:
             raise PedcalInputError(f"{where}: 'status' must be one of {', '.join(SENSOR_STATUSES)}, "
-                                   f"got {status!r}", path=path)
+                                   f"got {show(status)}", path=path)
         out["status"] = status
     unobservable = entry.get("unobservable")
     if unobservable is not None:

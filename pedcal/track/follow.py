@@ -251,12 +251,9 @@ def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: i
             raise PedcalInputError("a people table needs target_id (the person carrying the transmitter)")
         return run_episode(people_episode(people_csv, str(target_id)), tracker, seed, progress)
     if people_csv is not None:
-        from pedcal.errors import PedcalInputError
-        from pedcal.io.people import read_people_csv
+        from pedcal.io.preflight import check_follow_people
 
-        if target_id is None:
-            raise PedcalInputError("--people needs --target (the person carrying the transmitter)", path=people_csv)
-        episode = people_episode(read_people_csv(people_csv), str(target_id), people_csv)
+        episode = people_episode(check_follow_people(people_csv, target_id), str(target_id), people_csv)
     else:
         episode = make_episode(scenario or "passing", seed)
     return run_episode(episode, tracker, seed, progress)

@@ -1,0 +1,784 @@
+"""Fuzz suite: corrupted inputs built from a small simulated log (its YAMLs, tables, a calibrated
+YAML, a people file) go through every command that reads them, in this process through
+``pedcal.cli.main`` (a fresh interpreter per case would spend a second importing GTSAM).
+
+For every case: the exit code is 0 (with a correct result where the case says what that is) or 2
+with a message naming the file; never a traceback, never over the time limit (an interval timer)
+or the memory limit (RLIMIT_AS above what the process already maps); every input file has the
+checksum it had before; no temporary file is left behind. The named cases are the ones a new user
+hit (nanosecond stamps, 1e300 coordinates, radians, cp1252 bytes, ``-o`` onto an input, ...);
+Hypothesis adds cell and YAML corruptions (derandomized, so CI runs the same examples).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import os
+import re
+import resource
+import shutil
+import signal
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from pedcal.cli import EXIT_BAD_INPUT, main
+
+hypothesis = pytest.importorskip("hypothesis", reason="hypothesis (dev extra) drives the generated cases")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+TIME_LIMIT_S = 30.0
+MEMORY_HEADROOM_BYTES = 3 * 1024 ** 3
+TALLY: Counter = Counter()
+
+
+class CaseTimeout(BaseException):
+    """Raised by the interval timer; a BaseException so no handler under test swallows it."""
+
+
+# --------------------------------------------------------------------------------------- harness
+def checksums(root: Path) -> dict[str, str]:
+    out = {}
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            try:
+                out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
+            except PermissionError:    # an unreadable input of a case: its name stands for it
+                out[str(p.relative_to(root))] = "unreadable"
+    return out
+
+
+def _mapped_bytes() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmSize:"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+
+@contextlib.contextmanager
+def limits():
+    """Time limit (SIGALRM interval timer) and memory limit (RLIMIT_AS) for one case."""
+    def on_alarm(signum, frame):
+        raise CaseTimeout()
+
+    old_handler = signal.signal(signal.SIGALRM, on_alarm)
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    cap = _mapped_bytes() + MEMORY_HEADROOM_BYTES
+    if hard != resource.RLIM_INFINITY:
+        cap = min(cap, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+    signal.setitimer(signal.ITIMER_REAL, TIME_LIMIT_S)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+        signal.signal(signal.SIGALRM, old_handler)
+
+
+def run_cli(argv: list[str], inputs: Path, names=()) -> tuple[int, str, str]:
+    """Run one case; assert the contract; return (exit code, stdout, stderr)."""
+    before = checksums(inputs)
+    out, err = io.StringIO(), io.StringIO()
+    TALLY["cases"] += 1
+    try:
+        with limits(), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in argv])
+    except CaseTimeout:
+        TALLY["hangs"] += 1
+        pytest.fail(f"over {TIME_LIMIT_S} s: pedcal {' '.join(map(str, argv))}")
+    except MemoryError:
+        TALLY["memory"] += 1
+        pytest.fail(f"memory blow-up: pedcal {' '.join(map(str, argv))}")
+    except BaseException as e:          # a traceback the user would have seen
+        TALLY["tracebacks"] += 1
+        raise AssertionError(f"traceback from pedcal {' '.join(map(str, argv))}") from e
+    err_text = err.getvalue()
+    after = checksums(inputs)
+    if after != before:
+        TALLY["damaged"] += 1
+        changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+        pytest.fail(f"inputs changed: {changed}")
+    stray = [p for p in inputs.parent.rglob("*.tmp")]
+    assert not stray, f"temporary files left: {stray}"
+    assert "Traceback" not in err_text, err_text
+    assert code in (0, EXIT_BAD_INPUT), (code, err_text)
+    if code == EXIT_BAD_INPUT:
+        TALLY["clean errors"] += 1
+        assert err_text.startswith(f"pedcal {argv[0]}: error: "), err_text
+        assert "np.float64" not in err_text and not re.search(r"[\x00-\x08\x0e-\x1f]", err_text), err_text
+        assert len(err_text) < 2000, f"message too long ({len(err_text)} chars)"
+        assert len(err_text.strip().splitlines()) == 1, err_text
+        if names:
+            assert any(n in err_text for n in names), f"message names none of {names}: {err_text}"
+    else:
+        TALLY["accepted"] += 1
+    return code, out.getvalue(), err_text
+
+
+# ---------------------------------------------------------------------------------------- inputs
+def read_cells(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path, dtype=str, keep_default_na=False)
+
+
+def write_cells(df: pd.DataFrame, path: Path) -> None:
+    df.to_csv(path, index=False)
+
+
+def scale_time(path: Path, factor: float) -> None:
+    df = pd.read_csv(path)
+    df["t"] = df["t"] * factor
+    df.to_csv(path, index=False)
+
+
+def set_cell(path: Path, row, column: str, value: str) -> None:
+    df = read_cells(path)
+    df.loc[row if row is not None else slice(None), column] = value
+    write_cells(df, path)
+
+
+def yaml_edit(path: Path, fn) -> None:
+    data = yaml.safe_load(path.read_text())
+    fn(data)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    """A simulated sparse log (seed 0), its factor-graph calibration and a people file."""
+    from pedcal.sim import simulate
+
+    root = tmp_path_factory.mktemp("fuzz-base")
+    simulate("sparse", root / "sim", seed=0, progress=False)
+    log = root / "sim" / "calib"
+    assert main(["calibrate", str(log), "-o", str(root / "calibrated.yaml"), "-q"]) == 0
+    t = np.round(np.arange(0.0, 12.0, 0.4), 6)
+    people = pd.concat([pd.DataFrame({"t": t, "person": str(p), "x": x0 + vx * t, "y": y0})
+                        for p, (x0, y0, vx) in enumerate([(0.0, 0.0, 1.0), (6.0, 1.0, -1.0), (2.0, -2.0, 0.5)])])
+    people.to_csv(root / "people.csv", index=False)
+    yield root
+    print(f"\nfuzz tally: {dict(TALLY)}")
+    if os.environ.get("PEDCAL_FUZZ_TALLY"):
+        Path(os.environ["PEDCAL_FUZZ_TALLY"]).write_text(f"{dict(TALLY)}\n")
+
+
+@pytest.fixture
+def case(base, tmp_path):
+    """A fresh copy of the inputs: case/log, case/calibrated.yaml, case/people.csv; outputs go to out/."""
+    inputs = tmp_path / "in"
+    shutil.copytree(base / "sim" / "calib", inputs / "log")
+    shutil.copy(base / "calibrated.yaml", inputs / "calibrated.yaml")
+    shutil.copy(base / "people.csv", inputs / "people.csv")
+    (tmp_path / "out").mkdir()
+    return inputs
+
+
+def positions(path: Path) -> dict[str, np.ndarray]:
+    net = yaml.safe_load(path.read_text())["sensors"]
+    return {str(s["id"]): np.r_[s["position"], s["ypr_deg"]] for s in net}
+
+
+def assert_same_calibration(a: Path, b: Path, tol_m=0.005, tol_deg=0.2):
+    pa, pb = positions(a), positions(b)
+    assert pa.keys() == pb.keys()
+    for k in pa:
+        assert np.abs(pa[k][:3] - pb[k][:3]).max() < tol_m, (k, pa[k], pb[k])
+        d = (pa[k][3:] - pb[k][3:] + 180.0) % 360.0 - 180.0
+        assert np.abs(d).max() < tol_deg, (k, pa[k], pb[k])
+
+
+# --------------------------------------------------------------------------- named cases (log)
+def _ns_all(log):
+    for name in ("robot", "observations", "odometry", "truth_robot"):
+        scale_time(log / f"{name}.csv", 1e9)
+
+
+def _cov_zero(log):
+    for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"):
+        set_cell(log / "robot.csv", None, c, "0")
+
+
+def _cov_not_pd(log):
+    df = pd.read_csv(log / "robot.csv")
+    df["cov_xy"] = 2.0 * np.sqrt(df["cov_xx"] * df["cov_yy"])
+    df.to_csv(log / "robot.csv", index=False)
+
+
+def _stretch_time(log):
+    for name in ("robot", "observations", "odometry", "truth_robot"):
+        scale_time(log / f"{name}.csv", 1000.0)
+
+
+def _other_recording(log):
+    df = pd.read_csv(log / "robot.csv")
+    df["t"] += 1e6
+    df.to_csv(log / "robot.csv", index=False)
+
+
+def _cp1252(path):
+    def fn(log):
+        p = log / path
+        p.write_bytes(p.read_bytes().replace(b"map", b"m\x92ap", 1) if b"map" in p.read_bytes()
+                      else p.read_bytes() + b"# caf\xe9\n")
+    return fn
+
+
+def _radians(log):
+    yaml_edit(log / "sensors.yaml", lambda d: [s.update(ypr_deg=[float(np.radians(a)) for a in s["ypr_deg"]])
+                                               for s in d["sensors"]])
+
+
+def _binary(name):
+    def fn(log):
+        (log / name).write_bytes(bytes(np.random.default_rng(0).integers(128, 256, 600, dtype=np.uint8)) + b"\x00\xff")
+    return fn
+
+
+def _dir_for(name):
+    def fn(log):
+        (log / name).unlink()
+        (log / name).mkdir()
+    return fn
+
+
+def _parquet(log, truncate=False):
+    for name in ("robot", "observations"):
+        df = pd.read_csv(log / f"{name}.csv", dtype={"sensor": str, "track": str})
+        df.to_parquet(log / f"{name}.parquet", index=False)
+        (log / f"{name}.csv").unlink()
+    if truncate:
+        p = log / "robot.parquet"
+        p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+
+
+def _crlf(log):
+    for p in log.glob("*.csv"):
+        p.write_bytes(p.read_bytes().replace(b"\n", b"\r\n"))
+
+
+def _bom(log):
+    for p in (log / "robot.csv", log / "sensors.yaml", log / "observations.csv"):
+        p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())
+
+
+def _reorder_and_extra(log):
+    for p in log.glob("*.csv"):
+        df = read_cells(p)
+        df = df[df.columns[::-1]]
+        df.insert(1, "comment", "x,y")
+        df["extra"] = "7"
+        write_cells(df, p)
+
+
+def _shuffle_observations(log):
+    """Rows out of time order (LOG_FORMAT.md allows it); truth_observations follows the rows."""
+    obs = read_cells(log / "observations.csv")
+    order = np.random.default_rng(1).permutation(len(obs))
+    write_cells(obs.iloc[order], log / "observations.csv")
+    truth = read_cells(log / "truth_observations.csv")
+    new_row = np.empty(len(order), int)
+    new_row[order] = np.arange(len(order))
+    truth["row"] = new_row[truth["row"].astype(int).to_numpy()].astype(str)
+    write_cells(truth, log / "truth_observations.csv")
+
+
+def _reverse_robot(log):
+    df = read_cells(log / "robot.csv")
+    write_cells(df.iloc[::-1], log / "robot.csv")
+
+
+def _spaces(log):
+    p = log / "robot.csv"
+    p.write_text(p.read_text().replace(",", ", "))
+
+
+BAD_LOGS = {   # name: (edit of the log, file the message must name, extra calibrate arguments)
+    "robot stamped in ns, observations in s": (lambda log: scale_time(log / "robot.csv", 1e9), "robot.csv", []),
+    "every file stamped in ns": (_ns_all, "robot.csv", []),
+    "observations stamped in ms": (lambda log: scale_time(log / "observations.csv", 1e3), "observations.csv", []),
+    "robot from another recording": (_other_recording, "observations.csv", []),
+    "robot t = 1e300": (lambda log: set_cell(log / "robot.csv", 40, "t", "1e300"), "robot.csv", []),
+    "span of 4 days needs more memory": (_stretch_time, "robot.csv", []),
+    "memory limit below need": (lambda log: None, "robot.csv", ["--max-memory-gb", "0.001"]),
+    "robot x = 1e300": (lambda log: set_cell(log / "robot.csv", 10, "x", "1e300"), "robot.csv", []),
+    "robot x = 1e300, gridsearch": (lambda log: set_cell(log / "robot.csv", 10, "x", "1e300"), "robot.csv",
+                                    ["--method", "gridsearch"]),
+    "robot in another frame (x + 9e5 m)": (lambda log: (lambda df: df.assign(x=df["x"] + 9e5).to_csv(
+        log / "robot.csv", index=False))(pd.read_csv(log / "robot.csv")), "robot.csv", []),
+    "robot x = -1e300, closedform": (lambda log: set_cell(log / "robot.csv", 3, "x", "-1e300"), "robot.csv",
+                                     ["--method", "closedform"]),
+    "all-zero covariance": (_cov_zero, "robot.csv", []),
+    "covariance 1e300": (lambda log: set_cell(log / "robot.csv", None, "cov_xx", "1e300"), "robot.csv", []),
+    "covariance not positive definite": (_cov_not_pd, "robot.csv", []),
+    "negative variance": (lambda log: set_cell(log / "robot.csv", 5, "cov_yy", "-1e-3"), "robot.csv", []),
+    "observation x = 1e300": (lambda log: set_cell(log / "observations.csv", 7, "x", "1e300"), "observations.csv",
+                              []),
+    "observation z = nan": (lambda log: set_cell(log / "observations.csv", 8, "z", "nan"), "observations.csv", []),
+    "observation sensor unknown": (lambda log: set_cell(log / "observations.csv", 9, "sensor", "s99"),
+                                   "observations.csv", []),
+    "observation track empty": (lambda log: set_cell(log / "observations.csv", 9, "track", ""),
+                                "observations.csv", []),
+    "observation repeats an instant": (lambda log: set_cell(log / "observations.csv", 1, "t",
+                                                            read_cells(log / "observations.csv")["t"][0]),
+                                       "observations.csv", []),
+    "robot time repeats": (lambda log: set_cell(log / "robot.csv", 6, "t", read_cells(log / "robot.csv")["t"][5]),
+                           "robot.csv", []),
+    "odometry yaw text": (lambda log: set_cell(log / "odometry.csv", 2, "yaw", "north"), "odometry.csv", []),
+    "truth row out of range": (lambda log: set_cell(log / "truth_observations.csv", 0, "row", "999999"),
+                               "truth_observations.csv", []),
+    "sensor position 1e300": (lambda log: yaml_edit(log / "sensors.yaml",
+                                                    lambda d: d["sensors"][0].update(position=[1e300, 0, 2.6])),
+                              "sensors.yaml", []),
+    "sensor angle 1e300": (lambda log: yaml_edit(log / "sensors.yaml",
+                                                 lambda d: d["sensors"][1].update(ypr_deg=[0, 1e300, 0])),
+                           "sensors.yaml", []),
+    "sensors.yaml in radians": (_radians, "sensors.yaml", []),
+    "sensors.yaml cp1252 byte": (_cp1252("sensors.yaml"), "sensors.yaml", []),
+    "meta.yaml cp1252 byte": (_cp1252("meta.yaml"), "meta.yaml", []),
+    "meta head_offset 1e300": (lambda log: yaml_edit(log / "meta.yaml", lambda d: d.update(head_offset=[0, 0, 1e300])),
+                               "meta.yaml", []),
+    "sensors.yaml syntax error": (lambda log: (log / "sensors.yaml").write_text("sensors: [\n  - {id: a\n"),
+                                  "sensors.yaml", []),
+    "sensors.yaml empty": (lambda log: (log / "sensors.yaml").write_text(""), "sensors.yaml", []),
+    "sensors.yaml binary": (_binary("sensors.yaml"), "sensors.yaml", []),
+    "robot.csv binary": (_binary("robot.csv"), "robot.csv", []),
+    "observations.csv binary": (_binary("observations.csv"), "observations.csv", []),
+    "robot.csv a directory": (_dir_for("robot.csv"), "robot.csv", []),
+    "sensors.yaml a directory": (_dir_for("sensors.yaml"), "sensors.yaml", []),
+    "meta.yaml a directory": (_dir_for("meta.yaml"), "meta.yaml", []),
+    "robot.csv empty": (lambda log: (log / "robot.csv").write_text(""), "robot.csv", []),
+    "robot.csv header only": (lambda log: write_cells(read_cells(log / "robot.csv").iloc[:0], log / "robot.csv"),
+                              "robot.csv", []),
+    "robot.csv missing column": (lambda log: write_cells(read_cells(log / "robot.csv").drop(columns="yaw"),
+                                                         log / "robot.csv"), "robot.csv", []),
+    "robot.csv ragged row": (lambda log: (log / "robot.csv").write_text((log / "robot.csv").read_text()
+                                                                         + "1,2,3,4,5,6,7,8,9,10,11,12\n"),
+                             "robot.csv", []),
+    "robot csv and parquet": (lambda log: pd.read_csv(log / "robot.csv").to_parquet(log / "robot.parquet"),
+                              "robot", []),
+    "robot.parquet truncated": (lambda log: _parquet(log, truncate=True), "robot.parquet", []),
+    "log directory missing": (lambda log: shutil.rmtree(log), "log", []),
+}
+
+# refused by the calibration's pre-flight (memory, frames); evaluate may read these logs
+CALIBRATION_PREFLIGHT_ONLY = {"span of 4 days needs more memory", "memory limit below need",
+                              "robot in another frame (x + 9e5 m)"}
+
+GOOD_LOGS = {
+    "CRLF line endings": _crlf,
+    "byte order marks": _bom,
+    "reordered and extra columns": _reorder_and_extra,
+    "observations out of time order": _shuffle_observations,
+    "robot rows reversed": _reverse_robot,
+    "spaces after commas": _spaces,
+    "Parquet tables": _parquet,
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_LOGS))
+def test_bad_log_is_a_clean_error(case, name):
+    edit, names, extra = BAD_LOGS[name]
+    log, out = case / "log", case.parent / "out" / "calibrated.yaml"
+    edit(log)
+    code, _, err = run_cli(["calibrate", log, "-o", out, "-q", *extra], case, names=(names,))
+    assert code == EXIT_BAD_INPUT, err
+    assert not out.exists()
+    if (case / "log").is_dir():
+        code, _, err = run_cli(["evaluate", log, "--extrinsics", case / "calibrated.yaml"], case, names=(names,))
+        assert code == EXIT_BAD_INPUT or name in CALIBRATION_PREFLIGHT_ONLY, err
+        if name not in CALIBRATION_PREFLIGHT_ONLY:
+            code, _, err = run_cli(["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
+                                    case.parent / "out" / "report", "-q"], case, names=(names,))
+            assert code == EXIT_BAD_INPUT, err
+
+
+@pytest.mark.parametrize("name", list(GOOD_LOGS))
+def test_harmless_variants_give_the_same_calibration(base, case, name):
+    GOOD_LOGS[name](case / "log")
+    out = case.parent / "out" / "calibrated.yaml"
+    code, _, err = run_cli(["calibrate", case / "log", "-o", out, "-q"], case)
+    assert code == 0, err
+    assert_same_calibration(out, base / "calibrated.yaml")
+    code, stdout, err = run_cli(["evaluate", case / "log", "--extrinsics", out, "--json"], case)
+    assert code == 0, err
+
+
+def test_message_details(case):
+    """Units and figures in the plausibility messages; PyYAML's text on one line."""
+    log, out = case / "log", case.parent / "out" / "o.yaml"
+    scale_time(log / "robot.csv", 1e9)
+    _, _, err = run_cli(["calibrate", log, "-o", out], case)
+    assert "column 't'" in err and "nanoseconds" in err and " s " in err
+
+
+# ------------------------------------------------------------------------ named cases (outputs)
+def _output_cases(case: Path) -> dict:
+    log = case / "log"
+    (case.parent / "a_file").write_text("x")
+    return {
+        "-o onto the log's sensors.yaml": (["calibrate", log, "-o", log / "sensors.yaml"], "sensors.yaml"),
+        "-o onto the log's robot.csv": (["calibrate", log, "-o", log / "robot.csv"], "robot.csv"),
+        "-o is the log directory": (["calibrate", log, "-o", log], "log"),
+        "-o inside the log directory": (["calibrate", log, "-o", log / "sub" / "c.yaml"], "c.yaml"),
+        "-o an existing folder": (["calibrate", log, "-o", case.parent / "out"], "out"),
+        "-o under a file": (["calibrate", log, "-o", case.parent / "a_file" / "c.yaml"], "c.yaml"),
+        "import-people -o onto its input": (["import-people", case / "people.csv", "-o", case / "people.csv"],
+                                            "people.csv"),
+        "import-people -o a folder": (["import-people", case / "people.csv", "-o", case.parent / "out"], "out"),
+        "follow -o onto the people file": (["follow", "--people", case / "people.csv", "--target", "0", "-o",
+                                            case / "people.csv", "--json"], "people.csv"),
+        "import-bag -o inside the bag": (["import-bag", case / "log", "-o", case / "log" / "x"], "x"),
+        "report --out inside the log": (["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
+                                         log / "report"], "report"),
+        "report --out onto the extrinsics": (["report", log, "--extrinsics", case / "calibrated.yaml", "--out",
+                                              case / "calibrated.yaml"], "calibrated.yaml"),
+        "export -o onto its input": (["export", case / "calibrated.yaml", "--format", "json", "-o",
+                                      case / "calibrated.yaml"], "calibrated.yaml"),
+        "export tum -o inside the log": (["export", log, "--format", "tum", "-o", log / "tum"], "tum"),
+    }
+
+
+OUTPUT_CASES = ["-o onto the log's sensors.yaml", "-o onto the log's robot.csv", "-o is the log directory",
+                "-o inside the log directory", "-o an existing folder", "-o under a file",
+                "import-people -o onto its input", "import-people -o a folder", "follow -o onto the people file",
+                "import-bag -o inside the bag", "report --out inside the log", "report --out onto the extrinsics",
+                "export -o onto its input", "export tum -o inside the log"]
+
+
+@pytest.mark.parametrize("name", OUTPUT_CASES)
+def test_output_onto_an_input_or_unwritable_is_refused(case, name):
+    argv, names = _output_cases(case)[name]
+    code, _, err = run_cli(argv, case, names=(names,))
+    assert code == EXIT_BAD_INPUT, err
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders and reads unreadable files")
+def test_read_only_output_folder_and_unreadable_input(case):
+    ro = case.parent / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml"], case, names=("c.yaml",))
+    assert code == EXIT_BAD_INPUT and "permission" in err
+    (case / "log" / "sensors.yaml").chmod(0o000)
+    code, _, err = run_cli(["calibrate", case / "log", "-o", case.parent / "out" / "c.yaml"], case,
+                           names=("sensors.yaml",))
+    assert code == EXIT_BAD_INPUT and "permission" in err
+
+
+def test_temporary_left_by_a_killed_writer_is_removed(case):
+    out = case.parent / "out" / "c.yaml"
+    dead = 2 ** 22 + 12345          # above the default pid_max: no such process
+    stale = out.parent / f".c.yaml.{dead}.abcd1234.tmp"
+    stale.write_text("half")
+    code, _, err = run_cli(["calibrate", case / "log", "-o", out, "-q"], case)
+    assert code == 0, err
+    assert not stale.exists() and out.exists()
+
+
+# ------------------------------------------------------------------ named cases (extrinsics YAML)
+ALIAS_BOMB = "".join(f"{k}: &{k} [{', '.join([f'*{p}' if p else 'x'] * 9)}]\n"
+                     for k, p in zip("abcdefghi", ["", *"abcdefgh"], strict=True))
+
+
+def _alias_bomb(where: str):
+    """Aliases that expand to 9^9 values, in a sensor id or a position (printing them would hang)."""
+    def fn(d):
+        return ALIAS_BOMB + "sensors:\n  - {id: %s, position: %s, ypr_deg: [0, 45, 0]}\n" % (
+            ("*i", "[0, 0, 2.6]") if where == "id" else ("s04", "[*i, 0, 2.6]"))
+    return fn
+
+
+BAD_EXTRINSICS = {
+    "tracker_latency_s: fast": lambda d: d.update(tracker_latency_s="fast"),
+    "tracker_latency_s: 1e300": lambda d: d.update(tracker_latency_s=1e300),
+    "head_radius_m: -5": lambda d: d.update(head_radius_m=-5),
+    "sigma negative": lambda d: d["sensors"][0].update(sigma={"position_m": [-1, 0, 0], "ypr_deg": [0, 0, 0]}),
+    "status unknown": lambda d: d["sensors"][0].update(status="great"),
+    "sensor without position": lambda d: d["sensors"][0].pop("position"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_EXTRINSICS) + ["alias bomb in an id", "alias bomb in a position"])
+def test_bad_extrinsics_for_evaluate(case, name):
+    if name.startswith("alias bomb"):
+        (case / "calibrated.yaml").write_text(_alias_bomb("id" if name.endswith("id") else "position")(None))
+    else:
+        yaml_edit(case / "calibrated.yaml", BAD_EXTRINSICS[name])
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
+                           names=("calibrated.yaml",))
+    assert code == EXIT_BAD_INPUT, err
+    code, _, err = run_cli(["export", case / "calibrated.yaml", "--format", "tf-launch", "-o",
+                            case.parent / "out" / "tf.launch"], case, names=("calibrated.yaml",))
+    assert code == EXIT_BAD_INPUT, err
+
+
+@pytest.mark.parametrize("how", ["cp1252", "directory", "missing"])
+def test_extrinsics_file_unreadable(case, how):
+    ext = case / "calibrated.yaml"
+    if how == "cp1252":
+        _cp1252("calibrated.yaml")(case)
+    elif how == "directory":
+        ext.unlink()
+        ext.mkdir()
+    else:
+        ext.unlink()
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", ext], case, names=("calibrated.yaml",))
+    assert code == EXIT_BAD_INPUT, err
+
+
+def test_calibrated_yaml_evaluates_and_feeds_back(case):
+    code, out, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml", "--json"], case)
+    assert code == 0, err
+    import json
+
+    assert json.loads(out)
+    code, _, err = run_cli(["calibrate", case / "log", "-o", case.parent / "out" / "again.yaml", "-q"], case)
+    assert code == 0, err
+    code, _, err = run_cli(["report", case / "log", "--extrinsics", case / "calibrated.yaml", "--extrinsics",
+                            case.parent / "out" / "again.yaml", "--out", case.parent / "out" / "report", "-q"], case)
+    assert code == 0 and (case.parent / "out" / "report" / "report.md").exists(), err
+    for fmt, name in (("json", "c.json"), ("urdf", "c.urdf"), ("tum", "tum")):
+        src = case / "log" if fmt == "tum" else case / "calibrated.yaml"
+        code, _, err = run_cli(["export", src, "--format", fmt, "-o", case.parent / "out" / name], case)
+        assert code == 0 and (case.parent / "out" / name).exists(), err
+
+
+# --------------------------------------------------------------------- named cases (people files)
+def _people_edit(fn):
+    def edit(p):
+        df = read_cells(p)
+        write_cells(fn(df), p)
+    return edit
+
+
+BAD_PEOPLE = {
+    "target seen at t=0 and t=1e7": (_people_edit(lambda df: pd.concat(
+        [df, pd.DataFrame({"t": ["1e7"], "person": ["0"], "x": ["1"], "y": ["1"]})])), ["--target", "0"]),
+    "x = 1e300": (_people_edit(lambda df: df.assign(x=np.where(np.arange(len(df)) == 4, "1e300", df["x"]))),
+                  ["--target", "0"]),
+    "t in nanoseconds": (_people_edit(lambda df: df.assign(t=(df["t"].astype(float) * 1e9 + 1.7e18).map(repr))),
+                         ["--target", "0"]),
+    "unknown target": (lambda p: None, ["--target", "nobody"]),
+    "no target": (lambda p: None, []),
+    "binary people file": (lambda p: p.write_bytes(b"\xff\xfe\x00\x01" * 50), ["--target", "0"]),
+    "missing column": (_people_edit(lambda df: df.drop(columns="y")), ["--target", "0"]),
+    "text in x": (_people_edit(lambda df: df.assign(x=np.where(np.arange(len(df)) == 2, "1,5", df["x"]))),
+                  ["--target", "0"]),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_PEOPLE))
+def test_bad_people_file_for_follow_and_import(case, name):
+    edit, extra = BAD_PEOPLE[name]
+    people = case / "people.csv"
+    edit(people)
+    code, _, err = run_cli(["follow", "--people", people, *extra, "--json"], case, names=("people.csv",))
+    assert code == EXIT_BAD_INPUT, err
+    if name not in ("unknown target", "no target", "target seen at t=0 and t=1e7"):
+        code, _, err = run_cli(["import-people", people, "-o", case.parent / "out" / "p.csv"], case,
+                               names=("people.csv",))
+        assert code == EXIT_BAD_INPUT, err
+
+
+def test_people_file_follows_and_imports(case):
+    code, out, err = run_cli(["follow", "--people", case / "people.csv", "--target", "0", "--json"], case)
+    assert code == 0, err
+    target = case.parent / "out" / "p.csv"
+    code, _, err = run_cli(["import-people", case / "people.csv", "-o", target], case)
+    assert code == 0, err
+    pd.testing.assert_frame_equal(pd.read_csv(target), pd.read_csv(case / "people.csv"), check_dtype=False)
+
+
+def test_people_duration_limit_is_an_option(case):
+    people = case / "people.csv"
+    code, _, err = run_cli(["follow", "--people", people, "--target", "0", "--max-duration-s", "5", "--json"], case,
+                           names=("people.csv",))
+    assert code == EXIT_BAD_INPUT and "--max-duration-s" in err and "frames" in err
+
+
+# ------------------------------------------------------------------- generated cases (Hypothesis)
+NASTY = ["", " ", "nan", "NaN", "inf", "-inf", "1e300", "-1e300", "1e-300", "0", "-0", "abc", "1,5", "0x10",
+         "1_000", "\x00", "€", "9" * 400, "1.5.2", "True", "None", "1e10", "-1e9", "3e18", "  7  ", '"q"']
+TABLE_COLUMNS = {
+    "robot.csv": ["t", "x", "y", "yaw", "cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"],
+    "observations.csv": ["t", "sensor", "track", "x", "y", "z"],
+    "odometry.csv": ["t", "x", "y", "yaw"],
+    "truth_observations.csv": ["row", "who"],
+    "truth_robot.csv": ["t", "x", "y", "yaw"],
+}
+cell_values = st.one_of(st.sampled_from(NASTY),
+                        st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                        st.integers(min_value=-10 ** 20, max_value=10 ** 20).map(str),
+                        st.text(max_size=8))
+FUZZ_SETTINGS = settings(max_examples=110, deadline=None, derandomize=True, database=None,
+                         suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+@FUZZ_SETTINGS
+@given(data=st.data())
+def test_generated_cell_corruptions(base, tmp_path_factory, data):
+    case = tmp_path_factory.mktemp("cell") / "in"
+    shutil.copytree(base / "sim" / "calib", case / "log")
+    shutil.copy(base / "calibrated.yaml", case / "calibrated.yaml")
+    (case.parent / "out").mkdir()
+    file = data.draw(st.sampled_from(sorted(TABLE_COLUMNS)), label="file")
+    n_cells = data.draw(st.integers(1, 3), label="cells")
+    df = read_cells(case / "log" / file)
+    for _ in range(n_cells):
+        row = data.draw(st.integers(0, len(df) - 1), label="row")
+        column = data.draw(st.sampled_from(TABLE_COLUMNS[file]), label="column")
+        df.loc[row, column] = data.draw(cell_values, label="value")
+    write_cells(df, case / "log" / file)
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
+                           names=(file,))
+    if code == 0 and data.draw(st.integers(0, 3), label="calibrate too") == 0:
+        run_cli(["calibrate", case / "log", "-o", case.parent / "out" / "c.yaml", "-q"], case)
+
+
+YAML_INSERTS = ["", "x", "-", ":", "[", "]", "{", "\n", " ", "1e300", "#", "'", "0.1", "\t", "\x92", "&a", "*a",
+                "!!python/object"]
+yaml_mutations = st.lists(st.tuples(st.integers(0, 10 ** 6), st.sampled_from(YAML_INSERTS)), min_size=1, max_size=4)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(which=st.sampled_from(["sensors.yaml", "meta.yaml", "calibrated.yaml"]), edits=yaml_mutations)
+def test_generated_yaml_corruptions(base, tmp_path_factory, which, edits):
+    case = tmp_path_factory.mktemp("yaml") / "in"
+    shutil.copytree(base / "sim" / "calib", case / "log")
+    shutil.copy(base / "calibrated.yaml", case / "calibrated.yaml")
+    path = case / which if which == "calibrated.yaml" else case / "log" / which
+    text = path.read_bytes().decode("utf-8")
+    for pos, insert in edits:
+        i = pos % (len(text) + 1)
+        text = text[:i] + insert + text[i + 1:]
+    path.write_bytes(text.encode("utf-8", errors="surrogateescape").replace("\x92".encode(), b"\x92"))
+    names = (which,) if which != "sensors.yaml" else ("sensors.yaml",)
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
+                           names=names + ("observations.csv",))
+
+
+def test_in_memory_log_gets_the_file_messages():
+    """pedcal.io.validate and calibrate on a Log built from DataFrames: the table, row and column."""
+    from pedcal.calib import calibrate
+    from pedcal.errors import PedcalInputError
+    from pedcal.io import validate
+    from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+
+    sensors = SensorNetwork([SensorExtrinsics("s1", [0, 0, 2.6], [0, 45, 0])])
+    robot = pd.DataFrame({"t": [0.0, 1.0], "x": [0.0, 1.0], "y": 0.0, "yaw": 0.0, "cov_xx": 1e-3, "cov_xy": 0.0,
+                          "cov_xyaw": 0.0, "cov_yy": 1e-3, "cov_yyaw": 0.0, "cov_yawyaw": 1e-4})
+    obs = pd.DataFrame({"t": [0.5], "sensor": ["s1"], "track": [1], "x": [0.5], "y": [0.0], "z": [1.35]})
+    typed = validate(Log(sensors=sensors, robot=robot, observations=obs))
+    assert typed.observations["track"].tolist() == ["1"]
+    with pytest.raises(PedcalInputError, match=r"Log\.observations, column 'z': missing required column"):
+        calibrate(Log(sensors=sensors, robot=robot, observations=obs.rename(columns={"z": "height"})))
+    with pytest.raises(PedcalInputError, match=r"Log\.robot, row 1, column 'x': coordinate 1e\+300 m"):
+        validate(Log(sensors=sensors, robot=robot.assign(x=[0.0, 1e300]), observations=obs))
+    with pytest.raises(PedcalInputError, match=r"Log\.robot, row 0, column 'cov_xx': .*not positive definite"):
+        validate(Log(sensors=sensors, robot=robot.assign(cov_xy=1.0), observations=obs))
+
+
+def test_no_numpy_repr_in_messages(case):
+    log = case / "log"
+    set_cell(log / "robot.csv", 6, "t", read_cells(log / "robot.csv")["t"][5])
+    _, _, err = run_cli(["calibrate", log, "-o", case.parent / "out" / "c.yaml"], case, names=("robot.csv",))
+    assert re.search(r"time \d", err) and "np." not in err
+
+
+# -------------------------------------------------------------------------- real recordings
+REAL_PEDESTRIANS = ["atc/atc-1024-9_test.csv", "atc/atc-1024-10_test.csv", "eth_ucy/biwi_eth.txt",
+                    "eth_ucy/biwi_hotel.txt", "eth_ucy/crowds_zara01.txt", "thor/exp-1-run-2.csv"]
+
+
+@pytest.mark.parametrize("damage", ["none", "cut mid-line", "cp1252 byte", "binary tail"])
+@pytest.mark.parametrize("name", REAL_PEDESTRIANS)
+def test_real_pedestrian_recordings(shared_data, tmp_path, name, damage):
+    """Every recording in shared/data (a copy) through import-people, and its people file through
+    follow; damaged copies exit 0 or 2 naming the file, never a traceback."""
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    src = inputs / Path(name).name
+    data = (shared_data / name).read_bytes()
+    if damage == "cut mid-line":
+        data = data[: len(data) // 2 + 3]
+    elif damage == "cp1252 byte":
+        data = data[:200] + b"\x92" + data[200:]
+    elif damage == "binary tail":
+        data = data + bytes(range(256))
+    src.write_bytes(data)
+    people = tmp_path / "out" / "people.csv"
+    code, _, err = run_cli(["import-people", src, "-o", people], inputs, names=(src.name,))
+    if damage == "none":
+        assert code == 0, err
+        df = pd.read_csv(people, dtype={"person": str})
+        counts = df.groupby("person").size()
+        target = str(counts[counts >= 2].index[0])
+        code, _, err = run_cli(["follow", "--people", people, "--target", target, "--json"], people.parent)
+        assert code == 0, err
+
+
+def test_real_bag_import_and_output_inside_it(shared_data, tmp_path):
+    inputs = tmp_path / "in"
+    shutil.copytree(shared_data / "turtlebot4_ros2_bag", inputs / "bag")
+    code, out, err = run_cli(["import-bag", inputs / "bag", "-o", tmp_path / "out", "--localization", "odometry",
+                              "--map-frame", "odom"], inputs)
+    assert code == 0 and "robot.csv" in out, err
+    code, out, err = run_cli(["import-bag", inputs / "bag", "-o", tmp_path / "out2"], inputs, names=("bag",))
+    assert code == EXIT_BAD_INPUT and "localization" in err, err   # the bag has no map-frame localization
+    code, _, err = run_cli(["import-bag", inputs / "bag", "-o", inputs / "bag"], inputs, names=("bag",))
+    assert code == EXIT_BAD_INPUT, err
+
+
+@pytest.mark.parametrize("which", ["log/sensors.yaml", "log/meta.yaml", "calibrated.yaml", "log/robot.csv"])
+def test_unreadable_input_is_a_clean_error_even_as_root(case, monkeypatch, which):
+    """No read permission (simulated, so the case also runs as root, which ignores file modes)."""
+    import builtins
+    import pathlib
+
+    target = str(case / which)
+    real_read_bytes, real_open = pathlib.Path.read_bytes, builtins.open
+
+    def read_bytes(self):
+        if str(self) == target:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_read_bytes(self)
+
+    def guarded_open(file, *args, **kwargs):
+        if str(file) == target:
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "read_bytes", read_bytes)
+    monkeypatch.setattr(builtins, "open", guarded_open)
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", case / "calibrated.yaml"], case,
+                           names=(Path(which).name,))
+    assert code == EXIT_BAD_INPUT and "ermission denied" in err, err
+
+
+def test_unwritable_output_folder_is_refused_even_as_root(case, monkeypatch):
+    """A read-only folder (simulated through os.access and mkstemp, which root would bypass)."""
+    import tempfile
+
+    ro = case.parent / "ro"
+    ro.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if Path(p) == ro else real_access(p, mode, **kw))
+    code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml"], case, names=("c.yaml",))
+    assert code == EXIT_BAD_INPUT and "permission denied" in err, err
+
+    def no_mkstemp(*args, **kwargs):          # the folder turns read-only after the pre-flight
+        raise PermissionError(13, "Permission denied", str(kwargs.get("dir")))
+
+    monkeypatch.setattr(os, "access", real_access)
+    monkeypatch.setattr(tempfile, "mkstemp", no_mkstemp)
+    code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml", "-q"], case, names=("c.yaml",))
+    assert code == EXIT_BAD_INPUT and "permission denied" in err, err
+    assert not (ro / "c.yaml").exists()
