@@ -272,7 +272,7 @@ def test_tracking_table_holds_the_follow_metrics_of_each_tracker(results_dir):
     for tracker in ("paper", "lidar-only"):
         expected = run_follow("passing", tracker=tracker, seed=0).to_dict()
         row = saved[saved["tracker"] == tracker].iloc[0]
-        assert row["target_correct_fraction"] == pytest.approx(expected["target_correct_fraction"])
+        assert row["with_target_fraction"] == pytest.approx(expected["with_target_fraction"])
         assert row["id_switches"] == expected["id_switches"]
         cells = [r for r in rows if r[:2] == ["passing", tracker]][0]
-        assert cells[2].startswith(f"{expected['target_correct_fraction']:.3f}")
+        assert cells[2].startswith(f"{expected['with_target_fraction']:.3f}")

@@ -30,9 +30,9 @@ MAX_ROBOT_POINTS = 2000
 DEFAULT_FOLLOW_SCENES = ("passing", "corner", "crossing", "crowd", "recorded")
 DEFAULT_FOLLOW_TRACKERS = ("paper", "lidar-only", "factorgraph")
 DEFAULT_FOLLOW_SEEDS = 5
-FOLLOW_KEYS = ("frames", "target_correct_fraction", "id_switches", "lost_episodes", "searching_episodes",
-               "searching_frames", "mean_reacquire_s", "max_reacquire_s", "followed_to_end",
-               "lost_position_error_m", "mota", "motp", "idf1")
+FOLLOW_KEYS = ("frames", "with_target_fraction", "near_fraction", "median_distance_m", "followed_to_end",
+               "id_switches", "lost_episodes", "mean_reacquire_s", "max_reacquire_s", "unrecovered_losses",
+               "searching_episodes", "searching_frames", "lost_position_error_m", "mota", "motp", "idf1")
 
 
 @dataclass

@@ -528,15 +528,31 @@ def _target_on_route(route=TARGET_ROUTE) -> Walker:
                         reflectance_ab=TARGET_CLOTHING)
 
 
-def crowd_episode(rng: np.random.Generator, n_walkers: int = 12) -> Episode:
-    """The target walks a loop in a hall while ``n_walkers`` built-in random walkers cross it."""
+CROWD_AREA_XY_M = (-3.0, -3.0, 15.0, 11.0)  # where the crowd scene's walkers go (252 m^2)
+
+
+def walkers_for_density(density_per_10m2: float, area_xy_m=CROWD_AREA_XY_M) -> int:
+    """How many walkers give ``density_per_10m2`` people per 10 m^2 over the area (x0, y0, x1, y1)."""
+    if not np.isfinite(density_per_10m2) or density_per_10m2 < 0:
+        raise PedcalInputError(f"crowd density {density_per_10m2!r}: expected people per 10 m^2 >= 0")
+    x0, y0, x1, y1 = area_xy_m
+    return int(round(density_per_10m2 * (x1 - x0) * (y1 - y0) / 10.0))
+
+
+def crowd_episode(rng: np.random.Generator, n_walkers: int = 12, density_per_10m2: float | None = None) -> Episode:
+    """The target walks a loop in a hall while built-in random walkers cross it: ``n_walkers`` of
+    them, or as many as make ``density_per_10m2`` people per 10 m^2 over the walkers' area."""
+    if density_per_10m2 is not None:
+        n_walkers = walkers_for_density(density_per_10m2)
     occ = box_map((-4.0, -4.0, 16.0, 12.0), [])
     target = _target_on_route()
     duration = float(min(45.0, target.t_s[-1]))
-    others = random_walkers(n_walkers, (-3.0, -3.0, 15.0, 11.0), target.t_s[-1], rng, occ)
+    others = random_walkers(n_walkers, CROWD_AREA_XY_M, target.t_s[-1], rng, occ)
     others = avoid_collisions(others, [target], duration, occupancy=occ)
+    x0, y0, x1, y1 = CROWD_AREA_XY_M
+    density = n_walkers * 10.0 / ((x1 - x0) * (y1 - y0))
     return Episode("crowd", [target, *others], "target", np.array([0.0, 0.0, 0.0]), duration, occ,
-                   notes="built-in random walkers")
+                   notes=f"{n_walkers} built-in random walkers ({density:.2f} people per 10 m^2)")
 
 
 RECORDED_FILE = "eth_ucy/biwi_hotel.txt"
@@ -575,9 +591,20 @@ def recorded_episode(rng: np.random.Generator, data_dir: str | Path | None = Non
                    notes=f"pedestrians from {file}, window at {t_start:.1f} s, turned {np.degrees(yaw):.0f} deg")
 
 
+def candidate_targets(people: pd.DataFrame, min_duration_s: float = 0.0) -> pd.DataFrame:
+    """The people of a ``t, person, x, y`` table who could carry the transmitter: ``person``,
+    ``start_s`` (time of the first row), ``duration_s``, ``rows``, those present at least
+    ``min_duration_s``, longest first."""
+    g = people.assign(person=people["person"].astype(str)).groupby("person", sort=True)["t"]
+    out = pd.DataFrame({"start_s": g.min(), "duration_s": g.max() - g.min(), "rows": g.size()}).reset_index()
+    out = out[out["duration_s"] >= min_duration_s]
+    return out.sort_values(["duration_s", "person"], ascending=[False, True], kind="stable").reset_index(drop=True)
+
+
 def people_episode(people: pd.DataFrame, target_id: str, source: str | Path | None = None) -> Episode:
-    """An episode from a people table (``t, person, x, y``): the robot starts 1.5 m behind the
-    target's first position, facing its first motion; no walls."""
+    """An episode from a people table (``t, person, x, y``) over the target's time span (the other
+    people within it): the robot starts 1.5 m behind the target's first position, facing its first
+    motion; no walls."""
     ids = people["person"].astype(str)
     if target_id not in set(ids):
         raise PedcalInputError(f"--target {target_id!r} is not a person of the file (people: "
@@ -588,9 +615,9 @@ def people_episode(people: pd.DataFrame, target_id: str, source: str | Path | No
         raise PedcalInputError(f"target {target_id!r} has fewer than 2 rows", path=source, column="person")
     t0, t1 = float(tgt["t"].iloc[0]), float(tgt["t"].iloc[-1])
     walkers = []
-    for pid, g in people.assign(person=ids).sort_values("t").groupby("person", sort=True):
+    for pid, g in people.assign(person=ids).sort_values("t", kind="stable").groupby("person", sort=True):
         t = g["t"].to_numpy(float) - t0
-        if len(t) < 2:
+        if len(t) < 2 or t[-1] < 0.0 or t[0] > t1 - t0:
             continue
         walkers.append(Walker(str(pid), t, g[["x", "y"]].to_numpy(float),
                               reflectance_ab=TARGET_CLOTHING if pid == target_id else (3.0, 8.0)))
@@ -612,10 +639,15 @@ SCENARIOS: dict[str, Callable[[np.random.Generator], Episode]] = {
 }
 
 
-def make_episode(name: str, seed: int = 0) -> Episode:
-    """The episode registered as ``name`` (``SCENARIOS``), seeded."""
+def make_episode(name: str, seed: int = 0, density_per_10m2: float | None = None) -> Episode:
+    """The episode registered as ``name`` (``SCENARIOS``), seeded; ``density_per_10m2`` sets the
+    crowd scene's walkers (people per 10 m^2)."""
     if name not in SCENARIOS:
         raise PedcalInputError(f"unknown scenario {name!r}; expected one of {', '.join(SCENARIOS)}")
+    if density_per_10m2 is not None:
+        if name != "crowd":
+            raise PedcalInputError(f"--density sets the crowd scene's walkers; scenario {name!r} has none to set")
+        return crowd_episode(np.random.default_rng(seed), density_per_10m2=density_per_10m2)
     return SCENARIOS[name](np.random.default_rng(seed))
 
 
@@ -623,5 +655,6 @@ __all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route
            "avoid_collisions", "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
            "in_field_of_view",
            "visible_people", "SensorModel", "Sensing", "RobotController", "Episode", "SCENARIOS", "make_episode",
-           "people_episode", "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
+           "people_episode", "candidate_targets", "walkers_for_density", "CROWD_AREA_XY_M",
+           "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
            "recorded_episode"]
