@@ -242,6 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--methods", nargs="+", default=None, help="default: every method and the installed extrinsics")
     s.add_argument("--out", type=Path, default=None, help="output directory (default reports/default)")
     s.add_argument("--from-results", type=Path, default=None, help="rebuild the report from saved results")
+    s.add_argument("--rerun-tracking", action="store_true",
+                   help="with --from-results: run the following part again, keep the calibration tables")
     s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
     s.add_argument("--workers", type=int, default=None, help="local Dask worker processes (default: cores)")
     s.add_argument("--serial", action="store_true", help="run in this process, without Dask")
