@@ -291,3 +291,14 @@ def test_crowd_density_knob_sets_the_walkers():
 def test_cli_follow_density_on_a_scene_without_walkers_exits_2(capsys):
     assert main(["follow", "corner", "--density", "1"]) == 2
     assert "density" in capsys.readouterr().err
+
+
+def test_robot_keeps_up_with_a_fast_recorded_target():
+    from pedcal.sim.follow import people_episode, robot_speed_for
+
+    t = np.arange(0.0, 20.0, 1.0)
+    assert robot_speed_for(t, np.stack([1.5 * t, 0 * t], axis=1)) == pytest.approx(1.8)
+    assert robot_speed_for(t, np.stack([0.5 * t, 0 * t], axis=1)) == pytest.approx(1.0)
+    people = pd.DataFrame({"t": t, "person": "a", "x": 1.5 * t, "y": 0.0})
+    ep = people_episode(people, "a")
+    assert ep.robot_max_speed_mps == pytest.approx(1.8)

@@ -459,6 +459,7 @@ class Episode:
     t0_s: float = 0.0
     notes: str = ""
     extra: dict = field(default_factory=dict)
+    robot_max_speed_mps: float = 1.0  # the robot's top speed (RobotController.v_max_mps)
 
     def people_at(self, t_s: float) -> list[tuple[Walker, np.ndarray]]:
         out = []
@@ -622,12 +623,29 @@ def people_episode(people: pd.DataFrame, target_id: str, source: str | Path | No
         walkers.append(Walker(str(pid), t, g[["x", "y"]].to_numpy(float),
                               reflectance_ab=TARGET_CLOTHING if pid == target_id else (3.0, 8.0)))
     txy = tgt[["x", "y"]].to_numpy(float)
+    v_max = robot_speed_for(tgt["t"].to_numpy(float), txy)
     moved = np.flatnonzero(np.linalg.norm(txy - txy[0], axis=1) > 0.3)
     head = txy[moved[0]] - txy[0] if len(moved) else np.array([1.0, 0.0])
     yaw = float(np.arctan2(head[1], head[0]))
     start = txy[0] - 1.5 * np.array([np.cos(yaw), np.sin(yaw)])
     return Episode("people", walkers, target_id, np.array([start[0], start[1], yaw]), t1 - t0, None,
-                   notes=f"people from {source}")
+                   notes=f"people from {source}; robot top speed {v_max:.2f} m/s", robot_max_speed_mps=v_max)
+
+
+ROBOT_SPEED_MARGIN = 1.2  # a following robot's top speed over the target's fast walking (95th percentile)
+
+
+def robot_speed_for(t_s: np.ndarray, xy_m: np.ndarray, floor_mps: float = 1.0) -> float:
+    """A top speed that lets the robot keep up with a person walking ``xy_m`` at times ``t_s``:
+    ``ROBOT_SPEED_MARGIN`` times the 95th percentile of the person's speed between samples, at
+    least ``floor_mps``. A recorded target may walk faster than the scripted scenes' 1 m/s robot;
+    the bench measures the trackers, not a robot too slow to follow."""
+    dt = np.diff(t_s)
+    ok = dt > 0
+    if not ok.any():
+        return floor_mps
+    v = np.linalg.norm(np.diff(xy_m, axis=0)[ok], axis=1) / dt[ok]
+    return float(max(floor_mps, ROBOT_SPEED_MARGIN * np.percentile(v, 95)))
 
 
 SCENARIOS: dict[str, Callable[[np.random.Generator], Episode]] = {
@@ -655,6 +673,6 @@ __all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route
            "avoid_collisions", "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
            "in_field_of_view",
            "visible_people", "SensorModel", "Sensing", "RobotController", "Episode", "SCENARIOS", "make_episode",
-           "people_episode", "candidate_targets", "walkers_for_density", "CROWD_AREA_XY_M",
+           "people_episode", "candidate_targets", "robot_speed_for", "walkers_for_density", "CROWD_AREA_XY_M",
            "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
            "recorded_episode"]

@@ -251,7 +251,7 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     rng = np.random.default_rng(seed)
     trk = _make_tracker(tracker, episode)
     sensing = Sensing(episode.occupancy, rng)
-    ctrl = RobotController()
+    ctrl = RobotController(v_max_mps=episode.robot_max_speed_mps)
     planner = Planner(episode.occupancy) if episode.occupancy is not None else None
     pose = np.asarray(episode.robot_pose0, dtype=float).copy()
     stopped = True
