@@ -122,3 +122,23 @@ def test_grid_belief_starts_from_an_anisotropic_prior():
     xy, cov, _ = g.estimate(component_radius_m=6.0)
     np.testing.assert_allclose(xy, [1.0, 2.0], atol=g.config.resolution_m)
     np.testing.assert_allclose(cov, cov0, atol=0.03)
+
+
+def test_searching_paper_tracker_faces_the_antennas_bearing_and_the_robot_turns_in_place():
+    from pedcal.sim.follow import RobotController
+
+    trk = PaperTracker()
+    trk.state, trk.lost_since_s = "Searching", 0.0
+    yaw = POSE[2]
+    # readings towards the robot's back left (150 deg in the robot frame), one of them multipath
+    rs = (reading(0, np.radians(150.0)), reading(1, np.radians(150.0)), reading(0, np.radians(-60.0)),
+          reading(1, np.radians(150.0)))
+    out = trk.step(FollowFrame(0.0, POSE, COV, (), rs, True))
+    assert out.stop_robot and out.goal_xy_world_m is None
+    b = yaw + np.radians([150.0, 150.0, -60.0, 150.0])
+    assert out.face_world_rad == pytest.approx(float(np.arctan2(np.sin(b).sum(), np.cos(b).sum())))
+    ctrl = RobotController()
+    v, w = ctrl.command(POSE, out)
+    assert v == 0.0 and w == pytest.approx(ctrl.w_max_radps)          # turns left, does not drive
+    facing = np.array([POSE[0], POSE[1], out.face_world_rad])
+    assert ctrl.command(facing, out) == (0.0, 0.0)                    # faced: stands still for the grid

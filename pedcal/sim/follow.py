@@ -395,7 +395,8 @@ class Planner:
 @dataclass(frozen=True)
 class RobotController:
     """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking, to
-    the tracker's goal when the target is not in view, still when asked to stop."""
+    the tracker's goal when the target is not in view, still when asked to stop (turning in place to
+    the heading the tracker asks to face, if any)."""
 
     v_max_mps: float = 1.0
     w_max_radps: float = 1.5
@@ -404,6 +405,7 @@ class RobotController:
     follow_distance_m: float = FOLLOW_DISTANCE_M
     goal_tolerance_m: float = 0.3
     clearance_m: float = 0.35  # the step is refused when this far ahead is occupied
+    face_tolerance_rad: float = np.radians(15.0)  # asked to stop and face a heading: close enough
 
     def command(self, pose_est: np.ndarray, out: TrackerOutput, planner: Planner | None = None
                 ) -> tuple[float, float]:
@@ -411,7 +413,11 @@ class RobotController:
         goals inside walls move to the nearest free cell and an aim behind a wall is reached along
         the planned path."""
         if out.stop_robot:
-            return 0.0, 0.0
+            if out.face_world_rad is None:
+                return 0.0, 0.0
+            err = float(wrap_angle_rad(out.face_world_rad - pose_est[2]))
+            return 0.0, (float(np.clip(self.k_w * err, -self.w_max_radps, self.w_max_radps))
+                         if abs(err) > self.face_tolerance_rad else 0.0)
         if out.target_track_id is not None and out.target_xy_world_m is not None:
             aim, stand_off = np.asarray(out.target_xy_world_m, float), self.follow_distance_m
         elif out.goal_xy_world_m is not None:

@@ -73,6 +73,8 @@ class TrackerConfig:
     goal_reached_m: float = 0.5  # Searching: at the grid's goal, accumulate a new grid
     search_timeout_s: float = 15.0  # Searching: new grid if the goal was not reached by then
     reacquire_radius_m: float = 2.0  # LIDAR-only: take a filter this near the last position
+    face_antenna: bool = True  # Searching, robot stopped: turn in place to the antenna's recent bearing
+    face_readings: int = 4  # the circular mean of this many latest readings (world bearings)
 
 
 # -------------------------------------------------------------------------------------- association
@@ -252,10 +254,23 @@ class PaperTracker:
         self.grid: ExistenceGrid | None = None
         self.goal_xy: np.ndarray | None = None
         self.goal_since_s: float | None = None
+        self.bearings_world_rad: list[float] = []  # the latest readings' bearings from the robot (world)
 
     @property
     def target_id(self) -> int | None:
         return self.core.target_id
+
+    def _remember_bearings(self, frame: FollowFrame) -> None:
+        yaw = float(frame.pose_world_robot[2])
+        self.bearings_world_rad = (self.bearings_world_rad + [yaw + r.bearing_robot_rad for r in frame.espar]
+                                   )[-self.config.face_readings:]
+
+    def antenna_heading_world_rad(self) -> float | None:
+        """The circular mean of the latest readings' world bearings (None without readings)."""
+        if not self.bearings_world_rad:
+            return None
+        b = np.asarray(self.bearings_world_rad)
+        return float(np.arctan2(np.sin(b).sum(), np.cos(b).sum()))
 
     def _espar_bearing_updates(self, frame: FollowFrame) -> None:
         """Eq. 6: the undetected target filter takes each reading as a bearing (multipath gated)."""
@@ -287,6 +302,7 @@ class PaperTracker:
     def step(self, frame: FollowFrame) -> TrackerOutput:
         c = self.config
         res = self.core.step(frame)
+        self._remember_bearings(frame)
         self._espar_bearing_updates(frame)
         self.core.manage(res)
         for tid in res.deleted_ids:
@@ -352,9 +368,10 @@ class PaperTracker:
         stop = self.state == "Searching" and self.goal_xy is None
         xy = self.goal_xy if self.state == "Searching" and not stop else self.last_xy
         goal = None if xy is None or stop or self.state == "Initialize" else xy.copy()
+        face = self.antenna_heading_world_rad() if stop and self.config.face_antenna else None
         return TrackerOutput(self.state, None, None if xy is None else xy.copy(),
                              None if xy is None or xy is self.goal_xy else self.last_cov, tracks,
-                             stop_robot=stop, goal_xy_world_m=goal)
+                             stop_robot=stop, goal_xy_world_m=goal, face_world_rad=face)
 
 
 # ----------------------------------------------------------------------------- LIDAR-only tracker

@@ -72,6 +72,7 @@ class TrackerOutput:
     tracks: list[TrackEstimate] = field(default_factory=list)
     stop_robot: bool = False  # the tracker asks the robot to stand still (the paper's Searching)
     goal_xy_world_m: np.ndarray | None = None  # where to drive when the target is not in view
+    face_world_rad: float | None = None  # with stop_robot: turn in place to this heading (the antenna's bearing)
 
 
 class Tracker(Protocol):
