@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
+from pedcal.follow_types import FollowFrame, PersonDetection
 from pedcal.sim.espar import EsparParams, EsparSimulator
 from pedcal.track.existence_grid import ExistenceGrid
-from pedcal.track.tracker import make_tracker
-from pedcal.track.types import FollowFrame, PersonDetection
+from pedcal.track.trackers import make_tracker
 
 DT_S = 0.25
 N_BINS = 16

@@ -6,10 +6,10 @@ anisotropic recovery prior."""
 import numpy as np
 import pytest
 
+from pedcal.follow_types import EsparReading, FollowFrame
 from pedcal.track.kalman import CVTrack, update_bearing
 from pedcal.track.recovery import SmootherConfig, TargetSmoother, recovery_prior_cov
 from pedcal.track.tracker import PaperTracker
-from pedcal.track.types import EsparReading, FollowFrame
 
 POSE = np.array([2.0, -1.0, 0.9])          # x_m, y_m, yaw_rad: away from the origin, turned 52 deg
 COV = np.diag([1e-4, 1e-4, 1e-5])

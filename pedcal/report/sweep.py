@@ -230,7 +230,7 @@ def run_follow_case(scene: str, seed: int, trackers: list[str]) -> dict:
 def check_follow(scenes, trackers) -> tuple[list[str], list[str]]:
     """The following scenes and trackers, checked against the simulator's and the tracker registry."""
     from pedcal.sim.follow import SCENARIOS
-    from pedcal.track.tracker import TRACKERS
+    from pedcal.track.trackers import TRACKERS
 
     for name in scenes:
         if name not in SCENARIOS:

@@ -24,10 +24,10 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError
+from pedcal.follow_types import FollowFrame, PersonDetection, TrackerOutput
 from pedcal.frames import wrap_angle_rad
 from pedcal.io.maps import OccupancyMap
 from pedcal.sim.espar import EsparSimulator
-from pedcal.track.types import FollowFrame, PersonDetection, TrackerOutput
 
 FRAME_HZ = 4.0
 PERSON_RADIUS_M = 0.25

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
+from pedcal.follow_types import TrackerOutput
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.sim.follow import (
     FRAME_HZ,
@@ -29,7 +30,6 @@ from pedcal.sim.follow import (
     people_episode,
     to_robot,
 )
-from pedcal.track.types import TrackerOutput
 
 MATCH_DISTANCE_M = 0.5
 HIDDEN_HOLD_M = 1.0  # a hidden target counts as held while the tracker's estimate is this close to it
@@ -237,7 +237,7 @@ class FollowResult:
 
 
 def _make_tracker(name: str, episode: Episode):
-    from pedcal.track.tracker import make_tracker
+    from pedcal.track.trackers import make_tracker
 
     if name == "lidar-only":  # the operator points the target out at the start
         return make_tracker(name, initial_target_xy_world_m=episode.walker(episode.target_id).at(0.0))

@@ -186,7 +186,7 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
     atomically. Returns the path of ``bench.md``."""
     from pedcal.report.figures import save_png
     from pedcal.sim.walkers import SHARED_DATA
-    from pedcal.track.tracker import TRACKERS
+    from pedcal.track.trackers import TRACKERS
 
     data_dir = Path(data_dir) if data_dir is not None else SHARED_DATA
     if not data_dir.is_dir():

@@ -35,9 +35,10 @@ import numpy as np
 from gtsam.symbol_shorthand import A, T, V, X
 
 from pedcal.errors import PedcalInputError
+from pedcal.follow_types import EsparReading, FollowFrame, TrackerOutput
 from pedcal.track.espar import DEFAULT_LIKELIHOOD
 from pedcal.track.grid_belief import GridBelief, GridBeliefConfig
-from pedcal.track.types import EsparReading, FollowFrame, TrackerOutput
+from pedcal.track.tracker import PaperTracker
 
 ESPAR_QUANTIZATION_SIGMA_RAD = math.radians(30.0) / math.sqrt(12.0)
 _I2 = np.eye(2)
@@ -278,8 +279,6 @@ class FactorGraphTracker:
 
     def __init__(self, config=None, occupancy=None, smoother_config: SmootherConfig | None = None,
                  grid_config: GridBeliefConfig | None = None, recovery_config: RecoveryConfig | None = None, **options):
-        from pedcal.track.tracker import PaperTracker
-
         self.paper = PaperTracker(config, **options)
         self.occupancy = occupancy
         self.smoother_config = smoother_config or SmootherConfig()

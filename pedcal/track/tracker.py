@@ -1,6 +1,6 @@
 """The person tracker of Misu and Miura (Sec. 4-5) and the LIDAR-only follower it is compared with.
 
-Both run the same multi-person core on each :class:`~pedcal.track.types.FollowFrame`:
+Both run the same multi-person core on each :class:`~pedcal.follow_types.FollowFrame`:
 
 1. every filter is predicted to the frame's time (eq. 2, :mod:`pedcal.track.kalman`);
 2. detections go to the world frame with the robot's pose, its covariance added to the LIDAR noise;
@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pedcal.follow_types import FollowFrame, TrackerOutput, TrackEstimate
 from pedcal.track.appearance import OnlineBoost
 from pedcal.track.espar import DEFAULT_LIKELIHOOD, EsparLikelihood
 from pedcal.track.existence_grid import N_READINGS, ExistenceGrid
@@ -43,8 +44,6 @@ from pedcal.track.kalman import (
     rot2,
     update_bearing,
 )
-from pedcal.track.recovery import FactorGraphTracker
-from pedcal.track.types import FollowFrame, Tracker, TrackerOutput, TrackEstimate
 
 
 @dataclass(frozen=True)
@@ -431,20 +430,5 @@ class LidarOnlyTracker:
                              goal_xy_world_m=None if self.state == "Initialize" else xy)
 
 
-# --------------------------------------------------------------------------------------- factory
-TRACKERS: dict[str, Callable[..., Tracker]] = {"paper": PaperTracker, "lidar-only": LidarOnlyTracker,
-                                              "factorgraph": FactorGraphTracker}
-
-
-def make_tracker(name: str, **options) -> Tracker:
-    """A tracker by name (``TRACKERS``: "paper", "lidar-only", ...) built with ``options``
-    (TrackerConfig fields, or the tracker's own keywords)."""
-    try:
-        factory = TRACKERS[name]
-    except KeyError:
-        raise ValueError(f"unknown tracker {name!r}; expected one of {sorted(TRACKERS)}") from None
-    return factory(**options)
-
-
 __all__ = ["TrackerConfig", "association_likelihood", "greedy_assign", "TargetProbability", "MultiPersonCore",
-           "PaperTracker", "LidarOnlyTracker", "TRACKERS", "make_tracker"]
+           "PaperTracker", "LidarOnlyTracker"]
