@@ -232,8 +232,10 @@ def test_crossing_paper_keeps_target_lidar_only_switches(outcomes):
 
 def test_corner_paper_recovers_lidar_only_does_not(outcomes):
     paper, lidar = outcomes["corner", "paper"], outcomes["corner", "lidar-only"]
-    assert paper["lost_episodes"] >= 1 and paper["searching_frames"] > 0  # the target did leave the view
-    assert paper["followed_to_end"] and paper["max_reacquire_s"] is not None
+    # the target did leave the view (an estimate of it while out of sight), and was held again
+    assert paper["lost_episodes"] >= 1 and paper["lost_position_error_m"] is not None
+    assert paper["followed_to_end"] and paper["max_reacquire_s"] is not None and paper["unrecovered_losses"] == 0
+    assert paper["with_target_fraction"] >= 0.9
     assert not lidar["followed_to_end"] and lidar["with_target_fraction"] < 0.7
 
 

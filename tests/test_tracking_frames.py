@@ -142,3 +142,54 @@ def test_searching_paper_tracker_faces_the_antennas_bearing_and_the_robot_turns_
     assert v == 0.0 and w == pytest.approx(ctrl.w_max_radps)          # turns left, does not drive
     facing = np.array([POSE[0], POSE[1], out.face_world_rad])
     assert ctrl.command(facing, out) == (0.0, 0.0)                    # faced: stands still for the grid
+
+
+def test_confirmed_filters_take_their_detections_before_tentative_ones():
+    from pedcal.follow_types import PersonDetection
+    from pedcal.track.tracker import MultiPersonCore, TrackerConfig
+
+    core = MultiPersonCore(TrackerConfig())
+    R = 0.05 ** 2 * np.eye(2)
+    old = CVTrack.from_detection(0, np.array([3.0, 0.0]), R, 0.0)
+    old.confirmed, old.P = True, np.diag([0.04, 0.04, 0.1, 0.1])
+    new = CVTrack.from_detection(1, np.array([3.3, 0.0]), R, 0.0)   # born last frame beside it
+    core.tracks, core.next_id = {0: old, 1: new}, 2
+    det = PersonDetection(np.array([3.28, 0.0]), 1.7, 0.9, np.full(8, 1 / 8))   # nearer the newcomer
+    res = core.step(FollowFrame(0.0, np.zeros(3), COV, (det,), (), False))
+    assert core.tracks[0].detected and not core.tracks[1].detected and res.detected_ids == {0}
+
+
+def _core_with_target(radius_m: float):
+    from pedcal.track.tracker import MultiPersonCore, TrackerConfig
+
+    core = MultiPersonCore(TrackerConfig(maneuver_radius_m=radius_m))
+    tr = CVTrack.from_detection(0, np.array([4.0, 1.0]), 0.05 ** 2 * np.eye(2), 0.0)
+    tr.confirmed, tr.x[2:] = True, [0.8, 0.0]               # walking +x at 0.8 m/s
+    tr.P = np.diag([0.03 ** 2, 0.03 ** 2, 0.05 ** 2, 0.05 ** 2])
+    core.tracks, core.next_id = {0: tr}, 1
+    core.set_target(0)
+    return core
+
+
+def _det_world(xy_world):
+    from pedcal.follow_types import PersonDetection
+
+    return PersonDetection(rot(POSE[2]).T @ (np.asarray(xy_world, float) - POSE[:2]), 1.7, 0.9, np.full(8, 1 / 8))
+
+
+@pytest.mark.parametrize("radius_m, continued", [(0.6, True), (0.0, False)])
+def test_a_turn_outside_the_gate_continues_the_target_filter_in_the_clear(radius_m, continued):
+    # predicted at (4.2, 1.0); the target turned left: its detection is 0.4 m off, far outside 3 sigma
+    core = _core_with_target(radius_m)
+    res = core.step(FollowFrame(0.25, POSE, COV, (_det_world([4.1, 1.39]),), (), False))
+    assert core.tracks[0].detected == continued
+    assert (res.detected_ids == {0}) == continued               # otherwise a new filter starts there
+    if continued:
+        assert np.linalg.norm(core.tracks[0].xy - [4.1, 1.39]) < 0.1
+
+
+def test_a_turn_among_other_people_is_not_continued():
+    core = _core_with_target(0.6)
+    # somebody else stands 0.7 m from the leftover detection: it may as well be a passer-by
+    core.step(FollowFrame(0.25, POSE, COV, (_det_world([4.1, 1.39]), _det_world([4.5, 1.96])), (), False))
+    assert not core.tracks[0].detected

@@ -405,7 +405,7 @@ class RobotController:
     follow_distance_m: float = FOLLOW_DISTANCE_M
     goal_tolerance_m: float = 0.3
     clearance_m: float = 0.35  # the step is refused when this far ahead is occupied
-    face_tolerance_rad: float = np.radians(15.0)  # asked to stop and face a heading: close enough
+    face_tolerance_rad: float = np.radians(45.0)  # asked to stop and face a heading: within the view
 
     def command(self, pose_est: np.ndarray, out: TrackerOutput, planner: Planner | None = None
                 ) -> tuple[float, float]:

@@ -72,6 +72,10 @@ class TrackerConfig:
     goal_reached_m: float = 0.5  # Searching: at the grid's goal, accumulate a new grid
     search_timeout_s: float = 15.0  # Searching: new grid if the goal was not reached by then
     reacquire_radius_m: float = 2.0  # LIDAR-only: take a filter this near the last position
+    maneuver_radius_m: float = 0.6  # an unassigned detection this near the undetected target filter ...
+    maneuver_lag_s: float = 0.25  # the turn happened within this (a frame): velocity spread miss / lag
+    maneuver_max_error: float = 0.4  # ... whose appearance error e is at most this continues it (a turn)
+    maneuver_clear_m: float = 1.0  # ... and nobody else (filter or detection) is this near it
     face_antenna: bool = True  # Searching, robot stopped: turn in place to the antenna's recent bearing
     face_readings: int = 4  # the circular mean of this many latest readings (world bearings)
 
@@ -169,7 +173,18 @@ class MultiPersonCore:
             z, R = detections_world(np.array([dt.xy_robot_m for dt in dets], dtype=float),
                                     np.asarray(frame.pose_world_robot, dtype=float), frame.cov_world_robot,
                                     c.sigma_lidar_m)
-            pairs = []
+            pairs: list[tuple[int, int]] = []
+            assigned: set[int] = set()
+
+            def take(r: int, j: int, R_j: np.ndarray) -> None:
+                tr = self.tracks[ids[r]]
+                tr.update(z[j], R_j)
+                tr.detected = True
+                tr.hits += 1
+                res.detected_ids.add(tr.track_id)
+                assigned.add(j)
+                pairs.append((r, j))
+
             if ids:
                 d = mahalanobis_matrix(np.array([self.tracks[i].x for i in ids]),
                                        np.array([self.tracks[i].P for i in ids]), z, R)
@@ -177,15 +192,23 @@ class MultiPersonCore:
                 hists = np.array([dt.reflectance_hist for dt in dets], dtype=float)
                 if self.target_id in self.tracks and self.appearance is not None:
                     e[ids.index(self.target_id)] = self.appearance.error(hists)
-                pairs = greedy_assign(association_likelihood(d, e), d, c.gate)
-            assigned = set()
-            for r, j in pairs:
-                tr = self.tracks[ids[r]]
-                tr.update(z[j], R[j])
-                tr.detected = True
-                tr.hits += 1
-                res.detected_ids.add(tr.track_id)
-                assigned.add(j)
+                lik = association_likelihood(d, e)
+                # confirmed filters first, then the tentative ones on what is left: a filter born last
+                # frame (clutter, a split cluster) must not take a confirmed filter's detection
+                confirmed = np.array([self.tracks[i].confirmed for i in ids])
+                for first, rows in ((True, np.flatnonzero(confirmed)), (False, np.flatnonzero(~confirmed))):
+                    cols = np.array([j for j in range(len(dets)) if j not in assigned], dtype=int)
+                    if len(rows) and len(cols):
+                        for a, b in greedy_assign(lik[np.ix_(rows, cols)], d[np.ix_(rows, cols)], c.gate):
+                            take(int(rows[a]), int(cols[b]), R[cols[b]])
+                    if first:  # the target's filter is a confirmed one
+                        j = self._maneuver(dets, z, assigned)
+                        if j is not None:  # the turn the constant velocity missed: open the filter up to it
+                            tr = self.tracks[self.target_id]
+                            miss = z[j] - tr.xy
+                            tr.P[:2, :2] += np.outer(miss, miss)
+                            tr.P[2:, 2:] += np.outer(miss, miss) / c.maneuver_lag_s ** 2
+                            take(ids.index(self.target_id), j, R[j])
             if self.target_id in res.detected_ids:
                 self._learn(dets, pairs, ids)
             for j in range(len(dets)):
@@ -194,6 +217,33 @@ class MultiPersonCore:
                     res.detected_ids.add(self.next_id)
                     self.next_id += 1
         return res
+
+    def _maneuver(self, dets, z: np.ndarray, assigned: set[int]) -> int | None:
+        """A detection left over by the association (eq. 3's gate) that continues the undetected
+        target filter: within ``maneuver_radius_m`` of its prediction and accepted by the target's
+        appearance classifier once trained, with nobody else within ``maneuver_clear_m`` of it. A person
+        turning sharply leaves the constant-velocity gate for a frame or two; without this the
+        target's filter dies and a new one must win the antenna's probability back."""
+        c = self.config
+        tr = self.tracks.get(self.target_id)
+        if tr is None or tr.detected:
+            return None
+        free = [j for j in range(len(dets)) if j not in assigned]
+        if not free:
+            return None
+        dist = np.linalg.norm(z[free] - tr.xy, axis=1)
+        k = int(np.argmin(dist))
+        if dist[k] > c.maneuver_radius_m:
+            return None
+        # in a crowd a leftover detection near the target is as likely a passer-by: only in the clear
+        others = [o.xy for o in self.tracks.values() if o.track_id != self.target_id]
+        others += [z[j] for j in range(len(z)) if j != free[k]]
+        if others and np.min(np.linalg.norm(np.array(others) - z[free[k]], axis=1)) <= c.maneuver_clear_m:
+            return None
+        if self.appearance is not None and self.appearance.ready:
+            e = float(self.appearance.error(np.asarray(dets[free[k]].reflectance_hist, dtype=float)[None, :])[0])
+            return free[k] if e <= c.maneuver_max_error else None
+        return free[k]
 
     def _learn(self, dets, pairs, ids) -> None:
         """Target's detection positive, the other confirmed filters' detections negative."""
