@@ -275,3 +275,12 @@ def test_the_paper_tracker_does_not_import_the_factor_graph_tracker_and_sim_does
     assert "pedcal.track.tracker" in imports(root / "track" / "recovery.py")
     for path in (root / "sim").glob("*.py"):
         assert not any(m.startswith("pedcal.track") for m in imports(path)), path.name
+
+
+def test_a_filter_retaken_before_its_confirmation_keeps_its_probability():
+    prob = TargetProbability()
+    prob.p, prob.p_lost = {3: 0.7}, 0.3       # the factor-graph tracker re-took filter 3 while tentative
+    prob.add(3, 0.05)                          # filter 3 is confirmed a frame later
+    assert prob.p == {3: 0.7} and prob.p_lost == pytest.approx(0.3)
+    prob.add(4, 0.05)
+    assert prob.p[4] == pytest.approx(0.015) and prob.p_lost == pytest.approx(0.285)

@@ -112,7 +112,10 @@ class TargetProbability:
         self.p_min = p_min
 
     def add(self, track_id: int, share: float) -> None:
-        """A new filter enters with ``share`` of P_lost (taken from it)."""
+        """A new filter enters with ``share`` of P_lost (taken from it); a filter that already holds
+        a probability (the factor-graph tracker re-took it before it was confirmed) keeps it."""
+        if track_id in self.p:
+            return
         take = share * self.p_lost
         self.p[track_id] = take
         self.p_lost -= take
