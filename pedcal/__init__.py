@@ -61,7 +61,7 @@ _EXPORTS = {
     "compare_extrinsics": ("pedcal.report.compare", "compare_extrinsics"),
     "follow": ("pedcal.track.follow", "run_follow"),
     "FollowResult": ("pedcal.track.follow", "FollowResult"),
-    "detect": ("pedcal.track.detection", "detect"),
+    "detect": ("pedcal.detect.detection", "detect"),
     "PedcalInputError": ("pedcal.errors", "PedcalInputError"),
 }
 

@@ -166,17 +166,47 @@ def cmd_follow(args) -> int:
     from pedcal.io.atomic import check_output
     from pedcal.track.follow import run_follow
 
+    if args.people is not None and args.target is None:
+        return _list_follow_targets(args)
     if args.output is not None:
         check_output(args.output, inputs=[args.people], directory=True)
     with preflight.limits(max_follow_s=args.max_duration_s):
         res = run_follow(args.scenario, tracker=args.tracker, seed=args.seed, people_csv=args.people,
-                         target_id=args.target, progress=not args.json)
+                         target_id=args.target, progress=not args.json, density_per_10m2=args.density)
     if args.output is not None:
         res.save(args.output)
     if args.json:
         _print_json(res.to_dict())
     else:
         print(res.format_table())
+    return 0
+
+
+def _list_follow_targets(args) -> int:
+    """``pedcal follow --people FILE`` without ``--target``: the people who could be followed."""
+    from pedcal.sim.follow import candidate_targets
+    from pedcal.track.follow import read_people
+
+    cands = candidate_targets(read_people(args.people))
+    if args.json:
+        _print_json({"people": args.people.as_posix(), "candidates": [
+            {"person": r.person, "start_s": float(r.start_s), "duration_s": float(r.duration_s), "rows": int(r.rows)}
+            for r in cands.itertuples()]})
+        return 0
+    print(f"{args.people}: {len(cands)} people; give one with --target ID (longest first)")
+    print(f"  {'person':>12} {'start_s':>10} {'duration_s':>10} {'rows':>6}")
+    for r in cands.itertuples():
+        print(f"  {r.person:>12} {r.start_s:10.1f} {r.duration_s:10.1f} {r.rows:6d}")
+    return 0
+
+
+def cmd_follow_bench(args) -> int:
+    from pedcal.track.follow_bench import run_follow_bench
+
+    path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
+                            min_duration_s=args.min_duration, max_targets=args.max_targets,
+                            files=args.files, progress=not args.quiet)
+    print(f"wrote {path}")
     return 0
 
 
@@ -304,6 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--methods", nargs="+", default=None, help="default: every method and the installed extrinsics")
     s.add_argument("--out", type=Path, default=None, help="output directory (default reports/default)")
     s.add_argument("--from-results", type=Path, default=None, help="rebuild the report from saved results")
+    s.add_argument("--rerun-tracking", action="store_true",
+                   help="with --from-results: run the following part again, keep the calibration tables")
     s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
     s.add_argument("--workers", type=int, default=None, help="local Dask worker processes (default: cores)")
     s.add_argument("--serial", action="store_true", help="run in this process, without Dask")
@@ -326,7 +358,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", type=Path, default=None, help="save follow.json and follow_log.parquet here")
     s.add_argument("--max-duration-s", type=float, default=None,
                    help="with --people: refuse a target trajectory longer than this (default 3600 s)")
+    s.add_argument("--density", type=float, default=None, metavar="P10M2",
+                   help="crowd scene: people per 10 m^2 (default: 12 walkers, about 0.5)")
     s.set_defaults(func=cmd_follow)
+
+    s = sub.add_parser("follow-bench", help="follow every long-present person of every real recording and "
+                       "report the distribution per recording and tracker")
+    s.add_argument("--data-dir", type=Path, default=None, help="the recordings folder (default: ../shared/data)")
+    s.add_argument("--files", nargs="+", default=None, metavar="FILE",
+                   help="recordings under the data folder (default: ATC, ETH, HOTEL, ZARA, THOR)")
+    s.add_argument("--trackers", nargs="+", default=None, metavar="TRACKER",
+                   help="default: paper lidar-only factorgraph")
+    s.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per target (default 3)")
+    s.add_argument("--min-duration", type=float, default=45.0, metavar="S",
+                   help="a target is present at least this long (default 45 s)")
+    s.add_argument("--max-targets", type=int, default=None, metavar="N",
+                   help="at most N targets per recording (the longest present; default all)")
+    s.add_argument("-o", "--out", type=Path, default=Path("follow-bench"), help="output folder")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_follow_bench)
     return p
 
 

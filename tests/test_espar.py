@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from pedcal.follow_types import EsparReading
 from pedcal.sim.espar import EsparParams, EsparSimulator, quantized_directions, reading_times
 from pedcal.track.espar import DEFAULT_LIKELIHOOD, EsparLikelihood, fit_espar_likelihood, likelihood, likelihood_grid
-from pedcal.track.types import EsparReading
 
 
 def test_noise_free_readings_are_the_nearest_direction_from_each_antenna():

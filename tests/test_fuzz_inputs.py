@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import json
 import os
 import re
 import resource
@@ -566,7 +567,6 @@ BAD_PEOPLE = {
     "t in nanoseconds": (_people_edit(lambda df: df.assign(t=(df["t"].astype(float) * 1e9 + 1.7e18).map(repr))),
                          ["--target", "0"]),
     "unknown target": (lambda p: None, ["--target", "nobody"]),
-    "no target": (lambda p: None, []),
     "binary people file": (lambda p: p.write_bytes(b"\xff\xfe\x00\x01" * 50), ["--target", "0"]),
     "missing column": (_people_edit(lambda df: df.drop(columns="y")), ["--target", "0"]),
     "text in x": (_people_edit(lambda df: df.assign(x=np.where(np.arange(len(df)) == 2, "1,5", df["x"]))),
@@ -581,7 +581,7 @@ def test_bad_people_file_for_follow_and_import(case, name):
     edit(people)
     code, _, err = run_cli(["follow", "--people", people, *extra, "--json"], case, names=("people.csv",))
     assert code == EXIT_BAD_INPUT, err
-    if name not in ("unknown target", "no target", "target seen at t=0 and t=1e7"):
+    if name not in ("unknown target", "target seen at t=0 and t=1e7"):
         code, _, err = run_cli(["import-people", people, "-o", case.parent / "out" / "p.csv"], case,
                                names=("people.csv",))
         assert code == EXIT_BAD_INPUT, err
@@ -590,6 +590,10 @@ def test_bad_people_file_for_follow_and_import(case, name):
 def test_people_file_follows_and_imports(case):
     code, out, err = run_cli(["follow", "--people", case / "people.csv", "--target", "0", "--json"], case)
     assert code == 0, err
+    # without --target the people who could be followed are listed, the target among them
+    code, out, err = run_cli(["follow", "--people", case / "people.csv", "--json"], case)
+    assert code == 0, err
+    assert "0" in {c["person"] for c in json.loads(out)["candidates"]}
     target = case.parent / "out" / "p.csv"
     code, _, err = run_cli(["import-people", case / "people.csv", "-o", target], case)
     assert code == 0, err

@@ -103,7 +103,7 @@ def test_compare_extrinsics_and_follow_take_objects(small_sim, tmp_path):
     people = pd.DataFrame({"t": t + t, "person": ["a"] * 150 + ["b"] * 150,
                            "x": [0.8 * v for v in t] + [6.0 - 0.5 * v for v in t], "y": [0.0] * 150 + [1.5] * 150})
     res = pedcal.follow(None, people_csv=people, target_id="a")
-    assert res.metrics["frames"] > 0 and res.metrics["target_correct_fraction"] > 0.5
+    assert res.metrics.frames > 0 and res.metrics.with_target_fraction > 0.5
 
 
 def test_progress_bar_on_a_terminal_plain_lines_elsewhere(monkeypatch):

@@ -9,9 +9,9 @@ import pytest
 from gtsam.symbol_shorthand import T, V
 
 from pedcal.errors import PedcalInputError
+from pedcal.follow_types import EsparReading
 from pedcal.sim.espar import EsparParams, EsparSimulator
 from pedcal.track.recovery import SmootherConfig, TargetSmoother, constant_velocity_error, gauss_markov_velocity_error
-from pedcal.track.types import EsparReading
 
 COV_ROBOT = np.diag([0.05 ** 2, 0.05 ** 2, np.radians(1.0) ** 2])
 STATIC = SmootherConfig(walk_speed_mps=0.2)      # a target standing still: velocity spread 0.2 m/s

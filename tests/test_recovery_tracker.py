@@ -4,11 +4,11 @@ wall, and re-take the target as soon as the robot sees it again."""
 
 import numpy as np
 
+from pedcal.follow_types import FollowFrame, PersonDetection
 from pedcal.io.maps import OccupancyMap
 from pedcal.sim.espar import EsparParams, EsparSimulator
 from pedcal.track.recovery import RecoveryConfig
-from pedcal.track.tracker import make_tracker
-from pedcal.track.types import FollowFrame, PersonDetection
+from pedcal.track.trackers import make_tracker
 
 N_BINS = 16
 DT_S = 0.25

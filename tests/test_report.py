@@ -272,7 +272,24 @@ def test_tracking_table_holds_the_follow_metrics_of_each_tracker(results_dir):
     for tracker in ("paper", "lidar-only"):
         expected = run_follow("passing", tracker=tracker, seed=0).to_dict()
         row = saved[saved["tracker"] == tracker].iloc[0]
-        assert row["target_correct_fraction"] == pytest.approx(expected["target_correct_fraction"])
+        assert row["with_target_fraction"] == pytest.approx(expected["with_target_fraction"])
         assert row["id_switches"] == expected["id_switches"]
         cells = [r for r in rows if r[:2] == ["passing", tracker]][0]
-        assert cells[2].startswith(f"{expected['target_correct_fraction']:.3f}")
+        assert cells[2].startswith(f"{expected['with_target_fraction']:.3f}")
+
+
+def test_rerun_tracking_replaces_only_the_tracking_table(results_dir, tmp_path):
+    from pedcal.report import rerun_tracking
+
+    out = tmp_path / "copy"
+    shutil.copytree(results_dir, out)
+    before = load_results(out)
+    t = before.tracking.copy()
+    t["with_target_fraction"] = -1.0          # stale figures that the rerun must replace
+    before.tracking = t
+    save_results(before, out)
+    rerun_tracking(out, progress=False)
+    after = load_results(out)
+    pd.testing.assert_frame_equal(after.runs, load_results(results_dir).runs)
+    pd.testing.assert_frame_equal(after.tracking, load_results(results_dir).tracking)
+    assert (out / "report.md").read_text(encoding="utf-8") == (results_dir / "report.md").read_text(encoding="utf-8")

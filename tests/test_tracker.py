@@ -4,6 +4,7 @@ target probability (eqs. 9-14) on a worked example, and every state transition o
 import numpy as np
 import pytest
 
+from pedcal.follow_types import EsparReading, FollowFrame, PersonDetection
 from pedcal.track.appearance import OnlineBoost
 from pedcal.track.tracker import (
     LidarOnlyTracker,
@@ -13,9 +14,8 @@ from pedcal.track.tracker import (
     TrackerConfig,
     association_likelihood,
     greedy_assign,
-    make_tracker,
 )
-from pedcal.track.types import EsparReading, FollowFrame, PersonDetection
+from pedcal.track.trackers import make_tracker
 
 DT = 0.25
 B = 8
@@ -252,3 +252,35 @@ def test_paper_tracker_recovers_the_target_with_simulated_noisy_readings(seed):
     outs = run(PaperTracker(), frames)
     assert all(o.state == "Tracking" for o in outs[-10:])
     np.testing.assert_allclose(outs[-1].target_xy_world_m, TARGET, atol=0.1)
+
+
+def test_the_paper_tracker_does_not_import_the_factor_graph_tracker_and_sim_does_not_import_track():
+    """Layering: the factor-graph tracker builds on the paper tracker; the simulator and the trackers
+    share only pedcal.follow_types."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "pedcal"
+
+    def imports(path: Path) -> set[str]:
+        mods = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                mods.add(node.module)
+            elif isinstance(node, ast.Import):
+                mods.update(a.name for a in node.names)
+        return mods
+
+    assert not any(m.startswith("pedcal.track.recovery") for m in imports(root / "track" / "tracker.py"))
+    assert "pedcal.track.tracker" in imports(root / "track" / "recovery.py")
+    for path in (root / "sim").glob("*.py"):
+        assert not any(m.startswith("pedcal.track") for m in imports(path)), path.name
+
+
+def test_a_filter_retaken_before_its_confirmation_keeps_its_probability():
+    prob = TargetProbability()
+    prob.p, prob.p_lost = {3: 0.7}, 0.3       # the factor-graph tracker re-took filter 3 while tentative
+    prob.add(3, 0.05)                          # filter 3 is confirmed a frame later
+    assert prob.p == {3: 0.7} and prob.p_lost == pytest.approx(0.3)
+    prob.add(4, 0.05)
+    assert prob.p[4] == pytest.approx(0.015) and prob.p_lost == pytest.approx(0.285)

@@ -115,11 +115,11 @@ def _sources(log: Log) -> dict:
 def check_follow_people(people_csv, target_id: str | None) -> pd.DataFrame:
     """Read and validate a people file for ``pedcal follow --people`` and refuse a target whose
     trajectory would take more than the frame limit to simulate; returns the people table."""
-    from pedcal.io.people import read_people_csv
+    from pedcal.io.pedestrians import read_pedestrians
 
     if target_id is None:
         raise PedcalInputError("--people needs --target (the person carrying the transmitter)", path=people_csv)
-    people = read_people_csv(people_csv)
+    people = read_pedestrians(people_csv)
     tgt = people["t"].to_numpy(dtype=float)[people["person"].astype(str).to_numpy() == str(target_id)]
     if len(tgt) >= 2:
         span = float(tgt.max() - tgt.min())

@@ -24,6 +24,7 @@ from pedcal.report.sweep import (
     check_follow,
     check_methods,
     parse_scenarios,
+    run_follow_case,
     run_sweep,
 )
 
@@ -51,6 +52,29 @@ def run_report(scenarios=DEFAULT_SCENARIOS, seeds: int = DEFAULT_SEEDS, methods=
     return build_report(out)
 
 
-__all__ = ["run_report", "build_report", "compare_extrinsics", "register_section", "SECTIONS", "ReportContext",
+def rerun_tracking(results_dir: str | Path, *, progress: bool = True) -> Path:
+    """Run the saved sweep's following part again (its scenes x trackers x seeds, serially), replace
+    the tracking table of the results in ``results_dir`` (the calibration tables are kept as they
+    are) and rebuild the report. Returns the report's path."""
+    import logging
+
+    results = load_results(results_dir)
+    cfg = results.config
+    if cfg.follow_seeds < 1:
+        raise PedcalInputError("these results hold no following part (--follow-seeds 0)", path=results_dir)
+    check_follow(cfg.follow_scenes, cfg.follow_trackers)
+    cases = []
+    for k, (scene, seed) in enumerate(cfg.follow_cases(), 1):
+        cases.append(run_follow_case(scene, seed, list(cfg.follow_trackers)))
+        if progress:
+            logging.getLogger(__name__).info(f"report: following {k}/{len(cfg.follow_cases())} ({scene} seed {seed})",
+                                             extra={"progress": (k, len(cfg.follow_cases()))})
+    results.tracking = results_from_cases(cfg, cases).tracking
+    save_results(results, results_dir)
+    return build_report(results_dir)
+
+
+__all__ = ["run_report", "rerun_tracking", "build_report",
+           "compare_extrinsics", "register_section", "SECTIONS", "ReportContext",
            "SweepConfig", "SweepResults", "load_results", "save_results", "results_from_cases", "run_sweep",
            "parse_scenarios", "check_methods"]

@@ -24,6 +24,12 @@ def report_command(args) -> int:
         path = compare_extrinsics(args.log, args.extrinsics, args.out, progress=not args.quiet)
     elif args.extrinsics:
         raise PedcalInputError("--extrinsics compares calibrations on a log: give the LOG directory before it")
+    elif args.from_results is not None and getattr(args, "rerun_tracking", False):
+        from pedcal.report import rerun_tracking
+
+        if args.out is not None:
+            raise PedcalInputError("--rerun-tracking updates the results in place: leave --out out")
+        path = rerun_tracking(args.from_results, progress=not args.quiet)
     elif args.from_results is not None:
         path = build_report(args.from_results, args.out)
     else:

@@ -30,9 +30,9 @@ MAX_ROBOT_POINTS = 2000
 DEFAULT_FOLLOW_SCENES = ("passing", "corner", "crossing", "crowd", "recorded")
 DEFAULT_FOLLOW_TRACKERS = ("paper", "lidar-only", "factorgraph")
 DEFAULT_FOLLOW_SEEDS = 5
-FOLLOW_KEYS = ("frames", "target_correct_fraction", "id_switches", "lost_episodes", "searching_episodes",
-               "searching_frames", "mean_reacquire_s", "max_reacquire_s", "followed_to_end",
-               "lost_position_error_m", "mota", "motp", "idf1")
+FOLLOW_KEYS = ("frames", "with_target_fraction", "near_fraction", "median_distance_m", "followed_to_end",
+               "id_switches", "lost_episodes", "mean_reacquire_s", "max_reacquire_s", "unrecovered_losses",
+               "searching_episodes", "searching_frames", "lost_position_error_m", "mota", "motp", "idf1")
 
 
 @dataclass
@@ -230,7 +230,7 @@ def run_follow_case(scene: str, seed: int, trackers: list[str]) -> dict:
 def check_follow(scenes, trackers) -> tuple[list[str], list[str]]:
     """The following scenes and trackers, checked against the simulator's and the tracker registry."""
     from pedcal.sim.follow import SCENARIOS
-    from pedcal.track.tracker import TRACKERS
+    from pedcal.track.trackers import TRACKERS
 
     for name in scenes:
         if name not in SCENARIOS:

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pedcal.follow_types import EsparReading
 from pedcal.frames import wrap_angle_rad
-from pedcal.track.types import EsparReading
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,10 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError
+from pedcal.follow_types import FollowFrame, PersonDetection, TrackerOutput
 from pedcal.frames import wrap_angle_rad
 from pedcal.io.maps import OccupancyMap
 from pedcal.sim.espar import EsparSimulator
-from pedcal.track.types import FollowFrame, PersonDetection, TrackerOutput
 
 FRAME_HZ = 4.0
 PERSON_RADIUS_M = 0.25
@@ -395,7 +395,8 @@ class Planner:
 @dataclass(frozen=True)
 class RobotController:
     """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking, to
-    the tracker's goal when the target is not in view, still when asked to stop."""
+    the tracker's goal when the target is not in view, still when asked to stop (turning in place to
+    the heading the tracker asks to face, if any)."""
 
     v_max_mps: float = 1.0
     w_max_radps: float = 1.5
@@ -404,6 +405,7 @@ class RobotController:
     follow_distance_m: float = FOLLOW_DISTANCE_M
     goal_tolerance_m: float = 0.3
     clearance_m: float = 0.35  # the step is refused when this far ahead is occupied
+    face_tolerance_rad: float = np.radians(45.0)  # asked to stop and face a heading: within the view
 
     def command(self, pose_est: np.ndarray, out: TrackerOutput, planner: Planner | None = None
                 ) -> tuple[float, float]:
@@ -411,7 +413,11 @@ class RobotController:
         goals inside walls move to the nearest free cell and an aim behind a wall is reached along
         the planned path."""
         if out.stop_robot:
-            return 0.0, 0.0
+            if out.face_world_rad is None:
+                return 0.0, 0.0
+            err = float(wrap_angle_rad(out.face_world_rad - pose_est[2]))
+            return 0.0, (float(np.clip(self.k_w * err, -self.w_max_radps, self.w_max_radps))
+                         if abs(err) > self.face_tolerance_rad else 0.0)
         if out.target_track_id is not None and out.target_xy_world_m is not None:
             aim, stand_off = np.asarray(out.target_xy_world_m, float), self.follow_distance_m
         elif out.goal_xy_world_m is not None:
@@ -459,6 +465,7 @@ class Episode:
     t0_s: float = 0.0
     notes: str = ""
     extra: dict = field(default_factory=dict)
+    robot_max_speed_mps: float = 1.0  # the robot's top speed (RobotController.v_max_mps)
 
     def people_at(self, t_s: float) -> list[tuple[Walker, np.ndarray]]:
         out = []
@@ -528,15 +535,31 @@ def _target_on_route(route=TARGET_ROUTE) -> Walker:
                         reflectance_ab=TARGET_CLOTHING)
 
 
-def crowd_episode(rng: np.random.Generator, n_walkers: int = 12) -> Episode:
-    """The target walks a loop in a hall while ``n_walkers`` built-in random walkers cross it."""
+CROWD_AREA_XY_M = (-3.0, -3.0, 15.0, 11.0)  # where the crowd scene's walkers go (252 m^2)
+
+
+def walkers_for_density(density_per_10m2: float, area_xy_m=CROWD_AREA_XY_M) -> int:
+    """How many walkers give ``density_per_10m2`` people per 10 m^2 over the area (x0, y0, x1, y1)."""
+    if not np.isfinite(density_per_10m2) or density_per_10m2 < 0:
+        raise PedcalInputError(f"crowd density {density_per_10m2!r}: expected people per 10 m^2 >= 0")
+    x0, y0, x1, y1 = area_xy_m
+    return int(round(density_per_10m2 * (x1 - x0) * (y1 - y0) / 10.0))
+
+
+def crowd_episode(rng: np.random.Generator, n_walkers: int = 12, density_per_10m2: float | None = None) -> Episode:
+    """The target walks a loop in a hall while built-in random walkers cross it: ``n_walkers`` of
+    them, or as many as make ``density_per_10m2`` people per 10 m^2 over the walkers' area."""
+    if density_per_10m2 is not None:
+        n_walkers = walkers_for_density(density_per_10m2)
     occ = box_map((-4.0, -4.0, 16.0, 12.0), [])
     target = _target_on_route()
     duration = float(min(45.0, target.t_s[-1]))
-    others = random_walkers(n_walkers, (-3.0, -3.0, 15.0, 11.0), target.t_s[-1], rng, occ)
+    others = random_walkers(n_walkers, CROWD_AREA_XY_M, target.t_s[-1], rng, occ)
     others = avoid_collisions(others, [target], duration, occupancy=occ)
+    x0, y0, x1, y1 = CROWD_AREA_XY_M
+    density = n_walkers * 10.0 / ((x1 - x0) * (y1 - y0))
     return Episode("crowd", [target, *others], "target", np.array([0.0, 0.0, 0.0]), duration, occ,
-                   notes="built-in random walkers")
+                   notes=f"{n_walkers} built-in random walkers ({density:.2f} people per 10 m^2)")
 
 
 RECORDED_FILE = "eth_ucy/biwi_hotel.txt"
@@ -575,9 +598,20 @@ def recorded_episode(rng: np.random.Generator, data_dir: str | Path | None = Non
                    notes=f"pedestrians from {file}, window at {t_start:.1f} s, turned {np.degrees(yaw):.0f} deg")
 
 
+def candidate_targets(people: pd.DataFrame, min_duration_s: float = 0.0) -> pd.DataFrame:
+    """The people of a ``t, person, x, y`` table who could carry the transmitter: ``person``,
+    ``start_s`` (time of the first row), ``duration_s``, ``rows``, those present at least
+    ``min_duration_s``, longest first."""
+    g = people.assign(person=people["person"].astype(str)).groupby("person", sort=True)["t"]
+    out = pd.DataFrame({"start_s": g.min(), "duration_s": g.max() - g.min(), "rows": g.size()}).reset_index()
+    out = out[out["duration_s"] >= min_duration_s]
+    return out.sort_values(["duration_s", "person"], ascending=[False, True], kind="stable").reset_index(drop=True)
+
+
 def people_episode(people: pd.DataFrame, target_id: str, source: str | Path | None = None) -> Episode:
-    """An episode from a people table (``t, person, x, y``): the robot starts 1.5 m behind the
-    target's first position, facing its first motion; no walls."""
+    """An episode from a people table (``t, person, x, y``) over the target's time span (the other
+    people within it): the robot starts 1.5 m behind the target's first position, facing its first
+    motion; no walls."""
     ids = people["person"].astype(str)
     if target_id not in set(ids):
         raise PedcalInputError(f"--target {target_id!r} is not a person of the file (people: "
@@ -588,19 +622,36 @@ def people_episode(people: pd.DataFrame, target_id: str, source: str | Path | No
         raise PedcalInputError(f"target {target_id!r} has fewer than 2 rows", path=source, column="person")
     t0, t1 = float(tgt["t"].iloc[0]), float(tgt["t"].iloc[-1])
     walkers = []
-    for pid, g in people.assign(person=ids).sort_values("t").groupby("person", sort=True):
+    for pid, g in people.assign(person=ids).sort_values("t", kind="stable").groupby("person", sort=True):
         t = g["t"].to_numpy(float) - t0
-        if len(t) < 2:
+        if len(t) < 2 or t[-1] < 0.0 or t[0] > t1 - t0:
             continue
         walkers.append(Walker(str(pid), t, g[["x", "y"]].to_numpy(float),
                               reflectance_ab=TARGET_CLOTHING if pid == target_id else (3.0, 8.0)))
     txy = tgt[["x", "y"]].to_numpy(float)
+    v_max = robot_speed_for(tgt["t"].to_numpy(float), txy)
     moved = np.flatnonzero(np.linalg.norm(txy - txy[0], axis=1) > 0.3)
     head = txy[moved[0]] - txy[0] if len(moved) else np.array([1.0, 0.0])
     yaw = float(np.arctan2(head[1], head[0]))
     start = txy[0] - 1.5 * np.array([np.cos(yaw), np.sin(yaw)])
     return Episode("people", walkers, target_id, np.array([start[0], start[1], yaw]), t1 - t0, None,
-                   notes=f"people from {source}")
+                   notes=f"people from {source}; robot top speed {v_max:.2f} m/s", robot_max_speed_mps=v_max)
+
+
+ROBOT_SPEED_MARGIN = 1.2  # a following robot's top speed over the target's fast walking (95th percentile)
+
+
+def robot_speed_for(t_s: np.ndarray, xy_m: np.ndarray, floor_mps: float = 1.0) -> float:
+    """A top speed that lets the robot keep up with a person walking ``xy_m`` at times ``t_s``:
+    ``ROBOT_SPEED_MARGIN`` times the 95th percentile of the person's speed between samples, at
+    least ``floor_mps``. A recorded target may walk faster than the scripted scenes' 1 m/s robot;
+    the bench measures the trackers, not a robot too slow to follow."""
+    dt = np.diff(t_s)
+    ok = dt > 0
+    if not ok.any():
+        return floor_mps
+    v = np.linalg.norm(np.diff(xy_m, axis=0)[ok], axis=1) / dt[ok]
+    return float(max(floor_mps, ROBOT_SPEED_MARGIN * np.percentile(v, 95)))
 
 
 SCENARIOS: dict[str, Callable[[np.random.Generator], Episode]] = {
@@ -612,10 +663,15 @@ SCENARIOS: dict[str, Callable[[np.random.Generator], Episode]] = {
 }
 
 
-def make_episode(name: str, seed: int = 0) -> Episode:
-    """The episode registered as ``name`` (``SCENARIOS``), seeded."""
+def make_episode(name: str, seed: int = 0, density_per_10m2: float | None = None) -> Episode:
+    """The episode registered as ``name`` (``SCENARIOS``), seeded; ``density_per_10m2`` sets the
+    crowd scene's walkers (people per 10 m^2)."""
     if name not in SCENARIOS:
         raise PedcalInputError(f"unknown scenario {name!r}; expected one of {', '.join(SCENARIOS)}")
+    if density_per_10m2 is not None:
+        if name != "crowd":
+            raise PedcalInputError(f"--density sets the crowd scene's walkers; scenario {name!r} has none to set")
+        return crowd_episode(np.random.default_rng(seed), density_per_10m2=density_per_10m2)
     return SCENARIOS[name](np.random.default_rng(seed))
 
 
@@ -623,5 +679,6 @@ __all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route
            "avoid_collisions", "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
            "in_field_of_view",
            "visible_people", "SensorModel", "Sensing", "RobotController", "Episode", "SCENARIOS", "make_episode",
-           "people_episode", "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
+           "people_episode", "candidate_targets", "robot_speed_for", "walkers_for_density", "CROWD_AREA_XY_M",
+           "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
            "recorded_episode"]

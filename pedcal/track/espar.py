@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from pedcal.follow_types import EsparReading
 from pedcal.frames import wrap_angle_rad
 from pedcal.sim.espar import EsparParams, quantized_directions
-from pedcal.track.types import EsparReading
 
 
 @dataclass(frozen=True)

@@ -16,9 +16,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from pedcal.follow_types import EsparReading
 from pedcal.track.espar import DEFAULT_LIKELIHOOD, EsparLikelihood
 from pedcal.track.kalman import rot2
-from pedcal.track.types import EsparReading
 
 N_READINGS = 10
 

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
+from pedcal.follow_types import TrackerOutput
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.sim.follow import (
     FRAME_HZ,
@@ -29,12 +30,68 @@ from pedcal.sim.follow import (
     people_episode,
     to_robot,
 )
-from pedcal.track.types import TrackerOutput
 
 MATCH_DISTANCE_M = 0.5
-METRIC_KEYS = ("frames", "target_correct_fraction", "id_switches", "lost_episodes", "searching_episodes",
-               "searching_frames", "mean_reacquire_s", "max_reacquire_s", "followed_to_end",
-               "lost_position_error_m", "mota", "motp", "idf1")
+HIDDEN_HOLD_M = 1.0  # a hidden target counts as held while the tracker's estimate is this close to it
+NEAR_M = 3.0  # the robot is "near" the target within this distance
+
+
+@dataclass(frozen=True)
+class FollowMetrics:
+    """How well one run followed its target (:func:`follow_metrics`) and tracked everyone (CLEAR MOT).
+
+    Every target figure counts the frames from the tracker's first choice of a target to the end of
+    the episode (the *scored frames*). A frame is *with the target* when the person the tracker's
+    target track is matched to (``claimed_person``) is the target, or when the target is out of
+    sight and the tracker's estimate of it is within ``HIDDEN_HOLD_M`` (1 m) of the truth. A frame
+    where the robot lost the target, whether it claims somebody else or nobody, is never with it.
+    """
+
+    frames: int
+    """Frames in the episode (4 Hz)."""
+    with_target_fraction: float
+    """The headline: the share of scored frames with the target (0 when no target is ever chosen)."""
+    near_fraction: float
+    """The share of scored frames with the robot within ``NEAR_M`` (3 m) of the target."""
+    median_distance_m: float | None
+    """Median robot-to-target distance over the scored frames with the target present."""
+    followed_to_end: bool
+    """The last frame is with the target."""
+    id_switches: int
+    """Changes of the claimed person between consecutive frames that claim somebody."""
+    lost_episodes: int
+    """Frames not with the target right after a frame with it (losses)."""
+    mean_reacquire_s: float | None
+    """Mean time from a loss to the next frame with the target; a loss never recovered counts until
+    the episode's end. None when there is no loss."""
+    max_reacquire_s: float | None
+    """The longest of those times; None when there is no loss."""
+    unrecovered_losses: int
+    """Losses after which the target was never with the tracker again (0 or 1)."""
+    searching_episodes: int
+    """Runs of frames in the tracker state "Searching"."""
+    searching_frames: int
+    """Frames in the tracker state "Searching"."""
+    lost_position_error_m: float | None
+    """Median distance of the tracker's target estimate from the truth over the scored frames with
+    the target out of sight (frames without an estimate left out); None if there are none."""
+    mota: float | None = None
+    """CLEAR MOT accuracy over every person in the field of view (``motmetrics``, 0.5 m)."""
+    motp: float | None = None
+    """CLEAR MOT precision (mean distance of matches, m)."""
+    idf1: float | None = None
+    """Identity F1 over every person in the field of view."""
+
+    def to_dict(self) -> dict:
+        """The metrics in field order (plain Python numbers, None for undefined)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FollowMetrics:
+        return cls(**{f.name: d[f.name] for f in fields(cls) if f.name in d})
+
+
+METRIC_KEYS = tuple(f.name for f in fields(FollowMetrics))
 
 
 def match_people(people_xy_m: np.ndarray, tracks_xy_m: np.ndarray, max_m: float = MATCH_DISTANCE_M
@@ -53,69 +110,69 @@ def _runs(mask: np.ndarray) -> int:
     return int(np.sum(m[1:] & ~m[:-1]) + (m[0] if len(m) else 0))
 
 
+def with_target_frames(log: pd.DataFrame, target_id: str) -> np.ndarray:
+    """Per frame of a follow log: the claimed person is the target, or the target is out of sight and
+    the tracker's estimate of it is within ``HIDDEN_HOLD_M`` of the truth (``FollowMetrics``)."""
+    claimed = log["claimed_person"].to_numpy(dtype=object)
+    is_target = np.array([c is not None and not pd.isna(c) and c == target_id for c in claimed], bool)
+    visible = log["target_visible"].to_numpy(bool)
+    err = np.hypot(log["est_target_x"].to_numpy(float) - log["target_x"].to_numpy(float),
+                   log["est_target_y"].to_numpy(float) - log["target_y"].to_numpy(float))
+    with np.errstate(invalid="ignore"):
+        hidden_held = ~visible & (err <= HIDDEN_HOLD_M)  # NaN (no estimate, target absent) is not held
+    return is_target | hidden_held
+
+
 def follow_metrics(log: pd.DataFrame, target_id: str) -> dict:
-    """The target's identity metrics of a per-frame log (columns ``t``, ``target_visible``,
-    ``state``, ``target_track_id``, ``claimed_person``, ``target_x/y``, ``est_target_x/y``).
+    """The target figures of :class:`FollowMetrics` (all but CLEAR MOT) from a per-frame log with
+    columns ``t``, ``robot_x/y``, ``target_visible``, ``state``, ``target_track_id``,
+    ``claimed_person``, ``target_x/y`` (NaN when the target is absent) and ``est_target_x/y``.
 
     ``claimed_person`` is the person the tracker's target track is matched to in that frame: the
     confirmed tracks are assigned one to one to all people present (visible or not; Hungarian on the
     distance, pairs within 0.5 m); None when the tracker names no target or its track matches nobody.
-
-    - ``target_correct_fraction``: over the frames from the tracker's first choice of a target on, the
-      share of frames where, with the target in view (in the field of view, not occluded), the
-      claimed person is the target; and with the target out of sight, the claimed person is not
-      somebody else (claiming nobody, or a track still sitting on the hidden target, is correct).
-      0 when the tracker never chooses a target.
-    - holding the target: the claimed person is the target, or the target is out of sight, the
-      tracker claims nobody and keeps the track id it last held the target with (a coasting filter).
-    - a loss is a frame not holding the target after a frame holding it; ``lost_episodes`` counts
-      them; the reacquire time is from the loss frame to the next frame holding the target
-      (``mean_reacquire_s``, ``max_reacquire_s`` over the losses recovered; None if none).
-    - ``id_switches``: changes of the claimed person between consecutive frames that claim someone.
-    - ``searching_episodes`` / ``searching_frames``: runs and frames in the tracker state "Searching".
-    - ``followed_to_end``: holding the target in the last frame.
-    - ``lost_position_error_m``: median distance of the tracker's target estimate from the truth over
-      the frames (after the first choice) with the target out of sight; None if there are none.
     """
     n = len(log)
     tid = log["target_track_id"].to_numpy()
-    has_tid = ~pd.isna(tid)
     claimed = log["claimed_person"].to_numpy(dtype=object)
     claimed_none = pd.isna(claimed)
-    visible = log["target_visible"].to_numpy(bool)
     t = log["t"].to_numpy(float)
-    is_target = np.array([c == target_id for c in claimed], bool) & ~claimed_none
-    started = np.cumsum(has_tid) > 0
-    correct = np.where(visible, is_target, claimed_none | is_target)
-    holding = np.zeros(n, bool)
-    last_id = None
-    for k in range(n):
-        if is_target[k]:
-            holding[k], last_id = True, tid[k]
-        elif not visible[k] and claimed_none[k] and has_tid[k] and tid[k] == last_id:
-            holding[k] = True
-    losses = np.flatnonzero(holding[:-1] & ~holding[1:]) + 1
-    reacq = []
+    scored = np.cumsum(~pd.isna(tid)) > 0  # from the first choice of a target to the end
+    held = with_target_frames(log, target_id)
+    sc_held = held[scored]
+    first = int(np.argmax(scored)) if scored.any() else n
+    losses = np.flatnonzero(held[first:-1] & ~held[first + 1:]) + first + 1
+    reacq, unrecovered = [], 0
     for k in losses:
-        nxt = np.flatnonzero(holding[k:])
+        nxt = np.flatnonzero(held[k:])
         if len(nxt):
             reacq.append(float(t[k + nxt[0]] - t[k]))
-    seq = [c for c in claimed[~claimed_none]]
+        else:
+            reacq.append(float(t[-1] - t[k] + (t[1] - t[0] if n > 1 else 0.0)))  # censored at the end
+            unrecovered += 1
+    seq = list(claimed[scored & ~claimed_none])
     switches = int(sum(a != b for a, b in zip(seq[:-1], seq[1:], strict=True)))
     searching = log["state"].to_numpy(dtype=object) == "Searching"
-    hidden = started & ~visible & log["est_target_x"].notna().to_numpy() & log["target_x"].notna().to_numpy()
-    err = np.hypot(log["est_target_x"].to_numpy(float) - log["target_x"].to_numpy(float),
-                   log["est_target_y"].to_numpy(float) - log["target_y"].to_numpy(float))
+    visible = log["target_visible"].to_numpy(bool)
+    txy = log[["target_x", "target_y"]].to_numpy(float)
+    dist = np.hypot(*(log[["robot_x", "robot_y"]].to_numpy(float) - txy).T)
+    present = scored & np.isfinite(dist)
+    err = np.hypot(log["est_target_x"].to_numpy(float) - txy[:, 0], log["est_target_y"].to_numpy(float) - txy[:, 1])
+    hidden = scored & ~visible & np.isfinite(err)
     return {
         "frames": int(n),
-        "target_correct_fraction": float(correct[started].mean()) if started.any() else 0.0,
+        "with_target_fraction": float(sc_held.mean()) if scored.any() else 0.0,
+        "near_fraction": float(np.mean(present[scored] & (np.nan_to_num(dist[scored], nan=np.inf) <= NEAR_M)))
+        if scored.any() else 0.0,
+        "median_distance_m": float(np.median(dist[present])) if present.any() else None,
+        "followed_to_end": bool(held[-1] and scored[-1]) if n else False,
         "id_switches": switches,
         "lost_episodes": int(len(losses)),
-        "searching_episodes": _runs(searching),
-        "searching_frames": int(searching.sum()),
         "mean_reacquire_s": float(np.mean(reacq)) if reacq else None,
         "max_reacquire_s": float(np.max(reacq)) if reacq else None,
-        "followed_to_end": bool(holding[-1]) if n else False,
+        "unrecovered_losses": unrecovered,
+        "searching_episodes": _runs(searching),
+        "searching_frames": int(searching.sum()),
         "lost_position_error_m": float(np.median(err[hidden])) if hidden.any() else None,
     }
 
@@ -144,23 +201,25 @@ class MotAccumulator:
 
 @dataclass
 class FollowResult:
-    """Metrics (``METRIC_KEYS``) and the per-frame log of one run."""
+    """The metrics and the per-frame log of one run."""
 
     scenario: str
     tracker: str
     seed: int
-    metrics: dict
+    metrics: FollowMetrics
     log: pd.DataFrame = field(repr=False)
     notes: str = ""
+    target_id: str = "target"
 
     def to_dict(self) -> dict:
-        return {k: self.metrics[k] for k in METRIC_KEYS}
+        return self.metrics.to_dict()
 
     def format_table(self) -> str:
-        rows = [f"follow {self.scenario} (tracker {self.tracker}, seed {self.seed})"]
-        for k in METRIC_KEYS:
-            v = self.metrics[k]
+        rows = [f"follow {self.scenario} (tracker {self.tracker}, seed {self.seed}, target {self.target_id})"]
+        for k, v in self.to_dict().items():
             rows.append(f"  {k:<24} {'-' if v is None else (f'{v:.3f}' if isinstance(v, float) else v)}")
+        rows.append(f"  with_target_fraction: frames, from the first choice of a target on, where the claimed "
+                    f"person is the target or the hidden target's estimate is within {HIDDEN_HOLD_M:g} m")
         return "\n".join(rows)
 
     def save(self, out_dir: str | Path) -> tuple[Path, Path]:
@@ -169,7 +228,8 @@ class FollowResult:
         out.mkdir(parents=True, exist_ok=True)
         j = out / "follow.json"
         write_text_atomic(j, json.dumps({"scenario": self.scenario, "tracker": self.tracker, "seed": self.seed,
-                                         "notes": self.notes, **self.to_dict()}, indent=2) + "\n")
+                                         "target": self.target_id, "notes": self.notes, **self.to_dict()},
+                                        indent=2) + "\n")
         p = out / "follow_log.parquet"
         with atomic_path(p) as tmp:
             self.log.to_parquet(tmp, index=False)
@@ -177,7 +237,7 @@ class FollowResult:
 
 
 def _make_tracker(name: str, episode: Episode):
-    from pedcal.track.tracker import make_tracker
+    from pedcal.track.trackers import make_tracker
 
     if name == "lidar-only":  # the operator points the target out at the start
         return make_tracker(name, initial_target_xy_world_m=episode.walker(episode.target_id).at(0.0))
@@ -191,7 +251,7 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     rng = np.random.default_rng(seed)
     trk = _make_tracker(tracker, episode)
     sensing = Sensing(episode.occupancy, rng)
-    ctrl = RobotController()
+    ctrl = RobotController(v_max_mps=episode.robot_max_speed_mps)
     planner = Planner(episode.occupancy) if episode.occupancy is not None else None
     pose = np.asarray(episode.robot_pose0, dtype=float).copy()
     stopped = True
@@ -235,15 +295,24 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     log = pd.DataFrame(rows)
     log["target_track_id"] = log["target_track_id"].astype("Int64")
     log["claimed_person"] = log["claimed_person"].astype(object)
-    metrics = {**follow_metrics(log, episode.target_id), **mot.summary()}
-    return FollowResult(episode.name, tracker, seed, metrics, log, episode.notes)
+    metrics = FollowMetrics(**follow_metrics(log, episode.target_id), **mot.summary())
+    return FollowResult(episode.name, tracker, seed, metrics, log, episode.notes, episode.target_id)
+
+
+def read_people(path: str | Path) -> pd.DataFrame:
+    """A people table (``t, person, x, y``) from a people CSV or any recording
+    ``pedcal.io.pedestrians.read_pedestrians`` recognises (ATC, ETH/UCY, THOR)."""
+    from pedcal.io.pedestrians import read_pedestrians
+
+    return read_pedestrians(path)
 
 
 def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: int = 0, people_csv=None,
-               target_id: str | None = None, progress: bool = False) -> FollowResult:
-    """Run the scenario ``scenario`` (``pedcal.sim.follow.SCENARIOS``), or, with ``people_csv`` (a
-    ``t, person, x, y`` file or such a DataFrame), those trajectories with ``target_id`` carrying
-    the transmitter."""
+               target_id: str | None = None, progress: bool = False,
+               density_per_10m2: float | None = None) -> FollowResult:
+    """Run the scenario ``scenario`` (``pedcal.sim.follow.SCENARIOS``; ``density_per_10m2`` sets the
+    crowd scene's people per 10 m^2), or, with ``people_csv`` (a ``t, person, x, y`` file, a
+    recording or such a DataFrame), those trajectories with ``target_id`` carrying the transmitter."""
     if isinstance(people_csv, pd.DataFrame):
         from pedcal.errors import PedcalInputError
 
@@ -255,9 +324,10 @@ def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: i
 
         episode = people_episode(check_follow_people(people_csv, target_id), str(target_id), people_csv)
     else:
-        episode = make_episode(scenario or "passing", seed)
+        episode = make_episode(scenario or "passing", seed, density_per_10m2)
     return run_episode(episode, tracker, seed, progress)
 
 
-__all__ = ["METRIC_KEYS", "MATCH_DISTANCE_M", "FollowResult", "follow_metrics", "match_people", "MotAccumulator",
-           "run_episode", "run_follow"]
+__all__ = ["METRIC_KEYS", "MATCH_DISTANCE_M", "HIDDEN_HOLD_M", "NEAR_M", "FollowMetrics", "FollowResult",
+           "follow_metrics", "with_target_frames", "match_people", "MotAccumulator",
+           "run_episode", "run_follow", "read_people"]

@@ -199,13 +199,21 @@ class GridBelief:
             return
         self.belief /= total
 
-    def reset_gaussian(self, xy_world_m, sigma_m: float) -> None:
-        """Start from an isotropic Gaussian around a point (e.g. where the target was last seen)."""
+    def reset_gaussian(self, xy_world_m, sigma_m: float | None = None, cov_world=None) -> None:
+        """Start from a Gaussian around a point (e.g. where the target was last seen): isotropic of
+        ``sigma_m``, or of the (2, 2) world covariance ``cov_world`` (metres squared)."""
         xy = np.asarray(xy_world_m, dtype=float)
         self.keep_in_window(xy)
-        gx = np.exp(-0.5 * ((self.x_m - xy[0]) / sigma_m) ** 2)
-        gy = np.exp(-0.5 * ((self.y_m - xy[1]) / sigma_m) ** 2)
-        self.belief = np.outer(gy, gx) + 1e-12
+        if cov_world is None:
+            gx = np.exp(-0.5 * ((self.x_m - xy[0]) / sigma_m) ** 2)
+            gy = np.exp(-0.5 * ((self.y_m - xy[1]) / sigma_m) ** 2)
+            self.belief = np.outer(gy, gx) + 1e-12
+        else:
+            info = np.linalg.inv(np.asarray(cov_world, dtype=float))
+            dx = self.x_m[None, :] - xy[0]
+            dy = self.y_m[:, None] - xy[1]
+            q = info[0, 0] * dx * dx + 2.0 * info[0, 1] * dx * dy + info[1, 1] * dy * dy
+            self.belief = np.exp(-0.5 * q) + 1e-12
         self._normalize()
 
     def predict(self, dt_s: float) -> None:

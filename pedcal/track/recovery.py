@@ -35,9 +35,10 @@ import numpy as np
 from gtsam.symbol_shorthand import A, T, V, X
 
 from pedcal.errors import PedcalInputError
+from pedcal.follow_types import EsparReading, FollowFrame, TrackerOutput
 from pedcal.track.espar import DEFAULT_LIKELIHOOD
 from pedcal.track.grid_belief import GridBelief, GridBeliefConfig
-from pedcal.track.types import EsparReading, FollowFrame, TrackerOutput
+from pedcal.track.tracker import PaperTracker
 
 ESPAR_QUANTIZATION_SIGMA_RAD = math.radians(30.0) / math.sqrt(12.0)
 _I2 = np.eye(2)
@@ -127,12 +128,13 @@ class TargetSmoother:
 
     def add_frame(self, t_s: float, pose_world_robot, cov_world_robot, detection_xy_robot_m=None,
                   espar: tuple[EsparReading, ...] = (), seed_xy_world_m=None, seed_sigma_m: float | None = None,
-                  seed_velocity_world_mps=None) -> np.ndarray | None:
+                  seed_velocity_world_mps=None, seed_cov_world=None) -> np.ndarray | None:
         """Add one frame's robot pose and measurements, update, and return the target's latest position.
 
         The first frame needs a detection or a seed (something must say where the target starts);
         ``seed_velocity_world_mps`` (e.g. the Kalman filter's last velocity) is the first velocity's
-        prior mean, with the walking speed as its spread.
+        prior mean, with the walking speed as its spread. A seed's spread is ``seed_sigma_m`` (isotropic)
+        or the (2, 2) world covariance ``seed_cov_world``.
         Returns None while nothing has started the smoother.
         """
         cfg = self.config
@@ -202,8 +204,10 @@ class TargetSmoother:
             # the reading's bearing is in the robot frame; the antenna's frame is the robot's turned by 0
             graph.add(gtsam.BearingFactor2D(key, T(k), gtsam.Rot2(reading.bearing_robot_rad), self._espar_noise))
         if seed_xy_world_m is not None:
-            graph.add(gtsam.PriorFactorPoint2(T(k), np.asarray(seed_xy_world_m, dtype=float),
-                                              gtsam.noiseModel.Isotropic.Sigma(2, float(seed_sigma_m or 3.0))))
+            seed_noise = (gtsam.noiseModel.Gaussian.Covariance(np.asarray(seed_cov_world, dtype=float))
+                          if seed_cov_world is not None and det is None
+                          else gtsam.noiseModel.Isotropic.Sigma(2, float(seed_sigma_m or 3.0)))
+            graph.add(gtsam.PriorFactorPoint2(T(k), np.asarray(seed_xy_world_m, dtype=float), seed_noise))
 
         self._smoother.update(graph, values, stamps)
         self._k, self._t_prev_s = k, t_s
@@ -240,6 +244,13 @@ class RecoveryConfig:
     stop_silence_s: float = 2.0            # ... and no antenna reading for this long: stop and search
 
 
+def recovery_prior_cov(cov_last_world: np.ndarray, sigma_min_m: float) -> np.ndarray:
+    """Where the lost target starts: the Kalman filter's last position covariance (2, 2), its
+    principal axes kept, each spread at least ``sigma_min_m``."""
+    w, U = np.linalg.eigh(0.5 * (np.asarray(cov_last_world, dtype=float) + np.asarray(cov_last_world).T))
+    return (U * np.maximum(w, sigma_min_m ** 2)) @ U.T
+
+
 class FactorGraphTracker:
     """The paper's tracker while the target is in view; a smoother + grid belief while it is not.
 
@@ -268,8 +279,6 @@ class FactorGraphTracker:
 
     def __init__(self, config=None, occupancy=None, smoother_config: SmootherConfig | None = None,
                  grid_config: GridBeliefConfig | None = None, recovery_config: RecoveryConfig | None = None, **options):
-        from pedcal.track.tracker import PaperTracker
-
         self.paper = PaperTracker(config, **options)
         self.occupancy = occupancy
         self.smoother_config = smoother_config or SmootherConfig()
@@ -295,13 +304,13 @@ class FactorGraphTracker:
 
     def _start_recovery(self, frame: FollowFrame) -> None:
         xy0 = self.paper.last_xy if self.paper.last_xy is not None else np.asarray(frame.pose_world_robot[:2])
-        cov0 = self.paper.last_cov if self.paper.last_cov is not None else np.eye(2)
-        sigma0 = max(self.recovery.lost_sigma0_m, float(np.sqrt(np.linalg.eigvalsh(cov0).max())))
+        cov_last = self.paper.last_cov if self.paper.last_cov is not None else np.eye(2)
+        cov0 = recovery_prior_cov(cov_last, self.recovery.lost_sigma0_m)
         self.grid = GridBelief(self.occupancy, xy0, self.grid_config, self.paper.config.espar)
-        self.grid.reset_gaussian(xy0, sigma0)
+        self.grid.reset_gaussian(xy0, cov_world=cov0)
         self.smoother = TargetSmoother(self.smoother_config)
         self._ids_at_loss = set(self.paper.core.tracks)
-        self._seed = (np.asarray(xy0, dtype=float), sigma0)
+        self._seed = (np.asarray(xy0, dtype=float), float(np.sqrt(np.linalg.eigvalsh(cov0).max())), cov0)
 
     def _recover(self, frame: FollowFrame) -> None:
         """One frame of the grid (motion, negative information, antenna) and the smoother."""
@@ -316,9 +325,9 @@ class FactorGraphTracker:
         for r in frame.espar:
             grid.observe_bearing(pose[:2] + R @ np.asarray(r.xy_antenna_robot_m, dtype=float),
                                  pose[2] + r.bearing_robot_rad)
-        seed_xy, seed_sigma = (None, None)
+        seed_xy, seed_sigma, seed_cov = (None, None, None)
         if not self.smoother.started:
-            seed_xy, seed_sigma = self._seed
+            seed_xy, seed_sigma, seed_cov = self._seed
         elif self._estimate is not None:
             # the smoother drifted where the grid says the target cannot be: give it the grid's answer
             ij = grid.cell_of(self.smoother.latest()[0])
@@ -327,7 +336,7 @@ class FactorGraphTracker:
                 xy_g, cov_g, _ = grid.estimate()
                 seed_xy, seed_sigma = xy_g, float(np.sqrt(np.trace(cov_g)))
         self.smoother.add_frame(frame.t_s, pose, frame.cov_world_robot, espar=frame.espar,
-                                seed_xy_world_m=seed_xy, seed_sigma_m=seed_sigma,
+                                seed_xy_world_m=seed_xy, seed_sigma_m=seed_sigma, seed_cov_world=seed_cov,
                                 seed_velocity_world_mps=self._last_velocity if seed_xy is not None else None)
         xy_s, cov_s = self.smoother.latest()
         # the answer: the grid sharpened by the smoother's Gaussian. The product is not stored back in

@@ -1,6 +1,6 @@
 """The person tracker of Misu and Miura (Sec. 4-5) and the LIDAR-only follower it is compared with.
 
-Both run the same multi-person core on each :class:`~pedcal.track.types.FollowFrame`:
+Both run the same multi-person core on each :class:`~pedcal.follow_types.FollowFrame`:
 
 1. every filter is predicted to the frame's time (eq. 2, :mod:`pedcal.track.kalman`);
 2. detections go to the world frame with the robot's pose, its covariance added to the LIDAR noise;
@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from pedcal.follow_types import FollowFrame, TrackerOutput, TrackEstimate
 from pedcal.track.appearance import OnlineBoost
 from pedcal.track.espar import DEFAULT_LIKELIHOOD, EsparLikelihood
 from pedcal.track.existence_grid import N_READINGS, ExistenceGrid
@@ -43,8 +44,6 @@ from pedcal.track.kalman import (
     rot2,
     update_bearing,
 )
-from pedcal.track.recovery import FactorGraphTracker
-from pedcal.track.types import FollowFrame, Tracker, TrackerOutput, TrackEstimate
 
 
 @dataclass(frozen=True)
@@ -73,6 +72,12 @@ class TrackerConfig:
     goal_reached_m: float = 0.5  # Searching: at the grid's goal, accumulate a new grid
     search_timeout_s: float = 15.0  # Searching: new grid if the goal was not reached by then
     reacquire_radius_m: float = 2.0  # LIDAR-only: take a filter this near the last position
+    maneuver_radius_m: float = 0.6  # an unassigned detection this near the undetected target filter ...
+    maneuver_lag_s: float = 0.25  # the turn happened within this (a frame): velocity spread miss / lag
+    maneuver_max_error: float = 0.4  # ... whose appearance error e is at most this continues it (a turn)
+    maneuver_clear_m: float = 1.0  # ... and nobody else (filter or detection) is this near it
+    face_antenna: bool = True  # Searching, robot stopped: turn in place to the antenna's recent bearing
+    face_readings: int = 4  # the circular mean of this many latest readings (world bearings)
 
 
 # -------------------------------------------------------------------------------------- association
@@ -107,7 +112,10 @@ class TargetProbability:
         self.p_min = p_min
 
     def add(self, track_id: int, share: float) -> None:
-        """A new filter enters with ``share`` of P_lost (taken from it)."""
+        """A new filter enters with ``share`` of P_lost (taken from it); a filter that already holds
+        a probability (the factor-graph tracker re-took it before it was confirmed) keeps it."""
+        if track_id in self.p:
+            return
         take = share * self.p_lost
         self.p[track_id] = take
         self.p_lost -= take
@@ -168,7 +176,18 @@ class MultiPersonCore:
             z, R = detections_world(np.array([dt.xy_robot_m for dt in dets], dtype=float),
                                     np.asarray(frame.pose_world_robot, dtype=float), frame.cov_world_robot,
                                     c.sigma_lidar_m)
-            pairs = []
+            pairs: list[tuple[int, int]] = []
+            assigned: set[int] = set()
+
+            def take(r: int, j: int, R_j: np.ndarray) -> None:
+                tr = self.tracks[ids[r]]
+                tr.update(z[j], R_j)
+                tr.detected = True
+                tr.hits += 1
+                res.detected_ids.add(tr.track_id)
+                assigned.add(j)
+                pairs.append((r, j))
+
             if ids:
                 d = mahalanobis_matrix(np.array([self.tracks[i].x for i in ids]),
                                        np.array([self.tracks[i].P for i in ids]), z, R)
@@ -176,15 +195,23 @@ class MultiPersonCore:
                 hists = np.array([dt.reflectance_hist for dt in dets], dtype=float)
                 if self.target_id in self.tracks and self.appearance is not None:
                     e[ids.index(self.target_id)] = self.appearance.error(hists)
-                pairs = greedy_assign(association_likelihood(d, e), d, c.gate)
-            assigned = set()
-            for r, j in pairs:
-                tr = self.tracks[ids[r]]
-                tr.update(z[j], R[j])
-                tr.detected = True
-                tr.hits += 1
-                res.detected_ids.add(tr.track_id)
-                assigned.add(j)
+                lik = association_likelihood(d, e)
+                # confirmed filters first, then the tentative ones on what is left: a filter born last
+                # frame (clutter, a split cluster) must not take a confirmed filter's detection
+                confirmed = np.array([self.tracks[i].confirmed for i in ids])
+                for first, rows in ((True, np.flatnonzero(confirmed)), (False, np.flatnonzero(~confirmed))):
+                    cols = np.array([j for j in range(len(dets)) if j not in assigned], dtype=int)
+                    if len(rows) and len(cols):
+                        for a, b in greedy_assign(lik[np.ix_(rows, cols)], d[np.ix_(rows, cols)], c.gate):
+                            take(int(rows[a]), int(cols[b]), R[cols[b]])
+                    if first:  # the target's filter is a confirmed one
+                        j = self._maneuver(dets, z, assigned)
+                        if j is not None:  # the turn the constant velocity missed: open the filter up to it
+                            tr = self.tracks[self.target_id]
+                            miss = z[j] - tr.xy
+                            tr.P[:2, :2] += np.outer(miss, miss)
+                            tr.P[2:, 2:] += np.outer(miss, miss) / c.maneuver_lag_s ** 2
+                            take(ids.index(self.target_id), j, R[j])
             if self.target_id in res.detected_ids:
                 self._learn(dets, pairs, ids)
             for j in range(len(dets)):
@@ -193,6 +220,33 @@ class MultiPersonCore:
                     res.detected_ids.add(self.next_id)
                     self.next_id += 1
         return res
+
+    def _maneuver(self, dets, z: np.ndarray, assigned: set[int]) -> int | None:
+        """A detection left over by the association (eq. 3's gate) that continues the undetected
+        target filter: within ``maneuver_radius_m`` of its prediction and accepted by the target's
+        appearance classifier once trained, with nobody else within ``maneuver_clear_m`` of it. A person
+        turning sharply leaves the constant-velocity gate for a frame or two; without this the
+        target's filter dies and a new one must win the antenna's probability back."""
+        c = self.config
+        tr = self.tracks.get(self.target_id)
+        if tr is None or tr.detected:
+            return None
+        free = [j for j in range(len(dets)) if j not in assigned]
+        if not free:
+            return None
+        dist = np.linalg.norm(z[free] - tr.xy, axis=1)
+        k = int(np.argmin(dist))
+        if dist[k] > c.maneuver_radius_m:
+            return None
+        # in a crowd a leftover detection near the target is as likely a passer-by: only in the clear
+        others = [o.xy for o in self.tracks.values() if o.track_id != self.target_id]
+        others += [z[j] for j in range(len(z)) if j != free[k]]
+        if others and np.min(np.linalg.norm(np.array(others) - z[free[k]], axis=1)) <= c.maneuver_clear_m:
+            return None
+        if self.appearance is not None and self.appearance.ready:
+            e = float(self.appearance.error(np.asarray(dets[free[k]].reflectance_hist, dtype=float)[None, :])[0])
+            return free[k] if e <= c.maneuver_max_error else None
+        return free[k]
 
     def _learn(self, dets, pairs, ids) -> None:
         """Target's detection positive, the other confirmed filters' detections negative."""
@@ -252,10 +306,23 @@ class PaperTracker:
         self.grid: ExistenceGrid | None = None
         self.goal_xy: np.ndarray | None = None
         self.goal_since_s: float | None = None
+        self.bearings_world_rad: list[float] = []  # the latest readings' bearings from the robot (world)
 
     @property
     def target_id(self) -> int | None:
         return self.core.target_id
+
+    def _remember_bearings(self, frame: FollowFrame) -> None:
+        yaw = float(frame.pose_world_robot[2])
+        self.bearings_world_rad = (self.bearings_world_rad + [yaw + r.bearing_robot_rad for r in frame.espar]
+                                   )[-self.config.face_readings:]
+
+    def antenna_heading_world_rad(self) -> float | None:
+        """The circular mean of the latest readings' world bearings (None without readings)."""
+        if not self.bearings_world_rad:
+            return None
+        b = np.asarray(self.bearings_world_rad)
+        return float(np.arctan2(np.sin(b).sum(), np.cos(b).sum()))
 
     def _espar_bearing_updates(self, frame: FollowFrame) -> None:
         """Eq. 6: the undetected target filter takes each reading as a bearing (multipath gated)."""
@@ -287,6 +354,7 @@ class PaperTracker:
     def step(self, frame: FollowFrame) -> TrackerOutput:
         c = self.config
         res = self.core.step(frame)
+        self._remember_bearings(frame)
         self._espar_bearing_updates(frame)
         self.core.manage(res)
         for tid in res.deleted_ids:
@@ -352,9 +420,10 @@ class PaperTracker:
         stop = self.state == "Searching" and self.goal_xy is None
         xy = self.goal_xy if self.state == "Searching" and not stop else self.last_xy
         goal = None if xy is None or stop or self.state == "Initialize" else xy.copy()
+        face = self.antenna_heading_world_rad() if stop and self.config.face_antenna else None
         return TrackerOutput(self.state, None, None if xy is None else xy.copy(),
                              None if xy is None or xy is self.goal_xy else self.last_cov, tracks,
-                             stop_robot=stop, goal_xy_world_m=goal)
+                             stop_robot=stop, goal_xy_world_m=goal, face_world_rad=face)
 
 
 # ----------------------------------------------------------------------------- LIDAR-only tracker
@@ -414,20 +483,5 @@ class LidarOnlyTracker:
                              goal_xy_world_m=None if self.state == "Initialize" else xy)
 
 
-# --------------------------------------------------------------------------------------- factory
-TRACKERS: dict[str, Callable[..., Tracker]] = {"paper": PaperTracker, "lidar-only": LidarOnlyTracker,
-                                              "factorgraph": FactorGraphTracker}
-
-
-def make_tracker(name: str, **options) -> Tracker:
-    """A tracker by name (``TRACKERS``: "paper", "lidar-only", ...) built with ``options``
-    (TrackerConfig fields, or the tracker's own keywords)."""
-    try:
-        factory = TRACKERS[name]
-    except KeyError:
-        raise ValueError(f"unknown tracker {name!r}; expected one of {sorted(TRACKERS)}") from None
-    return factory(**options)
-
-
 __all__ = ["TrackerConfig", "association_likelihood", "greedy_assign", "TargetProbability", "MultiPersonCore",
-           "PaperTracker", "LidarOnlyTracker", "TRACKERS", "make_tracker"]
+           "PaperTracker", "LidarOnlyTracker"]

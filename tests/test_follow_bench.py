@@ -1,0 +1,48 @@
+"""``pedcal follow-bench`` on a small subset of the real recordings: eligible targets, the per-recording
+distribution, and the worst episode's replay command giving the same figures."""
+
+import json
+import shlex
+
+import pandas as pd
+import pytest
+
+from pedcal.cli import main
+
+
+def test_eligible_targets_are_the_long_present_people():
+    from pedcal.track.follow_bench import eligible_targets
+
+    people = pd.DataFrame({"t": [0.0, 50.0, 10.0, 40.0, 0.0, 60.0], "person": ["a", "a", "b", "b", "c", "c"],
+                           "x": 0.0, "y": 0.0})
+    assert list(eligible_targets(people, 45.0)["person"]) == ["c", "a"]
+    assert list(eligible_targets(people, 45.0, max_targets=1)["person"]) == ["c"]
+
+
+def test_follow_bench_on_zara_and_hotel(shared_data, tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert main(["follow-bench", "--data-dir", str(shared_data), "--files", "eth_ucy/crowds_zara01.txt",
+                 "eth_ucy/biwi_hotel.txt", "--trackers", "paper", "lidar-only", "--seeds", "1", "-o", str(out),
+                 "-q"]) == 0
+    episodes = pd.read_parquet(out / "episodes.parquet")
+    # ZARA01 has one person present >= 45 s; HOTEL none (listed with its longest presence)
+    assert sorted(episodes["tracker"]) == ["lidar-only", "paper"] and episodes["target"].nunique() == 1
+    summary = pd.read_csv(out / "summary.csv")
+    assert len(summary) == 2 and (summary["median"] == summary["worst"]).all()
+    md = (out / "bench.md").read_text()
+    assert "| eth_ucy/biwi_hotel.txt | " in md and "| 0 |" in md
+    for tracker in ("paper", "lidar-only"):
+        assert (out / "figures" / f"worst_crowds_zara01_{tracker}.png").stat().st_size > 1000
+    # the worst episode's command replays it exactly
+    row = summary[summary["tracker"] == "paper"].iloc[0]
+    argv = shlex.split(row["worst_command"])[1:]
+    argv[argv.index("-o") + 1] = str(tmp_path / "replay")
+    capsys.readouterr()
+    assert main([*argv, "--json"]) == 0
+    replay = json.loads(capsys.readouterr().out)
+    assert replay["with_target_fraction"] == pytest.approx(row["worst"])
+
+
+def test_follow_bench_missing_recording_exits_2(tmp_path, capsys):
+    assert main(["follow-bench", "--data-dir", str(tmp_path), "--files", "nope.csv", "-o", str(tmp_path / "o")]) == 2
+    assert "nope.csv" in capsys.readouterr().err
