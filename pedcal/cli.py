@@ -10,6 +10,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -405,6 +406,10 @@ def main(argv: list[str] | None = None) -> int:
     except FileNotFoundError as e:
         print(f"pedcal {args.command}: error: {e.filename or e}: no such file or directory", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:      # output piped into a reader that stopped (e.g. `| head`): not an error
+        # stdout goes to devnull so the interpreter's final flush does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as e:
         if e.filename is None:
             raise
@@ -417,9 +422,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:      # output piped into a reader that stopped (e.g. `| head`)
-        sys.stderr.close()
-        return 0
 
 
 if __name__ == "__main__":

@@ -120,3 +120,22 @@ def test_import_people_good_file(tmp_path, capsys, shared_data):
     code = main(["import-people", str(shared_data / "thor" / "exp-1-run-2.csv"), "-o", str(out)])
     assert code == 0 and "2180 rows, 87 people" in capsys.readouterr().out
     assert len(pd.read_csv(out)) == 2180
+
+
+def test_output_piped_into_a_reader_that_stops_is_not_an_error(tmp_path):
+    """`pedcal follow --people FILE | head -2`: the command ends quietly when head closes the pipe."""
+    import subprocess
+    import sys
+
+    n = 4000                                   # ~200 kB of listing, beyond any pipe buffer
+    people = pd.DataFrame({"t": np.tile([0.0, 1.0], n), "person": np.repeat(np.arange(n), 2),
+                           "x": np.tile([0.0, 0.5], n), "y": np.repeat(np.arange(n, dtype=float), 2)})
+    path = tmp_path / "people.csv"
+    people.to_csv(path, index=False)
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from pedcal.cli import main; sys.exit(main())",
+                             "follow", "--people", str(path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first = proc.stdout.readline()
+    proc.stdout.close()                        # the reader stops after one line
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0, err
+    assert b"people" in first and "Traceback" not in err
