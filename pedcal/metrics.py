@@ -27,6 +27,27 @@ LATENCY_KEY = "tracker_latency_s"
 # modelled. A tracker sees the point of the dome that faces it; the head top is that point moved
 # r along the viewing ray (to the dome centre) and r up. Absent or 0: points are taken as seen.
 HEAD_RADIUS_KEY = "head_radius_m"
+# Extra top-level mapping of a calibrated YAML: the head-point model the calibration estimated.
+# The tracker's head point is the head top moved ``vertical_offset_m`` up (negative: below the
+# top) and then ``ray_shift_m`` along the viewing ray toward the sensor (a dome of radius r:
+# vertical offset -r, ray shift r), with their sigmas.
+HEAD_MODEL_KEY = "head_model"
+# Extra top-level mapping: the joint covariance (m^2) of all sensors' positions, world axes,
+# {sensors: [ids], matrix: 3n x 3n}; the per-sensor sigma are the square roots of its diagonal.
+JOINT_COV_KEY = "position_covariance_m2"
+# Extra top-level mapping: residuals against the noise model, per sensor, and the sensors whose
+# residuals the model does not explain (their sigma widened by that ratio).
+MISMATCH_KEY = "model_mismatch"
+
+
+def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float]:
+    """(vertical offset m, ray shift m) of the head point an extrinsics file carries: its
+    ``head_model``, else a dome of ``head_radius_m`` (older files), else the head top itself."""
+    hm = extrinsics.extra.get(HEAD_MODEL_KEY)
+    if isinstance(hm, dict):
+        return float(hm.get("vertical_offset_m", 0.0) or 0.0), float(hm.get("ray_shift_m", 0.0) or 0.0)
+    r = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
+    return -r, r
 
 
 @dataclass
@@ -91,7 +112,7 @@ def robot_rows(log: Log) -> tuple[np.ndarray, str]:
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-dome correction the extrinsics file carries."""
-    head_radius_m = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
+    vertical_m, ray_m = head_model_of(extrinsics)
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -101,11 +122,9 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             m &= mask
         if m.any():
             p = p_sensor[m]
-            if head_radius_m > 0.0:    # dome-facing point -> dome centre -> head top
-                p = p + head_radius_m * p / np.linalg.norm(p, axis=1, keepdims=True)
-                out[m] = s.to_world(p) + np.array([0.0, 0.0, head_radius_m])
-            else:
-                out[m] = s.to_world(p)
+            # the head point moved back along the ray by the shift, then up by minus the offset: the top
+            p = p + ray_m * p / np.linalg.norm(p, axis=1, keepdims=True)
+            out[m] = s.to_world(p) - np.array([0.0, 0.0, vertical_m])
     return out
 
 

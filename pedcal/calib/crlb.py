@@ -91,6 +91,7 @@ def sensor_position_crlb(log: Log, recipe: str | GraphRecipe | None = None, *,
     rec = recipe if isinstance(recipe, GraphRecipe) else GraphRecipe.load(recipe or "default")
     rec = copy.copy(rec)
     rec.people, rec.robust_kernel = False, "none"
+    rec.estimate_head_model = False     # the bound for a known head point
     if is_robot is None:
         if log.truth_observations is None:
             raise PedcalInputError("the Cramér-Rao bound needs truth_observations.csv (which rows are the "

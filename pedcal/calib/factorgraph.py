@@ -49,6 +49,7 @@ track), so re-solving for it buys little.
 
 from __future__ import annotations
 
+import copy
 import sys
 import time
 import warnings
@@ -62,7 +63,8 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.common import CalibrationResult, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
-from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
+from pedcal.io.sensors_yaml import flow_vector
+from pedcal.metrics import HEAD_MODEL_KEY, JOINT_COV_KEY, LATENCY_KEY, MISMATCH_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 try:
@@ -74,6 +76,7 @@ S = gtsam.symbol_shorthand.S
 X = gtsam.symbol_shorthand.X
 A = gtsam.symbol_shorthand.A
 L = gtsam.symbol_shorthand.L
+H = gtsam.symbol_shorthand.H
 
 GRAPHS_DIR = Path(__file__).resolve().parents[2] / "graphs"
 
@@ -101,7 +104,18 @@ class GraphRecipe:
     reliable_range_m: float = 3.5
     far_factor: float = 2.0
     lateral_sigma_m: float = 0.012
-    head_radius_m: float = 0.1      # dome radius of a head (the visible top faces the sensor)
+    # head-point model (module docstring, "Head point"): the prior is a dome of radius
+    # head_radius_m (vertical offset -r, ray shift r); both are estimated unless
+    # estimate_head_model is false
+    head_radius_m: float = 0.05
+    estimate_head_model: bool = True
+    head_vertical_sigma_m: float = 0.05     # prior sigma of the vertical offset
+    head_ray_shift_sigma_m: float = 0.05    # prior sigma of the shift toward the sensor
+    head_ray_shift_step_m: float = 0.02     # step of the ray shift's profile likelihood
+    # height reference: the installed sensor heights measured to this sigma (0: no reference),
+    # or, with ceiling_height_m > 0, every sensor at that height to this sigma
+    sensor_height_sigma_m: float = 0.0
+    ceiling_height_m: float = 0.0
     robust_kernel: str = "huber"    # huber | cauchy | tukey | none
     robust_k: float = 1.345
     # AMCL error process (std from AMCL's reported covariance)
@@ -198,6 +212,19 @@ def amcl_cov_body(cov_world: np.ndarray, yaw: float) -> np.ndarray:
     out[3:5, 2] = cross
     out[2, 3:5] = cross
     return out
+
+
+def amcl_white_sigma(amcl: pd.DataFrame) -> float:
+    """Std (m) of the white part of AMCL's position error, from its own jitter: on a smooth
+    trajectory the second differences of consecutive estimates are sqrt(6) times a white error
+    (the robot's acceleration adds millimetres at AMCL's rates; a slowly wandering error adds
+    less). Median absolute deviation, so jumps and turns do not count."""
+    a = amcl.groupby("t", sort=True)[["x", "y"]].mean().to_numpy(float)
+    if len(a) < 10:
+        return 0.0
+    d2 = a[2:] - 2.0 * a[1:-1] + a[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return float(1.4826 * np.sqrt(np.mean(mad ** 2)) / np.sqrt(6.0))
 
 
 def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
@@ -342,6 +369,8 @@ class FactorGraphProblem:
     obs_t: np.ndarray | None = None
     obs_key_index: np.ndarray | None = None
     obs_p_sensor: np.ndarray | None = None
+    # the head point's shift toward the sensor along the ray (m) the graph is built with
+    ray_shift_m: float = 0.0
 
     def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
@@ -371,6 +400,23 @@ def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
     return np.unique(np.concatenate([t, *fill])) if fill else t
 
 
+def _height_reference(T: gtsam.Pose3, z_ref_m: float) -> gtsam.Pose3:
+    """``T`` moved to the reference height."""
+    t = np.array(T.translation(), float)
+    t[2] = z_ref_m
+    return gtsam.Pose3(T.rotation(), t)
+
+
+def _height_noise(T: gtsam.Pose3, sigma_m: float):
+    """A Pose3 prior that holds the world height alone to ``sigma_m``: its information in the
+    body-frame tangent [rx ry rz tx ty tz] is (R^T e_z)(R^T e_z)^T / sigma^2 on the translation."""
+    ez_body = T.rotation().matrix().T @ np.array([0.0, 0.0, 1.0])
+    info = np.zeros((6, 6))
+    info[3:, 3:] = np.outer(ez_body, ez_body) / sigma_m ** 2
+    info += np.eye(6) * 1e-9
+    return gtsam.noiseModel.Gaussian.Information(info)
+
+
 def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None):
     """Build the factor graph and the initial values (optionally only with data up to t_max)."""
     rec = prob.recipe
@@ -378,12 +424,22 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     values = gtsam.Values()
     head_m = np.asarray(log.meta.head_offset_m, float) - np.array([0.0, 0.0, rec.head_radius_m])
 
-    # Sensors: weak prior at the installed extrinsics.
+    rho = prob.ray_shift_m
+    # Sensors: weak prior at the installed extrinsics; a height reference, when given, as a
+    # prior on the world height alone (the Pose3 tangent is body-frame: world z is R^T e_z there).
     sig_rot = np.radians(rec.sensor_prior_sigma_deg)
     sensor_prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sig_rot] * 3, [rec.sensor_prior_sigma_m] * 3])
     for i, sid in enumerate(prob.sensor_ids):
-        graph.add(gtsam.PriorFactorPose3(S(i), log.sensors[sid].T_world_sensor, sensor_prior))
+        T_inst = log.sensors[sid].T_world_sensor
+        graph.add(gtsam.PriorFactorPose3(S(i), T_inst, sensor_prior))
         values.insert(S(i), prob.init_sensors[sid])
+        if rec.sensor_height_sigma_m > 0.0:
+            z_ref = rec.ceiling_height_m if rec.ceiling_height_m > 0.0 else float(T_inst.translation()[2])
+            # about the initial pose (close to the solution: the Pose3 logmap couples the
+            # horizontal offset into the height by the rotation difference)
+            T0 = prob.init_sensors[sid]
+            graph.add(gtsam.PriorFactorPose3(S(i), _height_reference(T0, z_ref),
+                                             _height_noise(T0, rec.sensor_height_sigma_m)))
 
     times = prob.pose_times if t_max is None else prob.pose_times[prob.pose_times <= t_max]
     n_pose = len(times)
@@ -410,6 +466,7 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     if rec.amcl and n_pose:
         cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
         sig_xy = max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 3])))), 1e-3)
+        white_var = max(amcl_white_sigma(amcl) ** 2 - rec.amcl_white_fraction ** 2 * sig_xy ** 2, 0.0)
         tau = rec.amcl_correlation_s
         k_of = np.searchsorted(times, amcl_t)
         use = np.flatnonzero((k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t))
@@ -429,8 +486,10 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
         Cb[:, 2, 2] = cov[use, 5] * max(1.0, 2.0 * tau / dt_amcl)
         drift_var = 2.0 * sig_xy ** 2 * np.abs(amcl_t[use] - nodes[node_of]) / tau
+        # the white share: the recipe's fraction of the reported covariance, or what AMCL's own
+        # jitter shows when that is larger (amcl_white_sigma)
         Cb[:, 3:5, 3:5] = rec.amcl_white_fraction ** 2 * (Rt @ Cw @ np.swapaxes(Rt, 1, 2)) + \
-            drift_var[:, None, None] * np.eye(2)
+            (drift_var + white_var)[:, None, None] * np.eye(2)
         Cb[:, 5, 5] = 1e-6
         for n, j in enumerate(use):
             Z = head_frame(x_a[n], y_a[n], yaw_a[n], head_m)
@@ -439,14 +498,26 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         # discretized OU prior on the error process (module docstring)
         dn = rec.amcl_node_spacing_s
         sp, sq = np.sqrt(2.0 * tau / dn), np.sqrt(2.0 * dn / tau)
-        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp, 1e-3]))
+        # The head point's vertical offset from its prior (-head_radius_m) is the height of the
+        # variable h: every AMCL error node's height is tied to it, so every robot pose, and with
+        # it every head point the sensors see, moves up or down with it alike.
+        free_z = rec.estimate_head_model
+        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp,
+                                                           1e2 if free_z else 1e-3]))
         q = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3]))
         n_nodes = int(node_of.max()) + 1 if len(use) else 0
+        if free_z and n_nodes:
+            values.insert(H(0), gtsam.Pose3())
+            graph.add(gtsam.PriorFactorPose3(H(0), gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(
+                np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m]))))
+            tie = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 1e3, 1e3, 1e-4]))
         for m in range(n_nodes):
             values.insert(A(m), gtsam.Pose3())
             graph.add(gtsam.PriorFactorPose3(A(m), gtsam.Pose3(), prior))
             if m:
                 graph.add(gtsam.BetweenFactorPose3(A(m - 1), A(m), gtsam.Pose3(), q))
+            if free_z:
+                graph.add(gtsam.BetweenFactorPose3(H(0), A(m), gtsam.Pose3(), tie))
 
     # Odometry (or smoothness) between consecutive robot poses.
     if n_pose > 1:
@@ -461,8 +532,8 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         elif rec.smoothness:
             src = base
             dt = np.diff(times)
-            # AMCL's short-term increments: error grows with dt
-            st = rec.smoothness_sigma_mps * dt + 1e-3
+            # AMCL's short-term increments: error grows with dt, plus AMCL's white jitter at both ends
+            st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + 2.0 * amcl_white_sigma(amcl) ** 2) + 1e-3
             sy = np.radians(2.0) * dt + 1e-4
         if src is not None:
             P = [head_frame(*src[k], head_m) for k in range(n_pose)]
@@ -480,7 +551,7 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         for n in np.flatnonzero(prob.obs_key_index < n_pose):
             graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(prob.obs_key_index[n])),
                                                    gtsam.Unit3(prob.obs_p_sensor[n]),
-                                                   rng_m[n] + rec.head_radius_m, noise(key=noise_keys[n])))
+                                                   rng_m[n] + rho, noise(key=noise_keys[n])))
 
     # People seen by two or more sensors at once (the dome centre of their head).
     if rec.people:
@@ -491,8 +562,8 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
             for sid, p in seen:
                 r = float(np.linalg.norm(p))
                 graph.add(gtsam.BearingRangeFactor3D(S(sid_index[sid]), L(m), gtsam.Unit3(p),
-                                                     r + rec.head_radius_m, noise(r)))
-                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rec.head_radius_m / r)))
+                                                     r + rho, noise(r)))
+                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / r)))
             values.insert(L(m), np.mean(pts, axis=0))
     return graph, values
 
@@ -581,6 +652,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     # robot poses only when something observes them (people-only graphs hold the sensors alone)
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
+                              ray_shift_m=recipe.head_radius_m,
                               obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
                               motion=_RobotMotion(log, odometry), odometry=odometry,
@@ -616,6 +688,14 @@ def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray
     return cov_pos_world, np.sqrt(np.diag(cov_pos_world)), np.sqrt(np.maximum(np.diag(cov_ypr), 0.0))
 
 
+def rotation_sigma_deg(cov_body: np.ndarray) -> np.ndarray:
+    """1-sigma (deg) of a sensor's orientation as a rotation vector in its own frame (about its
+    optical axis x, its y and its z), from GTSAM's Pose3 covariance (body frame, rotation
+    first): defined at any pitch, unlike yaw/pitch/roll, whose yaw and roll blur together when
+    the sensor looks straight down."""
+    return np.degrees(np.sqrt(np.maximum(np.diag(cov_body)[:3], 0.0)))
+
+
 _DIRECTION_NAMES_ROT = ("rotation about world x", "rotation about world y", "yaw")
 _DIRECTION_NAMES_POS = ("x", "y", "z")
 
@@ -645,12 +725,16 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     keyword overrides set recipe fields by name."""
     t0 = time.perf_counter()
     recipe = graph if isinstance(graph, GraphRecipe) else GraphRecipe.load(graph or "default")
+    recipe = copy.copy(recipe)
     for k, v in recipe_overrides.items():
         if not hasattr(recipe, k):
             raise ValueError(f"unknown graph recipe field '{k}'")
         setattr(recipe, k, v)
     if not (recipe.robot or recipe.people):
         raise PedcalInputError("the graph recipe uses neither the robot nor people: nothing observes the sensors")
+    if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
+        raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
+                               column="sensor_height_sigma_m")
     if online:
         from pedcal.calib.online import calibrate_online
 
@@ -664,10 +748,17 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     t_opt = time.perf_counter()
     result, iterations = _optimize(fg, values, recipe)
     _log(progress, f"converged in {iterations} iterations, error {fg.error(values):.1f} -> {fg.error(result):.1f}")
+    ray = _estimate_ray_shift(log, prob, fg, result)
+    if ray is not None:
+        fg, result = ray.graph, ray.result
+        _log(progress, f"head point shift toward the sensor {1000 * prob.ray_shift_m:.1f} "
+                       f"+- {1000 * ray.sigma_m:.1f} mm ({ray.solves} solves)")
     t_opt = time.perf_counter() - t_opt
+    cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, ray)
     cov_world: dict[str, np.ndarray] = {}
-    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world)
-    mask = finish_network(log, prob, network)
+    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
+    mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
+                          mismatch=mismatch)
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
                                                              iterations=iterations, factors=fg.size(),
@@ -675,7 +766,174 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
                                                              variables=values.size(),
                                                              shared_people=len(prob.people),
                                                              odometry=prob.odometry_estimates,
-                                                             position_cov_world_m2=cov_world))
+                                                             position_cov_world_m2=cov_world,
+                                                             head_model=head_model, model_mismatch=mismatch))
+
+
+@dataclass
+class _RayShift:
+    graph: gtsam.NonlinearFactorGraph
+    result: gtsam.Values
+    sigma_m: float
+    sensitivity: np.ndarray       # (6 n_sensors,) d(sensor pose tangent)/d(ray shift), per metre
+    solves: int
+
+
+def _solve_at(log: Log, prob: FactorGraphProblem, rho_m: float, start: gtsam.Values):
+    """The graph rebuilt with the head point shifted ``rho_m`` toward the sensor, solved from
+    ``start``; returns (graph, result, profile error incl. the shift's prior)."""
+    rec = prob.recipe
+    prob.ray_shift_m = float(rho_m)
+    fg, values = build_graph(log, prob)
+    values.update(start)
+    result, _ = _optimize(fg, values, rec)
+    prior = 0.5 * ((rho_m - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
+    return fg, result, fg.error(result) + prior
+
+
+def _sensor_tangents(prob: FactorGraphProblem, result: gtsam.Values, ref: gtsam.Values) -> np.ndarray:
+    return np.concatenate([ref.atPose3(S(i)).localCoordinates(result.atPose3(S(i)))
+                           for i in range(len(prob.sensor_ids))])
+
+
+def _estimate_ray_shift(log: Log, prob: FactorGraphProblem, fg, result) -> _RayShift | None:
+    """The head point's shift toward the sensor (a range offset of every observation, the
+    dome's radius for a dome) by its profile likelihood: the graph's optimal error at rho - h,
+    rho and rho + h, a parabola through them (Gauss-Newton on the profile), repeated once if the
+    step was large. Its sigma is the parabola's curvature (error = chi^2 / 2, so sigma^2 = 1 /
+    E''), and the sensors' sensitivity to it (central difference of the solutions) carries that
+    sigma into their covariance: the marginal over the shift, not the conditional."""
+    rec = prob.recipe
+    if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0):
+        return None
+    h = rec.head_ray_shift_step_m
+    rho = prob.ray_shift_m
+    e0 = fg.error(result) + 0.5 * ((rho - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
+    solves = 0
+    for _ in range(2):
+        _, r_plus, e_plus = _solve_at(log, prob, rho + h, result)
+        _, r_minus, e_minus = _solve_at(log, prob, rho - h, result)
+        solves += 2
+        curv = (e_plus + e_minus - 2.0 * e0) / h ** 2
+        if not curv > 0.0:
+            warnings.warn("the head point's shift toward the sensor is not determined by the data (flat "
+                          "profile); its prior is kept", DegenerateDataWarning, stacklevel=3)
+            prob.ray_shift_m = rho
+            fg, result, _ = _solve_at(log, prob, rho, result)
+            return _RayShift(fg, result, rec.head_ray_shift_sigma_m, np.zeros(6 * len(prob.sensor_ids)),
+                             solves + 1)
+        sens = _sensor_tangents(prob, r_plus, result) - _sensor_tangents(prob, r_minus, result)
+        sens /= 2.0 * h
+        step = float(np.clip(-(e_plus - e_minus) / (2.0 * h) / curv, -4.0 * h, 4.0 * h))
+        rho += step
+        fg, result, e0 = _solve_at(log, prob, rho, result)
+        solves += 1
+        if abs(step) < 2.0 * h:
+            break
+    return _RayShift(fg, result, float(1.0 / np.sqrt(curv)), sens, solves)
+
+
+def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
+    """(N, 3) normalized residuals of the robot observations at ``result``: two bearing
+    components (across the ray, over the lateral sigma) and the range (over its sigma), each
+    N(0, 1) if the noise model of the graph holds."""
+    rec = prob.recipe
+    n_pose = len(prob.pose_times)
+    use = prob.obs_key_index < n_pose
+    if not (rec.robot and use.any()):
+        return np.zeros((0, 3))
+    xk = np.array([result.atPose3(X(k)).translation() for k in range(n_pose)])
+    idx = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    si = np.array([idx[s] for s in prob.obs_sensor[use]])
+    R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]
+    t = np.stack([result.atPose3(S(i)).translation() for i in range(len(prob.sensor_ids))])[si]
+    p_pred = np.einsum("nji,nj->ni", R, xk[prob.obs_key_index[use]] - t)
+    p_meas = prob.obs_p_sensor[use]
+    r_meas = np.linalg.norm(p_meas, axis=1)
+    u = p_meas / r_meas[:, None]
+    r_pred = np.linalg.norm(p_pred, axis=1)
+    a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    b1 = np.cross(u, a)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    b2 = np.cross(u, b1)
+    u_pred = p_pred / r_pred[:, None]
+    sig = observation_sigmas(rec, r_meas)
+    return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
+                            (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
+
+
+def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> dict:
+    """Residuals against the noise model, per sensor: the robust variance ratio (median of the
+    squared normalized residuals over the chi-square(1) median 0.455, averaged over the three
+    components; 1 when the model holds, robust to the mis-associations the kernel rejects, not
+    to a bias). Returns {sensor: ratio} and the sensors whose ratio exceeds ``threshold``."""
+    z = robot_residuals(prob, result)
+    rec = prob.recipe
+    n_pose = len(prob.pose_times)
+    sensors = prob.obs_sensor[prob.obs_key_index < n_pose] if rec.robot else np.zeros(0, str)
+    ratio = {}
+    for sid in prob.sensor_ids:
+        m = sensors == sid
+        if m.sum() >= 10:
+            ratio[sid] = float(np.mean(np.median(z[m] ** 2, axis=0)) / 0.4549)
+    bad = {sid: r for sid, r in ratio.items() if r > threshold}
+    return dict(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
+                misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
+                        + ", ".join(f"{sid} x{np.sqrt(r):.2f} sigma" for sid, r in sorted(bad.items()))
+                        if bad else ""))
+
+
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | None):
+    """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
+    vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
+    sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
+    where that exceeds 1. Returns (per-sensor body covariance, the joint world-axes position
+    covariance, the head model, the model check)."""
+    rec = prob.recipe
+    n = len(prob.sensor_ids)
+    keys = [S(i) for i in range(n)]
+    has_h = result.exists(H(0))
+    marginals = gtsam.Marginals(fg, result)
+    kv = gtsam.KeyVector(keys + ([H(0)] if has_h else []))
+    C = marginals.jointMarginalCovariance(kv).fullMatrix()
+    C_s = C[:6 * n, :6 * n].copy()
+    if ray is not None:
+        C_s += ray.sigma_m ** 2 * np.outer(ray.sensitivity, ray.sensitivity)
+    check = model_check(prob, result)
+    scale = np.ones(6 * n)
+    for i, sid in enumerate(prob.sensor_ids):
+        scale[6 * i:6 * i + 6] = np.sqrt(max(1.0, check["variance_ratio"].get(sid, 1.0)))
+    C_s = C_s * np.outer(scale, scale)
+    cov_body = {sid: C_s[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i, sid in enumerate(prob.sensor_ids)}
+    Rb = np.zeros((3 * n, 6 * n))
+    for i in range(n):
+        Rb[3 * i:3 * i + 3, 6 * i + 3:6 * i + 6] = result.atPose3(S(i)).rotation().matrix()
+    joint_pos = Rb @ C_s @ Rb.T
+    if rec.sensor_height_sigma_m > 0.0:
+        reference = "ceiling height" if rec.ceiling_height_m > 0.0 else "installed sensor heights"
+    else:
+        reference = "none"
+    head = dict(vertical_offset_m=-rec.head_radius_m, sigma_vertical_offset_m=0.0,
+                ray_shift_m=prob.ray_shift_m, sigma_ray_shift_m=0.0, height_reference=reference,
+                estimated=bool(rec.estimate_head_model))
+    if has_h:
+        head["vertical_offset_m"] = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
+        head["sigma_vertical_offset_m"] = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
+    if ray is not None:
+        head["sigma_ray_shift_m"] = ray.sigma_m
+    if has_h and reference == "none":
+        head["note"] = (HEAD_HEIGHT_DEGENERACY + f" The sensors' heights carry the prior sigma of the offset "
+                        f"({1000 * rec.head_vertical_sigma_m:.0f} mm), shared by all of them.")
+        warnings.warn("the head point's vertical offset cannot be told from the sensors' common height by "
+                      "the robot alone: the sensors' vertical sigma carries its prior "
+                      f"({1000 * rec.head_vertical_sigma_m:.0f} mm); give a height reference "
+                      "(--sensor-height-sigma or --ceiling-height)", DegenerateDataWarning, stacklevel=3)
+    return cov_body, joint_pos, head, check
+
+
+HEAD_HEIGHT_DEGENERACY = ("A head point uniformly lower than the head top moves every robot observation down "
+                          "alike, which the robot alone cannot tell from the sensors' heights: the vertical "
+                          "offset is held by its prior unless a height reference is given.")
 
 
 def _optimize(fg, values, recipe: GraphRecipe):
@@ -683,14 +941,59 @@ def _optimize(fg, values, recipe: GraphRecipe):
     params.setMaxIterations(recipe.max_iterations)
     params.setRelativeErrorTol(recipe.relative_error_tol)
     opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    return opt.optimize(), opt.iterations()
+    result = _settle_vertical_gauge(fg, opt.optimize())
+    return result, opt.iterations()
 
 
-def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork) -> np.ndarray:
-    """Record the tracker model the graph used (latency, head dome) in the calibrated network and
+def _shift_up(values: gtsam.Values, dz_m: float) -> gtsam.Values:
+    """``values`` with every sensor, robot pose, AMCL error, head model and person moved up."""
+    out = gtsam.Values(values)
+    up = np.array([0.0, 0.0, dz_m])
+    for key in values.keys():
+        c = chr(gtsam.Symbol(key).chr())
+        if c in "sxah":
+            P = values.atPose3(key)
+            out.update(key, gtsam.Pose3(P.rotation(), P.translation() + up))
+        elif c == "l":
+            out.update(key, values.atPoint3(key) + up)
+    return out
+
+
+def _settle_vertical_gauge(fg, result: gtsam.Values, step_m: float = 0.01) -> gtsam.Values:
+    """Move everything up or down together to the optimum of the priors. With the head model's
+    vertical offset free, a common vertical shift of all variables changes no measurement factor,
+    only the priors (the offset's, the sensors' installed heights, a height reference): a flat
+    direction LM barely moves along (its damping scales with the Hessian's diagonal), so the
+    solution would sit wherever the initial values put it. The error is quadratic along it: one
+    parabola through three shifts finds the optimum."""
+    if not result.exists(H(0)):
+        return result
+    e0, ep, em = fg.error(result), fg.error(_shift_up(result, step_m)), fg.error(_shift_up(result, -step_m))
+    curv = (ep + em - 2.0 * e0) / step_m ** 2
+    if not curv > 0.0:
+        return result
+    return _shift_up(result, -(ep - em) / (2.0 * step_m) / curv)
+
+
+def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *, head_model: dict | None = None,
+                   joint_position_cov: np.ndarray | None = None, mismatch: dict | None = None) -> np.ndarray:
+    """Record the tracker model the graph used (latency, head-point model with its sigma), the
+    joint covariance of the sensors' positions and the model check in the calibrated network and
     return the mask of the observations used as the robot's."""
     network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
-    network.extra[HEAD_RADIUS_KEY] = prob.recipe.head_radius_m
+    if head_model is None:
+        head_model = dict(vertical_offset_m=-prob.recipe.head_radius_m, ray_shift_m=prob.ray_shift_m,
+                          estimated=False)
+    network.extra[HEAD_MODEL_KEY] = {k: (round(v, 5) if isinstance(v, float) else v) for k, v in head_model.items()}
+    if joint_position_cov is not None:
+        network.extra[JOINT_COV_KEY] = {"sensors": list(prob.sensor_ids), "order": "x y z per sensor",
+                                        "matrix": [flow_vector([float(f"{v:.4e}") for v in row])
+                                                   for row in joint_position_cov]}
+    if mismatch is not None:
+        ratios = {k: round(v, 3) for k, v in mismatch["variance_ratio"].items()}
+        network.extra[MISMATCH_KEY] = {"sensors": mismatch["sensors"], "threshold": mismatch["threshold"],
+                                       "variance_ratio": ratios,
+                                       "misfit": mismatch["misfit"]}
     mask = np.zeros(len(log.observations), bool)
     mask[prob.rows_used] = True
     return mask
@@ -698,11 +1001,12 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork) -
 
 def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progress: bool,
                          marginals: gtsam.Marginals | None = None,
-                         cov_out: dict | None = None) -> SensorNetwork:
+                         cov_out: dict | None = None, cov_body: dict | None = None) -> SensorNetwork:
     """The calibrated network from the graph's solution; ``cov_out`` (optional) receives each
-    sensor's world-axes position covariance (m^2)."""
+    sensor's world-axes position covariance (m^2). ``cov_body``: each sensor's Pose3 covariance
+    (body frame, rotation first) when the caller has it, else the graph's marginals."""
     rec = prob.recipe
-    if marginals is None:
+    if marginals is None and cov_body is None:
         marginals = gtsam.Marginals(fg, result)
     people_count = {sid: 0 for sid in prob.sensor_ids}
     for _, seen in prob.people:
@@ -713,13 +1017,14 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
         installed = log.sensors[sid]
         n_obs = int(np.sum(prob.obs_sensor == sid)) if rec.robot else 0
         T = result.atPose3(S(i))
-        cov = marginals.marginalCovariance(S(i))
+        cov = cov_body[sid] if cov_body is not None else marginals.marginalCovariance(S(i))
         if n_obs + people_count[sid] == 0:
             warnings.warn(f"sensor {sid}: no observation of the robot or of shared people; "
                           "its installed pose is kept", DegenerateDataWarning, stacklevel=2)
             _, sp, sy = sensor_sigma_world(installed.T_world_sensor, cov)
             out.append(SensorExtrinsics(sid, installed.position_m, installed.ypr_deg, sigma_position_m=sp,
-                                        sigma_ypr_deg=sy, observations=0, status="no-data"))
+                                        sigma_ypr_deg=sy, sigma_rotation_deg=rotation_sigma_deg(cov),
+                                        observations=0, status="no-data"))
             continue
         names, bad = observability(T, cov, rec)
         status = "ok"
@@ -736,6 +1041,7 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
         if cov_out is not None:
             cov_out[sid] = cov_pos
         out.append(SensorExtrinsics.from_pose3(sid, T, sigma_position_m=sp, sigma_ypr_deg=sy,
+                                               sigma_rotation_deg=rotation_sigma_deg(cov),
                                                observations=n_obs, status=status,
                                                unobservable=names or None))
     return SensorNetwork(out, frame=log.sensors.frame)
