@@ -17,7 +17,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.common import CalibrationResult
-from pedcal.calib.factorgraph import GraphRecipe, S, _network_from_result, build_graph, finish_network, prepare
+from pedcal.calib.graph import GraphRecipe, S, _network_from_result, build_graph, finish_network, prepare
 from pedcal.model import Log
 
 

@@ -1,0 +1,132 @@
+"""The factor graph's head-point model (vertical offset, shift toward the sensor) estimated from
+logs whose tracker it does not assume; the height degeneracy; model checking; orientation sigma
+looking straight down."""
+
+import warnings
+
+import numpy as np
+import pytest
+import test_factorgraph
+from test_factorgraph import _exact_recipe, make_exact_log
+
+from pedcal.calib.factorgraph import calibrate_factorgraph
+from pedcal.errors import DegenerateDataWarning
+from pedcal.io import read_sensors_yaml, write_sensors_yaml
+from pedcal.metrics import evaluate
+from pedcal.model import SensorExtrinsics, SensorNetwork
+from pedcal.sim import simulate_logs
+
+
+def _with_true_heights(log):
+    """The log's installed extrinsics with the true heights (a measured reference); the
+    observations, mapped to the world with the installed extrinsics, move with them."""
+    sensors = log.sensors.copy()
+    obs = log.observations.copy()
+    for s in sensors:
+        dz = log.truth[s.id].position_m[2] - s.position_m[2]
+        s.position_m = s.position_m + np.array([0.0, 0.0, dz])
+        obs.loc[obs["sensor"].astype(str) == s.id, "z"] += dz
+    log.sensors, log.observations = sensors, obs
+    return log
+
+
+def test_dome_it_did_not_assume_is_recovered_with_a_height_reference():
+    # a 9 cm dome 2 cm low (offset -0.11 m, shift 0.09 m) against the recipe's 5 cm prior
+    sim = simulate_logs("paper", seed=4, head_point="dome", head_radius_m=0.09, head_vertical_bias_m=-0.02)
+    log = _with_true_heights(sim.calib)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(log, sensor_height_sigma_m=0.005)
+    head = res.diagnostics["head_model"]
+    assert head["height_reference"] == "installed sensor heights"
+    assert head["ray_shift_m"] == pytest.approx(0.09, abs=0.01)
+    assert head["vertical_offset_m"] == pytest.approx(-0.11, abs=0.01)
+    assert head["sigma_ray_shift_m"] < 0.01 and head["sigma_vertical_offset_m"] < 0.01
+    ev = evaluate(sim.eval, res.network)
+    assert ev.sensor_position_rms_mm["z"] < 15.0
+    assert ev.sensor_position_rms_mm["combined"] < 45.0
+
+
+def test_without_a_height_reference_the_degeneracy_is_stated_and_in_the_vertical_sigma(tmp_path):
+    sim = simulate_logs("paper", seed=4, head_point="top", head_vertical_bias_m=0.0)
+    with pytest.warns(DegenerateDataWarning, match="cannot be told from the sensors' common height"):
+        res = calibrate_factorgraph(sim.calib)
+    head = res.diagnostics["head_model"]
+    assert head["height_reference"] == "none"
+    assert head["sigma_vertical_offset_m"] > 0.025         # the prior's 0.03, nothing more
+    assert head["ray_shift_m"] == pytest.approx(0.0, abs=0.01)   # the shift is observable
+    assert head["vertical_offset_m"] == pytest.approx(0.0, abs=0.01)   # the dome prior: -shift
+    for s in res.network:
+        assert s.sigma_position_m[2] > 0.025               # carried into every sensor's height
+    # the joint covariance holds the shared part: heights correlate almost fully
+    C = np.asarray(res.network.extra["position_covariance_m2"]["matrix"])
+    assert C.shape == (3 * len(res.network), 3 * len(res.network))
+    assert C[2, 5] / np.sqrt(C[2, 2] * C[5, 5]) > 0.9
+    path = write_sensors_yaml(res.network, tmp_path / "cal.yaml")
+    text = path.read_text()
+    assert "which the robot alone cannot tell from the sensors" in " ".join(text.split())
+    back = read_sensors_yaml(path)
+    assert back.extra["head_model"]["ray_shift_m"] == pytest.approx(head["ray_shift_m"], abs=1e-4)
+    np.testing.assert_allclose(back["s01"].sigma_rotation_deg, res.network["s01"].sigma_rotation_deg)
+
+
+def test_a_head_point_shifted_toward_the_sensor_does_not_scale_the_corridor():
+    # the failure a fixed 0.1 m dome gave on another tracker's corridor: an error growing
+    # linearly along it (a scale error of the whole network)
+    sim = simulate_logs("corridor", seed=1, head_point="shift", head_shift_m=0.04)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(sim.calib)
+    x = np.array([sim.calib.truth[s.id].position_m[0] for s in res.network])
+    ex = np.array([s.position_m[0] - sim.calib.truth[s.id].position_m[0] for s in res.network])
+    slope = np.polyfit(x, ex, 1)[0]
+    assert abs(slope) < 0.004     # < 0.4 % scale; a fixed 0.1 m dome gives +1.6 %, none -2.6 % here
+    ev = evaluate(sim.eval, res.network)
+    assert np.hypot(ev.sensor_position_rms_mm["x"], ev.sensor_position_rms_mm["y"]) < 30.0
+
+
+def test_residuals_beyond_the_noise_model_are_named_and_widen_sigma():
+    rng = np.random.default_rng(11)
+    mask = None
+    out = {}
+    for noise_m in (0.004, 0.03):
+        log = make_exact_log(seed=6)
+        log.observations[["x", "y", "z"]] += rng.normal(0.0, noise_m, (len(log.observations), 3))
+        mask = np.ones(len(log.observations), bool)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DegenerateDataWarning)
+            out[noise_m] = calibrate_factorgraph(log, graph=_exact_recipe(range_sigma_floor_m=0.005,
+                                                                          lateral_sigma_m=0.005), is_robot=mask)
+    fit, misfit = out[0.004].diagnostics["model_mismatch"], out[0.03].diagnostics["model_mismatch"]
+    assert fit["sensors"] == []
+    assert misfit["sensors"] == ["s1", "s2", "s3"]
+    assert "s1 x" in misfit["misfit"]
+    for sid in ("s1", "s2", "s3"):
+        assert misfit["variance_ratio"][sid] > 10.0
+        # widened by the misfit: far more than the 7.5x more noise alone would give a fixed model
+        widen = out[0.03].network[sid].sigma_position_m[:2] / out[0.004].network[sid].sigma_position_m[:2]
+        assert np.all(widen > 3.0)
+        assert out[0.03].network.extra["model_mismatch"]["sensors"] == ["s1", "s2", "s3"]
+
+
+def test_sensor_looking_straight_down_has_a_rotation_sigma_and_quaternion(monkeypatch, tmp_path):
+    net = SensorNetwork([SensorExtrinsics("s1", [3.0, 1.6, 3.2], [30.0, 90.0, 0.0]),
+                         SensorExtrinsics("s2", [3.0, 0.5, 2.6], [180.0, 45.0, 2.0])])
+    monkeypatch.setattr(test_factorgraph, "_truth_network", lambda: net)
+    log = make_exact_log(seed=8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(log, graph=_exact_recipe(), is_robot=np.ones(len(log.observations), bool))
+    s1 = res.network["s1"]
+    assert s1.status == "ok"
+    assert np.all(s1.sigma_rotation_deg < 0.5)
+    path = write_sensors_yaml(res.network, tmp_path / "down.yaml")
+    import yaml
+
+    entry = yaml.safe_load(path.read_text())["sensors"][0]
+    w, x, y, z = entry["quaternion_wxyz"]
+    import gtsam
+
+    R_q = gtsam.Rot3.Quaternion(w, x, y, z).matrix()
+    np.testing.assert_allclose(R_q, s1.R_world_sensor, atol=1e-9)
+    assert len(entry["sigma"]["rotation_deg"]) == 3
