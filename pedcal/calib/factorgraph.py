@@ -113,13 +113,18 @@ class _RayShift:
     solves: int
 
 
-def _solve_at(log: Log, prob: FactorGraphProblem, rho_m: float, start: gtsam.Values):
+def _solve_at(log: Log, prob: FactorGraphProblem, rho_m: float, start: gtsam.Values,
+              max_iterations: int | None = None):
     """The graph rebuilt with the head point shifted ``rho_m`` toward the sensor, solved from
-    ``start``; returns (graph, result, profile error incl. the shift's prior)."""
+    ``start`` (at most ``max_iterations`` LM steps: a probe near a converged solution needs one
+    or two); returns (graph, result, profile error incl. the shift's prior)."""
     rec = prob.recipe
     prob.ray_shift_m = float(rho_m)
     fg, values = build_graph(log, prob)
     values.update(start)
+    if max_iterations is not None:
+        rec = copy.copy(rec)
+        rec.max_iterations = max_iterations
     result, _ = optimize_graph(fg, values, rec)
     prior = 0.5 * ((rho_m - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
     return fg, result, fg.error(result) + prior
@@ -134,7 +139,7 @@ def _estimate_ray_shift(log: Log, prob: FactorGraphProblem, fg, result) -> _RayS
     """The head point's shift toward the sensor (a range offset of every observation, the
     dome's radius for a dome) by its profile likelihood: the graph's optimal error at rho - h,
     rho and rho + h, a parabola through them (Gauss-Newton on the profile), repeated once if the
-    step was large. Its sigma is the parabola's curvature (error = chi^2 / 2, so sigma^2 = 1 /
+    step reached 4 h. Its sigma is the parabola's curvature (error = chi^2 / 2, so sigma^2 = 1 /
     E''), and the sensors' sensitivity to it (central difference of the solutions) carries that
     sigma into their covariance: the marginal over the shift, not the conditional."""
     rec = prob.recipe
@@ -145,8 +150,8 @@ def _estimate_ray_shift(log: Log, prob: FactorGraphProblem, fg, result) -> _RayS
     e0 = fg.error(result) + 0.5 * ((rho - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
     solves = 0
     for _ in range(2):
-        _, r_plus, e_plus = _solve_at(log, prob, rho + h, result)
-        _, r_minus, e_minus = _solve_at(log, prob, rho - h, result)
+        _, r_plus, e_plus = _solve_at(log, prob, rho + h, result, max_iterations=2)
+        _, r_minus, e_minus = _solve_at(log, prob, rho - h, result, max_iterations=2)
         solves += 2
         curv = (e_plus + e_minus - 2.0 * e0) / h ** 2
         if not curv > 0.0:
@@ -158,11 +163,11 @@ def _estimate_ray_shift(log: Log, prob: FactorGraphProblem, fg, result) -> _RayS
                              solves + 1)
         sens = _sensor_tangents(prob, r_plus, result) - _sensor_tangents(prob, r_minus, result)
         sens /= 2.0 * h
-        step = float(np.clip(-(e_plus - e_minus) / (2.0 * h) / curv, -4.0 * h, 4.0 * h))
+        step = float(np.clip(-(e_plus - e_minus) / (2.0 * h) / curv, -5.0 * h, 5.0 * h))
         rho += step
         fg, result, e0 = _solve_at(log, prob, rho, result)
         solves += 1
-        if abs(step) < 2.0 * h:
+        if abs(step) < 4.0 * h:     # the profile is close to quadratic: one parabola is enough
             break
     return _RayShift(fg, result, float(1.0 / np.sqrt(curv)), sens, solves)
 
