@@ -30,7 +30,7 @@ from pedcal.sim import simulate_logs
 from pedcal.sim.nuisances import head_model_truth, head_point
 
 
-def head_model_error_mm(sim, head: dict) -> tuple[float, float]:
+def head_model_error_mm(sim, head) -> tuple[float, float]:
     """(RMS of the head-point offset error with its mean vertical part removed, that mean
     vertical part), mm, over the robot's sightings of the calibration log."""
     log, sc = sim.calib, sim.scenario
@@ -44,9 +44,9 @@ def head_model_error_mm(sim, head: dict) -> tuple[float, float]:
                            np.full(len(t), off[2])])
     sensor_pos = np.stack([log.truth[sid].position_m for sid in sensors])
     true_off = head_point(top, sensor_pos, sc) - top
-    q = top + np.array([0.0, 0.0, head["vertical_offset_m"]])
+    q = top + np.array([0.0, 0.0, head.vertical_offset_m])
     u = sensor_pos - q
-    est_off = q - top + head["ray_shift_m"] * u / np.linalg.norm(u, axis=1, keepdims=True)
+    est_off = q - top + head.ray_shift_m * u / np.linalg.norm(u, axis=1, keepdims=True)
     d = est_off - true_off
     dz = float(d[:, 2].mean())
     d[:, 2] -= dz
@@ -74,8 +74,8 @@ def run_one(scenario: str, seed: int) -> dict:
                 if ext.sigma_position_m is not None:
                     ratios.append(np.abs(np.asarray(s.position_error_mm) / 1000.0) / np.asarray(ext.sigma_position_m))
             out["ratios"] = np.array(ratios)
-            out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics["head_model"])
-            out["mismatch"] = len(res.diagnostics["model_mismatch"]["sensors"])
+            out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
+            out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
     return out
 
 

@@ -51,6 +51,24 @@ def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float]:
 
 
 @dataclass
+class PositionRMS:
+    """Root mean square over sensors of the position error (mm): per world axis and in 3-D."""
+
+    x: float
+    y: float
+    z: float
+    combined: float
+
+    @property
+    def horizontal(self) -> float:
+        """sqrt(x^2 + y^2): the RMS of the horizontal error."""
+        return float(np.hypot(self.x, self.y))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
 class SensorError:
     id: str
     position_error_mm: list[float]      # estimated - true, world axes
@@ -62,7 +80,7 @@ class SensorError:
 
 @dataclass
 class EvaluationResult:
-    sensor_position_rms_mm: dict | None          # x, y, z, combined
+    sensor_position_rms_mm: PositionRMS | None
     orientation_rms_deg: float | None
     head_tracking_rms_mm: float | None
     head_reference: str                           # truth_robot | robot (AMCL)
@@ -78,8 +96,8 @@ class EvaluationResult:
         out = []
         if self.sensor_position_rms_mm is not None:
             r = self.sensor_position_rms_mm
-            out.append(f"sensor position RMS (mm): x {r['x']:.2f}  y {r['y']:.2f}  z {r['z']:.2f}  "
-                       f"combined {r['combined']:.2f}")
+            out.append(f"sensor position RMS (mm): x {r.x:.2f}  y {r.y:.2f}  z {r.z:.2f}  "
+                       f"combined {r.combined:.2f}")
             out.append(f"orientation RMS (deg):    {self.orientation_rms_deg:.3f}")
         if self.head_tracking_rms_mm is not None:
             out.append(f"head tracking RMS (mm):   {self.head_tracking_rms_mm:.2f}  "
@@ -149,9 +167,8 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
                                     orientation_error_deg=ang)
         if errs:
             E = np.array(errs)
-            pos_rms = {"x": float(np.sqrt(np.mean(E[:, 0] ** 2))), "y": float(np.sqrt(np.mean(E[:, 1] ** 2))),
-                       "z": float(np.sqrt(np.mean(E[:, 2] ** 2))),
-                       "combined": float(np.sqrt(np.mean(np.sum(E ** 2, axis=1))))}
+            pos_rms = PositionRMS(*(float(np.sqrt(np.mean(E[:, k] ** 2))) for k in range(3)),
+                                  combined=float(np.sqrt(np.mean(np.sum(E ** 2, axis=1)))))
             orient_rms = float(np.sqrt(np.mean(np.square(angs))))
 
     mask, how = robot_rows(log)

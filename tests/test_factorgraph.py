@@ -94,7 +94,7 @@ def test_estimated_latency_is_recovered():
     log.observations["t"] += 0.12          # stamps 120 ms late
     res = calibrate_factorgraph(log, graph=_exact_recipe(estimate_latency=True),
                                 is_robot=np.ones(len(log.observations), bool))
-    assert res.diagnostics["latency_s"] == pytest.approx(0.12, abs=0.004)
+    assert res.diagnostics.latency_s == pytest.approx(0.12, abs=0.004)
     for s in res.network:
         assert np.linalg.norm(s.position_m - log.truth[s.id].position_m) < 5e-3
 
@@ -162,7 +162,7 @@ def test_online_ends_near_batch_and_reports_convergence():
         o = online.network[s.id]
         assert np.linalg.norm(o.position_m - s.position_m) < 2e-3
         assert frames.rotation_angle_deg(o.R_world_sensor, s.R_world_sensor) < 0.05
-    steps = online.diagnostics["online_trace"].steps
+    steps = online.diagnostics.online_trace.steps
     assert len(steps) >= 5
     # early on some sensor still waits for the robot; at the end every sensor has converged
     assert steps[0].waiting
@@ -199,8 +199,8 @@ def test_companion_beside_the_robot_does_not_drag_the_graph():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         own = calibrate_factorgraph(sim.calib)
         oracle = calibrate_factorgraph(sim.calib, is_robot=who == "robot")
-    rms_own = evaluate(sim.eval, own.network).sensor_position_rms_mm["combined"]
-    rms_oracle = evaluate(sim.eval, oracle.network).sensor_position_rms_mm["combined"]
+    rms_own = evaluate(sim.eval, own.network).sensor_position_rms_mm.combined
+    rms_oracle = evaluate(sim.eval, oracle.network).sensor_position_rms_mm.combined
     assert rms_own < 1.2 * rms_oracle
     assert rms_own < 60.0
 
@@ -217,11 +217,11 @@ def test_people_only_graph_uses_the_robot_as_one_more_person():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         people = calibrate_factorgraph(sim.calib, graph="people-only")
         alternative = calibrate(sim.calib, method="alternative")
-    assert people.diagnostics["shared_people"] > 100
+    assert people.diagnostics.shared_people > 100
     assert not people.is_robot.any()
 
     def rms(net):
-        return evaluate(sim.eval, net).sensor_position_rms_mm["combined"]
+        return evaluate(sim.eval, net).sensor_position_rms_mm.combined
 
     installed = rms(sim.calib.sensors)
     assert rms(people.network) < installed - 25.0
@@ -242,7 +242,7 @@ def test_companion_swaps_of_a_fifth_of_the_robot_rows_barely_move_the_graph():
             res = calibrate_factorgraph(sim.calib)
         who = sim.calib.truth_observations["who"].astype(str).to_numpy()
         assert (res.is_robot & (who == "companion")).sum() < 0.02 * (who == "companion").sum() + 1
-        rms.append(evaluate(sim.eval, res.network).sensor_position_rms_mm["combined"])
+        rms.append(evaluate(sim.eval, res.network).sensor_position_rms_mm.combined)
     assert rms[1] < 1.2 * rms[0]
 
 
@@ -289,7 +289,7 @@ def test_graph_beats_the_closed_form_and_the_grid_search_by_a_margin():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         for method in ("factorgraph", "gridsearch", "closedform"):
             r = evaluate(sim.eval, calibrate(sim.calib, method=method).network).sensor_position_rms_mm
-            rms[method] = (r["combined"], np.hypot(r["x"], r["y"]))
+            rms[method] = (r.combined, r.horizontal)
     for k in (0, 1):
         best_baseline = min(rms["gridsearch"][k], rms["closedform"][k])
         assert rms["factorgraph"][k] < 0.6 * best_baseline, rms

@@ -271,3 +271,15 @@ def test_fast_search_equals_exhaustive_search_with_head_heights_that_vary(seed):
     assert fast.index == brute.index
     assert (fast.zdev_m, fast.zdist_m, fast.xydev_m, fast.xydist_m) == \
         (brute.zdev_m, brute.zdist_m, brute.xydev_m, brute.xydist_m)
+
+
+def test_on_range_edge_is_a_field_of_the_typed_diagnostics():
+    truth, p, head, initial = _pairs(5, 120, 0.01, offset_m=0.06, angle_deg=1.5)
+    initial.position_m = initial.position_m + np.array([0.0, 0.0, 0.4])     # 0.4 m off: beyond 0.1 m
+    log_res = gs.grid_search_sensor(p, head, initial, angle_range_deg=2.0, angle_step_deg=0.05,
+                                    offset_range_m=0.1, offset_step_m=0.01)
+    assert "z" in log_res.on_range_edge
+    from pedcal.calib.common import GridSearchDiagnostics
+
+    d = GridSearchDiagnostics(sensors={"s1": log_res})
+    assert d.on_range_edge == {"s1": log_res.on_range_edge}

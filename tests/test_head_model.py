@@ -37,25 +37,25 @@ def test_dome_it_did_not_assume_is_recovered_with_a_height_reference():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         res = calibrate_factorgraph(log, sensor_height_sigma_m=0.005)
-    head = res.diagnostics["head_model"]
-    assert head["height_reference"] == "installed sensor heights"
-    assert head["ray_shift_m"] == pytest.approx(0.09, abs=0.01)
-    assert head["vertical_offset_m"] == pytest.approx(-0.11, abs=0.01)
-    assert head["sigma_ray_shift_m"] < 0.01 and head["sigma_vertical_offset_m"] < 0.01
+    head = res.diagnostics.head_model
+    assert head.height_reference == "installed sensor heights"
+    assert head.ray_shift_m == pytest.approx(0.09, abs=0.01)
+    assert head.vertical_offset_m == pytest.approx(-0.11, abs=0.01)
+    assert head.sigma_ray_shift_m < 0.01 and head.sigma_vertical_offset_m < 0.01
     ev = evaluate(sim.eval, res.network)
-    assert ev.sensor_position_rms_mm["z"] < 15.0
-    assert ev.sensor_position_rms_mm["combined"] < 45.0
+    assert ev.sensor_position_rms_mm.z < 15.0
+    assert ev.sensor_position_rms_mm.combined < 45.0
 
 
 def test_without_a_height_reference_the_degeneracy_is_stated_and_in_the_vertical_sigma(tmp_path):
     sim = simulate_logs("paper", seed=4, head_point="top", head_vertical_bias_m=0.0)
     with pytest.warns(DegenerateDataWarning, match="cannot be told from the sensors' common height"):
         res = calibrate_factorgraph(sim.calib)
-    head = res.diagnostics["head_model"]
-    assert head["height_reference"] == "none"
-    assert head["sigma_vertical_offset_m"] > 0.025         # the prior's 0.03, nothing more
-    assert head["ray_shift_m"] == pytest.approx(0.0, abs=0.01)   # the shift is observable
-    assert head["vertical_offset_m"] == pytest.approx(0.0, abs=0.01)   # the dome prior: -shift
+    head = res.diagnostics.head_model
+    assert head.height_reference == "none"
+    assert head.sigma_vertical_offset_m > 0.025         # the prior's 0.03, nothing more
+    assert head.ray_shift_m == pytest.approx(0.0, abs=0.01)   # the shift is observable
+    assert head.vertical_offset_m == pytest.approx(0.0, abs=0.01)   # the dome prior: -shift
     for s in res.network:
         assert s.sigma_position_m[2] > 0.025               # carried into every sensor's height
     # the joint covariance holds the shared part: heights correlate almost fully
@@ -66,7 +66,7 @@ def test_without_a_height_reference_the_degeneracy_is_stated_and_in_the_vertical
     text = path.read_text()
     assert "which the robot alone cannot tell from the sensors" in " ".join(text.split())
     back = read_sensors_yaml(path)
-    assert back.extra["head_model"]["ray_shift_m"] == pytest.approx(head["ray_shift_m"], abs=1e-4)
+    assert back.extra["head_model"]["ray_shift_m"] == pytest.approx(head.ray_shift_m, abs=1e-4)
     np.testing.assert_allclose(back["s01"].sigma_rotation_deg, res.network["s01"].sigma_rotation_deg)
 
 
@@ -82,7 +82,7 @@ def test_a_head_point_shifted_toward_the_sensor_does_not_scale_the_corridor():
     slope = np.polyfit(x, ex, 1)[0]
     assert abs(slope) < 0.004     # < 0.4 % scale; a fixed 0.1 m dome gives +1.6 %, none -2.6 % here
     ev = evaluate(sim.eval, res.network)
-    assert np.hypot(ev.sensor_position_rms_mm["x"], ev.sensor_position_rms_mm["y"]) < 30.0
+    assert ev.sensor_position_rms_mm.horizontal < 30.0
 
 
 def test_residuals_beyond_the_noise_model_are_named_and_widen_sigma():
@@ -97,12 +97,12 @@ def test_residuals_beyond_the_noise_model_are_named_and_widen_sigma():
             warnings.simplefilter("ignore", DegenerateDataWarning)
             out[noise_m] = calibrate_factorgraph(log, graph=_exact_recipe(range_sigma_floor_m=0.005,
                                                                           lateral_sigma_m=0.005), is_robot=mask)
-    fit, misfit = out[0.004].diagnostics["model_mismatch"], out[0.03].diagnostics["model_mismatch"]
-    assert fit["sensors"] == []
-    assert misfit["sensors"] == ["s1", "s2", "s3"]
-    assert "s1 x" in misfit["misfit"]
+    fit, misfit = out[0.004].diagnostics.model_mismatch, out[0.03].diagnostics.model_mismatch
+    assert fit.sensors == []
+    assert misfit.sensors == ["s1", "s2", "s3"]
+    assert "s1 x" in misfit.misfit
     for sid in ("s1", "s2", "s3"):
-        assert misfit["variance_ratio"][sid] > 10.0
+        assert misfit.variance_ratio[sid] > 10.0
         # widened by the misfit: far more than the 7.5x more noise alone would give a fixed model
         widen = out[0.03].network[sid].sigma_position_m[:2] / out[0.004].network[sid].sigma_position_m[:2]
         assert np.all(widen > 3.0)
@@ -130,3 +130,29 @@ def test_sensor_looking_straight_down_has_a_rotation_sigma_and_quaternion(monkey
     R_q = gtsam.Rot3.Quaternion(w, x, y, z).matrix()
     np.testing.assert_allclose(R_q, s1.R_world_sensor, atol=1e-9)
     assert len(entry["sigma"]["rotation_deg"]) == 3
+
+
+def test_result_carries_the_graph_keys_marginals_and_typed_diagnostics():
+    import gtsam
+
+    log = make_exact_log(seed=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(log, graph=_exact_recipe(), is_robot=np.ones(len(log.observations), bool))
+    keys = res.keys
+    assert set(keys.sensors) == {"s1", "s2", "s3"}
+    T = res.values.atPose3(keys.sensors["s2"])
+    np.testing.assert_allclose(T.translation(), res.network["s2"].position_m, atol=1e-9)
+    assert len(keys.robot_poses) == len(keys.robot_pose_times) > 100
+    assert keys.head_model is not None and gtsam.Symbol(keys.head_model).chr() == ord("h")
+    # the per-sensor sigma are the joint covariance's diagonal
+    C = res.position_covariance_m2
+    assert C.shape == (9, 9)
+    np.testing.assert_allclose(np.sqrt(np.diag(C))[3:6], res.network["s2"].sigma_position_m, rtol=1e-9)
+    cov = res.marginals().marginalCovariance(keys.sensors["s1"])
+    assert cov.shape == (6, 6)
+    residuals = res.factor_residuals()
+    assert len(residuals) == res.graph.size()
+    assert res.diagnostics.head_model.to_dict()["height_reference"] == "none"
+    d = res.diagnostics.to_dict()
+    assert d["latency_s"] == 0.0 and d["model_mismatch"]["sensors"] == []

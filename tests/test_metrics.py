@@ -66,5 +66,6 @@ def test_sensor_position_rms_by_hand():
     ext["s1"].position_m = ext["s1"].position_m + [0.003, 0.0, -0.004]
     res = evaluate(log, ext)
     r = res.sensor_position_rms_mm
-    assert r["x"] == pytest.approx(np.sqrt(9 / 2)) and r["z"] == pytest.approx(np.sqrt(16 / 2))
-    assert r["combined"] == pytest.approx(np.sqrt(25 / 2))
+    assert r.x == pytest.approx(np.sqrt(9 / 2)) and r.z == pytest.approx(np.sqrt(16 / 2)) and r.y == 0.0
+    assert r.combined == pytest.approx(np.sqrt(25 / 2))
+    assert res.to_dict()["sensor_position_rms_mm"] == {"x": r.x, "y": 0.0, "z": r.z, "combined": r.combined}

@@ -23,7 +23,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pedcal.calib.common import CalibrationResult
+from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
     GRAPHS_DIR,
     A,
@@ -93,15 +93,14 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
     mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
                           mismatch=mismatch)
+    diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s, iterations=iterations,
+                                         factors=fg.size(), build_s=t_build, optimize_s=t_opt,
+                                         variables=values.size(), shared_people=len(prob.people),
+                                         odometry=prob.odometry_estimates, position_cov_world_m2=cov_world,
+                                         head_model=head_model, model_mismatch=mismatch)
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
-                             is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
-                                                             iterations=iterations, factors=fg.size(),
-                                                             build_s=t_build, optimize_s=t_opt,
-                                                             variables=values.size(),
-                                                             shared_people=len(prob.people),
-                                                             odometry=prob.odometry_estimates,
-                                                             position_cov_world_m2=cov_world,
-                                                             head_model=head_model, model_mismatch=mismatch))
+                             is_robot=mask, diagnostics=diagnostics, graph=fg, values=result,
+                             keys=graph_keys(prob, result), position_covariance_m2=joint_pos)
 
 
 @dataclass
@@ -201,11 +200,11 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
                             (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
 
 
-def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> dict:
+def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> ModelMismatch:
     """Residuals against the noise model, per sensor: the robust variance ratio (median of the
     squared normalized residuals over the chi-square(1) median 0.455, averaged over the three
     components; 1 when the model holds, robust to the mis-associations the kernel rejects, not
-    to a bias). Returns {sensor: ratio} and the sensors whose ratio exceeds ``threshold``."""
+    to a bias), and the sensors whose ratio exceeds ``threshold``."""
     z = robot_residuals(prob, result)
     rec = prob.recipe
     n_pose = len(prob.pose_times)
@@ -216,10 +215,10 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
         if m.sum() >= 10:
             ratio[sid] = float(np.mean(np.median(z[m] ** 2, axis=0)) / 0.4549)
     bad = {sid: r for sid, r in ratio.items() if r > threshold}
-    return dict(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
-                misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
-                        + ", ".join(f"{sid} x{np.sqrt(r):.2f} sigma" for sid, r in sorted(bad.items()))
-                        if bad else ""))
+    return ModelMismatch(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
+                         misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
+                                 + ", ".join(f"{sid} x{np.sqrt(r):.2f} sigma" for sid, r in sorted(bad.items()))
+                                 if bad else ""))
 
 
 def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | None):
@@ -241,7 +240,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | 
     check = model_check(prob, result)
     scale = np.ones(6 * n)
     for i, sid in enumerate(prob.sensor_ids):
-        scale[6 * i:6 * i + 6] = np.sqrt(max(1.0, check["variance_ratio"].get(sid, 1.0)))
+        scale[6 * i:6 * i + 6] = np.sqrt(max(1.0, check.variance_ratio.get(sid, 1.0)))
     C_s = C_s * np.outer(scale, scale)
     cov_body = {sid: C_s[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i, sid in enumerate(prob.sensor_ids)}
     Rb = np.zeros((3 * n, 6 * n))
@@ -252,16 +251,15 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | 
         reference = "ceiling height" if rec.ceiling_height_m > 0.0 else "installed sensor heights"
     else:
         reference = "none"
-    head = dict(vertical_offset_m=-rec.head_radius_m, sigma_vertical_offset_m=0.0,
-                ray_shift_m=prob.ray_shift_m, sigma_ray_shift_m=0.0, height_reference=reference,
-                estimated=bool(rec.estimate_head_model))
+    head = HeadModel(vertical_offset_m=-rec.head_radius_m, ray_shift_m=prob.ray_shift_m,
+                     height_reference=reference, estimated=bool(rec.estimate_head_model))
     if has_h:
-        head["vertical_offset_m"] = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
-        head["sigma_vertical_offset_m"] = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
+        head.vertical_offset_m = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
+        head.sigma_vertical_offset_m = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
     if ray is not None:
-        head["sigma_ray_shift_m"] = ray.sigma_m
+        head.sigma_ray_shift_m = ray.sigma_m
     if has_h and reference == "none":
-        head["note"] = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "
+        head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "
                         f"{1000 * rec.head_vertical_sigma_m:.0f} mm, a sigma the sensors' heights carry, "
                         "shared by all of them.")
         warnings.warn("the head point's vertical offset cannot be told from the sensors' common height by "
@@ -271,6 +269,18 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | 
     return cov_body, joint_pos, head, check
 
 
+def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:
+    """Which symbol of the solved graph is which variable (CalibrationResult.keys)."""
+    n_pose = sum(1 for k in range(len(prob.pose_times)) if result.exists(X(k)))
+    n_amcl = sum(1 for k in range(len(prob.amcl_node_times)) if result.exists(A(k)))
+    people = [m for m in range(len(prob.people)) if result.exists(L(m))]
+    return GraphKeys(sensors={sid: S(i) for i, sid in enumerate(prob.sensor_ids)},
+                     robot_poses=[X(k) for k in range(n_pose)], robot_pose_times=prob.pose_times[:n_pose],
+                     amcl_errors=[A(k) for k in range(n_amcl)], amcl_error_times=prob.amcl_node_times[:n_amcl],
+                     people=[L(m) for m in people], people_times=np.array([prob.people[m][0] for m in people]),
+                     head_model=H(0) if result.exists(H(0)) else None)
+
+
 HEAD_HEIGHT_DEGENERACY = ("A head point uniformly lower than the head top moves every robot observation down "
                           "alike, which the robot alone cannot tell from the sensors' heights: the vertical "
                           "offset is held by its prior unless a height reference is given.")
@@ -278,7 +288,8 @@ HEAD_HEIGHT_DEGENERACY = ("A head point uniformly lower than the head top moves 
 
 
 
-__all__ = ["calibrate_factorgraph", "model_check", "robot_residuals", "HEAD_HEIGHT_DEGENERACY", "GraphRecipe",
+__all__ = ["calibrate_factorgraph", "model_check", "graph_keys", "robot_residuals", "HEAD_HEIGHT_DEGENERACY",
+           "GraphRecipe",
            "FactorGraphProblem", "build_graph", "prepare", "optimize_graph", "sensor_sigma_world", "amcl_cov_body",
            "amcl_white_sigma", "observability", "observation_sigmas", "rotation_sigma_deg", "calibrate_odometry",
            "head_frame", "finish_network", "GRAPHS_DIR", "S", "X", "A", "L", "H"]

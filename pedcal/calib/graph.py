@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal import frames
-from pedcal.calib.common import head_interpolator, head_world, interpolate_pose2
+from pedcal.calib.common import HeadModel, ModelMismatch, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.io.sensors_yaml import flow_vector
 from pedcal.metrics import HEAD_MODEL_KEY, JOINT_COV_KEY, LATENCY_KEY, MISMATCH_KEY
@@ -767,25 +767,25 @@ def _settle_vertical_gauge(fg, result: gtsam.Values, step_m: float = 0.01) -> gt
     return _shift_up(result, -(ep - em) / (2.0 * step_m) / curv)
 
 
-def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *, head_model: dict | None = None,
-                   joint_position_cov: np.ndarray | None = None, mismatch: dict | None = None) -> np.ndarray:
+def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *, head_model: HeadModel | None = None,
+                   joint_position_cov: np.ndarray | None = None, mismatch: ModelMismatch | None = None) -> np.ndarray:
     """Record the tracker model the graph used (latency, head-point model with its sigma), the
     joint covariance of the sensors' positions and the model check in the calibrated network and
     return the mask of the observations used as the robot's."""
     network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
     if head_model is None:
-        head_model = dict(vertical_offset_m=-prob.recipe.head_radius_m, ray_shift_m=prob.ray_shift_m,
-                          estimated=False)
-    network.extra[HEAD_MODEL_KEY] = {k: (round(v, 5) if isinstance(v, float) else v) for k, v in head_model.items()}
+        head_model = HeadModel(vertical_offset_m=-prob.recipe.head_radius_m, ray_shift_m=prob.ray_shift_m,
+                               estimated=False)
+    network.extra[HEAD_MODEL_KEY] = {k: (round(v, 5) if isinstance(v, float) else v)
+                                     for k, v in head_model.to_dict().items() if v != ""}
     if joint_position_cov is not None:
         network.extra[JOINT_COV_KEY] = {"sensors": list(prob.sensor_ids), "order": "x y z per sensor",
                                         "matrix": [flow_vector([float(f"{v:.4e}") for v in row])
                                                    for row in joint_position_cov]}
     if mismatch is not None:
-        ratios = {k: round(v, 3) for k, v in mismatch["variance_ratio"].items()}
-        network.extra[MISMATCH_KEY] = {"sensors": mismatch["sensors"], "threshold": mismatch["threshold"],
-                                       "variance_ratio": ratios,
-                                       "misfit": mismatch["misfit"]}
+        ratios = {k: round(v, 3) for k, v in mismatch.variance_ratio.items()}
+        network.extra[MISMATCH_KEY] = {"sensors": mismatch.sensors, "threshold": mismatch.threshold,
+                                       "variance_ratio": ratios, "misfit": mismatch.misfit}
     mask = np.zeros(len(log.observations), bool)
     mask[prob.rows_used] = True
     return mask

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from pedcal.calib.common import CalibrationResult
+from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics
 from pedcal.calib.graph import GraphRecipe, S, _network_from_result, build_graph, finish_network, prepare
 from pedcal.model import Log
 
@@ -110,8 +110,11 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     network = _network_from_result(log, prob, graph, result, progress, marginals=marg)
     mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph-online", runtime_s=time.perf_counter() - t0,
-                             is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
-                                                             online_trace=trace))
+                             is_robot=mask, graph=graph, values=result,
+                             diagnostics=FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s,
+                                                                factors=graph.size(), variables=result.size(),
+                                                                shared_people=len(prob.people),
+                                                                online_trace=trace))
 
 
 __all__ = ["calibrate_online", "OnlineTrace", "OnlineStep"]
