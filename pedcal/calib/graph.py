@@ -134,6 +134,10 @@ class GraphRecipe:
     odometry_sigma_per_m: float = 0.003            # residual scale error
     odometry_yaw_sigma_deg_per_m: float = 0.05     # residual heading drift
     smoothness_sigma_mps: float = 0.05
+    # without odometry, AMCL jitter above this (m, amcl_white_sigma) makes the short-term motion
+    # come from AMCL smoothed over amcl_smooth_s (s)
+    amcl_smooth_above_m: float = 0.01
+    amcl_smooth_s: float = 0.5
     # robot planarity
     planar_sigma_deg: float = 0.5
     head_height_sigma_m: float = 0.02
@@ -217,6 +221,20 @@ def amcl_cov_body(cov_world: np.ndarray, yaw) -> np.ndarray:
     out[..., 3:5, 2] = cross
     out[..., 2, 3:5] = cross
     return out
+
+
+def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
+    """A t/x/y/yaw table smoothed by a Gaussian of ``sigma_s`` seconds (x, y and unwrapped yaw;
+    the samples taken as evenly spaced at their median interval; ends by reflection)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    tr = track.groupby("t", sort=True)[["x", "y", "yaw"]].mean()
+    t = tr.index.to_numpy(float)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    s = max(sigma_s / dt, 1e-6)
+    xy_yaw = np.column_stack([tr["x"].to_numpy(float), tr["y"].to_numpy(float), np.unwrap(tr["yaw"].to_numpy(float))])
+    out = gaussian_filter1d(xy_yaw, s, axis=0, mode="reflect")
+    return pd.DataFrame({"t": t, "x": out[:, 0], "y": out[:, 1], "yaw": out[:, 2]})
 
 
 def amcl_white_sigma(amcl: pd.DataFrame) -> float:
@@ -366,6 +384,7 @@ class FactorGraphProblem:
     motion: _RobotMotion
     odometry: pd.DataFrame | None = None     # calibrated wheel odometry (odometry frame)
     odometry_estimates: dict = field(default_factory=dict)
+    smoothed_amcl: pd.DataFrame | None = None    # AMCL smoothed, when it stands in for odometry
     people: list = field(default_factory=list)   # [(t, [(sensor, p_sensor), ...]), ...]
     rows_used: np.ndarray | None = None
     amcl_node_times: np.ndarray | None = None    # times of the AMCL error nodes a(j)
@@ -539,7 +558,7 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
             sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
                          + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * d) ** 2) + 1e-5
         elif rec.smoothness:
-            src = base
+            src = base if prob.smoothed_amcl is None else interpolate_pose2(prob.smoothed_amcl, times)
             dt = np.diff(times)
             # AMCL's short-term increments: error grows with dt, plus AMCL's white jitter at both ends
             st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + 2.0 * amcl_white_sigma(amcl) ** 2) + 1e-3
@@ -647,7 +666,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     t_lo, t_hi = amcl_t.min(), amcl_t.max()
     rows = rows[(t_all[rows] - latency >= t_lo) & (t_all[rows] - latency <= t_hi)]
 
-    odometry, odo_est = None, {}
+    odometry, odo_est, smooth = None, {}, None
     if recipe.odometry and log.odometry is not None and len(log.odometry) > 1:
         if recipe.odometry_calibrate:
             odometry, odo_est = calibrate_odometry(log.odometry, log.robot,
@@ -657,6 +676,13 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         else:
             odometry = log.odometry.sort_values("t")
 
+    if odometry is None and amcl_white_sigma(log.robot) > recipe.amcl_smooth_above_m:
+        # no odometry and a jittery AMCL: the robot's short-term motion (carrying observations to
+        # their pose, the smoothness factor) from AMCL smoothed over amcl_smooth_s, not from
+        # differences of single estimates that each carry the white error
+        smooth = smoothed_track(log.robot, recipe.amcl_smooth_s)
+        _log(progress, f"AMCL jitter {1000 * amcl_white_sigma(log.robot):.0f} mm: short-term motion from AMCL "
+                       f"smoothed over {recipe.amcl_smooth_s:.1f} s")
     init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network)
     # robot poses only when something observes them (people-only graphs hold the sensors alone)
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
@@ -664,7 +690,8 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               ray_shift_m=recipe.head_radius_m,
                               obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
-                              motion=_RobotMotion(log, odometry), odometry=odometry,
+                              motion=_RobotMotion(log, odometry if odometry is not None else smooth),
+                              odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
     t_a = np.unique(amcl_t)
     prob.amcl_node_times = t_a[0] + recipe.amcl_node_spacing_s * np.arange(
