@@ -173,3 +173,29 @@ def test_jittery_amcl_without_odometry_is_smoothed_not_differenced():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         rough = calibrate_factorgraph(sim.calib, amcl_smooth_above_m=1.0)      # smoothing off
     assert evaluate(sim.eval, rough.network).sensor_position_rms_mm.horizontal > 40.0
+
+
+@pytest.mark.parametrize("constant,factor", [("amcl_correlation_s", 2.0), ("amcl_correlation_s", 0.5),
+                                             ("range_sigma_k_per_m", 2.0), ("range_sigma_k_per_m", 0.5)])
+def test_a_2x_error_in_an_assumed_constant_moves_sensors_by_under_a_third_sigma(constant, factor, paper5):
+    # the constants the graph assumes rather than estimates (the odometry's scale is estimated,
+    # calibrate_odometry; AMCL's white share is measured, amcl_white_sigma): AMCL's correlation
+    # time and the depth noise's growth with range
+    sim, base = paper5
+    from pedcal.calib.graph import GraphRecipe
+
+    value = getattr(GraphRecipe.load("default"), constant) * factor
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        moved = calibrate_factorgraph(sim.calib, **{constant: value})
+    for s in base.network:
+        shift = np.abs(moved.network[s.id].position_m - s.position_m) / s.sigma_position_m
+        assert np.all(shift < 1.0 / 3.0), (s.id, shift)
+
+
+@pytest.fixture(scope="module")
+def paper5():
+    sim = simulate_logs("paper", seed=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        return sim, calibrate_factorgraph(sim.calib)
