@@ -293,3 +293,21 @@ def test_graph_beats_the_closed_form_and_the_grid_search_by_a_margin():
     for k in (0, 1):
         best_baseline = min(rms["gridsearch"][k], rms["closedform"][k])
         assert rms["factorgraph"][k] < 0.6 * best_baseline, rms
+
+
+def test_amcl_white_sigma_on_irregular_stamps_and_a_real_amcl_log(shared_data):
+    # AMCL publishes irregularly (after an update): a straight drive with a 3 cm white error at
+    # random intervals of 0.2-3 s gives back 3 cm, a slowly wandering error next to nothing
+    from pedcal.calib.graph import amcl_white_sigma
+    from pedcal.io.ros import read_rostopic_amcl_csv
+
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.2, 3.0, 2000))
+    track = pd.DataFrame(dict(t=t, x=0.3 * t + rng.normal(0, 0.03, len(t)), y=0.1 * t + rng.normal(0, 0.03, len(t))))
+    assert amcl_white_sigma(track) == pytest.approx(0.03, rel=0.1)
+    slow = pd.DataFrame(dict(t=t, x=0.3 * t + 0.05 * np.sin(t / 20.0), y=0.1 * t))
+    assert amcl_white_sigma(slow) < 0.003
+    real = read_rostopic_amcl_csv(shared_data / "amcl_uf_retail" / "amcldata.txt")
+    white = amcl_white_sigma(real)
+    # a real AMCL's jitter: centimetres, far below the particle cloud's reported std
+    assert 0.003 < white < 0.5 * np.sqrt(real["cov_xx"].median())

@@ -239,15 +239,19 @@ def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
 
 def amcl_white_sigma(amcl: pd.DataFrame) -> float:
     """Std (m) of the white part of AMCL's position error, from its own jitter: on a smooth
-    trajectory the second differences of consecutive estimates are sqrt(6) times a white error
-    (the robot's acceleration adds millimetres at AMCL's rates; a slowly wandering error adds
-    less). Median absolute deviation, so jumps and turns do not count."""
-    a = amcl.groupby("t", sort=True)[["x", "y"]].mean().to_numpy(float)
-    if len(a) < 10:
+    trajectory each estimate's departure from the straight line through its two neighbours (in
+    time: AMCL publishes irregularly) is a white error times sqrt(1 + a^2 + b^2), a and b the
+    neighbours' interpolation weights (the robot's acceleration adds millimetres at AMCL's
+    rates; a slowly wandering error adds less). Median absolute deviation, so jumps and turns do
+    not count."""
+    tr = amcl.groupby("t", sort=True)[["x", "y"]].mean()
+    t, p = tr.index.to_numpy(float), tr.to_numpy(float)
+    if len(t) < 10:
         return 0.0
-    d2 = a[2:] - 2.0 * a[1:-1] + a[:-2]
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return float(1.4826 * np.sqrt(np.mean(mad ** 2)) / np.sqrt(6.0))
+    b = ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))[:, None]      # weight of the next estimate
+    e = (p[1:-1] - ((1.0 - b) * p[:-2] + b * p[2:])) / np.sqrt(1.0 + (1.0 - b) ** 2 + b ** 2)
+    mad = np.median(np.abs(e - np.median(e, axis=0)), axis=0)
+    return float(1.4826 * np.sqrt(np.mean(mad ** 2)))
 
 
 def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
