@@ -46,7 +46,10 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
     true_off = head_point(top, sensor_pos, sc) - top
     q = top + np.array([0.0, 0.0, head.vertical_offset_m])
     u = sensor_pos - q
-    est_off = q - top + head.ray_shift_m * u / np.linalg.norm(u, axis=1, keepdims=True)
+    u_h = np.column_stack([u[:, :2], np.zeros(len(u))])
+    u_h /= np.maximum(np.linalg.norm(u_h, axis=1, keepdims=True), 1e-9)
+    est_off = (q - top + head.ray_shift_m * u / np.linalg.norm(u, axis=1, keepdims=True)
+               + head.horizontal_shift_m * u_h)
     d = est_off - true_off
     dz = float(d[:, 2].mean())
     d[:, 2] -= dz

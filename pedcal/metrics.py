@@ -29,8 +29,9 @@ LATENCY_KEY = "tracker_latency_s"
 HEAD_RADIUS_KEY = "head_radius_m"
 # Extra top-level mapping of a calibrated YAML: the head-point model the calibration estimated.
 # The tracker's head point is the head top moved ``vertical_offset_m`` up (negative: below the
-# top) and then ``ray_shift_m`` along the viewing ray toward the sensor (a dome of radius r:
-# vertical offset -r, ray shift r), with their sigmas.
+# top), then ``ray_shift_m`` along the viewing ray toward the sensor (a dome of radius r:
+# vertical offset -r, ray shift r) and ``horizontal_shift_m`` horizontally toward it, with their
+# sigmas.
 HEAD_MODEL_KEY = "head_model"
 # Extra top-level mapping: the joint covariance (m^2) of all sensors' positions, world axes,
 # {sensors: [ids], matrix: 3n x 3n}; the per-sensor sigma are the square roots of its diagonal.
@@ -40,14 +41,15 @@ JOINT_COV_KEY = "position_covariance_m2"
 MISMATCH_KEY = "model_mismatch"
 
 
-def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float]:
-    """(vertical offset m, ray shift m) of the head point an extrinsics file carries: its
-    ``head_model``, else a dome of ``head_radius_m`` (older files), else the head top itself."""
+def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float]:
+    """(vertical offset, ray shift, horizontal shift), m, of the head point an extrinsics file
+    carries: its ``head_model``, else a dome of ``head_radius_m`` (older files), else the head
+    top itself."""
     hm = extrinsics.extra.get(HEAD_MODEL_KEY)
     if isinstance(hm, dict):
-        return float(hm.get("vertical_offset_m", 0.0) or 0.0), float(hm.get("ray_shift_m", 0.0) or 0.0)
+        return tuple(float(hm.get(k, 0.0) or 0.0) for k in ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m"))
     r = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
-    return -r, r
+    return -r, r, 0.0
 
 
 @dataclass
@@ -130,7 +132,7 @@ def robot_rows(log: Log) -> tuple[np.ndarray, str]:
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-dome correction the extrinsics file carries."""
-    vertical_m, ray_m = head_model_of(extrinsics)
+    vertical_m, ray_m, horizontal_m = head_model_of(extrinsics)
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -140,7 +142,13 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             m &= mask
         if m.any():
             p = p_sensor[m]
-            # the head point moved back along the ray by the shift, then up by minus the offset: the top
+            # the head point moved back horizontally and along the ray by the shifts, then up by
+            # minus the offset: the top
+            if horizontal_m:
+                back = -(p @ s.R_world_sensor.T)
+                back[:, 2] = 0.0
+                n = np.linalg.norm(back, axis=1, keepdims=True)
+                p = p - horizontal_m * (np.where(n > 1e-9, back / np.maximum(n, 1e-9), 0.0) @ s.R_world_sensor)
             p = p + ray_m * p / np.linalg.norm(p, axis=1, keepdims=True)
             out[m] = s.to_world(p) - np.array([0.0, 0.0, vertical_m])
     return out

@@ -69,3 +69,18 @@ def test_sensor_position_rms_by_hand():
     assert r.x == pytest.approx(np.sqrt(9 / 2)) and r.z == pytest.approx(np.sqrt(16 / 2)) and r.y == 0.0
     assert r.combined == pytest.approx(np.sqrt(25 / 2))
     assert res.to_dict()["sensor_position_rms_mm"] == {"x": r.x, "y": 0.0, "z": r.z, "combined": r.combined}
+
+
+def test_horizontal_shift_of_the_head_model_is_undone():
+    # a sensor at (2.5, 0, 2.85) looking back along -x, 45 deg down; the tracker reports the head
+    # top at t = 2.0, (2.0, 0, 1.35), pulled 4 cm horizontally toward the sensor: (2.04, 0, 1.35)
+    net = SensorNetwork([SensorExtrinsics("s3", [2.5, 0.0, 2.85], [180.0, 45.0, 0.0])])
+    log = _tiny_log()
+    log.sensors, log.truth = net, net.copy()
+    log.observations = pd.DataFrame(dict(t=[2.0], sensor=["s3"], track=["1"], x=[2.04], y=[0.0], z=[1.35]))
+    log.truth_observations = pd.DataFrame(dict(row=[0], who=["robot"]))
+    ext = net.copy()
+    ext.extra[HEAD_MODEL_KEY] = {"vertical_offset_m": 0.0, "ray_shift_m": 0.0, "horizontal_shift_m": 0.04}
+    assert evaluate(log, ext).head_tracking_rms_mm == pytest.approx(0.0, abs=1e-6)
+    ext.extra[HEAD_MODEL_KEY]["horizontal_shift_m"] = 0.0
+    assert evaluate(log, ext).head_tracking_rms_mm == pytest.approx(40.0, abs=1e-6)

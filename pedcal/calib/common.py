@@ -70,13 +70,16 @@ class AlternativeDiagnostics(Diagnostics):
 class HeadModel:
     """The tracker's head point as the factor graph estimated it: the head top moved
     ``vertical_offset_m`` up, then ``ray_shift_m`` along the ray toward the sensor (a dome of
-    radius r: -r and r), with their 1-sigma; ``height_reference`` says what fixed the offset
-    (``none``: its prior only, which ``note`` states)."""
+    radius r: -r and r) and ``horizontal_shift_m`` horizontally toward it, with their 1-sigma;
+    ``height_reference`` says what fixed the offset (``none``: its prior only, which ``note``
+    states)."""
 
     vertical_offset_m: float
     ray_shift_m: float
+    horizontal_shift_m: float = 0.0
     sigma_vertical_offset_m: float = 0.0
     sigma_ray_shift_m: float = 0.0
+    sigma_horizontal_shift_m: float = 0.0
     height_reference: str = "none"
     estimated: bool = True
     note: str = ""
@@ -187,7 +190,9 @@ class CalibrationResult:
             lines.append(f"head point: {1000 * head.vertical_offset_m:+.1f} +- "
                          f"{1000 * head.sigma_vertical_offset_m:.1f} mm from the head top, "
                          f"{1000 * head.ray_shift_m:.1f} +- {1000 * head.sigma_ray_shift_m:.1f} mm toward the "
-                         f"sensor (height reference: {head.height_reference})")
+                         f"sensor along the ray and {1000 * head.horizontal_shift_m:.1f} +- "
+                         f"{1000 * head.sigma_horizontal_shift_m:.1f} mm horizontally "
+                         f"(height reference: {head.height_reference})")
             if head.note:
                 lines.append(f"  {head.note}")
         mismatch = getattr(self.diagnostics, "model_mismatch", None)

@@ -1,8 +1,9 @@
 """pedcal's estimator, the batch solve: the factor graph of :mod:`pedcal.calib.graph` solved once
 over the whole log, with what the graph does not hold as factors estimated around it:
 
-- the head point's shift toward the sensor (a range offset of every observation) by its profile
-  likelihood, its sigma carried into the sensors' covariance (:func:`_estimate_ray_shift`);
+- the head point's shifts toward the sensor (along the ray: a range offset of every
+  observation; horizontally) by their profile likelihood, their covariance carried into the
+  sensors' (:func:`_estimate_head_shifts`);
 - the residuals checked against the noise model, per sensor, the sigma widened where they
   exceed it (:func:`model_check`);
 - the joint covariance of all sensors' positions and the head model, written to the
@@ -82,13 +83,15 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     t_opt = time.perf_counter()
     result, iterations = optimize_graph(fg, values, recipe)
     _log(progress, f"converged in {iterations} iterations, error {fg.error(values):.1f} -> {fg.error(result):.1f}")
-    ray = _estimate_ray_shift(log, prob, fg, result)
-    if ray is not None:
-        fg, result = ray.graph, ray.result
-        _log(progress, f"head point shift toward the sensor {1000 * prob.ray_shift_m:.1f} "
-                       f"+- {1000 * ray.sigma_m:.1f} mm ({ray.solves} solves)")
+    shifts = _estimate_head_shifts(log, prob, fg, result)
+    if shifts is not None:
+        fg, result = shifts.graph, shifts.result
+        sd = 1000 * np.sqrt(np.diag(shifts.cov))
+        _log(progress, f"head point shift toward the sensor: {1000 * prob.ray_shift_m:.1f} +- {sd[0]:.1f} mm "
+                       f"along the ray, {1000 * prob.horizontal_shift_m:.1f} mm horizontally "
+                       f"({shifts.solves} solves)")
     t_opt = time.perf_counter() - t_opt
-    cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, ray)
+    cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
     mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
@@ -104,29 +107,44 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
 
 
 @dataclass
-class _RayShift:
+class _HeadShifts:
     graph: gtsam.NonlinearFactorGraph
     result: gtsam.Values
-    sigma_m: float
-    sensitivity: np.ndarray       # (6 n_sensors,) d(sensor pose tangent)/d(ray shift), per metre
+    cov: np.ndarray               # (k, k) covariance of the shifts (ray, then horizontal), m^2
+    sensitivity: np.ndarray       # (6 n_sensors, k) d(sensor pose tangent)/d(shift), per metre
     solves: int
 
 
-def _solve_at(log: Log, prob: FactorGraphProblem, rho_m: float, start: gtsam.Values,
+def _set_shifts(prob: FactorGraphProblem, theta: np.ndarray) -> None:
+    prob.ray_shift_m = float(theta[0])
+    if len(theta) > 1:
+        prob.horizontal_shift_m = float(theta[1])
+
+
+def _shift_prior(rec: GraphRecipe, theta: np.ndarray) -> float:
+    """The shifts' prior as a graph error (chi^2 / 2): the ray shift about head_radius_m, the
+    horizontal one about 0."""
+    e = 0.5 * ((theta[0] - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
+    if len(theta) > 1:
+        e += 0.5 * (theta[1] / rec.head_horizontal_shift_sigma_m) ** 2
+    return float(e)
+
+
+def _solve_at(log: Log, prob: FactorGraphProblem, theta: np.ndarray, start: gtsam.Values,
               max_iterations: int | None = None):
-    """The graph rebuilt with the head point shifted ``rho_m`` toward the sensor, solved from
-    ``start`` (at most ``max_iterations`` LM steps: a probe near a converged solution needs one
-    or two); returns (graph, result, profile error incl. the shift's prior)."""
+    """The graph rebuilt with the head point's shifts ``theta`` (toward the sensor along the ray,
+    then horizontally), solved from ``start`` (at most ``max_iterations`` LM steps: a probe near a
+    converged solution needs one or two); returns (graph, result, profile error incl. the
+    shifts' prior)."""
     rec = prob.recipe
-    prob.ray_shift_m = float(rho_m)
+    _set_shifts(prob, theta)
     fg, values = build_graph(log, prob)
     values.update(start)
     if max_iterations is not None:
         rec = copy.copy(rec)
         rec.max_iterations = max_iterations
     result, _ = optimize_graph(fg, values, rec)
-    prior = 0.5 * ((rho_m - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
-    return fg, result, fg.error(result) + prior
+    return fg, result, fg.error(result) + _shift_prior(rec, theta)
 
 
 def _sensor_tangents(prob: FactorGraphProblem, result: gtsam.Values, ref: gtsam.Values) -> np.ndarray:
@@ -134,41 +152,52 @@ def _sensor_tangents(prob: FactorGraphProblem, result: gtsam.Values, ref: gtsam.
                            for i in range(len(prob.sensor_ids))])
 
 
-def _estimate_ray_shift(log: Log, prob: FactorGraphProblem, fg, result) -> _RayShift | None:
-    """The head point's shift toward the sensor (a range offset of every observation, the
-    dome's radius for a dome) by its profile likelihood: the graph's optimal error at rho - h,
-    rho and rho + h, a parabola through them (Gauss-Newton on the profile), repeated once if the
-    step reached 4 h. Its sigma is the parabola's curvature (error = chi^2 / 2, so sigma^2 = 1 /
-    E''), and the sensors' sensitivity to it (central difference of the solutions) carries that
-    sigma into their covariance: the marginal over the shift, not the conditional."""
+def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, fg, result) -> _HeadShifts | None:
+    """The head point's shift toward the sensor along the ray (a range offset of every
+    observation; a dome's radius) and, unless the recipe leaves it out, horizontally (a point
+    pulled toward the sensor whatever the viewing angle), by their profile likelihood: the
+    graph's optimal error at theta +- h on each axis and at theta + h (1, 1), a quadratic through
+    them (Gauss-Newton on the profile), repeated once if a step reached 4 h. Their covariance is
+    the inverse of the quadratic's Hessian (error = chi^2 / 2), and the sensors' sensitivity to
+    them (central differences of the solutions) carries it into the sensors' covariance: the
+    marginal over the shifts, not the conditional."""
     rec = prob.recipe
     if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0):
         return None
+    k = 2 if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0 else 1
     h = rec.head_ray_shift_step_m
-    rho = prob.ray_shift_m
-    e0 = fg.error(result) + 0.5 * ((rho - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
+    theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m][:k])
+    e0 = fg.error(result) + _shift_prior(rec, theta)
+    n6 = 6 * len(prob.sensor_ids)
     solves = 0
     for _ in range(2):
-        _, r_plus, e_plus = _solve_at(log, prob, rho + h, result, max_iterations=2)
-        _, r_minus, e_minus = _solve_at(log, prob, rho - h, result, max_iterations=2)
-        solves += 2
-        curv = (e_plus + e_minus - 2.0 * e0) / h ** 2
-        if not curv > 0.0:
-            warnings.warn("the head point's shift toward the sensor is not determined by the data (flat "
-                          "profile); its prior is kept", DegenerateDataWarning, stacklevel=3)
-            prob.ray_shift_m = rho
-            fg, result, _ = _solve_at(log, prob, rho, result)
-            return _RayShift(fg, result, rec.head_ray_shift_sigma_m, np.zeros(6 * len(prob.sensor_ids)),
-                             solves + 1)
-        sens = _sensor_tangents(prob, r_plus, result) - _sensor_tangents(prob, r_minus, result)
-        sens /= 2.0 * h
-        step = float(np.clip(-(e_plus - e_minus) / (2.0 * h) / curv, -5.0 * h, 5.0 * h))
-        rho += step
-        fg, result, e0 = _solve_at(log, prob, rho, result)
+        g, Hm, sens = np.zeros(k), np.zeros((k, k)), np.zeros((n6, k))
+        e_plus = np.zeros(k)
+        for j in range(k):
+            d = h * np.eye(k)[j]
+            _, r_plus, e_plus[j] = _solve_at(log, prob, theta + d, result, max_iterations=2)
+            _, r_minus, e_minus = _solve_at(log, prob, theta - d, result, max_iterations=2)
+            g[j] = (e_plus[j] - e_minus) / (2.0 * h)
+            Hm[j, j] = (e_plus[j] + e_minus - 2.0 * e0) / h ** 2
+            sens[:, j] = (_sensor_tangents(prob, r_plus, result) - _sensor_tangents(prob, r_minus, result)) / (2 * h)
+            solves += 2
+        if k == 2:
+            _, _, e_pp = _solve_at(log, prob, theta + h, result, max_iterations=2)
+            Hm[0, 1] = Hm[1, 0] = (e_pp - e_plus[0] - e_plus[1] + e0) / h ** 2
+            solves += 1
+        if not np.all(np.linalg.eigvalsh(Hm) > 0.0):
+            warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
+                          "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
+            fg, result, _ = _solve_at(log, prob, theta, result)
+            prior_sd = [rec.head_ray_shift_sigma_m, rec.head_horizontal_shift_sigma_m][:k]
+            return _HeadShifts(fg, result, np.diag(np.square(prior_sd)), np.zeros((n6, k)), solves + 1)
+        step = np.clip(-np.linalg.solve(Hm, g), -5.0 * h, 5.0 * h)
+        theta = theta + step
+        fg, result, e0 = _solve_at(log, prob, theta, result)
         solves += 1
-        if abs(step) < 4.0 * h:     # the profile is close to quadratic: one parabola is enough
+        if np.max(np.abs(step)) < 4.0 * h:     # the profile is close to quadratic: one fit is enough
             break
-    return _RayShift(fg, result, float(1.0 / np.sqrt(curv)), sens, solves)
+    return _HeadShifts(fg, result, np.linalg.inv(Hm), sens, solves)
 
 
 def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
@@ -186,7 +215,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]
     t = np.stack([result.atPose3(S(i)).translation() for i in range(len(prob.sensor_ids))])[si]
     p_pred = np.einsum("nji,nj->ni", R, xk[prob.obs_key_index[use]] - t)
-    p_meas = prob.obs_p_sensor[use]
+    p_meas = prob.head_points_sensor()[use]
     r_meas = np.linalg.norm(p_meas, axis=1)
     u = p_meas / r_meas[:, None]
     r_pred = np.linalg.norm(p_pred, axis=1)
@@ -221,7 +250,7 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
                                  if bad else ""))
 
 
-def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | None):
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShifts | None):
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
@@ -235,8 +264,8 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | 
     kv = gtsam.KeyVector(keys + ([H(0)] if has_h else []))
     C = marginals.jointMarginalCovariance(kv).fullMatrix()
     C_s = C[:6 * n, :6 * n].copy()
-    if ray is not None:
-        C_s += ray.sigma_m ** 2 * np.outer(ray.sensitivity, ray.sensitivity)
+    if shifts is not None:
+        C_s += shifts.sensitivity @ shifts.cov @ shifts.sensitivity.T
     check = model_check(prob, result)
     scale = np.ones(6 * n)
     for i, sid in enumerate(prob.sensor_ids):
@@ -252,12 +281,16 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, ray: _RayShift | 
     else:
         reference = "none"
     head = HeadModel(vertical_offset_m=-rec.head_radius_m, ray_shift_m=prob.ray_shift_m,
-                     height_reference=reference, estimated=bool(rec.estimate_head_model))
+                     horizontal_shift_m=prob.horizontal_shift_m, height_reference=reference,
+                     estimated=bool(rec.estimate_head_model))
     if has_h:
         head.vertical_offset_m = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
         head.sigma_vertical_offset_m = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
-    if ray is not None:
-        head.sigma_ray_shift_m = ray.sigma_m
+    if shifts is not None:
+        sd = np.sqrt(np.diag(shifts.cov))
+        head.sigma_ray_shift_m = float(sd[0])
+        if len(sd) > 1:
+            head.sigma_horizontal_shift_m = float(sd[1])
     if has_h and reference == "none":
         head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "
                         f"{1000 * rec.head_vertical_sigma_m:.0f} mm, a sigma the sensors' heights carry, "

@@ -7,13 +7,17 @@ build on it.
 Variables
 - ``s(i)``: ``Pose3`` T_world_sensor of every ceiling sensor, with a weak prior at the installed
   (hand-measured) extrinsics.
-- ``x(k)``: ``Pose3`` of the robot's head frame (the base pose lifted to the head's dome centre)
-  at the AMCL stamps (gaps longer than ``max_pose_gap_s`` are filled). An observation made
-  between two stamps is carried to the nearest one by the robot's own short-term motion (wheel
-  odometry over at most half a stamp period, a few centimetres), so the trajectory has one pose
-  per AMCL stamp, not one per observation: there is nothing for it to bend with locally.
+- ``x(k)``: ``Pose3`` of the robot's head frame (the base pose lifted to the head point's
+  height, the head top plus the vertical offset, "Head point" below) at the AMCL stamps (gaps
+  longer than ``max_pose_gap_s`` are filled). An observation made between two stamps is carried
+  to the nearest one by the robot's own short-term motion (wheel odometry over at most half a
+  stamp period, a few centimetres; without odometry AMCL, smoothed when it jitters), so the
+  trajectory has one pose per AMCL stamp, not one per observation: there is nothing for it to
+  bend with locally.
 - ``a(j)``: ``Pose3`` (a pure world translation) of AMCL's slowly wandering error at stamp j.
 - ``l(m)``: ``Point3`` of a person's head seen by two sensors at once.
+- ``h(0)``: ``Pose3`` whose height is the head point's vertical offset (from its initial value);
+  every AMCL error node's height is tied to it.
 
 Factors (all GTSAM built-in C++ factors)
 - AMCL: AMCL reports ``Z_j = E_j · X(t_j)`` where E_j is a slowly wandering world-frame error, a
@@ -36,13 +40,24 @@ Factors (all GTSAM built-in C++ factors)
   and heading-drift term; without odometry a motion-smoothness factor from AMCL's increments.
 - Planarity: roll, pitch and height of the robot are held by the priors of each pose.
 - Robot observations: ``BearingRangeFactorPose3(s(i), x(k))`` measuring the sensor-frame head
-  point as a bearing and a range; the visible head top is the point of the head dome that faces
-  the sensor, so the bearing is that of the dome centre and the range is ``|p| + r_head``. Depth
+  point as a bearing and a range, with the head point's shifts taken out: the horizontal one
+  subtracted from the point, the one along the ray added to the range (``|p| + rho``). Depth
   noise grows with range squared (doubled past the reliable range); a robust kernel keeps
   mis-associations (a pedestrian beside the robot) from dragging.
 - People seen by two sensors at once (matched by
   :func:`pedcal.calib.alternative.match_shared_observations`): ``BearingRangeFactor3D(s(i),
   l(m))`` for each sensor.
+
+Head point. Trackers report different points of a head (the blob's highest point, a dome's point
+facing the sensor, the centroid of the head's top, a fitted ellipsoid's centre): the graph takes
+the reported point as the head top moved ``vertical_offset`` up, then ``rho`` along the ray toward
+the sensor and ``horizontal`` horizontally toward it (a dome of radius r: -r, r, 0). The vertical
+offset is the variable h(0); a uniform offset moves every robot observation down alike, which
+the robot alone cannot tell from the sensors' common height, so without a height reference (the
+installed sensor heights or a ceiling height with their sigma, a prior on each sensor's world
+height) it is held by its prior (a dome's: offset = -rho, give or take head_vertical_sigma_m) and
+its sigma reaches every sensor's height. rho and the horizontal shift enter the measurements and
+are estimated around the graph by their profile likelihood (:mod:`pedcal.calib.factorgraph`).
 
 Tracker latency is estimated once, by the association's pooled estimator
 (:func:`pedcal.calib.association.estimate_latency`: per-sensor rigid fits against the AMCL spline,
@@ -113,7 +128,9 @@ class GraphRecipe:
     estimate_head_model: bool = True
     head_vertical_sigma_m: float = 0.03     # prior sigma of the vertical offset about -ray shift
     head_ray_shift_sigma_m: float = 0.05    # prior sigma of the shift toward the sensor
-    head_ray_shift_step_m: float = 0.02     # step of the ray shift's profile likelihood
+    head_ray_shift_step_m: float = 0.02     # step of the shifts' profile likelihood
+    estimate_head_horizontal_shift: bool = False  # a constant horizontal shift toward the sensor too
+    head_horizontal_shift_sigma_m: float = 0.05   # its prior sigma (mean 0)
     # height reference: the installed sensor heights measured to this sigma (0: no reference),
     # or, with ceiling_height_m > 0, every sensor at that height to this sigma
     sensor_height_sigma_m: float = 0.0
@@ -397,8 +414,16 @@ class FactorGraphProblem:
     obs_t: np.ndarray | None = None
     obs_key_index: np.ndarray | None = None
     obs_p_sensor: np.ndarray | None = None
-    # the head point's shift toward the sensor along the ray (m) the graph is built with
+    obs_toward_sensor: np.ndarray | None = None   # horizontal unit toward the sensor, sensor frame
+    # the head point's shift toward the sensor along the ray and horizontally (m) the graph is
+    # built with
     ray_shift_m: float = 0.0
+    horizontal_shift_m: float = 0.0
+
+    def head_points_sensor(self) -> np.ndarray:
+        """The robot observations (sensor frame) with the horizontal shift toward the sensor
+        taken out: the head point moved ray_shift_m along the ray from the offset head top."""
+        return self.obs_p_sensor - self.horizontal_shift_m * self.obs_toward_sensor
 
     def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
@@ -417,6 +442,18 @@ class FactorGraphProblem:
         disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
         R = np.stack([rotations[s] for s in self.obs_sensor]) if len(self.obs_t) else np.zeros((0, 3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
+        self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
+
+
+def toward_sensor_horizontal(p_sensor: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
+    """(N, 3) unit horizontal vectors from sensor-frame points toward their sensor, expressed in
+    the sensor frame (``R_world_sensor``: (N, 3, 3) or (3, 3)); zero straight under it."""
+    R = np.broadcast_to(R_world_sensor, (len(p_sensor), 3, 3))
+    back = -np.einsum("nij,nj->ni", R, p_sensor)          # world, point -> sensor
+    back[:, 2] = 0.0
+    norm = np.linalg.norm(back, axis=1, keepdims=True)
+    back = np.where(norm > 1e-9, back / np.maximum(norm, 1e-9), 0.0)
+    return np.einsum("nji,nj->ni", R, back)
 
 
 def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
@@ -577,12 +614,13 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     noise = _NoiseCache(rec)
     if rec.robot:
-        rng_m = np.linalg.norm(prob.obs_p_sensor, axis=1)
+        p_obs = prob.head_points_sensor()
+        rng_m = np.linalg.norm(p_obs, axis=1)
         keys = [S(sid_index[s]) for s in prob.obs_sensor]
         noise_keys = noise.keys(rng_m)
         for n in np.flatnonzero(prob.obs_key_index < n_pose):
             graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(prob.obs_key_index[n])),
-                                                   gtsam.Unit3(prob.obs_p_sensor[n]),
+                                                   gtsam.Unit3(p_obs[n]),
                                                    rng_m[n] + rho, noise(key=noise_keys[n])))
 
     # People seen by two or more sensors at once (the dome centre of their head).
@@ -592,6 +630,8 @@ def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
                 continue
             pts = []
             for sid, p in seen:
+                R0 = prob.init_sensors[sid].rotation().matrix()
+                p = p - prob.horizontal_shift_m * toward_sensor_horizontal(p[None, :], R0)[0]
                 r = float(np.linalg.norm(p))
                 graph.add(gtsam.BearingRangeFactor3D(S(sid_index[sid]), L(m), gtsam.Unit3(p),
                                                      r + rho, noise(r)))
