@@ -29,7 +29,7 @@ def main(scenarios):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DegenerateDataWarning)
             cf = calibrate_closedform(log, is_robot=assoc.is_robot, latency_s=assoc.latency_s)
-        rms = evaluate(log, cf.network).sensor_position_rms_mm["combined"]
+        rms = evaluate(log, cf.network).sensor_position_rms_mm.combined
         unusable = sum(s.status != "ok" for s in cf.network)
         print(f"{name:>9s} {len(log.observations):7d} {len(log.sensors):7d} {assoc_s:8.2f} "
               f"{score['precision']:9.4f} {score['recall']:7.4f} {assoc.latency_s:9.3f} {rms:23.1f} "

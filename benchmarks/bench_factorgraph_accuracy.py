@@ -81,7 +81,7 @@ def reference_head_rms_mm(sim) -> tuple[float, float]:
 
 def coverage(ev, res):
     """(per-axis |e| / sigma, 3-D Mahalanobis d^2) for every sensor the graph calibrated."""
-    cov = res.diagnostics.get("position_cov_world_m2", {})
+    cov = getattr(res.diagnostics, "position_cov_world_m2", {})
     ratios, d2 = [], []
     for s in ev.sensors:
         ext = res.network[s.id]
@@ -136,7 +136,7 @@ def main() -> None:
                     runtime = min(runtime, time.perf_counter() - t0)
                 network = res.network
             ev = evaluate(sim.eval, network)
-            rows[m].append((ev.sensor_position_rms_mm["combined"], ev.head_tracking_rms_mm, runtime,
+            rows[m].append((ev.sensor_position_rms_mm.combined, ev.head_tracking_rms_mm, runtime,
                             ok_rms_mm(ev, network)))
             line.append(f"{m} {rows[m][-1][0]:6.1f} (ok {rows[m][-1][3]:6.1f}) / {rows[m][-1][1]:6.1f} mm "
                         f"{runtime:5.2f} s")

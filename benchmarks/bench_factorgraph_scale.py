@@ -98,8 +98,8 @@ def run_one(n_sensors: int) -> dict:
     err = [np.linalg.norm(s.position_m - log.truth[s.id].position_m) for s in res.network]
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return dict(sensors=n_sensors, observations=len(log.observations), poses=int(len(log.robot)),
-                time_s=elapsed, peak_rss_mb=rss_mb, build_s=res.diagnostics["build_s"],
-                optimize_s=res.diagnostics["optimize_s"], rms_mm=float(1000 * np.sqrt(np.mean(np.square(err)))))
+                time_s=elapsed, peak_rss_mb=rss_mb, build_s=res.diagnostics.build_s,
+                optimize_s=res.diagnostics.optimize_s, rms_mm=float(1000 * np.sqrt(np.mean(np.square(err)))))
 
 
 def main() -> None:

@@ -113,12 +113,12 @@ def bench_paper_scenario() -> None:
     mask = np.zeros(len(log.observations), dtype=bool)
     mask[tr.loc[tr["who"] == "robot", "row"].to_numpy()] = True
     res = calibrate_gridsearch(log, is_robot=mask)
-    diag = res.diagnostics["gridsearch"]
+    diag = res.diagnostics.sensors
     errs = []
     for s in res.network:
         line = f"  {s.id:>6s} {s.status:10s} obs {s.observations:5d}"
         if s.id in diag:
-            t = sum(diag[s.id]["timings_s"].values())
+            t = sum(diag[s.id].timings_s.values())
             true = log.truth[s.id]
             dp = 1000 * np.linalg.norm(s.position_m - true.position_m)
             da = frames.rotation_angle_deg(s.R_world_sensor, true.R_world_sensor)

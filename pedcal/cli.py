@@ -39,7 +39,8 @@ def _json_default(o):
 def cmd_simulate(args) -> int:
     from pedcal.sim import simulate
 
-    result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet)
+    result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
+                      **({"vary_nuisances": True} if getattr(args, "vary_nuisances", False) else {}))
     print(result.summary())
     return 0
 
@@ -72,6 +73,13 @@ def cmd_calibrate(args) -> int:
         kwargs["graph"] = args.graph
     if args.online:
         kwargs["online"] = True
+    if getattr(args, "sensor_height_sigma", None) is not None:
+        kwargs["sensor_height_sigma_m"] = args.sensor_height_sigma
+    if getattr(args, "ceiling_height", None) is not None:
+        kwargs["ceiling_height_m"] = args.ceiling_height
+    if (kwargs.keys() & {"sensor_height_sigma_m", "ceiling_height_m"}) and args.method != "factorgraph":
+        raise PedcalInputError("--sensor-height-sigma and --ceiling-height are height references of the "
+                               "factor graph (--method factorgraph)")
     result = calibrate(log, method=args.method, progress=not args.quiet, **kwargs)
     write_sensors_yaml(result.network, args.output)
     print(result.summary())
@@ -223,6 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, type=Path, help="output directory")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    s.add_argument("--vary-nuisances", action="store_true",
+                   help="draw the nuisance models (head point, AMCL error, odometry, latency, depth noise) "
+                        "from the seed")
     s.set_defaults(func=cmd_simulate)
 
     s = sub.add_parser("evaluate", help="the papers' accuracy figures of an extrinsics file on a log")
@@ -240,6 +251,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--online", action="store_true", help="incremental (iSAM2) calibration")
     s.add_argument("--max-memory-gb", type=float, default=None,
                    help="refuse a log whose graph would need more memory (default 4)")
+    s.add_argument("--sensor-height-sigma", type=float, default=None, metavar="M",
+                   help="height reference: the installed sensor heights are measured to this sigma (m)")
+    s.add_argument("--ceiling-height", type=float, default=None, metavar="M",
+                   help="height reference: every sensor is at this height (m), to --sensor-height-sigma")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_calibrate)
 

@@ -47,7 +47,7 @@ def run_methods(sim, out_dir: Path, progress: bool = True) -> dict:
         if method != "installed":
             write_sensors_yaml(network, out_dir / f"calibrated_{method}.yaml")
         ev = evaluate(sim.eval, network)
-        results[method] = dict(sensor_position_rms_mm=ev.sensor_position_rms_mm["combined"],
+        results[method] = dict(sensor_position_rms_mm=ev.sensor_position_rms_mm.combined,
                                orientation_rms_deg=ev.orientation_rms_deg,
                                head_tracking_rms_mm=ev.head_tracking_rms_mm, runtime_s=runtime,
                                association=assoc,

@@ -27,6 +27,47 @@ LATENCY_KEY = "tracker_latency_s"
 # modelled. A tracker sees the point of the dome that faces it; the head top is that point moved
 # r along the viewing ray (to the dome centre) and r up. Absent or 0: points are taken as seen.
 HEAD_RADIUS_KEY = "head_radius_m"
+# Extra top-level mapping of a calibrated YAML: the head-point model the calibration estimated.
+# The tracker's head point is the head top moved ``vertical_offset_m`` up (negative: below the
+# top), then ``ray_shift_m`` along the viewing ray toward the sensor (a dome of radius r:
+# vertical offset -r, ray shift r) and ``horizontal_shift_m`` horizontally toward it, with their
+# sigmas.
+HEAD_MODEL_KEY = "head_model"
+# Extra top-level mapping: the joint covariance (m^2) of all sensors' positions, world axes,
+# {sensors: [ids], matrix: 3n x 3n}; the per-sensor sigma are the square roots of its diagonal.
+JOINT_COV_KEY = "position_covariance_m2"
+# Extra top-level mapping: residuals against the noise model, per sensor, and the sensors whose
+# residuals the model does not explain (their sigma widened by that ratio).
+MISMATCH_KEY = "model_mismatch"
+
+
+def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float]:
+    """(vertical offset, ray shift, horizontal shift), m, of the head point an extrinsics file
+    carries: its ``head_model``, else a dome of ``head_radius_m`` (older files), else the head
+    top itself."""
+    hm = extrinsics.extra.get(HEAD_MODEL_KEY)
+    if isinstance(hm, dict):
+        return tuple(float(hm.get(k, 0.0) or 0.0) for k in ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m"))
+    r = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
+    return -r, r, 0.0
+
+
+@dataclass
+class PositionRMS:
+    """Root mean square over sensors of the position error (mm): per world axis and in 3-D."""
+
+    x: float
+    y: float
+    z: float
+    combined: float
+
+    @property
+    def horizontal(self) -> float:
+        """sqrt(x^2 + y^2): the RMS of the horizontal error."""
+        return float(np.hypot(self.x, self.y))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
 
 
 @dataclass
@@ -41,7 +82,7 @@ class SensorError:
 
 @dataclass
 class EvaluationResult:
-    sensor_position_rms_mm: dict | None          # x, y, z, combined
+    sensor_position_rms_mm: PositionRMS | None
     orientation_rms_deg: float | None
     head_tracking_rms_mm: float | None
     head_reference: str                           # truth_robot | robot (AMCL)
@@ -57,8 +98,8 @@ class EvaluationResult:
         out = []
         if self.sensor_position_rms_mm is not None:
             r = self.sensor_position_rms_mm
-            out.append(f"sensor position RMS (mm): x {r['x']:.2f}  y {r['y']:.2f}  z {r['z']:.2f}  "
-                       f"combined {r['combined']:.2f}")
+            out.append(f"sensor position RMS (mm): x {r.x:.2f}  y {r.y:.2f}  z {r.z:.2f}  "
+                       f"combined {r.combined:.2f}")
             out.append(f"orientation RMS (deg):    {self.orientation_rms_deg:.3f}")
         if self.head_tracking_rms_mm is not None:
             out.append(f"head tracking RMS (mm):   {self.head_tracking_rms_mm:.2f}  "
@@ -91,7 +132,7 @@ def robot_rows(log: Log) -> tuple[np.ndarray, str]:
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-dome correction the extrinsics file carries."""
-    head_radius_m = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
+    vertical_m, ray_m, horizontal_m = head_model_of(extrinsics)
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -101,11 +142,15 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             m &= mask
         if m.any():
             p = p_sensor[m]
-            if head_radius_m > 0.0:    # dome-facing point -> dome centre -> head top
-                p = p + head_radius_m * p / np.linalg.norm(p, axis=1, keepdims=True)
-                out[m] = s.to_world(p) + np.array([0.0, 0.0, head_radius_m])
-            else:
-                out[m] = s.to_world(p)
+            # the head point moved back horizontally and along the ray by the shifts, then up by
+            # minus the offset: the top
+            if horizontal_m:
+                back = -(p @ s.R_world_sensor.T)
+                back[:, 2] = 0.0
+                n = np.linalg.norm(back, axis=1, keepdims=True)
+                p = p - horizontal_m * (np.where(n > 1e-9, back / np.maximum(n, 1e-9), 0.0) @ s.R_world_sensor)
+            p = p + ray_m * p / np.linalg.norm(p, axis=1, keepdims=True)
+            out[m] = s.to_world(p) - np.array([0.0, 0.0, vertical_m])
     return out
 
 
@@ -130,9 +175,8 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
                                     orientation_error_deg=ang)
         if errs:
             E = np.array(errs)
-            pos_rms = {"x": float(np.sqrt(np.mean(E[:, 0] ** 2))), "y": float(np.sqrt(np.mean(E[:, 1] ** 2))),
-                       "z": float(np.sqrt(np.mean(E[:, 2] ** 2))),
-                       "combined": float(np.sqrt(np.mean(np.sum(E ** 2, axis=1))))}
+            pos_rms = PositionRMS(*(float(np.sqrt(np.mean(E[:, k] ** 2))) for k in range(3)),
+                                  combined=float(np.sqrt(np.mean(np.sum(E ** 2, axis=1)))))
             orient_rms = float(np.sqrt(np.mean(np.square(angs))))
 
     mask, how = robot_rows(log)

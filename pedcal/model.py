@@ -40,6 +40,9 @@ class SensorExtrinsics:
     observations: int | None = None
     status: str | None = None                    # ok | degenerate | no-data
     unobservable: list[str] | None = None        # directions, when status is degenerate
+    # 1-sigma of the orientation as a rotation vector in the sensor frame (deg): well defined at
+    # any pitch, where ypr sigma is not (yaw and roll blur together looking straight down)
+    sigma_rotation_deg: np.ndarray | None = None
 
     def __post_init__(self):
         self.id = str(self.id)

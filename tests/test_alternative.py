@@ -157,7 +157,7 @@ def test_relative_poses_recovered_noise_free(noise_free):
     installed = _relative_errors(log.sensors, log.truth, "s0", ["s1", "s2", "s3"])
     assert min(d for d, _ in installed.values()) > 100.0
     assert result.method == "alternative" and result.is_robot is None
-    assert {"s0-s1", "s0-s2", "s0-s3"} <= set(result.diagnostics["pairs"])
+    assert {"s0-s1", "s0-s2", "s0-s3"} <= set(result.diagnostics.pairs)
     for sid in ["s0", "s1", "s2", "s3"]:
         s = result.network[sid]
         assert s.status == "ok" and s.observations > 50
@@ -171,7 +171,7 @@ def test_sensor_without_overlap_is_no_data_and_keeps_installed_pose(noise_free):
     np.testing.assert_array_equal(s4.position_m, log.sensors["s4"].position_m)
     np.testing.assert_array_equal(s4.ypr_deg, log.sensors["s4"].ypr_deg)
     assert any("s4" in str(w.message) for w in degenerate_warnings)
-    assert "s4" in result.diagnostics["no_data"]
+    assert "s4" in result.diagnostics.no_data
 
 
 def test_absolute_frame_comes_from_the_installed_network():
@@ -193,7 +193,7 @@ def test_noisy_with_false_tracks_and_large_installed_errors():
     for sid, (d_mm, d_deg) in _relative_errors(result.network, log.truth, "s0", ["s1", "s2", "s3"]).items():
         assert d_mm < 30.0, (sid, d_mm)
         assert d_deg < 0.5, (sid, d_deg)
-    for entry in result.diagnostics["matches_per_pair"].values():
+    for entry in result.diagnostics.matches_per_pair.values():
         assert entry["residual_rms_mm"] < 80.0
 
 
@@ -275,8 +275,8 @@ def test_real_pedestrian_flow_atc(shared_data):
     duration_s = people_table["t"].max() - t0_s
     log = _observe(truth, _perturb(truth, rng, 0.5, 8.0), people, rng, duration_s=duration_s, t0_s=t0_s)
     result, _ = _calibrate(log, sample_period_s=1.0)   # one shared point a second keeps it fast
-    assert result.diagnostics["rounds"][0]["ambiguous"] > 0   # walkers in groups
-    assert {"s0-s1", "s0-s2", "s0-s3"} <= set(result.diagnostics["pairs"])
+    assert result.diagnostics.rounds[0]["ambiguous"] > 0   # walkers in groups
+    assert {"s0-s1", "s0-s2", "s0-s3"} <= set(result.diagnostics.pairs)
     for sid, (d_mm, d_deg) in _relative_errors(result.network, truth, "s0", ["s1", "s2", "s3"]).items():
         assert d_mm < 10.0, (sid, d_mm)
         assert d_deg < 0.2, (sid, d_deg)

@@ -257,3 +257,29 @@ def test_mask_of_wrong_length_is_rejected():
     log = _log([s], [s], _wander(rng, [1.25, 0.0], n=100), rng)
     with pytest.raises(ValueError, match="boolean mask"):
         calibrate(log, method="gridsearch", is_robot=np.ones(3, dtype=bool))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fast_search_equals_exhaustive_search_with_head_heights_that_vary(seed):
+    # people and the robot's head bob: heads 5 cm either side of their mean height
+    truth, p, head, initial = _pairs(seed, 120, 0.01, offset_m=0.06, angle_deg=1.5)
+    head = head + np.column_stack([np.zeros((len(head), 2)),
+                                   np.random.default_rng(100 + seed).uniform(-0.05, 0.05, len(head))])
+    opts = dict(angle_range_deg=2.0, angle_step_deg=0.01, offset_range_m=0.1, offset_step_m=0.005)
+    fast = gs.grid_search_sensor(p, head, initial, **opts)
+    brute = gs.brute_force_grid_search_sensor(p, head, initial, **opts)
+    assert fast.index == brute.index
+    assert (fast.zdev_m, fast.zdist_m, fast.xydev_m, fast.xydist_m) == \
+        (brute.zdev_m, brute.zdist_m, brute.xydev_m, brute.xydist_m)
+
+
+def test_on_range_edge_is_a_field_of_the_typed_diagnostics():
+    truth, p, head, initial = _pairs(5, 120, 0.01, offset_m=0.06, angle_deg=1.5)
+    initial.position_m = initial.position_m + np.array([0.0, 0.0, 0.4])     # 0.4 m off: beyond 0.1 m
+    log_res = gs.grid_search_sensor(p, head, initial, angle_range_deg=2.0, angle_step_deg=0.05,
+                                    offset_range_m=0.1, offset_step_m=0.01)
+    assert "z" in log_res.on_range_edge
+    from pedcal.calib.common import GridSearchDiagnostics
+
+    d = GridSearchDiagnostics(sensors={"s1": log_res})
+    assert d.on_range_edge == {"s1": log_res.on_range_edge}

@@ -184,7 +184,7 @@ def test_report_log_extrinsics_writes_the_table(sim_log, tmp_path):
     ev = evaluate(read_log(sim_log / "eval"), read_sensors_yaml(sim_log / "closedform.yaml"))
     row = next(line for line in text.splitlines() if line.startswith("| closedform |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[2] == f"{ev.sensor_position_rms_mm['combined']:.1f}"
+    assert cells[2] == f"{ev.sensor_position_rms_mm.combined:.1f}"
     assert cells[4] == f"{ev.head_tracking_rms_mm:.1f}"
     assert any(line.startswith("| installed |") for line in text.splitlines())
     assert (out / "figures" / "trajectories.png").stat().st_size > 1000

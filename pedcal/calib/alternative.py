@@ -45,7 +45,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal import frames
-from pedcal.calib.common import CalibrationResult, Timer
+from pedcal.calib.common import AlternativeDiagnostics, CalibrationResult, Timer
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
@@ -436,12 +436,7 @@ def calibrate_alternative(log: Log, *, progress: bool = False, **options) -> Cal
                           stacklevel=2)
         network = SensorNetwork(out, installed.frame, dict(installed.extra))
     say(f"done in {timer.elapsed_s:.2f} s")
-    diagnostics = {
-        "pairs": sorted(per_pair),
-        "matches_per_pair": per_pair,
-        "rounds": rounds_info,
-        "no_data": no_data,
-        "params": params,
-    }
+    diagnostics = AlternativeDiagnostics(pairs=sorted(per_pair), matches_per_pair=per_pair, rounds=rounds_info,
+                                         no_data=no_data, params=params)
     return CalibrationResult(network, method="alternative", runtime_s=timer.elapsed_s, is_robot=None,
                              diagnostics=diagnostics)

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
-from pedcal.calib.common import CalibrationResult, Timer, head_interpolator
+from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
@@ -54,13 +54,13 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
     ``latency_s``: tracker latency (observation stamp minus the robot's time); None takes the
     association's estimate, or estimates it from the given ``is_robot``."""
     with Timer() as timer:
-        diagnostics = {}
+        diagnostics = ClosedFormDiagnostics()
         if is_robot is None:
             from pedcal.calib.association import associate_robot
 
             assoc = associate_robot(log, progress=progress, **association_params)
             is_robot = assoc.is_robot
-            diagnostics["association_runtime_s"] = assoc.runtime_s
+            diagnostics.association_runtime_s = assoc.runtime_s
             if latency_s is None:
                 latency_s = assoc.latency_s
         else:
@@ -71,7 +71,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                                        f"{is_robot.shape}", path=log.path)
             if latency_s is None:
                 latency_s = estimate_latency(log, is_robot)
-        diagnostics["latency_s"] = float(latency_s)
+        diagnostics.latency_s = float(latency_s)
 
         sensor_col = log.observations["sensor"].astype(str).to_numpy()
         p_sensor_all = log.observation_points_sensor()
@@ -80,7 +80,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         # robot observations past either end of robot.csv have no AMCL position to pair with
         robot_t = log.robot["t"].to_numpy(float)
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
-        diagnostics["unpaired_robot_observations"] = int((is_robot & ~covered).sum())
+        diagnostics.unpaired_robot_observations = int((is_robot & ~covered).sum())
         sensors_out = []
         use = np.flatnonzero(is_robot & covered)
         rows_of = pd.Series(use).groupby(sensor_col[use], sort=False).indices     # positions in use
@@ -108,7 +108,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                 continue
             R, t = fit_rigid(p_sensor, p_world)
             residual_m = np.linalg.norm(p_sensor @ R.T + t - p_world, axis=1)
-            diagnostics.setdefault("rms_residual_m", {})[s.id] = float(np.sqrt(np.mean(residual_m ** 2)))
+            diagnostics.rms_residual_m[s.id] = float(np.sqrt(np.mean(residual_m ** 2)))
             sensors_out.append(SensorExtrinsics.from_pose3(s.id, gtsam.Pose3(gtsam.Rot3(R), t),
                                                            observations=n, status="ok"))
     extra = {**log.sensors.extra, LATENCY_KEY: round(float(latency_s), 4)}

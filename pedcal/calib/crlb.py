@@ -16,7 +16,7 @@ Assumptions (state them with any figure):
 - the robot's observations are the true ones (truth_observations.csv), the robust kernel is off
   (no outliers), and people's shared observations are left out: the bound is the robot's.
 - The world-axes position block comes from GTSAM's body-frame Pose3 marginal, rotated by the
-  true orientation (:func:`pedcal.calib.factorgraph.sensor_sigma_world`).
+  true orientation (:func:`pedcal.calib.graph.sensor_sigma_world`).
 
 The figure of merit reported with an estimate is RMS / sqrt(mean trace): an efficient estimator
 scores about 1 (its 3-D position error has mean square trace(CRLB) per sensor).
@@ -31,7 +31,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.common import interpolate_pose2
-from pedcal.calib.factorgraph import GraphRecipe, S, X, build_graph, head_frame, prepare, sensor_sigma_world
+from pedcal.calib.graph import GraphRecipe, S, X, build_graph, head_frame, prepare, sensor_sigma_world
 from pedcal.errors import PedcalInputError
 from pedcal.model import Log
 
@@ -91,6 +91,7 @@ def sensor_position_crlb(log: Log, recipe: str | GraphRecipe | None = None, *,
     rec = recipe if isinstance(recipe, GraphRecipe) else GraphRecipe.load(recipe or "default")
     rec = copy.copy(rec)
     rec.people, rec.robust_kernel = False, "none"
+    rec.estimate_head_model = False     # the bound for a known head point
     if is_robot is None:
         if log.truth_observations is None:
             raise PedcalInputError("the Cramér-Rao bound needs truth_observations.csv (which rows are the "

@@ -1,641 +1,56 @@
-"""pedcal's estimator: one GTSAM factor graph of the ceiling sensors, the robot's poses and people.
+"""pedcal's estimator, the batch solve: the factor graph of :mod:`pedcal.calib.graph` solved once
+over the whole log, with what the graph does not hold as factors estimated around it:
 
-Variables
-- ``s(i)``: ``Pose3`` T_world_sensor of every ceiling sensor, with a weak prior at the installed
-  (hand-measured) extrinsics.
-- ``x(k)``: ``Pose3`` of the robot's head frame (the base pose lifted to the head's dome centre)
-  at the AMCL stamps (gaps longer than ``max_pose_gap_s`` are filled). An observation made
-  between two stamps is carried to the nearest one by the robot's own short-term motion (wheel
-  odometry over at most half a stamp period, a few centimetres), so the trajectory has one pose
-  per AMCL stamp, not one per observation: there is nothing for it to bend with locally.
-- ``a(j)``: ``Pose3`` (a pure world translation) of AMCL's slowly wandering error at stamp j.
-- ``l(m)``: ``Point3`` of a person's head seen by two sensors at once.
+- the head point's shifts toward the sensor (along the ray: a range offset of every
+  observation; horizontally) by their profile likelihood, their covariance carried into the
+  sensors' (:func:`_estimate_head_shifts`);
+- the residuals checked against the noise model, per sensor, the sigma widened where they
+  exceed it (:func:`model_check`);
+- the joint covariance of all sensors' positions and the head model, written to the
+  calibrated YAML (:func:`_posterior`).
 
-Factors (all GTSAM built-in C++ factors)
-- AMCL: AMCL reports ``Z_j = E_j · X(t_j)`` where E_j is a slowly wandering world-frame error, a
-  Gauss-Markov process (AMCL's particle cloud drifts over tens of seconds; it is not white).
-  With ``F_j = E_j^{-1}`` as the variable ``a(j)``, ``BetweenFactorPose3(a(j), x(k), Z_j)`` has
-  residual ``Log(Z_j^{-1} F_j^{-1} X)``. The process on F is the discretized Ornstein-Uhlenbeck
-  prior: ``BetweenFactorPose3(a(j), a(j+1), I)`` with variance q = 2 sigma^2 dt / tau and a zero
-  prior per node with variance 2 sigma^2 tau / dt (the precision operator of an OU process of
-  stationary std sigma and correlation time tau). sigma comes from AMCL's reported covariance.
-  AMCL's heading error is an OU process as well; it cannot be a world-frame rotation (that
-  would swing the position about the map origin), so it is a white error per stamp inflated to
-  2 tau / dt times its variance: the information an OU process holds about its mean over a run
-  of length T >> tau (variance 2 sigma^2 tau / T). So the graph learns the run-average of AMCL,
-  not its wander: sensors and trajectory are one rigid structure tied to the map by the average
-  of all AMCL estimates.
-- Odometry: ``BetweenFactorPose3`` between consecutive robot poses from the wheel odometry
-  after its systematic errors are estimated and removed (:func:`calibrate_odometry`: distance
-  scale, heading drift per metre and per second, fitted against AMCL over the whole run). What
-  is left is white per step (a random walk growing with sqrt(dt)) plus a small residual scale
-  and heading-drift term; without odometry a motion-smoothness factor from AMCL's increments.
-- Planarity: roll, pitch and height of the robot are held by the priors of each pose.
-- Robot observations: ``BearingRangeFactorPose3(s(i), x(k))`` measuring the sensor-frame head
-  point as a bearing and a range; the visible head top is the point of the head dome that faces
-  the sensor, so the bearing is that of the dome centre and the range is ``|p| + r_head``. Depth
-  noise grows with range squared (doubled past the reliable range); a robust kernel keeps
-  mis-associations (a pedestrian beside the robot) from dragging.
-- People seen by two sensors at once (matched by
-  :func:`pedcal.calib.alternative.match_shared_observations`): ``BearingRangeFactor3D(s(i),
-  l(m))`` for each sensor.
-
-Tracker latency is estimated once, by the association's pooled estimator
-(:func:`pedcal.calib.association.estimate_latency`: per-sensor rigid fits against the AMCL spline,
-minimized over the latency), and written to the calibrated YAML (``tracker_latency_s``). Within
-the graph a latency error is mostly absorbed by the trajectory (a few millimetres along the
-track), so re-solving for it buys little.
+The graph's variables and factors are described in :mod:`pedcal.calib.graph`, whose names are
+re-exported here.
 """
 
 from __future__ import annotations
 
-import logging
+import copy
 import time
 import warnings
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import gtsam
 import numpy as np
-import pandas as pd
 
-from pedcal import frames
-from pedcal.calib.common import CalibrationResult, head_interpolator, head_world, interpolate_pose2
+from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
+from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
+    GRAPHS_DIR,
+    A,
+    FactorGraphProblem,
+    GraphRecipe,
+    H,
+    L,
+    S,
+    X,
+    _log,
+    _network_from_result,
+    amcl_cov_body,
+    amcl_white_sigma,
+    build_graph,
+    calibrate_odometry,
+    finish_network,
+    head_frame,
+    observability,
+    observation_sigmas,
+    optimize_graph,
+    prepare,
+    rotation_sigma_deg,
+    sensor_sigma_world,
+)
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
-from pedcal.metrics import HEAD_RADIUS_KEY, LATENCY_KEY
-from pedcal.model import Log, SensorExtrinsics, SensorNetwork
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib
-
-S = gtsam.symbol_shorthand.S
-X = gtsam.symbol_shorthand.X
-A = gtsam.symbol_shorthand.A
-L = gtsam.symbol_shorthand.L
-
-GRAPHS_DIR = Path(__file__).resolve().parents[2] / "graphs"
-
-
-# ------------------------------------------------------------------------------------------ recipe
-@dataclass
-class GraphRecipe:
-    """Which factor families and noise models the graph holds (graphs/*.toml)."""
-
-    name: str = "default"
-    description: str = ""
-    # factor families
-    robot: bool = True              # the robot's observations (sensor -> head)
-    odometry: bool = True           # wheel odometry between-factors when odometry.csv exists
-    smoothness: bool = True         # motion smoothness when there is no odometry
-    people: bool = True             # people seen by two or more sensors at once
-    amcl: bool = True               # AMCL poses as a correlated-error measurement
-    # sensor prior from the installed extrinsics (how far a hand measurement can be off)
-    sensor_prior_sigma_m: float = 0.5
-    sensor_prior_sigma_deg: float = 10.0
-    # depth sensor model: sigma_range = floor + k r^2 (x far_factor past reliable_range_m),
-    # lateral sigma of the head-top extraction (plus the latency jitter times the robot's speed)
-    range_sigma_floor_m: float = 0.005
-    range_sigma_k_per_m: float = 1.5e-3
-    reliable_range_m: float = 3.5
-    far_factor: float = 2.0
-    lateral_sigma_m: float = 0.012
-    head_radius_m: float = 0.1      # dome radius of a head (the visible top faces the sensor)
-    robust_kernel: str = "huber"    # huber | cauchy | tukey | none
-    robust_k: float = 1.345
-    # AMCL error process (std from AMCL's reported covariance)
-    amcl_correlation_s: float = 20.0
-    amcl_node_spacing_s: float = 1.0   # nodes of the error process (a small fraction of tau)
-    amcl_white_fraction: float = 0.2   # share of AMCL's reported std that is white, per stamp
-    # robot poses: one per AMCL stamp, gaps longer than this filled
-    max_pose_gap_s: float = 0.25
-    # odometry: systematic errors estimated and removed, then white noise per sqrt(second)
-    # and a residual scale / heading drift
-    odometry_calibrate: bool = True
-    odometry_white_sigma_m: float = 0.005          # per sqrt(s)
-    odometry_white_yaw_sigma_deg: float = 0.25     # per sqrt(s)
-    odometry_sigma_per_m: float = 0.003            # residual scale error
-    odometry_yaw_sigma_deg_per_m: float = 0.05     # residual heading drift
-    smoothness_sigma_mps: float = 0.05
-    # robot planarity
-    planar_sigma_deg: float = 0.5
-    head_height_sigma_m: float = 0.02
-    # tracker latency
-    estimate_latency: bool = True
-    latency_max_s: float = 0.4
-    # people association for shared observations (at most one shared point per period)
-    people_sample_s: float = 0.5
-    # initializer: closedform | gridsearch | installed
-    init: str = "closedform"
-    max_iterations: int = 50
-    relative_error_tol: float = 1e-5
-
-    @classmethod
-    def load(cls, path: str | Path) -> GraphRecipe:
-        path = Path(path)
-        if not path.exists() and not path.suffix and (GRAPHS_DIR / f"{path}.toml").exists():
-            path = GRAPHS_DIR / f"{path}.toml"
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise PedcalInputError("graph recipe not found", path=path) from None
-        except tomllib.TOMLDecodeError as e:
-            raise PedcalInputError(f"not valid TOML: {e}", path=path) from None
-        flat = {}
-        for k, v in data.items():
-            if isinstance(v, dict):       # [sections] are only for readability
-                flat.update(v)
-            else:
-                flat[k] = v
-        known = {f.name: f for f in fields(cls)}
-        for k, v in flat.items():
-            if k not in known:
-                raise PedcalInputError(f"unknown key '{k}', expected one of {', '.join(known)}", path=path)
-            default = getattr(cls(), k)
-            if isinstance(default, bool) != isinstance(v, bool) or (
-                    isinstance(default, float) and not isinstance(v, (int, float))):
-                raise PedcalInputError(f"key '{k}' must be {type(default).__name__}, got {v!r}", path=path)
-        if "name" not in flat:
-            flat["name"] = path.stem
-        return cls(**flat)
-
-
-# ---------------------------------------------------------------------------------------- helpers
-def _log(progress: bool, msg: str) -> None:
-    if progress:
-        logging.getLogger(__name__).info(f"[factorgraph] {msg}")
-
-
-def _robust(recipe: GraphRecipe, base):
-    k = recipe.robust_kernel.lower()
-    if k == "none":
-        return base
-    est = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
-           "tukey": gtsam.noiseModel.mEstimator.Tukey}.get(k)
-    if est is None:
-        raise PedcalInputError(f"unknown robust kernel '{recipe.robust_kernel}'", column="robust_kernel")
-    return gtsam.noiseModel.Robust.Create(est.Create(recipe.robust_k), base)
-
-
-def head_frame(x: float, y: float, yaw: float, head_m: np.ndarray) -> gtsam.Pose3:
-    """The robot's head frame: the base pose (x, y, yaw) composed with the head offset
-    ``head_m`` (base frame; its z is the dome centre's height)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return gtsam.Pose3(gtsam.Rot3.Yaw(yaw), np.array([x + c * head_m[0] - s * head_m[1],
-                                                      y + s * head_m[0] + c * head_m[1], head_m[2]]))
-
-
-def amcl_cov_body(cov_world: np.ndarray, yaw: float) -> np.ndarray:
-    """AMCL's (x, y, yaw) world covariance as a Pose3 tangent covariance [rx, ry, rz, tx, ty, tz]
-    in the body frame (GTSAM's convention), without the roll/pitch/z blocks."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    Rt = np.array([[c, s], [-s, c]])           # world -> body for xy
-    out = np.zeros((6, 6))
-    out[2, 2] = cov_world[2, 2]
-    out[3:5, 3:5] = Rt @ cov_world[:2, :2] @ Rt.T
-    cross = Rt @ cov_world[:2, 2]
-    out[3:5, 2] = cross
-    out[2, 3:5] = cross
-    return out
-
-
-def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
-    """(N, 3) sigmas [bearing rad, bearing rad, range m] of a head seen at ``range_m``:
-    structured-light depth noise grows with range squared (Khoshelham and Elberink 2012),
-    doubled past the reliable range; the lateral error is a distance across the ray."""
-    r = np.asarray(range_m, float)
-    sig_r = recipe.range_sigma_floor_m + recipe.range_sigma_k_per_m * r ** 2
-    sig_r = np.where(r > recipe.reliable_range_m, recipe.far_factor * sig_r, sig_r)
-    sig_b = recipe.lateral_sigma_m / np.maximum(r, 0.3)
-    return np.column_stack([sig_b, sig_b, sig_r])
-
-
-class _NoiseCache:
-    """Noise models of observations, built once per (rounded) range: a few hundred C++ objects
-    instead of one per observation."""
-
-    def __init__(self, recipe: GraphRecipe, step_m: float = 0.01):
-        self.recipe, self.step_m, self.cache = recipe, step_m, {}
-
-    def keys(self, range_m: np.ndarray) -> np.ndarray:
-        return np.round(np.asarray(range_m, float) / self.step_m).astype(int)
-
-    def __call__(self, range_m: float | None = None, key: int | None = None):
-        key = int(round(range_m / self.step_m)) if key is None else int(key)
-        nm = self.cache.get(key)
-        if nm is None:
-            sig = observation_sigmas(self.recipe, np.array([key * self.step_m]))[0]
-            nm = self.cache[key] = _robust(self.recipe, gtsam.noiseModel.Diagonal.Sigmas(sig))
-        return nm
-
-
-# -------------------------------------------------------------------------------------- odometry
-def calibrate_odometry(odometry: pd.DataFrame, amcl: pd.DataFrame, window_s: float = 20.0,
-                       amcl_correlation_s: float = 20.0, drift_prior_deg_per_m: float = 2.0,
-                       drift_prior_deg_per_s: float = 0.2):
-    """Wheel odometry with its systematic errors removed: a heading drift per metre driven and
-    per second (wheel-base error, gyro bias) from a least-squares fit of the odometry-minus-AMCL
-    heading against distance and time over the whole run, and the distance scale from the
-    displacements over ``window_s`` windows (AMCL's wander averages out over many windows).
-    At a steady speed distance and time are nearly collinear, so the two drifts are held by a
-    weak prior (``drift_prior_*``, far beyond a working odometry's) and the AMCL heading samples
-    are weighted as the independent ones they are: one per 2 x ``amcl_correlation_s``.
-    Returns (DataFrame t, x, y, yaw in the odometry frame, dict of the estimates)."""
-    odo = odometry.sort_values("t")
-    t = odo["t"].to_numpy(float)
-    xy = odo[["x", "y"]].to_numpy(float)
-    yaw = np.unwrap(odo["yaw"].to_numpy(float))
-    c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
-    d = np.diff(xy, axis=0)
-    fwd, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
-    dyaw, dt = np.diff(yaw), np.diff(t)
-    dist = np.hypot(fwd, left)
-    s_m = np.r_[0.0, np.cumsum(dist)]
-    est = dict(scale=1.0, yaw_drift_deg_per_m=0.0, yaw_drift_deg_per_s=0.0)
-    at = amcl.sort_values("t")
-    ta = at["t"].to_numpy(float)
-    inside = (t >= ta[0]) & (t <= ta[-1])
-    if inside.sum() >= 10 and t[inside][-1] - t[inside][0] > 2 * window_s:
-        yaw_a = np.interp(t[inside], ta, np.unwrap(at["yaw"].to_numpy(float)))
-        diff = np.unwrap(yaw[inside] - yaw_a)
-        n = int(inside.sum())
-        span = t[inside][-1] - t[inside][0]
-        sig_yaw = float(np.sqrt(np.median(at["cov_yawyaw"].to_numpy(float)))) if "cov_yawyaw" in at else 0.02
-        # weight of one sample: n_eff / n independent samples of AMCL's heading std
-        w = np.sqrt(max(span / (2.0 * amcl_correlation_s), 1.0) / n) / max(sig_yaw, 1e-4)
-        M = np.column_stack([np.ones(n), s_m[inside], t[inside] - t[inside][0]]) * w
-        prior = np.diag([0.0, 1.0 / np.radians(drift_prior_deg_per_m), 1.0 / np.radians(drift_prior_deg_per_s)])
-        coef = np.linalg.lstsq(np.vstack([M, prior]), np.r_[diff * w, np.zeros(3)], rcond=None)[0]
-        est["yaw_drift_deg_per_m"] = float(np.degrees(coef[1]))
-        est["yaw_drift_deg_per_s"] = float(np.degrees(coef[2]))
-        dyaw = dyaw - coef[1] * dist - coef[2] * dt
-    yaw_c = np.r_[yaw[0], yaw[0] + np.cumsum(dyaw)]
-    cc, sc = np.cos(yaw_c[:-1]), np.sin(yaw_c[:-1])
-    xy_c = xy[0] + np.r_[np.zeros((1, 2)), np.cumsum(np.column_stack([cc * fwd - sc * left, sc * fwd + cc * left]),
-                                                     axis=0)]
-    if inside.sum() >= 10:
-        edges = np.arange(max(t[0], ta[0]), min(t[-1], ta[-1]), window_s)
-        if len(edges) >= 3:
-            da = np.diff(np.column_stack([np.interp(edges, ta, at["x"].to_numpy(float)),
-                                          np.interp(edges, ta, at["y"].to_numpy(float))]), axis=0)
-            do = np.diff(np.column_stack([np.interp(edges, t, xy_c[:, 0]), np.interp(edges, t, xy_c[:, 1])]), axis=0)
-            na, no = np.linalg.norm(da, axis=1), np.linalg.norm(do, axis=1)
-            if np.sum(no ** 2) > 1.0:        # the robot drove at least a metre per window on average
-                est["scale"] = float(np.sum(na * no) / np.sum(no ** 2))
-    xy_c = xy_c[0] + est["scale"] * (xy_c - xy_c[0])
-    return pd.DataFrame({"t": t, "x": xy_c[:, 0], "y": xy_c[:, 1], "yaw": yaw_c}), est
-
-
-class _RobotMotion:
-    """The robot's short-term motion: where the head moves between two nearby instants, from
-    the (calibrated) wheel odometry rotated into the map by AMCL's heading, or from the AMCL
-    spline when there is no odometry."""
-
-    def __init__(self, log: Log, odometry: pd.DataFrame | None):
-        self.head_offset = np.asarray(log.meta.head_offset_m, float)
-        self.amcl_head = head_interpolator(log)
-        self.odo = odometry
-        if odometry is not None:
-            amcl = log.robot.sort_values("t")
-            self.ta = amcl["t"].to_numpy(float)
-            self.yaw_a = np.unwrap(amcl["yaw"].to_numpy(float))
-
-    def displacement(self, t_from: np.ndarray, t_to: np.ndarray) -> np.ndarray:
-        """World displacement (N, 3) of the head top from ``t_from`` to ``t_to``."""
-        if self.odo is None:
-            return self.amcl_head(t_to) - self.amcl_head(t_from)
-        h0 = head_world(interpolate_pose2(self.odo, t_from), self.head_offset)
-        h1 = head_world(interpolate_pose2(self.odo, t_to), self.head_offset)
-        mid = 0.5 * (t_from + t_to)
-        # heading of the map relative to the odometry frame at that time (AMCL minus odometry)
-        rot = np.interp(mid, self.ta, self.yaw_a) - interpolate_pose2(self.odo, mid)[:, 2]
-        c, s = np.cos(rot), np.sin(rot)
-        d = h1 - h0
-        return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]])
-
-    def velocity(self, t: np.ndarray, h: float = 0.02) -> np.ndarray:
-        return self.displacement(t - h, t + h) / (2 * h)
-
-
-# ----------------------------------------------------------------------------------- the solver
-@dataclass
-class FactorGraphProblem:
-    """Everything the graph needs, derived once from a log (kept for the online mode and tests)."""
-
-    recipe: GraphRecipe
-    latency_s: float
-    sensor_ids: list[str]
-    obs_sensor: np.ndarray          # sensor id per robot observation
-    obs_p_raw: np.ndarray           # (N, 3) measured head points in the sensor frame
-    obs_t_raw: np.ndarray           # observation stamps (s)
-    pose_times: np.ndarray          # times of the robot pose variables
-    init_sensors: dict[str, gtsam.Pose3]
-    motion: _RobotMotion
-    odometry: pd.DataFrame | None = None     # calibrated wheel odometry (odometry frame)
-    odometry_estimates: dict = field(default_factory=dict)
-    people: list = field(default_factory=list)   # [(t, [(sensor, p_sensor), ...]), ...]
-    rows_used: np.ndarray | None = None
-    amcl_node_times: np.ndarray | None = None    # times of the AMCL error nodes a(j)
-    # derived by carry_observations: latency-corrected instants, the pose each observation is
-    # carried to, and the sensor-frame point carried there
-    obs_t: np.ndarray | None = None
-    obs_key_index: np.ndarray | None = None
-    obs_p_sensor: np.ndarray | None = None
-
-    def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
-        """Carry every robot observation to its nearest pose variable: the head seen at
-        t = stamp - latency is the head at the pose's time t_k minus the robot's motion from t
-        to t_k, p_sensor(t_k) = p_sensor(t) + R_world_sensor^T (h(t_k) - h(t)). ``rotations``:
-        current R_world_sensor per sensor (an error of a degree moves a point carried a few
-        centimetres by under a millimetre)."""
-        self.obs_t = self.obs_t_raw - self.latency_s
-        tk = self.pose_times
-        i = np.clip(np.searchsorted(tk, self.obs_t), 1, max(len(tk) - 1, 1))
-        if len(tk) > 1:
-            i = np.where(np.abs(tk[i - 1] - self.obs_t) <= np.abs(tk[i] - self.obs_t), i - 1, i)
-        else:
-            i = np.zeros(len(self.obs_t), int)
-        self.obs_key_index = i
-        disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
-        R = np.stack([rotations[s] for s in self.obs_sensor]) if len(self.obs_t) else np.zeros((0, 3, 3))
-        self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
-
-
-def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
-    """The AMCL stamps, with gaps longer than ``max_gap_s`` filled evenly."""
-    t = np.unique(amcl_t)
-    gaps = np.diff(t)
-    fill = [np.linspace(a, b, int(np.ceil((b - a) / max_gap_s)) + 1)[1:-1]
-            for a, b, g in zip(t[:-1], t[1:], gaps, strict=True) if g > max_gap_s]
-    return np.unique(np.concatenate([t, *fill])) if fill else t
-
-
-def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None):
-    """Build the factor graph and the initial values (optionally only with data up to t_max)."""
-    rec = prob.recipe
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    head_m = np.asarray(log.meta.head_offset_m, float) - np.array([0.0, 0.0, rec.head_radius_m])
-
-    # Sensors: weak prior at the installed extrinsics.
-    sig_rot = np.radians(rec.sensor_prior_sigma_deg)
-    sensor_prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sig_rot] * 3, [rec.sensor_prior_sigma_m] * 3])
-    for i, sid in enumerate(prob.sensor_ids):
-        graph.add(gtsam.PriorFactorPose3(S(i), log.sensors[sid].T_world_sensor, sensor_prior))
-        values.insert(S(i), prob.init_sensors[sid])
-
-    times = prob.pose_times if t_max is None else prob.pose_times[prob.pose_times <= t_max]
-    n_pose = len(times)
-    amcl = log.robot.sort_values("t")
-    amcl_t = amcl["t"].to_numpy(float)
-    spline_head = head_interpolator(log)
-    # head frames on the AMCL spline: its position and the spline's heading
-    pose_xy = spline_head(times)[:, :2] if n_pose else np.zeros((0, 2))
-    base = interpolate_pose2(amcl, times)
-    # Robot poses on the AMCL spline; roll, pitch and height held by a planarity prior (AMCL's
-    # own factor holds them when it is in the graph).
-    planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
-        [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
-    for k in range(n_pose):
-        P = gtsam.Pose3(gtsam.Rot3.Yaw(base[k, 2]), np.array([pose_xy[k, 0], pose_xy[k, 1], head_m[2]]))
-        values.insert(X(k), P)
-        if not rec.amcl:
-            graph.add(gtsam.PriorFactorPose3(X(k), P, planar))
-
-    # AMCL as a measurement with a Gauss-Markov error (module docstring). The error process is
-    # slow (tau ~ 20 s): its nodes are ``amcl_node_spacing_s`` apart, each stamp tied to the
-    # nearest node with the OU's change over that interval (variance 2 sigma^2 |dt| / tau) as
-    # extra white noise.
-    if rec.amcl and n_pose:
-        cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
-        sig_xy = max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 3])))), 1e-3)
-        tau = rec.amcl_correlation_s
-        k_of = np.searchsorted(times, amcl_t)
-        use = np.flatnonzero((k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t))
-        dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
-        nodes = prob.amcl_node_times
-        node_of = np.clip(np.round((amcl_t[use] - nodes[0]) / rec.amcl_node_spacing_s).astype(int), 0, len(nodes) - 1)
-        tiny = np.radians(0.05)
-        yaw_a = amcl["yaw"].to_numpy(float)[use]
-        x_a, y_a = amcl["x"].to_numpy(float)[use], amcl["y"].to_numpy(float)[use]
-        # AMCL's covariance in the body frame (amcl_cov_body, vectorized); the slow error is a
-        # world-frame translation (F is held to a pure translation), its white share stays here;
-        # the heading error is white, inflated to the information of an OU mean (2 tau / dt).
-        c, s_ = np.cos(yaw_a), np.sin(yaw_a)
-        Rt = np.stack([np.stack([c, s_], -1), np.stack([-s_, c], -1)], -2)
-        Cw = np.stack([np.stack([cov[use, 0], cov[use, 1]], -1), np.stack([cov[use, 1], cov[use, 3]], -1)], -2)
-        Cb = np.zeros((len(use), 6, 6))
-        Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
-        Cb[:, 2, 2] = cov[use, 5] * max(1.0, 2.0 * tau / dt_amcl)
-        drift_var = 2.0 * sig_xy ** 2 * np.abs(amcl_t[use] - nodes[node_of]) / tau
-        Cb[:, 3:5, 3:5] = rec.amcl_white_fraction ** 2 * (Rt @ Cw @ np.swapaxes(Rt, 1, 2)) + \
-            drift_var[:, None, None] * np.eye(2)
-        Cb[:, 5, 5] = 1e-6
-        for n, j in enumerate(use):
-            Z = head_frame(x_a[n], y_a[n], yaw_a[n], head_m)
-            graph.add(gtsam.BetweenFactorPose3(A(int(node_of[n])), X(int(k_of[j])), Z,
-                                               gtsam.noiseModel.Gaussian.Covariance(Cb[n])))
-        # discretized OU prior on the error process (module docstring)
-        dn = rec.amcl_node_spacing_s
-        sp, sq = np.sqrt(2.0 * tau / dn), np.sqrt(2.0 * dn / tau)
-        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp, 1e-3]))
-        q = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3]))
-        n_nodes = int(node_of.max()) + 1 if len(use) else 0
-        for m in range(n_nodes):
-            values.insert(A(m), gtsam.Pose3())
-            graph.add(gtsam.PriorFactorPose3(A(m), gtsam.Pose3(), prior))
-            if m:
-                graph.add(gtsam.BetweenFactorPose3(A(m - 1), A(m), gtsam.Pose3(), q))
-
-    # Odometry (or smoothness) between consecutive robot poses.
-    if n_pose > 1:
-        src = None
-        if rec.odometry and prob.odometry is not None:
-            src = interpolate_pose2(prob.odometry, times)
-            dt = np.diff(times)
-            d = np.hypot(*np.diff(src[:, :2], axis=0).T)
-            st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * d) ** 2) + 1e-4
-            sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
-                         + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * d) ** 2) + 1e-5
-        elif rec.smoothness:
-            src = base
-            dt = np.diff(times)
-            # AMCL's short-term increments: error grows with dt
-            st = rec.smoothness_sigma_mps * dt + 1e-3
-            sy = np.radians(2.0) * dt + 1e-4
-        if src is not None:
-            P = [head_frame(*src[k], head_m) for k in range(n_pose)]
-            for k in range(n_pose - 1):
-                nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
-                graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), P[k].between(P[k + 1]), nm))
-
-    # Robot observations, carried to their pose variables (FactorGraphProblem.carry_observations).
-    sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-    noise = _NoiseCache(rec)
-    if rec.robot:
-        rng_m = np.linalg.norm(prob.obs_p_sensor, axis=1)
-        keys = [S(sid_index[s]) for s in prob.obs_sensor]
-        noise_keys = noise.keys(rng_m)
-        for n in np.flatnonzero(prob.obs_key_index < n_pose):
-            graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(prob.obs_key_index[n])),
-                                                   gtsam.Unit3(prob.obs_p_sensor[n]),
-                                                   rng_m[n] + rec.head_radius_m, noise(key=noise_keys[n])))
-
-    # People seen by two or more sensors at once (the dome centre of their head).
-    if rec.people:
-        for m, (t, seen) in enumerate(prob.people):
-            if t_max is not None and t > t_max:
-                continue
-            pts = []
-            for sid, p in seen:
-                r = float(np.linalg.norm(p))
-                graph.add(gtsam.BearingRangeFactor3D(S(sid_index[sid]), L(m), gtsam.Unit3(p),
-                                                     r + rec.head_radius_m, noise(r)))
-                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rec.head_radius_m / r)))
-            values.insert(L(m), np.mean(pts, axis=0))
-    return graph, values
-
-
-def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork) -> list:
-    """Instants where two sensors see the same person, matched by the alternative's
-    shared-observation matcher on tracks that hold no robot observation (``is_robot``; all of
-    them when the graph leaves the robot's poses out and the robot is one more person).
-    Returns [(t, [(sensor, p_sensor), ...]), ...]."""
-    from pedcal.calib.alternative import build_tracks, match_shared_observations
-
-    tracks = {sid: [tr for tr in trs if not is_robot[tr.rows].any()] for sid, trs in build_tracks(log).items()}
-    report = match_shared_observations(tracks, network, sample_period_s=recipe.people_sample_s)
-    out = []
-    for m in report.matches:
-        for n in range(len(m.t)):
-            out.append((float(m.t[n]), [(m.sensor_i, m.p_i_sensor[n]), (m.sensor_j, m.p_j_sensor[n])]))
-    return sorted(out, key=lambda x: x[0])
-
-
-def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None) -> dict[str, gtsam.Pose3]:
-    if init_network is not None:
-        init = {s.id: s.T_world_sensor for s in init_network}
-    elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
-        from pedcal.calib import calibrate
-
-        opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
-                                                                                latency_s=latency_s)
-        with warnings.catch_warnings():     # the graph reports degenerate sensors itself
-            warnings.simplefilter("ignore", DegenerateDataWarning)
-            res = calibrate(log, method=recipe.init, progress=progress, **opts)
-        init = {s.id: s.T_world_sensor for s in res.network if s.status == "ok"}
-    elif recipe.init in ("installed", "gridsearch", "closedform"):   # the latter two need the robot
-        init = {}
-    else:
-        raise PedcalInputError(f"unknown initializer '{recipe.init}', expected closedform, gridsearch or "
-                               "installed", column="init")
-    for s in log.sensors:
-        init.setdefault(s.id, s.T_world_sensor)
-    return init
-
-
-def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, progress: bool = False,
-            init_network: SensorNetwork | None = None) -> FactorGraphProblem:
-    """Association, latency, odometry calibration, initial values, the pose grid, the robot's
-    observations carried to it, and the people's shared observations."""
-    from pedcal.calib.association import associate_robot, estimate_latency
-
-    latency = None
-    if not recipe.robot:
-        # Without the robot's observations the robot is one more unlocalized person, as in the
-        # alternative (SNAPCAT-3D): its tracks are shared sightings like anyone's, and no
-        # association or latency is needed (a latency common to all sensors cancels between two).
-        is_robot, latency = np.zeros(len(log.observations), bool), 0.0
-    elif is_robot is None:
-        _log(progress, "picking out the robot's observations")
-        assoc = associate_robot(log)
-        is_robot, latency = assoc.is_robot, assoc.latency_s
-    is_robot = np.asarray(is_robot, bool)
-    if not recipe.estimate_latency:
-        latency = 0.0
-    elif latency is None:
-        latency = estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s) if is_robot.sum() >= 12 else 0.0
-    _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
-    obs = log.observations
-    p_all = log.observation_points_sensor()
-    sensor_col = obs["sensor"].astype(str).to_numpy()
-    t_all = obs["t"].to_numpy(float)
-    rows = np.flatnonzero(is_robot)
-    amcl_t = log.robot["t"].to_numpy(float)
-    t_lo, t_hi = amcl_t.min(), amcl_t.max()
-    rows = rows[(t_all[rows] - latency >= t_lo) & (t_all[rows] - latency <= t_hi)]
-
-    odometry, odo_est = None, {}
-    if recipe.odometry and log.odometry is not None and len(log.odometry) > 1:
-        if recipe.odometry_calibrate:
-            odometry, odo_est = calibrate_odometry(log.odometry, log.robot,
-                                                   amcl_correlation_s=recipe.amcl_correlation_s)
-            _log(progress, "odometry: scale {scale:.4f}, heading drift {yaw_drift_deg_per_m:+.3f} deg/m "
-                           "{yaw_drift_deg_per_s:+.4f} deg/s".format(**odo_est))
-        else:
-            odometry = log.odometry.sort_values("t")
-
-    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network)
-    # robot poses only when something observes them (people-only graphs hold the sensors alone)
-    pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
-    prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
-                              obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
-                              pose_times=pose_times, init_sensors=init,
-                              motion=_RobotMotion(log, odometry), odometry=odometry,
-                              odometry_estimates=odo_est, rows_used=rows)
-    t_a = np.unique(amcl_t)
-    prob.amcl_node_times = t_a[0] + recipe.amcl_node_spacing_s * np.arange(
-        int(np.round((t_a[-1] - t_a[0]) / recipe.amcl_node_spacing_s)) + 1)
-    prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()})
-    if recipe.people:
-        net = SensorNetwork([SensorExtrinsics.from_pose3(sid, init[sid]) for sid in log.sensors.ids],
-                            frame=log.sensors.frame)
-        prob.people = _shared_people(log, is_robot, recipe, net)
-    _log(progress, f"{len(rows)} robot observations, {len(pose_times)} robot poses, "
-                   f"{len(prob.people)} shared person sightings")
-    return prob
-
-
-def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World-axes position covariance and 1-sigma of position (m) and ypr (deg) from GTSAM's
-    Pose3 marginal (body frame, rotation first)."""
-    R = T.rotation().matrix()
-    cov_pos_world = R @ cov_body[3:, 3:] @ R.T
-    ypr0 = frames.ypr_deg_from_rot(R)
-    J = np.zeros((3, 3))
-    eps = 1e-6
-    for c in range(3):
-        w = np.zeros(3)
-        w[c] = eps
-        d = frames.ypr_deg_from_rot(R @ gtsam.Rot3.Expmap(w).matrix()) - ypr0
-        J[:, c] = (d + 180.0) % 360.0 - 180.0
-    J /= eps
-    cov_ypr = J @ cov_body[:3, :3] @ J.T
-    return cov_pos_world, np.sqrt(np.diag(cov_pos_world)), np.sqrt(np.maximum(np.diag(cov_ypr), 0.0))
-
-
-_DIRECTION_NAMES_ROT = ("rotation about world x", "rotation about world y", "yaw")
-_DIRECTION_NAMES_POS = ("x", "y", "z")
-
-
-def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, threshold: float = 0.5):
-    """Directions of a sensor pose the data left unconstrained: eigen-directions of the posterior
-    covariance whitened by the installed prior whose variance the data reduced by less than
-    ``threshold`` (posterior sigma > threshold x prior sigma). Returns (names, whitened basis)."""
-    p = np.r_[[np.radians(recipe.sensor_prior_sigma_deg)] * 3, [recipe.sensor_prior_sigma_m] * 3]
-    Cw = cov_body / np.outer(p, p)
-    evals, evecs = np.linalg.eigh(0.5 * (Cw + Cw.T))
-    bad = evecs[:, evals > threshold ** 2]
-    names = []
-    R = T.rotation().matrix()
-    for v in bad.T:     # whitened: rotation and translation parts are comparable
-        if np.linalg.norm(v[:3]) >= np.linalg.norm(v[3:]):
-            names.append(_DIRECTION_NAMES_ROT[int(np.argmax(np.abs(R @ v[:3])))])
-        else:
-            names.append(_DIRECTION_NAMES_POS[int(np.argmax(np.abs(R @ v[3:])))])
-    return sorted(set(names)), bad
+from pedcal.model import Log, SensorNetwork
 
 
 def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path | GraphRecipe | None = None,
@@ -645,12 +60,16 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     keyword overrides set recipe fields by name."""
     t0 = time.perf_counter()
     recipe = graph if isinstance(graph, GraphRecipe) else GraphRecipe.load(graph or "default")
+    recipe = copy.copy(recipe)
     for k, v in recipe_overrides.items():
         if not hasattr(recipe, k):
             raise ValueError(f"unknown graph recipe field '{k}'")
         setattr(recipe, k, v)
     if not (recipe.robot or recipe.people):
         raise PedcalInputError("the graph recipe uses neither the robot nor people: nothing observes the sensors")
+    if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
+        raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
+                               column="sensor_height_sigma_m")
     if online:
         from pedcal.calib.online import calibrate_online
 
@@ -662,80 +81,248 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     t_build = time.perf_counter() - t_build
     _log(progress, f"optimizing {fg.size()} factors over {values.size()} variables")
     t_opt = time.perf_counter()
-    result, iterations = _optimize(fg, values, recipe)
+    result, iterations = optimize_graph(fg, values, recipe)
     _log(progress, f"converged in {iterations} iterations, error {fg.error(values):.1f} -> {fg.error(result):.1f}")
+    shifts = _estimate_head_shifts(log, prob, fg, result)
+    if shifts is not None:
+        fg, result = shifts.graph, shifts.result
+        sd = 1000 * np.sqrt(np.diag(shifts.cov))
+        _log(progress, f"head point shift toward the sensor: {1000 * prob.ray_shift_m:.1f} +- {sd[0]:.1f} mm "
+                       f"along the ray, {1000 * prob.horizontal_shift_m:.1f} mm horizontally "
+                       f"({shifts.solves} solves)")
     t_opt = time.perf_counter() - t_opt
+    cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
     cov_world: dict[str, np.ndarray] = {}
-    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world)
-    mask = finish_network(log, prob, network)
+    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
+    mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
+                          mismatch=mismatch)
+    diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s, iterations=iterations,
+                                         factors=fg.size(), build_s=t_build, optimize_s=t_opt,
+                                         variables=values.size(), shared_people=len(prob.people),
+                                         odometry=prob.odometry_estimates, position_cov_world_m2=cov_world,
+                                         head_model=head_model, model_mismatch=mismatch)
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
-                             is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
-                                                             iterations=iterations, factors=fg.size(),
-                                                             build_s=t_build, optimize_s=t_opt,
-                                                             variables=values.size(),
-                                                             shared_people=len(prob.people),
-                                                             odometry=prob.odometry_estimates,
-                                                             position_cov_world_m2=cov_world))
+                             is_robot=mask, diagnostics=diagnostics, graph=fg, values=result,
+                             keys=graph_keys(prob, result), position_covariance_m2=joint_pos)
 
 
-def _optimize(fg, values, recipe: GraphRecipe):
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(recipe.max_iterations)
-    params.setRelativeErrorTol(recipe.relative_error_tol)
-    opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    return opt.optimize(), opt.iterations()
+@dataclass
+class _HeadShifts:
+    graph: gtsam.NonlinearFactorGraph
+    result: gtsam.Values
+    cov: np.ndarray               # (k, k) covariance of the shifts (ray, then horizontal), m^2
+    sensitivity: np.ndarray       # (6 n_sensors, k) d(sensor pose tangent)/d(shift), per metre
+    solves: int
 
 
-def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork) -> np.ndarray:
-    """Record the tracker model the graph used (latency, head dome) in the calibrated network and
-    return the mask of the observations used as the robot's."""
-    network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
-    network.extra[HEAD_RADIUS_KEY] = prob.recipe.head_radius_m
-    mask = np.zeros(len(log.observations), bool)
-    mask[prob.rows_used] = True
-    return mask
+def _set_shifts(prob: FactorGraphProblem, theta: np.ndarray) -> None:
+    prob.ray_shift_m = float(theta[0])
+    if len(theta) > 1:
+        prob.horizontal_shift_m = float(theta[1])
 
 
-def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progress: bool,
-                         marginals: gtsam.Marginals | None = None,
-                         cov_out: dict | None = None) -> SensorNetwork:
-    """The calibrated network from the graph's solution; ``cov_out`` (optional) receives each
-    sensor's world-axes position covariance (m^2)."""
+def _shift_prior(rec: GraphRecipe, theta: np.ndarray) -> float:
+    """The shifts' prior as a graph error (chi^2 / 2): the ray shift about head_radius_m, the
+    horizontal one about 0."""
+    e = 0.5 * ((theta[0] - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
+    if len(theta) > 1:
+        e += 0.5 * (theta[1] / rec.head_horizontal_shift_sigma_m) ** 2
+    return float(e)
+
+
+def _solve_at(log: Log, prob: FactorGraphProblem, theta: np.ndarray, start: gtsam.Values,
+              max_iterations: int | None = None):
+    """The graph rebuilt with the head point's shifts ``theta`` (toward the sensor along the ray,
+    then horizontally), solved from ``start`` (at most ``max_iterations`` LM steps: a probe near a
+    converged solution needs one or two); returns (graph, result, profile error incl. the
+    shifts' prior)."""
     rec = prob.recipe
-    if marginals is None:
-        marginals = gtsam.Marginals(fg, result)
-    people_count = {sid: 0 for sid in prob.sensor_ids}
-    for _, seen in prob.people:
-        for sid, _ in seen:
-            people_count[sid] += 1
-    out = []
+    _set_shifts(prob, theta)
+    fg, values = build_graph(log, prob)
+    values.update(start)
+    if max_iterations is not None:
+        rec = copy.copy(rec)
+        rec.max_iterations = max_iterations
+    result, _ = optimize_graph(fg, values, rec)
+    return fg, result, fg.error(result) + _shift_prior(rec, theta)
+
+
+def _sensor_tangents(prob: FactorGraphProblem, result: gtsam.Values, ref: gtsam.Values) -> np.ndarray:
+    return np.concatenate([ref.atPose3(S(i)).localCoordinates(result.atPose3(S(i)))
+                           for i in range(len(prob.sensor_ids))])
+
+
+def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, fg, result) -> _HeadShifts | None:
+    """The head point's shift toward the sensor along the ray (a range offset of every
+    observation; a dome's radius) and, unless the recipe leaves it out, horizontally (a point
+    pulled toward the sensor whatever the viewing angle), by their profile likelihood: the
+    graph's optimal error at theta +- h on each axis and at theta + h (1, 1), a quadratic through
+    them (Gauss-Newton on the profile), repeated once if a step reached 4 h. Their covariance is
+    the inverse of the quadratic's Hessian (error = chi^2 / 2), and the sensors' sensitivity to
+    them (central differences of the solutions) carries it into the sensors' covariance: the
+    marginal over the shifts, not the conditional."""
+    rec = prob.recipe
+    if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0):
+        return None
+    k = 2 if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0 else 1
+    h = rec.head_ray_shift_step_m
+    theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m][:k])
+    e0 = fg.error(result) + _shift_prior(rec, theta)
+    n6 = 6 * len(prob.sensor_ids)
+    solves = 0
+    for _ in range(2):
+        g, Hm, sens = np.zeros(k), np.zeros((k, k)), np.zeros((n6, k))
+        e_plus = np.zeros(k)
+        for j in range(k):
+            d = h * np.eye(k)[j]
+            _, r_plus, e_plus[j] = _solve_at(log, prob, theta + d, result, max_iterations=2)
+            _, r_minus, e_minus = _solve_at(log, prob, theta - d, result, max_iterations=2)
+            g[j] = (e_plus[j] - e_minus) / (2.0 * h)
+            Hm[j, j] = (e_plus[j] + e_minus - 2.0 * e0) / h ** 2
+            sens[:, j] = (_sensor_tangents(prob, r_plus, result) - _sensor_tangents(prob, r_minus, result)) / (2 * h)
+            solves += 2
+        if k == 2:
+            _, _, e_pp = _solve_at(log, prob, theta + h, result, max_iterations=2)
+            Hm[0, 1] = Hm[1, 0] = (e_pp - e_plus[0] - e_plus[1] + e0) / h ** 2
+            solves += 1
+        if not np.all(np.linalg.eigvalsh(Hm) > 0.0):
+            warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
+                          "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
+            fg, result, _ = _solve_at(log, prob, theta, result)
+            prior_sd = [rec.head_ray_shift_sigma_m, rec.head_horizontal_shift_sigma_m][:k]
+            return _HeadShifts(fg, result, np.diag(np.square(prior_sd)), np.zeros((n6, k)), solves + 1)
+        step = np.clip(-np.linalg.solve(Hm, g), -5.0 * h, 5.0 * h)
+        theta = theta + step
+        fg, result, e0 = _solve_at(log, prob, theta, result)
+        solves += 1
+        if np.max(np.abs(step)) < 4.0 * h:     # the profile is close to quadratic: one fit is enough
+            break
+    return _HeadShifts(fg, result, np.linalg.inv(Hm), sens, solves)
+
+
+def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
+    """(N, 3) normalized residuals of the robot observations at ``result``: two bearing
+    components (across the ray, over the lateral sigma) and the range (over its sigma), each
+    N(0, 1) if the noise model of the graph holds."""
+    rec = prob.recipe
+    n_pose = len(prob.pose_times)
+    use = prob.obs_key_index < n_pose
+    if not (rec.robot and use.any()):
+        return np.zeros((0, 3))
+    xk = np.array([result.atPose3(X(k)).translation() for k in range(n_pose)])
+    idx = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    si = np.array([idx[s] for s in prob.obs_sensor[use]])
+    R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]
+    t = np.stack([result.atPose3(S(i)).translation() for i in range(len(prob.sensor_ids))])[si]
+    p_pred = np.einsum("nji,nj->ni", R, xk[prob.obs_key_index[use]] - t)
+    p_meas = prob.head_points_sensor()[use]
+    r_meas = np.linalg.norm(p_meas, axis=1)
+    u = p_meas / r_meas[:, None]
+    r_pred = np.linalg.norm(p_pred, axis=1)
+    a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    b1 = np.cross(u, a)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    b2 = np.cross(u, b1)
+    u_pred = p_pred / r_pred[:, None]
+    sig = observation_sigmas(rec, r_meas)
+    return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
+                            (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
+
+
+def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> ModelMismatch:
+    """Residuals against the noise model, per sensor: the robust variance ratio (median of the
+    squared normalized residuals over the chi-square(1) median 0.455, averaged over the three
+    components; 1 when the model holds, robust to the mis-associations the kernel rejects, not
+    to a bias), and the sensors whose ratio exceeds ``threshold``."""
+    z = robot_residuals(prob, result)
+    rec = prob.recipe
+    n_pose = len(prob.pose_times)
+    sensors = prob.obs_sensor[prob.obs_key_index < n_pose] if rec.robot else np.zeros(0, str)
+    ratio = {}
+    for sid in prob.sensor_ids:
+        m = sensors == sid
+        if m.sum() >= 10:
+            ratio[sid] = float(np.mean(np.median(z[m] ** 2, axis=0)) / 0.4549)
+    bad = {sid: r for sid, r in ratio.items() if r > threshold}
+    return ModelMismatch(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
+                         misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
+                                 + ", ".join(f"{sid} x{np.sqrt(r):.2f} sigma" for sid, r in sorted(bad.items()))
+                                 if bad else ""))
+
+
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShifts | None):
+    """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
+    vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
+    sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
+    where that exceeds 1. Returns (per-sensor body covariance, the joint world-axes position
+    covariance, the head model, the model check)."""
+    rec = prob.recipe
+    n = len(prob.sensor_ids)
+    keys = [S(i) for i in range(n)]
+    has_h = result.exists(H(0))
+    marginals = gtsam.Marginals(fg, result)
+    kv = gtsam.KeyVector(keys + ([H(0)] if has_h else []))
+    C = marginals.jointMarginalCovariance(kv).fullMatrix()
+    C_s = C[:6 * n, :6 * n].copy()
+    if shifts is not None:
+        C_s += shifts.sensitivity @ shifts.cov @ shifts.sensitivity.T
+    check = model_check(prob, result)
+    scale = np.ones(6 * n)
     for i, sid in enumerate(prob.sensor_ids):
-        installed = log.sensors[sid]
-        n_obs = int(np.sum(prob.obs_sensor == sid)) if rec.robot else 0
-        T = result.atPose3(S(i))
-        cov = marginals.marginalCovariance(S(i))
-        if n_obs + people_count[sid] == 0:
-            warnings.warn(f"sensor {sid}: no observation of the robot or of shared people; "
-                          "its installed pose is kept", DegenerateDataWarning, stacklevel=2)
-            _, sp, sy = sensor_sigma_world(installed.T_world_sensor, cov)
-            out.append(SensorExtrinsics(sid, installed.position_m, installed.ypr_deg, sigma_position_m=sp,
-                                        sigma_ypr_deg=sy, observations=0, status="no-data"))
-            continue
-        names, bad = observability(T, cov, rec)
-        status = "ok"
-        if names:
-            status = "degenerate"
-            # keep the installed value along the unconstrained directions
-            p = np.r_[[np.radians(rec.sensor_prior_sigma_deg)] * 3, [rec.sensor_prior_sigma_m] * 3]
-            delta = installed.T_world_sensor.localCoordinates(T) / p
-            delta -= bad @ (bad.T @ delta)
-            T = installed.T_world_sensor.retract(delta * p)
-            warnings.warn(f"sensor {sid}: the data leave {', '.join(names)} unconstrained; the installed "
-                          "value is kept there", DegenerateDataWarning, stacklevel=2)
-        cov_pos, sp, sy = sensor_sigma_world(T, cov)
-        if cov_out is not None:
-            cov_out[sid] = cov_pos
-        out.append(SensorExtrinsics.from_pose3(sid, T, sigma_position_m=sp, sigma_ypr_deg=sy,
-                                               observations=n_obs, status=status,
-                                               unobservable=names or None))
-    return SensorNetwork(out, frame=log.sensors.frame)
+        scale[6 * i:6 * i + 6] = np.sqrt(max(1.0, check.variance_ratio.get(sid, 1.0)))
+    C_s = C_s * np.outer(scale, scale)
+    cov_body = {sid: C_s[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i, sid in enumerate(prob.sensor_ids)}
+    Rb = np.zeros((3 * n, 6 * n))
+    for i in range(n):
+        Rb[3 * i:3 * i + 3, 6 * i + 3:6 * i + 6] = result.atPose3(S(i)).rotation().matrix()
+    joint_pos = Rb @ C_s @ Rb.T
+    if rec.sensor_height_sigma_m > 0.0:
+        reference = "ceiling height" if rec.ceiling_height_m > 0.0 else "installed sensor heights"
+    else:
+        reference = "none"
+    head = HeadModel(vertical_offset_m=-rec.head_radius_m, ray_shift_m=prob.ray_shift_m,
+                     horizontal_shift_m=prob.horizontal_shift_m, height_reference=reference,
+                     estimated=bool(rec.estimate_head_model))
+    if has_h:
+        head.vertical_offset_m = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
+        head.sigma_vertical_offset_m = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
+    if shifts is not None:
+        sd = np.sqrt(np.diag(shifts.cov))
+        head.sigma_ray_shift_m = float(sd[0])
+        if len(sd) > 1:
+            head.sigma_horizontal_shift_m = float(sd[1])
+    if has_h and reference == "none":
+        head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "
+                        f"{1000 * rec.head_vertical_sigma_m:.0f} mm, a sigma the sensors' heights carry, "
+                        "shared by all of them.")
+        warnings.warn("the head point's vertical offset cannot be told from the sensors' common height by "
+                      "the robot alone: the sensors' vertical sigma carries its prior "
+                      f"({1000 * rec.head_vertical_sigma_m:.0f} mm); give a height reference "
+                      "(--sensor-height-sigma or --ceiling-height)", DegenerateDataWarning, stacklevel=3)
+    return cov_body, joint_pos, head, check
+
+
+def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:
+    """Which symbol of the solved graph is which variable (CalibrationResult.keys)."""
+    n_pose = sum(1 for k in range(len(prob.pose_times)) if result.exists(X(k)))
+    n_amcl = sum(1 for k in range(len(prob.amcl_node_times)) if result.exists(A(k)))
+    people = [m for m in range(len(prob.people)) if result.exists(L(m))]
+    return GraphKeys(sensors={sid: S(i) for i, sid in enumerate(prob.sensor_ids)},
+                     robot_poses=[X(k) for k in range(n_pose)], robot_pose_times=prob.pose_times[:n_pose],
+                     amcl_errors=[A(k) for k in range(n_amcl)], amcl_error_times=prob.amcl_node_times[:n_amcl],
+                     people=[L(m) for m in people], people_times=np.array([prob.people[m][0] for m in people]),
+                     head_model=H(0) if result.exists(H(0)) else None)
+
+
+HEAD_HEIGHT_DEGENERACY = ("A head point uniformly lower than the head top moves every robot observation down "
+                          "alike, which the robot alone cannot tell from the sensors' heights: the vertical "
+                          "offset is held by its prior unless a height reference is given.")
+
+
+
+
+__all__ = ["calibrate_factorgraph", "model_check", "graph_keys", "robot_residuals", "HEAD_HEIGHT_DEGENERACY",
+           "GraphRecipe",
+           "FactorGraphProblem", "build_graph", "prepare", "optimize_graph", "sensor_sigma_world", "amcl_cov_body",
+           "amcl_white_sigma", "observability", "observation_sigmas", "rotation_sigma_deg", "calibrate_odometry",
+           "head_frame", "finish_network", "GRAPHS_DIR", "S", "X", "A", "L", "H"]

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pedcal.calib.common import CalibrationResult, robot_head_at
+from pedcal.calib.common import CalibrationResult, GridSearchDiagnostics, robot_head_at
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
@@ -566,9 +566,8 @@ def calibrate_gridsearch(log: Log, *, progress: bool = False, is_robot=None, **o
                           f"spot; cannot estimate {'; '.join(unobservable)}", DegenerateDataWarning,
                           stacklevel=2)
         calibrated.append(ext)
-        diagnostics[sensor.id] = {"zdev_m": res.zdev_m, "zdist_m": res.zdist_m, "xydev_m": res.xydev_m,
-                                  "xydist_m": res.xydist_m, "index": res.index,
-                                  "on_range_edge": res.on_range_edge, "timings_s": res.timings_s}
+        diagnostics[sensor.id] = res
     network = SensorNetwork(calibrated, frame=log.sensors.frame, extra=dict(log.sensors.extra))
     return CalibrationResult(network=network, method="gridsearch", runtime_s=time.perf_counter() - t_start,
-                             is_robot=mask, diagnostics={"gridsearch": diagnostics, "options": dict(options)})
+                             is_robot=mask, diagnostics=GridSearchDiagnostics(sensors=diagnostics,
+                                                                              options=dict(options)))

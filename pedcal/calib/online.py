@@ -16,15 +16,15 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from pedcal.calib.common import CalibrationResult
-from pedcal.calib.factorgraph import GraphRecipe, S, _network_from_result, build_graph, finish_network, prepare
+from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics
+from pedcal.calib.graph import GraphRecipe, S, _network_from_result, build_graph, finish_network, prepare
 from pedcal.model import Log
 
 
 @dataclass
 class OnlineStep:
     t: float                              # log time up to which data were consumed
-    sigma_position_mm: dict[str, float]   # per sensor, largest 1-sigma position axis
+    sigma_position_mm: dict[str, float]   # per sensor, largest 1-sigma horizontal position axis
     converged: list[str]
     waiting: list[str]                    # sensors that still need the robot
 
@@ -54,7 +54,9 @@ def _factor_times(graph, prob) -> np.ndarray:
 def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: bool = False,
                      step_s: float = 10.0, converged_sigma_mm: float = 30.0) -> CalibrationResult:
     """Incremental calibration (iSAM2). ``step_s``: seconds of log consumed per update; a sensor
-    counts as converged when its largest 1-sigma position axis is below ``converged_sigma_mm``."""
+    counts as converged when its largest 1-sigma horizontal position axis is below
+    ``converged_sigma_mm``. The head point's shift toward the sensor stays at its prior here
+    (the batch solve estimates it)."""
     t0 = time.perf_counter()
     prob = prepare(log, recipe, is_robot=is_robot, progress=progress)
     graph, values = build_graph(log, prob)
@@ -81,7 +83,7 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
             for key in f.keys():
                 if key not in added:
                     added.add(key)
-                    new_values.insert(key, values.atPose3(key) if chr(gtsam.Symbol(key).chr()) in "sxa"
+                    new_values.insert(key, values.atPose3(key) if chr(gtsam.Symbol(key).chr()) in "sxah"
                                       else values.atPoint3(key))
             pos += 1
         if new_graph.size() == 0:
@@ -89,8 +91,11 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
         isam.update(new_graph, new_values)
         sig = {}
         for sid, key in zip(prob.sensor_ids, sensor_keys, strict=True):
-            cov = isam.marginalCovariance(key)
-            sig[sid] = float(1000.0 * np.sqrt(np.max(np.linalg.eigvalsh(cov[3:, 3:]))))
+            # horizontal (world xy): the common height is shared with the head model's vertical
+            # offset, which the robot alone cannot determine however long it drives
+            R = isam.calculateEstimatePose3(key).rotation().matrix()
+            cov_xy = (R @ isam.marginalCovariance(key)[3:, 3:] @ R.T)[:2, :2]
+            sig[sid] = float(1000.0 * np.sqrt(np.max(np.linalg.eigvalsh(cov_xy))))
         conv = [s for s, v in sig.items() if v < converged_sigma_mm]
         step = OnlineStep(t=float(min(edge, t_end)), sigma_position_mm=sig, converged=conv,
                           waiting=[s for s in prob.sensor_ids if s not in conv])
@@ -105,8 +110,11 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     network = _network_from_result(log, prob, graph, result, progress, marginals=marg)
     mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph-online", runtime_s=time.perf_counter() - t0,
-                             is_robot=mask, diagnostics=dict(recipe=recipe.name, latency_s=prob.latency_s,
-                                                             online_trace=trace))
+                             is_robot=mask, graph=graph, values=result,
+                             diagnostics=FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s,
+                                                                factors=graph.size(), variables=result.size(),
+                                                                shared_people=len(prob.people),
+                                                                online_trace=trace))
 
 
 __all__ = ["calibrate_online", "OnlineTrace", "OnlineStep"]

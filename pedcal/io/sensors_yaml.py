@@ -1,9 +1,14 @@
 """sensors.yaml, truth.yaml and the calibrated extrinsics file (LOG_FORMAT.md, "sensors.yaml").
 
 One reader for the three schemas: the installed and truth files hold ``frame`` and
-``sensors: [{id, position, ypr_deg}]``; the calibrated file adds per sensor ``sigma``,
-``observations``, ``status`` and (when degenerate) ``unobservable``. A calibrated file is a
-valid sensors.yaml.
+``sensors: [{id, position, ypr_deg}]``; the calibrated file adds per sensor ``quaternion_wxyz``
+(the same rotation, for programs), ``sigma`` (``position_m``, ``ypr_deg`` and ``rotation_deg``:
+a rotation vector in the sensor frame, meaningful at any pitch), ``observations``, ``status`` and
+(when degenerate) ``unobservable``, and at the top level what the calibration estimated beside
+the extrinsics: ``tracker_latency_s``, ``head_model`` (vertical offset and shift toward the
+sensor of the tracker's head point, with sigma), ``position_covariance_m2`` (the joint covariance
+of all sensors' positions) and ``model_mismatch`` (residuals against the noise model). A
+calibrated file is a valid sensors.yaml.
 
 Sensor ids are kept as the text written in the file, so ``id: 01`` is "01" (YAML would read it
 as the integer 1) and matches the ``sensor`` column of observations.csv, which is read as text.
@@ -21,7 +26,7 @@ from pedcal.io import plausible
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import SENSOR_STATUSES, SensorExtrinsics, SensorNetwork
 
-SENSOR_KEYS = ("id", "position", "ypr_deg", "sigma", "observations", "status", "unobservable")
+SENSOR_KEYS = ("id", "position", "ypr_deg", "quaternion_wxyz", "sigma", "observations", "status", "unobservable")
 
 
 # ------------------------------------------------------------------------------------------- reading
@@ -197,16 +202,35 @@ CALIBRATION_KEYS = {
 }
 
 
+# The head-point model a calibration estimated (``head_model``, applied by pedcal evaluate): its
+# offsets and their sigmas in metres, each within the head's own size.
+HEAD_MODEL_FIELDS = ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m",
+                     "sigma_vertical_offset_m", "sigma_ray_shift_m", "sigma_horizontal_shift_m")
+
+
+def _check_number(key: str, v, lo: float, hi: float, unit: str, path: Path) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(float(v)):
+        raise PedcalInputError(f"'{key}' must be a number of {unit}, got {show(v)}", path=path)
+    if not lo <= v <= hi:
+        raise PedcalInputError(f"'{key}' = {float(v):g} {unit} is implausible; expected {lo:g} to {hi:g} {unit}",
+                               path=path)
+
+
 def _check_calibration_keys(extra: dict, path: Path) -> None:
     for key, (lo, hi, unit) in CALIBRATION_KEYS.items():
         v = extra.get(key)
-        if v is None:
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(float(v)):
-            raise PedcalInputError(f"'{key}' must be a number of {unit}, got {show(v)}", path=path)
-        if not lo <= v <= hi:
-            raise PedcalInputError(f"'{key}' = {float(v):g} {unit} is implausible; expected {lo:g} to {hi:g} {unit}",
-                                   path=path)
+        if v is not None:
+            _check_number(key, v, lo, hi, unit, path)
+    hm = extra.get("head_model")
+    if hm is None:
+        return
+    if not isinstance(hm, dict):
+        raise PedcalInputError(f"'head_model' must be a mapping of {', '.join(HEAD_MODEL_FIELDS[:3])}, got "
+                               f"{show(hm)}", path=path)
+    for key in HEAD_MODEL_FIELDS:
+        if hm.get(key) is not None:
+            lo = 0.0 if key.startswith("sigma_") else -plausible.MAX_HEAD_RADIUS_M
+            _check_number(f"head_model.{key}", hm[key], lo, plausible.MAX_HEAD_RADIUS_M, "m", path)
 
 
 def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
@@ -222,6 +246,11 @@ def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
         if sigma.get("ypr_deg") is not None:
             out["sigma_ypr_deg"] = read_vector(sigma["ypr_deg"], 3, f"{where} sigma.ypr_deg", path,
                                                nonnegative=True)
+        if sigma.get("rotation_deg") is not None:
+            out["sigma_rotation_deg"] = read_vector(sigma["rotation_deg"], 3, f"{where} sigma.rotation_deg", path,
+                                                    nonnegative=True)
+    if entry.get("quaternion_wxyz") is not None:    # written beside ypr_deg for programs; ypr_deg rules
+        read_vector(entry["quaternion_wxyz"], 4, f"{where} quaternion_wxyz", path)
     n_obs = entry.get("observations")
     if n_obs is not None:
         if isinstance(n_obs, bool) or not isinstance(n_obs, int) or n_obs < 0:
@@ -271,11 +300,16 @@ def sensors_yaml_text(network: SensorNetwork) -> str:
     sensors = []
     for s in network:
         d: dict = {"id": str(s.id), "position": flow_vector(s.position_m), "ypr_deg": flow_vector(s.ypr_deg)}
+        if s.status is not None:      # calibrated files: the rotation as a quaternion as well
+            q_xyzw = s.T_world_sensor.rotation().toQuaternion().coeffs()
+            d["quaternion_wxyz"] = flow_vector(np.round(q_xyzw[[3, 0, 1, 2]], 12))
         sigma = {}
         if s.sigma_position_m is not None:
             sigma["position_m"] = flow_vector(s.sigma_position_m)
         if s.sigma_ypr_deg is not None:
             sigma["ypr_deg"] = flow_vector(s.sigma_ypr_deg)
+        if s.sigma_rotation_deg is not None:
+            sigma["rotation_deg"] = flow_vector(s.sigma_rotation_deg)
         if sigma:
             d["sigma"] = sigma
         if s.observations is not None:

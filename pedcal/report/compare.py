@@ -64,7 +64,7 @@ def compare_extrinsics(log_path, extrinsics, out_dir: str | Path | None = None,
         ev = evaluate(log, net)
         summary.append(dict(label=label, file=file,
                             sensor_rms_mm=None if ev.sensor_position_rms_mm is None
-                            else ev.sensor_position_rms_mm["combined"],
+                            else ev.sensor_position_rms_mm.combined,
                             orientation_rms_deg=ev.orientation_rms_deg, head_rms_mm=ev.head_tracking_rms_mm,
                             head_reference=ev.head_reference, head_observations=ev.head_observations,
                             statuses={s.id: s.status for s in net if s.status},

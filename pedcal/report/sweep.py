@@ -195,8 +195,8 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
         rms = ev.sensor_position_rms_mm
         runs.append(dict(
             scenario=scenario, seed=seed, method=method,
-            sensor_rms_mm=rms["combined"], sensor_rms_x_mm=rms["x"], sensor_rms_y_mm=rms["y"],
-            sensor_rms_z_mm=rms["z"], orientation_rms_deg=float(ev.orientation_rms_deg),
+            sensor_rms_mm=rms.combined, sensor_rms_x_mm=rms.x, sensor_rms_y_mm=rms.y,
+            sensor_rms_z_mm=rms.z, orientation_rms_deg=float(ev.orientation_rms_deg),
             head_rms_mm=_nan(ev.head_tracking_rms_mm), head_observations=int(ev.head_observations),
             sensors=len(statuses), ok=statuses.count("ok"), degenerate=statuses.count("degenerate"),
             no_data=statuses.count("no-data"),

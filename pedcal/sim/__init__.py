@@ -20,6 +20,7 @@ from pedcal.calib.common import head_world, interpolate_pose2
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, Meta, SensorNetwork
 from pedcal.sim import ceiling, robot, walkers
+from pedcal.sim.nuisances import vary
 from pedcal.sim.scenario import Scenario, load_scenario
 
 ROBOT, FALSE = "robot", "false"
@@ -207,9 +208,14 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
                   **overrides) -> SimulationResult:
     """Simulate the calibration and evaluation logs of ``scenario`` (a name in datasets/, a YAML
     path or a Scenario) in memory. ``overrides`` set any Scenario parameter by name;
-    ``noise_free=True`` turns every nuisance off. The same seed gives identical logs."""
+    ``noise_free=True`` turns every nuisance off; ``vary_nuisances=True`` draws the nuisance
+    models from the seed (:func:`pedcal.sim.nuisances.draw_nuisances`), after the overrides.
+    The same seed gives identical logs."""
     noise_free = bool(overrides.pop("noise_free", False))
+    vary_nuisances = bool(overrides.pop("vary_nuisances", False))
     sc = load_scenario(scenario).resolve(noise_free=noise_free, seed=seed, **overrides)
+    if vary_nuisances:
+        sc = vary(sc)
     true_net, installed = networks(sc)
     ss_calib, ss_eval = np.random.SeedSequence(sc.seed).spawn(4)[2:]
     _progress(progress, f"scenario {sc.name}: {len(true_net)} sensors, driving the route")

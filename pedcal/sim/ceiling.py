@@ -12,14 +12,62 @@ import numpy as np
 from pedcal import frames
 from pedcal.errors import PedcalInputError
 from pedcal.model import SensorExtrinsics, SensorNetwork
+from pedcal.sim.nuisances import dome_point, head_point  # noqa: F401 (dome_point: public here)
 from pedcal.sim.scenario import Scenario
 
 
+def corridor_axes(sc: Scenario) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """The corridors of a ``corridor`` or ``cross`` layout: (start, end, width) of each centre
+    line (m)."""
+    ax, ay = sc.area_m
+    if sc.layout == "corridor":
+        return [(np.array([0.0, ay / 2]), np.array([ax, ay / 2]), float(ay))]
+    w = sc.corridor_width_m
+    return [(np.array([0.0, ay / 2]), np.array([ax, ay / 2]), w), (np.array([ax / 2, 0.0]), np.array([ax / 2, ay]), w)]
+
+
+def _corridor_layout(sc: Scenario, rng: np.random.Generator) -> list[tuple[np.ndarray, float]]:
+    """(position, yaw deg) of sensors on alternating walls of each corridor, 0.1 m from the wall,
+    looking across; in a ``cross`` none over the crossing of the two corridors."""
+    out = []
+    corridors = corridor_axes(sc)
+    for start, end, width in corridors:
+        d = end - start
+        length = float(np.linalg.norm(d))
+        along = d / length
+        left = np.array([-along[1], along[0]])
+        n = sc.corridor_sensors
+        if len(corridors) > 1:      # skip the crossing: n sensors over the two arms
+            half = (length - width) / 2
+            s_k = np.r_[(np.arange(n // 2) + 0.5) * half / (n // 2),
+                        half + width + (np.arange(n - n // 2) + 0.5) * half / (n - n // 2)]
+        else:
+            s_k = (np.arange(n) + 0.5) * length / n
+        for k, s_along in enumerate(s_k):
+            side = 1.0 if k % 2 == 0 else -1.0      # left wall looks right and vice versa
+            xy = start + s_along * along + side * (width / 2 - 0.1) * left
+            look = -side * left
+            yaw = np.degrees(np.arctan2(look[1], look[0]))
+            out.append((xy + rng.normal(0.0, sc.position_jitter_m, 2), yaw))
+    return out
+
+
 def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
-    """True extrinsics: ``grid_rows`` rows of ``grid_cols`` sensors over the area. Rows look
+    """True extrinsics (``layout: grid``): ``grid_rows`` rows of ``grid_cols`` sensors over the area. Rows look
     alternately along +x and -x (each row starts at the end it looks away from), with
     ``pitch_deg`` cycled over the sensors, so neighbouring fields of view overlap partly.
-    Ids run s01, s02, ... in x order."""
+    Ids run s01, s02, ... in x order. ``corridor`` and ``cross`` layouts: sensors on
+    alternating walls (:func:`_corridor_layout`), ids in layout order."""
+    if sc.layout != "grid":
+        placed = _corridor_layout(sc, rng)
+        n = len(placed)
+        z = sc.sensor_height_m + rng.normal(0.0, sc.height_jitter_m, n)
+        yaw = np.array([y for _, y in placed]) + rng.normal(0.0, sc.yaw_jitter_deg, n)
+        pitch = np.resize(np.asarray(sc.pitch_deg, float), n)
+        net = SensorNetwork([SensorExtrinsics(f"s{k + 1:02d}", [xy[0], xy[1], z[k]],
+                                              [frames.wrap_angle_rad(np.radians(yaw[k])) * 180 / np.pi, pitch[k], 0.0])
+                             for k, (xy, _) in enumerate(placed)])
+        return _keep(net, sc)
     area_x, area_y = sc.area_m
     rows = np.arange(sc.grid_rows)
     row_y = (np.asarray(sc.row_y_m, float) if sc.row_y_m is not None
@@ -39,7 +87,10 @@ def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
     sensors = [SensorExtrinsics(f"s{k + 1:02d}", [xy[i, 0], xy[i, 1], z[i]],
                                 [frames.wrap_angle_rad(np.radians(yaw[i])) * 180 / np.pi, pitch[k], 0.0])
                for k, i in enumerate(order)]
-    net = SensorNetwork(sensors)
+    return _keep(SensorNetwork(sensors), sc)
+
+
+def _keep(net: SensorNetwork, sc: Scenario) -> SensorNetwork:
     if sc.sensor_ids is not None:
         missing = [s for s in sc.sensor_ids if s not in net]
         if missing:
@@ -103,23 +154,14 @@ def coverage(net: SensorNetwork, sc: Scenario, p_world: np.ndarray) -> np.ndarra
     return np.stack([in_frustum(s.to_sensor(p_world), sc) for s in net])
 
 
-def dome_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, head_radius_m: float) -> np.ndarray:
-    """The point of a head dome (a sphere of radius r under the head top) that faces the sensor:
-    the centre plus r along the unit vector toward the sensor. It is shifted r cos(e)
-    horizontally toward the sensor and r (1 - sin e) down, e the sensor's elevation."""
-    if head_radius_m == 0.0:
-        return p_top_world
-    centre = p_top_world - np.array([0.0, 0.0, head_radius_m])
-    u = sensor_pos - centre
-    return centre + head_radius_m * u / np.linalg.norm(u, axis=1, keepdims=True)
-
-
 def measure(p_sensor: np.ndarray, sc: Scenario, rng: np.random.Generator) -> np.ndarray:
     """Add the depth sensor's noise to true sensor-frame points (N, 3): along the ray
-    sigma = k r^2 (times far_noise_factor beyond reliable_range_m), plus lateral noise."""
+    sigma = k r^2 (``linear``: 2.5 k r; times far_noise_factor beyond reliable_range_m), plus
+    lateral noise."""
     r = np.linalg.norm(p_sensor, axis=1)
     ray = p_sensor / r[:, None]
-    sigma_depth = sc.depth_noise_k_per_m * r**2 * np.where(r > sc.reliable_range_m, sc.far_noise_factor, 1.0)
+    grow = 2.5 * r if sc.depth_noise_model == "linear" else r ** 2
+    sigma_depth = sc.depth_noise_k_per_m * grow * np.where(r > sc.reliable_range_m, sc.far_noise_factor, 1.0)
     along = ray * (rng.standard_normal(len(r)) * sigma_depth)[:, None]
     lateral = rng.normal(0.0, sc.lateral_noise_m, p_sensor.shape) if sc.lateral_noise_m > 0 else 0.0
     lateral = lateral - ray * np.sum(lateral * ray, axis=1, keepdims=True) if sc.lateral_noise_m > 0 else 0.0
@@ -205,7 +247,7 @@ def tracker_observations(true_net: SensorNetwork, installed: SensorNetwork, sc: 
     p_top = p_top_world[order]
     head = is_head[order]
     p_seen = p_top.copy()
-    p_seen[head] = dome_point(p_top[head], t_true[s_o[head]], sc.head_radius_m)
+    p_seen[head] = head_point(p_top[head], t_true[s_o[head]], sc)
     p_sensor = np.einsum("nji,nj->ni", R_true[s_o], p_seen - t_true[s_o])
     if len(p_sensor):
         p_sensor = measure(p_sensor, sc, rng)

@@ -17,8 +17,38 @@ from pedcal.frames import wrap_angle_rad
 from pedcal.sim.scenario import Scenario
 
 
+def _corridor_route(sc: Scenario) -> np.ndarray:
+    """Up and down each corridor of a ``corridor`` / ``cross`` layout on lanes lane_spacing_m
+    apart (a single corridor twice, the lanes in reverse order the second time); from one
+    corridor to the next through the crossing."""
+    from pedcal.sim.ceiling import corridor_axes
+
+    m = sc.route_margin_m
+    axes = corridor_axes(sc)
+    pts: list = []
+    for n_c, (start, end, width) in enumerate(axes):
+        d = end - start
+        length = float(np.linalg.norm(d))
+        along, left = d / length, np.array([-d[1], d[0]]) / length
+        half = width / 2 - m
+        offsets = np.linspace(-half, half, max(2, int(round(2 * half / sc.lane_spacing_m)) + 1))
+        if len(axes) == 1:
+            offsets = np.r_[offsets, offsets[::-1]]
+        if n_c:
+            pts.append(tuple(start + 0.5 * d))                    # through the crossing
+        for k, off in enumerate(offsets):
+            a, b = start + m * along + off * left, end - m * along + off * left
+            pts += [tuple(a), tuple(b)] if k % 2 == 0 else [tuple(b), tuple(a)]
+    wp = np.asarray(pts, float)
+    keep = np.r_[True, np.linalg.norm(np.diff(wp, axis=0), axis=1) > 1e-6]
+    return wp[keep]
+
+
 def route_waypoints(sc: Scenario) -> np.ndarray:
-    """(N, 2) waypoints: lanes along x, lanes along y, then the border loop reversed."""
+    """(N, 2) waypoints: lanes along x, lanes along y, then the border loop reversed (a
+    ``corridor`` or ``cross`` layout: up and down its corridors)."""
+    if sc.layout != "grid":
+        return _corridor_route(sc)
     m, (ax, ay) = sc.route_margin_m, sc.area_m
     x0, x1, y0, y1 = m, ax - m, m, ay - m
     ys = np.linspace(y0, y1, max(2, int(round((y1 - y0) / sc.lane_spacing_m)) + 1))
@@ -125,9 +155,21 @@ def amcl_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> p
     t = np.arange(t_true[0], t_true[-1] + 1e-9, dt)
     pose = interpolate_pose2(truth, t)
     n = len(t)
-    err_x = ou_process(rng, n, dt, sc.amcl_sigma_m, sc.amcl_tau_s)
-    err_y = ou_process(rng, n, dt, sc.amcl_sigma_m, sc.amcl_tau_s)
-    err_yaw = ou_process(rng, n, dt, np.radians(sc.amcl_sigma_yaw_deg), sc.amcl_tau_s)
+    if sc.amcl_error == "white":
+        err_x, err_y = rng.normal(0.0, sc.amcl_sigma_m, (2, n))
+        err_yaw = rng.normal(0.0, np.radians(sc.amcl_sigma_yaw_deg), n)
+    else:
+        err_x = ou_process(rng, n, dt, sc.amcl_sigma_m, sc.amcl_tau_s)
+        err_y = ou_process(rng, n, dt, sc.amcl_sigma_m, sc.amcl_tau_s)
+        err_yaw = ou_process(rng, n, dt, np.radians(sc.amcl_sigma_yaw_deg), sc.amcl_tau_s)
+    if sc.amcl_error == "jumps" and sc.amcl_jump_rate_hz > 0:
+        # a wrong relocalization: the estimate jumps amcl_jump_m in a random direction and
+        # stays off for 2-10 s until the scan matcher recovers
+        for _ in range(rng.poisson(sc.amcl_jump_rate_hz * (t[-1] - t[0]))):
+            t_j, life, ang = rng.uniform(t[0], t[-1]), rng.uniform(2.0, 10.0), rng.uniform(0, 2 * np.pi)
+            on = (t >= t_j) & (t < t_j + life)
+            err_x[on] += sc.amcl_jump_m * np.cos(ang)
+            err_y[on] += sc.amcl_jump_m * np.sin(ang)
     sx = _slow_wave(rng, t, *sc.amcl_reported_sigma_m)
     sy = sx * _slow_wave(rng, t, 0.8, 1.25)
     rho = _slow_wave(rng, t, -0.3, 0.3)
@@ -141,10 +183,12 @@ def amcl_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> p
     })
 
 
-def odometry_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> pd.DataFrame:
+def odometry_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> pd.DataFrame | None:
     """odometry.csv: the true body-frame increments with a scale error, a heading drift per
     metre and per second (signs drawn at random) and white noise, integrated from the origin
-    of the odom frame at truth_rate_hz."""
+    of the odom frame at truth_rate_hz. None when the scenario has no odometry."""
+    if not sc.odometry:
+        return None
     t = truth["t"].to_numpy()
     p = truth[["x", "y"]].to_numpy()
     yaw = truth["yaw"].to_numpy()

@@ -21,6 +21,8 @@ from pedcal.errors import PedcalInputError
 
 DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
+CHOICES = {"layout": ("grid", "corridor", "cross"), "head_point": ("top", "dome", "shift", "centroid"),
+           "amcl_error": ("white", "correlated", "jumps"), "depth_noise_model": ("quadratic", "linear")}
 
 
 def _nuisance(default, off=0.0):
@@ -58,6 +60,17 @@ class Scenario:
     ceiling allows."""
     sensor_ids: list | None = None
     """Keep only these sensors of the layout (None: all). ``sparse`` keeps the 5 middle ones."""
+    layout: str = "grid"
+    """Where the sensors hang and where the robot drives: ``grid`` (rows over a room, a
+    lawnmower route), ``corridor`` (a corridor along x, area_m = [length, width], corridor_sensors
+    on alternating walls looking across it, the robot driving up and down it) or ``cross`` (two
+    such corridors crossing at the centre of a square area_m, corridor_sensors per corridor, none
+    over the crossing; the robot drives up and down one, then the other)."""
+    corridor_width_m: float = 2.4
+    """Width of the corridors of the ``corridor`` and ``cross`` layouts (m); ``corridor`` takes
+    area_m[1]."""
+    corridor_sensors: int = 16
+    """Sensors per corridor of the ``corridor`` and ``cross`` layouts."""
 
     # ---- depth sensor (ASUS Xtion Pro Live) -----------------------------------------------------
     hfov_deg: float = 58.0
@@ -82,15 +95,27 @@ class Scenario:
     depth_noise_k_per_m: float = _nuisance(1.5e-3)
     """Depth noise along the ray, sigma = k r^2 (1/m): structured-light sensors (Khoshelham and
     Elberink 2012 report ~1.5e-3 r^2 for the Kinect/Xtion)."""
+    depth_noise_model: str = "quadratic"
+    """How depth noise grows with range: ``quadratic`` (k r^2, structured light) or ``linear``
+    (2.5 k r, equal at 2.5 m: a time-of-flight sensor)."""
     far_noise_factor: float = _nuisance(2.0, off=1.0)
     """Multiplier of the depth noise beyond reliable_range_m: depth degrades past 3.5 m."""
     lateral_noise_m: float = _nuisance(0.01)
     """Std of the head-top estimate across the ray, per axis (m): the blob's top is found on a
     sparse, noisy point cloud."""
+    head_point: str = _nuisance("dome", off="top")
+    """Which point of a head the tracker reports: ``top`` (the highest point), ``dome`` (the
+    point of a dome of radius head_radius_m facing the sensor), ``shift`` (the top moved
+    head_shift_m horizontally toward the sensor) or ``centroid`` (the centroid of the part of the
+    top 10 cm of a 0.1 m head the sensor sees). Every one is then moved head_vertical_bias_m up."""
     head_radius_m: float = _nuisance(0.1)
     """Radius of the head dome (m). The tracker reports the point of the dome facing the
     sensor, so the reported head moves toward the sensor horizontally and down with
     obliquity (by r cos(e) and r (1 - sin e), e the elevation of the sensor seen from the head)."""
+    head_shift_m: float = _nuisance(0.04)
+    """Horizontal shift of the reported head point toward the sensor (m), head_point ``shift``."""
+    head_vertical_bias_m: float = _nuisance(0.0)
+    """Vertical bias of the reported head point (m; negative: below), any head_point."""
     frame_loss_prob: float = _nuisance(0.02)
     """Probability a whole frame of a sensor is lost (-): network and processing drops."""
     miss_prob: float = _nuisance(0.05)
@@ -171,6 +196,14 @@ class Scenario:
     """Stationary std of AMCL's position error per axis (m); ~5 cm in the paper."""
     amcl_sigma_yaw_deg: float = _nuisance(1.0)
     """Stationary std of AMCL's heading error (deg)."""
+    amcl_error: str = "correlated"
+    """AMCL's error process: ``white`` (independent per estimate), ``correlated`` (the
+    Ornstein-Uhlenbeck process of amcl_tau_s) or ``jumps`` (correlated, plus jumps of
+    amcl_jump_m lasting 2-10 s at amcl_jump_rate_hz: a wrong relocalization, then recovery)."""
+    amcl_jump_m: float = 0.3
+    """Size of AMCL's jumps (m), amcl_error ``jumps``."""
+    amcl_jump_rate_hz: float = 1.0 / 90.0
+    """Rate of AMCL's jumps (1/s), amcl_error ``jumps``."""
     amcl_tau_s: float = 20.0
     """Correlation time of AMCL's error, a Gauss-Markov (Ornstein-Uhlenbeck) process (s): the
     particle cloud drifts slowly between scan matches, 10-30 s."""
@@ -181,6 +214,8 @@ class Scenario:
     """Range [min, max] of the heading std AMCL reports (deg)."""
 
     # ---- wheel odometry -------------------------------------------------------------------------
+    odometry: bool = True
+    """Whether the log has wheel odometry (odometry.csv)."""
     odom_scale_error: float = _nuisance(0.01)
     """Relative error of the distance the wheels report (-): tyre radius, ~1 %."""
     odom_yaw_drift_deg_per_m: float = _nuisance(0.5)
@@ -277,6 +312,10 @@ def _typed(values: dict, source) -> Scenario:
         except (TypeError, ValueError):
             raise PedcalInputError(f"expected a value like {default!r}, got {value!r}",
                                    path=source, column=key) from None
+    for key, allowed in CHOICES.items():
+        if out[key] not in allowed:
+            raise PedcalInputError(f"expected one of {', '.join(allowed)}, got {out[key]!r}",
+                                   path=source, column=key)
     if out["walkers"] not in WALKER_SOURCES:
         raise PedcalInputError(f"expected one of {', '.join(WALKER_SOURCES)}, got {out['walkers']!r}",
                                path=source, column="walkers")
