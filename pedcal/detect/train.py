@@ -50,7 +50,7 @@ EVAL_STREAM = 7202
 VALIDATION_STREAM = 7303  # frames that choose the decision threshold, never trained on
 DEFAULT_FRAMES = 6000
 VALIDATION_SHARE = 0.2  # validation frames per training frame
-N_ROUNDS = 400
+N_ROUNDS = 600
 # The detector's targets: the threshold balances the shortfalls from both (``choose_threshold``).
 TARGET_RECALL = 0.95
 TARGET_PRECISION = 0.97
