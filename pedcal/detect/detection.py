@@ -46,7 +46,7 @@ SPLIT_WIDTH_M = (0.8, 2.0)  # clusters this wide are tried for two or three head
 HEAD_DIP_M = 0.15
 HEAD_KMEANS_STEPS = 3
 HEAD_MIN_SHARE = 0.7
-HEAD_SEPARATION_M = 0.45
+HEAD_SEPARATION_M = 0.35
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,15 @@ CLUTTER_WEIGHTS = {
     "wall": 1.0, "pillar": 1.0, "pole": 1.0, "chair": 1.5, "potted_plant": 1.5, "sign": 1.0,
     "trolley": 1.0, "box": 1.5, "coat_stand": 1.0,
 }
+# Street clutter for the spinning LIDARs' outdoor scenes (``random_scene(clutter_weights=...)``):
+# trunks and poles are the thin vertical objects a sparse scan confuses with a person.
+OUTDOOR_CLUTTER_KINDS = (
+    "tree", "street_pole", "bollard", "bush", "car", "cyclist", "kerb", "wall", "sign", "pole",
+)
+OUTDOOR_CLUTTER_WEIGHTS = {
+    "tree": 2.0, "street_pole": 2.0, "bollard": 1.5, "bush": 1.5, "car": 1.5, "cyclist": 1.0, "kerb": 0.5,
+    "wall": 0.5, "sign": 1.0, "pole": 1.0,
+}
 CLUTTER_IN_VIEW = 0.75  # share of non-wall clutter random_scene puts inside the sensors' cone
 FLOOR_ID = -1
 CEILING_ID = -2
@@ -316,7 +325,72 @@ def clutter_mesh(kind: str, rng: np.random.Generator, *, ceiling_height_m: float
             parts.append(ellipsoid((0.17 * np.cos(a), 0.17 * np.sin(a), height - 0.12 - clen / 2),
                                    (0.12, 0.22, clen / 2), float(u(0.1, 0.9))))
         return Mesh.concat(parts), dict(width_m=0.6, depth_m=0.6, radius_m=0.4)
-    raise PedcalInputError(f"clutter kind must be one of {CLUTTER_KINDS}, got {kind!r}", column="kind")
+    if kind == "tree":  # trunk, sometimes a low fork, and a crown of a few blobs
+        trunk_r, crown_base = u(0.06, 0.25), u(1.6, 3.0)
+        parts = [cylinder((0, 0, 0), (0, 0, crown_base + 0.3), trunk_r, refl * 0.6, 10)]
+        crown_r = u(0.8, 2.2)
+        for _ in range(int(rng.integers(1, 4))):
+            a, off = u(0, 2 * np.pi), u(0.0, 0.4) * crown_r
+            parts.append(ellipsoid((off * np.cos(a), off * np.sin(a), crown_base + crown_r * u(0.6, 1.0)),
+                                   (crown_r * u(0.7, 1.0), crown_r * u(0.7, 1.0), crown_r * u(0.6, 1.0)),
+                                   float(u(0.1, 0.5)), 10))
+        return Mesh.concat(parts), dict(width_m=2 * trunk_r, depth_m=2 * trunk_r, radius_m=max(trunk_r, 0.3))
+    if kind == "street_pole":  # lamp post, traffic-light or sign pole: thin, often above 2 m
+        radius, height = u(0.04, 0.15), u(1.2, 8.0)
+        parts = [cylinder((0, 0, 0), (0, 0, height), radius, refl, 10)]
+        if height > 3.0 and rng.random() < 0.5:  # an arm with a lamp or signal head
+            arm = u(0.5, 2.0)
+            parts.append(cylinder((0, 0, height - 0.1), (arm, 0, height - 0.1), 0.05, refl, 6))
+        if rng.random() < 0.4:  # a box or plate on the pole at person height
+            bh = u(0.3, 0.8)
+            parts.append(box((radius + 0.05, 0, u(1.0, 2.0)), (0.1, u(0.2, 0.5), bh), float(u(0.2, 0.9))))
+        return Mesh.concat(parts), dict(width_m=2 * radius, depth_m=2 * radius, radius_m=max(radius, 0.2))
+    if kind == "bollard":
+        radius, height = u(0.06, 0.15), u(0.6, 1.2)
+        parts = [cylinder((0, 0, 0), (0, 0, height), radius, refl, 10)]
+        return Mesh.concat(parts), dict(width_m=2 * radius, depth_m=2 * radius, radius_m=radius)
+    if kind == "bush":
+        w, h = u(0.5, 1.6), u(0.6, 1.8)
+        parts = [ellipsoid((0, 0, h / 2), (w / 2, w / 2 * u(0.7, 1.0), h / 2), float(u(0.1, 0.5)), 10)]
+        for _ in range(int(rng.integers(1, 4))):
+            a, rr = u(0, 2 * np.pi), u(0.15, 0.3)
+            parts.append(ellipsoid((0.35 * w * np.cos(a), 0.35 * w * np.sin(a), u(0.4, 0.8) * h), (rr, rr, rr),
+                                   float(u(0.1, 0.5)), 6))
+        return Mesh.concat(parts), dict(width_m=w, depth_m=w, radius_m=w / 2 + 0.1)
+    if kind == "car":  # parked car: body and cabin along local x
+        length, w = u(3.8, 4.9), u(1.65, 1.95)
+        body_h, roof_h = u(0.75, 1.0), u(1.35, 1.75)
+        parts = [box((0, 0, 0.2 + (body_h - 0.2) / 2), (length, w, body_h - 0.2), refl),
+                 box((-0.1 * length, 0, (body_h + roof_h) / 2), (0.5 * length, 0.9 * w, roof_h - body_h),
+                     float(u(0.05, 0.3)))]
+        for dx in (-1, 1):
+            for dy in (-1, 1):
+                parts.append(cylinder((dx * 0.33 * length, dy * w / 2 * 0.95, 0.32),
+                                      (dx * 0.33 * length, dy * w / 2 * 1.02, 0.32), 0.32, 0.05, 12))
+        return Mesh.concat(parts), dict(width_m=w, depth_m=length, radius_m=np.hypot(length, w) / 2)
+    if kind == "cyclist":  # a bicycle along local x with its rider (not a pedestrian)
+        wheel = u(0.3, 0.36)
+        base = u(1.0, 1.15)
+        parts = [cylinder((dx * base / 2, -0.02, wheel), (dx * base / 2, 0.02, wheel), wheel, 0.2, 14)
+                 for dx in (-1, 1)]
+        parts.append(cylinder((-base / 2, 0, wheel), (0.1, 0, wheel + 0.5), 0.025, refl, 6))
+        parts.append(cylinder((0.1, 0, wheel + 0.5), (base / 2, 0, wheel), 0.025, refl, 6))
+        saddle = wheel + u(0.55, 0.75)
+        torso = u(0.55, 0.7)
+        lean = u(0.3, 0.8)  # rad from vertical, forward
+        top = np.array([-0.1 + torso * np.sin(lean), 0.0, saddle + torso * np.cos(lean)])
+        parts.append(ellipsoid(((-0.1 + top[0]) / 2, 0.0, (saddle + top[2]) / 2),
+                               (torso / 2, u(0.17, 0.25), torso / 2 * 0.8), float(u(0.05, 0.95)), 8))
+        parts.append(ellipsoid(top + np.array([0.1, 0, 0.15]), (0.1, 0.09, 0.12), float(u(0.05, 0.6)), 8))
+        for dy in (-1, 1):  # legs to the pedals
+            parts.append(cylinder((-0.1, dy * 0.1, saddle), (0.05, dy * 0.12, wheel), 0.06, float(u(0.05, 0.9)), 6))
+        return Mesh.concat(parts), dict(width_m=0.6, depth_m=base + 2 * wheel, radius_m=(base + 2 * wheel) / 2)
+    if kind == "kerb":  # a low step along local x (as walls, a chain of collision circles)
+        length, h = u(3.0, 12.0), u(0.1, 0.25)
+        parts = [box((0, 0, h / 2), (length, 0.25, h), refl)]
+        return Mesh.concat(parts), dict(width_m=0.25, depth_m=length, length_m=length, radius_m=0.125)
+    raise PedcalInputError(f"clutter kind must be one of {CLUTTER_KINDS + OUTDOOR_CLUTTER_KINDS}, got {kind!r}",
+                           column="kind")
 
 
 # --------------------------------------------------------------------------------------------
@@ -353,7 +427,7 @@ class SceneObject:
 
     def collision_circles(self) -> np.ndarray:
         """(K, 3) circles [x, y, r] covering the footprint in the scene frame (walls as chains)."""
-        if self.kind != "wall":
+        if self.kind not in ("wall", "kerb"):
             return np.array([[self.x_m, self.y_m, self.radius_m]])
         s = np.arange(-self.length_m / 2, self.length_m / 2 + 1e-9, 0.1)
         return np.column_stack([self.x_m + s * np.cos(self.yaw_rad), self.y_m + s * np.sin(self.yaw_rad),
@@ -558,7 +632,8 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
                  area=(0.8, 5.0, -4.0, 4.0), fov_half_angle_deg: float = 60.0,
                  static_fraction: float = 0.4, allow_occlusion: bool = True,
                  walking_speed_mps=(0.4, 1.5), ceiling_height_m: float | None = None,
-                 max_person_range_m: float | None = None, margin_m: float = 0.05) -> Scene:
+                 max_person_range_m: float | None = None, margin_m: float = 0.05,
+                 clutter_weights: dict[str, float] | None = None) -> Scene:
     """A random scene in front of the robot (robot base at the origin facing +x).
 
     People are placed inside ``area`` = (x_min, x_max, y_min, y_max), within
@@ -569,6 +644,8 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
     others walk along their heading at a speed from ``walking_speed_mps``. With
     ``allow_occlusion=False`` nothing nearer overlaps a person in bearing from the origin.
     Objects that cannot be placed after many draws are left out with a warning.
+    ``clutter_weights`` (kind -> relative frequency) replaces the indoor mix ``CLUTTER_WEIGHTS``,
+    e.g. with ``OUTDOOR_CLUTTER_WEIGHTS`` for a street.
     """
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x_min, x_max, y_min, y_max = area
@@ -583,13 +660,14 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
     scene = Scene(floor_reflectance=float(rng.uniform(0.15, 0.5)), ceiling_height_m=ceiling_height_m)
     # The robot's own footprint.
     placed: list[np.ndarray] = [np.array([[0.0, 0.0, 0.5]])]
-    kinds = list(CLUTTER_KINDS)
-    weights = np.array([CLUTTER_WEIGHTS[k] for k in kinds])
+    mix = CLUTTER_WEIGHTS if clutter_weights is None else clutter_weights
+    kinds = list(CLUTTER_KINDS) if clutter_weights is None else list(mix)
+    weights = np.array([mix[k] for k in kinds])
     clutter_kinds = [str(k) for k in rng.choice(kinds, size=n_c, p=weights / weights.sum())]
     # Walls first (they are long), then people, then the rest of the clutter.
-    order = sorted(clutter_kinds, key=lambda k: k != "wall")
-    walls = [k for k in order if k == "wall"]
-    rest = [k for k in order if k != "wall"]
+    order = sorted(clutter_kinds, key=lambda k: k not in ("wall", "kerb"))
+    walls = [k for k in order if k in ("wall", "kerb")]
+    rest = [k for k in order if k not in ("wall", "kerb")]
     half_fov = np.radians(fov_half_angle_deg)
     r_min = max(x_min, 0.8)
     r_max = x_max if max_person_range_m is None else float(max_person_range_m)
@@ -600,7 +678,7 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
 
     def place(obj: SceneObject, person: bool) -> bool:
         # People always, most clutter too, go in the sensors' cone; the rest of the clutter anywhere.
-        in_cone = person or (obj.kind != "wall" and rng.random() < CLUTTER_IN_VIEW)
+        in_cone = person or (obj.kind not in ("wall", "kerb") and rng.random() < CLUTTER_IN_VIEW)
         for _ in range(200):
             if in_cone:
                 r = rng.uniform(r_min, r_max if person else max(r_max, x_max))
