@@ -66,3 +66,5 @@ def _run_guide(tmp_path, monkeypatch, SENSORS, write_scene_bag):  # noqa: N803
     assert (tmp_path / "runs/bag/observations.csv").is_file() and (tmp_path / "runs/bag/meta.yaml").is_file()
     assert np.isfinite(namespace["imported"].observations[["x", "y", "z"]].to_numpy()).all()
     assert os.path.getsize(tmp_path / "runs/sparse/sensors.urdf") > 0
+    assert os.path.getsize(tmp_path / "runs/sparse/graph.png") > 0
+    assert namespace["fg"].position_covariance_m2.shape == (3 * len(namespace["fg"].network),) * 2

@@ -32,7 +32,9 @@ def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, 
     - ``factorgraph``: ``graph`` (a recipe name in graphs/, a TOML path or a GraphRecipe),
       ``online`` (True: incremental iSAM2), ``is_robot`` (bool mask over ``log.observations``
       rows; None: the association finds the robot), ``init_network`` (a SensorNetwork to start
-      from), and any GraphRecipe field by name to override the recipe
+      from), a height reference for the head point's vertical offset (``sensor_height_sigma_m``:
+      the installed heights are measured to this sigma; with ``ceiling_height_m``: every sensor
+      at that height), and any GraphRecipe field by name to override the recipe
     - ``gridsearch``: ``is_robot``, ``angle_range_deg`` (60), ``angle_step_deg`` (0.01),
       ``offset_range_m`` (1.0), ``offset_step_m`` (0.005)
     - ``alternative``: the keys of ``pedcal.calib.alternative.DEFAULT_PARAMS`` (gates, rounds,
