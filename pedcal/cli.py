@@ -12,6 +12,7 @@ import logging
 import math
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from pedcal.errors import PedcalInputError
@@ -408,6 +409,13 @@ def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
     handler.setFormatter(logging.Formatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
     logger.addHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    # a Python warning (degenerate data, an assumption the data cannot check) reaches the user as
+    # one line through the same handler, not as a source location and a line of library code
+    warnings.showwarning = _warning_to_log
+
+
+def _warning_to_log(message, category, filename, lineno, file=None, line=None) -> None:
+    logging.getLogger("pedcal").warning(f"warning: {message}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -139,3 +139,18 @@ def test_output_piped_into_a_reader_that_stops_is_not_an_error(tmp_path):
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 0, err
     assert b"people" in first and "Traceback" not in err
+
+
+def test_a_warning_reaches_the_user_as_one_line(capsys):
+    """The command line shows a Python warning as `warning: message`, without the library's
+    source line under it."""
+    import warnings
+
+    from pedcal.cli import configure_logging
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        configure_logging()
+        warnings.warn("sensor s01: cannot estimate roll", UserWarning, stacklevel=1)
+    err = capsys.readouterr().err
+    assert err.strip() == "warning: sensor s01: cannot estimate roll"
