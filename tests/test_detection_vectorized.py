@@ -250,3 +250,12 @@ def test_constructed_edge_cases_match_the_reference():
     ]
     np.testing.assert_allclose(features_matrix(clusters), np.vstack([reference_cluster_features(c) for c in clusters]),
                                rtol=0, atol=1e-9)
+
+
+def test_degenerate_boxes_match_the_reference():
+    rng = np.random.default_rng(4)
+    cases = [np.array([[1.0, 2.0]]), np.array([[0.0, 0.0], [1.0, 1.0]]), np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]),
+             np.zeros((4, 2)), rng.normal(0, 0.3, (200, 2))]
+    xy = np.concatenate(cases)
+    groups = np.split(np.arange(len(xy)), np.cumsum([len(c) for c in cases])[:-1])
+    assert det.min_area_boxes(xy, groups) == [reference_min_area_box(c) for c in cases]
