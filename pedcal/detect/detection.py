@@ -335,7 +335,8 @@ def _separate_heads(z_hi: np.ndarray, a: np.ndarray, ha: float, b: np.ndarray, h
     if np.hypot(*(a - b)) * cell_size_m < HEAD_SEPARATION_M:
         return False
     n = int(np.ceil(np.hypot(*(a - b)) * 2)) + 1
-    path = np.unique(np.rint(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).astype(int), axis=0)
+    # cells on the way (a cell met twice changes neither the minimum nor whether any is seen)
+    path = np.rint(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).astype(int)
     z = z_hi[path[:, 0], path[:, 1]]
     z = z[np.isfinite(z)]  # empty cells (gaps between scan lines) say nothing
     return bool(len(z) and z.min() <= min(ha, hb) - HEAD_DIP_M)
