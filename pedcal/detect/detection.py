@@ -161,30 +161,73 @@ def min_area_box(xy: np.ndarray) -> Box:
     Degenerate inputs (fewer than 3 points, collinear) fall back to the principal axes.
     """
     xy = np.asarray(xy, dtype=float)
-    try:
-        hull = xy[ConvexHull(xy).vertices]
-    except (QhullError, ValueError):
-        hull = xy
-    if len(hull) >= 3:
-        edges = np.roll(hull, -1, axis=0) - hull
-        angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
-    else:
-        d = xy - xy.mean(axis=0)
-        _, vecs = np.linalg.eigh(d.T @ d + 1e-12 * np.eye(2))
-        angles = np.array([np.arctan2(vecs[1, 1], vecs[0, 1])])
-    c, s = np.cos(angles), np.sin(angles)
-    # coordinates of every hull point along each candidate axis pair: (K, M)
-    a = c[:, None] * hull[None, :, 0] + s[:, None] * hull[None, :, 1]
-    b = -s[:, None] * hull[None, :, 0] + c[:, None] * hull[None, :, 1]
-    ea = a.max(axis=1) - a.min(axis=1)
-    eb = b.max(axis=1) - b.min(axis=1)
-    k = int(np.argmin(ea * eb))
-    ca = 0.5 * (a[k].max() + a[k].min())
-    cb = 0.5 * (b[k].max() + b[k].min())
+    return min_area_boxes(xy, [np.arange(len(xy))])[0]
+
+
+def min_area_boxes(xy: np.ndarray, groups: list[np.ndarray]) -> list[Box]:
+    """``min_area_box`` of each group of rows of ``xy`` (N, 2): a convex hull per group (Qhull),
+    then the rotating calipers of all groups at once: every (group, edge direction, hull point)
+    projection in one array, reduced per direction and per group."""
+    hulls, angles = [], []
+    for idx in groups:
+        pts = xy[idx]
+        try:
+            hull = pts[ConvexHull(pts).vertices]
+        except (QhullError, ValueError):
+            hull = pts
+        if len(hull) < 3:
+            d = pts - pts.mean(axis=0)
+            _, vecs = np.linalg.eigh(d.T @ d + 1e-12 * np.eye(2))
+            angles.append(np.array([np.arctan2(vecs[1, 1], vecs[0, 1])]))
+        else:
+            angles.append(None)
+        hulls.append(hull)
+    m = np.array([len(h) for h in hulls])
+    h_start = np.concatenate([[0], np.cumsum(m)[:-1]])
+    hull = np.concatenate(hulls)
+    group_of_point = np.repeat(np.arange(len(groups)), m)
+    # edge directions mod pi/2 of every hull (each vertex to the next, the last to the first)
+    nxt = np.arange(len(hull)) + 1
+    nxt[h_start + m - 1] = h_start
+    edges = hull[nxt] - hull
+    edge_angle = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2)
+    # distinct directions per group, ascending (np.unique per group); degenerate groups get theirs
+    order = np.lexsort((edge_angle, group_of_point))
+    ang, grp = edge_angle[order], group_of_point[order]
+    first = np.ones(len(ang), dtype=bool)
+    first[1:] = (grp[1:] != grp[:-1]) | (ang[1:] != ang[:-1])
+    ang, grp = ang[first], grp[first]
+    degenerate = [k for k, a in enumerate(angles) if a is not None]
+    if degenerate:
+        keep = ~np.isin(grp, degenerate)
+        ang = np.concatenate([ang[keep]] + [angles[k] for k in degenerate])
+        grp = np.concatenate([grp[keep], degenerate])
+        order = np.argsort(grp, kind="stable")
+        ang, grp = ang[order], grp[order]
+    # every (direction, hull point of its group) pair: (P,) coordinates along both box axes
+    reps = m[grp]
+    dir_start = np.concatenate([[0], np.cumsum(reps)[:-1]])
+    pair_dir = np.repeat(np.arange(len(ang)), reps)
+    pair_pt = h_start[grp][pair_dir] + np.arange(len(pair_dir)) - dir_start[pair_dir]
+    c, s = np.cos(ang), np.sin(ang)
+    hx, hy = hull[pair_pt, 0], hull[pair_pt, 1]
+    a = c[pair_dir] * hx + s[pair_dir] * hy
+    b = -s[pair_dir] * hx + c[pair_dir] * hy
+    a_hi, a_lo = np.maximum.reduceat(a, dir_start), np.minimum.reduceat(a, dir_start)
+    b_hi, b_lo = np.maximum.reduceat(b, dir_start), np.minimum.reduceat(b, dir_start)
+    ea, eb = a_hi - a_lo, b_hi - b_lo
+    area = ea * eb
+    # per group, the first direction of least area (np.argmin)
+    g_start = np.flatnonzero(np.r_[True, grp[1:] != grp[:-1]])
+    least = np.minimum.reduceat(area, g_start)
+    k = np.minimum.reduceat(np.where(area == least[grp], np.arange(len(ang)), len(ang)), g_start)
+    ca = 0.5 * (a_hi[k] + a_lo[k])
+    cb = 0.5 * (b_hi[k] + b_lo[k])
     cx, cy = c[k] * ca - s[k] * cb, s[k] * ca + c[k] * cb
-    yaw = angles[k] if ea[k] >= eb[k] else angles[k] + np.pi / 2
-    yaw = float(np.mod(yaw + np.pi / 2, np.pi) - np.pi / 2)
-    return Box(float(cx), float(cy), float(max(ea[k], eb[k])), float(min(ea[k], eb[k])), yaw)
+    yaw = np.where(ea[k] >= eb[k], ang[k], ang[k] + np.pi / 2)
+    yaw = np.mod(yaw + np.pi / 2, np.pi) - np.pi / 2
+    width, depth = np.maximum(ea[k], eb[k]), np.minimum(ea[k], eb[k])
+    return [Box(float(cx[i]), float(cy[i]), float(width[i]), float(depth[i]), float(yaw[i])) for i in range(len(k))]
 
 
 def passes_gate(height_m: float, width_m: float, depth_m: float, n_points: int = MIN_CLUSTER_POINTS) -> bool:
@@ -292,7 +335,8 @@ def _separate_heads(z_hi: np.ndarray, a: np.ndarray, ha: float, b: np.ndarray, h
     if np.hypot(*(a - b)) * cell_size_m < HEAD_SEPARATION_M:
         return False
     n = int(np.ceil(np.hypot(*(a - b)) * 2)) + 1
-    path = np.unique(np.rint(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).astype(int), axis=0)
+    # cells on the way (a cell met twice changes neither the minimum nor whether any is seen)
+    path = np.rint(a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)).astype(int)
     z = z_hi[path[:, 0], path[:, 1]]
     z = z[np.isfinite(z)]  # empty cells (gaps between scan lines) say nothing
     return bool(len(z) and z.min() <= min(ha, hb) - HEAD_DIP_M)
@@ -313,6 +357,9 @@ def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
     ext = top[:, :2] - low
     cheap = ((sizes < MIN_CLUSTER_POINTS) | (top[:, 2] < GATE_HEIGHT_M[0])
              | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2)))
+    fitted = np.flatnonzero(~cheap)
+    boxes = dict(zip(fitted, min_area_boxes(pts[:, :2], [groups[k] for k in fitted]), strict=True)) \
+        if len(fitted) else {}
     out = []
     for k, idx in enumerate(groups):
         h = float(top[k, 2])
@@ -324,7 +371,7 @@ def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
             box = Box(float(cx), float(cy), float(e.max()), float(e.min()), 0.0 if e[0] >= e[1] else -np.pi / 2)
             out.append(Candidate(idx, box, h, False))
         else:
-            box = min_area_box(pts[idx, :2])
+            box = boxes[k]
             out.append(Candidate(idx, box, h, passes_gate(h, box.width, box.depth, len(idx))))
     return out
 

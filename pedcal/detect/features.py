@@ -93,133 +93,176 @@ def block_slices() -> dict[str, slice]:
     return out
 
 
-_UPPER3 = np.triu_indices(3)
-
-
 _BLOCK_SLICES = block_slices()
+_UPPER_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # xx, xy, xz, yy, yz, zz
 
 
-def _upper6(c: np.ndarray) -> np.ndarray:
-    """The 6 distinct entries of a symmetric 3x3 matrix: xx, xy, xz, yy, yz, zz."""
-    return c[_UPPER3]
+class _Segments:
+    """Clusters stacked one after another: segment reductions over each cluster's points."""
+
+    def __init__(self, sizes: np.ndarray):
+        self.k = len(sizes)
+        self.n = sizes.astype(float)
+        self.starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        self.cid = np.repeat(np.arange(self.k), sizes)  # cluster of every point
+
+    def sum(self, x: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(x, self.starts, axis=0)
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        return self.sum(x) / (self.n if x.ndim == 1 else self.n[:, None])
+
+    def extents(self, bins: np.ndarray, n_bins: int, values: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+        """(k, n_bins, columns) max - min of ``values`` per cluster and bin; 0 where a bin is empty."""
+        code = self.cid * n_bins + bins
+        vals = values.reshape(len(values), -1)
+        if keep is not None:
+            code, vals = code[keep], vals[keep]
+        lo = np.full((self.k * n_bins, vals.shape[1]), np.inf)
+        hi = np.full((self.k * n_bins, vals.shape[1]), -np.inf)
+        np.minimum.at(lo, code, vals)
+        np.maximum.at(hi, code, vals)
+        return np.where(np.isfinite(lo), hi - lo, 0.0).reshape(self.k, n_bins, -1)
+
+    def hist(self, bins: np.ndarray, n_bins: int, keep: np.ndarray | None = None) -> np.ndarray:
+        """(k, n_bins) count of each cluster's points per bin, divided by the cluster's size."""
+        code = self.cid * n_bins + bins
+        if keep is not None:
+            code = code[keep]
+        return np.bincount(code, minlength=self.k * n_bins).reshape(self.k, n_bins) / self.n[:, None]
 
 
-def _cov2(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(var a, cov ab, var b) over the masked points; zeros when fewer than 2 points."""
-    n = int(mask.sum())
-    if n < 2:
-        return np.zeros(3)
-    a, b = a[mask], b[mask]
-    da, db = a - a.mean(), b - b.mean()
-    return np.array([da @ da, da @ db, db @ db]) / n
+def _cov2_zones(seg: _Segments, zone: np.ndarray, n_zones: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k, n_zones, 3): (var a, cov ab, var b) of each cluster's points per zone; zeros when a zone
+    holds fewer than 2 points."""
+    code = seg.cid * n_zones + zone
+    m = seg.k * n_zones
+    count = np.bincount(code, minlength=m).astype(float)
+    safe = np.maximum(count, 1.0)
+    da = a - (np.bincount(code, a, m) / safe)[code]
+    db = b - (np.bincount(code, b, m) / safe)[code]
+    out = np.column_stack([np.bincount(code, da * da, m), np.bincount(code, da * db, m),
+                           np.bincount(code, db * db, m)]) / safe[:, None]
+    out[count < 2] = 0.0
+    return out.reshape(seg.k, n_zones, 3)
 
 
-def _hist2d(z: np.ndarray, s: np.ndarray, n_z: int, n_s: int) -> np.ndarray:
-    """Normalized (n_z x n_s) histogram of (z, s), z in [0, Z_TOP_M], s in +-HALF_WIDTH_M, clipped."""
+def _hist_bins(z: np.ndarray, s: np.ndarray, n_z: int, n_s: int) -> np.ndarray:
+    """Bin of (z, s) in an (n_z x n_s) grid, z in [0, Z_TOP_M], s in +-HALF_WIDTH_M, clipped."""
     iz = np.clip((z / Z_TOP_M * n_z).astype(int), 0, n_z - 1)
     i_s = np.clip(((s + HALF_WIDTH_M) / (2 * HALF_WIDTH_M) * n_s).astype(int), 0, n_s - 1)
-    h = np.bincount(iz * n_s + i_s, minlength=n_z * n_s).astype(float)
-    return h / max(len(z), 1)
+    return iz * n_s + i_s
+
+
+def _axes(seg: _Segments, centred_xy: np.ndarray, centroid_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(e1, e2) of every cluster, (k, 2) each: horizontal major / minor principal axes, e2 pointing
+    away from the sensor."""
+    cov = np.empty((seg.k, 2, 2))
+    cov[:, 0, 0] = seg.sum(centred_xy[:, 0] ** 2)
+    cov[:, 0, 1] = cov[:, 1, 0] = seg.sum(centred_xy[:, 0] * centred_xy[:, 1])
+    cov[:, 1, 1] = seg.sum(centred_xy[:, 1] ** 2)
+    cov /= seg.n[:, None, None]
+    _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues
+    e2 = vecs[:, :, 0]
+    e2 = np.where(((e2 * centroid_xy).sum(axis=1) < 0)[:, None], -e2, e2)
+    return np.column_stack([-e2[:, 1], e2[:, 0]]), e2
 
 
 def cluster_axes(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(e1, e2): horizontal major/minor principal axes, e2 pointing away from the sensor."""
+    xy = np.asarray(xy, dtype=float)
+    seg = _Segments(np.array([len(xy)]))
     centroid = xy.mean(axis=0)
-    d = xy - centroid
-    cov = d.T @ d / max(len(xy), 1)
-    _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues
-    e2 = vecs[:, 0]
-    if e2 @ centroid < 0:
-        e2 = -e2
-    e1 = np.array([-e2[1], e2[0]])
-    return e1, e2
+    e1, e2 = _axes(seg, xy - centroid, centroid[None])
+    return e1[0], e2[0]
 
 
 def cluster_features(points: np.ndarray) -> np.ndarray:
-    """The 213-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
-    pts = np.asarray(points, dtype=float)
-    if pts.ndim != 2 or pts.shape[1] < 3 or len(pts) == 0:
-        raise ValueError(f"a cluster is a non-empty (N, 4) array, got shape {pts.shape}")
-    n = len(pts)
-    xyz = pts[:, :3]
-    inten = pts[:, 3] if pts.shape[1] > 3 else np.zeros(n)
-    f = np.zeros(N_FEATURES)
-    b = _BLOCK_SLICES
-
-    f[b["n_points"]] = n
-    f[b["min_distance_m"]] = np.sqrt((xyz[:, :2] ** 2).sum(axis=1)).min()
-
-    centred = xyz - xyz.mean(axis=0)
-    cov3 = centred.T @ centred / n
-    f[b["covariance_3d"]] = _upper6(cov3)
-    # Moment of inertia about the centroid, I = sum(|r|^2 E - r r^T), divided by N.
-    inertia = np.trace(cov3) * np.eye(3) - cov3
-    f[b["inertia_tensor"]] = _upper6(inertia)
-
-    e1, e2 = cluster_axes(xyz[:, :2])
-    u = centred[:, :2] @ e1
-    v = centred[:, :2] @ e2
-    z = xyz[:, 2]
-
-    # Main plane (u, z) split into the upper half and the lower left and right halves.
-    z_mid = 0.5 * (z.min() + z.max())
-    upper = z > z_mid
-    f[b["covariance_2d_zones"]] = np.concatenate([
-        _cov2(u, z, upper), _cov2(u, z, ~upper & (u < 0)), _cov2(u, z, ~upper & (u >= 0))])
-
-    f[b["hist_main_plane"]] = _hist2d(z, u, 14, 7).ravel()
-    f[b["hist_secondary_plane"]] = _hist2d(z, v, 9, 5).ravel()
-
-    # Slice feature: N_SLICES equal height slices between the lowest and highest point; in each,
-    # the extent along e1 (length) and along e2 (width); empty slices give 0.
-    height = z.max() - z.min()
-    k = np.clip(((z - z.min()) / max(height, 1e-9) * N_SLICES).astype(int), 0, N_SLICES - 1)
-    lo = np.full((N_SLICES, 2), np.inf)
-    hi = np.full((N_SLICES, 2), -np.inf)
-    uv = np.column_stack([u, v])
-    np.minimum.at(lo, k, uv)
-    np.maximum.at(hi, k, uv)
-    ext = np.where(np.isfinite(lo), hi - lo, 0.0)
-    f[b["slices"]] = ext.ravel()
-
-    f[b["intensity_mean_std"]] = [inten.mean(), inten.std()]
-    ib = np.clip((inten / INTENSITY_MAX * 25).astype(int), 0, 24)
-    f[b["intensity_hist"]] = np.bincount(ib, minlength=25) / n
-
-    # g1: per 0.2 m band of floor height, the extent along e1 and the largest gap along e1.
-    band = (z / BAND_M).astype(int)
-    inside = (band >= 0) & (band < N_BANDS)
-    g1 = np.zeros((N_BANDS, 2))
-    if inside.any():
-        bu = np.column_stack([band[inside], u[inside]])
-        bu = bu[np.lexsort((bu[:, 1], bu[:, 0]))]  # by band, then along e1
-        bnd = bu[:, 0].astype(int)
-        lo, hi = np.full(N_BANDS, np.inf), np.full(N_BANDS, -np.inf)
-        np.minimum.at(lo, bnd, bu[:, 1])
-        np.maximum.at(hi, bnd, bu[:, 1])
-        g1[:, 0] = np.where(np.isfinite(lo), hi - lo, 0.0)
-        same = bnd[1:] == bnd[:-1]
-        np.maximum.at(g1[:, 1], bnd[1:][same], np.diff(bu[:, 1])[same])
-    f[b["height_bands"]] = g1.ravel()
-
-    # g2: per band below the highest point, the extents along e1 and e2 and the share of points.
-    top = (z.max() - z) / TOP_BAND_M
-    tb = top.astype(int)
-    near_top = tb < N_TOP_BANDS
-    lo = np.full((N_TOP_BANDS, 2), np.inf)
-    hi = np.full((N_TOP_BANDS, 2), -np.inf)
-    np.minimum.at(lo, tb[near_top], uv[near_top])
-    np.maximum.at(hi, tb[near_top], uv[near_top])
-    share = np.bincount(tb[near_top], minlength=N_TOP_BANDS) / n
-    f[b["top_profile"]] = np.column_stack([np.where(np.isfinite(lo), hi - lo, 0.0), share]).ravel()
-
-    # g3
-    f[b["z_extent_distance"]] = [z.min(), z.max(), np.hypot(*xyz[:, :2].mean(axis=0))]
-    return f
+    """The 260-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
+    return features_matrix([points])[0]
 
 
 def features_matrix(clusters) -> np.ndarray:
-    """(len(clusters), 213) features of a sequence of clusters."""
+    """(len(clusters), 260) features of a sequence of clusters, each (N, 4) ``x, y, z, intensity``
+    (N, 3: intensity 0); see the module table.
+
+    All clusters are computed at once: their points are stacked and every statistic is a
+    segment reduction (``np.add.reduceat``, ``np.bincount``, ``ufunc.at``) over cluster ids.
+    """
     if len(clusters) == 0:
         return np.zeros((0, N_FEATURES))
-    return np.vstack([cluster_features(c) for c in clusters])
+    arrs = [np.asarray(c, dtype=float) for c in clusters]
+    for pts in arrs:
+        if pts.ndim != 2 or pts.shape[1] < 3 or len(pts) == 0:
+            raise ValueError(f"a cluster is a non-empty (N, 4) array, got shape {pts.shape}")
+    seg = _Segments(np.array([len(a) for a in arrs]))
+    xyz = np.concatenate([a[:, :3] for a in arrs])
+    inten = np.concatenate([a[:, 3] if a.shape[1] > 3 else np.zeros(len(a)) for a in arrs])
+    cid, n = seg.cid, seg.n
+    f = np.zeros((seg.k, N_FEATURES))
+    b = _BLOCK_SLICES
+
+    f[:, b["n_points"]] = n[:, None]
+    f[:, b["min_distance_m"]] = np.minimum.reduceat(np.sqrt((xyz[:, :2] ** 2).sum(axis=1)), seg.starts)[:, None]
+
+    mean = seg.mean(xyz)
+    centred = xyz - mean[cid]
+    cov3 = np.column_stack([seg.sum(centred[:, i] * centred[:, j]) for i, j in _UPPER_PAIRS]) / n[:, None]
+    f[:, b["covariance_3d"]] = cov3
+    # Moment of inertia about the centroid, I = sum(|r|^2 E - r r^T), divided by N.
+    trace = cov3[:, 0] + cov3[:, 3] + cov3[:, 5]
+    f[:, b["inertia_tensor"]] = np.where(np.array([1, 0, 0, 1, 0, 1], bool), trace[:, None], 0.0) - cov3
+
+    e1, e2 = _axes(seg, centred[:, :2], mean[:, :2])
+    u = centred[:, 0] * e1[cid, 0] + centred[:, 1] * e1[cid, 1]
+    v = centred[:, 0] * e2[cid, 0] + centred[:, 1] * e2[cid, 1]
+    z = xyz[:, 2]
+    z_min, z_max = np.minimum.reduceat(z, seg.starts), np.maximum.reduceat(z, seg.starts)
+
+    # Main plane (u, z) split into the upper half and the lower left and right halves.
+    upper = z > (0.5 * (z_min + z_max))[cid]
+    zone = np.where(upper, 0, np.where(u < 0, 1, 2))
+    f[:, b["covariance_2d_zones"]] = _cov2_zones(seg, zone, 3, u, z).reshape(seg.k, 9)
+
+    f[:, b["hist_main_plane"]] = seg.hist(_hist_bins(z, u, 14, 7), 14 * 7)
+    f[:, b["hist_secondary_plane"]] = seg.hist(_hist_bins(z, v, 9, 5), 9 * 5)
+
+    # Slice feature: N_SLICES equal height slices between the lowest and highest point; in each,
+    # the extent along e1 (length) and along e2 (width); empty slices give 0.
+    height = np.maximum(z_max - z_min, 1e-9)
+    k = np.clip(((z - z_min[cid]) / height[cid] * N_SLICES).astype(int), 0, N_SLICES - 1)
+    uv = np.column_stack([u, v])
+    f[:, b["slices"]] = seg.extents(k, N_SLICES, uv).reshape(seg.k, -1)
+
+    i_mean = seg.mean(inten)
+    f[:, b["intensity_mean_std"]] = np.column_stack([i_mean, np.sqrt(seg.mean((inten - i_mean[cid]) ** 2))])
+    ib = np.clip((inten / INTENSITY_MAX * 25).astype(int), 0, 24)
+    f[:, b["intensity_hist"]] = seg.hist(ib, 25)
+
+    # g1: per 0.2 m band of floor height, the extent along e1 and the largest gap between
+    # consecutive points along e1.
+    band = (z / BAND_M).astype(int)
+    inside = (band >= 0) & (band < N_BANDS)
+    g1 = np.zeros((seg.k, N_BANDS, 2))
+    if inside.any():
+        g1[:, :, :1] = seg.extents(band, N_BANDS, u, inside)
+        code = (cid * N_BANDS + band)[inside]
+        ui = u[inside]
+        order = np.lexsort((ui, code))  # by cluster and band, then along e1
+        code, ui = code[order], ui[order]
+        same = code[1:] == code[:-1]
+        gap = np.zeros(seg.k * N_BANDS)
+        np.maximum.at(gap, code[1:][same], np.diff(ui)[same])
+        g1[:, :, 1] = gap.reshape(seg.k, N_BANDS)
+    f[:, b["height_bands"]] = g1.reshape(seg.k, -1)
+
+    # g2: per band below the highest point, the extents along e1 and e2 and the share of points.
+    tb = ((z_max[cid] - z) / TOP_BAND_M).astype(int)
+    near_top = tb < N_TOP_BANDS
+    top = np.concatenate([seg.extents(tb, N_TOP_BANDS, uv, near_top),
+                          seg.hist(tb, N_TOP_BANDS, near_top)[:, :, None]], axis=2)
+    f[:, b["top_profile"]] = top.reshape(seg.k, -1)
+
+    # g3
+    f[:, b["z_extent_distance"]] = np.column_stack([z_min, z_max, np.hypot(mean[:, 0], mean[:, 1])])
+    return f
