@@ -19,6 +19,17 @@ Both run the same multi-person core on each :class:`~pedcal.follow_types.FollowF
 (:class:`TargetProbability`, eqs. 9-14), the bearing EKF update of the undetected target (eq. 6),
 the state machine of Sec. 5 and the existence grid of Sec. 5.3. :class:`LidarOnlyTracker` keeps the
 filter picked at the start and, when it is lost, takes the nearest filter to its last position.
+
+Departures from the paper, each found on recorded crowds where the paper's rule lost the target
+(``TrackerConfig`` turns the first two off to run the paper's rules as published):
+
+- a detection left unassigned near the undetected target filter, accepted by the target's
+  appearance classifier and with nobody else within ``maneuver_clear_m``, continues that filter (a
+  sharp turn outside the gate); ``maneuver_radius_m = 0`` turns this off;
+- in Searching the stopped robot turns in place toward the antenna's recent bearing
+  (``face_antenna = False`` keeps it still, as in the paper);
+- association serves confirmed filters before tentative ones, so a filter born on the last frame
+  cannot take the target's detection (always on).
 """
 
 from __future__ import annotations
