@@ -21,7 +21,7 @@ the state machine of Sec. 5 and the existence grid of Sec. 5.3. :class:`LidarOnl
 filter picked at the start and, when it is lost, takes the nearest filter to its last position.
 
 Departures from the paper, each found on recorded crowds where the paper's rule lost the target
-(``TrackerConfig`` turns the first two off to run the paper's rules as published):
+(settings of ``TrackerConfig`` turn the first two off; the third is always on):
 
 - a detection left unassigned near the undetected target filter, accepted by the target's
   appearance classifier and with nobody else within ``maneuver_clear_m``, continues that filter (a
