@@ -213,3 +213,17 @@ def paper5():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         return sim, calibrate_factorgraph(sim.calib)
+
+
+def test_a_large_network_keeps_its_joint_covariance_on_the_result_not_in_the_yaml(monkeypatch, caplog):
+    import pedcal.calib.graph as graph
+
+    monkeypatch.setattr(graph, "JOINT_COV_MAX_SENSORS", 2)      # stands for a network of hundreds
+    sim = simulate_logs("sparse", seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(sim.calib)
+    n = len(res.network)
+    assert "position_covariance_m2" not in res.network.extra
+    assert res.position_covariance_m2.shape == (3 * n, 3 * n)
+    assert any("not written to the calibrated YAML" in r.getMessage() for r in caplog.records)

@@ -838,6 +838,11 @@ def _settle_vertical_gauge(fg, result: gtsam.Values, step_m: float = 0.01) -> gt
     return _shift_up(result, -(ep - em) / (2.0 * step_m) / curv)
 
 
+# Above this many sensors the joint position covariance (3n x 3n) stays on the CalibrationResult and
+# is not written to the YAML: at 1000 sensors it would be 9 M numbers, about 100 MB of text.
+JOINT_COV_MAX_SENSORS = 200
+
+
 def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *, head_model: HeadModel | None = None,
                    joint_position_cov: np.ndarray | None = None, mismatch: ModelMismatch | None = None) -> np.ndarray:
     """Record the tracker model the graph used (latency, head-point model with its sigma), the
@@ -849,10 +854,15 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
                                estimated=False)
     network.extra[HEAD_MODEL_KEY] = {k: (round(v, 5) if isinstance(v, float) else v)
                                      for k, v in head_model.to_dict().items() if v != ""}
-    if joint_position_cov is not None:
+    if joint_position_cov is not None and len(prob.sensor_ids) <= JOINT_COV_MAX_SENSORS:
         network.extra[JOINT_COV_KEY] = {"sensors": list(prob.sensor_ids), "order": "x y z per sensor",
                                         "matrix": [flow_vector([float(f"{v:.4e}") for v in row])
                                                    for row in joint_position_cov]}
+    elif joint_position_cov is not None:
+        logging.getLogger(__name__).warning(
+            f"the joint covariance of {len(prob.sensor_ids)} sensors' positions ({3 * len(prob.sensor_ids)} x "
+            f"{3 * len(prob.sensor_ids)}) is not written to the calibrated YAML above {JOINT_COV_MAX_SENSORS} "
+            "sensors; it is on CalibrationResult.position_covariance_m2")
     if mismatch is not None:
         ratios = {k: round(v, 3) for k, v in mismatch.variance_ratio.items()}
         network.extra[MISMATCH_KEY] = {"sensors": mismatch.sensors, "threshold": mismatch.threshold,
