@@ -68,3 +68,14 @@ def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Angle in degrees of the relative rotation R_a^T R_b (geodesic distance on SO(3))."""
     c = (np.trace(np.asarray(R_a).T @ np.asarray(R_b)) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def toward_sensor_horizontal(p_sensor: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
+    """(N, 3) unit horizontal vectors from sensor-frame points toward their sensor, expressed in
+    the sensor frame (``R_world_sensor``: (N, 3, 3) or (3, 3)); zero straight under it."""
+    R = np.broadcast_to(R_world_sensor, (len(p_sensor), 3, 3))
+    back = -np.einsum("nij,nj->ni", R, p_sensor)          # world, point -> sensor
+    back[:, 2] = 0.0
+    norm = np.linalg.norm(back, axis=1, keepdims=True)
+    back = np.where(norm > 1e-9, back / np.maximum(norm, 1e-9), 0.0)
+    return np.einsum("nji,nj->ni", R, back)

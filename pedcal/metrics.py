@@ -145,10 +145,7 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             # the head point moved back horizontally and along the ray by the shifts, then up by
             # minus the offset: the top
             if horizontal_m:
-                back = -(p @ s.R_world_sensor.T)
-                back[:, 2] = 0.0
-                n = np.linalg.norm(back, axis=1, keepdims=True)
-                p = p - horizontal_m * (np.where(n > 1e-9, back / np.maximum(n, 1e-9), 0.0) @ s.R_world_sensor)
+                p = p - horizontal_m * frames.toward_sensor_horizontal(p, s.R_world_sensor)
             p = p + ray_m * p / np.linalg.norm(p, axis=1, keepdims=True)
             out[m] = s.to_world(p) - np.array([0.0, 0.0, vertical_m])
     return out

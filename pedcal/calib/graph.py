@@ -80,6 +80,7 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.common import HeadModel, ModelMismatch, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.frames import toward_sensor_horizontal
 from pedcal.io.sensors_yaml import flow_vector
 from pedcal.metrics import HEAD_MODEL_KEY, JOINT_COV_KEY, LATENCY_KEY, MISMATCH_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
@@ -443,17 +444,6 @@ class FactorGraphProblem:
         R = np.stack([rotations[s] for s in self.obs_sensor]) if len(self.obs_t) else np.zeros((0, 3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
-
-
-def toward_sensor_horizontal(p_sensor: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
-    """(N, 3) unit horizontal vectors from sensor-frame points toward their sensor, expressed in
-    the sensor frame (``R_world_sensor``: (N, 3, 3) or (3, 3)); zero straight under it."""
-    R = np.broadcast_to(R_world_sensor, (len(p_sensor), 3, 3))
-    back = -np.einsum("nij,nj->ni", R, p_sensor)          # world, point -> sensor
-    back[:, 2] = 0.0
-    norm = np.linalg.norm(back, axis=1, keepdims=True)
-    back = np.where(norm > 1e-9, back / np.maximum(norm, 1e-9), 0.0)
-    return np.einsum("nji,nj->ni", R, back)
 
 
 def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
