@@ -18,7 +18,7 @@ SIGMA_M = 0.05      # observation noise large against AMCL's 1 mm: the sensors' 
 def _recipe():
     return GraphRecipe(head_radius_m=0.0, estimate_latency=False, people=False, robust_kernel="none",
                        range_sigma_floor_m=SIGMA_M, range_sigma_k_per_m=0.0, lateral_sigma_m=SIGMA_M,
-                       far_factor=1.0)
+                       far_factor=1.0, estimate_observation_noise=False)
 
 
 def _tight_amcl_log(keep_every=1):

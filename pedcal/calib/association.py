@@ -199,6 +199,9 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
     col_of_seg = np.full(len(sd.seg_start), -1)
     col_of_seg[seeds] = np.arange(k)
     seed_col = col_of_seg[sd.seg_of_point]
+    # one-hot (point, seed) of the seeds' points: a hypothesis' inliers per seed are one product
+    seed_onehot = np.zeros((int(seed_point_mask.sum()), k))
+    seed_onehot[np.arange(len(seed_onehot)), seed_col[seed_point_mask]] = 1.0
     best = None
     for li, q in enumerate(heads_by_latency):
         w = sd.in_range.astype(float)
@@ -217,8 +220,7 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
         r = _residuals(R, t, sd.p, q)
         inlier = r < params["inlier_m"]
         # a seed must itself follow the robot: most of its points explained
-        seed_inlier = np.zeros((len(hyp), k))
-        np.add.at(seed_inlier.T, seed_col[seed_point_mask], inlier[:, seed_point_mask].T)
+        seed_inlier = inlier[:, seed_point_mask].astype(float) @ seed_onehot
         seed_frac = seed_inlier / np.maximum(seg_w, 1.0)
         seeds_follow = ((seed_frac >= 0.5) | (M[hyp] == 0)).all(axis=1)
         support_s = (inlier * sd.w_time).sum(axis=1)

@@ -115,6 +115,8 @@ class FactorGraphDiagnostics(Diagnostics):
     head_model: HeadModel | None = None
     model_mismatch: ModelMismatch | None = None
     position_cov_world_m2: dict[str, np.ndarray] = field(default_factory=dict)   # per sensor
+    amcl_model: object | None = None              # AmclErrorModel the graph was solved with
+    observation_noise: dict = field(default_factory=dict)   # the sensors' noise estimated from the log
     online_trace: object | None = None            # OnlineTrace of the incremental solver
 
 

@@ -92,6 +92,7 @@ def sensor_position_crlb(log: Log, recipe: str | GraphRecipe | None = None, *,
     rec = copy.copy(rec)
     rec.people, rec.robust_kernel = False, "none"
     rec.estimate_head_model = False     # the bound for a known head point
+    rec.estimate_observation_noise = False   # ... and the recipe's noise model
     if is_robot is None:
         if log.truth_observations is None:
             raise PedcalInputError("the Cramér-Rao bound needs truth_observations.csv (which rows are the "

@@ -25,7 +25,9 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
+from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
+    BLOCKS,
     GRAPHS_DIR,
     A,
     FactorGraphProblem,
@@ -39,17 +41,22 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     amcl_cov_body,
     amcl_white_sigma,
     build_graph,
+    build_parts,
     calibrate_odometry,
     finish_network,
     head_frame,
     observability,
+    observation_block,
     observation_sigmas,
     optimize_graph,
     prepare,
     rotation_sigma_deg,
     sensor_sigma_world,
+    set_amcl_model,
 )
+from pedcal.calib.profile import Columns, Nuisance, profile_step, retract_flat
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.frames import toward_sensor_horizontal
 from pedcal.model import Log, SensorNetwork
 
 
@@ -77,19 +84,37 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
 
     prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network)
     t_build = time.perf_counter()
-    fg, values = build_graph(log, prob)
+    parts = build_parts(log, prob)
+    fg = parts.graph()
     t_build = time.perf_counter() - t_build
-    _log(progress, f"optimizing {fg.size()} factors over {values.size()} variables")
+    _log(progress, f"optimizing {fg.size()} factors over {parts.values.size()} variables")
     t_opt = time.perf_counter()
-    result, iterations = optimize_graph(fg, values, recipe)
-    _log(progress, f"converged in {iterations} iterations, error {fg.error(values):.1f} -> {fg.error(result):.1f}")
-    shifts = _estimate_head_shifts(log, prob, fg, result)
+    resolve = recipe.estimate_amcl_model and recipe.amcl and recipe.robot
+    # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
+    # residuals the model is estimated from
+    result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None)
+    _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> {fg.error(result):.1f}")
+    # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
+    # leaving per-sensor offsets in the residuals that look like a wandering AMCL)
+    shifts = _estimate_head_shifts(log, prob, parts, result, progress, max_steps=2 if resolve else 5,
+                                   tolerance=0.5 if resolve else 0.1)
+    if resolve:
+        # AMCL's error model from the residuals of a solution with the head model estimated (a
+        # wrong head model leaves per-sensor offsets that look like a wandering AMCL), then the
+        # head model again under it
+        if shifts is not None:
+            result = shifts.result
+        parts, result, more = _reestimate_amcl(log, prob, result, progress)
+        iterations += more
+        shifts = _estimate_head_shifts(log, prob, parts, result, progress)
     if shifts is not None:
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
         _log(progress, f"head point shift toward the sensor: {1000 * prob.ray_shift_m:.1f} +- {sd[0]:.1f} mm "
                        f"along the ray, {1000 * prob.horizontal_shift_m:.1f} mm horizontally "
-                       f"({shifts.solves} solves)")
+                       f"({shifts.solves} profile steps)")
+    else:
+        fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
     cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
     cov_world: dict[str, np.ndarray] = {}
@@ -98,12 +123,135 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
                           mismatch=mismatch)
     diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s, iterations=iterations,
                                          factors=fg.size(), build_s=t_build, optimize_s=t_opt,
-                                         variables=values.size(), shared_people=len(prob.people),
+                                         variables=result.size(), shared_people=len(prob.people),
                                          odometry=prob.odometry_estimates, position_cov_world_m2=cov_world,
-                                         head_model=head_model, model_mismatch=mismatch)
+                                         head_model=head_model, model_mismatch=mismatch,
+                                         amcl_model=prob.amcl_model, observation_noise=prob.noise_estimate or {})
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=diagnostics, graph=fg, values=result,
                              keys=graph_keys(prob, result), position_covariance_m2=joint_pos)
+
+
+def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> tuple[np.ndarray, np.ndarray, list]:
+    """AMCL's residuals at its estimates that have a pose variable: (times of all estimates,
+    (N, 2) AMCL's head frame minus the solved robot's, world xy, NaN without a pose variable,
+    and per sensor (rows, (n, 2)): AMCL's head minus the head top that sensor saw there, mapped
+    to the world with its solved pose and the head model, averaged per estimate). A sensor's own
+    position error is the same in all of its residuals."""
+    amcl = log.robot.sort_values("t", kind="stable")
+    t = amcl["t"].to_numpy(float)
+    times = prob.pose_times
+    k = np.clip(np.searchsorted(times, t), 0, max(len(times) - 1, 0))
+    has = times[k] == t
+    head_m = np.asarray(log.meta.head_offset_m, float)
+    c, s_ = np.cos(amcl["yaw"].to_numpy(float)), np.sin(amcl["yaw"].to_numpy(float))
+    z_xy = np.column_stack([amcl["x"].to_numpy(float) + c * head_m[0] - s_ * head_m[1],
+                            amcl["y"].to_numpy(float) + s_ * head_m[0] + c * head_m[1]])
+    x_xy = np.array([result.atPose3(X(int(i))).translation()[:2] for i in range(len(times))])
+    res = np.full((len(t), 2), np.nan)
+    res[has] = z_xy[has] - x_xy[k[has]]
+    # pose index -> AMCL row (where the pose sits on an AMCL stamp)
+    row_of_pose = np.full(len(times), -1)
+    row_of_pose[k[has]] = np.flatnonzero(has)
+    use = prob.fac_key_index < len(times)
+    p = prob.head_points_sensor()
+    p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]        # the head top, sensor frame
+    per_sensor = []
+    for i, sid in enumerate(prob.sensor_ids):
+        m = use & (prob.fac_sensor == sid)
+        rows = row_of_pose[prob.fac_key_index[m]]
+        keep = rows >= 0
+        rows = rows[keep]
+        if not len(rows):
+            per_sensor.append((np.zeros(0, int), np.zeros((0, 2))))
+            continue
+        T = result.atPose3(S(i))
+        seen = (p[m][keep] @ T.rotation().matrix().T + T.translation())[:, :2]
+        u, inv = np.unique(rows, return_inverse=True)
+        d = z_xy[rows] - seen
+        mean = np.column_stack([np.bincount(inv, d[:, c], minlength=len(u)) for c in (0, 1)])
+        per_sensor.append((u, mean / np.bincount(inv, minlength=len(u))[:, None]))
+    return t, res, per_sensor
+
+
+def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, progress: bool):
+    """AMCL's error model estimated from the first solve's residuals (pedcal.calib.amcl_model),
+    the graph rebuilt with it and solved again from the first solution. Returns (parts, result,
+    iterations)."""
+    rec = prob.recipe
+    t, res, per_sensor = amcl_residuals(log, prob, result)
+    ok = np.isfinite(res[:, 0])
+    model = estimate_model(t, per_sensor, prob.amcl_model,
+                           prior_sigma_m=reported_sigma_m(log.robot),
+                           jump_threshold=rec.amcl_jump_threshold, min_jump_m=rec.amcl_min_jump_m)
+    if model is prob.amcl_model:
+        warnings.warn("too few AMCL estimates while a sensor saw the robot to estimate AMCL's error model; the "
+                      "recipe's (correlation time, white share of the reported covariance) is kept",
+                      DegenerateDataWarning, stacklevel=3)
+        return build_parts(log, prob), result, 0
+    _log(progress, f"AMCL error: white {1000 * model.white_sigma_m:.1f} mm, wandering {1000 * model.correlated_sigma_m:.1f}"
+                   f" mm over {model.correlation_s:.1f} s; {model.jumps} jumps ({model.excluded_s:.1f} s) left out")
+    rotations = {sid: result.atPose3(S(i)).rotation().matrix() for i, sid in enumerate(prob.sensor_ids)}
+    set_amcl_model(log, prob, model, rotations=rotations)
+    # shared sightings the solution contradicts (two sensors' views of "one" person far apart:
+    # a wrong match) hold nothing but a flat robust cost between the two views, which the
+    # solver crawls along; they are left out
+    bad = people_misfit(prob, result) > rec.people_misfit_sigma
+    if bad.any():
+        _log(progress, f"{int(bad.sum())} of {len(bad)} shared person sightings contradict the solution "
+                       f"(beyond {rec.people_misfit_sigma:.0f} sigma); left out")
+        prob.people = [p for p, b in zip(prob.people, bad, strict=True) if not b]
+    parts = build_parts(log, prob)
+    values = parts.values
+    for key in values.keys():
+        c = chr(gtsam.Symbol(key).chr())
+        if c != "a" and result.exists(key):
+            if c == "l":
+                values.update(key, result.atPoint3(key))
+            else:
+                values.update(key, result.atPose3(key))
+    # the error process's nodes start at its share of AMCL's mean residual near them (the node
+    # F = X Z^-1 is minus the residual): c^2 / (c^2 + w^2 / n) of it for n estimates; its height at
+    # the head model's
+    keep = ok & ~(model.excluded if model.excluded is not None else np.zeros(len(t), bool))
+    nodes = prob.amcl_node_times
+    if keep.sum() >= 2 and len(nodes):
+        z = result.atPose3(H(0)).translation()[2] if result.exists(H(0)) else 0.0
+        node = np.clip(np.round((t[keep] - nodes[0]) / max(nodes[1] - nodes[0], 1e-9) if len(nodes) > 1
+                                else np.zeros(int(keep.sum()))).astype(int), 0, len(nodes) - 1)
+        n = np.bincount(node, minlength=len(nodes))
+        mean = np.column_stack([np.bincount(node, res[keep, c], minlength=len(nodes)) for c in (0, 1)])
+        mean /= np.maximum(n, 1)[:, None]
+        c2, w2 = model.correlated_sigma_m ** 2, model.white_sigma_m ** 2
+        share = np.where(n > 0, c2 / (c2 + w2 / np.maximum(n, 1)), 0.0)
+        for m in range(len(nodes)):
+            if values.exists(A(m)):
+                values.update(A(m), gtsam.Pose3(gtsam.Rot3(), np.array([-share[m] * mean[m, 0],
+                                                                         -share[m] * mean[m, 1], z])))
+    result, iterations = optimize_graph(parts.graph(), values, rec)
+    return parts, result, iterations
+
+
+def people_misfit(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
+    """Per shared sighting, the largest whitened residual (bearing and range, in sigmas) of its
+    sensors' views of the solved person; inf for a sighting without its variable."""
+    rec = prob.recipe
+    idx = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    out = np.full(len(prob.people), np.inf)
+    for m, (_, seen) in enumerate(prob.people):
+        if not result.exists(L(m)):
+            continue
+        worst = 0.0
+        for sid, p in seen:
+            T = result.atPose3(S(idx[sid]))
+            p = p - prob.horizontal_shift_m * toward_sensor_horizontal(p[None, :], T.rotation().matrix())[0]
+            q = T.transformTo(result.atPoint3(L(m)))
+            r_meas = float(np.linalg.norm(p))
+            sig = observation_sigmas(rec, np.array([r_meas]))[0]
+            angle = np.arccos(np.clip(np.dot(q, p) / (np.linalg.norm(q) * r_meas), -1.0, 1.0))
+            worst = max(worst, np.hypot(angle / sig[0], (np.linalg.norm(q) - r_meas - prob.ray_shift_m) / sig[2]))
+        out[m] = worst
+    return out
 
 
 @dataclass
@@ -111,93 +259,58 @@ class _HeadShifts:
     graph: gtsam.NonlinearFactorGraph
     result: gtsam.Values
     cov: np.ndarray               # (k, k) covariance of the shifts (ray, then horizontal), m^2
-    sensitivity: np.ndarray       # (6 n_sensors, k) d(sensor pose tangent)/d(shift), per metre
+    sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(shift), per metre
     solves: int
 
 
-def _set_shifts(prob: FactorGraphProblem, theta: np.ndarray) -> None:
-    prob.ray_shift_m = float(theta[0])
-    if len(theta) > 1:
-        prob.horizontal_shift_m = float(theta[1])
-
-
-def _shift_prior(rec: GraphRecipe, theta: np.ndarray) -> float:
-    """The shifts' prior as a graph error (chi^2 / 2): the ray shift about head_radius_m, the
-    horizontal one about 0."""
-    e = 0.5 * ((theta[0] - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2
-    if len(theta) > 1:
-        e += 0.5 * (theta[1] / rec.head_horizontal_shift_sigma_m) ** 2
-    return float(e)
-
-
-def _solve_at(log: Log, prob: FactorGraphProblem, theta: np.ndarray, start: gtsam.Values,
-              max_iterations: int | None = None):
-    """The graph rebuilt with the head point's shifts ``theta`` (toward the sensor along the ray,
-    then horizontally), solved from ``start`` (at most ``max_iterations`` LM steps: a probe near a
-    converged solution needs one or two); returns (graph, result, profile error incl. the
-    shifts' prior)."""
-    rec = prob.recipe
-    _set_shifts(prob, theta)
-    fg, values = build_graph(log, prob)
-    values.update(start)
-    if max_iterations is not None:
-        rec = copy.copy(rec)
-        rec.max_iterations = max_iterations
-    result, _ = optimize_graph(fg, values, rec)
-    return fg, result, fg.error(result) + _shift_prior(rec, theta)
-
-
-def _sensor_tangents(prob: FactorGraphProblem, result: gtsam.Values, ref: gtsam.Values) -> np.ndarray:
-    return np.concatenate([ref.atPose3(S(i)).localCoordinates(result.atPose3(S(i)))
-                           for i in range(len(prob.sensor_ids))])
-
-
-def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, fg, result) -> _HeadShifts | None:
+def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
+                          max_steps: int = 5, tolerance: float = 0.1) -> _HeadShifts | None:
     """The head point's shift toward the sensor along the ray (a range offset of every
     observation; a dome's radius) and, unless the recipe leaves it out, horizontally (a point
-    pulled toward the sensor whatever the viewing angle), by their profile likelihood: the
-    graph's optimal error at theta +- h on each axis and at theta + h (1, 1), a quadratic through
-    them (Gauss-Newton on the profile), repeated once if a step reached 4 h. Their covariance is
-    the inverse of the quadratic's Hessian (error = chi^2 / 2), and the sensors' sensitivity to
-    them (central differences of the solutions) carries it into the sensors' covariance: the
-    marginal over the shifts, not the conditional."""
+    pulled toward the sensor whatever the viewing angle), by their profile likelihood on the
+    linearized graph (pedcal.calib.profile): each step moves the shifts by the profile's Newton
+    step and the variables by the linearized optimum there, until the step is below
+    ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
+    profile's inverse Hessian and the variables' sensitivity to them carries it into the sensors'
+    covariance: the marginal over the shifts, not the conditional. ``parts`` gets the
+    observation block at the final shifts."""
     rec = prob.recipe
-    if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0):
+    if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0 and rec.robot):
         return None
-    k = 2 if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0 else 1
-    h = rec.head_ray_shift_step_m
-    theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m][:k])
-    e0 = fg.error(result) + _shift_prior(rec, theta)
-    n6 = 6 * len(prob.sensor_ids)
-    solves = 0
-    for _ in range(2):
-        g, Hm, sens = np.zeros(k), np.zeros((k, k)), np.zeros((n6, k))
-        e_plus = np.zeros(k)
-        for j in range(k):
-            d = h * np.eye(k)[j]
-            _, r_plus, e_plus[j] = _solve_at(log, prob, theta + d, result, max_iterations=2)
-            _, r_minus, e_minus = _solve_at(log, prob, theta - d, result, max_iterations=2)
-            g[j] = (e_plus[j] - e_minus) / (2.0 * h)
-            Hm[j, j] = (e_plus[j] + e_minus - 2.0 * e0) / h ** 2
-            sens[:, j] = (_sensor_tangents(prob, r_plus, result) - _sensor_tangents(prob, r_minus, result)) / (2 * h)
-            solves += 2
-        if k == 2:
-            _, _, e_pp = _solve_at(log, prob, theta + h, result, max_iterations=2)
-            Hm[0, 1] = Hm[1, 0] = (e_pp - e_plus[0] - e_plus[1] + e0) / h ** 2
-            solves += 1
-        if not np.all(np.linalg.eigvalsh(Hm) > 0.0):
-            warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
-                          "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
-            fg, result, _ = _solve_at(log, prob, theta, result)
-            prior_sd = [rec.head_ray_shift_sigma_m, rec.head_horizontal_shift_sigma_m][:k]
-            return _HeadShifts(fg, result, np.diag(np.square(prior_sd)), np.zeros((n6, k)), solves + 1)
-        step = np.clip(-np.linalg.solve(Hm, g), -5.0 * h, 5.0 * h)
-        theta = theta + step
-        fg, result, e0 = _solve_at(log, prob, theta, result)
-        solves += 1
-        if np.max(np.abs(step)) < 4.0 * h:     # the profile is close to quadratic: one fit is enough
+    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
+    if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
+        nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
+    names = [n.name for n in nuis]
+    theta = np.array([getattr(prob, n) for n in names], float)
+    fixed = gtsam.NonlinearFactorGraph()
+    for name in BLOCKS:
+        if name != "observations":
+            fixed.push_back(parts.blocks[name])
+    cols = Columns.of(result)
+    kernel = (rec.robust_kernel, rec.robust_k)
+    prior_factors = int(result.exists(H(0)) and rec.amcl)      # the head offset's prior leads the block
+    step = None
+    for n_step in range(1, max_steps + 1):
+        step = profile_step(fixed, lambda th, scale, r=result: observation_block(
+            log, prob, r, theta=dict(zip(names, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
+            obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors)
+        theta = theta + step.dtheta
+        _log(progress, f"profile step {n_step}: " + ", ".join(
+            f"{n} {1000 * v:+.2f} (step {1000 * d:+.2f}, sigma {1000 * s:.2f}) mm" for n, v, d, s in
+            zip(names, theta, step.dtheta, np.sqrt(np.diag(step.covariance)), strict=True)))
+        for name, v in zip(names, theta, strict=True):
+            setattr(prob, name, float(v))
+        # the variables at the linearized optimum for the new shifts: z0 + Z dtheta
+        result = retract_flat(result, step.z0 + step.Z @ step.dtheta, cols)
+        parts.blocks["observations"] = observation_block(log, prob, result)
+        if np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance))):
             break
-    return _HeadShifts(fg, result, np.linalg.inv(Hm), sens, solves)
+    if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
+        warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
+                      "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
+    keys = [S(i) for i in range(len(prob.sensor_ids))] + ([H(0)] if result.exists(H(0)) else [])
+    sens = step.Z[cols.index(keys)]
+    return _HeadShifts(parts.graph(), result, step.covariance, sens, n_step)
 
 
 def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
@@ -206,15 +319,15 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     N(0, 1) if the noise model of the graph holds."""
     rec = prob.recipe
     n_pose = len(prob.pose_times)
-    use = prob.obs_key_index < n_pose
+    use = prob.fac_key_index < n_pose
     if not (rec.robot and use.any()):
         return np.zeros((0, 3))
     xk = np.array([result.atPose3(X(k)).translation() for k in range(n_pose)])
     idx = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-    si = np.array([idx[s] for s in prob.obs_sensor[use]])
+    si = np.array([idx[s] for s in prob.fac_sensor[use]])
     R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]
     t = np.stack([result.atPose3(S(i)).translation() for i in range(len(prob.sensor_ids))])[si]
-    p_pred = np.einsum("nji,nj->ni", R, xk[prob.obs_key_index[use]] - t)
+    p_pred = np.einsum("nji,nj->ni", R, xk[prob.fac_key_index[use]] - t)
     p_meas = prob.head_points_sensor()[use]
     r_meas = np.linalg.norm(p_meas, axis=1)
     u = p_meas / r_meas[:, None]
@@ -224,7 +337,8 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
     b2 = np.cross(u, b1)
     u_pred = p_pred / r_pred[:, None]
-    sig = observation_sigmas(rec, r_meas)
+    # the graph's sigmas: at the range as observed, over sqrt of the merged count
+    sig = observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1)) / np.sqrt(prob.fac_count[use])[:, None]
     return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
                             (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
 
@@ -237,7 +351,7 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
     z = robot_residuals(prob, result)
     rec = prob.recipe
     n_pose = len(prob.pose_times)
-    sensors = prob.obs_sensor[prob.obs_key_index < n_pose] if rec.robot else np.zeros(0, str)
+    sensors = prob.fac_sensor[prob.fac_key_index < n_pose] if rec.robot else np.zeros(0, str)
     ratio = {}
     for sid in prob.sensor_ids:
         m = sensors == sid
@@ -263,9 +377,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
     marginals = gtsam.Marginals(fg, result)
     kv = gtsam.KeyVector(keys + ([H(0)] if has_h else []))
     C = marginals.jointMarginalCovariance(kv).fullMatrix()
-    C_s = C[:6 * n, :6 * n].copy()
     if shifts is not None:
-        C_s += shifts.sensitivity @ shifts.cov @ shifts.sensitivity.T
+        C = C + (shifts.sensitivity @ shifts.cov @ shifts.sensitivity.T)[:len(C), :len(C)]
+    C_s = C[:6 * n, :6 * n].copy()
     check = model_check(prob, result)
     scale = np.ones(6 * n)
     for i, sid in enumerate(prob.sensor_ids):

@@ -68,6 +68,7 @@ track), so re-solving for it buys little.
 
 from __future__ import annotations
 
+import copy
 import logging
 import warnings
 from dataclasses import dataclass, field, fields
@@ -78,6 +79,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal import frames
+from pedcal.calib.amcl_model import AmclErrorModel, assumed_model
 from pedcal.calib.common import HeadModel, ModelMismatch, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
@@ -122,6 +124,8 @@ class GraphRecipe:
     reliable_range_m: float = 3.5
     far_factor: float = 2.0
     lateral_sigma_m: float = 0.012
+    # the three above estimated from consecutive observations (estimate_observation_noise) unless false
+    estimate_observation_noise: bool = True
     # head-point model (module docstring, "Head point"): the prior is a dome of radius
     # head_radius_m (vertical offset -r, ray shift r); both are estimated unless
     # estimate_head_model is false
@@ -130,7 +134,7 @@ class GraphRecipe:
     head_vertical_sigma_m: float = 0.03     # prior sigma of the vertical offset about -ray shift
     head_ray_shift_sigma_m: float = 0.05    # prior sigma of the shift toward the sensor
     head_ray_shift_step_m: float = 0.02     # step of the shifts' profile likelihood
-    estimate_head_horizontal_shift: bool = False  # a constant horizontal shift toward the sensor too
+    estimate_head_horizontal_shift: bool = True   # a constant horizontal shift toward the sensor too
     head_horizontal_shift_sigma_m: float = 0.05   # its prior sigma (mean 0)
     # height reference: the installed sensor heights measured to this sigma (0: no reference),
     # or, with ceiling_height_m > 0, every sensor at that height to this sigma
@@ -142,6 +146,11 @@ class GraphRecipe:
     amcl_correlation_s: float = 20.0
     amcl_node_spacing_s: float = 1.0   # nodes of the error process (a small fraction of tau)
     amcl_white_fraction: float = 0.2   # share of AMCL's reported std that is white, per stamp
+    # AMCL's error model (white std, wandering std and correlation time, jumps) estimated from the
+    # residuals of a first solve (pedcal.calib.amcl_model); the three above are its starting point
+    estimate_amcl_model: bool = True
+    amcl_jump_threshold: float = 5.0   # robust sigmas off the running median: a jump, left out
+    amcl_min_jump_m: float = 0.1       # ... and at least this far off
     # robot poses: one per AMCL stamp, gaps longer than this filled
     max_pose_gap_s: float = 0.25
     # odometry: systematic errors estimated and removed, then white noise per sqrt(second)
@@ -164,6 +173,7 @@ class GraphRecipe:
     latency_max_s: float = 0.4
     # people association for shared observations (at most one shared point per period)
     people_sample_s: float = 0.5
+    people_misfit_sigma: float = 5.0   # a shared sighting whose views the first solve puts this far apart is dropped
     # initializer: closedform | gridsearch | installed
     init: str = "closedform"
     max_iterations: int = 50
@@ -284,21 +294,23 @@ def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
 
 
 class _NoiseCache:
-    """Noise models of observations, built once per (rounded) range: a few hundred C++ objects
-    instead of one per observation."""
+    """Noise models of observations, built once per (rounded) range and count of merged
+    observations: a few hundred C++ objects instead of one per observation."""
 
-    def __init__(self, recipe: GraphRecipe, step_m: float = 0.01):
-        self.recipe, self.step_m, self.cache = recipe, step_m, {}
+    def __init__(self, recipe: GraphRecipe, step_m: float = 0.01, robust: bool = True):
+        self.recipe, self.step_m, self.cache, self.robust = recipe, step_m, {}, robust
 
     def keys(self, range_m: np.ndarray) -> np.ndarray:
         return np.round(np.asarray(range_m, float) / self.step_m).astype(int)
 
-    def __call__(self, range_m: float | None = None, key: int | None = None):
+    def __call__(self, range_m: float | None = None, key: int | None = None, count: int = 1):
+        """The model of the mean of ``count`` observations at this range (or range key)."""
         key = int(round(range_m / self.step_m)) if key is None else int(key)
-        nm = self.cache.get(key)
+        nm = self.cache.get((key, count))
         if nm is None:
-            sig = observation_sigmas(self.recipe, np.array([key * self.step_m]))[0]
-            nm = self.cache[key] = _robust(self.recipe, gtsam.noiseModel.Diagonal.Sigmas(sig))
+            sig = observation_sigmas(self.recipe, np.array([key * self.step_m]))[0] / np.sqrt(count)
+            nm = gtsam.noiseModel.Diagonal.Sigmas(sig)
+            nm = self.cache[(key, count)] = _robust(self.recipe, nm) if self.robust else nm
         return nm
 
 
@@ -410,21 +422,69 @@ class FactorGraphProblem:
     people: list = field(default_factory=list)   # [(t, [(sensor, p_sensor), ...]), ...]
     rows_used: np.ndarray | None = None
     amcl_node_times: np.ndarray | None = None    # times of the AMCL error nodes a(j)
+    amcl_model: AmclErrorModel | None = None     # AMCL's error model the graph is built with
+    noise_estimate: dict | None = None           # the sensors' noise estimated from the observations
     # derived by carry_observations: latency-corrected instants, the pose each observation is
     # carried to, and the sensor-frame point carried there
     obs_t: np.ndarray | None = None
     obs_key_index: np.ndarray | None = None
     obs_p_sensor: np.ndarray | None = None
     obs_toward_sensor: np.ndarray | None = None   # horizontal unit toward the sensor, sensor frame
+    # the graph's robot-observation factors (merge_observations): a sensor's observations carried
+    # to one pose are one factor, their mean point with its sigma over sqrt(count)
+    fac_sensor: np.ndarray | None = None
+    fac_key_index: np.ndarray | None = None
+    fac_p_sensor: np.ndarray | None = None
+    fac_toward_sensor: np.ndarray | None = None
+    fac_count: np.ndarray | None = None
     # the head point's shift toward the sensor along the ray and horizontally (m) the graph is
     # built with
     ray_shift_m: float = 0.0
     horizontal_shift_m: float = 0.0
 
     def head_points_sensor(self) -> np.ndarray:
-        """The robot observations (sensor frame) with the horizontal shift toward the sensor
-        taken out: the head point moved ray_shift_m along the ray from the offset head top."""
-        return self.obs_p_sensor - self.horizontal_shift_m * self.obs_toward_sensor
+        """The robot-observation factors' points (sensor frame) with the horizontal shift toward
+        the sensor taken out: the head point moved ray_shift_m along the ray from the offset
+        head top."""
+        return self.fac_p_sensor - self.horizontal_shift_m * self.fac_toward_sensor
+
+    def merge_observations(self, max_sigmas: float = 4.0) -> None:
+        """The graph's robot-observation factors: the observations one sensor made of the robot
+        carried to one pose predict the same point, so their mean, with the noise's sigma over
+        the square root of their count, holds the same information as each of them (the factor
+        count drops by the sensors' frame rate over AMCL's). A group in which one observation
+        lies beyond ``max_sigmas`` (whitened by the recipe's noise) from the mean of the others
+        is left as single observations, for the robust kernel to judge each."""
+        n = len(self.obs_key_index)
+        sid_index = {sid: i for i, sid in enumerate(self.sensor_ids)}
+        sensor_i = np.array([sid_index[s] for s in self.obs_sensor], int)
+        _, group, count = np.unique(self.obs_key_index * max(len(self.sensor_ids), 1) + sensor_i,
+                                    return_inverse=True, return_counts=True)
+        group = np.asarray(group).ravel()
+        mean = np.column_stack([np.bincount(group, self.obs_p_sensor[:, c], minlength=len(count))
+                                for c in range(3)]) / np.maximum(count, 1)[:, None] if n else np.zeros((0, 3))
+        # each observation against the mean of the others in its group, whitened
+        c_obs = count[group]
+        d = (self.obs_p_sensor - mean[group]) * (c_obs / np.maximum(c_obs - 1, 1))[:, None]
+        r = np.linalg.norm(self.obs_p_sensor, axis=1)
+        u = self.obs_p_sensor / np.maximum(r, 1e-9)[:, None]
+        along = np.sum(d * u, axis=1)
+        across = np.linalg.norm(d - along[:, None] * u, axis=1)
+        sig = observation_sigmas(self.recipe, r)
+        z = np.hypot(along / sig[:, 2], across / (sig[:, 0] * np.maximum(r, 0.3)))
+        split = np.zeros(len(count), bool)
+        np.logical_or.at(split, group, (z > max_sigmas) & (c_obs > 1))
+        # merged groups: one representative observation each (its sensor, pose and rotation)
+        rep = np.full(len(count), -1)
+        rep[group[::-1]] = np.arange(n)[::-1]
+        merged = np.flatnonzero(~split)
+        solo = np.flatnonzero(split[group])
+        idx = np.r_[rep[merged], solo].astype(int)
+        self.fac_sensor = self.obs_sensor[idx]
+        self.fac_key_index = self.obs_key_index[idx]
+        self.fac_p_sensor = np.vstack([mean[merged], self.obs_p_sensor[solo]])
+        self.fac_count = np.r_[count[merged], np.ones(len(solo), int)]
+        self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, self._R_obs[idx])
 
     def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
@@ -444,6 +504,8 @@ class FactorGraphProblem:
         R = np.stack([rotations[s] for s in self.obs_sensor]) if len(self.obs_t) else np.zeros((0, 3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
+        self._R_obs = R
+        self.merge_observations()
 
 
 def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
@@ -472,162 +534,313 @@ def _height_noise(T: gtsam.Pose3, sigma_m: float):
     return gtsam.noiseModel.Gaussian.Information(info)
 
 
+BLOCKS = ("sensors", "amcl", "motion", "observations")
+
+
+@dataclass
+class GraphParts:
+    """The factor graph in blocks, each a NonlinearFactorGraph (``BLOCKS``, in graph order):
+    ``sensors`` (installed priors, height reference), ``amcl`` (AMCL's measurements and its error
+    process), ``motion`` (odometry or smoothness) and ``observations`` (the robot's and the shared
+    people's, and the head model's prior: everything the head point's shifts enter, rebuilt alone
+    by :func:`observation_block` when they change), and the initial values."""
+
+    blocks: dict
+    values: gtsam.Values
+
+    def graph(self, **replace) -> gtsam.NonlinearFactorGraph:
+        """The whole graph; ``replace`` swaps blocks by name (e.g. ``observations=...``)."""
+        g = gtsam.NonlinearFactorGraph()
+        for name in BLOCKS:
+            g.push_back(replace.get(name, self.blocks[name]))
+        return g
+
+
 def build_graph(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None):
     """Build the factor graph and the initial values (optionally only with data up to t_max)."""
-    rec = prob.recipe
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    head_m = np.asarray(log.meta.head_offset_m, float) - np.array([0.0, 0.0, rec.head_radius_m])
+    parts = build_parts(log, prob, t_max=t_max)
+    return parts.graph(), parts.values
 
-    rho = prob.ray_shift_m
+
+def _pose_times(prob: FactorGraphProblem, t_max: float | None) -> np.ndarray:
+    return prob.pose_times if t_max is None else prob.pose_times[prob.pose_times <= t_max]
+
+
+def _head_m(log: Log, rec: GraphRecipe) -> np.ndarray:
+    """The robot's head frame offset (base frame) the poses are built at: the head top moved
+    down by the prior dome's radius (the vertical offset's initial value, see H(0))."""
+    return np.asarray(log.meta.head_offset_m, float) - np.array([0.0, 0.0, rec.head_radius_m])
+
+
+def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None) -> GraphParts:
+    """The graph's blocks and initial values (optionally only with data up to t_max)."""
+    rec = prob.recipe
+    values = gtsam.Values()
+    blocks = {name: gtsam.NonlinearFactorGraph() for name in BLOCKS}
+    head_m = _head_m(log, rec)
+
     # Sensors: weak prior at the installed extrinsics; a height reference, when given, as a
     # prior on the world height alone (the Pose3 tangent is body-frame: world z is R^T e_z there).
+    g = blocks["sensors"]
     sig_rot = np.radians(rec.sensor_prior_sigma_deg)
     sensor_prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sig_rot] * 3, [rec.sensor_prior_sigma_m] * 3])
     for i, sid in enumerate(prob.sensor_ids):
         T_inst = log.sensors[sid].T_world_sensor
-        graph.add(gtsam.PriorFactorPose3(S(i), T_inst, sensor_prior))
+        g.add(gtsam.PriorFactorPose3(S(i), T_inst, sensor_prior))
         values.insert(S(i), prob.init_sensors[sid])
         if rec.sensor_height_sigma_m > 0.0:
             z_ref = rec.ceiling_height_m if rec.ceiling_height_m > 0.0 else float(T_inst.translation()[2])
             # about the initial pose (close to the solution: the Pose3 logmap couples the
             # horizontal offset into the height by the rotation difference)
             T0 = prob.init_sensors[sid]
-            graph.add(gtsam.PriorFactorPose3(S(i), _height_reference(T0, z_ref),
-                                             _height_noise(T0, rec.sensor_height_sigma_m)))
+            g.add(gtsam.PriorFactorPose3(S(i), _height_reference(T0, z_ref),
+                                         _height_noise(T0, rec.sensor_height_sigma_m)))
 
-    times = prob.pose_times if t_max is None else prob.pose_times[prob.pose_times <= t_max]
+    times = _pose_times(prob, t_max)
     n_pose = len(times)
     amcl = log.robot.sort_values("t")
-    amcl_t = amcl["t"].to_numpy(float)
-    spline_head = head_interpolator(log)
-    # head frames on the AMCL spline: its position and the spline's heading
-    pose_xy = spline_head(times)[:, :2] if n_pose else np.zeros((0, 2))
     base = interpolate_pose2(amcl, times)
-    # Robot poses on the AMCL spline; roll, pitch and height held by a planarity prior (AMCL's
+    init = initial_track(log, prob, times) if n_pose else np.zeros((0, 3))
+    # Robot poses at the initial track; roll, pitch and height held by a planarity prior (AMCL's
     # own factor holds them when it is in the graph).
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
     for k in range(n_pose):
-        P = gtsam.Pose3(gtsam.Rot3.Yaw(base[k, 2]), np.array([pose_xy[k, 0], pose_xy[k, 1], head_m[2]]))
+        P = head_frame(*init[k], head_m)
         values.insert(X(k), P)
         if not rec.amcl:
-            graph.add(gtsam.PriorFactorPose3(X(k), P, planar))
-
-    # AMCL as a measurement with a Gauss-Markov error (module docstring). The error process is
-    # slow (tau ~ 20 s): its nodes are ``amcl_node_spacing_s`` apart, each stamp tied to the
-    # nearest node with the OU's change over that interval (variance 2 sigma^2 |dt| / tau) as
-    # extra white noise.
+            blocks["amcl"].add(gtsam.PriorFactorPose3(X(k), P, planar))
     if rec.amcl and n_pose:
-        cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
-        sig_xy = max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 3])))), 1e-3)
-        white_var = max(amcl_white_sigma(amcl) ** 2 - rec.amcl_white_fraction ** 2 * sig_xy ** 2, 0.0)
-        tau = rec.amcl_correlation_s
-        k_of = np.searchsorted(times, amcl_t)
-        use = np.flatnonzero((k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t))
-        dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
-        nodes = prob.amcl_node_times
-        node_of = np.clip(np.round((amcl_t[use] - nodes[0]) / rec.amcl_node_spacing_s).astype(int), 0, len(nodes) - 1)
-        tiny = np.radians(0.05)
-        yaw_a = amcl["yaw"].to_numpy(float)[use]
-        x_a, y_a = amcl["x"].to_numpy(float)[use], amcl["y"].to_numpy(float)[use]
-        # AMCL's covariance in the body frame (amcl_cov_body); the slow error is a world-frame
-        # translation (F is held to a pure translation), its white share stays here; the heading
-        # error is white, inflated to the information of an OU mean (2 tau / dt).
-        C3 = np.stack([np.stack([cov[use, 0], cov[use, 1], cov[use, 2]], -1),
-                       np.stack([cov[use, 1], cov[use, 3], cov[use, 4]], -1),
-                       np.stack([cov[use, 2], cov[use, 4], cov[use, 5]], -1)], -2)
-        scale = np.array([1.0, 1.0, np.sqrt(max(1.0, 2.0 * tau / dt_amcl)), rec.amcl_white_fraction,
-                          rec.amcl_white_fraction, 1.0])
-        Cb = amcl_cov_body(C3, yaw_a) * np.outer(scale, scale)
-        Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
-        drift_var = 2.0 * sig_xy ** 2 * np.abs(amcl_t[use] - nodes[node_of]) / tau
-        # plus the OU's change since the node and, when AMCL's own jitter shows a white error
-        # larger than the recipe's share of the reported one, the excess (amcl_white_sigma)
-        Cb[:, 3:5, 3:5] += (drift_var + white_var)[:, None, None] * np.eye(2)
-        Cb[:, 5, 5] = 1e-6
-        for n, j in enumerate(use):
-            Z = head_frame(x_a[n], y_a[n], yaw_a[n], head_m)
-            graph.add(gtsam.BetweenFactorPose3(A(int(node_of[n])), X(int(k_of[j])), Z,
-                                               gtsam.noiseModel.Gaussian.Covariance(Cb[n])))
-        # discretized OU prior on the error process (module docstring)
-        dn = rec.amcl_node_spacing_s
-        sp, sq = np.sqrt(2.0 * tau / dn), np.sqrt(2.0 * dn / tau)
-        # The head point's vertical offset from its prior (-head_radius_m) is the height of the
-        # variable h: every AMCL error node's height is tied to it, so every robot pose, and with
-        # it every head point the sensors see, moves up or down with it alike.
-        free_z = rec.estimate_head_model
-        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sp, sig_xy * sp,
-                                                           1e2 if free_z else 1e-3]))
-        q = gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, sig_xy * sq, sig_xy * sq, 1e-3]))
-        n_nodes = int(node_of.max()) + 1 if len(use) else 0
-        if free_z and n_nodes:
-            # prior: the point lies on a dome, offset = -shift (a blob's top: both 0; a dome's
-            # facing point: -r and r), give or take head_vertical_sigma_m; h's height is the
-            # offset minus the initial -head_radius_m of the robot poses
-            values.insert(H(0), gtsam.Pose3())
-            h_prior = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, rec.head_radius_m - rho]))
-            graph.add(gtsam.PriorFactorPose3(H(0), h_prior, gtsam.noiseModel.Diagonal.Sigmas(
-                np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m]))))
-            tie = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 1e3, 1e3, 1e-4]))
-        for m in range(n_nodes):
-            values.insert(A(m), gtsam.Pose3())
-            graph.add(gtsam.PriorFactorPose3(A(m), gtsam.Pose3(), prior))
-            if m:
-                graph.add(gtsam.BetweenFactorPose3(A(m - 1), A(m), gtsam.Pose3(), q))
-            if free_z:
-                graph.add(gtsam.BetweenFactorPose3(H(0), A(m), gtsam.Pose3(), tie))
-
-    # Odometry (or smoothness) between consecutive robot poses.
+        _amcl_block(blocks["amcl"], values, log, prob, times)
     if n_pose > 1:
-        src = None
-        if rec.odometry and prob.odometry is not None:
-            src = interpolate_pose2(prob.odometry, times)
-            dt = np.diff(times)
-            d = np.hypot(*np.diff(src[:, :2], axis=0).T)
-            st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * d) ** 2) + 1e-4
-            sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
-                         + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * d) ** 2) + 1e-5
-        elif rec.smoothness:
-            src = base if prob.smoothed_amcl is None else interpolate_pose2(prob.smoothed_amcl, times)
-            dt = np.diff(times)
-            # AMCL's short-term increments: error grows with dt, plus AMCL's white jitter at both ends
-            st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + 2.0 * amcl_white_sigma(amcl) ** 2) + 1e-3
-            sy = np.radians(2.0) * dt + 1e-4
-        if src is not None:
-            P = [head_frame(*src[k], head_m) for k in range(n_pose)]
-            for k in range(n_pose - 1):
-                nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
-                graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), P[k].between(P[k + 1]), nm))
+        _motion_block(blocks["motion"], log, prob, times, base)
+    blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True)
+    return GraphParts(blocks=blocks, values=values)
 
-    # Robot observations, carried to their pose variables (FactorGraphProblem.carry_observations).
+
+def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_s: float = 5.0) -> np.ndarray:
+    """(N, 3) base poses [x, y, yaw] to start the robot poses from: with odometry, its path
+    carried into the map by AMCL's map-from-odometry transform smoothed over ``smooth_s`` (the
+    path then has odometry's shape, which its factors expect, and AMCL's place); without it AMCL
+    smoothed (when it jitters) or AMCL itself. AMCL's estimates the error model left out as
+    jumps are not used."""
+    from scipy.ndimage import gaussian_filter1d
+
+    amcl = log.robot.sort_values("t", kind="stable")
+    model = prob.amcl_model
+    if model is not None and model.excluded is not None:
+        amcl = amcl[~model.excluded]
+    amcl = amcl.groupby("t", sort=True)[["x", "y", "yaw"]].mean().reset_index()
+    if prob.odometry is None or len(amcl) < 2:
+        src = prob.smoothed_amcl if prob.smoothed_amcl is not None else amcl
+        return interpolate_pose2(src, times)
+    t_a = amcl["t"].to_numpy(float)
+    odo = interpolate_pose2(prob.odometry, t_a)
+    yaw_d = np.unwrap(np.unwrap(amcl["yaw"].to_numpy(float)) - odo[:, 2])
+    c, s_ = np.cos(yaw_d), np.sin(yaw_d)
+    tx = amcl["x"].to_numpy(float) - (c * odo[:, 0] - s_ * odo[:, 1])
+    ty = amcl["y"].to_numpy(float) - (s_ * odo[:, 0] + c * odo[:, 1])
+    sig = smooth_s / max(float(np.median(np.diff(t_a))), 1e-3)
+    # the transform's components smoothed (the rotation through its sine and cosine)
+    tx, ty, c, s_ = (gaussian_filter1d(v, sig, mode="nearest") for v in (tx, ty, c, s_))
+    yaw_d = np.arctan2(s_, c)
+    o = interpolate_pose2(prob.odometry, times)
+    D = np.column_stack([np.interp(times, t_a, tx), np.interp(times, t_a, ty), np.interp(times, t_a, np.unwrap(yaw_d))])
+    c, s_ = np.cos(D[:, 2]), np.sin(D[:, 2])
+    return np.column_stack([D[:, 0] + c * o[:, 0] - s_ * o[:, 1], D[:, 1] + s_ * o[:, 0] + c * o[:, 1], D[:, 2] + o[:, 2]])
+
+
+def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray) -> None:
+    """AMCL as a measurement with a Gauss-Markov error (module docstring), under the problem's
+    AMCL error model (:class:`pedcal.calib.amcl_model.AmclErrorModel`): each estimate tied to the
+    nearest node of the error process with its white error and the process's change since the
+    node; the process itself as the exact discretization of an Ornstein-Uhlenbeck process on the
+    nodes; estimates the model marks as jumps left out."""
+    rec = prob.recipe
+    head_m = _head_m(log, rec)
+    model = prob.amcl_model
+    amcl = log.robot.sort_values("t", kind="stable")
+    amcl_t = amcl["t"].to_numpy(float)
+    n_pose = len(times)
+    cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
+    k_of = np.searchsorted(times, amcl_t)
+    use = (k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t)
+    if model.excluded is not None:
+        use &= ~model.excluded
+    use = np.flatnonzero(use)
+    dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
+    nodes = prob.amcl_node_times
+    dn = float(nodes[1] - nodes[0]) if len(nodes) > 1 else 1.0
+    node_of = np.clip(np.round((amcl_t[use] - nodes[0]) / dn).astype(int), 0, len(nodes) - 1)
+    tiny = np.radians(0.05)
+    tau = max(model.correlation_s, 1e-3)
+    sig_c = max(model.correlated_sigma_m, 1e-4)
+    yaw_a = amcl["yaw"].to_numpy(float)[use]
+    x_a, y_a = amcl["x"].to_numpy(float)[use], amcl["y"].to_numpy(float)[use]
+    # AMCL's covariance in the body frame (amcl_cov_body); the slow error is a world-frame
+    # translation (F is held to a pure translation), the white error stays here; the heading error
+    # is white, inflated to the information of an OU mean (2 tau / dt).
+    C3 = np.stack([np.stack([cov[use, 0], cov[use, 1], cov[use, 2]], -1),
+                   np.stack([cov[use, 1], cov[use, 3], cov[use, 4]], -1),
+                   np.stack([cov[use, 2], cov[use, 4], cov[use, 5]], -1)], -2)
+    f = model.reported_white_fraction
+    scale = np.array([1.0, 1.0, np.sqrt(max(1.0, 2.0 * tau / dt_amcl)), f, f, 1.0])
+    Cb = amcl_cov_body(C3, yaw_a) * np.outer(scale, scale)
+    Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
+    # white error (the model's share of the reported covariance and its own std) and the OU's
+    # change since the node (exact: sigma^2 (1 - exp(-2 |dt| / tau)))
+    drift_var = sig_c ** 2 * (1.0 - np.exp(-2.0 * np.abs(amcl_t[use] - nodes[node_of]) / tau))
+    Cb[:, 3:5, 3:5] += (model.white_sigma_m ** 2 + drift_var)[:, None, None] * np.eye(2)
+    Cb[:, 5, 5] = 1e-6
+    for n, j in enumerate(use):
+        Z = head_frame(x_a[n], y_a[n], yaw_a[n], head_m)
+        graph.add(gtsam.BetweenFactorPose3(A(int(node_of[n])), X(int(k_of[j])), Z,
+                                           gtsam.noiseModel.Gaussian.Covariance(Cb[n])))
+    # The error process on its nodes: the exact AR(1) of an OU process sampled every dn,
+    # a = exp(-dn / tau), written as increments and per-node priors (module docstring).
+    a = float(np.exp(-dn / tau))
+    free_z = rec.estimate_head_model
+    z_sig = 1e2 if free_z else 1e-3
+
+    def sig6(s_xy: float, s_z: float):
+        return gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, s_xy, s_xy, s_z]))
+
+    n_nodes = int(node_of.max()) + 1 if len(use) else 0
+    if n_nodes == 1:
+        priors = [sig6(sig_c, z_sig)]
+    else:
+        end = sig6(sig_c * np.sqrt(1.0 + a), z_sig)
+        inner = sig6(sig_c * np.sqrt((1.0 + a) / max(1.0 - a, 1e-12)), z_sig)
+        priors = [end] + [inner] * max(n_nodes - 2, 0) + [end]
+    q = sig6(sig_c * np.sqrt((1.0 - a * a) / max(a, 1e-12)), 1e-3)
+    if free_z and n_nodes:
+        # The head point's vertical offset from its initial value (-head_radius_m) is the height
+        # of the variable h (its prior is in the observation block: it depends on the ray shift):
+        # every AMCL error node's height is tied to it, so every robot pose, and with it every
+        # head point the sensors see, moves up or down with it alike.
+        values.insert(H(0), gtsam.Pose3())
+        tie = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 1e3, 1e3, 1e-4]))
+    for m in range(n_nodes):
+        values.insert(A(m), gtsam.Pose3())
+        graph.add(gtsam.PriorFactorPose3(A(m), gtsam.Pose3(), priors[m]))
+        if m and a > 1e-9:
+            graph.add(gtsam.BetweenFactorPose3(A(m - 1), A(m), gtsam.Pose3(), q))
+        if free_z:
+            graph.add(gtsam.BetweenFactorPose3(H(0), A(m), gtsam.Pose3(), tie))
+
+
+def _motion_block(graph, log: Log, prob: FactorGraphProblem, times: np.ndarray, base: np.ndarray) -> None:
+    """Odometry (or smoothness) between consecutive robot poses."""
+    rec = prob.recipe
+    head_m = _head_m(log, rec)
+    n_pose = len(times)
+    src = None
+    if rec.odometry and prob.odometry is not None:
+        src = interpolate_pose2(prob.odometry, times)
+        dt = np.diff(times)
+        d = np.hypot(*np.diff(src[:, :2], axis=0).T)
+        st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * d) ** 2) + 1e-4
+        sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
+                     + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * d) ** 2) + 1e-5
+    elif rec.smoothness:
+        src = base if prob.smoothed_amcl is None else interpolate_pose2(prob.smoothed_amcl, times)
+        dt = np.diff(times)
+        # AMCL's short-term increments: error grows with dt, plus AMCL's white jitter at both ends
+        st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + 2.0 * amcl_white_sigma(log.robot) ** 2) + 1e-3
+        sy = np.radians(2.0) * dt + 1e-4
+    if src is not None:
+        P = [head_frame(*src[k], head_m) for k in range(n_pose)]
+        for k in range(n_pose - 1):
+            nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
+            graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), P[k].between(P[k + 1]), nm))
+
+
+def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
+                      t_max: float | None = None, insert_values: bool = False,
+                      theta: dict | None = None, robust: bool = True,
+                      sigma_scale: np.ndarray | None = None) -> gtsam.NonlinearFactorGraph:
+    """The factors the head point's shifts enter: the prior of the head point's vertical offset
+    (a dome's: offset = -ray shift), the robot observations carried to their pose variables
+    (FactorGraphProblem.carry_observations) and the people seen by two or more sensors at once,
+    in this order. ``theta`` overrides the problem's shifts by name (``ray_shift_m``,
+    ``horizontal_shift_m``) without changing it; ``robust=False`` leaves the robust kernel out;
+    ``sigma_scale`` (one per factor, in order) multiplies each factor's sigmas instead of a
+    kernel (a robust weight w frozen: 1 / sqrt(w); models are shared between equal scales); ``insert_values`` puts the people's initial
+    positions into ``values``."""
+    rec = prob.recipe
+    theta = theta or {}
+    rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
+    hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
+    graph = gtsam.NonlinearFactorGraph()
+    n_pose = len(_pose_times(prob, t_max))
+    cache = _NoiseCache(rec, robust=robust and sigma_scale is None)
+    factor = 0           # index of the next factor (into sigma_scale)
+
+    def noises(range_m: np.ndarray, count: np.ndarray | None = None) -> list:
+        """Noise models of observations at these ranges, each the mean of ``count``: shared
+        cached ones, or with each factor's sigmas scaled."""
+        nonlocal factor
+        count = np.ones(len(range_m), int) if count is None else np.asarray(count, int)
+        if sigma_scale is None:
+            pairs, inverse = np.unique(np.column_stack([cache.keys(range_m), count]), axis=0, return_inverse=True)
+            models = [cache(key=k, count=c) for k, c in pairs]
+            return [models[i] for i in inverse.ravel()]
+        keys = cache.keys(range_m)
+        scale = np.asarray(sigma_scale[factor:factor + len(range_m)], float) / np.sqrt(count)
+        factor += len(range_m)
+        pairs, first, inverse = np.unique(np.column_stack([keys, scale]), axis=0, return_index=True,
+                                          return_inverse=True)
+        sig = observation_sigmas(rec, pairs[:, 0] * cache.step_m) * pairs[:, 1:2]     # scale includes 1/sqrt(count)
+        models = [gtsam.noiseModel.Diagonal.Sigmas(row) for row in sig]
+        return [models[i] for i in inverse.ravel()]
+
+    if rec.amcl and rec.estimate_head_model and values is not None and values.exists(H(0)):
+        # prior: the point lies on a dome, offset = -shift (a blob's top: both 0; a dome's
+        # facing point: -r and r), give or take head_vertical_sigma_m; h's height is the
+        # offset minus the initial -head_radius_m of the robot poses
+        tiny = np.radians(0.05)
+        h_prior = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, rec.head_radius_m - rho]))
+        sig = np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m])
+        if sigma_scale is not None:
+            sig = sig * sigma_scale[factor]
+            factor += 1
+        graph.add(gtsam.PriorFactorPose3(H(0), h_prior, gtsam.noiseModel.Diagonal.Sigmas(sig)))
     sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-    noise = _NoiseCache(rec)
     if rec.robot:
-        p_obs = prob.head_points_sensor()
+        use = np.flatnonzero(prob.fac_key_index < n_pose)
+        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use]
         rng_m = np.linalg.norm(p_obs, axis=1)
-        keys = [S(sid_index[s]) for s in prob.obs_sensor]
-        noise_keys = noise.keys(rng_m)
-        for n in np.flatnonzero(prob.obs_key_index < n_pose):
-            graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(prob.obs_key_index[n])),
-                                                   gtsam.Unit3(p_obs[n]),
-                                                   rng_m[n] + rho, noise(key=noise_keys[n])))
-
-    # People seen by two or more sensors at once (the dome centre of their head).
+        keys = [S(sid_index[s]) for s in prob.fac_sensor[use]]
+        pose = prob.fac_key_index[use]
+        # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
+        # reward shifts that shrink them (a least-squares fit is no likelihood when its weights
+        # depend on the parameters), a bias along the shifts' nearly degenerate combination
+        for n, nm in enumerate(noises(np.linalg.norm(prob.fac_p_sensor[use], axis=1), prob.fac_count[use])):
+            graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(pose[n])), gtsam.Unit3(p_obs[n]),
+                                                   rng_m[n] + rho, nm))
     if rec.people:
+        seen_keys, seen_p, seen_m, seen_r = [], [], [], []
         for m, (t, seen) in enumerate(prob.people):
             if t_max is not None and t > t_max:
                 continue
             pts = []
             for sid, p in seen:
                 R0 = prob.init_sensors[sid].rotation().matrix()
-                p = p - prob.horizontal_shift_m * toward_sensor_horizontal(p[None, :], R0)[0]
-                r = float(np.linalg.norm(p))
-                graph.add(gtsam.BearingRangeFactor3D(S(sid_index[sid]), L(m), gtsam.Unit3(p),
-                                                     r + rho, noise(r)))
-                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / r)))
-            values.insert(L(m), np.mean(pts, axis=0))
-    return graph, values
+                seen_r.append(float(np.linalg.norm(p)))
+                p = p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
+                seen_keys.append(S(sid_index[sid]))
+                seen_p.append(p)
+                seen_m.append(m)
+                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / float(np.linalg.norm(p)))))
+            if insert_values:
+                values.insert(L(m), np.mean(pts, axis=0))
+        if seen_p:
+            seen_p = np.asarray(seen_p)
+            r = np.linalg.norm(seen_p, axis=1)
+            for n, nm in enumerate(noises(np.asarray(seen_r))):
+                graph.add(gtsam.BearingRangeFactor3D(seen_keys[n], L(seen_m[n]), gtsam.Unit3(seen_p[n]),
+                                                     r[n] + rho, nm))
+    return graph
 
 
 def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork) -> list:
@@ -651,13 +864,16 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
-        from pedcal.calib import calibrate
+        import importlib
+
+        from pedcal.calib import METHODS
 
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
                                                                                 latency_s=latency_s)
+        module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
-            res = calibrate(log, method=recipe.init, progress=progress, **opts)
+            res = getattr(importlib.import_module(module), func)(log, progress=progress, **opts)
         init = {s.id: s.T_world_sensor for s in res.network if s.status == "ok"}
     elif recipe.init in ("installed", "gridsearch", "closedform"):   # the latter two need the robot
         init = {}
@@ -727,10 +943,22 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               motion=_RobotMotion(log, odometry if odometry is not None else smooth),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
-    t_a = np.unique(amcl_t)
-    prob.amcl_node_times = t_a[0] + recipe.amcl_node_spacing_s * np.arange(
-        int(np.round((t_a[-1] - t_a[0]) / recipe.amcl_node_spacing_s)) + 1)
+    set_amcl_model(log, prob, assumed_model(log.robot, recipe), carry=False)
     prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()})
+    if recipe.estimate_observation_noise and recipe.robot:
+        noise = estimate_observation_noise(log, prob)
+        if noise is None:
+            warnings.warn("too few pairs of consecutive robot observations to estimate the sensors' noise; the "
+                          "recipe's depth and lateral noise are assumed", DegenerateDataWarning, stacklevel=3)
+        else:
+            prob.recipe = copy.copy(recipe)
+            for k in ("range_sigma_floor_m", "range_sigma_k_per_m", "lateral_sigma_m"):
+                setattr(prob.recipe, k, noise[k])
+            prob.noise_estimate = noise
+            prob.merge_observations()           # judged against the estimated noise
+            _log(progress, f"observation noise from {noise['pairs']} pairs of consecutive observations: depth "
+                           f"{1000 * noise['range_sigma_floor_m']:.1f} mm + {1000 * noise['range_sigma_k_per_m']:.2f} "
+                           f"mm/m^2 x r^2, lateral {1000 * noise['lateral_sigma_m']:.1f} mm")
     if recipe.people:
         net = SensorNetwork([SensorExtrinsics.from_pose3(sid, init[sid]) for sid in log.sensors.ids],
                             frame=log.sensors.frame)
@@ -738,6 +966,90 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     _log(progress, f"{len(rows)} robot observations, {len(pose_times)} robot poses, "
                    f"{len(prob.people)} shared person sightings")
     return prob
+
+
+def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: float = 0.25,
+                               min_pairs: int = 100) -> dict | None:
+    """The sensors' noise from the robot's observations themselves, without any fit: two
+    consecutive observations of one track (at most ``max_gap_s`` apart), the later carried back
+    to the earlier's instant by the robot's motion, differ by the two observations' noise alone.
+    Half the robust variance of that difference along the ray gives the depth noise, binned by
+    range and fitted by ``floor + k r^2`` (times ``far_factor`` past ``reliable_range_m``, as the
+    graph models it); across the ray, the lateral noise (with the latency jitter times the
+    robot's speed in it). A tracker that smooths its output makes consecutive reports alike and
+    this an underestimate, which the model check after the solve sees (a variance ratio above 1)
+    and widens the sigma for. Returns the recipe's three noise fields and the number of pairs, or
+    None with fewer than ``min_pairs`` pairs."""
+    rec = prob.recipe
+    rows = prob.rows_used
+    if rows is None or len(rows) < 2:
+        return None
+    track = log.observations["track"].astype(str).to_numpy()[rows]
+    order = np.lexsort((prob.obs_t, track, prob.obs_sensor))
+    s_o, tr_o, t_o = prob.obs_sensor[order], track[order], prob.obs_t[order]
+    dt = np.diff(t_o)
+    nxt = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1]) & (dt > 0.0) & (dt <= max_gap_s)
+    i, j = order[:-1][nxt], order[1:][nxt]
+    if len(i) < min_pairs:
+        return None
+    R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in prob.obs_sensor[i]])
+    disp = prob.motion.displacement(prob.obs_t[j], prob.obs_t[i])
+    p_i = prob.obs_p_raw[i]
+    d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
+    r = np.linalg.norm(p_i, axis=1)
+    u = p_i / r[:, None]
+    along = np.sum(d * u, axis=1)
+    a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    b1 = np.cross(u, a)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    b2 = np.cross(u, b1)
+
+    def robust_sigma(x):
+        return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
+
+    lateral = float(np.sqrt(0.5 * (robust_sigma(np.sum(d * b1, axis=1)) ** 2 + robust_sigma(np.sum(d * b2, axis=1)) ** 2)))
+    edges = np.quantile(r, np.linspace(0.0, 1.0, 7))
+    r_bin, s_bin, n_bin = [], [], []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        m = (r >= lo) & (r <= hi)
+        if m.sum() >= 20:
+            r_bin.append(float(np.median(r[m])))
+            s_bin.append(robust_sigma(along[m]) / (rec.far_factor if np.median(r[m]) > rec.reliable_range_m else 1.0))
+            n_bin.append(int(m.sum()))
+    if len(r_bin) < 2:
+        return None
+    r_bin, s_bin, w = np.array(r_bin), np.array(s_bin), np.sqrt(np.array(n_bin, float))
+    M = np.column_stack([np.ones(len(r_bin)), r_bin ** 2])
+    floor, k = np.linalg.lstsq(M * w[:, None], s_bin * w, rcond=None)[0]
+    if k < 0.0:
+        floor, k = float(np.average(s_bin, weights=w)), 0.0
+    return {"range_sigma_floor_m": float(max(floor, 1e-3)), "range_sigma_k_per_m": float(k),
+            "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i))}
+
+
+def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
+                   rotations: dict[str, np.ndarray] | None = None) -> None:
+    """Build the graph with AMCL's error ``model`` from now on: the error process's nodes spaced
+    for its correlation time and, when the model leaves estimates out as jumps and AMCL stands in
+    for odometry, the robot's short-term motion from AMCL without them (observations carried
+    again, with ``rotations``, the current R_world_sensor per sensor, when ``carry``)."""
+    rec = prob.recipe
+    t_a = np.unique(log.robot["t"].to_numpy(float))
+    period = float(np.median(np.diff(t_a))) if len(t_a) > 1 else rec.amcl_node_spacing_s
+    dn = model.node_spacing_s(period, rec.amcl_node_spacing_s)
+    prob.amcl_node_times = t_a[0] + dn * np.arange(int(np.round((t_a[-1] - t_a[0]) / dn)) + 1)
+    prob.amcl_model = model
+    if model.excluded is None or prob.odometry is not None:
+        return
+    clean = copy.copy(log)
+    clean.robot = log.robot.sort_values("t", kind="stable")[~model.excluded]
+    if prob.smoothed_amcl is not None:
+        prob.smoothed_amcl = smoothed_track(clean.robot, rec.amcl_smooth_s)
+        prob.motion = _RobotMotion(clean, prob.smoothed_amcl)
+    else:
+        prob.motion = _RobotMotion(clean, None)
+    if carry:
+        prob.carry_observations(rotations or {sid: T.rotation().matrix() for sid, T in prob.init_sensors.items()})
 
 
 def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -788,44 +1100,21 @@ def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, thr
     return sorted(set(names)), bad
 
 
-def optimize_graph(fg, values, recipe: GraphRecipe):
-    """Levenberg-Marquardt from ``values``, then the vertical gauge settled; (result, iterations)."""
+def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None):
+    """Levenberg-Marquardt from ``values``, then, with the head model's vertical offset free, one
+    Gauss-Newton step; (result, iterations). A common vertical shift of all variables changes no
+    measurement factor then, only the priors (the offset's, the sensors' installed heights, a
+    height reference): a flat direction LM barely moves along before its relative-error test
+    stops it, so the solution would sit wherever the initial values put it. The error is quadratic
+    along it, and a Gauss-Newton step goes to its optimum."""
     params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(recipe.max_iterations)
+    params.setMaxIterations(recipe.max_iterations if max_iterations is None else max_iterations)
     params.setRelativeErrorTol(recipe.relative_error_tol)
     opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    result = _settle_vertical_gauge(fg, opt.optimize())
+    result = opt.optimize()
+    if result.exists(H(0)):
+        result = result.retract(fg.linearize(result).optimize())
     return result, opt.iterations()
-
-
-def _shift_up(values: gtsam.Values, dz_m: float) -> gtsam.Values:
-    """``values`` with every sensor, robot pose, AMCL error, head model and person moved up."""
-    out = gtsam.Values(values)
-    up = np.array([0.0, 0.0, dz_m])
-    for key in values.keys():
-        c = chr(gtsam.Symbol(key).chr())
-        if c in "sxah":
-            P = values.atPose3(key)
-            out.update(key, gtsam.Pose3(P.rotation(), P.translation() + up))
-        elif c == "l":
-            out.update(key, values.atPoint3(key) + up)
-    return out
-
-
-def _settle_vertical_gauge(fg, result: gtsam.Values, step_m: float = 0.01) -> gtsam.Values:
-    """Move everything up or down together to the optimum of the priors. With the head model's
-    vertical offset free, a common vertical shift of all variables changes no measurement factor,
-    only the priors (the offset's, the sensors' installed heights, a height reference): a flat
-    direction LM barely moves along (its damping scales with the Hessian's diagonal), so the
-    solution would sit wherever the initial values put it. The error is quadratic along it: one
-    parabola through three shifts finds the optimum."""
-    if not result.exists(H(0)):
-        return result
-    e0, ep, em = fg.error(result), fg.error(_shift_up(result, step_m)), fg.error(_shift_up(result, -step_m))
-    curv = (ep + em - 2.0 * e0) / step_m ** 2
-    if not curv > 0.0:
-        return result
-    return _shift_up(result, -(ep - em) / (2.0 * step_m) / curv)
 
 
 # Above this many sensors the joint position covariance (3n x 3n) stays on the CalibrationResult and

@@ -1,0 +1,226 @@
+"""AMCL's position error as the factor graph models it, assumed or estimated from the data.
+
+AMCL's estimate is the robot's position plus an error that is partly white (the scan matcher's
+jitter from one estimate to the next) and partly a slowly wandering, Gauss-Markov process (the
+particle cloud drifting over tens of seconds), now and then a jump (a wrong relocalization that
+lasts seconds). How much of each differs between robots, maps and AMCL's settings, and AMCL's
+reported covariance (its particle spread) says little about it. The graph's link to the map is
+the average of AMCL's error over the run, whose uncertainty depends on exactly this split: a
+white error of 5 cm averages out to a millimetre over a few minutes, a wandering one of 5 cm
+with a correlation time of 20 s to about 2 cm.
+
+:func:`assumed_model` is the model before any solve: the white share from AMCL's own jitter
+(:func:`pedcal.calib.graph.amcl_white_sigma`) and a fraction of the reported covariance, the
+wandering part at the reported std with the recipe's correlation time. :func:`estimate_model`
+replaces it after a first solve: where the ceiling sensors see the robot, its solved position
+is known to millimetres, so AMCL's residual there is AMCL's error (up to the constant the whole
+solution shares, which a variogram ignores). Its robust semivariogram over lags of 0.2-100 s is
+fitted by ``white^2 + correlated^2 (1 - exp(-lag / tau))`` (the variogram of white noise plus an
+Ornstein-Uhlenbeck process), and estimates that depart from the running median of the residual
+by more than ``jump_threshold`` robust sigmas (and ``min_jump_m``) are jumps, left out of the graph.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+VARIOGRAM_LAGS_S = np.array([0.2, 0.4, 0.8, 1.6, 3.2, 6.4, 12.8, 25.6, 51.2, 102.4])
+
+
+@dataclass
+class AmclErrorModel:
+    """AMCL's position error: white per estimate (``white_sigma_m``, isotropic, on top of
+    ``reported_white_fraction`` of AMCL's reported covariance) plus a Gauss-Markov process of std
+    ``correlated_sigma_m`` and correlation time ``correlation_s``; ``excluded`` (over robot.csv's
+    rows in time order) marks estimates left out as jumps. ``source``: ``assumed`` (before any
+    solve) or ``estimated`` (from a solve's residuals, with the variogram it was fitted to)."""
+
+    white_sigma_m: float
+    correlated_sigma_m: float
+    correlation_s: float
+    reported_white_fraction: float = 0.0
+    source: str = "assumed"
+    excluded: np.ndarray | None = field(default=None, repr=False)
+    jumps: int = 0
+    excluded_s: float = 0.0
+    variogram_lags_s: list = field(default_factory=list)
+    variogram_sigma_m: list = field(default_factory=list)   # sqrt of the semivariance per lag
+
+    def node_spacing_s(self, amcl_period_s: float, max_spacing_s: float) -> float:
+        """Spacing of the error process's nodes: a quarter of its correlation time, at least
+        AMCL's period, at most ``max_spacing_s``."""
+        return float(np.clip(self.correlation_s / 4.0, amcl_period_s, max(max_spacing_s, amcl_period_s)))
+
+    def floor_sigma_m(self, duration_s: float) -> float:
+        """Std per axis of this error's average over a run of ``duration_s``: the accuracy no
+        calibration anchored to AMCL alone can pass (white part over the estimates ignored)."""
+        tau = max(self.correlation_s, 1e-9)
+        T = max(duration_s, 1e-9)
+        x = T / tau
+        # variance of the mean of an OU process over T: 2 sigma^2 tau / T (1 - tau / T (1 - e^-T/tau))
+        return float(self.correlated_sigma_m * np.sqrt(2.0 / x * (1.0 - (1.0 - np.exp(-x)) / x)))
+
+    def to_dict(self) -> dict:
+        return {"white_sigma_m": round(self.white_sigma_m, 5), "correlated_sigma_m": round(self.correlated_sigma_m, 5),
+                "correlation_s": round(self.correlation_s, 3), "source": self.source, "jumps": self.jumps,
+                "excluded_s": round(self.excluded_s, 2)}
+
+
+def reported_sigma_m(amcl) -> float:
+    """Median of AMCL's reported position std (m), at least 1 mm."""
+    cov = amcl[["cov_xx", "cov_yy"]].to_numpy(float)
+    return max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 1])))), 1e-3)
+
+
+def assumed_model(amcl, recipe) -> AmclErrorModel:
+    """The model before any solve: the recipe's share of the reported covariance plus what AMCL's
+    own jitter shows beyond it as the white error, the reported std as the wandering one with the
+    recipe's correlation time."""
+    from pedcal.calib.graph import amcl_white_sigma
+
+    sig = reported_sigma_m(amcl)
+    excess = max(amcl_white_sigma(amcl) ** 2 - recipe.amcl_white_fraction ** 2 * sig ** 2, 0.0)
+    return AmclErrorModel(white_sigma_m=float(np.sqrt(excess)), correlated_sigma_m=sig,
+                          correlation_s=recipe.amcl_correlation_s, reported_white_fraction=recipe.amcl_white_fraction)
+
+
+def robust_variogram(t: np.ndarray, series: list[tuple[np.ndarray, np.ndarray]],
+                     lags_s: np.ndarray = VARIOGRAM_LAGS_S, min_pairs: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Robust semivariance (m^2, per axis, averaged over the axes) at each lag of several series
+    ``(rows, values (n, k))`` sampled at ``t[rows]`` (rows increasing), pairs taken within a
+    series only (a quarter of the lag of it): (1.4826 MAD of the differences)^2 / 2, and the
+    number of such pairs. NaN where fewer than ``min_pairs`` pairs exist."""
+    out = np.full(len(lags_s), np.nan)
+    pairs = np.zeros(len(lags_s), int)
+    for n, lag in enumerate(lags_s):
+        diffs = []
+        for rows, e in series:
+            tg = t[rows]
+            j = np.searchsorted(tg, tg + lag)
+            ok = j < len(tg)
+            jj = j[ok]
+            ok[ok] = np.abs(tg[jj] - tg[ok] - lag) <= 0.25 * lag + 1e-6
+            diffs.append(e[j[ok]] - e[ok])
+        d = np.concatenate(diffs) if diffs else np.zeros((0, 2))
+        pairs[n] = len(d)
+        if len(d) < min_pairs:
+            continue
+        mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+        out[n] = 0.5 * float(np.mean(mad ** 2))
+    return out, pairs
+
+
+def fit_variogram(lags_s: np.ndarray, gamma: np.ndarray, n_eff: np.ndarray, max_correlation_s: float = 1e4,
+                  floor_sigma_m: float | None = None):
+    """(white std, correlated std, correlation time) fitted to a semivariogram by weighted least
+    squares: each lag's relative error is about sqrt(2.7 / n_eff) (a MAD-based variance of
+    ``n_eff`` independent differences, two axes). The wandering part is kept only when it lowers
+    the weighted misfit by more than its two parameters would by chance (Akaike: 4); otherwise
+    the error is white. A wandering error's short lags (its rate of wander, correlated^2 /
+    correlation time) are what residuals show reliably; its full size is not (each sensor's pose
+    absorbs AMCL's local average), so it is at least ``floor_sigma_m`` (AMCL's reported std) at the
+    same rate of wander. The correlation time is at most ``max_correlation_s``; None with fewer
+    than three lags."""
+    from scipy.optimize import least_squares
+
+    ok = np.isfinite(gamma) & (gamma > 0) & (n_eff > 0)
+    L, g, w = lags_s[ok], gamma[ok], np.sqrt(n_eff[ok] / 2.7)
+    if len(g) < 3:
+        return None
+
+    def res(p):
+        w2, c2, log_tau = p
+        return w * (w2 + c2 * (1.0 - np.exp(-L / np.exp(log_tau))) - g) / g
+
+    hi = np.log(max(max_correlation_s, 0.1))
+    best = None
+    for tau0 in (1.0, 10.0, 100.0):
+        p0 = [g[0], max(g[-1] - g[0], 1e-8), min(np.log(tau0), hi - 1e-6)]
+        fit = least_squares(res, p0, bounds=([0.0, 0.0, np.log(0.05)], [np.inf, np.inf, hi]))
+        if best is None or fit.cost < best.cost:
+            best = fit
+    # white alone: the weighted mean level; the wandering part kept only if the data ask for it
+    white2 = float(np.sum(w ** 2 / g) / np.sum(w ** 2 / g ** 2))
+    cost_white = 0.5 * float(np.sum((w * (white2 - g) / g) ** 2))
+    if cost_white - best.cost < 2.0:          # Akaike: 2 x (cost difference) < 2 x 2 parameters
+        return float(np.sqrt(white2)), 0.0, float(np.exp(best.x[2]))
+    w2, c2, log_tau = best.x
+    tau = float(np.exp(log_tau))
+    if floor_sigma_m is not None and floor_sigma_m ** 2 > c2:
+        rate = c2 / tau
+        c2 = floor_sigma_m ** 2
+        tau = float(min(c2 / max(rate, 1e-12), np.exp(hi)))
+    return float(np.sqrt(w2)), float(np.sqrt(c2)), tau
+
+
+def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold: float = 5.0,
+                 min_jump_m: float = 0.1) -> np.ndarray:
+    """Mask of estimates whose residual departs from its running median (over +-``window_s``)
+    by more than ``threshold`` robust sigmas of such departures and ``min_jump_m``."""
+    from scipy.ndimage import median_filter
+
+    n = len(t)
+    if n < 10:
+        return np.zeros(n, bool)
+    # the window in samples at the median spacing (the estimates come at AMCL's rate)
+    size = int(2 * round(window_s / max(float(np.median(np.diff(t))), 1e-6)) + 1)
+    med = median_filter(e, size=(min(size, 2 * (n // 2) - 1), 1), mode="nearest")
+    dev = np.linalg.norm(e - med, axis=1)
+    scale = 1.4826 * np.median(dev) / np.sqrt(np.log(4.0))      # Rayleigh: median = sigma sqrt(2 ln 2)
+    return dev > max(threshold * scale, min_jump_m)
+
+
+def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,
+                   *, jump_threshold: float = 5.0, min_jump_m: float = 0.1,
+                   min_covered: int = 100, min_white_m: float = 0.002,
+                   prior_sigma_m: float | None = None) -> AmclErrorModel:
+    """AMCL's error model from its residuals against what the ceiling sensors saw (module
+    docstring): ``t_amcl`` (sorted), per sensor (rows into it, (n, 2) AMCL's head minus the head
+    that sensor saw there, world xy). Each residual is AMCL's error minus that sensor's own
+    position error, the same at every visit; pairs for the variogram are taken within one
+    sensor's sightings only, where it cancels (across sensors, the sensors' offsets, which
+    absorb AMCL's local average, would make a wandering error look smaller than it is). The
+    white std is at least ``min_white_m``; the wandering std, when the data show one, at least
+    ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`). Jumps are found
+    in the residuals averaged over the sensors. Returns ``assumed`` unchanged when fewer than
+    ``min_covered`` estimates are covered."""
+    n = len(t_amcl)
+    total, count = np.zeros((n, 2)), np.zeros(n)
+    for rows, e in per_sensor:
+        np.add.at(total, rows, e)
+        np.add.at(count, rows, 1.0)
+    covered = count > 0
+    if covered.sum() < min_covered:
+        return assumed
+    t = t_amcl[covered]
+    jumps_c = detect_jumps(t, total[covered] / count[covered, None], threshold=jump_threshold, min_jump_m=min_jump_m)
+    jump = np.zeros(n, bool)
+    jump[np.flatnonzero(covered)[jumps_c]] = True
+    series = [(rows[~jump[rows]], e[~jump[rows]]) for rows, e in per_sensor if len(rows)]
+    gamma, pairs = robust_variogram(t_amcl, series)
+    # independent differences at a lag: every pair for a white error, about one per lag of the
+    # sighted time for a wandering one (its increments over disjoint spans are independent)
+    period = float(np.median(np.diff(t_amcl))) if len(t_amcl) > 1 else 1.0
+    sighted_s = float(sum(len(rows) for rows, _ in series)) * period
+    n_eff = 0.5 * np.minimum(pairs, np.maximum(sighted_s / VARIOGRAM_LAGS_S, 1.0) * 2.0)
+    # a correlation time beyond half the run cannot be told from a longer one: the run's mean error
+    # is then about the wandering std either way
+    fit = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=0.5 * float(t_amcl[-1] - t_amcl[0]),
+                        floor_sigma_m=prior_sigma_m)
+    if fit is None:
+        return assumed
+    white, corr, tau = fit
+    white = max(white, min_white_m)
+    excluded = jump
+    starts = np.flatnonzero(np.diff(np.r_[0, excluded.astype(int)]) == 1)
+    return AmclErrorModel(white_sigma_m=white, correlated_sigma_m=corr, correlation_s=tau, source="estimated",
+                          excluded=excluded if excluded.any() else None, jumps=len(starts),
+                          excluded_s=float(excluded.sum() * period),
+                          variogram_lags_s=VARIOGRAM_LAGS_S.tolist(),
+                          variogram_sigma_m=[float(np.sqrt(v)) if np.isfinite(v) else float("nan") for v in gamma])
+
+
+__all__ = ["AmclErrorModel", "assumed_model", "estimate_model", "robust_variogram", "fit_variogram",
+           "detect_jumps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]

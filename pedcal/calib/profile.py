@@ -1,0 +1,207 @@
+"""Nuisance parameters that enter the measurements, estimated by their profile likelihood on the
+factor graph linearized at its solution.
+
+A nuisance theta (the head point's shift toward the sensor along the ray, its horizontal shift)
+changes what the observation factors measure, not the graph's structure. Linearized at the
+solution x*, the whitened residual is ``r(dx, dtheta) = A dx - b - B dtheta``: A and b are GTSAM's
+linearization (``GaussianFactorGraph``, rows whitened), B the change of b with theta, a finite
+difference of the observation block alone (:func:`pedcal.calib.graph.observation_block`).
+Minimizing over dx for each dtheta, the profile, leaves
+
+    dx(dtheta) = z0 + Z dtheta,   z0 = N^-1 A^T b,   Z = N^-1 A^T B,   N = A^T A,
+    r_p(dtheta) = rho0 + M dtheta,   rho0 = A z0 - b,   M = A Z - B,
+
+so the profile error 1/2 |r_p|^2 (GTSAM's error, chi^2 / 2) is quadratic in dtheta with gradient
+M^T rho0 and Hessian M^T M, to which theta's prior adds. GTSAM does the solves with N (the
+linearized graph, and k more with the observation block swapped for its version at
+theta + h e_j: z0 + h Z_j); the products with A are sparse matrix-vector products
+(``GaussianFactorGraph.sparseJacobian_``). The Hessian's inverse is theta's covariance, and Z
+carries it into every variable: the marginal over theta, not the conditional at its estimate.
+z0 is the Gauss-Newton step at theta itself, which also settles directions Levenberg-Marquardt
+barely moves along (a flat gauge held by weak priors only).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+import scipy.sparse as sps
+
+
+@dataclass
+class Nuisance:
+    """One nuisance parameter: its name (a keyword of the observation block's ``theta``), the
+    prior's mean and sigma, and the finite-difference step of its profile (same unit)."""
+
+    name: str
+    prior_mean: float
+    prior_sigma: float
+    step: float
+
+
+@dataclass
+class Columns:
+    """The linear system's columns: the variables in key order (GTSAM's order of
+    ``sparseJacobian_`` and ``VectorValues.vector``), each ``dim`` wide from ``offset``."""
+
+    keys: list[int]
+    offset: dict[int, int]
+    dim: dict[int, int]
+    n: int
+
+    @classmethod
+    def of(cls, values: gtsam.Values) -> Columns:
+        dims = values.dims()
+        keys = sorted(dims)
+        offset, n = {}, 0
+        for k in keys:
+            offset[k] = n
+            n += int(dims[k])
+        return cls(keys=keys, offset=offset, dim={k: int(dims[k]) for k in keys}, n=n)
+
+    def index(self, keys) -> np.ndarray:
+        """Column indices of ``keys``' variables, concatenated."""
+        return np.concatenate([np.arange(self.offset[k], self.offset[k] + self.dim[k]) for k in keys])
+
+
+def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.csr_matrix, np.ndarray]:
+    """(A, b) of a linearized graph with the columns of ``cols`` (its own keys may be a subset)."""
+    if gfg.size() == 0:
+        return sps.csr_matrix((0, cols.n)), np.zeros(0)
+    ijs = gfg.sparseJacobian_()
+    i = ijs[0].astype(np.int64) - 1
+    j = ijs[1].astype(np.int64) - 1
+    v = ijs[2]
+    own = sorted(int(k) for k in gfg.keyVector())
+    # the graph's own columns (its keys in order) -> the system's
+    local = np.concatenate([np.arange(cols.offset[k], cols.offset[k] + cols.dim[k]) for k in own])
+    n_local = len(local)
+    rhs = j == n_local
+    m = int(i.max()) + 1
+    b = np.zeros(m)
+    np.add.at(b, i[rhs], v[rhs])
+    A = sps.csr_matrix((v[~rhs], (i[~rhs], local[j[~rhs]])), shape=(m, cols.n))
+    return A, b
+
+
+def _solve(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.ndarray:
+    return np.asarray(gfg.optimize().vector(cols.keys), float).ravel()
+
+
+@dataclass
+class ProfileStep:
+    """One profile of the nuisances at a linearization point: the Newton step ``dtheta`` of the
+    (quadratic) profile, its Hessian (chi^2 / 2 units: theta's information), the Gauss-Newton step
+    ``z0`` of the variables at theta and their sensitivity ``Z`` (n x k, tangent per unit of
+    theta), both in the columns of ``cols``."""
+
+    dtheta: np.ndarray
+    hessian: np.ndarray
+    z0: np.ndarray
+    Z: np.ndarray
+    cols: Columns
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return np.linalg.inv(self.hessian)
+
+
+def _factor_rows(graph: gtsam.NonlinearFactorGraph) -> np.ndarray:
+    """Start row of every factor of ``graph`` in its linearization, and the end."""
+    return np.r_[0, np.cumsum([graph.at(i).dim() for i in range(graph.size())])].astype(np.int64)
+
+
+def sqrt_weights(reweighted_norm: np.ndarray, kernel: str, k: float) -> np.ndarray | None:
+    """Square roots of robust weights from the norms of GTSAM's reweighted whitened residuals
+    (sqrt(w(e)) e per factor), for kernels where that map can be undone: Huber (w = 1 up to k,
+    then k / e, so sqrt(w) e = sqrt(k e)), Cauchy (w = 1 / (1 + e^2 / k^2), so (sqrt(w) e)^2 =
+    e^2 w and w = 1 - (sqrt(w) e)^2 / k^2) and none; None otherwise (Tukey's is not one-to-one)."""
+    b = np.asarray(reweighted_norm, float)
+    kernel = kernel.lower()
+    if kernel == "none":
+        return np.ones(len(b))
+    if kernel == "huber":
+        return np.where(b <= k, 1.0, k / np.maximum(b, 1e-300))
+    if kernel == "cauchy":
+        return np.sqrt(np.clip(1.0 - (b / k) ** 2, 1e-12, 1.0))
+    return None
+
+
+def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.Values, theta: np.ndarray,
+                 nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
+                 kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0) -> ProfileStep:
+    """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
+    does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
+    theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
+    instead; ``obs0``: those factors at ``theta`` when already built. B is taken with each
+    factor's robust weight w frozen at ``theta`` (the weights of GTSAM's linearization, which A
+    carries: the factors built with sigmas / sqrt(w) and no kernel), so the profile's gradient is
+    exactly the robust error's, sum w e de/dtheta. The weights come from the linearization itself
+    (:func:`sqrt_weights`, ``kernel`` = (name, k) of the observation factors, the first
+    ``plain_leading`` of which have no kernel), or, for a kernel that cannot be undone, from the
+    factors built once more without it."""
+    cols = cols or Columns.of(values)
+    k = len(nuisances)
+    g_fixed = fixed.linearize(values)
+    obs0 = obs0 if obs0 is not None else observations(theta, None)
+    g_obs0 = obs0.linearize(values)
+    A_f, b_f = sparse_system(g_fixed, cols)
+    A_o, b_o0 = sparse_system(g_obs0, cols)
+    gfg = gtsam.GaussianFactorGraph()
+    gfg.push_back(g_fixed)
+    gfg.push_back(g_obs0)
+    z0 = _solve(gfg, cols)
+    # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
+    rows = _factor_rows(obs0)
+    n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
+    sqrt_w = sqrt_weights(n_rob, *kernel)
+    if sqrt_w is None:
+        _, b_plain0 = sparse_system(observations(theta, np.ones(obs0.size())).linearize(values), cols)
+        n_plain = np.sqrt(np.add.reduceat(b_plain0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
+        sqrt_w = np.where(n_plain > 1e-12, n_rob / np.maximum(n_plain, 1e-300), 1.0)
+    sqrt_w[:plain_leading] = 1.0
+    # quantized to 0.1 % so that factors of equal range and weight share a noise model
+    scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
+    Z = np.zeros((cols.n, k))
+    B_o = np.zeros((len(b_o0), k))
+    for j, nu in enumerate(nuisances):
+        # the factors at theta + h with the weights frozen (sigmas / sqrt(w), no kernel): their
+        # linearization has A's rows and the right-hand side b0 + h B_j
+        th = np.array(theta, float)
+        th[j] += nu.step
+        g_obs = observations(th, scale).linearize(values)
+        _, b_o = sparse_system(g_obs, cols)
+        B_o[:, j] = (b_o - b_o0) / nu.step
+        gj = gtsam.GaussianFactorGraph()
+        gj.push_back(g_fixed)
+        gj.push_back(g_obs)
+        Z[:, j] = (_solve(gj, cols) - z0) / nu.step
+    # profile residual r_p = rho0 + M dtheta over the fixed rows and the observation rows
+    rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0]
+    M = np.vstack([A_f @ Z, A_o @ Z - B_o])
+    mean = np.array([nu.prior_mean for nu in nuisances])
+    info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
+    grad = M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
+    hess = M.T @ M + info
+    return ProfileStep(dtheta=-np.linalg.solve(hess, grad), hessian=hess, z0=z0, Z=Z, cols=cols)
+
+
+def retract_flat(values: gtsam.Values, delta: np.ndarray, cols: Columns) -> gtsam.Values:
+    """``values`` moved by the tangent vector ``delta`` laid out in ``cols``."""
+    vv = gtsam.VectorValues()
+    for key in cols.keys:
+        o = cols.offset[key]
+        vv.insert(key, delta[o:o + cols.dim[key]])
+    return values.retract(vv)
+
+
+def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
+    """``values`` after one Gauss-Newton step on ``graph`` (exact along directions the graph is
+    quadratic in, such as a gauge held by priors alone)."""
+    return values.retract(graph.linearize(values).optimize())
+
+
+__all__ = ["Nuisance", "Columns", "ProfileStep", "profile_step", "sparse_system", "gauss_newton_step", "retract_flat",
+           "sqrt_weights"]
