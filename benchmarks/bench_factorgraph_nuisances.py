@@ -48,8 +48,9 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
     u = sensor_pos - q
     u_h = np.column_stack([u[:, :2], np.zeros(len(u))])
     u_h /= np.maximum(np.linalg.norm(u_h, axis=1, keepdims=True), 1e-9)
+    cos2 = np.sum(u[:, :2] ** 2, axis=1) / np.sum(u ** 2, axis=1)
     est_off = (q - top + head.ray_shift_m * u / np.linalg.norm(u, axis=1, keepdims=True)
-               + head.horizontal_shift_m * u_h)
+               + head.horizontal_shift_m * u_h + head.curvature_m * cos2[:, None] * np.array([0.0, 0.0, 1.0]))
     d = est_off - true_off
     dz = float(d[:, 2].mean())
     d[:, 2] -= dz

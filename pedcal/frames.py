@@ -70,6 +70,16 @@ def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
+def up_by_cos2_elevation(p_sensor: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
+    """(N, 3) the world's up, expressed in the sensor frame, times cos^2 of the sensor's elevation
+    seen from each sensor-frame point (``R_world_sensor``: (N, 3, 3) or (3, 3)): up itself for a
+    sensor on the horizon, 0 for one straight above."""
+    R = np.broadcast_to(R_world_sensor, (len(p_sensor), 3, 3))
+    back = -np.einsum("nij,nj->ni", R, p_sensor)          # world, point -> sensor
+    cos2 = np.sum(back[:, :2] ** 2, axis=1) / np.maximum(np.sum(back ** 2, axis=1), 1e-18)
+    return cos2[:, None] * R[:, 2, :]                      # R^T e_z: the world's up in the sensor frame
+
+
 def toward_sensor_horizontal(p_sensor: np.ndarray, R_world_sensor: np.ndarray) -> np.ndarray:
     """(N, 3) unit horizontal vectors from sensor-frame points toward their sensor, expressed in
     the sensor frame (``R_world_sensor``: (N, 3, 3) or (3, 3)); zero straight under it."""

@@ -30,8 +30,8 @@ HEAD_RADIUS_KEY = "head_radius_m"
 # Extra top-level mapping of a calibrated YAML: the head-point model the calibration estimated.
 # The tracker's head point is the head top moved ``vertical_offset_m`` up (negative: below the
 # top), then ``ray_shift_m`` along the viewing ray toward the sensor (a dome of radius r:
-# vertical offset -r, ray shift r) and ``horizontal_shift_m`` horizontally toward it, with their
-# sigmas.
+# vertical offset -r, ray shift r), ``horizontal_shift_m`` horizontally toward it and
+# ``curvature_m`` x cos^2(the sensor's elevation) up, with their sigmas.
 HEAD_MODEL_KEY = "head_model"
 # Extra top-level mapping: the joint covariance (m^2) of all sensors' positions, world axes,
 # {sensors: [ids], matrix: 3n x 3n}; the per-sensor sigma are the square roots of its diagonal.
@@ -39,17 +39,23 @@ JOINT_COV_KEY = "position_covariance_m2"
 # Extra top-level mapping: residuals against the noise model, per sensor, and the sensors whose
 # residuals the model does not explain (their sigma widened by that ratio).
 MISMATCH_KEY = "model_mismatch"
+# Extra top-level mappings of the factor graph's YAML: AMCL's error model it estimated (white and
+# wandering std, correlation time, jumps left out) and the sensors' noise it estimated from the
+# log (depth floor and growth with range, lateral); information for the reader, not applied.
+AMCL_MODEL_KEY = "amcl_error_model"
+NOISE_KEY = "observation_noise"
 
 
-def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float]:
-    """(vertical offset, ray shift, horizontal shift), m, of the head point an extrinsics file
-    carries: its ``head_model``, else a dome of ``head_radius_m`` (older files), else the head
-    top itself."""
+def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float, float]:
+    """(vertical offset, ray shift, horizontal shift, curvature), m, of the head point an
+    extrinsics file carries: its ``head_model``, else a dome of ``head_radius_m`` (older
+    files), else the head top itself."""
     hm = extrinsics.extra.get(HEAD_MODEL_KEY)
     if isinstance(hm, dict):
-        return tuple(float(hm.get(k, 0.0) or 0.0) for k in ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m"))
+        return tuple(float(hm.get(k, 0.0) or 0.0)
+                     for k in ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m", "curvature_m"))
     r = float(extrinsics.extra.get(HEAD_RADIUS_KEY, 0.0) or 0.0)
-    return -r, r, 0.0
+    return -r, r, 0.0, 0.0
 
 
 @dataclass
@@ -132,7 +138,7 @@ def robot_rows(log: Log) -> tuple[np.ndarray, str]:
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-dome correction the extrinsics file carries."""
-    vertical_m, ray_m, horizontal_m = head_model_of(extrinsics)
+    vertical_m, ray_m, horizontal_m, curvature_m = head_model_of(extrinsics)
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -142,10 +148,12 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             m &= mask
         if m.any():
             p = p_sensor[m]
-            # the head point moved back horizontally and along the ray by the shifts, then up by
-            # minus the offset: the top
+            # the head point moved back horizontally, down by the curvature and along the ray by
+            # the shifts, then up by minus the offset: the top
             if horizontal_m:
                 p = p - horizontal_m * frames.toward_sensor_horizontal(p, s.R_world_sensor)
+            if curvature_m:
+                p = p - curvature_m * frames.up_by_cos2_elevation(p, s.R_world_sensor)
             p = p + ray_m * p / np.linalg.norm(p, axis=1, keepdims=True)
             out[m] = s.to_world(p) - np.array([0.0, 0.0, vertical_m])
     return out

@@ -2,6 +2,7 @@
 logs whose tracker it does not assume; the height degeneracy; model checking; orientation sigma
 looking straight down."""
 
+import copy
 import warnings
 
 import numpy as np
@@ -35,7 +36,7 @@ def _offset_seen_from(head, elev_deg):
     for a sensor seen at ``elev_deg`` above the horizon, m."""
     e = np.radians(elev_deg)
     return (head.ray_shift_m * np.cos(e) + head.horizontal_shift_m,
-            head.vertical_offset_m + head.ray_shift_m * np.sin(e))
+            head.vertical_offset_m + head.ray_shift_m * np.sin(e) + head.curvature_m * np.cos(e) ** 2)
 
 
 def test_dome_it_did_not_assume_is_recovered_with_a_height_reference():
@@ -208,13 +209,17 @@ def test_jittery_amcl_without_odometry_is_smoothed_not_differenced():
     assert evaluate(sim.eval, rough.network).sensor_position_rms_mm.horizontal > 1.3 * smooth_mm
 
 
-# (half the depth noise's growth moves one sensor of this log by 0.35 sigma: not in the list)
-@pytest.mark.parametrize("constant,factor", [("amcl_correlation_s", 2.0), ("amcl_correlation_s", 0.5),
-                                             ("range_sigma_k_per_m", 2.0)])
-def test_a_2x_error_in_an_assumed_constant_moves_sensors_by_under_a_third_sigma(constant, factor, paper5):
-    # the constants the graph assumes rather than estimates (the odometry's scale is estimated,
-    # calibrate_odometry; AMCL's white share is measured, amcl_white_sigma): AMCL's correlation
-    # time and the depth noise's growth with range
+# What a 2x error in a constant moves the sensors by, in their reported sigma, on paper seed 5
+# (measured: the estimated ones 0.00-0.02; far_factor 0.06 / 0.12; odometry_sigma_per_m 0.01;
+# odometry_white_yaw_sigma_deg 0.13; odometry_white_sigma_m 0.45 / 0.39: the odometry's white
+# noise stays an assumption the result depends on, within its sigma but beyond a third of it).
+@pytest.mark.parametrize("constant,factor,bound", [
+    ("amcl_correlation_s", 2.0, 1 / 3), ("amcl_correlation_s", 0.5, 1 / 3),     # estimated (the start)
+    ("range_sigma_k_per_m", 2.0, 1 / 3), ("lateral_sigma_m", 2.0, 1 / 3),          # estimated
+    ("far_factor", 2.0, 1 / 3), ("far_factor", 0.5, 1 / 3),
+    ("odometry_sigma_per_m", 2.0, 1 / 3), ("odometry_white_yaw_sigma_deg", 2.0, 1 / 3),
+    ("odometry_white_sigma_m", 2.0, 1.0), ("odometry_white_sigma_m", 0.5, 1.0)])
+def test_a_2x_error_in_a_constant_moves_sensors_by_under_its_bound_in_sigma(constant, factor, bound, paper5):
     sim, base = paper5
     from pedcal.calib.graph import GraphRecipe
 
@@ -224,7 +229,27 @@ def test_a_2x_error_in_an_assumed_constant_moves_sensors_by_under_a_third_sigma(
         moved = calibrate_factorgraph(sim.calib, **{constant: value})
     for s in base.network:
         shift = np.abs(moved.network[s.id].position_m - s.position_m) / s.sigma_position_m
-        assert np.all(shift < 1.0 / 3.0), (s.id, shift)
+        assert np.all(shift < bound), (s.id, shift)
+
+
+@pytest.mark.parametrize("scale", [4.0, 0.25])
+def test_amcls_reported_covariance_off_by_2x_in_sigma_stays_within_the_reported_sigma(scale, paper5):
+    # the wandering AMCL error is at least AMCL's reported std: reported 2x too large, the graph
+    # trusts AMCL less (its sigma grows about 3x and covers the move, 0.4 sigma); 2x too small,
+    # the residuals decide (a move of 0.01 sigma)
+    sim, base = paper5
+    log = copy.copy(sim.calib)
+    robot = log.robot.copy()
+    for c in ("cov_xx", "cov_xy", "cov_yy"):
+        robot[c] = robot[c] * scale
+    log.robot = robot
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        moved = calibrate_factorgraph(log)
+    for s in base.network:
+        m = moved.network[s.id]
+        shift = np.abs(m.position_m - s.position_m) / np.asarray(m.sigma_position_m)
+        assert np.all(shift < (0.6 if scale > 1 else 1 / 3)), (s.id, shift)
 
 
 @pytest.fixture(scope="module")
@@ -247,3 +272,24 @@ def test_a_large_network_keeps_its_joint_covariance_on_the_result_not_in_the_yam
     assert "position_covariance_m2" not in res.network.extra
     assert res.position_covariance_m2.shape == (3 * n, 3 * n)
     assert any("not written to the calibrated YAML" in r.getMessage() for r in caplog.records)
+
+
+def test_a_head_point_curving_with_the_viewing_angle_is_estimated_when_asked():
+    # a tracker reporting the centroid of the head's top: its height curves with the sensor's
+    # elevation by ~7 mm, which head_curvature="auto" finds significant and estimates (a dome
+    # it leaves out); evaluate applies it
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        cen = simulate_logs("paper", seed=4, head_point="centroid", head_vertical_bias_m=0.0, amcl_error="white")
+        res = calibrate_factorgraph(cen.calib, head_curvature="auto")
+        dome = simulate_logs("paper", seed=4, head_point="dome", head_radius_m=0.07, amcl_error="white")
+        res_dome = calibrate_factorgraph(dome.calib, head_curvature="auto")
+        off = calibrate_factorgraph(cen.calib)
+    head = res.diagnostics.head_model
+    assert head.curvature_m > 3 * head.sigma_curvature_m > 0.0
+    assert res.network.extra["head_model"]["curvature_m"] == pytest.approx(head.curvature_m, abs=1e-5)
+    assert res_dome.diagnostics.head_model.curvature_m == 0.0 == res_dome.diagnostics.head_model.sigma_curvature_m
+    # the head points the sensors saw, the tracker's curve taken out, land closer to the truth
+    assert (evaluate(cen.eval, res.network).head_tracking_rms_mm
+            < evaluate(cen.eval, off.network).head_tracking_rms_mm)
+

@@ -70,16 +70,19 @@ class AlternativeDiagnostics(Diagnostics):
 class HeadModel:
     """The tracker's head point as the factor graph estimated it: the head top moved
     ``vertical_offset_m`` up, then ``ray_shift_m`` along the ray toward the sensor (a dome of
-    radius r: -r and r) and ``horizontal_shift_m`` horizontally toward it, with their 1-sigma;
+    radius r: -r and r), ``horizontal_shift_m`` horizontally toward it and ``curvature_m`` times
+    cos^2 of the sensor's elevation (seen from the head) up, with their 1-sigma;
     ``height_reference`` says what fixed the offset (``none``: its prior only, which ``note``
     states)."""
 
     vertical_offset_m: float
     ray_shift_m: float
     horizontal_shift_m: float = 0.0
+    curvature_m: float = 0.0
     sigma_vertical_offset_m: float = 0.0
     sigma_ray_shift_m: float = 0.0
     sigma_horizontal_shift_m: float = 0.0
+    sigma_curvature_m: float = 0.0
     height_reference: str = "none"
     estimated: bool = True
     note: str = ""
@@ -193,8 +196,10 @@ class CalibrationResult:
                          f"{1000 * head.sigma_vertical_offset_m:.1f} mm from the head top, "
                          f"{1000 * head.ray_shift_m:.1f} +- {1000 * head.sigma_ray_shift_m:.1f} mm toward the "
                          f"sensor along the ray and {1000 * head.horizontal_shift_m:.1f} +- "
-                         f"{1000 * head.sigma_horizontal_shift_m:.1f} mm horizontally "
-                         f"(height reference: {head.height_reference})")
+                         f"{1000 * head.sigma_horizontal_shift_m:.1f} mm horizontally"
+                         + (f", {1000 * head.curvature_m:.1f} +- {1000 * head.sigma_curvature_m:.1f} mm x cos^2 "
+                            "(elevation) up" if head.sigma_curvature_m else "")
+                         + f" (height reference: {head.height_reference})")
             if head.note:
                 lines.append(f"  {head.note}")
         mismatch = getattr(self.diagnostics, "model_mismatch", None)

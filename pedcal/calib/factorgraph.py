@@ -18,7 +18,7 @@ from __future__ import annotations
 import copy
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gtsam
@@ -54,7 +54,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
-from pedcal.calib.profile import Columns, Nuisance, profile_step, retract_flat
+from pedcal.calib.profile import Columns, Nuisance, ProfileStep, profile_step, retract_flat
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
 from pedcal.model import Log, SensorNetwork
@@ -74,6 +74,9 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         setattr(recipe, k, v)
     if not (recipe.robot or recipe.people):
         raise PedcalInputError("the graph recipe uses neither the robot nor people: nothing observes the sensors")
+    if recipe.head_curvature not in ("off", "on", "auto"):
+        raise PedcalInputError(f"head_curvature must be off, on or auto, got {recipe.head_curvature!r}",
+                               column="head_curvature")
     if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
         raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
                                column="sensor_height_sigma_m")
@@ -97,7 +100,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL)
     shifts = _estimate_head_shifts(log, prob, parts, result, progress, max_steps=2 if resolve else 5,
-                                   tolerance=0.5 if resolve else 0.1)
+                                   tolerance=0.5 if resolve else 0.1, curvature=not resolve)
     if resolve:
         # AMCL's error model from the residuals of a solution with the head model estimated (a
         # wrong head model leaves per-sensor offsets that look like a wandering AMCL), then the
@@ -111,8 +114,8 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
         _log(progress, f"head point shift toward the sensor: {1000 * prob.ray_shift_m:.1f} +- {sd[0]:.1f} mm "
-                       f"along the ray, {1000 * prob.horizontal_shift_m:.1f} mm horizontally "
-                       f"({shifts.solves} profile steps)")
+                       f"along the ray, {1000 * prob.horizontal_shift_m:.1f} mm horizontally, curvature "
+                       f"{1000 * prob.curvature_m:.1f} mm ({shifts.solves} profile steps)")
     else:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
@@ -258,30 +261,35 @@ def people_misfit(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
 class _HeadShifts:
     graph: gtsam.NonlinearFactorGraph
     result: gtsam.Values
-    cov: np.ndarray               # (k, k) covariance of the shifts (ray, then horizontal), m^2
+    cov: np.ndarray               # (k, k) covariance of the shifts (in ``names`` order), m^2
     sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(shift), per metre
     solves: int
+    names: list = field(default_factory=list)
 
 
 def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
-                          max_steps: int = 5, tolerance: float = 0.1) -> _HeadShifts | None:
+                          max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True) -> _HeadShifts | None:
     """The head point's shift toward the sensor along the ray (a range offset of every
-    observation; a dome's radius) and, unless the recipe leaves it out, horizontally (a point
-    pulled toward the sensor whatever the viewing angle), by their profile likelihood on the
-    linearized graph (pedcal.calib.profile): each step moves the shifts by the profile's Newton
-    step and the variables by the linearized optimum there, until the step is below
-    ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
-    profile's inverse Hessian and the variables' sensitivity to them carries it into the sensors'
-    covariance: the marginal over the shifts, not the conditional. ``parts`` gets the
-    observation block at the final shifts."""
+    observation; a dome's radius), horizontally (a point pulled toward the sensor whatever the
+    viewing angle) and its height's curvature with the viewing angle (``head_curvature``: on,
+    off, or auto: kept when the first step's profile finds it at ``head_curvature_select_chi2``
+    or more, a significance test of chi^2 with one degree of freedom), by their profile
+    likelihood on the linearized graph (pedcal.calib.profile): each step moves the shifts by the
+    profile's Newton step and the variables by the linearized optimum there, until the step is
+    below ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
+    profile's inverse Hessian and the variables' sensitivity to them carries it into the
+    sensors' covariance: the marginal over the shifts, not the conditional. ``parts`` gets the
+    observation block at the final shifts; ``curvature=False`` leaves the curvature out (a
+    first, rough pass)."""
     rec = prob.recipe
     if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0 and rec.robot):
         return None
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
-    names = [n.name for n in nuis]
-    theta = np.array([getattr(prob, n) for n in names], float)
+    select = curvature and rec.head_curvature == "auto"
+    if curvature and rec.head_curvature in ("on", "auto") and rec.head_curvature_sigma_m > 0.0:
+        nuis.append(Nuisance("curvature_m", 0.0, rec.head_curvature_sigma_m, rec.head_ray_shift_step_m))
     fixed = gtsam.NonlinearFactorGraph()
     for name in BLOCKS:
         if name != "observations":
@@ -291,9 +299,17 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
     prior_factors = int(result.exists(H(0)) and rec.amcl)      # the head offset's prior leads the block
     step = None
     for n_step in range(1, max_steps + 1):
-        step = profile_step(fixed, lambda th, scale, r=result: observation_block(
-            log, prob, r, theta=dict(zip(names, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
+        names = [n.name for n in nuis]
+        theta = np.array([getattr(prob, n) for n in names], float)
+        step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
+            log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors)
+        if select and "curvature_m" in names:
+            select = False
+            step, nuis, chi2 = _select_curvature(step, nuis, rec.head_curvature_select_chi2)
+            _log(progress, f"head point curvature: chi^2 {chi2:.1f} -> {'estimated' if len(nuis) == len(names) else 'left out'}")
+            names = [n.name for n in nuis]
+            theta = np.array([getattr(prob, n) for n in names], float)
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {1000 * v:+.2f} (step {1000 * d:+.2f}, sigma {1000 * s:.2f}) mm" for n, v, d, s in
@@ -310,7 +326,23 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
                       "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
     keys = [S(i) for i in range(len(prob.sensor_ids))] + ([H(0)] if result.exists(H(0)) else [])
     sens = step.Z[cols.index(keys)]
-    return _HeadShifts(parts.graph(), result, step.covariance, sens, n_step)
+    return _HeadShifts(parts.graph(), result, step.covariance, sens, n_step, names=names)
+
+
+def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float):
+    """The profile step with the head point's curvature (the last nuisance, at 0) kept when its
+    chi^2 (the profile's decrease from estimating it, the others re-optimized) reaches
+    ``threshold_chi2``, else the step of the others alone (its rows and columns dropped).
+    Returns (step, nuisances, chi^2)."""
+    H = step.hessian
+    g = -H @ step.dtheta
+    o = np.arange(len(nuis) - 1)
+    chi2 = float(g @ np.linalg.solve(H, g) - g[o] @ np.linalg.solve(H[np.ix_(o, o)], g[o]))
+    if chi2 >= threshold_chi2:
+        return step, nuis, chi2
+    reduced = ProfileStep(dtheta=-np.linalg.solve(H[np.ix_(o, o)], g[o]), hessian=H[np.ix_(o, o)], z0=step.z0,
+                          Z=step.Z[:, o], cols=step.cols)
+    return reduced, nuis[:-1], chi2
 
 
 def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
@@ -395,16 +427,14 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
     else:
         reference = "none"
     head = HeadModel(vertical_offset_m=-rec.head_radius_m, ray_shift_m=prob.ray_shift_m,
-                     horizontal_shift_m=prob.horizontal_shift_m, height_reference=reference,
-                     estimated=bool(rec.estimate_head_model))
+                     horizontal_shift_m=prob.horizontal_shift_m, curvature_m=prob.curvature_m,
+                     height_reference=reference, estimated=bool(rec.estimate_head_model))
     if has_h:
         head.vertical_offset_m = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
         head.sigma_vertical_offset_m = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
     if shifts is not None:
-        sd = np.sqrt(np.diag(shifts.cov))
-        head.sigma_ray_shift_m = float(sd[0])
-        if len(sd) > 1:
-            head.sigma_horizontal_shift_m = float(sd[1])
+        for name, sd in zip(shifts.names, np.sqrt(np.diag(shifts.cov)), strict=True):
+            setattr(head, "sigma_" + name, float(sd))
     if has_h and reference == "none":
         head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "
                         f"{1000 * rec.head_vertical_sigma_m:.0f} mm, a sigma the sensors' heights carry, "

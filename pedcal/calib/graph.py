@@ -84,7 +84,7 @@ from pedcal.calib.common import HeadModel, ModelMismatch, head_interpolator, hea
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
 from pedcal.io.sensors_yaml import flow_vector
-from pedcal.metrics import HEAD_MODEL_KEY, JOINT_COV_KEY, LATENCY_KEY, MISMATCH_KEY
+from pedcal.metrics import AMCL_MODEL_KEY, HEAD_MODEL_KEY, JOINT_COV_KEY, LATENCY_KEY, MISMATCH_KEY, NOISE_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 try:
@@ -136,6 +136,15 @@ class GraphRecipe:
     head_ray_shift_step_m: float = 0.02     # step of the shifts' profile likelihood
     estimate_head_horizontal_shift: bool = True   # a constant horizontal shift toward the sensor too
     head_horizontal_shift_sigma_m: float = 0.05   # its prior sigma (mean 0)
+    # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
+    # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
+    # or auto (estimated when its profile chi^2 reaches head_curvature_select_chi2). Off by
+    # default: over the nuisance zoo's 80 logs without it, the other shifts' model inexactness
+    # gave it a chi^2 of 3-54 and estimating it cost 2-5 mm of sensor RMS; the simulated
+    # centroid tracker gives 86-145.
+    head_curvature: str = "off"
+    head_curvature_sigma_m: float = 0.02
+    head_curvature_select_chi2: float = 60.0
     # height reference: the installed sensor heights measured to this sigma (0: no reference),
     # or, with ceiling_height_m > 0, every sensor at that height to this sigma
     sensor_height_sigma_m: float = 0.0
@@ -436,17 +445,20 @@ class FactorGraphProblem:
     fac_key_index: np.ndarray | None = None
     fac_p_sensor: np.ndarray | None = None
     fac_toward_sensor: np.ndarray | None = None
+    fac_up_cos2: np.ndarray | None = None         # up x cos^2(sensor's elevation), sensor frame
     fac_count: np.ndarray | None = None
     # the head point's shift toward the sensor along the ray and horizontally (m) the graph is
     # built with
     ray_shift_m: float = 0.0
     horizontal_shift_m: float = 0.0
+    curvature_m: float = 0.0
 
     def head_points_sensor(self) -> np.ndarray:
         """The robot-observation factors' points (sensor frame) with the horizontal shift toward
         the sensor taken out: the head point moved ray_shift_m along the ray from the offset
         head top."""
-        return self.fac_p_sensor - self.horizontal_shift_m * self.fac_toward_sensor
+        return (self.fac_p_sensor - self.horizontal_shift_m * self.fac_toward_sensor
+                - self.curvature_m * self.fac_up_cos2)
 
     def merge_observations(self, max_sigmas: float = 4.0) -> None:
         """The graph's robot-observation factors: the observations one sensor made of the robot
@@ -485,6 +497,7 @@ class FactorGraphProblem:
         self.fac_p_sensor = np.vstack([mean[merged], self.obs_p_sensor[solo]])
         self.fac_count = np.r_[count[merged], np.ones(len(solo), int)]
         self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, self._R_obs[idx])
+        self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, self._R_obs[idx])
 
     def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
@@ -771,6 +784,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
     hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
+    cv = float(theta.get("curvature_m", prob.curvature_m))
     graph = gtsam.NonlinearFactorGraph()
     n_pose = len(_pose_times(prob, t_max))
     cache = _NoiseCache(rec, robust=robust and sigma_scale is None)
@@ -808,7 +822,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     if rec.robot:
         use = np.flatnonzero(prob.fac_key_index < n_pose)
-        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use]
+        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
         rng_m = np.linalg.norm(p_obs, axis=1)
         keys = [S(sid_index[s]) for s in prob.fac_sensor[use]]
         pose = prob.fac_key_index[use]
@@ -827,7 +841,8 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
             for sid, p in seen:
                 R0 = prob.init_sensors[sid].rotation().matrix()
                 seen_r.append(float(np.linalg.norm(p)))
-                p = p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
+                p = (p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
+                     - cv * frames.up_by_cos2_elevation(p[None, :], R0)[0])
                 seen_keys.append(S(sid_index[sid]))
                 seen_p.append(p)
                 seen_m.append(m)
@@ -1142,6 +1157,10 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
             f"the joint covariance of {len(prob.sensor_ids)} sensors' positions ({3 * len(prob.sensor_ids)} x "
             f"{3 * len(prob.sensor_ids)}) is not written to the calibrated YAML above {JOINT_COV_MAX_SENSORS} "
             "sensors; it is on CalibrationResult.position_covariance_m2")
+    if prob.amcl_model is not None and prob.recipe.amcl:
+        network.extra[AMCL_MODEL_KEY] = prob.amcl_model.to_dict()
+    if prob.noise_estimate:
+        network.extra[NOISE_KEY] = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in prob.noise_estimate.items()}
     if mismatch is not None:
         ratios = {k: round(v, 3) for k, v in mismatch.variance_ratio.items()}
         network.extra[MISMATCH_KEY] = {"sensors": mismatch.sensors, "threshold": mismatch.threshold,

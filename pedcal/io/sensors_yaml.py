@@ -204,8 +204,9 @@ CALIBRATION_KEYS = {
 
 # The head-point model a calibration estimated (``head_model``, applied by pedcal evaluate): its
 # offsets and their sigmas in metres, each within the head's own size.
-HEAD_MODEL_FIELDS = ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m",
-                     "sigma_vertical_offset_m", "sigma_ray_shift_m", "sigma_horizontal_shift_m")
+HEAD_MODEL_FIELDS = ("vertical_offset_m", "ray_shift_m", "horizontal_shift_m", "curvature_m",
+                     "sigma_vertical_offset_m", "sigma_ray_shift_m", "sigma_horizontal_shift_m",
+                     "sigma_curvature_m")
 
 
 def _check_number(key: str, v, lo: float, hi: float, unit: str, path: Path) -> None:
@@ -225,7 +226,7 @@ def _check_calibration_keys(extra: dict, path: Path) -> None:
     if hm is None:
         return
     if not isinstance(hm, dict):
-        raise PedcalInputError(f"'head_model' must be a mapping of {', '.join(HEAD_MODEL_FIELDS[:3])}, got "
+        raise PedcalInputError(f"'head_model' must be a mapping of {', '.join(HEAD_MODEL_FIELDS[:4])}, got "
                                f"{show(hm)}", path=path)
     for key in HEAD_MODEL_FIELDS:
         if hm.get(key) is not None:

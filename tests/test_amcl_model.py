@@ -1,0 +1,107 @@
+"""AMCL's error model estimated from the data (pedcal.calib.amcl_model): the variogram and its
+fit on series of known kind, jumps, and the model the factor graph estimates on simulated
+logs whose AMCL error is white, wandering or jumping."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from pedcal.calib.amcl_model import VARIOGRAM_LAGS_S, detect_jumps, fit_variogram, robust_variogram
+from pedcal.calib.factorgraph import calibrate_factorgraph
+from pedcal.errors import DegenerateDataWarning
+from pedcal.metrics import evaluate
+from pedcal.sim import simulate_logs
+from pedcal.sim.robot import ou_process
+
+
+def _visits(rng, t, n_sensors=6, visit_s=8.0):
+    """Per sensor the sorted indices of the instants it 'sees': visits of visit_s, in turn."""
+    slot = np.floor(t / visit_s).astype(int) % n_sensors
+    return [np.flatnonzero(slot == s) for s in range(n_sensors)]
+
+
+def _fit(series_xy, t, groups):
+    gamma, pairs = robust_variogram(t, [(g, series_xy[g]) for g in groups])
+    n_eff = 0.5 * np.minimum(pairs, np.maximum(len(t) * 0.2 / VARIOGRAM_LAGS_S, 1.0) * 2.0)
+    return fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=300.0)
+
+
+def test_white_and_wandering_errors_are_told_apart():
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 600.0, 0.2)
+    groups = _visits(rng, t)
+    white = rng.normal(0.0, 0.05, (len(t), 2))
+    w, c, _ = _fit(white, t, groups)
+    assert c == 0.0 and w == pytest.approx(0.05, rel=0.1)
+    ou = np.column_stack([ou_process(rng, len(t), 0.2, 0.05, 20.0) for _ in range(2)])
+    ou += rng.normal(0.0, 0.005, ou.shape)
+    w, c, tau = _fit(ou, t, groups)
+    # the rate of wander (c^2 / tau) is what the short lags show: 2.5e-3 / 20 m^2/s
+    assert c > 0.02 and c ** 2 / tau == pytest.approx(0.05 ** 2 / 20.0, rel=0.35)
+    assert w < 0.012
+
+
+def test_the_wandering_std_is_at_least_amcls_reported_one_at_the_rate_it_shows():
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 600.0, 0.2)
+    groups = _visits(rng, t, visit_s=5.0)       # short visits: the long lags say little
+    ou = np.column_stack([ou_process(rng, len(t), 0.2, 0.05, 20.0) for _ in range(2)])
+    gamma, pairs = robust_variogram(t, [(g, ou[g]) for g in groups])
+    n_eff = 0.5 * np.minimum(pairs, np.maximum(len(t) * 0.2 / VARIOGRAM_LAGS_S, 1.0) * 2.0)
+    free = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=300.0)
+    held = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=300.0, floor_sigma_m=0.05)
+    assert held[1] == pytest.approx(max(free[1], 0.05))
+    assert held[1] ** 2 / held[2] == pytest.approx(free[1] ** 2 / free[2], rel=1e-6)
+
+
+def test_jumps_are_found_and_nothing_else():
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 400.0, 0.2)
+    e = np.column_stack([ou_process(rng, len(t), 0.2, 0.05, 20.0) for _ in range(2)])
+    truth = np.zeros(len(t), bool)
+    for start in (50.0, 170.0, 300.0):
+        on = (t >= start) & (t < start + 6.0)
+        e[on] += 0.3 * np.array([np.cos(start), np.sin(start)])
+        truth |= on
+    found = detect_jumps(t, e)
+    assert found[truth].mean() > 0.8
+    assert found[~truth].mean() < 0.01
+
+
+@pytest.mark.parametrize("kind", ["white", "correlated"])
+def test_the_graph_estimates_the_kind_of_amcl_error_it_was_given(kind):
+    sim = simulate_logs("paper", seed=2, amcl_error=kind)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(sim.calib)
+    model = res.diagnostics.amcl_model
+    assert model.source == "estimated"
+    if kind == "white":
+        assert model.correlated_sigma_m == 0.0
+        assert model.white_sigma_m == pytest.approx(sim.scenario.amcl_sigma_m, rel=0.15)
+    else:
+        assert model.correlated_sigma_m == pytest.approx(sim.scenario.amcl_sigma_m, rel=0.3)
+        assert 0.4 * sim.scenario.amcl_tau_s < model.correlation_s < 2.5 * sim.scenario.amcl_tau_s
+    assert res.network.extra["amcl_error_model"]["source"] == "estimated"
+
+
+def test_amcl_jumps_seen_by_the_sensors_are_left_out():
+    # relocalization jumps of 0.4 m for 2-10 s: the estimates the graph leaves out are jumps (the
+    # AMCL error the simulator added exceeds 0.2 m there), and most jump estimates taken while a
+    # ceiling sensor saw the robot are left out
+    from pedcal.calib.common import interpolate_pose2
+
+    sim = simulate_logs("paper", seed=6, amcl_error="jumps", amcl_jump_rate_hz=1 / 40.0, amcl_jump_m=0.4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(sim.calib)
+    model = res.diagnostics.amcl_model
+    amcl = sim.calib.robot.sort_values("t", kind="stable")
+    truth = interpolate_pose2(sim.calib.truth_robot, amcl["t"].to_numpy(float))
+    err = np.hypot(amcl["x"].to_numpy(float) - truth[:, 0], amcl["y"].to_numpy(float) - truth[:, 1])
+    jump = err > 0.2
+    assert model.jumps >= 3 and model.excluded is not None
+    assert jump[model.excluded].mean() > 0.9                  # what is left out is a jump
+    assert model.excluded[jump].mean() > 0.5                  # and most of the jumps are
+    assert res.network.extra["amcl_error_model"]["jumps"] == model.jumps
