@@ -259,3 +259,27 @@ def test_bad_input_is_reported():
         random_scene(0, n_people=(3, 1))
     with pytest.raises(PedcalInputError, match="area"):
         random_scene(0, area=(5.0, 1.0, -1.0, 1.0))
+
+
+def test_a_beam_table_lidar_casts_one_row_per_listed_elevation():
+    """pandar40: 40 beams, 1/3 deg apart between -6 and +2 deg and 1 deg apart above and below;
+    on a wall 10 m away the rows lie at 10 m * tan(elevation) about the sensor's height."""
+    lidar = LIDAR_PRESETS["pandar40"]
+    el = np.degrees(np.unique(lidar.ray_angles_rad()[1]))
+    assert len(el) == 40 and el.min() == pytest.approx(-16.0) and el.max() == pytest.approx(7.0)
+    gaps = np.diff(el)
+    dense = (el[:-1] >= -6.0 - 1e-3) & (el[1:] <= 2.0 + 1e-3)
+    assert dense.sum() == 24 and np.allclose(gaps[dense], 1 / 3, atol=1e-3) and np.allclose(gaps[~dense], 1.0, atol=1e-3)
+    assert lidar.fov_vertical_deg == pytest.approx(23.0) and lidar.vertical_center_deg == pytest.approx(-4.5)
+    frame = render(Scene([_wall(10.0, 0.6)]), lidar.with_(**NOISELESS), Mount(0.0, 0.0, 1.8), np.random.default_rng(0))
+    assert frame.sensor_height_m == 1.8 and frame.sensor_positions_base.tolist() == [[0.0, 0.0, 1.8]]
+    on_wall = frame.xyz[frame.object_id == 0].astype(float)
+    straight = np.abs(on_wall[:, 1]) < 0.015  # the column straight ahead (columns are 3.5 cm apart)
+    z = np.sort(on_wall[straight, 2])
+    expected = np.sort(1.8 + 10.0 * np.tan(np.radians(el)))
+    expected = expected[(expected > 0.0) & (expected < 3.0)]  # the wall is 3 m tall
+    assert len(z) == len(expected) and np.abs(z - expected).max() < 0.01
+    with pytest.raises(PedcalInputError, match="ascending"):
+        LidarModel("bad", 1800, 3, 360.0, 2.0, 0.5, 50.0, vertical_center_deg=0.0, elevations_deg=(1.0, 0.0, -1.0))
+    with pytest.raises(PedcalInputError, match="from_beams"):
+        LidarModel("bad", 1800, 3, 360.0, 5.0, 0.5, 50.0, elevations_deg=(-1.0, 0.0, 1.0))
