@@ -189,8 +189,10 @@ def reference_min_area_box(xy: np.ndarray) -> det.Box:
 def _needs_calipers(pts: np.ndarray, c: det.Candidate) -> bool:
     """Whether ``segment`` fits this cluster's box by rotating calipers (else the axis-aligned box)."""
     xy = pts[c.indices, :2]
+    extent = np.ptp(xy, axis=0).max()
     return (len(c.indices) >= det.MIN_CLUSTER_POINTS and c.height >= det.GATE_HEIGHT_M[0]
-            and np.ptp(xy, axis=0).max() <= det.SPLIT_WIDTH_M[1] * np.sqrt(2))
+            and extent <= det.SPLIT_WIDTH_M[1] * np.sqrt(2)
+            and not (c.height > det.GATE_HEIGHT_M[1] and extent * np.sqrt(2) <= det.SPLIT_WIDTH_M[0]))
 
 
 def _frames() -> list[tuple[str, np.ndarray]]:

@@ -354,10 +354,13 @@ def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
     low = np.minimum.reduceat(sub[:, :2], starts, axis=0)
     # Any enclosing rectangle's longer side is >= the points' diameter / sqrt(2) >= the longer
     # axis-aligned extent / sqrt(2): beyond SPLIT_WIDTH_M[1] * sqrt(2) the cluster can neither pass
-    # the gate nor be cut at heads.
+    # the gate nor be cut at heads. The minimum-area box's sides are at most the diameter, itself at
+    # most sqrt(2) x the longer axis-aligned extent: a cluster taller than the gate and narrower
+    # than SPLIT_WIDTH_M[0] / sqrt(2) (a pole, a trunk) can neither pass the gate nor be cut.
     ext = top[:, :2] - low
     cheap = ((sizes < MIN_CLUSTER_POINTS) | (top[:, 2] < GATE_HEIGHT_M[0])
-             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2)))
+             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2))
+             | ((top[:, 2] > GATE_HEIGHT_M[1]) & (ext.max(axis=1) * np.sqrt(2) <= SPLIT_WIDTH_M[0])))
     fitted = np.flatnonzero(~cheap)
     boxes = dict(zip(fitted, min_area_boxes(pts[:, :2], [groups[k] for k in fitted]), strict=True)) \
         if len(fitted) else {}
