@@ -318,8 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("file", type=Path)
     s.add_argument("--model", type=Path, default=None)
     s.add_argument("--json", action="store_true")
-    s.add_argument("--sensor", default=None, help="fx8, depth-camera, vlp16, os1-32, hdl32, hdl64, solid-dense, "
-                                                  "sparse-tof (default: ray spacing estimated from the cloud)")
+    s.add_argument("--sensor", default=None, help="fx8, depth-camera, vlp16, os1-32, hdl32, hdl64, pandar40, "
+                                                  "solid-dense, sparse-tof (default: ray spacing estimated from "
+                                                  "the cloud)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--sensor-pose", default=None, metavar="x,y,z,roll,pitch,yaw",
                    help="the sensor's pose above the floor (m, deg; positive pitch looks down)")

@@ -1,5 +1,5 @@
 """The vectorized features and boxes against the per-cluster code they replaced: on simulated
-frames of several sensors and on a real 67k-point SUSTech frame, every cluster's 260 features
+frames of several sensors and on a real 67k-point SUSTech frame, every cluster's 264 features
 agree to 1e-9 and ``detect`` returns the same detections as the reference computation."""
 
 import numpy as np
@@ -10,6 +10,7 @@ from pedcal.detect.features import (
     BAND_M,
     HALF_WIDTH_M,
     INTENSITY_MAX,
+    MIN_RANGE_M,
     N_BANDS,
     N_FEATURES,
     N_SLICES,
@@ -18,6 +19,7 @@ from pedcal.detect.features import (
     Z_TOP_M,
     block_slices,
     features_matrix,
+    scan_steps_rad,
 )
 from pedcal.detect.train import EVAL_STREAM, simulated_frame
 
@@ -61,8 +63,8 @@ def _axes(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, e2
 
 
-def reference_cluster_features(points: np.ndarray) -> np.ndarray:
-    """The 213-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
+def reference_cluster_features(points: np.ndarray, scan_steps=(np.nan, np.nan)) -> np.ndarray:
+    """The 264-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] < 3 or len(pts) == 0:
         raise ValueError(f"a cluster is a non-empty (N, 4) array, got shape {pts.shape}")
@@ -141,6 +143,16 @@ def reference_cluster_features(points: np.ndarray) -> np.ndarray:
 
     # g3
     f[b["z_extent_distance"]] = [z.min(), z.max(), np.hypot(*xyz[:, :2].mean(axis=0))]
+
+    # g4: area, rows, columns and fill in the scan's rays
+    daz, d_el = scan_steps
+    if np.isfinite(daz) and np.isfinite(d_el):
+        c = xyz[:, :2].mean(axis=0)
+        r = max(np.hypot(*c), MIN_RANGE_M)
+        bearing = np.angle(np.exp(1j * (np.arctan2(xyz[:, 1], xyz[:, 0]) - np.arctan2(c[1], c[0]))))
+        rows = np.ptp(z) / (r * d_el) + 1
+        cols = np.ptp(bearing) / daz + 1
+        f[b["scan_normalized"]] = [n * (r * daz) * (r * d_el), rows, cols, n / (rows * cols)]
     return f
 
 
@@ -177,8 +189,10 @@ def reference_min_area_box(xy: np.ndarray) -> det.Box:
 def _needs_calipers(pts: np.ndarray, c: det.Candidate) -> bool:
     """Whether ``segment`` fits this cluster's box by rotating calipers (else the axis-aligned box)."""
     xy = pts[c.indices, :2]
+    extent = np.ptp(xy, axis=0).max()
     return (len(c.indices) >= det.MIN_CLUSTER_POINTS and c.height >= det.GATE_HEIGHT_M[0]
-            and np.ptp(xy, axis=0).max() <= det.SPLIT_WIDTH_M[1] * np.sqrt(2))
+            and extent <= det.SPLIT_WIDTH_M[1] * np.sqrt(2)
+            and not (c.height > det.GATE_HEIGHT_M[1] and extent * np.sqrt(2) <= det.SPLIT_WIDTH_M[0]))
 
 
 def _frames() -> list[tuple[str, np.ndarray]]:
@@ -206,8 +220,9 @@ def _check_frame(pts: np.ndarray) -> int:
     cands = det.segment(pts)
     assert cands
     clusters = [pts[c.indices] for c in cands]
-    expected = np.vstack([reference_cluster_features(c) for c in clusters])
-    got = features_matrix(clusters)
+    steps = scan_steps_rad(pts)
+    expected = np.vstack([reference_cluster_features(c, steps) for c in clusters])
+    got = features_matrix(clusters, steps)
     assert got.shape == expected.shape == (len(cands), N_FEATURES)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
     for c in cands:
@@ -218,7 +233,7 @@ def _check_frame(pts: np.ndarray) -> int:
             if c.gated:  # (a wide cluster cut at its heads stays ungated whatever its box)
                 assert det.passes_gate(c.height, ref.width, ref.depth, len(c.indices))
     gated = [c for c in cands if c.gated]
-    score = model.predict_proba(np.vstack([reference_cluster_features(pts[c.indices]) for c in gated])) \
+    score = model.predict_proba(np.vstack([reference_cluster_features(pts[c.indices], steps) for c in gated])) \
         if gated else np.zeros(0)
     got_dets = det.detect(pts, model)
     assert len(got_dets) == len(gated)
@@ -248,7 +263,12 @@ def test_constructed_edge_cases_match_the_reference():
         np.column_stack([rng.normal(-2, 0.2, (300, 2)), rng.uniform(-0.3, 2.5, 300), rng.uniform(-0.2, 1.4, 300)]),
         rng.normal([5.0, 5.0, 1.0], 0.3, (40, 3)),  # no intensity column
     ]
-    np.testing.assert_allclose(features_matrix(clusters), np.vstack([reference_cluster_features(c) for c in clusters]),
+    steps = (np.radians(0.2), np.radians(1.0))
+    np.testing.assert_allclose(features_matrix(clusters, steps),
+                               np.vstack([reference_cluster_features(c, steps) for c in clusters]), rtol=0, atol=1e-9)
+    # without the frame's steps, each cluster's own points estimate them
+    np.testing.assert_allclose(features_matrix(clusters),
+                               np.vstack([reference_cluster_features(c, scan_steps_rad(c)) for c in clusters]),
                                rtol=0, atol=1e-9)
 
 

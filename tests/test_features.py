@@ -1,14 +1,22 @@
-"""Kidono et al.'s 213 features and the metric profiles after them: layout, finiteness on tiny
-clusters, and known values."""
+"""Kidono et al.'s 213 features, the metric profiles and the scan-ray measures after them: layout,
+finiteness on tiny clusters, known values, and the ray steps estimated from a cloud."""
 
 import numpy as np
 import pytest
 
-from pedcal.detect.features import BLOCKS, N_FEATURES, N_KIDONO, block_slices, cluster_features, features_matrix
+from pedcal.detect.features import (
+    BLOCKS,
+    N_FEATURES,
+    N_KIDONO,
+    block_slices,
+    cluster_features,
+    features_matrix,
+    scan_steps_rad,
+)
 
 
-def test_blocks_sum_to_213_plus_47():
-    assert sum(n for _, n in BLOCKS) == N_FEATURES == 260
+def test_blocks_sum_to_213_plus_47_plus_4():
+    assert sum(n for _, n in BLOCKS) == N_FEATURES == 264
     b = block_slices()
     assert b["intensity_hist"].stop == N_KIDONO == 213
     shape = sum(n for name, n in BLOCKS[:8])
@@ -96,3 +104,46 @@ def test_height_bands_and_top_profile_of_two_legs_under_a_head():
     assert top[3:, 2].sum() == pytest.approx(0.0)  # 0.225-0.6 m below the top: the empty gap
     assert top[:, 2].sum() == pytest.approx((n // 3) / len(pts), abs=1e-9)
     assert f[b["z_extent_distance"]] == pytest.approx([0.0, 1.7, 3.0], abs=0.02)
+
+
+def _grid_surface(range_m, width_m, z_m, daz_rad, del_rad, sensor_height_m=1.5, az_offsets_rad=None):
+    """Points where a scan with the given steps hits a flat surface facing the sensor at ``range_m``:
+    ``width_m`` wide, from z_m[0] to z_m[1]. ``az_offsets_rad`` staggers each row's azimuths."""
+    el = np.arange(np.arctan2(z_m[0] - sensor_height_m, range_m), np.arctan2(z_m[1] - sensor_height_m, range_m),
+                   del_rad)
+    az = np.arange(-width_m / 2 / range_m, width_m / 2 / range_m, daz_rad)
+    rows = []
+    for k, e in enumerate(el):
+        a = az + (0.0 if az_offsets_rad is None else az_offsets_rad[k % len(az_offsets_rad)])
+        rows.append(np.column_stack([np.full(len(a), range_m), range_m * np.tan(a),
+                                     sensor_height_m + range_m * np.tan(e) / np.cos(a), np.full(len(a), 0.5)]))
+    return np.vstack(rows)
+
+
+def test_scan_steps_are_recovered_from_a_cloud():
+    daz, d_el = np.radians(0.2), np.radians(1 / 3)
+    # a wall of a scan whose lasers fire at staggered azimuths (as a spinning LIDAR's do)
+    wall = _grid_surface(12.0, 16.0, (0.4, 3.0), daz, d_el, az_offsets_rad=np.radians([0.0, 0.07, 0.13, 0.05]))
+    got = scan_steps_rad(wall, 1.5)
+    assert got == pytest.approx((daz, d_el), rel=0.02)
+    # a metre off in the sensor height changes little
+    assert scan_steps_rad(wall, 0.5) == pytest.approx((daz, d_el), rel=0.05)
+    assert scan_steps_rad(_grid_surface(5.0, 8.0, (0.4, 2.5), np.radians(0.4), np.radians(2.0)), 1.5) == \
+        pytest.approx((np.radians(0.4), np.radians(2.0)), rel=0.02)
+    assert np.isnan(scan_steps_rad(wall[:5], 1.5)).all()
+
+
+def test_scan_measures_of_a_person_sized_board_and_a_pole():
+    """g4 of a 0.5 x 1.7 m board and of a 4 cm pole, 10 m away in a 0.2 x 1/3 deg scan: the board's
+    area is its own, 0.85 m^2 (to the rounding of its 15 columns and 30 rows), it spans
+    1.7 m / (10 m x 1/3 deg) + 1 = 30 rows and 15 columns and fills them; the pole covers 2 columns
+    and an eighth of a square metre."""
+    steps = (np.radians(0.2), np.radians(1 / 3))
+    board = _grid_surface(10.0, 0.5, (0.0, 1.7), *steps)
+    pole = _grid_surface(10.0, 0.04, (0.0, 1.7), *steps)
+    g4 = features_matrix([board, pole], steps)[:, block_slices()["scan_normalized"]]
+    area, rows, cols, fill = g4.T
+    assert area[0] == pytest.approx(0.85, rel=0.1) and area[1] < 0.15
+    assert rows == pytest.approx([1.7 / (10 * steps[1]) + 1] * 2, rel=0.05)
+    assert cols[0] == pytest.approx(0.5 / (10 * steps[0]), rel=0.1) and cols[1] <= 3
+    assert fill[0] == pytest.approx(1.0, rel=0.1)

@@ -21,6 +21,8 @@ from pedcal.sim.scene import (
     make_clutter,
     make_person,
     person_mesh,
+    pram_in_front,
+    push_reach_m,
     random_scene,
 )
 
@@ -259,3 +261,85 @@ def test_bad_input_is_reported():
         random_scene(0, n_people=(3, 1))
     with pytest.raises(PedcalInputError, match="area"):
         random_scene(0, area=(5.0, 1.0, -1.0, 1.0))
+
+
+def test_a_beam_table_lidar_casts_one_row_per_listed_elevation():
+    """pandar40: 40 beams, 1/3 deg apart between -6 and +2 deg and 1 deg apart above and below;
+    on a wall 10 m away the rows lie at 10 m * tan(elevation) about the sensor's height."""
+    lidar = LIDAR_PRESETS["pandar40"]
+    el = np.degrees(np.unique(lidar.ray_angles_rad()[1]))
+    assert len(el) == 40 and el.min() == pytest.approx(-16.0) and el.max() == pytest.approx(7.0)
+    gaps = np.diff(el)
+    dense = (el[:-1] >= -6.0 - 1e-3) & (el[1:] <= 2.0 + 1e-3)
+    assert dense.sum() == 24 and np.allclose(gaps[dense], 1 / 3, atol=1e-3) and np.allclose(gaps[~dense], 1.0, atol=1e-3)
+    assert lidar.fov_vertical_deg == pytest.approx(23.0) and lidar.vertical_center_deg == pytest.approx(-4.5)
+    frame = render(Scene([_wall(10.0, 0.6)]), lidar.with_(**NOISELESS), Mount(0.0, 0.0, 1.8), np.random.default_rng(0))
+    on_wall = frame.xyz[frame.object_id == 0].astype(float)
+    straight = np.abs(on_wall[:, 1]) < 0.015  # the column straight ahead (columns are 3.5 cm apart)
+    z = np.sort(on_wall[straight, 2])
+    expected = np.sort(1.8 + 10.0 * np.tan(np.radians(el)))
+    expected = expected[(expected > 0.0) & (expected < 3.0)]  # the wall is 3 m tall
+    assert len(z) == len(expected) and np.abs(z - expected).max() < 0.01
+    with pytest.raises(PedcalInputError, match="ascending"):
+        LidarModel("bad", 1800, 3, 360.0, 2.0, 0.5, 50.0, vertical_center_deg=0.0, elevations_deg=(1.0, 0.0, -1.0))
+    with pytest.raises(PedcalInputError, match="from_beams"):
+        LidarModel("bad", 1800, 3, 360.0, 5.0, 0.5, 50.0, elevations_deg=(-1.0, 0.0, 1.0))
+
+
+def test_skirts_coats_and_backpacks_change_the_outline_not_the_scene():
+    rng = np.random.default_rng(0)
+    plain = person_mesh(1.7, 0.45, 0.25, "standing", 0.5, np.random.default_rng(1))
+    skirt = person_mesh(1.7, 0.45, 0.25, "standing", 0.5, np.random.default_rng(1), garment="skirt")
+    coat = person_mesh(1.7, 0.45, 0.25, "standing", 0.5, np.random.default_rng(1), garment="coat", backpack=True)
+
+    def added(m):  # the garment's (and backpack's) vertices, appended after the plain person's
+        return m.vertices[len(plain.vertices):]
+
+    # the skirt: from the waist (0.56 h), 0.25 m deep there like the torso, flaring to its hem
+    # between 0.2 h and 0.4 h, where it is 1.2-1.9 times as deep (at most 0.7 m)
+    hem = added(skirt)[:, 2].min()
+    at_hem = added(skirt)[np.isclose(added(skirt)[:, 2], hem), 0]
+    assert 0.2 * 1.7 <= hem <= 0.4 * 1.7 and added(skirt)[:, 2].max() == pytest.approx(0.56 * 1.7)
+    assert 1.2 * 0.125 - 1e-9 <= np.abs(at_hem).max() <= 0.35
+    assert np.ptp(coat.vertices[:, 0]) > np.ptp(plain.vertices[:, 0]) + 0.1  # the backpack behind the back
+    for m in (skirt, coat):
+        assert m.z_max_m == pytest.approx(1.7) and m.vertices[:, 2].min() >= 0.0
+        np.testing.assert_array_equal(m.vertices[:len(plain.vertices)], plain.vertices)
+    with pytest.raises(PedcalInputError, match="garment"):
+        person_mesh(1.7, 0.45, 0.25, "standing", 0.5, rng, garment="cape")
+    # random clothing comes from each person's own seed: a scene's layout and draws stay the same
+    g_plain, g_dressed = np.random.default_rng(3), np.random.default_rng(3)
+    a = make_person(1.7, 0.45, 0.25, "walking", 0.5, g_plain)
+    b = make_person(1.7, 0.45, 0.25, "walking", 0.5, g_dressed, random_clothing=True)
+    assert a.params["mesh_seed"] == b.params["mesh_seed"] and g_plain.random() == g_dressed.random()
+    garments = {make_person(1.7, 0.45, 0.25, "walking", 0.5, np.random.default_rng(s), random_clothing=True)
+                .params["garment"] for s in range(40)}
+    assert garments == {"none", "skirt", "coat"}
+
+
+def test_a_pusher_holds_the_pram_handle_and_walks_with_it():
+    rng = np.random.default_rng(8)
+    pusher = make_person(1.75, 0.45, 0.25, "walking", 0.5, rng, x_m=4.0, y_m=1.0, yaw_rad=0.5,
+                         velocity_mps=(0.9 * np.cos(0.5), 0.9 * np.sin(0.5)), pushing=True)
+    pram = pram_in_front(pusher)
+    assert pram.kind == "pram" and not pram.is_person and pram.velocity_mps == pusher.velocity_mps
+    # the hands (lowest arm vertices, pushed forward) meet the handle bar at 0.58 of the height
+    hands = pusher.mesh_scene().vertices
+    hands = hands[np.abs(hands[:, 2] - 0.58 * 1.75) < 0.05]
+    forward = (hands[:, :2] - [4.0, 1.0]) @ [np.cos(0.5), np.sin(0.5)]
+    handle = pram.mesh_scene().vertices
+    handle_fwd = (handle[:, :2] - [4.0, 1.0]) @ [np.cos(0.5), np.sin(0.5)]
+    assert forward.max() == pytest.approx(push_reach_m(1.75), abs=0.05)
+    assert handle_fwd.min() == pytest.approx(push_reach_m(1.75), abs=0.03)
+    assert handle[:, 2].max() == pytest.approx(0.58 * 1.75, abs=0.02)
+    scene = Scene([pusher, pram])
+    gap = (pram.x_m - pusher.x_m, pram.y_m - pusher.y_m)
+    scene.step(1.0)
+    assert pusher.x_m == pytest.approx(4.0 + 0.9 * np.cos(0.5))
+    assert (pram.x_m - pusher.x_m, pram.y_m - pusher.y_m) == pytest.approx(gap, abs=1e-12)
+    # random scenes give pushers their prams, placed clear of everything else
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scenes = [random_scene(np.random.default_rng(s), n_people=(6, 6)) for s in range(30)]
+    prams = [o for sc in scenes for o in sc.objects if o.kind == "pram"]
+    assert prams and all(o.params.get("pushing") is not None for sc in scenes for o in sc.people)

@@ -8,12 +8,13 @@ import pytest
 from pedcal.cli import main
 from pedcal.detect.real_eval import RANGE_BANDS_M, in_box, match_boxes
 
-# Measured with the shipped model on the four SUSTech frames (none of them trained on): 4 of the 8
-# pedestrians within 15 m, 4.25 false detections per frame within 15 m, 13 of all 27. These are
-# regression floors at that level, short of the targets (recall 0.9, <= 1 false detection a frame).
-RECALL_NEAR_FLOOR = 0.5
-FP_NEAR_CEILING = 4.5
-RECALL_ALL_FLOOR = 0.45
+# Measured with the shipped model on the four SUSTech frames (none of them trained on): 7 of the 8
+# pedestrians within 15 m, 0.50 false detections per frame within 15 m, 18 of all 27. These are
+# regression floors a little below that level: the recall within 15 m is short of its target (0.9,
+# all 8), the false detections meet theirs (<= 1 a frame).
+RECALL_NEAR_FLOOR = 0.85
+FP_NEAR_CEILING = 1.0
+RECALL_ALL_FLOOR = 0.6
 
 
 def _box(cx, cy, yaw=0.0, length=0.6, width=0.5, kind="Pedestrian", i="1"):

@@ -52,16 +52,17 @@ def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sens
         raise PedcalInputError(f"--floor {floor!r}: expected one of {', '.join(FLOOR_MODES)}", column="floor")
     read = read_point_cloud_report(path)
     pts = normalize_density(read.points, sensor)
+    height = {}  # the sensor's height above the floor, where known
     if sensor_pose is not None:
         position_m, ypr_deg = parse_sensor_pose(sensor_pose)
         pts, dz = to_base_frame(pts, position_m, ypr_deg), float(position_m[2])
-    elif floor == "auto":
-        pts, dz = ground_referenced(pts)
-    elif floor == "plane":
-        pts, dz = floor_referenced(pts)
+        height = dict(sensor_height_m=dz)
+    elif floor in ("auto", "plane"):
+        pts, dz = ground_referenced(pts) if floor == "auto" else floor_referenced(pts)
+        height = dict(sensor_height_m=dz) if dz > 0 else {}
     else:
         dz = 0.0
-    dets = detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model)
+    dets = detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model, **height)
     return FileDetections(dets, pts, read.points, dz, read)
 
 
@@ -124,7 +125,8 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
         frame = simulated_frame(EVAL_STREAM, seed, k, preset=preset)
         people = frame.visible_people(MIN_VISIBLE_POINTS)
         truth_xy = np.array([[o["x_m"], o["y_m"]] for o in people]).reshape(-1, 2)
-        dets = [d for d in detect(frame.points.astype(float), clf) if d.is_person]
+        dets = [d for d in detect(frame.points.astype(float), clf, sensor_height_m=frame.sensor_height_m)
+                if d.is_person]
         det_xy = np.array([[d.x, d.y] for d in dets]).reshape(-1, 2)
         pairs = match_detections(det_xy, truth_xy)
         tp += len(pairs)

@@ -11,8 +11,9 @@
 6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m; a cluster taller than 2 m is cut
    below 2 m (a person against a wall), one 0.8-2.0 m wide at its heads (``split_by_heads``:
    people side by side), and the parts are gated in turn (``segment``);
-7. the RealAdaBoost classifier on Kidono et al.'s 213 features and 47 metric height profiles
-   (``pedcal.detect.features``).
+7. the RealAdaBoost classifier on Kidono et al.'s 213 features, 47 metric height profiles and 4
+   measures in the scan's own rays (``pedcal.detect.features``; the frame's ray steps are
+   estimated once per frame, ``scan_steps_rad``).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
 and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
@@ -30,7 +31,7 @@ from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
 from pedcal.detect.adaboost import RealAdaBoost
-from pedcal.detect.features import N_FEATURES, features_matrix
+from pedcal.detect.features import DEFAULT_SENSOR_HEIGHT_M, N_FEATURES, features_matrix, scan_steps_rad
 from pedcal.errors import PedcalInputError
 
 CELL_SIZE_M = 0.1
@@ -353,10 +354,13 @@ def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
     low = np.minimum.reduceat(sub[:, :2], starts, axis=0)
     # Any enclosing rectangle's longer side is >= the points' diameter / sqrt(2) >= the longer
     # axis-aligned extent / sqrt(2): beyond SPLIT_WIDTH_M[1] * sqrt(2) the cluster can neither pass
-    # the gate nor be cut at heads.
+    # the gate nor be cut at heads. The minimum-area box's sides are at most the diameter, itself at
+    # most sqrt(2) x the longer axis-aligned extent: a cluster taller than the gate and narrower
+    # than SPLIT_WIDTH_M[0] / sqrt(2) (a pole, a trunk) can neither pass the gate nor be cut.
     ext = top[:, :2] - low
     cheap = ((sizes < MIN_CLUSTER_POINTS) | (top[:, 2] < GATE_HEIGHT_M[0])
-             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2)))
+             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2))
+             | ((top[:, 2] > GATE_HEIGHT_M[1]) & (ext.max(axis=1) * np.sqrt(2) <= SPLIT_WIDTH_M[0])))
     fitted = np.flatnonzero(~cheap)
     boxes = dict(zip(fitted, min_area_boxes(pts[:, :2], [groups[k] for k in fitted]), strict=True)) \
         if len(fitted) else {}
@@ -398,14 +402,15 @@ def load_model(path: str | Path | None = None) -> RealAdaBoost:
 
 def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
            threshold: float = 0.5, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0,
-           max_range_m: float = MAX_RANGE_M) -> list[Detection]:
+           max_range_m: float = MAX_RANGE_M, sensor_height_m: float = DEFAULT_SENSOR_HEIGHT_M) -> list[Detection]:
     """People in one frame: the gated clusters, each scored by the classifier.
 
     ``points`` is (N, 4) ``x, y, z, intensity`` with z = 0 at the floor (N, 3 gets intensity 0);
     ``model`` a RealAdaBoost, a path to one, or None for the shipped model. Points farther than
     ``max_range_m`` horizontally from the origin (the sensor) are left out: a person there holds
-    a handful of points from any LIDAR. Returns every gated cluster as a Detection;
-    ``is_person`` is ``score >= threshold``.
+    a handful of points from any LIDAR. ``sensor_height_m`` is where the sensor sits above the
+    floor (the frame's ray steps are estimated as seen from there; a metre off changes them by a
+    few percent). Returns every gated cluster as a Detection; ``is_person`` is ``score >= threshold``.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim == 2 and pts.shape[1] == 3:
@@ -416,6 +421,7 @@ def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *
     if not cands:
         return []
     clf = model if isinstance(model, RealAdaBoost) else load_model(model)
-    score = clf.predict_proba(features_matrix([pts[c.indices] for c in cands]))
+    steps = scan_steps_rad(pts, sensor_height_m)
+    score = clf.predict_proba(features_matrix([pts[c.indices] for c in cands], steps))
     return [Detection(c.box.cx, c.box.cy, c.height, c.box.width, c.box.depth, c.box.yaw,
                       float(s), bool(s >= threshold), len(c.indices)) for c, s in zip(cands, score, strict=True)]

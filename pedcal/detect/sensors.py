@@ -35,6 +35,7 @@ SENSORS: dict[str, tuple[str, tuple[float, float]]] = {
     "os1-32": ("spin32", (360.0 / 1024, 40.0 / 31)),
     "hdl32": ("hdl32", (0.2, 1.33)),
     "hdl64": ("hdl64", (0.18, 0.42)),
+    "pandar40": ("pandar40", (0.2, 1.0 / 3.0)),  # 1/3 deg between its beams about the horizon
     "solid-dense": ("solid_dense", (70.0 / 159, 55.0 / 99)),
     "sparse-tof": ("sparse_tof", (60.0 / 63, 45.0 / 39)),
 }

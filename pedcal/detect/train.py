@@ -1,21 +1,26 @@
 """Training the person classifier: gated clusters of simulated LIDAR frames, or a user's labelled
-clusters, -> Kidono features (and the metric profiles after them) -> RealAdaBoost.
+clusters, -> Kidono features (and the metric profiles and scan-ray measures after them) -> RealAdaBoost.
 
 Simulated training set. Frame k of seed s draws everything (LIDAR preset, mounts, scene, noise)
 from ``np.random.default_rng([TRAIN_STREAM, s, k])``; ``pedcal detect-eval`` uses the stream tag
 ``EVAL_STREAM`` instead, so its frames never coincide with training frames. The presets mix the
-paper's FX8 pair (half the frames; mount height and pitch varied) with longer-range, spinning
-(16, 32 and 64 beams, on a robot or a car roof, people out to 20 m) and dense LIDARs, so the
-classifier sees people at many resolutions and ranges. No real frame is trained on: the only
+paper's FX8 pair (45 % of the frames; mount height and pitch varied) with longer-range, spinning
+(16, 32 and 64 evenly spaced beams, and the pandar40's 40 packed about the horizon; on a robot
+or a car roof, people out to 20 m) and dense LIDARs, so the classifier sees people at many
+resolutions and ranges. People wear skirts, coats and backpacks and push prams
+(``pedcal.sim.scene.random_person``). No real frame is trained on: the only
 labelled real frames in the shared data (SUSTechPOINTS) are the real-data evaluation of
 ``pedcal detect-eval --real``, and KITTI's single labelled pedestrian is a test. Scenes come from
 ``pedcal.sim.scene.random_scene``: static and walking people, people carrying bags, clutter
 (walls, pillars, poles, chairs, plants, signs, trolleys, boxes, coat stands); for the spinning
 LIDARs, ``OUTDOOR_SHARE`` of the frames are streets instead (``OUTDOOR_CLUTTER_WEIGHTS``: tree
-trunks under crowns, lamp and sign posts, bollards, bushes, parked cars, cyclists, kerbs) with
+trunks under crowns, lamp and sign posts, bollards, bushes, parked cars, cyclists, kerbs,
+utility cabinets, freestanding panels) with
 people all round out to 30 m, the thin vertical objects a sparse scan confuses with a person. Each gated cluster is
 labelled by the majority ground-truth object id of its points: a person or not; ambiguous
-clusters (mixed objects, small fragments of a person) are left out (``label_clusters``).
+clusters (mixed objects, small fragments of a person) are left out (``label_clusters``). Its
+features use the frame's ray steps estimated from the frame's points, as ``detect`` does
+(``frame_training_clusters``).
 The decision threshold is chosen afterwards on frames of a third stream, ``VALIDATION_STREAM``
 (``choose_threshold``), so neither the training nor the evaluation frames set it. The
 ``sparse_tof`` preset is left out of training: ``pedcal detect-eval --preset sparse_tof`` shows
@@ -23,7 +28,7 @@ how the classifier carries over to a LIDAR it has not seen.
 
 Labelled clusters (``--labelled PATH``), either
 
-- an ``.npz`` with ``features`` (n, 260) float (``pedcal.detect.features``) and ``labels`` (n,)
+- an ``.npz`` with ``features`` (n, 264) float (``pedcal.detect.features``) and ``labels`` (n,)
   int (1 = person, 0 = not), or
 - a directory with sub-directories ``person/`` and ``other/`` holding one cluster per file
   (``.bin``, ``.pcd``, ``.ply`` as ``pedcal detect`` reads them, or ``.npy`` (N, 4)
@@ -42,7 +47,7 @@ import numpy as np
 
 from pedcal.detect.adaboost import RealAdaBoost
 from pedcal.detect.detection import DEFAULT_MODEL_PATH, segment
-from pedcal.detect.features import N_FEATURES, features_matrix
+from pedcal.detect.features import N_FEATURES, features_matrix, scan_steps_rad
 from pedcal.errors import PedcalInputError
 
 TRAIN_STREAM = 7101
@@ -59,8 +64,8 @@ COMPANION_SHARE = 0.3  # people given a companion beside them in training scenes
 OUTDOOR_SHARE = 0.6  # spinning-LIDAR frames set in a street rather than a hall
 
 # (preset, probability); mounts are drawn per frame in ``random_rig``.
-TRAIN_PRESETS = (("fx8", 0.5), ("fx8_far", 0.1), ("spin16", 0.07), ("spin32", 0.08), ("hdl32", 0.08),
-                 ("hdl64", 0.07), ("solid_dense", 0.1))
+TRAIN_PRESETS = (("fx8", 0.45), ("fx8_far", 0.1), ("spin16", 0.06), ("spin32", 0.07), ("hdl32", 0.07),
+                 ("hdl64", 0.07), ("pandar40", 0.08), ("solid_dense", 0.1))
 
 
 def random_rig(rng: np.random.Generator, preset: str):
@@ -162,6 +167,19 @@ def label_clusters(frame, candidates, min_purity: float = 0.6, min_person_share:
     return labels
 
 
+def frame_training_clusters(frame) -> tuple[np.ndarray, np.ndarray]:
+    """(features, labels) of the unambiguous gated clusters of one simulated frame (``label_clusters``),
+    the features with the frame's ray steps as ``detect`` computes them."""
+    pts = frame.points.astype(float)
+    cands = [c for c in segment(pts) if c.gated]
+    lab = label_clusters(frame, cands)
+    cands = [c for c, v in zip(cands, lab, strict=True) if v >= 0]
+    if not cands:
+        return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
+    steps = scan_steps_rad(pts, frame.sensor_height_m)
+    return features_matrix([pts[c.indices] for c in cands], steps), lab[lab >= 0]
+
+
 def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *,
                            stream: int = TRAIN_STREAM) -> tuple[np.ndarray, np.ndarray]:
     """(features (n, N_FEATURES), labels (n,)) of every unambiguous gated cluster of ``frames``
@@ -169,14 +187,10 @@ def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *
     feats, labels = [], []
     t0 = time.monotonic()
     for k in range(frames):
-        frame = simulated_frame(stream, seed, k)
-        pts = frame.points.astype(float)
-        cands = [c for c in segment(pts) if c.gated]
-        lab = label_clusters(frame, cands)
-        cands = [c for c, v in zip(cands, lab, strict=True) if v >= 0]
-        if cands:
-            feats.append(features_matrix([pts[c.indices] for c in cands]))
-            labels.append(lab[lab >= 0])
+        X, y = frame_training_clusters(simulated_frame(stream, seed, k))
+        if len(y):
+            feats.append(X)
+            labels.append(y)
         if progress and ((k + 1) % 250 == 0 or k + 1 == frames):
             n = sum(len(v) for v in labels)
             logging.getLogger(__name__).info(f"  simulated {k + 1}/{frames} frames, {n} gated clusters "

@@ -25,7 +25,10 @@ from pedcal.sim.scene import Scene
 
 @dataclass(frozen=True)
 class LidarModel:
-    """A scanning LIDAR: a regular azimuth x elevation grid of rays in the sensor frame.
+    """A scanning LIDAR: a regular azimuth x elevation grid of rays in the sensor frame, or, with
+    ``elevations_deg``, one row of rays per listed beam elevation (spinning LIDARs whose beams are
+    packed closer near the horizon; ``n_vertical`` is then their number, ``fov_vertical_deg`` and
+    ``vertical_center_deg`` follow from them: ``LidarModel.from_beams``).
 
     Range noise is added along the ray: ``range_noise="uniform"`` draws from
     +-sqrt(3)·std (the FX8's "+-50 mm" is such a band), ``"gaussian"`` from N(0, std).
@@ -50,9 +53,18 @@ class LidarModel:
     dropout_prob: float = 0.01
     rate_hz: float = 4.0
     vertical_center_deg: float = 0.0  # elevation of the centre row (up positive)
+    elevations_deg: tuple[float, ...] | None = None  # beam elevations, ascending (up positive)
 
     def __post_init__(self):
         bad = []
+        if self.elevations_deg is not None:
+            el = np.asarray(self.elevations_deg, dtype=float)
+            if len(el) != self.n_vertical or not np.all(np.diff(el) > 0):
+                bad.append(f"elevations_deg must hold n_vertical = {self.n_vertical} ascending angles")
+            elif not (np.isclose(el[-1] - el[0], self.fov_vertical_deg)
+                      and np.isclose((el[-1] + el[0]) / 2, self.vertical_center_deg)):
+                bad.append("fov_vertical_deg and vertical_center_deg must be the span and middle of "
+                           "elevations_deg (LidarModel.from_beams sets them)")
         if self.n_horizontal < 1 or self.n_vertical < 1:
             bad.append("n_horizontal and n_vertical must be >= 1")
         if not (0 < self.fov_horizontal_deg <= 360 and 0 <= self.fov_vertical_deg < 180):
@@ -67,6 +79,14 @@ class LidarModel:
             bad.append("noise standard deviations must be >= 0")
         if bad:
             raise PedcalInputError(f"LidarModel {self.name!r}: " + "; ".join(bad))
+
+    @classmethod
+    def from_beams(cls, name: str, elevations_deg, n_horizontal: int, fov_horizontal_deg: float,
+                   min_range_m: float, max_range_m: float, **kwargs) -> LidarModel:
+        """A LIDAR with one beam at each of ``elevations_deg`` (any order; deg, up positive)."""
+        el = tuple(sorted(float(e) for e in elevations_deg))
+        return cls(name, n_horizontal, len(el), fov_horizontal_deg, el[-1] - el[0], min_range_m, max_range_m,
+                   vertical_center_deg=(el[-1] + el[0]) / 2, elevations_deg=el, **kwargs)
 
     @property
     def n_rays(self) -> int:
@@ -92,8 +112,11 @@ def _ray_angles(lidar: LidarModel) -> tuple[np.ndarray, np.ndarray]:
         az = np.linspace(-np.pi, np.pi, lidar.n_horizontal, endpoint=False)
     else:
         az = np.linspace(-half_h, half_h, lidar.n_horizontal)
-    half_v = np.radians(lidar.fov_vertical_deg) / 2
-    el = np.radians(lidar.vertical_center_deg) + np.linspace(-half_v, half_v, lidar.n_vertical)
+    if lidar.elevations_deg is not None:
+        el = np.radians(np.asarray(lidar.elevations_deg, dtype=float))
+    else:
+        half_v = np.radians(lidar.fov_vertical_deg) / 2
+        el = np.radians(lidar.vertical_center_deg) + np.linspace(-half_v, half_v, lidar.n_vertical)
     az_grid, el_grid = np.meshgrid(az, el)
     az_grid.setflags(write=False)
     el_grid.setflags(write=False)
@@ -127,6 +150,13 @@ LIDAR_PRESETS: dict[str, LidarModel] = {
                         range_noise="gaussian", rate_hz=10.0, dropout_prob=0.005, vertical_center_deg=-10.0),
     "hdl64": LidarModel("hdl64", 2000, 64, 360.0, 26.9, 0.9, 80.0, range_noise_std_m=0.02,
                         range_noise="gaussian", rate_hz=10.0, dropout_prob=0.005, vertical_center_deg=-11.45),
+    # Hesai Pandar40-like automotive LIDAR (data sheet): 40 beams from +7 to -16 deg, 1 deg apart
+    # except between -6 and +2 deg, where they are 1/3 deg apart (dense about the horizon, where a
+    # roof-mounted sensor sees people's bodies at 5-40 m); 0.2 deg azimuth at 10 Hz, +-2 cm.
+    "pandar40": LidarModel.from_beams(
+        "pandar40", [7.0, 6.0, 5.0, 4.0, 3.0, 2.0] + [round(float(e), 4) + 0.0 for e in np.linspace(5 / 3, -6.0, 24)]
+        + [-7.0 - k for k in range(10)], 1800, 360.0, 0.3, 200.0, range_noise_std_m=0.02,
+        range_noise="gaussian", rate_hz=10.0, dropout_prob=0.005),
     # Structured-light / ToF depth camera (Kinect-class): 640 x 480 over 58 x 45 deg, 0.5-6 m. Far
     # denser than anything the detector is trained on; ``pedcal detect --sensor depth-camera``
     # thins it to the training density first.
@@ -176,7 +206,8 @@ class LidarFrame:
     -2 ceiling); ``mount_index``: (N,) int16, which mount saw the point; ``ray_index``: (N,)
     int32 ray within that mount (row-major: elevation row · n_horizontal + azimuth column);
     ``objects``: ground truth per scene object (``Scene.truth()`` entries, positions in the base
-    frame, plus ``visible_points``).
+    frame, plus ``visible_points``); ``sensor_positions_base``: (M, 3) where each mount's sensor sits
+    in the base frame (its height above the floor is ``[:, 2]``).
     """
 
     points: np.ndarray
@@ -185,6 +216,12 @@ class LidarFrame:
     ray_index: np.ndarray
     objects: list[dict] = field(default_factory=list)
     stamp_s: float = 0.0
+    sensor_positions_base: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @property
+    def sensor_height_m(self) -> float:
+        """Mean height of the sensors above the floor (m)."""
+        return float(self.sensor_positions_base[:, 2].mean())
 
     @property
     def xyz(self) -> np.ndarray:
@@ -278,4 +315,5 @@ def render(scene: Scene, lidar: LidarModel | str, mounts, rng: np.random.Generat
                  vx_mps=float(v_base[0]), vy_mps=float(v_base[1]), visible_points=int(counts.get(o.id, 0)))
         objects.append(t)
     return LidarFrame(points=points, object_id=object_id, mount_index=(idx // n).astype(np.int16),
-                      ray_index=(idx % n).astype(np.int32), objects=objects, stamp_s=stamp_s)
+                      ray_index=(idx % n).astype(np.int32), objects=objects, stamp_s=stamp_s,
+                      sensor_positions_base=np.stack([m.position_base for m in mounts]))

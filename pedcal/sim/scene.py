@@ -22,6 +22,12 @@ import open3d as o3d
 from pedcal.errors import PedcalInputError
 
 PERSON_POSES = ("standing", "walking", "carrying", "walking_carrying")
+GARMENTS = ("none", "skirt", "coat")  # what hangs over the legs (person_mesh)
+# random_person's clothing: (garment, probability), and the share of people with a backpack
+GARMENT_SHARES = (("none", 0.65), ("skirt", 0.15), ("coat", 0.2))
+BACKPACK_SHARE = 0.25
+PUSHING_SHARE = 0.08  # people pushing a pram or a trolley
+PUSH_HANDLE_HEIGHT = 0.58  # of the person's height
 CLUTTER_KINDS = (
     "wall", "pillar", "pole", "chair", "potted_plant", "sign", "trolley", "box", "coat_stand",
 )
@@ -32,12 +38,14 @@ CLUTTER_WEIGHTS = {
 }
 # Street clutter for the spinning LIDARs' outdoor scenes (``random_scene(clutter_weights=...)``):
 # trunks and poles are the thin vertical objects a sparse scan confuses with a person.
+# Cabinets (utility boxes) and panels (freestanding boards, A-frame signs) are the flat-faced
+# person-sized blocks of a street.
 OUTDOOR_CLUTTER_KINDS = (
-    "tree", "street_pole", "bollard", "bush", "car", "cyclist", "kerb", "wall", "sign", "pole",
+    "tree", "street_pole", "bollard", "bush", "car", "cyclist", "kerb", "wall", "sign", "pole", "cabinet", "panel",
 )
 OUTDOOR_CLUTTER_WEIGHTS = {
     "tree": 2.0, "street_pole": 2.0, "bollard": 1.5, "bush": 1.5, "car": 1.5, "cyclist": 1.0, "kerb": 0.5,
-    "wall": 0.5, "sign": 1.0, "pole": 1.0,
+    "wall": 0.5, "sign": 1.0, "pole": 1.0, "cabinet": 1.0, "panel": 1.0,
 }
 CLUTTER_IN_VIEW = 0.75  # share of non-wall clutter random_scene puts inside the sensors' cone
 FLOOR_ID = -1
@@ -138,6 +146,17 @@ def cylinder(p0, p1, radius_m: float, reflectance: float, resolution: int = 8) -
     return _mesh("cylinder", (radius_m, radius_m, length), R, (p0 + p1) / 2.0, reflectance, resolution)
 
 
+def frustum(z0_m: float, z1_m: float, radii0_m, radii1_m, reflectance: float, resolution: int = 12,
+            center_xy=(0.0, 0.0)) -> Mesh:
+    """Vertical elliptic frustum (a skirt, a coat's hem): horizontal radii (x, y) ``radii0_m`` at
+    height z0_m, ``radii1_m`` at z1_m, between them linear; an open3d cylinder scaled per height."""
+    v, t = _unit_primitive("cylinder", resolution)
+    s = (v[:, 2:3] + 0.5)  # 0 at the bottom cap, 1 at the top
+    r = (1.0 - s) * np.asarray(radii0_m, dtype=float) + s * np.asarray(radii1_m, dtype=float)
+    verts = np.column_stack([v[:, :2] * r + np.asarray(center_xy, dtype=float), z0_m + s[:, 0] * (z1_m - z0_m)])
+    return Mesh(verts, t.copy(), np.full(len(t), reflectance, dtype=np.float32))
+
+
 def floor_mesh(half_extent_m: float, z_m: float, reflectance: float) -> Mesh:
     """A square horizontal plane (two triangles) centred on the origin."""
     e = half_extent_m
@@ -150,9 +169,17 @@ def floor_mesh(half_extent_m: float, z_m: float, reflectance: float) -> Mesh:
 # --------------------------------------------------------------------------------------------
 
 
+def push_reach_m(height_m: float) -> float:
+    """How far in front of a person's centre their hands hold a pram's handle (PUSH_HANDLE_HEIGHT of
+    the height, the arms (0.36 h from the shoulders at 0.77 h) straight)."""
+    arm_len, drop = 0.36 * height_m, (0.77 - PUSH_HANDLE_HEIGHT) * height_m
+    return float(np.sqrt(arm_len**2 - drop**2))
+
+
 def person_mesh(height_m: float, width_m: float, depth_m: float, pose: str = "standing",
                 reflectance=0.5, rng: np.random.Generator | None = None, *,
-                gait_phase: float | None = None) -> Mesh:
+                gait_phase: float | None = None, garment: str = "none", backpack: bool = False,
+                pushing: bool = False) -> Mesh:
     """Mesh of a person in its local frame: feet on z = 0, facing +x, top of the head at height_m.
 
     ``width_m`` is the shoulder width (y), ``depth_m`` the chest depth (x).
@@ -160,9 +187,17 @@ def person_mesh(height_m: float, width_m: float, depth_m: float, pose: str = "st
     walking_carrying. ``reflectance``: one value for the clothes, or (upper, lower) clothing;
     the head (skin/hair) gets its own value drawn from ``rng``. ``gait_phase`` in [-1, 1] sets
     the stride (+1: right leg forward); drawn from ``rng`` for walking poses when None.
+    ``garment``: "skirt" (a flared frustum from the waist to between knee and calf) or "coat" (from
+    the shoulders, flaring to its hem), over the legs, so the outline widens downwards instead of
+    parting into two legs; ``backpack`` puts a box on the back. Their sizes come from ``rng``
+    after the head and bag, so a plain person's mesh is the same with or without these options.
+    ``pushing`` holds the arms forward to the handle of a pram or trolley (``pram_in_front``, a
+    separate object) at PUSH_HANDLE_HEIGHT of the height.
     """
     if pose not in PERSON_POSES:
         raise PedcalInputError(f"person pose must be one of {PERSON_POSES}, got {pose!r}", column="pose")
+    if garment not in GARMENTS:
+        raise PedcalInputError(f"garment must be one of {GARMENTS}, got {garment!r}", column="garment")
     if not (0.5 <= height_m <= 2.5 and 0.1 <= width_m <= 1.0 and 0.05 <= depth_m <= 1.0):
         raise PedcalInputError(
             f"person size out of range: height {height_m} m (0.5-2.5), width {width_m} m (0.1-1.0), "
@@ -191,12 +226,16 @@ def person_mesh(height_m: float, width_m: float, depth_m: float, pose: str = "st
     # Shoulders: a flattened ellipsoid spanning the full shoulder width.
     parts.append(ellipsoid((0.0, 0.0, shoulder_z - 0.04), (0.42 * depth_m, width_m / 2.0 - arm_r, 0.06), upper))
 
-    # Arms hang from the shoulders and swing opposite to the legs when walking.
+    # Arms hang from the shoulders and swing opposite to the legs when walking; pushing, they reach
+    # forward to a handle (``push_reach_m``).
     arm_len = 0.36 * h
     arm_swing = 0.35 * gait_phase if walking else 0.0
+    reach = push_reach_m(h)
     for side, sign in ((1.0, 1.0), (-1.0, -1.0)):
         top = np.array([0.0, side * (width_m / 2.0 - arm_r), shoulder_z - 0.05])
         angle = -sign * arm_swing  # right arm (y < 0) forward when the left leg is forward
+        if pushing:
+            angle = -np.arcsin(reach / arm_len)
         direction = _rot_y(angle) @ np.array([0.0, 0.0, -1.0])
         parts.append(cylinder(top, top + arm_len * direction, arm_r, upper, 6))
 
@@ -216,6 +255,20 @@ def person_mesh(height_m: float, width_m: float, depth_m: float, pose: str = "st
         hand_z = shoulder_z - 0.05 - arm_len
         centre = (0.0, -(width_m / 2.0 + bag[1] / 2.0 + 0.01), max(hand_z - bag[2] / 2.0 + 0.05, bag[2] / 2.0))
         parts.append(box(centre, (bag[0], bag[1], bag[2]), float(rng.uniform(0.1, 0.9))))
+    if garment == "skirt":
+        top = np.array([0.5 * depth_m, torso_half_w + 0.01])
+        flare = rng.uniform(1.2, 1.9)
+        hem_z = rng.uniform(0.2, 0.4) * h
+        parts.append(frustum(hem_z, 0.56 * h, np.minimum(top * flare, 0.35), top, lower, 12))
+    elif garment == "coat":
+        top = np.array([0.5 * depth_m + 0.02, torso_half_w + 0.02])
+        flare = np.array([rng.uniform(1.1, 1.6), rng.uniform(0.95, 1.25)])
+        hem_z = rng.uniform(0.25, 0.45) * h
+        parts.append(frustum(hem_z, 0.8 * h, np.minimum(top * flare, 0.35), top, upper, 12))
+    if backpack:
+        d, w, bh = rng.uniform(0.12, 0.2), rng.uniform(0.25, 0.35), rng.uniform(0.3, 0.45)
+        parts.append(box((-(0.5 * depth_m + 0.5 * d - 0.03), 0.0, 0.7 * h - 0.02), (d, w, bh),
+                         float(rng.uniform(0.05, 0.9))))
     mesh = Mesh.concat(parts)
     mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)  # tilted leg caps stop at the floor
     return mesh
@@ -325,16 +378,28 @@ def clutter_mesh(kind: str, rng: np.random.Generator, *, ceiling_height_m: float
             parts.append(ellipsoid((0.17 * np.cos(a), 0.17 * np.sin(a), height - 0.12 - clen / 2),
                                    (0.12, 0.22, clen / 2), float(u(0.1, 0.9))))
         return Mesh.concat(parts), dict(width_m=0.6, depth_m=0.6, radius_m=0.4)
-    if kind == "tree":  # trunk, sometimes a low fork, and a crown of a few blobs
+    if kind == "tree":  # a trunk (upright or leaning), a few branches and a crown of a few blobs
         trunk_r, crown_base = u(0.06, 0.25), u(1.6, 3.0)
-        parts = [cylinder((0, 0, 0), (0, 0, crown_base + 0.3), trunk_r, refl * 0.6, 10)]
+        lean_dir = u(0, 2 * np.pi)
+        lean = u(0.0, 0.12) * np.array([np.cos(lean_dir), np.sin(lean_dir)])  # rad from vertical
+        top = np.array([*(lean * (crown_base + 0.3)), crown_base + 0.3])
+        parts = [cylinder((0, 0, 0), top, trunk_r, refl * 0.6, 10)]
+        for _ in range(int(rng.integers(0, 4))):  # branches leaving the trunk below the crown
+            z0 = u(0.9, crown_base)
+            start = np.array([*(lean * z0), z0])
+            b = u(0, 2 * np.pi)
+            length, rise = u(0.4, 1.4), u(0.2, 1.2)
+            end = start + length * np.array([np.cos(b), np.sin(b), rise]) / np.hypot(1.0, rise)
+            parts.append(cylinder(start, end, u(0.015, 0.5 * trunk_r + 0.01), refl * 0.6, 6))
         crown_r = u(0.8, 2.2)
         for _ in range(int(rng.integers(1, 4))):
             a, off = u(0, 2 * np.pi), u(0.0, 0.4) * crown_r
-            parts.append(ellipsoid((off * np.cos(a), off * np.sin(a), crown_base + crown_r * u(0.6, 1.0)),
+            parts.append(ellipsoid((top[0] + off * np.cos(a), top[1] + off * np.sin(a), crown_base + crown_r * u(0.6, 1.0)),
                                    (crown_r * u(0.7, 1.0), crown_r * u(0.7, 1.0), crown_r * u(0.6, 1.0)),
                                    float(u(0.1, 0.5)), 10))
-        return Mesh.concat(parts), dict(width_m=2 * trunk_r, depth_m=2 * trunk_r, radius_m=max(trunk_r, 0.3))
+        mesh = Mesh.concat(parts)
+        mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)  # a leaning trunk's cap stops at the floor
+        return mesh, dict(width_m=2 * trunk_r, depth_m=2 * trunk_r, radius_m=max(trunk_r, 0.3))
     if kind == "street_pole":  # lamp post, traffic-light or sign pole: thin, often above 2 m
         radius, height = u(0.04, 0.15), u(1.2, 8.0)
         parts = [cylinder((0, 0, 0), (0, 0, height), radius, refl, 10)]
@@ -385,6 +450,27 @@ def clutter_mesh(kind: str, rng: np.random.Generator, *, ceiling_height_m: float
         for dy in (-1, 1):  # legs to the pedals
             parts.append(cylinder((-0.1, dy * 0.1, saddle), (0.05, dy * 0.12, wheel), 0.06, float(u(0.05, 0.9)), 6))
         return Mesh.concat(parts), dict(width_m=0.6, depth_m=base + 2 * wheel, radius_m=(base + 2 * wheel) / 2)
+    if kind == "cabinet":  # utility or electrical box, sometimes on a plinth
+        w, d, h = u(0.35, 1.0), u(0.2, 0.6), u(0.8, 1.7)
+        plinth = u(0.05, 0.3) if rng.random() < 0.4 else 0.0
+        parts = [box((0, 0, plinth + h / 2), (d, w, h), refl)]
+        if plinth:
+            parts.append(box((0, 0, plinth / 2), (0.9 * d, 0.9 * w, plinth), refl * 0.5))
+        return Mesh.concat(parts), dict(width_m=w, depth_m=d, radius_m=np.hypot(w, d) / 2)
+    if kind == "panel":  # a freestanding board on two legs, or an A-frame sign
+        w, bottom, top = u(0.35, 1.0), u(0.05, 0.6), u(1.0, 1.9)
+        if rng.random() < 0.5:
+            parts = [box((0, 0, (bottom + top) / 2), (u(0.02, 0.06), w, top - bottom), refl)]
+            for dy in (-1, 1):
+                parts.append(cylinder((0, dy * 0.45 * w, 0), (0, dy * 0.45 * w, bottom + 0.05), 0.02, refl, 6))
+            return Mesh.concat(parts), dict(width_m=w, depth_m=0.1, radius_m=w / 2)
+        h, spread = u(0.8, 1.3), u(0.15, 0.35)  # A-frame: two boards leaning together at the top
+        tilt = np.arctan2(spread, h)
+        parts = [_mesh("box", (0.02, w, h / np.cos(tilt)), _rot_y(sx * tilt), (sx * spread / 2, 0, h / 2),
+                       refl) for sx in (-1, 1)]
+        mesh = Mesh.concat(parts)
+        mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)
+        return mesh, dict(width_m=w, depth_m=2 * spread, radius_m=np.hypot(w, 2 * spread) / 2)
     if kind == "kerb":  # a low step along local x (as walls, a chain of collision circles)
         length, h = u(3.0, 12.0), u(0.1, 0.25)
         parts = [box((0, 0, h / 2), (length, 0.25, h), refl)]
@@ -443,8 +529,14 @@ class SceneObject:
 
 def make_person(height_m: float, width_m: float, depth_m: float, pose: str, reflectance,
                 rng: np.random.Generator, *, x_m: float = 0.0, y_m: float = 0.0, yaw_rad: float = 0.0,
-                velocity_mps=(0.0, 0.0), gait_phase: float | None = None) -> SceneObject:
-    """A person SceneObject (mesh from ``person_mesh``) standing at (x, y) facing yaw."""
+                velocity_mps=(0.0, 0.0), gait_phase: float | None = None, garment: str = "none",
+                backpack: bool = False, pushing: bool = False, random_clothing: bool = False) -> SceneObject:
+    """A person SceneObject (mesh from ``person_mesh``) standing at (x, y) facing yaw.
+
+    ``random_clothing`` draws the garment (GARMENT_SHARES), backpack (BACKPACK_SHARE) and a pram or
+    trolley to push (PUSHING_SHARE) from the person's own mesh seed instead of taking ``garment``,
+    ``backpack`` and ``pushing``: ``rng`` gives exactly the draws it gives without them, so scenes
+    keep their layout (``random_scene`` then puts a pusher's pram in front where there is room)."""
     walking = pose in ("walking", "walking_carrying")
     gait_angle_rad = float(rng.uniform(-np.pi, np.pi)) if walking else 0.0
     if gait_phase is None:
@@ -453,14 +545,54 @@ def make_person(height_m: float, width_m: float, depth_m: float, pose: str, refl
         gait_angle_rad = float(np.arcsin(np.clip(gait_phase, -1.0, 1.0)))
     # The head and bag are drawn from their own seed, so re-posing the person keeps them.
     mesh_seed = int(rng.integers(2**62))
+    if random_clothing:
+        own = np.random.default_rng([mesh_seed, 1])
+        names, shares = zip(*GARMENT_SHARES, strict=True)
+        garment = str(own.choice(names, p=shares))
+        backpack = bool(own.random() < BACKPACK_SHARE)
+        pushing = bool(own.random() < PUSHING_SHARE)
     mesh = person_mesh(height_m, width_m, depth_m, pose, reflectance, np.random.default_rng(mesh_seed),
-                       gait_phase=gait_phase)
+                       gait_phase=gait_phase, garment=garment, backpack=backpack, pushing=pushing)
+    radius = max(width_m, depth_m) / 2 + 0.1
     refl = float(reflectance) if np.isscalar(reflectance) else float(np.mean(reflectance))
     return SceneObject(kind="person", is_person=True, mesh_local=mesh, x_m=x_m, y_m=y_m, yaw_rad=yaw_rad,
-                       width_m=width_m, depth_m=depth_m, radius_m=max(width_m, depth_m) / 2 + 0.1,
+                       width_m=width_m, depth_m=depth_m, radius_m=radius,
                        reflectance=refl, velocity_mps=tuple(velocity_mps), pose=pose,
                        params=dict(height_m=height_m, reflectance=reflectance, gait_phase=gait_phase,
-                                   gait_angle_rad=gait_angle_rad, mesh_seed=mesh_seed))
+                                   gait_angle_rad=gait_angle_rad, mesh_seed=mesh_seed, garment=garment,
+                                   backpack=backpack, pushing=pushing))
+
+
+def pram_in_front(person: SceneObject) -> SceneObject:
+    """The pram or trolley a pushing person (``params["pushing"]``) holds: its handle at the
+    person's hands (``push_reach_m`` in front, PUSH_HANDLE_HEIGHT of the height), its body ahead,
+    heading and velocity the person's. Its size comes from the person's own seed."""
+    rng = np.random.default_rng([person.params["mesh_seed"], 2])
+    u = rng.uniform
+    refl = float(u(0.05, 0.9))
+    handle_z, grip_y = PUSH_HANDLE_HEIGHT * person.height_m, u(0.2, 0.28)
+    length, w = u(0.55, 1.0), u(0.45, 0.6)
+    bottom, top_z = u(0.2, 0.35), u(0.7, 0.95)
+    x0 = 0.12  # the body starts a little beyond the handle
+    parts = [cylinder((0.0, -grip_y - 0.05, handle_z), (0.0, grip_y + 0.05, handle_z), 0.015, refl, 6)]
+    for dy in (-1, 1):  # struts from the handle down to the body
+        parts.append(cylinder((0.0, dy * grip_y, handle_z), (x0, dy * grip_y, top_z - 0.05), 0.012, refl, 6))
+    if rng.random() < 0.5:  # a pram: a rounded bassinet
+        parts.append(ellipsoid((x0 + length / 2, 0.0, (bottom + top_z) / 2),
+                               (length / 2, w / 2, (top_z - bottom) / 2), refl, 10))
+    else:  # a trolley: a basket
+        parts.append(box((x0 + length / 2, 0.0, (bottom + top_z) / 2), (length, w, top_z - bottom), refl))
+    for dx in (0.1, length - 0.1):
+        for dy in (-1, 1):
+            parts.append(cylinder((x0 + dx, dy * w / 2, 0.0), (x0 + dx, dy * w / 2, bottom), 0.015, refl, 6))
+    mesh = Mesh.concat(parts)
+    centre = x0 + length / 2
+    mesh.vertices[:, 0] -= centre  # the object's origin at the body's centre
+    ahead = push_reach_m(person.height_m) + centre
+    c, s = np.cos(person.yaw_rad), np.sin(person.yaw_rad)
+    return SceneObject(kind="pram", is_person=False, mesh_local=mesh, x_m=person.x_m + ahead * c,
+                       y_m=person.y_m + ahead * s, yaw_rad=person.yaw_rad, width_m=w, depth_m=length + x0,
+                       radius_m=(length + x0) / 2 + 0.05, reflectance=refl, velocity_mps=person.velocity_mps)
 
 
 def make_clutter(kind: str, rng: np.random.Generator, *, x_m: float = 0.0, y_m: float = 0.0,
@@ -535,7 +667,8 @@ class Scene:
                 p["gait_angle_rad"] = float(p["gait_angle_rad"] + 2 * np.pi * stride_hz * dt_s)
                 p["gait_phase"] = float(np.sin(p["gait_angle_rad"]))
                 o.mesh_local = person_mesh(p["height_m"], o.width_m, o.depth_m, o.pose, p["reflectance"],
-                                           np.random.default_rng(p["mesh_seed"]), gait_phase=p["gait_phase"])
+                                           np.random.default_rng(p["mesh_seed"]), gait_phase=p["gait_phase"],
+                                           garment=p["garment"], backpack=p["backpack"], pushing=p["pushing"])
         self._cache = None
 
     @property
@@ -615,7 +748,8 @@ def _occludes(front: SceneObject, back: SceneObject) -> bool:
 
 
 def random_person(rng: np.random.Generator, *, static: bool) -> SceneObject:
-    """A person of random height (1.45-1.95 m), build, clothing and pose (not yet placed)."""
+    """A person of random height (1.45-1.95 m), build, clothing (colours, a skirt or coat, a
+    backpack) and pose (not yet placed)."""
     height = rng.uniform(1.45, 1.95)
     width = rng.uniform(0.35, 0.55)
     depth = rng.uniform(0.2, 0.35)
@@ -625,7 +759,7 @@ def random_person(rng: np.random.Generator, *, static: bool) -> SceneObject:
     else:
         pose = "walking_carrying" if carrying else "walking"
     reflectance = (float(rng.uniform(0.05, 0.95)), float(rng.uniform(0.05, 0.95)))
-    return make_person(height, width, depth, pose, reflectance, rng)
+    return make_person(height, width, depth, pose, reflectance, rng, random_clothing=True)
 
 
 def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(3, 10),
@@ -641,7 +775,9 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
     ``max_person_range_m`` (default x_max) from the origin; three quarters of the other clutter
     in that cone too, the rest and the walls anywhere in ``area`` (walls may extend beyond it).
     No footprints interpenetrate. A fraction ``static_fraction`` of the people stand still, the
-    others walk along their heading at a speed from ``walking_speed_mps``. With
+    others walk along their heading at a speed from ``walking_speed_mps``; a person who pushes
+    (``make_person``'s random clothing) gets a pram or trolley in front (``pram_in_front``) where it
+    fits. With
     ``allow_occlusion=False`` nothing nearer overlaps a person in bearing from the origin.
     Objects that cannot be placed after many draws are left out with a warning.
     ``clutter_weights`` (kind -> relative frequency) replaces the indoor mix ``CLUTTER_WEIGHTS``,
@@ -714,6 +850,11 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
         if not static:
             speed = rng.uniform(*walking_speed_mps)
             person.velocity_mps = (float(speed * np.cos(person.yaw_rad)), float(speed * np.sin(person.yaw_rad)))
+        if person.params.get("pushing"):
+            pram = pram_in_front(person)
+            if _clear(pram.collision_circles(), placed[:-1], margin_m):  # (not against its own pusher)
+                placed.append(pram.collision_circles())
+                scene.add(pram)
     for kind in rest:
         if not place(make_clutter(kind, rng, ceiling_height_m=ceiling), False):
             dropped.append(kind)
