@@ -135,6 +135,24 @@ def robot_rows(log: Log) -> tuple[np.ndarray, str]:
     return associate_robot(log).is_robot, "association"
 
 
+def amcl_run_mean_error_m(log: Log) -> np.ndarray | None:
+    """AMCL's position error averaged over the log's run (world x, y, m), from truth_robot.csv
+    (None without it): the error every calibration anchored to AMCL shares, which no
+    calibration from this log can remove."""
+    if log.truth_robot is None or log.robot is None or not len(log.robot):
+        return None
+    t = log.robot["t"].to_numpy(float)
+    truth = robot_truth_xy(log, t)
+    return (log.robot[["x", "y"]].to_numpy(float) - truth).mean(axis=0)
+
+
+def robot_truth_xy(log: Log, t: np.ndarray) -> np.ndarray:
+    """The robot base's true (x, y) at times ``t`` (linear in truth_robot.csv)."""
+    from pedcal.calib.common import interpolate_pose2
+
+    return interpolate_pose2(log.truth_robot, t)[:, :2]
+
+
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-dome correction the extrinsics file carries."""

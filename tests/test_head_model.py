@@ -284,7 +284,8 @@ def test_a_head_point_curving_with_the_viewing_angle_is_estimated_when_asked():
         res = calibrate_factorgraph(cen.calib, head_curvature="auto")
         dome = simulate_logs("paper", seed=4, head_point="dome", head_radius_m=0.07, amcl_error="white")
         res_dome = calibrate_factorgraph(dome.calib, head_curvature="auto")
-        off = calibrate_factorgraph(cen.calib)
+        off = calibrate_factorgraph(cen.calib, head_curvature="off")
+        widen = calibrate_factorgraph(cen.calib)                     # the default: named, carried in sigma
     head = res.diagnostics.head_model
     assert head.curvature_m > 3 * head.sigma_curvature_m > 0.0
     assert res.network.extra["head_model"]["curvature_m"] == pytest.approx(head.curvature_m, abs=1e-5)
@@ -292,4 +293,14 @@ def test_a_head_point_curving_with_the_viewing_angle_is_estimated_when_asked():
     # the head points the sensors saw, the tracker's curve taken out, land closer to the truth
     assert (evaluate(cen.eval, res.network).head_tracking_rms_mm
             < evaluate(cen.eval, off.network).head_tracking_rms_mm)
+    # by default the misfit is named and the sigma carries it; the estimate is off's
+    assert "curves with the viewing angle" in widen.network.extra["model_mismatch"]["head_model"]
+    assert "model_mismatch" not in off.network.extra or "head_model" not in off.network.extra["model_mismatch"]
+    grow = []
+    for s in off.network:
+        assert np.allclose(widen.network[s.id].position_m, s.position_m, atol=1e-6)
+        wide, narrow = np.asarray(widen.network[s.id].sigma_position_m), np.asarray(s.sigma_position_m)
+        assert np.all(wide >= narrow - 1e-9)
+        grow.append(np.linalg.norm(wide[:2]) / np.linalg.norm(narrow[:2]))
+    assert np.mean(grow) > 1.5
 

@@ -111,3 +111,15 @@ def test_gtsam_orders_a_linearized_graphs_columns_by_key():
     x = np.linalg.lstsq(A.toarray(), b, rcond=None)[0]
     assert np.allclose(x, [0.5, 0.0, 1.0, 1.0, 2.0, 3.0])
     assert np.allclose(np.asarray(gfg.optimize().vector(cols.keys)).ravel(), x)
+
+
+def test_joint_marginal_covariance_equals_gtsams(dome_paper):
+    from pedcal.calib.graph import H, S
+    from pedcal.calib.profile import joint_marginal_covariance
+
+    _, prob, parts, result = dome_paper
+    fg = parts.graph()
+    keys = [S(2), H(0), S(0)]
+    ours = joint_marginal_covariance(fg, result, keys)
+    theirs = gtsam.Marginals(fg, result).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+    assert np.allclose(ours, theirs, rtol=1e-6, atol=1e-12 * np.abs(theirs).max())

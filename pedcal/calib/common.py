@@ -100,6 +100,7 @@ class ModelMismatch:
     threshold: float = 1.5
     sensors: list[str] = field(default_factory=list)
     misfit: str = ""
+    head_model_misfit: str = ""     # a systematic misfit of the head-point model, in words
 
     def to_dict(self) -> dict:
         return _plain(asdict(self))

@@ -1,13 +1,17 @@
-"""pedcal's estimator, the batch solve: the factor graph of :mod:`pedcal.calib.graph` solved once
-over the whole log, with what the graph does not hold as factors estimated around it:
+"""pedcal's estimator, the batch solve: the factor graph of :mod:`pedcal.calib.graph` solved over
+the whole log, with what the graph does not hold as variables estimated around it:
 
-- the head point's shifts toward the sensor (along the ray: a range offset of every
-  observation; horizontally) by their profile likelihood, their covariance carried into the
-  sensors' (:func:`_estimate_head_shifts`);
-- the residuals checked against the noise model, per sensor, the sigma widened where they
-  exceed it (:func:`model_check`);
-- the joint covariance of all sensors' positions and the head model, written to the
-  calibrated YAML (:func:`_posterior`).
+1. a first solve (a few Levenberg-Marquardt iterations) under the assumed AMCL model and the
+   sensors' noise estimated from consecutive observations;
+2. the head point's shifts toward the sensor (along the ray, horizontally) by their profile on
+   the linearized graph (:mod:`pedcal.calib.profile`, :func:`_estimate_head_shifts`), roughly;
+3. AMCL's error model (white and wandering std, correlation time, jumps left out) from the
+   residuals of AMCL against what each sensor saw (:mod:`pedcal.calib.amcl_model`); shared
+   sightings the solution contradicts dropped; the graph rebuilt and solved again;
+4. the shifts again, to a tenth of their sigma, their covariance carried into the sensors';
+5. the residuals checked against the noise model, per sensor, the sigma widened where they
+   exceed it (:func:`model_check`), and the joint covariance of all sensors' positions and the
+   head model written to the calibrated YAML (:func:`_posterior`).
 
 The graph's variables and factors are described in :mod:`pedcal.calib.graph`, whose names are
 re-exported here.
@@ -54,7 +58,14 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
-from pedcal.calib.profile import Columns, Nuisance, ProfileStep, profile_step, retract_flat
+from pedcal.calib.profile import (
+    Columns,
+    Nuisance,
+    ProfileStep,
+    joint_marginal_covariance,
+    profile_step,
+    retract_flat,
+)
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
 from pedcal.model import Log, SensorNetwork
@@ -74,8 +85,8 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         setattr(recipe, k, v)
     if not (recipe.robot or recipe.people):
         raise PedcalInputError("the graph recipe uses neither the robot nor people: nothing observes the sensors")
-    if recipe.head_curvature not in ("off", "on", "auto"):
-        raise PedcalInputError(f"head_curvature must be off, on or auto, got {recipe.head_curvature!r}",
+    if recipe.head_curvature not in ("off", "on", "auto", "widen"):
+        raise PedcalInputError(f"head_curvature must be off, on, auto or widen, got {recipe.head_curvature!r}",
                                column="head_curvature")
     if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
         raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
@@ -265,6 +276,9 @@ class _HeadShifts:
     sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(shift), per metre
     solves: int
     names: list = field(default_factory=list)
+    # a curvature the data show but the recipe does not estimate: (would-be value m, the
+    # sensors' (and h(0)'s) sensitivity to it, chi^2)
+    unmodelled: tuple | None = None
 
 
 def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
@@ -287,8 +301,9 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
-    select = curvature and rec.head_curvature == "auto"
-    if curvature and rec.head_curvature in ("on", "auto") and rec.head_curvature_sigma_m > 0.0:
+    select = curvature and rec.head_curvature in ("auto", "widen")
+    unmodelled = None
+    if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
         nuis.append(Nuisance("curvature_m", 0.0, rec.head_curvature_sigma_m, rec.head_ray_shift_step_m))
     fixed = gtsam.NonlinearFactorGraph()
     for name in BLOCKS:
@@ -306,8 +321,14 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors)
         if select and "curvature_m" in names:
             select = False
-            step, nuis, chi2 = _select_curvature(step, nuis, rec.head_curvature_select_chi2)
-            _log(progress, f"head point curvature: chi^2 {chi2:.1f} -> {'estimated' if len(nuis) == len(names) else 'left out'}")
+            full = step
+            step, nuis, chi2 = _select_curvature(step, nuis, rec.head_curvature_select_chi2,
+                                                 estimate=rec.head_curvature == "auto")
+            kept = len(nuis) == len(names)
+            if not kept and chi2 >= rec.head_curvature_select_chi2:
+                unmodelled = _unmodelled_curvature(full, chi2)
+            _log(progress, f"head point curvature: chi^2 {chi2:.1f} -> "
+                           + ("estimated" if kept else "its share widens the sigma" if unmodelled else "left out"))
             names = [n.name for n in nuis]
             theta = np.array([getattr(prob, n) for n in names], float)
         theta = theta + step.dtheta
@@ -326,19 +347,33 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
                       "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
     keys = [S(i) for i in range(len(prob.sensor_ids))] + ([H(0)] if result.exists(H(0)) else [])
     sens = step.Z[cols.index(keys)]
-    return _HeadShifts(parts.graph(), result, step.covariance, sens, n_step, names=names)
+    return _HeadShifts(parts.graph(), result, step.covariance, sens, n_step, names=names,
+                       unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
+                                                                    unmodelled[2]))
 
 
-def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float):
+def _unmodelled_curvature(step, chi2: float):
+    """What a head point curving with the viewing angle that the graph does not estimate would
+    move: (the curvature the profile would give it, m, the variables' sensitivity to it (n,),
+    chi^2), from a profile step that held it at 0."""
+    H = step.hessian
+    g = -H @ step.dtheta
+    k = len(g) - 1
+    cov = np.linalg.inv(H)
+    dc = float(-(cov @ g)[k])            # its Newton step with the others re-optimized
+    return dc, step.Z[:, k], chi2
+
+
+def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float, estimate: bool = True):
     """The profile step with the head point's curvature (the last nuisance, at 0) kept when its
     chi^2 (the profile's decrease from estimating it, the others re-optimized) reaches
-    ``threshold_chi2``, else the step of the others alone (its rows and columns dropped).
-    Returns (step, nuisances, chi^2)."""
+    ``threshold_chi2`` and ``estimate``, else the step of the others alone (its rows and
+    columns dropped). Returns (step, nuisances, chi^2)."""
     H = step.hessian
     g = -H @ step.dtheta
     o = np.arange(len(nuis) - 1)
     chi2 = float(g @ np.linalg.solve(H, g) - g[o] @ np.linalg.solve(H[np.ix_(o, o)], g[o]))
-    if chi2 >= threshold_chi2:
+    if estimate and chi2 >= threshold_chi2:
         return step, nuis, chi2
     reduced = ProfileStep(dtheta=-np.linalg.solve(H[np.ix_(o, o)], g[o]), hessian=H[np.ix_(o, o)], z0=step.z0,
                           Z=step.Z[:, o], cols=step.cols)
@@ -406,13 +441,22 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
     n = len(prob.sensor_ids)
     keys = [S(i) for i in range(n)]
     has_h = result.exists(H(0))
-    marginals = gtsam.Marginals(fg, result)
-    kv = gtsam.KeyVector(keys + ([H(0)] if has_h else []))
-    C = marginals.jointMarginalCovariance(kv).fullMatrix()
+    C = joint_marginal_covariance(fg, result, keys + ([H(0)] if has_h else []))
     if shifts is not None:
         C = C + (shifts.sensitivity @ shifts.cov @ shifts.sensitivity.T)[:len(C), :len(C)]
+        if shifts.unmodelled is not None:
+            # the model does not fit: the sensors widened by the move the misfit's own fix would make
+            dc, sens_c, _ = shifts.unmodelled
+            C = C + dc ** 2 * np.outer(sens_c, sens_c)[:len(C), :len(C)]
     C_s = C[:6 * n, :6 * n].copy()
     check = model_check(prob, result)
+    if shifts is not None and shifts.unmodelled is not None:
+        dc, _, chi2 = shifts.unmodelled
+        check.head_model_misfit = (f"the head point's height curves with the viewing angle (chi^2 {chi2:.0f}, "
+                                   f"{1000 * dc:+.0f} mm x cos^2(elevation)), which the head model leaves out; the "
+                                   "sensors' sigma carries what estimating it would move them by "
+                                   "(head_curvature = \"auto\" estimates it)")
+        check.misfit = "; ".join(m for m in (check.misfit, check.head_model_misfit) if m)
     scale = np.ones(6 * n)
     for i, sid in enumerate(prob.sensor_ids):
         scale[6 * i:6 * i + 6] = np.sqrt(max(1.0, check.variance_ratio.get(sid, 1.0)))

@@ -20,19 +20,22 @@ Variables
   every AMCL error node's height is tied to it.
 
 Factors (all GTSAM built-in C++ factors)
-- AMCL: AMCL reports ``Z_j = E_j · X(t_j)`` where E_j is a slowly wandering world-frame error, a
-  Gauss-Markov process (AMCL's particle cloud drifts over tens of seconds; it is not white).
-  With ``F_j = E_j^{-1}`` as the variable ``a(j)``, ``BetweenFactorPose3(a(j), x(k), Z_j)`` has
-  residual ``Log(Z_j^{-1} F_j^{-1} X)``. The process on F is the discretized Ornstein-Uhlenbeck
-  prior: ``BetweenFactorPose3(a(j), a(j+1), I)`` with variance q = 2 sigma^2 dt / tau and a zero
-  prior per node with variance 2 sigma^2 tau / dt (the precision operator of an OU process of
-  stationary std sigma and correlation time tau). sigma comes from AMCL's reported covariance.
-  AMCL's heading error is an OU process as well; it cannot be a world-frame rotation (that
-  would swing the position about the map origin), so it is a white error per stamp inflated to
-  2 tau / dt times its variance: the information an OU process holds about its mean over a run
-  of length T >> tau (variance 2 sigma^2 tau / T). So the graph learns the run-average of AMCL,
-  not its wander: sensors and trajectory are one rigid structure tied to the map by the average
-  of all AMCL estimates.
+- AMCL: AMCL reports ``Z_j = E_j · X(t_j)`` where E_j is its error: white per estimate plus a
+  slowly wandering Gauss-Markov (Ornstein-Uhlenbeck) process, under the problem's
+  :class:`~pedcal.calib.amcl_model.AmclErrorModel` (assumed before the first solve, estimated
+  from its residuals after it; estimates it marks as jumps are left out). With ``F_j = E_j^{-1}``
+  as the variable ``a(j)``, ``BetweenFactorPose3(a(j), x(k), Z_j)`` has residual
+  ``Log(Z_j^{-1} F_j^{-1} X)`` and the white error (plus the process's change since its node)
+  as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
+  nodes, a = exp(-dn / tau), written as factors: ``BetweenFactorPose3(a(j), a(j+1), I)`` of
+  variance sigma^2 (1 - a^2) / a and zero priors of variance sigma^2 (1 + a) / (1 - a) on inner
+  nodes and sigma^2 (1 + a) on the two ends (the sum of these squares is the AR(1)'s exact
+  precision). AMCL's heading error cannot be a world-frame rotation (that would swing the
+  position about the map origin), so it is a white error per stamp inflated to 2 tau / dt times
+  its variance: the information a process of correlation time tau holds about its mean. So the
+  graph learns the run-average of AMCL, not its wander: sensors and trajectory are one rigid
+  structure tied to the map by the average of all AMCL estimates, an average whose uncertainty
+  the error model decides (a white 5 cm: a millimetre over minutes; a wandering one: cm).
 - Odometry: ``BetweenFactorPose3`` between consecutive robot poses from the wheel odometry
   after its systematic errors are estimated and removed (:func:`calibrate_odometry`: distance
   scale, heading drift per metre and per second, fitted against AMCL over the whole run). What
@@ -41,9 +44,13 @@ Factors (all GTSAM built-in C++ factors)
 - Planarity: roll, pitch and height of the robot are held by the priors of each pose.
 - Robot observations: ``BearingRangeFactorPose3(s(i), x(k))`` measuring the sensor-frame head
   point as a bearing and a range, with the head point's shifts taken out: the horizontal one
-  subtracted from the point, the one along the ray added to the range (``|p| + rho``). Depth
-  noise grows with range squared (doubled past the reliable range); a robust kernel keeps
-  mis-associations (a pedestrian beside the robot) from dragging.
+  (and the curvature, when estimated) subtracted from the point, the one along the ray added to
+  the range (``|p| + rho``). A sensor's observations carried to one pose are one factor, their
+  mean with sigma / sqrt(n) (:meth:`FactorGraphProblem.merge_observations`). Depth noise is
+  ``floor + k r^2`` (doubled past the reliable range) and the lateral noise constant, both
+  estimated from consecutive observations (:func:`estimate_observation_noise`) and taken at the
+  range as observed; a robust kernel keeps mis-associations (a pedestrian beside the robot)
+  from dragging.
 - People seen by two sensors at once (matched by
   :func:`pedcal.calib.alternative.match_shared_observations`): ``BearingRangeFactor3D(s(i),
   l(m))`` for each sensor.
@@ -51,13 +58,14 @@ Factors (all GTSAM built-in C++ factors)
 Head point. Trackers report different points of a head (the blob's highest point, a dome's point
 facing the sensor, the centroid of the head's top, a fitted ellipsoid's centre): the graph takes
 the reported point as the head top moved ``vertical_offset`` up, then ``rho`` along the ray toward
-the sensor and ``horizontal`` horizontally toward it (a dome of radius r: -r, r, 0). The vertical
-offset is the variable h(0); a uniform offset moves every robot observation down alike, which
-the robot alone cannot tell from the sensors' common height, so without a height reference (the
-installed sensor heights or a ceiling height with their sigma, a prior on each sensor's world
-height) it is held by its prior (a dome's: offset = -rho, give or take head_vertical_sigma_m) and
-its sigma reaches every sensor's height. rho and the horizontal shift enter the measurements and
-are estimated around the graph by their profile likelihood (:mod:`pedcal.calib.factorgraph`).
+the sensor, ``horizontal`` horizontally toward it (a dome of radius r: -r, r, 0) and, optionally,
+``curvature`` x cos^2(the sensor's elevation) up. The vertical offset is the variable h(0); a
+uniform offset moves every robot observation down alike, which the robot alone cannot tell from
+the sensors' common height, so without a height reference (the installed sensor heights or a
+ceiling height with their sigma, a prior on each sensor's world height) it is held by its prior
+(a dome's: offset = -rho, give or take head_vertical_sigma_m) and its sigma reaches every
+sensor's height. The shifts enter the measurements and are estimated by their profile on the
+linearized graph (:mod:`pedcal.calib.profile`, :mod:`pedcal.calib.factorgraph`).
 
 Tracker latency is estimated once, by the association's pooled estimator
 (:func:`pedcal.calib.association.estimate_latency`: per-sensor rigid fits against the AMCL spline,
@@ -138,11 +146,13 @@ class GraphRecipe:
     head_horizontal_shift_sigma_m: float = 0.05   # its prior sigma (mean 0)
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
-    # or auto (estimated when its profile chi^2 reaches head_curvature_select_chi2). Off by
-    # default: over the nuisance zoo's 80 logs without it, the other shifts' model inexactness
-    # gave it a chi^2 of 3-54 and estimating it cost 2-5 mm of sensor RMS; the simulated
-    # centroid tracker gives 86-145.
-    head_curvature: str = "off"
+    # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the
+    # default: not estimated, but when its chi^2 reaches the threshold the misfit is named in
+    # model_mismatch and the sensors' covariance carries the move estimating it would make).
+    # Over the nuisance zoo's 80 logs without it, the other shifts' model inexactness gave it a
+    # chi^2 of 3-54 and estimating it cost 2-5 mm of sensor RMS; the simulated centroid tracker
+    # gives 86-145.
+    head_curvature: str = "widen"
     head_curvature_sigma_m: float = 0.02
     head_curvature_select_chi2: float = 60.0
     # height reference: the installed sensor heights measured to this sigma (0: no reference),
@@ -722,9 +732,8 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     if n_nodes == 1:
         priors = [sig6(sig_c, z_sig)]
     else:
-        end = sig6(sig_c * np.sqrt(1.0 + a), z_sig)
         inner = sig6(sig_c * np.sqrt((1.0 + a) / max(1.0 - a, 1e-12)), z_sig)
-        priors = [end] + [inner] * max(n_nodes - 2, 0) + [end]
+        priors = [inner] * n_nodes
     q = sig6(sig_c * np.sqrt((1.0 - a * a) / max(a, 1e-12)), 1e-3)
     if free_z and n_nodes:
         # The head point's vertical offset from its initial value (-head_radius_m) is the height
@@ -1165,6 +1174,8 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
         ratios = {k: round(v, 3) for k, v in mismatch.variance_ratio.items()}
         network.extra[MISMATCH_KEY] = {"sensors": mismatch.sensors, "threshold": mismatch.threshold,
                                        "variance_ratio": ratios, "misfit": mismatch.misfit}
+        if mismatch.head_model_misfit:
+            network.extra[MISMATCH_KEY]["head_model"] = mismatch.head_model_misfit
     mask = np.zeros(len(log.observations), bool)
     mask[prob.rows_used] = True
     return mask
