@@ -260,18 +260,25 @@ def paper5():
         return sim, calibrate_factorgraph(sim.calib)
 
 
-def test_a_large_network_keeps_its_joint_covariance_on_the_result_not_in_the_yaml(monkeypatch, caplog):
+def test_a_large_network_gets_each_sensors_marginal_not_the_joint_covariance(monkeypatch, caplog):
+    # above JOINT_COV_MAX_SENSORS the 3n x 3n joint is neither computed (a dense inverse of
+    # 6000 x 6000 at 1000 sensors) nor written; each sensor's marginal is, equal to the joint's
+    # diagonal block of a smaller network
     import pedcal.calib.graph as graph
 
-    monkeypatch.setattr(graph, "JOINT_COV_MAX_SENSORS", 2)      # stands for a network of hundreds
     sim = simulate_logs("sparse", seed=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
+        small = calibrate_factorgraph(sim.calib)
+        monkeypatch.setattr(graph, "JOINT_COV_MAX_SENSORS", 2)      # stands for a network of hundreds
         res = calibrate_factorgraph(sim.calib)
     n = len(res.network)
-    assert "position_covariance_m2" not in res.network.extra
-    assert res.position_covariance_m2.shape == (3 * n, 3 * n)
-    assert any("not written to the calibrated YAML" in r.getMessage() for r in caplog.records)
+    assert "position_covariance_m2" not in res.network.extra and res.position_covariance_m2 is None
+    assert any("not computed above 2 sensors" in r.getMessage() for r in caplog.records)
+    for i, s in enumerate(res.network):
+        block = small.position_covariance_m2[3 * i:3 * i + 3, 3 * i:3 * i + 3]
+        assert np.allclose(np.asarray(s.sigma_position_m) ** 2, np.diag(block), rtol=1e-4)
+    assert n == 5
 
 
 def test_a_head_point_curving_with_the_viewing_angle_is_estimated_when_asked():

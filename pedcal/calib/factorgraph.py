@@ -29,6 +29,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
+from pedcal.calib import graph as graph_layer
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
     BLOCKS,
@@ -171,8 +172,7 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     p = prob.head_points_sensor()
     p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]        # the head top, sensor frame
     per_sensor = []
-    for i, sid in enumerate(prob.sensor_ids):
-        m = use & (prob.fac_sensor == sid)
+    for i, m in _groups(np.where(use, prob.fac_sensor_index, len(prob.sensor_ids)), len(prob.sensor_ids)):
         rows = row_of_pose[prob.fac_key_index[m]]
         keep = rows >= 0
         rows = rows[keep]
@@ -410,6 +410,14 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
                             (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
 
 
+def _groups(index: np.ndarray, n: int):
+    """(i, rows where index == i) for i in range(n), by one sort."""
+    order = np.argsort(index, kind="stable")
+    bounds = np.searchsorted(index[order], np.arange(n + 1))
+    for i in range(n):
+        yield i, order[bounds[i]:bounds[i + 1]]
+
+
 def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> ModelMismatch:
     """Residuals against the noise model, per sensor: the robust variance ratio (median of the
     squared normalized residuals over the chi-square(1) median 0.455, averaged over the three
@@ -418,12 +426,11 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
     z = robot_residuals(prob, result)
     rec = prob.recipe
     n_pose = len(prob.pose_times)
-    sensors = prob.fac_sensor[prob.fac_key_index < n_pose] if rec.robot else np.zeros(0, str)
+    sensor_i = prob.fac_sensor_index[prob.fac_key_index < n_pose] if rec.robot else np.zeros(0, int)
     ratio = {}
-    for sid in prob.sensor_ids:
-        m = sensors == sid
-        if m.sum() >= 10:
-            ratio[sid] = float(np.mean(np.median(z[m] ** 2, axis=0)) / 0.4549)
+    for i, rows in _groups(sensor_i, len(prob.sensor_ids)):
+        if len(rows) >= 10:
+            ratio[prob.sensor_ids[i]] = float(np.mean(np.median(z[rows] ** 2, axis=0)) / 0.4549)
     bad = {sid: r for sid, r in ratio.items() if r > threshold}
     return ModelMismatch(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
                          misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
@@ -439,16 +446,28 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
     covariance, the head model, the model check)."""
     rec = prob.recipe
     n = len(prob.sensor_ids)
-    keys = [S(i) for i in range(n)]
+    keys = [S(i) for i in range(n)] + ([H(0)] if result.exists(H(0)) else [])
     has_h = result.exists(H(0))
-    C = joint_marginal_covariance(fg, result, keys + ([H(0)] if has_h else []))
+    joint = n <= graph_layer.JOINT_COV_MAX_SENSORS
+    if joint:
+        C = joint_marginal_covariance(fg, result, keys)
+        blocks = [C[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(len(keys))]
+    else:
+        # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes)
+        marginals = gtsam.Marginals(fg, result)
+        blocks = [marginals.marginalCovariance(k) for k in keys]
+    extra = []                                 # (sensitivity (6 len(keys),), k x k covariance) terms
     if shifts is not None:
-        C = C + (shifts.sensitivity @ shifts.cov @ shifts.sensitivity.T)[:len(C), :len(C)]
+        extra.append((shifts.sensitivity, shifts.cov))
         if shifts.unmodelled is not None:
             # the model does not fit: the sensors widened by the move the misfit's own fix would make
             dc, sens_c, _ = shifts.unmodelled
-            C = C + dc ** 2 * np.outer(sens_c, sens_c)[:len(C), :len(C)]
-    C_s = C[:6 * n, :6 * n].copy()
+            extra.append((sens_c[:, None], np.array([[dc ** 2]])))
+    for sens, cov in extra:
+        sens = sens[:6 * len(keys)]
+        if joint:
+            C = C + sens @ cov @ sens.T
+        blocks = [b + sens[6 * i:6 * i + 6] @ cov @ sens[6 * i:6 * i + 6].T for i, b in enumerate(blocks)]
     check = model_check(prob, result)
     if shifts is not None and shifts.unmodelled is not None:
         dc, _, chi2 = shifts.unmodelled
@@ -457,15 +476,14 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
                                    "sensors' sigma carries what estimating it would move them by "
                                    "(head_curvature = \"auto\" estimates it)")
         check.misfit = "; ".join(m for m in (check.misfit, check.head_model_misfit) if m)
-    scale = np.ones(6 * n)
-    for i, sid in enumerate(prob.sensor_ids):
-        scale[6 * i:6 * i + 6] = np.sqrt(max(1.0, check.variance_ratio.get(sid, 1.0)))
-    C_s = C_s * np.outer(scale, scale)
-    cov_body = {sid: C_s[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i, sid in enumerate(prob.sensor_ids)}
-    Rb = np.zeros((3 * n, 6 * n))
-    for i in range(n):
-        Rb[3 * i:3 * i + 3, 6 * i + 3:6 * i + 6] = result.atPose3(S(i)).rotation().matrix()
-    joint_pos = Rb @ C_s @ Rb.T
+    scale = np.array([np.sqrt(max(1.0, check.variance_ratio.get(sid, 1.0))) for sid in prob.sensor_ids])
+    cov_body = {sid: blocks[i] * scale[i] ** 2 for i, sid in enumerate(prob.sensor_ids)}
+    joint_pos = None
+    if joint:
+        # world-axes positions: each sensor's translation block rotated by its R, widened by its scale
+        R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(n)])
+        Ct = C[:6 * n, :6 * n].reshape(n, 6, n, 6)[:, 3:, :, 3:] * np.outer(scale, scale)[:, None, :, None]
+        joint_pos = np.einsum("iab,ibjc,jdc->iajd", R, Ct, R).reshape(3 * n, 3 * n)
     if rec.sensor_height_sigma_m > 0.0:
         reference = "ceiling height" if rec.ceiling_height_m > 0.0 else "installed sensor heights"
     else:
@@ -475,7 +493,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
                      height_reference=reference, estimated=bool(rec.estimate_head_model))
     if has_h:
         head.vertical_offset_m = float(-rec.head_radius_m + result.atPose3(H(0)).translation()[2])
-        head.sigma_vertical_offset_m = float(np.sqrt(C[6 * n + 5, 6 * n + 5]))
+        head.sigma_vertical_offset_m = float(np.sqrt(blocks[n][5, 5]))
     if shifts is not None:
         for name, sd in zip(shifts.names, np.sqrt(np.diag(shifts.cov)), strict=True):
             setattr(head, "sigma_" + name, float(sd))

@@ -452,6 +452,7 @@ class FactorGraphProblem:
     # the graph's robot-observation factors (merge_observations): a sensor's observations carried
     # to one pose are one factor, their mean point with its sigma over sqrt(count)
     fac_sensor: np.ndarray | None = None
+    fac_sensor_index: np.ndarray | None = None    # index into sensor_ids
     fac_key_index: np.ndarray | None = None
     fac_p_sensor: np.ndarray | None = None
     fac_toward_sensor: np.ndarray | None = None
@@ -503,6 +504,7 @@ class FactorGraphProblem:
         solo = np.flatnonzero(split[group])
         idx = np.r_[rep[merged], solo].astype(int)
         self.fac_sensor = self.obs_sensor[idx]
+        self.fac_sensor_index = sensor_i[idx]
         self.fac_key_index = self.obs_key_index[idx]
         self.fac_p_sensor = np.vstack([mean[merged], self.obs_p_sensor[solo]])
         self.fac_count = np.r_[count[merged], np.ones(len(solo), int)]
@@ -1141,8 +1143,9 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     return result, opt.iterations()
 
 
-# Above this many sensors the joint position covariance (3n x 3n) stays on the CalibrationResult and
-# is not written to the YAML: at 1000 sensors it would be 9 M numbers, about 100 MB of text.
+# Above this many sensors the joint position covariance (3n x 3n) is not computed (each sensor's
+# marginal is): at 1000 sensors it would be 9 M numbers, about 100 MB of text, and a dense inverse
+# of 6000 x 6000 takes a minute.
 JOINT_COV_MAX_SENSORS = 200
 
 
@@ -1161,11 +1164,11 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
         network.extra[JOINT_COV_KEY] = {"sensors": list(prob.sensor_ids), "order": "x y z per sensor",
                                         "matrix": [flow_vector([float(f"{v:.4e}") for v in row])
                                                    for row in joint_position_cov]}
-    elif joint_position_cov is not None:
+    elif len(prob.sensor_ids) > JOINT_COV_MAX_SENSORS:
         logging.getLogger(__name__).warning(
             f"the joint covariance of {len(prob.sensor_ids)} sensors' positions ({3 * len(prob.sensor_ids)} x "
-            f"{3 * len(prob.sensor_ids)}) is not written to the calibrated YAML above {JOINT_COV_MAX_SENSORS} "
-            "sensors; it is on CalibrationResult.position_covariance_m2")
+            f"{3 * len(prob.sensor_ids)}) is not computed above {JOINT_COV_MAX_SENSORS} sensors (each sensor's "
+            "marginal is); CalibrationResult.marginals().jointMarginalCovariance(keys) gives any part of it")
     if prob.amcl_model is not None and prob.recipe.amcl:
         network.extra[AMCL_MODEL_KEY] = prob.amcl_model.to_dict()
     if prob.noise_estimate:
