@@ -65,7 +65,8 @@ def run_one(scenario: str, seed: int) -> dict:
     sim = simulate_logs(scenario, seed=seed, vary_nuisances=True)
     out = dict(scenario=scenario, seed=seed, nuisances=head_model_truth(sim.scenario),
                amcl=sim.scenario.amcl_error, odometry=sim.scenario.odometry, latency_s=sim.scenario.latency_s,
-               depth=sim.scenario.depth_noise_model, amcl_mean_xy_mm=float(1000 * np.linalg.norm(amcl_run_mean_error_m(sim.calib))))
+               depth=sim.scenario.depth_noise_model,
+               amcl_mean_xy_mm=float(1000 * np.linalg.norm(amcl_run_mean_error_m(sim.calib))))
     for method in ("factorgraph", "gridsearch"):
         w0, c0 = time.perf_counter(), time.process_time()
         res = calibrate(sim.calib, method=method)

@@ -44,6 +44,10 @@ MISMATCH_KEY = "model_mismatch"
 # log (depth floor and growth with range, lateral); information for the reader, not applied.
 AMCL_MODEL_KEY = "amcl_error_model"
 NOISE_KEY = "observation_noise"
+# Extra top-level mapping of the factor graph's YAML when the log has wheel odometry: its distance
+# scale and heading drifts (per metre, per second) as calibrated against AMCL and corrected in the
+# graph against what the sensors saw, with the graph's sigma; information, not applied.
+ODOMETRY_MODEL_KEY = "odometry_model"
 
 
 def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float, float]:

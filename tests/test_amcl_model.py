@@ -10,7 +10,6 @@ import pytest
 from pedcal.calib.amcl_model import VARIOGRAM_LAGS_S, detect_jumps, fit_variogram, robust_variogram
 from pedcal.calib.factorgraph import calibrate_factorgraph
 from pedcal.errors import DegenerateDataWarning
-from pedcal.metrics import evaluate
 from pedcal.sim import simulate_logs
 from pedcal.sim.robot import ou_process
 

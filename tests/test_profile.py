@@ -58,7 +58,8 @@ def test_profile_estimate_and_sigma_match_the_nonlinear_profile(dome_paper):
     assert theta[0] == pytest.approx(0.07, abs=3 * sigma[0] + 0.003)
 
     def profile(th):
-        obs = observation_block(sim.calib, prob, shifts.result, theta={"ray_shift_m": th[0], "horizontal_shift_m": th[1]})
+        obs = observation_block(sim.calib, prob, shifts.result,
+                                theta={"ray_shift_m": th[0], "horizontal_shift_m": th[1]})
         fg = parts.graph(observations=obs)
         solved, _ = optimize_graph(fg, shifts.result, rec)
         prior = 0.5 * ((th[0] - rec.head_radius_m) / rec.head_ray_shift_sigma_m) ** 2 \

@@ -8,7 +8,9 @@ the whole log, with what the graph does not hold as variables estimated around i
 3. AMCL's error model (white and wandering std, correlation time, jumps left out) from the
    residuals of AMCL against what each sensor saw (:mod:`pedcal.calib.amcl_model`); shared
    sightings the solution contradicts dropped; the graph rebuilt and solved again;
-4. the shifts again, to a tenth of their sigma, their covariance carried into the sensors';
+4. the shifts again, to a tenth of their sigma, and with wheel odometry the corrections of its
+   calibration (scale, heading drift per metre and per second) with them, their covariance
+   carried into the sensors';
 5. the residuals checked against the noise model, per sensor, the sigma widened where they
    exceed it (:func:`model_check`), and the joint covariance of all sensors' positions and the
    head model written to the calibrated YAML (:func:`_posterior`).
@@ -28,12 +30,13 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib import graph as graph_layer
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
+from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
     BLOCKS,
     GRAPHS_DIR,
+    ODOMETRY_NUISANCES,
     A,
     FactorGraphProblem,
     GraphRecipe,
@@ -50,6 +53,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     calibrate_odometry,
     finish_network,
     head_frame,
+    motion_block,
     observability,
     observation_block,
     observation_sigmas,
@@ -108,11 +112,12 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
     # residuals the model is estimated from
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None)
-    _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> {fg.error(result):.1f}")
+    _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
+                   f"{fg.error(result):.1f}")
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL)
     shifts = _estimate_head_shifts(log, prob, parts, result, progress, max_steps=2 if resolve else 5,
-                                   tolerance=0.5 if resolve else 0.1, curvature=not resolve)
+                                   tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve)
     if resolve:
         # AMCL's error model from the residuals of a solution with the head model estimated (a
         # wrong head model leaves per-sensor offsets that look like a wandering AMCL), then the
@@ -121,7 +126,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
             result = shifts.result
         parts, result, more = _reestimate_amcl(log, prob, result, progress)
         iterations += more
-        shifts = _estimate_head_shifts(log, prob, parts, result, progress)
+        shifts = _estimate_head_shifts(log, prob, parts, result, progress, odometry=True)
     if shifts is not None:
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
@@ -203,8 +208,9 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, p
                       "recipe's (correlation time, white share of the reported covariance) is kept",
                       DegenerateDataWarning, stacklevel=3)
         return build_parts(log, prob), result, 0
-    _log(progress, f"AMCL error: white {1000 * model.white_sigma_m:.1f} mm, wandering {1000 * model.correlated_sigma_m:.1f}"
-                   f" mm over {model.correlation_s:.1f} s; {model.jumps} jumps ({model.excluded_s:.1f} s) left out")
+    _log(progress, f"AMCL error: white {1000 * model.white_sigma_m:.1f} mm, wandering "
+                   f"{1000 * model.correlated_sigma_m:.1f} mm over {model.correlation_s:.1f} s; {model.jumps} jumps "
+                   f"({model.excluded_s:.1f} s) left out")
     rotations = {sid: result.atPose3(S(i)).rotation().matrix() for i, sid in enumerate(prob.sensor_ids)}
     set_amcl_model(log, prob, model, rotations=rotations)
     # shared sightings the solution contradicts (two sensors' views of "one" person far apart:
@@ -281,8 +287,20 @@ class _HeadShifts:
     unmodelled: tuple | None = None
 
 
+def _shown(name: str, value: float) -> str:
+    """A nuisance's value in the unit it is read in: mm, % or deg per metre or second."""
+    if name.endswith("_rad_per_m"):
+        return f"{np.degrees(value):+.4f} deg/m"
+    if name.endswith("_rad_per_s"):
+        return f"{np.degrees(value):+.5f} deg/s"
+    if name.endswith("_correction"):
+        return f"{100 * value:+.3f} %"
+    return f"{1000 * value:+.2f} mm"
+
+
 def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
-                          max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True) -> _HeadShifts | None:
+                          max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
+                          odometry: bool = False) -> _HeadShifts | None:
     """The head point's shift toward the sensor along the ray (a range offset of every
     observation; a dome's radius), horizontally (a point pulled toward the sensor whatever the
     viewing angle) and its height's curvature with the viewing angle (``head_curvature``: on,
@@ -301,13 +319,20 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
+    odo = odometry and rec.estimate_odometry_errors and rec.odometry and prob.odometry is not None
+    if odo:
+        # odometry's systematic errors left by its calibration, about the calibration (the curvature,
+        # which _select_curvature may drop, stays last)
+        nuis += [Nuisance("odometry_scale_correction", 0.0, rec.odometry_scale_sigma, 1e-3),
+                 Nuisance("odometry_drift_rad_per_m", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_m), 1e-4),
+                 Nuisance("odometry_drift_rad_per_s", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_s), 1e-5)]
     select = curvature and rec.head_curvature in ("auto", "widen")
     unmodelled = None
     if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
         nuis.append(Nuisance("curvature_m", 0.0, rec.head_curvature_sigma_m, rec.head_ray_shift_step_m))
     fixed = gtsam.NonlinearFactorGraph()
     for name in BLOCKS:
-        if name != "observations":
+        if name != "observations" and not (odo and name == "motion"):
             fixed.push_back(parts.blocks[name])
     cols = Columns.of(result)
     kernel = (rec.robust_kernel, rec.robust_k)
@@ -316,9 +341,13 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)
+        plain = None
+        if odo:
+            plain = (lambda th, nm=tuple(names): motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
+                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
-            obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors)
+            obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain)
         if select and "curvature_m" in names:
             select = False
             full = step
@@ -333,13 +362,15 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
             theta = np.array([getattr(prob, n) for n in names], float)
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
-            f"{n} {1000 * v:+.2f} (step {1000 * d:+.2f}, sigma {1000 * s:.2f}) mm" for n, v, d, s in
+            f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
             zip(names, theta, step.dtheta, np.sqrt(np.diag(step.covariance)), strict=True)))
         for name, v in zip(names, theta, strict=True):
             setattr(prob, name, float(v))
         # the variables at the linearized optimum for the new shifts: z0 + Z dtheta
         result = retract_flat(result, step.z0 + step.Z @ step.dtheta, cols)
         parts.blocks["observations"] = observation_block(log, prob, result)
+        if odo:
+            parts.blocks["motion"] = motion_block(log, prob)
         if np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance))):
             break
     if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
@@ -405,7 +436,8 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     b2 = np.cross(u, b1)
     u_pred = p_pred / r_pred[:, None]
     # the graph's sigmas: at the range as observed, over sqrt of the merged count
-    sig = observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1)) / np.sqrt(prob.fac_count[use])[:, None]
+    sig = (observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1))
+           / np.sqrt(prob.fac_count[use])[:, None])
     return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
                             (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
 
@@ -496,7 +528,10 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
         head.sigma_vertical_offset_m = float(np.sqrt(blocks[n][5, 5]))
     if shifts is not None:
         for name, sd in zip(shifts.names, np.sqrt(np.diag(shifts.cov)), strict=True):
-            setattr(head, "sigma_" + name, float(sd))
+            if name in ODOMETRY_NUISANCES:
+                _record_odometry_correction(prob.odometry_estimates, name, getattr(prob, name), float(sd))
+            else:
+                setattr(head, "sigma_" + name, float(sd))
     if has_h and reference == "none":
         head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "
                         f"{1000 * rec.head_vertical_sigma_m:.0f} mm, a sigma the sensors' heights carry, "
@@ -506,6 +541,19 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShif
                       f"({1000 * rec.head_vertical_sigma_m:.0f} mm); give a height reference "
                       "(--sensor-height-sigma or --ceiling-height)", DegenerateDataWarning, stacklevel=3)
     return cov_body, joint_pos, head, check
+
+
+def _record_odometry_correction(est: dict, name: str, value: float, sigma: float) -> None:
+    """The calibration's estimate in ``est`` (pedcal.calib.graph.calibrate_odometry's keys) with
+    the graph's correction applied, and the correction's sigma beside it."""
+    if name == "odometry_scale_correction":
+        base = est.get("scale", 1.0)
+        est["scale"], est["sigma_scale"] = base * (1.0 + value), base * sigma
+    else:
+        key = "yaw_drift_deg_per_m" if name.endswith("_per_m") else "yaw_drift_deg_per_s"
+        est[key] = est.get(key, 0.0) + float(np.degrees(value))
+        est["sigma_" + key] = float(np.degrees(sigma))
+    est["source"] = "calibrated against AMCL, corrected in the graph"
 
 
 def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:

@@ -38,9 +38,13 @@ Factors (all GTSAM built-in C++ factors)
   the error model decides (a white 5 cm: a millimetre over minutes; a wandering one: cm).
 - Odometry: ``BetweenFactorPose3`` between consecutive robot poses from the wheel odometry
   after its systematic errors are estimated and removed (:func:`calibrate_odometry`: distance
-  scale, heading drift per metre and per second, fitted against AMCL over the whole run). What
-  is left is white per step (a random walk growing with sqrt(dt)) plus a small residual scale
-  and heading-drift term; without odometry a motion-smoothness factor from AMCL's increments.
+  scale, heading drift per metre and per second, fitted against AMCL over the whole run) and
+  what that fit left corrected (:func:`motion_block`; the corrections are estimated with the
+  head point's shifts by their profile, :mod:`pedcal.calib.factorgraph`: a fit against a
+  wandering AMCL is off by tenths of a percent, which the graph would otherwise take for the
+  robot's true motion, bending the network with a confident sigma). What is left is white per
+  step (a random walk growing with sqrt(dt)) plus a small residual scale and heading-drift term;
+  without odometry a motion-smoothness factor from AMCL's increments.
 - Planarity: roll, pitch and height of the robot are held by the priors of each pose.
 - Robot observations: ``BearingRangeFactorPose3(s(i), x(k))`` measuring the sensor-frame head
   point as a bearing and a range, with the head point's shifts taken out: the horizontal one
@@ -90,9 +94,17 @@ from pedcal import frames
 from pedcal.calib.amcl_model import AmclErrorModel, assumed_model
 from pedcal.calib.common import HeadModel, ModelMismatch, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
-from pedcal.frames import toward_sensor_horizontal
+from pedcal.frames import toward_sensor_horizontal, wrap_angle_rad
 from pedcal.io.sensors_yaml import flow_vector
-from pedcal.metrics import AMCL_MODEL_KEY, HEAD_MODEL_KEY, JOINT_COV_KEY, LATENCY_KEY, MISMATCH_KEY, NOISE_KEY
+from pedcal.metrics import (
+    AMCL_MODEL_KEY,
+    HEAD_MODEL_KEY,
+    JOINT_COV_KEY,
+    LATENCY_KEY,
+    MISMATCH_KEY,
+    NOISE_KEY,
+    ODOMETRY_MODEL_KEY,
+)
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 try:
@@ -179,6 +191,14 @@ class GraphRecipe:
     odometry_white_yaw_sigma_deg: float = 0.25     # per sqrt(s)
     odometry_sigma_per_m: float = 0.003            # residual scale error
     odometry_yaw_sigma_deg_per_m: float = 0.05     # residual heading drift
+    # what the calibration left of odometry's systematic errors (scale, heading drift per metre
+    # and per second), estimated in the graph against what the sensors saw (a calibration against
+    # a wandering AMCL leaves errors the graph would otherwise take as the robot's true motion);
+    # prior sigmas of these corrections
+    estimate_odometry_errors: bool = True
+    odometry_scale_sigma: float = 0.01
+    odometry_drift_sigma_deg_per_m: float = 0.1
+    odometry_drift_sigma_deg_per_s: float = 0.01
     smoothness_sigma_mps: float = 0.05
     # without odometry, AMCL jitter above this (m, amcl_white_sigma) makes the short-term motion
     # come from AMCL smoothed over amcl_smooth_s (s)
@@ -463,6 +483,11 @@ class FactorGraphProblem:
     ray_shift_m: float = 0.0
     horizontal_shift_m: float = 0.0
     curvature_m: float = 0.0
+    # corrections of the calibrated odometry the graph is built with (motion_block): distance
+    # scale (-, 0: none), heading drift per metre driven (rad/m) and per second (rad/s)
+    odometry_scale_correction: float = 0.0
+    odometry_drift_rad_per_m: float = 0.0
+    odometry_drift_rad_per_s: float = 0.0
 
     def head_points_sensor(self) -> np.ndarray:
         """The robot-observation factors' points (sensor frame) with the horizontal shift toward
@@ -623,8 +648,6 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
 
     times = _pose_times(prob, t_max)
     n_pose = len(times)
-    amcl = log.robot.sort_values("t")
-    base = interpolate_pose2(amcl, times)
     init = initial_track(log, prob, times) if n_pose else np.zeros((0, 3))
     # Robot poses at the initial track; roll, pitch and height held by a planarity prior (AMCL's
     # own factor holds them when it is in the graph).
@@ -638,7 +661,7 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     if rec.amcl and n_pose:
         _amcl_block(blocks["amcl"], values, log, prob, times)
     if n_pose > 1:
-        _motion_block(blocks["motion"], log, prob, times, base)
+        blocks["motion"] = motion_block(log, prob, t_max=t_max)
     blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True)
     return GraphParts(blocks=blocks, values=values)
 
@@ -672,7 +695,8 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     o = interpolate_pose2(prob.odometry, times)
     D = np.column_stack([np.interp(times, t_a, tx), np.interp(times, t_a, ty), np.interp(times, t_a, np.unwrap(yaw_d))])
     c, s_ = np.cos(D[:, 2]), np.sin(D[:, 2])
-    return np.column_stack([D[:, 0] + c * o[:, 0] - s_ * o[:, 1], D[:, 1] + s_ * o[:, 0] + c * o[:, 1], D[:, 2] + o[:, 2]])
+    return np.column_stack([D[:, 0] + c * o[:, 0] - s_ * o[:, 1], D[:, 1] + s_ * o[:, 0] + c * o[:, 1],
+                            D[:, 2] + o[:, 2]])
 
 
 def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray) -> None:
@@ -753,30 +777,54 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
             graph.add(gtsam.BetweenFactorPose3(H(0), A(m), gtsam.Pose3(), tie))
 
 
-def _motion_block(graph, log: Log, prob: FactorGraphProblem, times: np.ndarray, base: np.ndarray) -> None:
-    """Odometry (or smoothness) between consecutive robot poses."""
+ODOMETRY_NUISANCES = ("odometry_scale_correction", "odometry_drift_rad_per_m", "odometry_drift_rad_per_s")
+
+
+def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = None,
+                 theta: dict | None = None) -> gtsam.NonlinearFactorGraph:
+    """Odometry (or smoothness) between consecutive robot poses. With odometry, each increment is
+    the calibrated odometry's (body frame: forward, left, turn) with the problem's corrections
+    applied, ``theta`` overriding them by name (``ODOMETRY_NUISANCES``): distance times
+    (1 + scale correction), turn minus the drift per metre times the distance and per second
+    times the interval."""
     rec = prob.recipe
-    head_m = _head_m(log, rec)
+    graph = gtsam.NonlinearFactorGraph()
+    times = _pose_times(prob, t_max)
     n_pose = len(times)
-    src = None
+    if n_pose < 2:
+        return graph
+    head_m = _head_m(log, rec)
+    dt = np.diff(times)
     if rec.odometry and prob.odometry is not None:
+        theta = theta or {}
+        scale, drift_m, drift_s = (float(theta.get(k, getattr(prob, k))) for k in ODOMETRY_NUISANCES)
         src = interpolate_pose2(prob.odometry, times)
-        dt = np.diff(times)
-        d = np.hypot(*np.diff(src[:, :2], axis=0).T)
-        st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * d) ** 2) + 1e-4
+        c, s_ = np.cos(src[:-1, 2]), np.sin(src[:-1, 2])
+        d = np.diff(src[:, :2], axis=0)
+        fwd, left = c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]
+        dist = np.hypot(fwd, left)
+        turn = wrap_angle_rad(np.diff(src[:, 2])) - drift_m * dist - drift_s * dt
+        fwd, left = (1.0 + scale) * fwd, (1.0 + scale) * left
+        st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * dist) ** 2) + 1e-4
         sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
-                     + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * d) ** 2) + 1e-5
+                     + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * dist) ** 2) + 1e-5
+        # the head frame's increment: the base's, with the head offset carried round the turn
+        origin = head_frame(0.0, 0.0, 0.0, head_m)
+        steps = [origin.between(head_frame(fwd[k], left[k], turn[k], head_m)) for k in range(n_pose - 1)]
     elif rec.smoothness:
-        src = base if prob.smoothed_amcl is None else interpolate_pose2(prob.smoothed_amcl, times)
-        dt = np.diff(times)
+        amcl = log.robot.sort_values("t")
+        src = interpolate_pose2(amcl if prob.smoothed_amcl is None else prob.smoothed_amcl, times)
         # AMCL's short-term increments: error grows with dt, plus AMCL's white jitter at both ends
         st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + 2.0 * amcl_white_sigma(log.robot) ** 2) + 1e-3
         sy = np.radians(2.0) * dt + 1e-4
-    if src is not None:
         P = [head_frame(*src[k], head_m) for k in range(n_pose)]
-        for k in range(n_pose - 1):
-            nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
-            graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), P[k].between(P[k + 1]), nm))
+        steps = [P[k].between(P[k + 1]) for k in range(n_pose - 1)]
+    else:
+        return graph
+    for k in range(n_pose - 1):
+        nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), steps[k], nm))
+    return graph
 
 
 def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
@@ -789,8 +837,8 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     in this order. ``theta`` overrides the problem's shifts by name (``ray_shift_m``,
     ``horizontal_shift_m``) without changing it; ``robust=False`` leaves the robust kernel out;
     ``sigma_scale`` (one per factor, in order) multiplies each factor's sigmas instead of a
-    kernel (a robust weight w frozen: 1 / sqrt(w); models are shared between equal scales); ``insert_values`` puts the people's initial
-    positions into ``values``."""
+    kernel (a robust weight w frozen: 1 / sqrt(w); models are shared between equal scales);
+    ``insert_values`` puts the people's initial positions into ``values``."""
     rec = prob.recipe
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
@@ -1033,7 +1081,8 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
 
-    lateral = float(np.sqrt(0.5 * (robust_sigma(np.sum(d * b1, axis=1)) ** 2 + robust_sigma(np.sum(d * b2, axis=1)) ** 2)))
+    lateral = float(np.sqrt(0.5 * (robust_sigma(np.sum(d * b1, axis=1)) ** 2
+                                   + robust_sigma(np.sum(d * b2, axis=1)) ** 2)))
     edges = np.quantile(r, np.linspace(0.0, 1.0, 7))
     r_bin, s_bin, n_bin = [], [], []
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
@@ -1171,8 +1220,12 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
             "marginal is); CalibrationResult.marginals().jointMarginalCovariance(keys) gives any part of it")
     if prob.amcl_model is not None and prob.recipe.amcl:
         network.extra[AMCL_MODEL_KEY] = prob.amcl_model.to_dict()
+    if prob.odometry is not None and prob.odometry_estimates:
+        network.extra[ODOMETRY_MODEL_KEY] = {k: (round(v, 6) if isinstance(v, float) else v)
+                                             for k, v in prob.odometry_estimates.items()}
     if prob.noise_estimate:
-        network.extra[NOISE_KEY] = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in prob.noise_estimate.items()}
+        network.extra[NOISE_KEY] = {k: (round(v, 6) if isinstance(v, float) else v)
+                                    for k, v in prob.noise_estimate.items()}
     if mismatch is not None:
         ratios = {k: round(v, 3) for k, v in mismatch.variance_ratio.items()}
         network.extra[MISMATCH_KEY] = {"sensors": mismatch.sensors, "threshold": mismatch.threshold,

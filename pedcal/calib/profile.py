@@ -131,7 +131,8 @@ def sqrt_weights(reweighted_norm: np.ndarray, kernel: str, k: float) -> np.ndarr
 
 def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.Values, theta: np.ndarray,
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
-                 kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0) -> ProfileStep:
+                 kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
+                 plain=None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -141,9 +142,19 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     exactly the robust error's, sum w e de/dtheta. The weights come from the linearization itself
     (:func:`sqrt_weights`, ``kernel`` = (name, k) of the observation factors, the first
     ``plain_leading`` of which have no kernel), or, for a kernel that cannot be undone, from the
-    factors built once more without it."""
+    factors built once more without it.
+
+    ``plain``: optionally ``(build(theta), indices)``, factors without a robust kernel that only
+    the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
+    for those nuisances alone, the observations for the others."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
+    plain_build, plain_idx = plain if plain is not None else (None, ())
+    if plain_build is not None:
+        g_plain0 = plain_build(theta).linearize(values)
+        A_p, b_p0 = sparse_system(g_plain0, cols)
+    else:
+        A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
     g_fixed = fixed.linearize(values)
     obs0 = obs0 if obs0 is not None else observations(theta, None)
     g_obs0 = obs0.linearize(values)
@@ -152,6 +163,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     gfg = gtsam.GaussianFactorGraph()
     gfg.push_back(g_fixed)
     gfg.push_back(g_obs0)
+    if plain_build is not None:
+        gfg.push_back(g_plain0)
     z0 = _solve(gfg, cols)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     rows = _factor_rows(obs0)
@@ -166,21 +179,30 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
     Z = np.zeros((cols.n, k))
     B_o = np.zeros((len(b_o0), k))
+    B_p = np.zeros((len(b_p0), k))
     for j, nu in enumerate(nuisances):
         # the factors at theta + h with the weights frozen (sigmas / sqrt(w), no kernel): their
         # linearization has A's rows and the right-hand side b0 + h B_j
         th = np.array(theta, float)
         th[j] += nu.step
-        g_obs = observations(th, scale).linearize(values)
-        _, b_o = sparse_system(g_obs, cols)
-        B_o[:, j] = (b_o - b_o0) / nu.step
         gj = gtsam.GaussianFactorGraph()
         gj.push_back(g_fixed)
-        gj.push_back(g_obs)
+        if j in plain_idx:
+            g_p = plain_build(th).linearize(values)
+            B_p[:, j] = (sparse_system(g_p, cols)[1] - b_p0) / nu.step
+            gj.push_back(g_obs0)
+            gj.push_back(g_p)
+        else:
+            g_obs = observations(th, scale).linearize(values)
+            _, b_o = sparse_system(g_obs, cols)
+            B_o[:, j] = (b_o - b_o0) / nu.step
+            gj.push_back(g_obs)
+            if plain_build is not None:
+                gj.push_back(g_plain0)
         Z[:, j] = (_solve(gj, cols) - z0) / nu.step
-    # profile residual r_p = rho0 + M dtheta over the fixed rows and the observation rows
-    rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0]
-    M = np.vstack([A_f @ Z, A_o @ Z - B_o])
+    # profile residual r_p = rho0 + M dtheta over the fixed, observation and plain rows
+    rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
+    M = np.vstack([A_f @ Z, A_o @ Z - B_o, A_p @ Z - B_p])
     mean = np.array([nu.prior_mean for nu in nuisances])
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     grad = M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
