@@ -115,8 +115,9 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
                    f"{fg.error(result):.1f}")
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
-    # leaving per-sensor offsets in the residuals that look like a wandering AMCL)
-    shifts = _estimate_head_shifts(log, prob, parts, result, progress, max_steps=2 if resolve else 5,
+    # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
+    # nearly quadratic, so one Newton step from the prior lands within about a sigma)
+    shifts = _estimate_head_shifts(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
                                    tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve)
     if resolve:
         # AMCL's error model from the residuals of a solution with the head model estimated (a
@@ -337,7 +338,7 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
     cols = Columns.of(result)
     kernel = (rec.robust_kernel, rec.robust_k)
     prior_factors = int(result.exists(H(0)) and rec.amcl)      # the head offset's prior leads the block
-    step = None
+    step, full_step = None, None
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)
@@ -345,9 +346,15 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
         if odo:
             plain = (lambda th, nm=tuple(names): motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
                      [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
+        # after a step of under a sigma the sensitivities barely change: a chord step (the last
+        # full step's Hessian and sensitivities, this point's gradient) costs one solve, not k + 1
+        chord = step is not None and np.all(np.abs(step.dtheta) <= np.sqrt(np.diag(step.covariance)))
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
-            obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain)
+            obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
+            plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None)
+        if not chord:
+            full_step = step
         if select and "curvature_m" in names:
             select = False
             full = step
@@ -360,6 +367,7 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
                            + ("estimated" if kept else "its share widens the sigma" if unmodelled else "left out"))
             names = [n.name for n in nuis]
             theta = np.array([getattr(prob, n) for n in names], float)
+            full_step = step
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -407,7 +415,7 @@ def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float, estimat
     if estimate and chi2 >= threshold_chi2:
         return step, nuis, chi2
     reduced = ProfileStep(dtheta=-np.linalg.solve(H[np.ix_(o, o)], g[o]), hessian=H[np.ix_(o, o)], z0=step.z0,
-                          Z=step.Z[:, o], cols=step.cols)
+                          Z=step.Z[:, o], cols=step.cols, M=None if step.M is None else step.M[:, o])
     return reduced, nuis[:-1], chi2
 
 

@@ -333,24 +333,49 @@ def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
 
 
 class _NoiseCache:
-    """Noise models of observations, built once per (rounded) range and count of merged
-    observations: a few hundred C++ objects instead of one per observation."""
+    """Noise models of observations, built once per (rounded) range and sigma factor (1 / sqrt of
+    the count of merged observations, or a frozen robust weight's 1 / sqrt(w) times it): a few
+    hundred C++ objects instead of one per observation, kept across the graph's rebuilds (the
+    profile rebuilds the observation block a dozen times per solve)."""
 
-    def __init__(self, recipe: GraphRecipe, step_m: float = 0.01, robust: bool = True):
-        self.recipe, self.step_m, self.cache, self.robust = recipe, step_m, {}, robust
+    STEP_M = 0.01
+    MAX_MODELS = 50_000
 
-    def keys(self, range_m: np.ndarray) -> np.ndarray:
-        return np.round(np.asarray(range_m, float) / self.step_m).astype(int)
+    def __init__(self, recipe: GraphRecipe, robust: bool):
+        self.recipe, self.robust, self.cache = recipe, robust, {}
 
-    def __call__(self, range_m: float | None = None, key: int | None = None, count: int = 1):
-        """The model of the mean of ``count`` observations at this range (or range key)."""
-        key = int(round(range_m / self.step_m)) if key is None else int(key)
-        nm = self.cache.get((key, count))
-        if nm is None:
-            sig = observation_sigmas(self.recipe, np.array([key * self.step_m]))[0] / np.sqrt(count)
-            nm = gtsam.noiseModel.Diagonal.Sigmas(sig)
-            nm = self.cache[(key, count)] = _robust(self.recipe, nm) if self.robust else nm
-        return nm
+    @classmethod
+    def of(cls, recipe: GraphRecipe, robust: bool) -> _NoiseCache:
+        """The cache of the recipe's observation noise (and robust kernel, when ``robust``)."""
+        key = (recipe.range_sigma_floor_m, recipe.range_sigma_k_per_m, recipe.reliable_range_m, recipe.far_factor,
+               recipe.lateral_sigma_m, robust and recipe.robust_kernel, robust and recipe.robust_k)
+        cache = _NOISE_CACHES.get(key)
+        if cache is None:
+            if len(_NOISE_CACHES) > 16:
+                _NOISE_CACHES.clear()
+            cache = _NOISE_CACHES[key] = cls(recipe, robust)
+        return cache
+
+    @classmethod
+    def keys(cls, range_m: np.ndarray) -> np.ndarray:
+        return np.round(np.asarray(range_m, float) / cls.STEP_M).astype(int)
+
+    def models(self, keys: np.ndarray, factors: np.ndarray) -> list:
+        """The models of observations at range keys ``keys`` with sigmas times ``factors``."""
+        if len(self.cache) > self.MAX_MODELS:
+            self.cache.clear()
+        pairs = list(zip(np.asarray(keys, int).tolist(), np.asarray(factors, float).tolist(), strict=True))
+        missing = [i for i, p in enumerate(pairs) if p not in self.cache]
+        if missing:
+            sig = observation_sigmas(self.recipe, np.asarray(keys, float)[missing] * self.STEP_M)
+            sig *= np.asarray(factors, float)[missing, None]
+            for i, row in zip(missing, sig, strict=True):
+                nm = gtsam.noiseModel.Diagonal.Sigmas(row)
+                self.cache[pairs[i]] = _robust(self.recipe, nm) if self.robust else nm
+        return [self.cache[p] for p in pairs]
+
+
+_NOISE_CACHES: dict = {}
 
 
 # -------------------------------------------------------------------------------------- odometry
@@ -808,9 +833,12 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
         st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * dist) ** 2) + 1e-4
         sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
                      + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * dist) ** 2) + 1e-5
-        # the head frame's increment: the base's, with the head offset carried round the turn
-        origin = head_frame(0.0, 0.0, 0.0, head_m)
-        steps = [origin.between(head_frame(fwd[k], left[k], turn[k], head_m)) for k in range(n_pose - 1)]
+        # the head frame's increment H^-1 B H (B the base's, H the head offset h): the turn, and the
+        # base's translation plus the head offset carried round the turn, (Rz(turn) - I) h
+        c, s_ = np.cos(turn), np.sin(turn)
+        tx = fwd + (c - 1.0) * head_m[0] - s_ * head_m[1]
+        ty = left + s_ * head_m[0] + (c - 1.0) * head_m[1]
+        steps = [gtsam.Pose3(gtsam.Rot3.Yaw(turn[k]), np.array([tx[k], ty[k], 0.0])) for k in range(n_pose - 1)]
     elif rec.smoothness:
         amcl = log.robot.sort_values("t")
         src = interpolate_pose2(amcl if prob.smoothed_amcl is None else prob.smoothed_amcl, times)
@@ -821,9 +849,14 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
         steps = [P[k].between(P[k + 1]) for k in range(n_pose - 1)]
     else:
         return graph
+    # one noise model per distinct (turn, translation) sigma, rounded to 0.1 %
+    q = np.round(np.log(np.column_stack([sy, st])) / 1e-3).astype(np.int64)
+    uniq, inverse = np.unique(q, axis=0, return_inverse=True)
+    models = [gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, a, b, b, 1e-3]))
+              for a, b in np.exp(uniq * 1e-3)]
+    inverse = np.asarray(inverse).ravel()
     for k in range(n_pose - 1):
-        nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, sy[k], st[k], st[k], 1e-3]))
-        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), steps[k], nm))
+        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), steps[k], models[inverse[k]]))
     return graph
 
 
@@ -846,25 +879,20 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     cv = float(theta.get("curvature_m", prob.curvature_m))
     graph = gtsam.NonlinearFactorGraph()
     n_pose = len(_pose_times(prob, t_max))
-    cache = _NoiseCache(rec, robust=robust and sigma_scale is None)
+    cache = _NoiseCache.of(rec, robust=robust and sigma_scale is None)
     factor = 0           # index of the next factor (into sigma_scale)
 
     def noises(range_m: np.ndarray, count: np.ndarray | None = None) -> list:
         """Noise models of observations at these ranges, each the mean of ``count``: shared
-        cached ones, or with each factor's sigmas scaled."""
+        cached ones, robust, or with each factor's sigmas scaled instead."""
         nonlocal factor
         count = np.ones(len(range_m), int) if count is None else np.asarray(count, int)
-        if sigma_scale is None:
-            pairs, inverse = np.unique(np.column_stack([cache.keys(range_m), count]), axis=0, return_inverse=True)
-            models = [cache(key=k, count=c) for k, c in pairs]
-            return [models[i] for i in inverse.ravel()]
-        keys = cache.keys(range_m)
-        scale = np.asarray(sigma_scale[factor:factor + len(range_m)], float) / np.sqrt(count)
-        factor += len(range_m)
-        pairs, first, inverse = np.unique(np.column_stack([keys, scale]), axis=0, return_index=True,
-                                          return_inverse=True)
-        sig = observation_sigmas(rec, pairs[:, 0] * cache.step_m) * pairs[:, 1:2]     # scale includes 1/sqrt(count)
-        models = [gtsam.noiseModel.Diagonal.Sigmas(row) for row in sig]
+        scale = 1.0 / np.sqrt(count)
+        if sigma_scale is not None:
+            scale = scale * np.asarray(sigma_scale[factor:factor + len(range_m)], float)
+            factor += len(range_m)
+        pairs, inverse = np.unique(np.column_stack([cache.keys(range_m), scale]), axis=0, return_inverse=True)
+        models = cache.models(pairs[:, 0], pairs[:, 1])
         return [models[i] for i in inverse.ravel()]
 
     if rec.amcl and rec.estimate_head_model and values is not None and values.exists(H(0)):

@@ -63,7 +63,13 @@ class Columns:
 
     def index(self, keys) -> np.ndarray:
         """Column indices of ``keys``' variables, concatenated."""
-        return np.concatenate([np.arange(self.offset[k], self.offset[k] + self.dim[k]) for k in keys])
+        starts = np.array([self.offset[k] for k in keys], np.int64)
+        dims = np.array([self.dim[k] for k in keys], np.int64)
+        if not len(starts):
+            return np.zeros(0, np.int64)
+        # arange per key in one pass: each key's run starts at its offset
+        first = np.cumsum(dims) - dims
+        return np.repeat(starts - first, dims) + np.arange(int(dims.sum()))
 
 
 def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.csr_matrix, np.ndarray]:
@@ -76,7 +82,7 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     v = ijs[2]
     own = sorted(int(k) for k in gfg.keyVector())
     # the graph's own columns (its keys in order) -> the system's
-    local = np.concatenate([np.arange(cols.offset[k], cols.offset[k] + cols.dim[k]) for k in own])
+    local = cols.index(own)
     n_local = len(local)
     rhs = j == n_local
     m = int(i.max()) + 1
@@ -102,6 +108,7 @@ class ProfileStep:
     z0: np.ndarray
     Z: np.ndarray
     cols: Columns
+    M: np.ndarray | None = None    # the profile residual's change with theta (rows of the system, k)
 
     @property
     def covariance(self) -> np.ndarray:
@@ -132,7 +139,7 @@ def sqrt_weights(reweighted_norm: np.ndarray, kernel: str, k: float) -> np.ndarr
 def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.Values, theta: np.ndarray,
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
-                 plain=None) -> ProfileStep:
+                 plain=None, plain0=None, previous: ProfileStep | None = None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -146,12 +153,17 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
 
     ``plain``: optionally ``(build(theta), indices)``, factors without a robust kernel that only
     the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
-    for those nuisances alone, the observations for the others."""
+    for those nuisances alone, the observations for the others; ``plain0``: those factors at
+    ``theta`` when already built.
+
+    ``previous``: a step taken at a nearby point (the one before, a fraction of theta's sigma
+    away): its Hessian, sensitivity Z and M are kept and only the variables' step z0 and the
+    gradient are taken here (a chord step of Newton's method: one solve instead of k + 1)."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
     plain_build, plain_idx = plain if plain is not None else (None, ())
     if plain_build is not None:
-        g_plain0 = plain_build(theta).linearize(values)
+        g_plain0 = (plain0 if plain0 is not None else plain_build(theta)).linearize(values)
         A_p, b_p0 = sparse_system(g_plain0, cols)
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
@@ -166,6 +178,13 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     if plain_build is not None:
         gfg.push_back(g_plain0)
     z0 = _solve(gfg, cols)
+    mean = np.array([nu.prior_mean for nu in nuisances])
+    info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
+    if previous is not None and previous.M is not None:
+        rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
+        grad = previous.M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
+        return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
+                           Z=previous.Z, cols=cols, M=previous.M)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     rows = _factor_rows(obs0)
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
@@ -203,11 +222,9 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     # profile residual r_p = rho0 + M dtheta over the fixed, observation and plain rows
     rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
     M = np.vstack([A_f @ Z, A_o @ Z - B_o, A_p @ Z - B_p])
-    mean = np.array([nu.prior_mean for nu in nuisances])
-    info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     grad = M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
     hess = M.T @ M + info
-    return ProfileStep(dtheta=-np.linalg.solve(hess, grad), hessian=hess, z0=z0, Z=Z, cols=cols)
+    return ProfileStep(dtheta=-np.linalg.solve(hess, grad), hessian=hess, z0=z0, Z=Z, cols=cols, M=M)
 
 
 def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
