@@ -209,6 +209,27 @@ def test_jittery_amcl_without_odometry_is_smoothed_not_differenced():
     assert evaluate(sim.eval, rough.network).sensor_position_rms_mm.horizontal > 1.3 * smooth_mm
 
 
+@pytest.mark.parametrize("smooth_s", [0.5, 1.0])
+def test_smoothed_amcls_increments_have_the_variance_the_motion_factors_assume(smooth_s):
+    # a white 5 cm jitter at 5 Hz, smoothed as the graph smooths AMCL without odometry: the
+    # increments over one period scatter as smoothed_increment_var says (a sigma of 5-10 mm, where
+    # differences of raw estimates scatter by 7 cm), within 10 %
+    import pandas as pd
+
+    from pedcal.calib.graph import smoothed_increment_var, smoothed_track
+
+    rng = np.random.default_rng(7)
+    rate, white = 5.0, 0.05
+    t = np.arange(20000) / rate
+    track = pd.DataFrame({"t": t, "x": 0.3 * t + rng.normal(0.0, white, len(t)),
+                          "y": rng.normal(0.0, white, len(t)), "yaw": np.zeros(len(t))})
+    sm = smoothed_track(track, smooth_s)
+    inc = np.diff(sm["y"].to_numpy())[100:-100]          # away from the reflected ends
+    predicted = np.sqrt(smoothed_increment_var(white, 1.0 / rate, rate, smooth_s))
+    assert np.std(inc) == pytest.approx(predicted, rel=0.1)
+    assert predicted < 0.2 * np.sqrt(2.0) * white
+
+
 # What a 2x error in a constant moves the sensors by, in their reported sigma, on paper seed 5
 # (measured: the estimated ones 0.00-0.02; far_factor 0.06 / 0.12; odometry_sigma_per_m 0.003;
 # odometry_white_yaw_sigma_deg 0.11 / 0.12; odometry_white_sigma_m 0.18 / 0.18, 0.45 / 0.39

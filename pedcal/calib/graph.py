@@ -304,6 +304,14 @@ def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
     return pd.DataFrame({"t": t, "x": out[:, 0], "y": out[:, 1], "yaw": out[:, 2]})
 
 
+def smoothed_increment_var(white_sigma_m: float, dt_s, rate_hz: float, smooth_s: float):
+    """Variance (m^2, per axis) of the increment over ``dt_s`` of a white jitter of std
+    ``white_sigma_m`` sampled at ``rate_hz`` and smoothed by a Gaussian of ``smooth_s`` seconds
+    (:func:`smoothed_track`): the kernel's slope squared summed over the samples,
+    white^2 dt^2 / (rate 4 sqrt(pi) s^3), for dt up to about s."""
+    return white_sigma_m ** 2 * np.asarray(dt_s, float) ** 2 / (rate_hz * 4.0 * np.sqrt(np.pi) * smooth_s ** 3)
+
+
 def amcl_white_sigma(amcl: pd.DataFrame) -> float:
     """Std (m) of the white part of AMCL's position error, from its own jitter: on a smooth
     trajectory each estimate's departure from the straight line through its two neighbours (in
@@ -843,7 +851,15 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
         amcl = log.robot.sort_values("t")
         src = interpolate_pose2(amcl if prob.smoothed_amcl is None else prob.smoothed_amcl, times)
         # AMCL's short-term increments: error grows with dt, plus AMCL's white jitter at both ends
-        st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + 2.0 * amcl_white_sigma(log.robot) ** 2) + 1e-3
+        white = amcl_white_sigma(log.robot)
+        jitter_var = 2.0 * white ** 2
+        if prob.smoothed_amcl is not None:
+            # the smoothed increments' errors are alike over the kernel's 2 s / dt steps, so each
+            # counts that many times
+            rate = 1.0 / max(float(np.median(np.diff(np.unique(log.robot["t"].to_numpy(float))))), 1e-3)
+            jitter_var = (smoothed_increment_var(white, dt, rate, rec.amcl_smooth_s)
+                          * np.maximum(2.0 * rec.amcl_smooth_s / dt, 1.0))
+        st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + jitter_var) + 1e-3
         sy = np.radians(2.0) * dt + 1e-4
         P = [head_frame(*src[k], head_m) for k in range(n_pose)]
         steps = [P[k].between(P[k + 1]) for k in range(n_pose - 1)]
