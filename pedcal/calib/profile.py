@@ -92,8 +92,12 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     return A, b
 
 
-def _solve(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.ndarray:
-    return np.asarray(gfg.optimize().vector(cols.keys), float).ravel()
+def _solve(gfg: gtsam.GaussianFactorGraph, cols: Columns, ordering: gtsam.Ordering | None = None) -> np.ndarray:
+    """The least-squares solution of a linearized graph, by sequential Cholesky elimination in
+    ``ordering`` (a COLAMD ordering of the graph when None; the profile's solves share one: their
+    graphs differ in right-hand sides only)."""
+    ordering = ordering if ordering is not None else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+    return np.asarray(gfg.eliminateSequential(ordering).optimize().vector(cols.keys), float).ravel()
 
 
 @dataclass
@@ -177,7 +181,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     gfg.push_back(g_obs0)
     if plain_build is not None:
         gfg.push_back(g_plain0)
-    z0 = _solve(gfg, cols)
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+    z0 = _solve(gfg, cols, ordering)
     mean = np.array([nu.prior_mean for nu in nuisances])
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     if previous is not None and previous.M is not None:
@@ -218,7 +223,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
             gj.push_back(g_obs)
             if plain_build is not None:
                 gj.push_back(g_plain0)
-        Z[:, j] = (_solve(gj, cols) - z0) / nu.step
+        Z[:, j] = (_solve(gj, cols, ordering) - z0) / nu.step
     # profile residual r_p = rho0 + M dtheta over the fixed, observation and plain rows
     rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
     M = np.vstack([A_f @ Z, A_o @ Z - B_o, A_p @ Z - B_p])
