@@ -10,10 +10,12 @@
    calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
 6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m; a cluster taller than 2 m is cut
    below 2 m (a person against a wall), one 0.8-2.0 m wide at its heads (``split_by_heads``:
-   people side by side), and the parts are gated in turn (``segment``);
+   people side by side; for the FX8 model's frames, one with a single head is cut free of the low
+   objects it touches, ``split_low``: a pushed pram), and the parts are gated in turn (``segment``);
 7. the RealAdaBoost classifier on Kidono et al.'s 213 features, 47 metric height profiles and 4
    measures in the scan's own rays (``pedcal.detect.features``; the frame's ray steps are
-   estimated once per frame, ``scan_steps_rad``).
+   estimated once per frame, ``scan_steps_rad``), the model of the frame's sensor family
+   (``model_family``: the general one, or the FX8 pair's own).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
 and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
