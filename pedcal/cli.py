@@ -308,9 +308,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_demo)
 
     s = sub.add_parser("train-detector", help="train the person classifier (RealAdaBoost)")
-    s.add_argument("-o", "--output", type=Path, default=None, help="model file (default: the shipped one)")
+    s.add_argument("-o", "--output", type=Path, default=None,
+                   help="model file (default: the shipped one of --family)")
+    s.add_argument("--family", default="general", choices=["general", "fx8"],
+                   help="general: every trained LIDAR (default); fx8: the paper's FX8 pair's own model")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--frames", type=int, default=None, help="simulated training frames")
+    s.add_argument("--frames", type=int, default=None, help="simulated training frames (default: the family's)")
     s.add_argument("--labelled", type=Path, default=None, help="a user's labelled clusters instead")
     s.set_defaults(func=cmd_train_detector)
 

@@ -125,6 +125,23 @@ def test_training_is_deterministic_by_seed(tmp_path):
     assert a.validation_["clusters"] > 0 and a.bias_ == -a.validation_["decision_threshold"]
 
 
+def test_the_fx8_family_trains_trees_on_fx8_frames_alone(tmp_path, monkeypatch):
+    import pedcal.detect.train as tr
+
+    drawn = []
+    real_frame = tr.simulated_frame
+    monkeypatch.setattr(tr, "simulated_frame", lambda *a, **kw: drawn.append(kw["presets"]) or real_frame(*a, **kw))
+    m = train_detector(frames=10, seed=1, family="fx8", n_rounds=8)
+    assert m.tree_depth == tr.MODEL_FAMILIES["fx8"].tree_depth > 0 and m.h_.shape == (8, 2**m.tree_depth)
+    assert drawn and all(p == tr.FX8_TRAIN_PRESETS for p in drawn)
+    assert m.validation_["clusters"] > 0
+    out = tmp_path / "fx8.npz"
+    assert main(["train-detector", "--family", "fx8", "--frames", "4", "-o", str(out)]) == 0
+    assert RealAdaBoost.load(out).tree_depth == m.tree_depth
+    with pytest.raises(PedcalInputError, match="family"):
+        train_detector(frames=2, family="kinect")
+
+
 def test_train_detector_cli_and_labelled_inputs(tmp_path, capsys):
     rng = np.random.default_rng(3)
     X = rng.normal(size=(60, N_FEATURES))

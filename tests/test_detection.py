@@ -194,3 +194,39 @@ def test_person_against_a_tall_wall_is_split_off_by_height():
     # a pillar alone leaves no part behind
     pillar = box_surface(rng, 2.0, -1.0, 0.4, 0.4, 2.5, 0.0)
     assert not any(c.gated for c in det.segment(np.vstack([floor(rng), pillar])))
+
+
+def test_a_person_is_cut_free_of_the_pram_they_push():
+    rng = np.random.default_rng(10)
+    person = cylinder_person(rng, 3.0, 0.0, radius=0.22, h=1.7)
+    pram = box_surface(rng, 3.0, 0.72, 0.5, 0.8, 0.9, 0.0, n=3000)  # touching in front (along +y)
+    handle = np.column_stack([np.full(200, 3.0) + rng.uniform(-0.2, 0.2, 200), rng.uniform(0.2, 0.35, 200),
+                              np.full(200, 0.99), np.full(200, 0.3)])
+    pts = np.vstack([floor(rng), person, pram, handle])
+    whole = det.segment(pts, split_wide=False)
+    assert len(whole) == 1 and whole[0].box.width > det.GATE_MAX_WIDTH_M and not whole[0].gated
+    assert det.split_by_heads(pts, whole[0].indices) == []  # one head: not a pair
+    assert not any(c.gated for c in det.segment(pts))  # without cut_low: one wide cluster, ungated
+    gated = [c for c in det.segment(pts, cut_low=True) if c.gated]
+    assert len(gated) == 1
+    g = gated[0]
+    assert (g.box.cx, g.box.cy) == pytest.approx((3.0, 0.0), abs=0.08)
+    assert g.height == pytest.approx(1.7, abs=0.02)
+    n_pram = np.isin(g.indices, np.arange(2000 + len(person), len(pts))).sum()
+    assert n_pram <= 0.05 * len(g.indices)
+    # a wide flat-topped object (a cabinet) has no low cells to drop
+    cabinet = box_surface(rng, 3.0, 0.0, 1.0, 0.5, 1.5, 0.0)
+    assert det.split_low(np.vstack([floor(rng), cabinet]), np.arange(2000, 5000)) == []
+
+
+def test_each_frame_gets_the_model_of_its_sensor_family():
+    assert det.model_family("fx8") == "fx8" and det.model_family("fx8_far") == "fx8"
+    assert det.model_family("hdl64") == "general" and det.model_family() == "general"
+    # no sensor named: the known sensor whose ray steps are nearest the frame's (estimated) ones
+    assert det.model_family(scan_steps=np.radians([0.56, 0.78])) == "fx8"  # as estimated on FX8 frames
+    assert det.model_family(scan_steps=np.radians([0.44, 0.556])) == "general"  # solid-dense
+    assert det.model_family(scan_steps=np.radians([0.2, 0.36])) == "general"  # the SUSTech frames
+    assert det.model_family(scan_steps=(np.nan, np.nan)) == "general"
+    assert det.load_model(family="fx8").tree_depth > 0 and det.load_model().n_features_ == N_FEATURES
+    with pytest.raises(det.PedcalInputError, match="family"):
+        det.model_path("nonsense")

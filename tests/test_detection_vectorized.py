@@ -217,10 +217,10 @@ def _check_frame(pts: np.ndarray) -> int:
     reference; returns the number of clusters checked."""
     model = det.load_model()
     pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= det.MAX_RANGE_M]  # as detect() does
-    cands = det.segment(pts)
+    steps = scan_steps_rad(pts)
+    cands = det.segment(pts, cut_low=det.FAMILY_CUT_LOW[det.model_family(scan_steps=steps)])  # as detect() does
     assert cands
     clusters = [pts[c.indices] for c in cands]
-    steps = scan_steps_rad(pts)
     expected = np.vstack([reference_cluster_features(c, steps) for c in clusters])
     got = features_matrix(clusters, steps)
     assert got.shape == expected.shape == (len(cands), N_FEATURES)

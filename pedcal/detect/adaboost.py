@@ -11,6 +11,15 @@ sample in bin j,
 
     h_t(x) = 1/2 * ln((W+_j + eps) / (W-_j + eps))            (S&S eq. 11, smoothed)
 
+With ``tree_depth`` = D > 0 the partition of a round is instead the leaves of a binary tree of
+depth D (S&S Sec. 4.1 allow any partition of the domain; a tree's leaves are one): grown greedily,
+each node split at one of its feature's quantile edges where its children's share of eq. 10,
+2 (sqrt(W+_L W-_L) + sqrt(W+_R W-_R)), is least, and eq. 11 gives each of the 2^D leaves its output.
+A one-feature partition adds its feature's effect to the others' (the strong classifier is a sum
+of per-feature curves); a tree's leaves are conjunctions ("tall AND near"), which a cluster's
+features need: a person's visible height means something else 1 m from a narrow-FOV sensor than
+4 m from it.
+
 The weights are updated w <- w * exp(-y h_t(x)) and renormalized. The strong classifier is
 F(x) = sum_t h_t(x) + b, whose sign is the class; F estimates half the log-odds, so
 P(y = +1 | x) = 1 / (1 + exp(-2 F(x))). The offset b (``bias_``, 0 after ``fit``) moves the
@@ -35,14 +44,18 @@ from pedcal.io.atomic import atomic_path
 class RealAdaBoost:
     """Binary Real AdaBoost; labels are {0, 1} or {-1, +1} (1 = person)."""
 
-    def __init__(self, n_rounds: int = 200, n_bins: int = 32, seed: int = 0, max_edge_samples: int = 20000):
+    def __init__(self, n_rounds: int = 200, n_bins: int = 32, seed: int = 0, max_edge_samples: int = 20000,
+                 tree_depth: int = 0):
         self.n_rounds = int(n_rounds)
         self.n_bins = int(n_bins)
         self.seed = int(seed)
         self.max_edge_samples = int(max_edge_samples)
-        self.feature_: np.ndarray | None = None  # (T,) feature index of each round
-        self.edges_: np.ndarray | None = None  # (T, B-1) bin edges of each round's feature
-        self.h_: np.ndarray | None = None  # (T, B) output per bin
+        self.tree_depth = int(tree_depth)  # 0: one feature's bins per round; D > 0: a depth-D tree
+        # one feature's bins: (T,) feature of each round, (T, B-1) its bin edges, (T, B) output per bin;
+        # trees: (T, 2^D - 1) feature and threshold of each node (heap order), (T, 2^D) output per leaf
+        self.feature_: np.ndarray | None = None
+        self.edges_: np.ndarray | None = None
+        self.h_: np.ndarray | None = None
         self.n_features_: int = 0
         self.bias_: float = 0.0  # b of F(x), moves the decision threshold
 
@@ -68,6 +81,8 @@ class RealAdaBoost:
         n, F = X.shape
         B = self.n_bins
         edges = self._bin_edges(X)
+        if self.tree_depth > 0:
+            return self._fit_trees(X, y_pm, edges, progress)
         # Bin index of every sample in every feature, offset by feature so one bincount does all.
         bins = np.empty((n, F), dtype=np.int64)
         for f in range(F):
@@ -97,6 +112,51 @@ class RealAdaBoost:
         self.bias_ = 0.0
         return self
 
+    def _fit_trees(self, X: np.ndarray, y_pm: np.ndarray, edges: np.ndarray, progress: bool) -> RealAdaBoost:
+        """Rounds whose partitions are depth-``tree_depth`` trees (see the module docstring)."""
+        n, F = X.shape
+        B, D = self.n_bins, self.tree_depth
+        bins = np.empty((n, F), dtype=np.int64)
+        for f in range(F):
+            bins[:, f] = np.searchsorted(edges[f], X[:, f], side="right")
+        # (sample, feature) -> feature * B + bin, negatives offset by F * B; a node's offset on top
+        codes = bins + np.arange(F) * B + (y_pm < 0)[:, None] * (F * B)
+        eps = 1.0 / (n * 2**D)
+        w = np.full(n, 1.0 / n)
+        node_feature = np.zeros((self.n_rounds, 2**D - 1), dtype=np.int64)
+        node_threshold = np.full((self.n_rounds, 2**D - 1), np.inf)
+        leaves = np.zeros((self.n_rounds, 2**D))
+        rows = np.arange(n)
+        for t in range(self.n_rounds):
+            node = np.zeros(n, dtype=np.int64)  # within the current level
+            for level in range(D):
+                m = 2**level
+                wb = np.bincount((codes + (node * (2 * F * B))[:, None]).ravel(), weights=np.repeat(w, F),
+                                 minlength=m * 2 * F * B).reshape(m, 2, F, B)
+                # left child: bins <= b (x < edges[f, b]) for each of the B - 1 inner edges
+                left = np.cumsum(wb, axis=3)[..., :-1]
+                right = left[..., -1:] + wb[..., -1:] - left
+                z = np.sqrt(left[:, 0] * left[:, 1]) + np.sqrt(right[:, 0] * right[:, 1])  # (m, F, B-1)
+                best = z.reshape(m, -1).argmin(axis=1)
+                f_best, b_best = np.divmod(best, B - 1)
+                heap = m - 1 + np.arange(m)
+                node_feature[t, heap] = f_best
+                node_threshold[t, heap] = edges[f_best, b_best]
+                go_right = bins[rows, f_best[node]] > b_best[node]
+                node = 2 * node + go_right
+            w_leaf = np.bincount(node + (y_pm < 0) * 2**D, weights=w, minlength=2**(D + 1)).reshape(2, -1)
+            leaves[t] = 0.5 * np.log((w_leaf[0] + eps) / (w_leaf[1] + eps))  # S&S eq. 11 per leaf
+            w = w * np.exp(-y_pm * leaves[t][node])
+            w /= w.sum()
+            if progress and (t + 1) % 25 == 0:
+                z_tree = 2.0 * np.sqrt(w_leaf[0] * w_leaf[1]).sum()
+                logging.getLogger(__name__).info(f"  boosting round {t + 1}/{self.n_rounds}: tree Z={z_tree:.4f}",
+                                                 extra={"progress": (t + 1, self.n_rounds)})
+        self.feature_, self.edges_, self.h_ = node_feature, node_threshold, leaves
+        self.n_features_ = F
+        self.bias_ = 0.0
+        return self
+
     # ---------------------------------------------------------------------------------- prediction
     def decision_function(self, X: np.ndarray) -> np.ndarray:
         """F(x) = sum_t h_t(x) + b for each row of X."""
@@ -105,6 +165,14 @@ class RealAdaBoost:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         if X.shape[1] != self.n_features_:
             raise ValueError(f"expected {self.n_features_} features, got {X.shape[1]}")
+        if self.tree_depth > 0:
+            # every sample down every round's tree at once, one level at a time (heap order)
+            rounds = np.arange(len(self.feature_))[None, :]
+            node = np.zeros((len(X), len(self.feature_)), dtype=np.int64)
+            for _ in range(self.tree_depth):
+                go_right = X[np.arange(len(X))[:, None], self.feature_[rounds, node]] >= self.edges_[rounds, node]
+                node = 2 * node + 1 + go_right
+            return self.h_[rounds, node - (2**self.tree_depth - 1)].sum(axis=1) + self.bias_
         vals = X[:, self.feature_]  # (n, T)
         # bin = number of edges <= value (searchsorted side='right'), for every round at once
         bins = (vals[:, :, None] >= self.edges_[None, :, :]).sum(axis=2)
@@ -129,6 +197,8 @@ class RealAdaBoost:
         arrays = dict(feature=self.feature_, edges=self.edges_, h=self.h_,
                       n_features=np.int64(self.n_features_), n_bins=np.int64(self.n_bins),
                       n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed), bias=np.float64(self.bias_))
+        if self.tree_depth:  # (absent: one feature's bins per round, as in files before the trees)
+            arrays["tree_depth"] = np.int64(self.tree_depth)
         with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
             for name, arr in arrays.items():
                 info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -144,7 +214,8 @@ class RealAdaBoost:
             raise PedcalInputError("no such model file", path=path)
         try:
             with np.load(path, allow_pickle=False) as d:
-                m = cls(n_rounds=int(d["n_rounds"]), n_bins=int(d["n_bins"]), seed=int(d["seed"]))
+                m = cls(n_rounds=int(d["n_rounds"]), n_bins=int(d["n_bins"]), seed=int(d["seed"]),
+                        tree_depth=int(d["tree_depth"]) if "tree_depth" in d.files else 0)
                 m.feature_ = d["feature"].astype(np.int64)
                 m.edges_ = d["edges"].astype(float)
                 m.h_ = d["h"].astype(float)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pedcal.detect.detection import Detection, detect, load_model
+from pedcal.detect.detection import Detection, detect, load_model, model_family
 from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, ground_referenced, read_point_cloud_report
 from pedcal.errors import PedcalInputError
 
@@ -62,7 +62,7 @@ def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sens
         height = dict(sensor_height_m=dz) if dz > 0 else {}
     else:
         dz = 0.0
-    dets = detect(pts, load_model(model) if not hasattr(model, "predict_proba") else model, **height)
+    dets = detect(pts, model, sensor=sensor, **height)
     return FileDetections(dets, pts, read.points, dz, read)
 
 
@@ -100,7 +100,8 @@ def match_detections(det_xy: np.ndarray, truth_xy: np.ndarray, radius_m: float =
 def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress: bool = False,
                       preset: str = "fx8") -> dict:
     """Recall and precision of ``detect`` on ``frames`` held-out simulated frames of the FX8 pair
-    (or of another LIDAR ``preset``, see ``pedcal.detect.train.simulated_frame``).
+    (or of another LIDAR ``preset``, see ``pedcal.detect.train.simulated_frame``), with ``model``
+    or, when it is None, the shipped model of the preset's family (``model_family``).
 
     Truth: the people with at least MIN_VISIBLE_POINTS points in the frame; a person detection
     within MATCH_RADIUS_M of one (one-to-one) is a true positive. Bands are by the true person's
@@ -113,7 +114,7 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
     if preset not in LIDAR_PRESETS:
         raise PedcalInputError(f"unknown LIDAR preset {preset!r}; expected one of {sorted(LIDAR_PRESETS)}",
                                column="preset")
-    clf = load_model(model) if not hasattr(model, "predict_proba") else model
+    clf = load_model(model, model_family(preset)) if not hasattr(model, "predict_proba") else model
     n_bands = len(DISTANCE_BANDS_M)
     tp = fn = fp = 0
     band_tp_truth, band_truth = np.zeros(n_bands, int), np.zeros(n_bands, int)
@@ -125,8 +126,8 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
         frame = simulated_frame(EVAL_STREAM, seed, k, preset=preset)
         people = frame.visible_people(MIN_VISIBLE_POINTS)
         truth_xy = np.array([[o["x_m"], o["y_m"]] for o in people]).reshape(-1, 2)
-        dets = [d for d in detect(frame.points.astype(float), clf, sensor_height_m=frame.sensor_height_m)
-                if d.is_person]
+        dets = [d for d in detect(frame.points.astype(float), clf, sensor_height_m=frame.sensor_height_m,
+                                  sensor=preset) if d.is_person]
         det_xy = np.array([[d.x, d.y] for d in dets]).reshape(-1, 2)
         pairs = match_detections(det_xy, truth_xy)
         tp += len(pairs)

@@ -10,10 +10,12 @@
    calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
 6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m; a cluster taller than 2 m is cut
    below 2 m (a person against a wall), one 0.8-2.0 m wide at its heads (``split_by_heads``:
-   people side by side), and the parts are gated in turn (``segment``);
+   people side by side; for the FX8 model's frames, one with a single head is cut free of the low
+   objects it touches, ``split_low``: a pushed pram), and the parts are gated in turn (``segment``);
 7. the RealAdaBoost classifier on Kidono et al.'s 213 features, 47 metric height profiles and 4
    measures in the scan's own rays (``pedcal.detect.features``; the frame's ray steps are
-   estimated once per frame, ``scan_steps_rad``).
+   estimated once per frame, ``scan_steps_rad``), the model of the frame's sensor family
+   (``model_family``: the general one, or the FX8 pair's own).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
 and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
@@ -48,6 +50,10 @@ HEAD_DIP_M = 0.15
 HEAD_KMEANS_STEPS = 3
 HEAD_MIN_SHARE = 0.7
 HEAD_SEPARATION_M = 0.35
+# A wide cluster with one head (a person pushing a pram or trolley, or standing at a chair or box)
+# keeps only its cells whose highest point reaches this share of its height: above a pusher's
+# hands (0.58 h) and a pram's top, below the shoulders (0.82 h) (``split_low``).
+LOW_CUT_SHARE = 0.62
 
 
 @dataclass(frozen=True)
@@ -250,7 +256,7 @@ class Candidate:
 
 def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_m: float = MIN_CELL_SPAN_M,
             gap_cells: int = 0, floor_tolerance_m: float = FLOOR_TOLERANCE_M,
-            split_tall: bool = True, split_wide: bool = True) -> list[Candidate]:
+            split_tall: bool = True, split_wide: bool = True, cut_low: bool = False) -> list[Candidate]:
     """Steps 1-6: every cluster of the frame with its box, height and gate verdict.
 
     With ``split_tall``, a cluster taller than the gate's 2.0 m is split by its height profile:
@@ -261,7 +267,9 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
 
     With ``split_wide``, a cluster 0.8-2.0 m wide (``SPLIT_WIDTH_M``: two or three people side by
     side, who touch in the grid) is cut at its heads (``split_by_heads``); when it has two or more, the parts
-    follow and the whole stays ungated.
+    follow and the whole stays ungated. With ``cut_low`` too, a wide cluster of one head (a person
+    pushing a pram) is cut free of the low objects it touches (``split_low``); a family's frames
+    are segmented as its model was trained (``FAMILY_CUT_LOW``).
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] < 3:
@@ -289,10 +297,31 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
             c = out[i]
             if SPLIT_WIDTH_M[0] < c.box.width <= SPLIT_WIDTH_M[1] and c.height >= GATE_HEIGHT_M[0]:
                 parts = split_by_heads(pts, c.indices, cell_size_m)
-                if len(parts) >= 2:
+                if len(parts) < 2:
+                    parts = split_low(pts, c.indices, cell_size_m) if cut_low else []
+                if parts:
                     out[i] = replace(c, gated=False)
                     out += _candidates(pts, parts)
     return out
+
+
+def split_low(pts: np.ndarray, idx: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> list[np.ndarray]:
+    """A wide cluster with one head cut free of the low objects it touches (a pram or trolley
+    pushed by the handle, a chair or box beside a person): its cells whose highest point is below
+    ``LOW_CUT_SHARE`` of the cluster's height are dropped and the rest is clustered again (8-connected
+    cells); each part of at least MIN_CLUSTER_POINTS points keeps all the points of its cells. An
+    empty list when nothing is dropped (a wall, a car: nothing to cut)."""
+    xyz = pts[idx, :3]
+    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
+    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
+    z_hi = np.full(shape, -np.inf)
+    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    high = z_hi >= LOW_CUT_SHARE * xyz[:, 2].max()
+    if high.sum() == np.isfinite(z_hi).sum():
+        return []
+    labels, _ = cluster_cells(high)
+    own = labels[ij[:, 0], ij[:, 1]]
+    return [idx[own == k] for k in range(1, own.max() + 1) if (own == k).sum() >= MIN_CLUSTER_POINTS]
 
 
 def split_by_heads(pts: np.ndarray, idx: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> list[np.ndarray]:
@@ -381,7 +410,44 @@ def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
 
 
 # ------------------------------------------------------------------------------------- classifier
-DEFAULT_MODEL_PATH = Path(str(resources.files("pedcal") / "data" / "detector_model.npz"))
+# One classifier per family of sensors (``pedcal train-detector --family NAME`` trains each):
+# "general" for the LIDARs of every resolution and range (spinning, solid-state), "fx8" for the
+# paper's FX8 pair, whose narrow field of view (60 x 50 deg, 0.3-5 m) shows near people cut at the
+# knees and the head and whose clusters the general model, trained mostly on other scans, scores
+# too low (``pedcal.detect.train.MODEL_FAMILIES``).
+MODEL_FILES = {"general": "detector_model.npz", "fx8": "detector_model_fx8.npz"}
+DEFAULT_MODEL_PATH = Path(str(resources.files("pedcal") / "data" / MODEL_FILES["general"]))
+# The sensors (``pedcal.detect.sensors.SENSORS`` names and ``pedcal.sim.lidar`` presets) of each
+# family but the general one.
+FAMILY_SENSORS = {"fx8": ("fx8", "fx8_far")}
+# ``segment(cut_low=...)`` of each family's frames, as its model was trained: the FX8 model with
+# pushers cut free of their prams (on simulated FX8 frames 11 of 124 misses were pushers merged
+# with their pram). The general model keeps the segmentation it was trained with (with it, the cut
+# adds a false detection within 15 m to the real SUSTech frames).
+FAMILY_CUT_LOW = {"general": False, "fx8": True}
+
+
+def model_path(family: str = "general") -> Path:
+    """The shipped model file of a family (``MODEL_FILES``)."""
+    if family not in MODEL_FILES:
+        raise PedcalInputError(f"unknown detector model family {family!r}; expected one of "
+                               f"{', '.join(MODEL_FILES)}", column="family")
+    return Path(str(resources.files("pedcal") / "data" / MODEL_FILES[family]))
+
+
+def model_family(sensor: str | None = None, scan_steps: tuple[float, float] | None = None) -> str:
+    """Which family's model serves a frame: the named ``sensor``'s (a ``SENSORS`` name or a LIDAR
+    preset), else that of the known sensor whose ray steps are nearest (ratio of azimuth and of
+    elevation steps, in log) to the frame's estimated ``scan_steps`` (rad, ``scan_steps_rad``);
+    "general" when neither is known."""
+    if sensor is None and scan_steps is not None and np.all(np.isfinite(scan_steps)):
+        from pedcal.detect.sensors import SENSORS
+
+        names = list(SENSORS)
+        steps_deg = np.array([SENSORS[n][1] for n in names])
+        dist = np.linalg.norm(np.log(np.degrees(np.asarray(scan_steps, dtype=float)) / steps_deg), axis=1)
+        sensor = names[int(np.argmin(dist))]
+    return next((f for f, members in FAMILY_SENSORS.items() if sensor in members), "general")
 
 
 @functools.lru_cache(maxsize=4)
@@ -389,9 +455,9 @@ def _load_cached(path: str, mtime: float) -> RealAdaBoost:
     return RealAdaBoost.load(path)
 
 
-def load_model(path: str | Path | None = None) -> RealAdaBoost:
-    """The classifier at ``path`` (default: the shipped ``pedcal/data/detector_model.npz``)."""
-    p = Path(path) if path is not None else DEFAULT_MODEL_PATH
+def load_model(path: str | Path | None = None, family: str = "general") -> RealAdaBoost:
+    """The classifier at ``path`` (default: the shipped model of ``family``, ``model_path``)."""
+    p = Path(path) if path is not None else model_path(family)
     mtime = p.stat().st_mtime if p.exists() else 0.0
     model = _load_cached(str(p), mtime)
     if model.n_features_ != N_FEATURES:
@@ -402,11 +468,15 @@ def load_model(path: str | Path | None = None) -> RealAdaBoost:
 
 def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
            threshold: float = 0.5, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0,
-           max_range_m: float = MAX_RANGE_M, sensor_height_m: float = DEFAULT_SENSOR_HEIGHT_M) -> list[Detection]:
+           max_range_m: float = MAX_RANGE_M, sensor_height_m: float = DEFAULT_SENSOR_HEIGHT_M,
+           sensor: str | None = None) -> list[Detection]:
     """People in one frame: the gated clusters, each scored by the classifier.
 
     ``points`` is (N, 4) ``x, y, z, intensity`` with z = 0 at the floor (N, 3 gets intensity 0);
-    ``model`` a RealAdaBoost, a path to one, or None for the shipped model. Points farther than
+    ``model`` a RealAdaBoost, a path to one, or None for the shipped model of the frame's family
+    (``model_family``: that of ``sensor``, a ``SENSORS`` name or LIDAR preset, when it is named,
+    else the one whose sensors' ray steps are nearest the frame's), whose segmentation the frame
+    gets (``FAMILY_CUT_LOW``). Points farther than
     ``max_range_m`` horizontally from the origin (the sensor) are left out: a person there holds
     a handful of points from any LIDAR. ``sensor_height_m`` is where the sensor sits above the
     floor (the frame's ray steps are estimated as seen from there; a metre off changes them by a
@@ -417,11 +487,13 @@ def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *
         pts = np.column_stack([pts, np.zeros(len(pts))])
     if pts.ndim == 2 and len(pts) and max_range_m is not None:
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range_m]
-    cands = [c for c in segment(pts, cell_size_m=cell_size_m, gap_cells=gap_cells) if c.gated]
+    steps = scan_steps_rad(pts, sensor_height_m) if pts.ndim == 2 and len(pts) else (np.nan, np.nan)
+    family = model_family(sensor, steps)
+    cands = [c for c in segment(pts, cell_size_m=cell_size_m, gap_cells=gap_cells, cut_low=FAMILY_CUT_LOW[family])
+             if c.gated]
     if not cands:
         return []
-    clf = model if isinstance(model, RealAdaBoost) else load_model(model)
-    steps = scan_steps_rad(pts, sensor_height_m)
+    clf = model if hasattr(model, "predict_proba") else load_model(model, family if model is None else "general")
     score = clf.predict_proba(features_matrix([pts[c.indices] for c in cands], steps))
     return [Detection(c.box.cx, c.box.cy, c.height, c.box.width, c.box.depth, c.box.yaw,
                       float(s), bool(s >= threshold), len(c.indices)) for c, s in zip(cands, score, strict=True)]
