@@ -306,7 +306,8 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
     observation; a dome's radius), horizontally (a point pulled toward the sensor whatever the
     viewing angle) and its height's curvature with the viewing angle (``head_curvature``: on,
     off, or auto: kept when the first step's profile finds it at ``head_curvature_select_chi2``
-    or more, a significance test of chi^2 with one degree of freedom), by their profile
+    or more, a significance test of chi^2 with one degree of freedom; widen: never kept, its
+    would-be move carried in the sensors' covariance from ``head_curvature_widen_chi2``), by their profile
     likelihood on the linearized graph (pedcal.calib.profile): each step moves the shifts by the
     profile's Newton step and the variables by the linearized optimum there, until the step is
     below ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
@@ -361,7 +362,7 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
             step, nuis, chi2 = _select_curvature(step, nuis, rec.head_curvature_select_chi2,
                                                  estimate=rec.head_curvature == "auto")
             kept = len(nuis) == len(names)
-            if not kept and chi2 >= rec.head_curvature_select_chi2:
+            if not kept and chi2 >= rec.head_curvature_widen_chi2:
                 unmodelled = _unmodelled_curvature(full, chi2)
             _log(progress, f"head point curvature: chi^2 {chi2:.1f} -> "
                            + ("estimated" if kept else "its share widens the sigma" if unmodelled else "left out"))

@@ -159,14 +159,17 @@ class GraphRecipe:
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
     # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the
-    # default: not estimated, but when its chi^2 reaches the threshold the misfit is named in
-    # model_mismatch and the sensors' covariance carries the move estimating it would make).
-    # Over the nuisance zoo's 80 logs without it, the other shifts' model inexactness gave it a
-    # chi^2 of 3-54 and estimating it cost 2-5 mm of sensor RMS; the simulated centroid tracker
-    # gives 86-145.
+    # default: not estimated, but when its chi^2 reaches head_curvature_widen_chi2, about two
+    # sigma, the misfit is named in model_mismatch and the sensors' covariance carries the move
+    # estimating it would make). Over the nuisance zoo's 80 logs without it, the other shifts'
+    # model inexactness gave it a chi^2 of 3-54 and estimating it cost 2-5 mm of sensor RMS; the
+    # simulated centroid tracker gives 20-145, and with it not widened for below 60 the sensors'
+    # errors relative to their mean were 1.5-1.9x their sigma on paper and sparse (40 seeds), 1.0
+    # and 1.15x widened from 4.
     head_curvature: str = "widen"
     head_curvature_sigma_m: float = 0.02
     head_curvature_select_chi2: float = 60.0
+    head_curvature_widen_chi2: float = 4.0
     # height reference: the installed sensor heights measured to this sigma (0: no reference),
     # or, with ceiling_height_m > 0, every sensor at that height to this sigma
     sensor_height_sigma_m: float = 0.0
