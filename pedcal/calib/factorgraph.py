@@ -347,9 +347,10 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
         if odo:
             plain = (lambda th, nm=tuple(names): motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
                      [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
-        # after a step of under a sigma the sensitivities barely change: a chord step (the last
-        # full step's Hessian and sensitivities, this point's gradient) costs one solve, not k + 1
-        chord = step is not None and np.all(np.abs(step.dtheta) <= np.sqrt(np.diag(step.covariance)))
+        # the shifts enter the measurements linearly, so after a step of a few sigma the
+        # sensitivities barely change: a chord step (the last full step's Hessian and
+        # sensitivities, this point's gradient) costs one solve, not k + 1
+        chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
