@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pedcal.calib.common import interpolate_pose2
-from pedcal.calib.factorgraph import _estimate_head_shifts, calibrate_factorgraph
+from pedcal.calib.factorgraph import _estimate_nuisances, calibrate_factorgraph
 from pedcal.calib.graph import GraphRecipe, build_parts, observation_block, optimize_graph, prepare
 from pedcal.calib.profile import Columns, sparse_system
 from pedcal.errors import DegenerateDataWarning
@@ -51,7 +51,7 @@ def test_profile_estimate_and_sigma_match_the_nonlinear_profile(dome_paper):
     # at the estimate and one sigma either side of it on each shift
     sim, prob, parts, result = dome_paper
     prob = copy.deepcopy(prob)
-    shifts = _estimate_head_shifts(sim.calib, prob, parts, result)
+    shifts = _estimate_nuisances(sim.calib, prob, parts, result)
     theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m])
     sigma = np.sqrt(np.diag(shifts.cov))
     rec = prob.recipe

@@ -4,7 +4,7 @@ the whole log, with what the graph does not hold as variables estimated around i
 1. a first solve (a few Levenberg-Marquardt iterations) under the assumed AMCL model and the
    sensors' noise estimated from consecutive observations;
 2. the head point's shifts toward the sensor (along the ray, horizontally) by their profile on
-   the linearized graph (:mod:`pedcal.calib.profile`, :func:`_estimate_head_shifts`), roughly;
+   the linearized graph (:mod:`pedcal.calib.profile`, :func:`_estimate_nuisances`), roughly;
 3. AMCL's error model (white and wandering std, correlation time, jumps left out) from the
    residuals of AMCL against what each sensor saw (:mod:`pedcal.calib.amcl_model`); shared
    sightings the solution contradicts dropped; the graph rebuilt and solved again;
@@ -117,7 +117,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
-    shifts = _estimate_head_shifts(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
+    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
                                    tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve)
     if resolve:
         # AMCL's error model from the residuals of a solution with the head model estimated (a
@@ -127,7 +127,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
             result = shifts.result
         parts, result, more = _reestimate_amcl(log, prob, result, progress)
         iterations += more
-        shifts = _estimate_head_shifts(log, prob, parts, result, progress, odometry=True)
+        shifts = _estimate_nuisances(log, prob, parts, result, progress, odometry=True)
     if shifts is not None:
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
@@ -276,11 +276,11 @@ def people_misfit(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
 
 
 @dataclass
-class _HeadShifts:
+class _Nuisances:
     graph: gtsam.NonlinearFactorGraph
     result: gtsam.Values
-    cov: np.ndarray               # (k, k) covariance of the shifts (in ``names`` order), m^2
-    sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(shift), per metre
+    cov: np.ndarray               # (k, k) covariance of the nuisances (in ``names`` order, their units squared)
+    sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(nuisance), per unit
     solves: int
     names: list = field(default_factory=list)
     # a curvature the data show but the recipe does not estimate: (would-be value m, the
@@ -299,22 +299,25 @@ def _shown(name: str, value: float) -> str:
     return f"{1000 * value:+.2f} mm"
 
 
-def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
-                          max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
-                          odometry: bool = False) -> _HeadShifts | None:
-    """The head point's shift toward the sensor along the ray (a range offset of every
-    observation; a dome's radius), horizontally (a point pulled toward the sensor whatever the
-    viewing angle) and its height's curvature with the viewing angle (``head_curvature``: on,
-    off, or auto: kept when the first step's profile finds it at ``head_curvature_select_chi2``
-    or more, a significance test of chi^2 with one degree of freedom; widen: never kept, its
-    would-be move carried in the sensors' covariance from ``head_curvature_widen_chi2``), by their profile
-    likelihood on the linearized graph (pedcal.calib.profile): each step moves the shifts by the
-    profile's Newton step and the variables by the linearized optimum there, until the step is
-    below ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
+def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
+                        max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
+                        odometry: bool = False) -> _Nuisances | None:
+    """The nuisances that enter the measurements, by their profile likelihood on the linearized
+    graph (pedcal.calib.profile): the head point's shift toward the sensor along the ray (a range
+    offset of every observation; a dome's radius), horizontally (a point pulled toward the sensor
+    whatever the viewing angle), its height's curvature with the viewing angle
+    (``head_curvature``: on, off, or auto: kept when the first step's profile finds it at
+    ``head_curvature_select_chi2`` or more, a significance test of chi^2 with one degree of
+    freedom; widen: never kept, its would-be move carried in the sensors' covariance from
+    ``head_curvature_widen_chi2``) and, with ``odometry`` and wheel odometry in the graph, the
+    corrections of the odometry's calibration (scale, heading drift per metre and per second;
+    the motion block rebuilt for them). Each step moves the nuisances by the profile's Newton
+    (or chord) step and the variables by the linearized optimum there, until the step is below
+    ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
     profile's inverse Hessian and the variables' sensitivity to them carries it into the
-    sensors' covariance: the marginal over the shifts, not the conditional. ``parts`` gets the
-    observation block at the final shifts; ``curvature=False`` leaves the curvature out (a
-    first, rough pass)."""
+    sensors' covariance: the marginal over the nuisances, not the conditional. ``parts`` gets
+    the observation and motion blocks at the final values; ``curvature=False`` leaves the
+    curvature out (a first, rough pass)."""
     rec = prob.recipe
     if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0 and rec.robot):
         return None
@@ -388,7 +391,7 @@ def _estimate_head_shifts(log: Log, prob: FactorGraphProblem, parts, result, pro
                       "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
     keys = [S(i) for i in range(len(prob.sensor_ids))] + ([H(0)] if result.exists(H(0)) else [])
     sens = step.Z[cols.index(keys)]
-    return _HeadShifts(parts.graph(), result, step.covariance, sens, n_step, names=names,
+    return _Nuisances(parts.graph(), result, step.covariance, sens, n_step, names=names,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]))
 
@@ -480,7 +483,7 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
                                  if bad else ""))
 
 
-def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _HeadShifts | None):
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None):
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio

@@ -160,8 +160,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     for those nuisances alone, the observations for the others; ``plain0``: those factors at
     ``theta`` when already built.
 
-    ``previous``: a step taken at a nearby point (the one before, a fraction of theta's sigma
-    away): its Hessian, sensitivity Z and M are kept and only the variables' step z0 and the
+    ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
+    its Hessian, sensitivity Z and M are kept and only the variables' step z0 and the
     gradient are taken here (a chord step of Newton's method: one solve instead of k + 1)."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
