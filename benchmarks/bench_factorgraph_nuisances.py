@@ -10,11 +10,12 @@ Per scenario (means over seeds): sensor position RMS of the factor graph and of 
 the norm of AMCL's error averaged over the calibration run (the error every calibration anchored
 to AMCL shares, from the simulator's truth) and each method's horizontal RMS with it taken out;
 the fraction of per-axis errors (x, y, z world axes, every sensor of every seed) within 1 and 2
-reported sigma; the head-model error: over the robot's sightings in the calibration run, the RMS
-of (estimated - simulated) head-point offset from the head top, after removing the mean vertical
+reported sigma; the RMS of the horizontal errors over their sigma, split into what the sensors
+share (their mean, whose sigma the joint covariance gives) and the rest (1 when the sigma is
+right); the head-model error: over the robot's sightings in the calibration run, the RMS of
+(estimated - simulated) head-point offset from the head top, after removing the mean vertical
 part (which the robot cannot tell from the sensors' heights), its RMS over seeds and its worst
-seed, and the RMS of that mean vertical part; the
-factor graph's calibrate() wall and CPU time.
+seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time.
 """
 
 from __future__ import annotations
@@ -60,6 +61,23 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
     return float(1000 * np.sqrt(np.mean(np.sum(d ** 2, axis=1)))), 1000 * dz
 
 
+def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal errors split into what the sensors share (their mean, x and y) and the rest
+    (each sensor's departure from it), each over its sigma from the joint position covariance:
+    (2,) and (2 n,) ratios, N(0, 1) when the covariance is right. Empty without the joint."""
+    n = len(E_xy_m)
+    if joint_cov_m2 is None or n < 2:
+        return np.zeros(0), np.zeros(0)
+    idx = np.array([3 * i + a for i in range(n) for a in (0, 1)])
+    C = joint_cov_m2[np.ix_(idx, idx)]
+    mean_op = np.kron(np.ones((1, n)) / n, np.eye(2))
+    rest_op = np.eye(2 * n) - np.kron(np.ones((n, n)) / n, np.eye(2))
+    m = E_xy_m.mean(axis=0)
+    z_shared = m / np.sqrt(np.diag(mean_op @ C @ mean_op.T))
+    z_rest = (E_xy_m - m).ravel() / np.sqrt(np.diag(rest_op @ C @ rest_op.T))
+    return z_shared, z_rest
+
+
 def run_one(scenario: str, seed: int) -> dict:
     warnings.simplefilter("ignore")
     sim = simulate_logs(scenario, seed=seed, vary_nuisances=True)
@@ -86,6 +104,7 @@ def run_one(scenario: str, seed: int) -> dict:
                 if ext.sigma_position_m is not None:
                     ratios.append(np.abs(np.asarray(s.position_error_mm) / 1000.0) / np.asarray(ext.sigma_position_m))
             out["ratios"] = np.array(ratios)
+            out["z_shared"], out["z_rest"] = shared_and_rest_z(E[:, :2] / 1000.0, res.position_covariance_m2)
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
     return out
@@ -105,8 +124,9 @@ def main() -> None:
     print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), --vary-nuisances")
     print("| scenario | graph RMS 3-D / xy (mm) | grid search 3-D / xy (mm) | graph / grid (xy) | "
           "AMCL run-mean error xy (mm) | graph / grid xy less AMCL's run mean (mm) | within 1 sigma x,y,z (%) | "
-          "within 2 sigma x,y,z (%) | head model shape RMS / worst, mean dz (mm) | graph solve wall / CPU (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "within 2 sigma x,y,z (%) | error / sigma RMS, shared / rest (xy) | head model shape RMS / worst, "
+          "mean dz (mm) | graph solve wall / CPU (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for sc in args.scenarios:
         rs = [r for r in results if r["scenario"] == sc]
         if args.verbose:
@@ -123,6 +143,9 @@ def main() -> None:
         ratios = np.concatenate([r["ratios"] for r in rs])
         w1 = 100 * np.mean(ratios <= 1.0, axis=0)
         w2 = 100 * np.mean(ratios <= 2.0, axis=0)
+        zs = np.concatenate([r["z_shared"] for r in rs])
+        zr = np.concatenate([r["z_rest"] for r in rs])
+        z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
         shape = np.sqrt(np.mean([r["head_shape_mm"] ** 2 for r in rs]))
         worst = np.max([r["head_shape_mm"] for r in rs])
         floor = np.mean([r["amcl_mean_xy_mm"] for r in rs])
@@ -133,7 +156,7 @@ def main() -> None:
         cpu = np.mean([r["factorgraph"]["cpu_s"] for r in rs])
         print(f"| {sc} | {g:.1f} / {gxy:.1f} | {b:.1f} / {bxy:.1f} | {g / b:.2f} ({gxy / bxy:.2f}) | {floor:.1f} | "
               f"{grel:.1f} / {brel:.1f} | "
-              f"{w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {w2[0]:.0f}, {w2[1]:.0f}, {w2[2]:.0f} | "
+              f"{w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {w2[0]:.0f}, {w2[1]:.0f}, {w2[2]:.0f} | {z_text} | "
               f"{shape:.1f} / {worst:.1f}, {dz:.1f} | {wall:.2f} / {cpu:.2f} |")
 
 
