@@ -394,8 +394,8 @@ def clutter_mesh(kind: str, rng: np.random.Generator, *, ceiling_height_m: float
         crown_r = u(0.8, 2.2)
         for _ in range(int(rng.integers(1, 4))):
             a, off = u(0, 2 * np.pi), u(0.0, 0.4) * crown_r
-            parts.append(ellipsoid((top[0] + off * np.cos(a), top[1] + off * np.sin(a), crown_base + crown_r * u(0.6, 1.0)),
-                                   (crown_r * u(0.7, 1.0), crown_r * u(0.7, 1.0), crown_r * u(0.6, 1.0)),
+            centre = (top[0] + off * np.cos(a), top[1] + off * np.sin(a), crown_base + crown_r * u(0.6, 1.0))
+            parts.append(ellipsoid(centre, (crown_r * u(0.7, 1.0), crown_r * u(0.7, 1.0), crown_r * u(0.6, 1.0)),
                                    float(u(0.1, 0.5)), 10))
         mesh = Mesh.concat(parts)
         mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)  # a leaning trunk's cap stops at the floor
