@@ -7,7 +7,13 @@ import warnings
 import numpy as np
 import pytest
 
-from pedcal.calib.amcl_model import VARIOGRAM_LAGS_S, detect_jumps, fit_variogram, robust_variogram
+from pedcal.calib.amcl_model import (
+    VARIOGRAM_LAGS_S,
+    AmclErrorModel,
+    detect_jumps,
+    fit_variogram,
+    robust_variogram,
+)
 from pedcal.calib.factorgraph import calibrate_factorgraph
 from pedcal.errors import DegenerateDataWarning
 from pedcal.sim import simulate_logs
@@ -52,6 +58,17 @@ def test_the_wandering_std_is_at_least_amcls_reported_one_at_the_rate_it_shows()
     held = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=300.0, floor_sigma_m=0.05)
     assert held[1] == pytest.approx(max(free[1], 0.05))
     assert held[1] ** 2 / held[2] == pytest.approx(free[1] ** 2 / free[2], rel=1e-6)
+
+
+def test_error_nodes_resolve_a_wandering_error_and_are_few_without_one():
+    # a quarter of the correlation time, within AMCL's period and the recipe's most; a white error
+    # (no wandering part, whatever correlation time the fit left) needs no resolution: one node
+    # per estimate there would double the graph for nothing
+    wandering = AmclErrorModel(white_sigma_m=0.01, correlated_sigma_m=0.05, correlation_s=2.0)
+    assert wandering.node_spacing_s(0.1, 1.0) == pytest.approx(0.5)
+    assert AmclErrorModel(0.01, 0.05, 0.1).node_spacing_s(0.1, 1.0) == pytest.approx(0.1)
+    assert AmclErrorModel(0.01, 0.05, 60.0).node_spacing_s(0.1, 1.0) == pytest.approx(1.0)
+    assert AmclErrorModel(0.05, 0.0, 0.1).node_spacing_s(0.1, 1.0) == pytest.approx(1.0)
 
 
 def test_jumps_are_found_and_nothing_else():

@@ -110,8 +110,11 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     t_opt = time.perf_counter()
     resolve = recipe.estimate_amcl_model and recipe.amcl and recipe.robot
     # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
-    # residuals the model is estimated from
-    result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None)
+    # residuals the model is estimated from (to 0.1 % of the error: millimetres)
+    profiled = _profiled(recipe)
+    result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
+                                        gauss_newton_step=not profiled,
+                                        relative_error_tol=1e-3 if resolve else None)
     _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
                    f"{fg.error(result):.1f}")
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
@@ -125,7 +128,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         # head model again under it
         if shifts is not None:
             result = shifts.result
-        parts, result, more = _reestimate_amcl(log, prob, result, progress)
+        parts, result, more = _reestimate_amcl(log, prob, result, progress, gauss_newton_step=not profiled)
         iterations += more
         shifts = _estimate_nuisances(log, prob, parts, result, progress, odometry=True)
     if shifts is not None:
@@ -194,7 +197,8 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     return t, res, per_sensor
 
 
-def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, progress: bool):
+def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, progress: bool,
+                     gauss_newton_step: bool = True):
     """AMCL's error model estimated from the first solve's residuals (pedcal.calib.amcl_model),
     the graph rebuilt with it and solved again from the first solution. Returns (parts, result,
     iterations)."""
@@ -249,7 +253,10 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, p
             if values.exists(A(m)):
                 values.update(A(m), gtsam.Pose3(gtsam.Rot3(), np.array([-share[m] * mean[m, 0],
                                                                          -share[m] * mean[m, 1], z])))
-    result, iterations = optimize_graph(parts.graph(), values, rec)
+    # (when Gauss-Newton steps follow, those of the nuisances' profile, LM stops at 0.1 % of the
+    # error: they finish what it leaves, converging quadratically this close)
+    result, iterations = optimize_graph(parts.graph(), values, rec, gauss_newton_step=gauss_newton_step,
+                                        relative_error_tol=None if gauss_newton_step else 1e-3)
     return parts, result, iterations
 
 
@@ -299,6 +306,11 @@ def _shown(name: str, value: float) -> str:
     return f"{1000 * value:+.2f} mm"
 
 
+def _profiled(rec: GraphRecipe) -> bool:
+    """Whether the recipe estimates the nuisances by their profile (each step a Gauss-Newton step)."""
+    return bool(rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0 and rec.robot)
+
+
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
                         max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
                         odometry: bool = False) -> _Nuisances | None:
@@ -319,7 +331,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     the observation and motion blocks at the final values; ``curvature=False`` leaves the
     curvature out (a first, rough pass)."""
     rec = prob.recipe
-    if not (rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0 and rec.robot):
+    if not _profiled(rec):
         return None
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:

@@ -1222,23 +1222,25 @@ def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, thr
     return sorted(set(names)), bad
 
 
-def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None):
+def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,
+                   gauss_newton_step: bool = True, relative_error_tol: float | None = None):
     """Levenberg-Marquardt from ``values``, then, with the head model's vertical offset free, one
-    Gauss-Newton step; (result, iterations). A common vertical shift of all variables changes no
+    Gauss-Newton step (unless ``gauss_newton_step`` is False: the caller's next step is one, as
+    every profile step of the nuisances is); (result, iterations). A common vertical shift of all variables changes no
     measurement factor then, only the priors (the offset's, the sensors' installed heights, a
     height reference): a flat direction LM barely moves along before its relative-error test
     stops it, so the solution would sit wherever the initial values put it. The error is quadratic
     along it, and a Gauss-Newton step goes to its optimum."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(recipe.max_iterations if max_iterations is None else max_iterations)
-    params.setRelativeErrorTol(recipe.relative_error_tol)
+    params.setRelativeErrorTol(recipe.relative_error_tol if relative_error_tol is None else relative_error_tol)
     # the robot's chain of poses eliminates faster sequentially, in one COLAMD ordering computed
     # once (the graph's structure does not change between iterations): ~20 % per iteration
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
     params.setOrdering(gtsam.Ordering.ColamdGaussianFactorGraph(fg.linearize(values)))
     opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
     result = opt.optimize()
-    if result.exists(H(0)):
+    if gauss_newton_step and result.exists(H(0)):
         result = result.retract(fg.linearize(result).optimize())
     return result, opt.iterations()
 

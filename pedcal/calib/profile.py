@@ -12,10 +12,10 @@ Minimizing over dx for each dtheta, the profile, leaves
     r_p(dtheta) = rho0 + M dtheta,   rho0 = A z0 - b,   M = A Z - B,
 
 so the profile error 1/2 |r_p|^2 (GTSAM's error, chi^2 / 2) is quadratic in dtheta with gradient
-M^T rho0 and Hessian M^T M, to which theta's prior adds. GTSAM does the solves with N (the
-linearized graph, and k more with the observation block swapped for its version at
-theta + h e_j: z0 + h Z_j); the products with A are sparse matrix-vector products
-(``GaussianFactorGraph.sparseJacobian_``). The Hessian's inverse is theta's covariance, and Z
+M^T rho0 and Hessian M^T M, to which theta's prior adds. A and b come from GTSAM's linearization
+(``GaussianFactorGraph.sparseJacobian_``), B's column j from the observation block rebuilt at
+theta + h e_j; the k + 1 solves with N share one sparse factorization (SuperLU), and a chord step's
+single solve is GTSAM's elimination. The Hessian's inverse is theta's covariance, and Z
 carries it into every variable: the marginal over theta, not the conditional at its estimate.
 z0 is the Gauss-Newton step at theta itself, which also settles directions Levenberg-Marquardt
 barely moves along (a flat gauge held by weak priors only).
@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import scipy.sparse as sps
+import scipy.sparse.linalg as spla
 
 
 @dataclass
@@ -98,6 +99,15 @@ def _solve(gfg: gtsam.GaussianFactorGraph, cols: Columns, ordering: gtsam.Orderi
     graphs differ in right-hand sides only)."""
     ordering = ordering if ordering is not None else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
     return np.asarray(gfg.eliminateSequential(ordering).optimize().vector(cols.keys), float).ravel()
+
+
+def _normal_solver(A: sps.csr_matrix):
+    """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with a
+    minimum-degree ordering of the symmetric matrix and no pivoting: it is positive definite, the
+    graph's priors hold every variable)."""
+    N = (A.T @ A).tocsc()
+    lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    return lambda y: lu.solve(np.asarray(y, float))
 
 
 @dataclass
@@ -176,20 +186,23 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     g_obs0 = obs0.linearize(values)
     A_f, b_f = sparse_system(g_fixed, cols)
     A_o, b_o0 = sparse_system(g_obs0, cols)
-    gfg = gtsam.GaussianFactorGraph()
-    gfg.push_back(g_fixed)
-    gfg.push_back(g_obs0)
-    if plain_build is not None:
-        gfg.push_back(g_plain0)
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-    z0 = _solve(gfg, cols, ordering)
     mean = np.array([nu.prior_mean for nu in nuisances])
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     if previous is not None and previous.M is not None:
+        gfg = gtsam.GaussianFactorGraph()
+        gfg.push_back(g_fixed)
+        gfg.push_back(g_obs0)
+        if plain_build is not None:
+            gfg.push_back(g_plain0)
+        z0 = _solve(gfg, cols)
         rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
         grad = previous.M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
         return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
                            Z=previous.Z, cols=cols, M=previous.M)
+    # the k + 1 solves share the normal matrix N = A^T A (the systems differ in right-hand sides
+    # only): one sparse factorization, then z0 = N^-1 A^T b and Z = N^-1 A^T B
+    solve = _normal_solver(sps.vstack([A_f, A_o, A_p], format="csr"))
+    z0 = solve(A_f.T @ b_f + A_o.T @ b_o0 + A_p.T @ b_p0)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     rows = _factor_rows(obs0)
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
@@ -201,7 +214,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     sqrt_w[:plain_leading] = 1.0
     # quantized to 0.1 % so that factors of equal range and weight share a noise model
     scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
-    Z = np.zeros((cols.n, k))
     B_o = np.zeros((len(b_o0), k))
     B_p = np.zeros((len(b_p0), k))
     for j, nu in enumerate(nuisances):
@@ -209,21 +221,11 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         # linearization has A's rows and the right-hand side b0 + h B_j
         th = np.array(theta, float)
         th[j] += nu.step
-        gj = gtsam.GaussianFactorGraph()
-        gj.push_back(g_fixed)
         if j in plain_idx:
-            g_p = plain_build(th).linearize(values)
-            B_p[:, j] = (sparse_system(g_p, cols)[1] - b_p0) / nu.step
-            gj.push_back(g_obs0)
-            gj.push_back(g_p)
+            B_p[:, j] = (sparse_system(plain_build(th).linearize(values), cols)[1] - b_p0) / nu.step
         else:
-            g_obs = observations(th, scale).linearize(values)
-            _, b_o = sparse_system(g_obs, cols)
-            B_o[:, j] = (b_o - b_o0) / nu.step
-            gj.push_back(g_obs)
-            if plain_build is not None:
-                gj.push_back(g_plain0)
-        Z[:, j] = (_solve(gj, cols, ordering) - z0) / nu.step
+            B_o[:, j] = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_o0) / nu.step
+    Z = solve(A_o.T @ B_o + A_p.T @ B_p).reshape(cols.n, k)
     # profile residual r_p = rho0 + M dtheta over the fixed, observation and plain rows
     rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
     M = np.vstack([A_f @ Z, A_o @ Z - B_o, A_p @ Z - B_p])
