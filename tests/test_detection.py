@@ -230,3 +230,37 @@ def test_each_frame_gets_the_model_of_its_sensor_family():
     assert det.load_model(family="fx8").tree_depth > 0 and det.load_model().n_features_ == N_FEATURES
     with pytest.raises(det.PedcalInputError, match="family"):
         det.model_path("nonsense")
+
+
+def test_legs_below_a_nearer_panel_are_gated_and_an_open_low_box_is_not():
+    # A hanging panel 1.5 m away hides a person 3 m away above the knees: the legs' cluster is
+    # lower than the 0.8 m gate, but its top is hidden, so with occluded_low it is gated on its
+    # width and depth. A box as low in the open is not (nothing nearer above it).
+    from pedcal.sim.lidar import fx8_pair_mounts, render
+    from pedcal.sim.scene import Scene, SceneObject, box, make_person
+
+    rng = np.random.default_rng(3)
+    panel = SceneObject("sign", False, box((0.0, 0.0, 1.15), (0.05, 1.0, 0.9), 0.5), x_m=1.5, y_m=0.0)
+    person = make_person(1.75, 0.45, 0.28, "standing", (0.5, 0.5), rng)
+    person.x_m, person.y_m = 3.0, 0.0
+    low_box = SceneObject("box", False, box((0.0, 0.0, 0.3), (0.4, 0.4, 0.6), 0.5), x_m=3.0, y_m=1.5)
+    scene = Scene([panel, person, low_box])
+    frame = render(scene, "fx8", fx8_pair_mounts(), rng)
+    pts = frame.points.astype(float)
+    sensor = tuple(frame.sensor_positions_base.mean(axis=0))
+
+    def gated_ids(**kw):
+        out = []
+        for c in det.segment(pts, sensor_xyz=sensor, **kw):
+            if c.gated:
+                ids, n = np.unique(frame.object_id[c.indices], return_counts=True)
+                out.append(int(ids[np.argmax(n)]))
+        return out
+
+    legs = frame.object_id == person.id
+    assert legs.sum() >= 10 and pts[legs, 2].max() < det.GATE_HEIGHT_M[0]  # only the legs show
+    assert person.id not in gated_ids()
+    assert gated_ids(occluded_low=True).count(person.id) >= 1
+    assert low_box.id not in gated_ids(occluded_low=True)
+    # unknown ray steps: nothing is taken as hidden
+    assert not det.top_occluded(pts, [np.flatnonzero(legs)], (np.nan, np.nan), sensor).any()

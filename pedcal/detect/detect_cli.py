@@ -56,7 +56,7 @@ def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sens
     if sensor_pose is not None:
         position_m, ypr_deg = parse_sensor_pose(sensor_pose)
         pts, dz = to_base_frame(pts, position_m, ypr_deg), float(position_m[2])
-        height = dict(sensor_height_m=dz)
+        height = dict(sensor_height_m=dz, sensor_xy_m=(float(position_m[0]), float(position_m[1])))
     elif floor in ("auto", "plane"):
         pts, dz = ground_referenced(pts) if floor == "auto" else floor_referenced(pts)
         height = dict(sensor_height_m=dz) if dz > 0 else {}
@@ -127,7 +127,8 @@ def evaluate_detector(frames: int = 200, seed: int = 12345, model=None, progress
         people = frame.visible_people(MIN_VISIBLE_POINTS)
         truth_xy = np.array([[o["x_m"], o["y_m"]] for o in people]).reshape(-1, 2)
         dets = [d for d in detect(frame.points.astype(float), clf, sensor_height_m=frame.sensor_height_m,
-                                  sensor=preset) if d.is_person]
+                                  sensor=preset, sensor_xy_m=tuple(frame.sensor_positions_base[:, :2].mean(axis=0)))
+                if d.is_person]
         det_xy = np.array([[d.x, d.y] for d in dets]).reshape(-1, 2)
         pairs = match_detections(det_xy, truth_xy)
         tp += len(pairs)

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from pedcal.detect.adaboost import RealAdaBoost
-from pedcal.detect.detection import FAMILY_CUT_LOW, model_path, segment
+from pedcal.detect.detection import FAMILY_CUT_LOW, FAMILY_OCCLUDED_LOW, FLOOR_TOLERANCE_M, model_path, segment
 from pedcal.detect.features import N_FEATURES, features_matrix, scan_steps_rad
 from pedcal.errors import PedcalInputError
 
@@ -181,12 +181,20 @@ def add_companions(scene, rng: np.random.Generator, share: float = COMPANION_SHA
     return added
 
 
-def label_clusters(frame, candidates, min_purity: float = 0.6, min_person_share: float = 0.5) -> np.ndarray:
+def label_clusters(frame, candidates, min_purity: float = 0.6, min_person_share: float = 0.5,
+                   above_floor: bool = False) -> np.ndarray:
     """Per cluster: 1 when the majority object id of its points is a person, 0 when it is not,
     -1 (ambiguous, left out of training) when fewer than ``min_purity`` of its points share that
     id, or when it holds less than ``min_person_share`` of that person's visible points (a
-    fragment: the person's own detection is another cluster)."""
-    visible = {o["id"]: o["visible_points"] for o in frame.objects if o["is_person"]}
+    fragment: the person's own detection is another cluster). With ``above_floor``, of the
+    person's visible points above ``FLOOR_TOLERANCE_M``, the only ones a cluster can hold: a
+    person seen only below the knees has a third of those points on the floor's 5 cm."""
+    if above_floor:
+        ids, n = np.unique(frame.object_id[frame.points[:, 2] > FLOOR_TOLERANCE_M], return_counts=True)
+        above = dict(zip(ids.tolist(), n.tolist(), strict=True))
+        visible = {o["id"]: above.get(o["id"], 0) for o in frame.objects if o["is_person"]}
+    else:
+        visible = {o["id"]: o["visible_points"] for o in frame.objects if o["is_person"]}
     labels = np.zeros(len(candidates), dtype=np.int64)
     for i, c in enumerate(candidates):
         ids, counts = np.unique(frame.object_id[c.indices], return_counts=True)
@@ -203,12 +211,14 @@ def frame_training_clusters(frame, family: str = "general") -> tuple[np.ndarray,
     segmented as ``detect`` segments the frames of the model ``family``, the features with the
     frame's ray steps as ``detect`` computes them."""
     pts = frame.points.astype(float)
-    cands = [c for c in segment(pts, cut_low=FAMILY_CUT_LOW[family]) if c.gated]
-    lab = label_clusters(frame, cands)
+    steps = scan_steps_rad(pts, frame.sensor_height_m)
+    cands = [c for c in segment(pts, cut_low=FAMILY_CUT_LOW[family], occluded_low=FAMILY_OCCLUDED_LOW[family],
+                                scan_steps=steps, sensor_xyz=tuple(frame.sensor_positions_base.mean(axis=0)))
+             if c.gated]
+    lab = label_clusters(frame, cands, above_floor=FAMILY_OCCLUDED_LOW[family])
     cands = [c for c, v in zip(cands, lab, strict=True) if v >= 0]
     if not cands:
         return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
-    steps = scan_steps_rad(pts, frame.sensor_height_m)
     return features_matrix([pts[c.indices] for c in cands], steps), lab[lab >= 0]
 
 
