@@ -14,8 +14,8 @@ Minimizing over dx for each dtheta, the profile, leaves
 so the profile error 1/2 |r_p|^2 (GTSAM's error, chi^2 / 2) is quadratic in dtheta with gradient
 M^T rho0 and Hessian M^T M, to which theta's prior adds. A and b come from GTSAM's linearization
 (``GaussianFactorGraph.sparseJacobian_``), B's column j from the observation block rebuilt at
-theta + h e_j; the k + 1 solves with N share one sparse factorization (SuperLU), and a chord step's
-single solve is GTSAM's elimination. The Hessian's inverse is theta's covariance, and Z
+theta + h e_j; the k + 1 solves with N share one sparse factorization (SuperLU), a chord step's
+single solve takes one of its own. The Hessian's inverse is theta's covariance, and Z
 carries it into every variable: the marginal over theta, not the conditional at its estimate.
 z0 is the Gauss-Newton step at theta itself, which also settles directions Levenberg-Marquardt
 barely moves along (a flat gauge held by weak priors only).
@@ -91,14 +91,6 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     np.add.at(b, i[rhs], v[rhs])
     A = sps.csr_matrix((v[~rhs], (i[~rhs], local[j[~rhs]])), shape=(m, cols.n))
     return A, b
-
-
-def _solve(gfg: gtsam.GaussianFactorGraph, cols: Columns, ordering: gtsam.Ordering | None = None) -> np.ndarray:
-    """The least-squares solution of a linearized graph, by sequential Cholesky elimination in
-    ``ordering`` (a COLAMD ordering of the graph when None; the profile's solves share one: their
-    graphs differ in right-hand sides only)."""
-    ordering = ordering if ordering is not None else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-    return np.asarray(gfg.eliminateSequential(ordering).optimize().vector(cols.keys), float).ravel()
 
 
 def _normal_solver(A: sps.csr_matrix):
@@ -188,21 +180,15 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     A_o, b_o0 = sparse_system(g_obs0, cols)
     mean = np.array([nu.prior_mean for nu in nuisances])
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
-    if previous is not None and previous.M is not None:
-        gfg = gtsam.GaussianFactorGraph()
-        gfg.push_back(g_fixed)
-        gfg.push_back(g_obs0)
-        if plain_build is not None:
-            gfg.push_back(g_plain0)
-        z0 = _solve(gfg, cols)
-        rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
-        grad = previous.M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
-        return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
-                           Z=previous.Z, cols=cols, M=previous.M)
     # the k + 1 solves share the normal matrix N = A^T A (the systems differ in right-hand sides
     # only): one sparse factorization, then z0 = N^-1 A^T b and Z = N^-1 A^T B
     solve = _normal_solver(sps.vstack([A_f, A_o, A_p], format="csr"))
     z0 = solve(A_f.T @ b_f + A_o.T @ b_o0 + A_p.T @ b_p0)
+    if previous is not None and previous.M is not None:
+        rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
+        grad = previous.M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
+        return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
+                           Z=previous.Z, cols=cols, M=previous.M)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     rows = _factor_rows(obs0)
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
