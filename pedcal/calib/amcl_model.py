@@ -52,9 +52,10 @@ class AmclErrorModel:
         """Spacing of the error process's nodes: a quarter of its correlation time, at least
         AMCL's period, at most ``max_spacing_s``; the most without a wandering part (the nodes
         then hold nothing to resolve, whatever the fit's correlation time)."""
+        most = max(max_spacing_s, amcl_period_s)
         if self.correlated_sigma_m <= 0.0:
-            return float(max(max_spacing_s, amcl_period_s))
-        return float(np.clip(self.correlation_s / 4.0, amcl_period_s, max(max_spacing_s, amcl_period_s)))
+            return float(most)
+        return float(np.clip(self.correlation_s / 4.0, amcl_period_s, most))
 
     def floor_sigma_m(self, duration_s: float) -> float:
         """Std per axis of this error's average over a run of ``duration_s``: the accuracy no

@@ -29,7 +29,9 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sps
 from scipy import ndimage
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
 from pedcal.detect.adaboost import RealAdaBoost
@@ -342,13 +344,8 @@ def _gate_occluded_low(pts: np.ndarray, cands: list[Candidate], scan_steps, sens
         return cands
     # single-link groups of the hidden clusters by their (axis-aligned) box centres
     xy = np.array([[cands[i].box.cx, cands[i].box.cy] for i in low])
-    group = np.arange(len(low))
     near = np.linalg.norm(xy[:, None] - xy[None], axis=2) <= LEG_SPAN_M
-    for _ in range(len(low)):
-        new = np.min(np.where(near, group[None, :], len(low)), axis=1)
-        if np.array_equal(new, group):
-            break
-        group = new
+    group = connected_components(sps.csr_matrix(near), directed=False)[1]
     parts = [np.concatenate([cands[low[j]].indices for j in np.flatnonzero(group == g)]) for g in np.unique(group)]
     parts = [idx for idx in parts if len(idx) >= MIN_CLUSTER_POINTS]
     # legs within a stride of a gated cluster's centre are that cluster's (a person whose middle
