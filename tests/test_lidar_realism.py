@@ -151,10 +151,35 @@ def test_intensity_models_rescale_or_drop_the_same_returns():
     unit = frames["unit"].intensity
     assert 0.0 <= unit.min() and unit.max() <= 1.0 and unit.max() > 0.3
     np.testing.assert_array_equal(frames["uint8"].xyz, frames["unit"].xyz)  # no draw changes
-    np.testing.assert_array_equal(frames["uint8"].intensity, np.round(255.0 * unit))
+    as_uint8 = frames["uint8"].intensity
+    assert np.all(as_uint8 == np.round(as_uint8)) and as_uint8.max() <= 255.0
+    np.testing.assert_allclose(as_uint8, 255.0 * unit, atol=0.5 + 1e-4)  # (unit is float32)
     assert (frames["none"].intensity == 0).all()
     with pytest.raises(PedcalInputError, match="intensity_model"):
         LIDAR_PRESETS["vlp16"].with_(intensity_model="dB")
+
+
+def test_calibrated_intensity_does_not_fall_off_with_range():
+    """hdl64e reports calibrated reflectance as KITTI does: a wall reads the same at 4 and 12 m
+    (straight ahead, where the incidence is nil); with the raw model it reads (4 / 12)^0.5 as much,
+    and a calibrated cos^0.5 incidence term makes a grazing floor brighter than cos does."""
+    def wall_reading(lidar, x):
+        frame = render(Scene([_wall(x, 0.5)]), lidar, Mount(0.0, 0.0, 1.8), np.random.default_rng(0))
+        ahead = (frame.object_id == 0) & (np.abs(frame.xyz[:, 1]) < 0.05) & (np.abs(frame.xyz[:, 2] - 1.8) < 0.3)
+        return float(frame.intensity[ahead].mean())
+
+    calibrated = LIDAR_PRESETS["hdl64e"].with_(**NOISELESS)
+    raw = calibrated.with_(intensity_range_exponent=0.5, intensity_incidence_exponent=1.0)
+    assert wall_reading(calibrated, 4.0) == pytest.approx(0.5, abs=0.01)
+    assert wall_reading(calibrated, 12.0) == pytest.approx(wall_reading(calibrated, 4.0), rel=0.01)
+    assert wall_reading(raw, 12.0) / wall_reading(raw, 4.0) == pytest.approx((4.0 / 12.0) ** 0.5, rel=0.02)
+    floor = {k: render(Scene(), m, Mount(0.0, 0.0, 1.8), np.random.default_rng(0)) for k, m in
+             (("calibrated", calibrated), ("cos", calibrated.with_(intensity_incidence_exponent=1.0)))}
+    ratio = floor["calibrated"].intensity / floor["cos"].intensity
+    cos_inc = 1.8 / np.linalg.norm(floor["cos"].xyz - [0.0, 0.0, 1.8], axis=1)  # the floor's normal is z
+    np.testing.assert_allclose(ratio, cos_inc ** -0.5, rtol=1e-3)
+    with pytest.raises(PedcalInputError, match="exponents"):
+        calibrated.with_(intensity_incidence_exponent=-1.0)
 
 
 @pytest.mark.parametrize("mode", STRAY_MODES)
@@ -221,6 +246,9 @@ def test_random_nuisances_vary_by_seed_and_keep_the_geometry():
     shares = np.array([v.stray_below_share for v in variants])
     assert 0.35 < np.mean(shares == 0) < 0.65 and shares.max() <= 0.02 and shares[shares > 0].min() >= 1e-3
     assert {v.range_noise for v in variants} == {"uniform", "gaussian"}
+    calibrated = [v for v in variants if v.intensity_range_exponent == 0.0]
+    assert 60 < len(calibrated) < 140 and all(0 <= v.intensity_incidence_exponent <= 0.5 for v in calibrated)
+    assert all(v.intensity_incidence_exponent == 1.0 for v in variants if v.intensity_range_exponent == 0.5)
     base = LIDAR_PRESETS["vlp32c"]
     assert all(v.elevations_deg == base.elevations_deg and v.n_horizontal == base.n_horizontal for v in variants)
     cams = [random_nuisances("realsense_d435", np.random.default_rng(s)) for s in range(30)]

@@ -56,11 +56,14 @@ class LidarModel:
     ``"quadratic"`` from N(0, std · (r / 1 m)^2): a stereo or structured-light camera's depth error
     grows with the range squared (sigma_z = z^2 · sigma_d / (f · b), disparity noise sigma_d,
     focal length f, baseline b), ``range_noise_std_m`` is its value at 1 m.
-    Intensity (0..1) = reflectance · |cos(incidence)| · min(1, (ref_range / r)^exponent) + noise;
-    returns weaker than ``min_return_intensity`` are lost, and each ray drops out with
-    ``dropout_prob``. ``intensity_model`` sets what the frame reports: ``"unit"`` that 0..1
-    reflectance (KITTI's scale), ``"uint8"`` it as integers 0..255 (Velodyne and Ouster drivers,
-    Argoverse), ``"none"`` zeros (a sensor without intensity).
+    Intensity (0..1) = reflectance · |cos(incidence)|^k · min(1, (ref_range / r)^exponent) + noise
+    (k = ``intensity_incidence_exponent``, exponent = ``intensity_range_exponent``); returns weaker
+    than ``min_return_intensity`` are lost, and each ray drops out with ``dropout_prob``. A sensor
+    whose driver reports calibrated reflectance (KITTI's HDL-64E: its road reads 0.2-0.3 from 4 to
+    20 m, its pedestrians 0.23-0.48 in the median) has exponent 0 and a small k.
+    ``intensity_model`` sets what the frame reports: ``"unit"`` that 0..1 reflectance (KITTI's
+    scale), ``"uint8"`` it as integers 0..255 (Velodyne and Ouster drivers, Argoverse), ``"none"``
+    zeros (a sensor without intensity).
 
     Stray returns (multipath: an echo off a wet road or a car's glass that comes back late, seen in
     real street frames as points metres below the road): each return becomes one with probability
@@ -81,6 +84,7 @@ class LidarModel:
     range_noise: str = "uniform"
     intensity_noise_std: float = 0.02
     intensity_range_exponent: float = 0.5
+    intensity_incidence_exponent: float = 1.0
     intensity_ref_range_m: float = 1.0
     min_return_intensity: float = 0.005
     dropout_prob: float = 0.01
@@ -127,6 +131,8 @@ class LidarModel:
             bad.append("stray_depth_m must be (min, max) with 0 < min <= max")
         if not 0 <= self.dropout_prob < 1:
             bad.append("dropout_prob must be in [0, 1)")
+        if self.intensity_range_exponent < 0 or self.intensity_incidence_exponent < 0:
+            bad.append("intensity exponents must be >= 0")
         if self.range_noise_std_m < 0 or self.intensity_noise_std < 0:
             bad.append("noise standard deviations must be >= 0")
         if bad:
@@ -261,7 +267,8 @@ LIDAR_PRESETS.update({
     "vlp32c": LidarModel.from_beams("vlp32c", VLP32C_ELEVATIONS_DEG, 1800, 360.0, 0.5, 200.0,
                                     range_noise_std_m=0.015, intensity_model="uint8", **_SPINNING),
     "hdl64e": LidarModel.from_beams("hdl64e", HDL64E_ELEVATIONS_DEG, 2000, 360.0, 0.9, 120.0,
-                                    range_noise_std_m=0.02, intensity_model="unit", **_SPINNING),
+                                    range_noise_std_m=0.02, intensity_model="unit", intensity_range_exponent=0.0,
+                                    intensity_incidence_exponent=0.5, **_SPINNING),
     # Ouster OS1 (rev. 6): evenly spaced beams over 45 deg (+-22.5), 2048 or 1024 columns, 0.3-120 m.
     "os1_64": LidarModel("os1_64", 2048, 64, 360.0, 45.0, 0.3, 120.0, range_noise_std_m=0.02,
                          intensity_model="uint8", **_SPINNING),
@@ -359,17 +366,21 @@ def random_nuisances(lidar: LidarModel | str, rng: np.random.Generator) -> Lidar
     below the ground (none in half the frames, else a share log-uniform in 0.1-2 %, either
     ``STRAY_MODES``), the intensity scale (``INTENSITY_MODELS``: 0..1 45 %, 0..255 35 %, absent 20 %;
     cameras have none), range noise (the preset's std times 2^U(-1, 1), uniform or gaussian for a
-    LIDAR, quadratic for a camera) and ray dropout (the preset's plus U(0, 3 %)). Always the same
-    seven draws."""
+    LIDAR, quadratic for a camera), ray dropout (the preset's plus U(0, 3 %)) and how intensity
+    depends on the geometry (half the frames calibrated reflectance as KITTI's: no range falloff,
+    |cos(incidence)|^U(0, 0.5); the others raw: (1 m / r)^0.5 and |cos(incidence)|). Always the same
+    nine draws."""
     lidar = _preset(lidar)
-    u = rng.random(7)
+    u = rng.random(9)
     share = 0.0 if u[0] < 0.5 else float(10 ** (-3.0 + u[1] * np.log10(20.0)))
     mode = STRAY_MODES[int(u[2] * len(STRAY_MODES))]
     intensity = "none" if lidar.intensity_model == "none" else INTENSITY_MODELS[int(np.searchsorted([0.45, 0.8], u[3]))]
     noise = lidar.range_noise if lidar.range_noise == "quadratic" else ("uniform" if u[4] < 0.5 else "gaussian")
     return lidar.with_(stray_below_share=share, stray_mode=mode, intensity_model=intensity, range_noise=noise,
                        range_noise_std_m=lidar.range_noise_std_m * float(2.0 ** (2 * u[5] - 1)),
-                       dropout_prob=min(lidar.dropout_prob + 0.03 * float(u[6]), 0.5))
+                       dropout_prob=min(lidar.dropout_prob + 0.03 * float(u[6]), 0.5),
+                       intensity_range_exponent=0.0 if u[7] < 0.5 else 0.5,
+                       intensity_incidence_exponent=0.5 * float(u[8]) if u[7] < 0.5 else 1.0)
 
 
 @dataclass
@@ -484,6 +495,8 @@ def render(scene: Scene, lidar: LidarModel | str, mounts, rng: np.random.Generat
     cos_incidence = np.abs(np.einsum("ij,ij->i", normal_scene, d_hit_scene))
     falloff = np.minimum(1.0, (lidar.intensity_ref_range_m / np.maximum(range_m, 1e-6))
                          ** lidar.intensity_range_exponent)
+    if lidar.intensity_incidence_exponent != 1.0:
+        cos_incidence = cos_incidence ** lidar.intensity_incidence_exponent
     intensity = reflectance * cos_incidence * falloff
     if lidar.intensity_noise_std > 0:
         intensity = intensity + rng.normal(0.0, lidar.intensity_noise_std, len(idx))
