@@ -185,8 +185,8 @@ def test_calibrated_intensity_does_not_fall_off_with_range():
 @pytest.mark.parametrize("mode", STRAY_MODES)
 def test_stray_returns_lie_one_to_six_metres_below_the_floor(mode):
     """On a bare floor a 64-beam LIDAR at 1.8 m with 3 % stray returns: every stray is 1-6 m
-    below the floor, on its own ray (along_ray) or below its true hit (vertical); about 3 % of the
-    returns that can stray do; without the option nothing lies below the floor."""
+    below the floor, on its own ray (along_ray) or below its true hit (vertical, patch); about 3 %
+    of the returns that can stray do; without the option nothing lies below the floor."""
     base = LIDAR_PRESETS["hdl64e"].with_(**NOISELESS)
     mount = Mount(0.0, 0.0, 1.8)
     clean = render(Scene(), base, mount, np.random.default_rng(5))
@@ -209,6 +209,8 @@ def test_stray_returns_lie_one_to_six_metres_below_the_floor(mode):
     else:
         np.testing.assert_allclose(stray.xyz[is_stray, :2], clean.xyz[is_stray, :2], atol=1e-5)
         share = is_stray.mean()
+    if mode == "patch":  # 1-3 sheets of the bare floor, each moved down by one depth
+        assert 1 <= len(np.unique(np.round(z, 4))) <= 3
     assert share == pytest.approx(0.03, abs=4 * np.sqrt(0.03 * 0.97 / len(clean.points)) + 0.002)
     assert np.all(stray.intensity[is_stray] <= 0.5 * clean.intensity[is_stray] + 1e-6)
     with pytest.raises(PedcalInputError, match="stray_below_share"):
@@ -244,7 +246,7 @@ def test_random_nuisances_vary_by_seed_and_keep_the_geometry():
     assert {v.intensity_model for v in variants} == set(INTENSITY_MODELS)
     assert {v.stray_mode for v in variants if v.stray_below_share > 0} == set(STRAY_MODES)
     shares = np.array([v.stray_below_share for v in variants])
-    assert 0.35 < np.mean(shares == 0) < 0.65 and shares.max() <= 0.02 and shares[shares > 0].min() >= 1e-3
+    assert 0.35 < np.mean(shares == 0) < 0.65 and shares.max() <= 0.005 and shares[shares > 0].min() >= 1e-4
     assert {v.range_noise for v in variants} == {"uniform", "gaussian"}
     calibrated = [v for v in variants if v.intensity_range_exponent == 0.0]
     assert 60 < len(calibrated) < 140 and all(0 <= v.intensity_incidence_exponent <= 0.5 for v in calibrated)
@@ -270,3 +272,12 @@ def test_named_sensors_state_their_presets_ray_steps(name):
     fine = np.diff(el).min() if lidar.elevations_deg is not None else np.ptp(el) / (len(el) - 1)
     assert el_step == pytest.approx(fine, rel=2e-3)
     assert needs_thinning(np.zeros((0, 4)), name) == (lidar.projection == "pinhole")
+
+
+@pytest.mark.parametrize("mode", STRAY_MODES)
+def test_stray_returns_of_an_empty_frame(mode):
+    """A camera looking at the open sky returns nothing, strays or not."""
+    lidar = LIDAR_PRESETS["depth_vga_wide"].with_(stray_below_share=0.1, stray_mode=mode)
+    frame = render(Scene(), lidar, Mount(0.0, 0.0, 1.0, 0.0, -80.0), np.random.default_rng(0))
+    assert frame.points.shape == (0, 4) and frame.organized(lidar).shape == (480, 640, 4)
+    assert np.isnan(frame.organized(lidar)).all()

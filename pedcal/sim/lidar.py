@@ -35,7 +35,7 @@ from pedcal.sim.scene import Scene
 STRAY_ID = -3  # object id of stray returns below the ground (floor -1, ceiling -2)
 RANGE_NOISE_MODELS = ("uniform", "gaussian", "quadratic")
 INTENSITY_MODELS = ("unit", "uint8", "none")
-STRAY_MODES = ("along_ray", "vertical")
+STRAY_MODES = ("along_ray", "vertical", "patch")
 PROJECTIONS = ("spherical", "pinhole")
 # Sensor frame (x forward, y left, z up) -> camera optical frame (REP 103: x right, y down, z forward).
 R_OPTICAL_SENSOR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
@@ -69,8 +69,12 @@ class LidarModel:
     real street frames as points metres below the road): each return becomes one with probability
     ``stray_below_share``, placed a depth drawn uniformly from ``stray_depth_m`` below the floor
     (z = 0): ``stray_mode="along_ray"`` on its own ray, further out (kept only when that is
-    within ``max_range_m`` and the ray points down), ``"vertical"`` straight below its hit. Its
-    intensity is the return's times U(0.05, 0.5), its object id ``STRAY_ID``.
+    within ``max_range_m`` and the ray points down), ``"vertical"`` straight below its hit,
+    ``"patch"`` as a ghost of part of the scene: as many returns, the nearest ones to 1-3 random
+    returns, moved down together (by the depth of their patch's centre, clipped to
+    ``stray_depth_m``). Real frames hold few: in the shared KITTI training frames 0-0.12 % of
+    the points, in tight clusters 7-9 m away, most 1.2-1.8 m below the road. A stray's intensity
+    is the return's times U(0.05, 0.5), its object id ``STRAY_ID``.
     """
 
     name: str
@@ -363,7 +367,7 @@ def random_mount(lidar: LidarModel | str, rng: np.random.Generator, kind: str | 
 
 def random_nuisances(lidar: LidarModel | str, rng: np.random.Generator) -> LidarModel:
     """A variant of a LIDAR for one frame, so that seeds vary what real sensors vary: stray returns
-    below the ground (none in half the frames, else a share log-uniform in 0.1-2 %, either
+    below the ground (none in half the frames, else a share log-uniform in 0.01-0.5 %, one of the
     ``STRAY_MODES``), the intensity scale (``INTENSITY_MODELS``: 0..1 45 %, 0..255 35 %, absent 20 %;
     cameras have none), range noise (the preset's std times 2^U(-1, 1), uniform or gaussian for a
     LIDAR, quadratic for a camera), ray dropout (the preset's plus U(0, 3 %)) and how intensity
@@ -372,7 +376,7 @@ def random_nuisances(lidar: LidarModel | str, rng: np.random.Generator) -> Lidar
     nine draws."""
     lidar = _preset(lidar)
     u = rng.random(9)
-    share = 0.0 if u[0] < 0.5 else float(10 ** (-3.0 + u[1] * np.log10(20.0)))
+    share = 0.0 if u[0] < 0.5 else float(10 ** (-4.0 + u[1] * np.log10(50.0)))
     mode = STRAY_MODES[int(u[2] * len(STRAY_MODES))]
     intensity = "none" if lidar.intensity_model == "none" else INTENSITY_MODELS[int(np.searchsorted([0.45, 0.8], u[3]))]
     noise = lidar.range_noise if lidar.range_noise == "quadratic" else ("uniform" if u[4] < 0.5 else "gaussian")
@@ -539,7 +543,8 @@ def render(scene: Scene, lidar: LidarModel | str, mounts, rng: np.random.Generat
 def _stray_returns(lidar: LidarModel, rng: np.random.Generator, origin_base: np.ndarray, d_base: np.ndarray,
                    range_m: np.ndarray, xyz_base: np.ndarray, intensity: np.ndarray, object_id: np.ndarray) -> None:
     """Turn a ``stray_below_share`` of the returns into stray returns below the floor, in place
-    (``LidarModel``'s docstring). Three draws per return, whichever are picked."""
+    (``LidarModel``'s docstring). Three draws per return, whichever are picked (and for patches
+    their number and centres)."""
     n = len(range_m)
     pick = rng.random(n) < lidar.stray_below_share
     lo, hi = lidar.stray_depth_m
@@ -550,8 +555,18 @@ def _stray_returns(lidar: LidarModel, rng: np.random.Generator, origin_base: np.
         t = np.where(down, (origin_base[:, 2] + depth) / np.where(down, -d_base[:, 2], 1.0), np.inf)
         ok = pick & down & (t <= lidar.max_range_m) & (t > range_m)
         xyz_base[ok] = origin_base[ok] + d_base[ok] * t[ok, None]
-    else:  # vertical: a ghost straight below the hit
+    elif lidar.stray_mode == "vertical":  # a ghost straight below the hit
         ok = pick
         xyz_base[ok, 2] = -depth[ok]
+    else:  # patch: the returns nearest 1-3 centres, moved down together
+        ok = np.zeros(n, dtype=bool)
+        n_patches = min(1 + int(rng.integers(3)), n)
+        centres = rng.choice(n, n_patches, replace=False) if n else np.zeros(0, dtype=int)
+        per = int(np.ceil(pick.sum() / max(n_patches, 1)))
+        for c in centres[: n_patches if per else 0]:
+            near = np.argpartition(np.linalg.norm(xyz_base - xyz_base[c], axis=1), min(per, n) - 1)[:per]
+            z = xyz_base[near, 2] - xyz_base[c, 2] - depth[c]
+            xyz_base[near, 2] = np.clip(z, -hi, -lo)
+            ok[near] = True
     intensity[ok] *= weaken[ok]
     object_id[ok] = STRAY_ID
