@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.common import robot_head_at
@@ -102,7 +103,22 @@ class EvaluationResult:
     missing_sensors: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
+        """The figures as nested plain values (``pedcal evaluate --json``); ``to_dataframe()``
+        gives the per-sensor part as a table."""
         return asdict(self)
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per scored sensor, indexed by id: ``error_x_mm``, ``error_y_mm``, ``error_z_mm``
+        (estimated - true, world axes), ``position_error_norm_mm``, ``orientation_error_deg``,
+        ``head_rms_mm`` (NaN without head observations) and ``head_observations``."""
+        rows = [{"id": s.id, **dict(zip(("error_x_mm", "error_y_mm", "error_z_mm"), map(float, s.position_error_mm),
+                                        strict=True)),
+                 "position_error_norm_mm": s.position_error_norm_mm, "orientation_error_deg": s.orientation_error_deg,
+                 "head_rms_mm": np.nan if s.head_rms_mm is None else s.head_rms_mm,
+                 "head_observations": s.head_observations} for s in self.sensors]
+        columns = ["id", "error_x_mm", "error_y_mm", "error_z_mm", "position_error_norm_mm", "orientation_error_deg",
+                   "head_rms_mm", "head_observations"]
+        return pd.DataFrame(rows, columns=columns).set_index("id")
 
     def format_table(self) -> str:
         out = []
