@@ -76,6 +76,9 @@ def test_alternative_options_mirror_its_parameters():
     from pedcal.calib.alternative import DEFAULT_PARAMS
 
     assert AlternativeOptions().to_kwargs() == DEFAULT_PARAMS
+    from pedcal.calib.closedform import COLLINEAR_SPREAD_M, MIN_PAIRS
+
+    assert (ClosedFormOptions().min_pairs, ClosedFormOptions().collinear_spread_m) == (MIN_PAIRS, COLLINEAR_SPREAD_M)
 
 
 def test_options_dataclass_runs_the_method(sim):

@@ -15,9 +15,6 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from pedcal.calib import alternative as _alternative
-from pedcal.calib import association as _association
-from pedcal.calib import closedform as _closedform
 from pedcal.errors import PedcalInputError
 
 if TYPE_CHECKING:
@@ -95,39 +92,39 @@ class ClosedFormOptions(MethodOptions):
     method: ClassVar[str] = "closedform"
     is_robot: np.ndarray | None = None
     latency_s: float | None = None         # tracker latency; None: estimated
-    min_pairs: int = _closedform.MIN_PAIRS
-    collinear_spread_m: float = _closedform.COLLINEAR_SPREAD_M
+    min_pairs: int = 5                      # pedcal.calib.closedform.MIN_PAIRS
+    collinear_spread_m: float = 0.1         # pedcal.calib.closedform.COLLINEAR_SPREAD_M
     association: dict[str, Any] = field(default_factory=dict)
     rest: ClassVar[str | None] = "association"
 
     @classmethod
     def rest_names(cls) -> list[str]:
-        return list(_association.DEFAULT_PARAMS)
+        from pedcal.calib.association import DEFAULT_PARAMS
 
-
-_ALT = _alternative.DEFAULT_PARAMS
+        return list(DEFAULT_PARAMS)
 
 
 @dataclass
 class AlternativeOptions(MethodOptions):
-    """SNAPCAT-3D style shared observations of people (Glas et al. 2015); the fields are
-    ``pedcal.calib.alternative.DEFAULT_PARAMS`` (gates, rounds, noise, priors)."""
+    """SNAPCAT-3D style shared observations of people (Glas et al. 2015); the fields and defaults
+    are ``pedcal.calib.alternative.DEFAULT_PARAMS`` (gates, rounds, noise, priors; a test holds
+    them equal)."""
 
     method: ClassVar[str] = "alternative"
-    min_overlap_s: float = _ALT["min_overlap_s"]
-    max_gap_s: float = _ALT["max_gap_s"]
-    max_offset_m: float = _ALT["max_offset_m"]
-    max_spread_m: float = _ALT["max_spread_m"]
-    refined_max_offset_m: float = _ALT["refined_max_offset_m"]
-    ambiguity_ratio: float = _ALT["ambiguity_ratio"]
-    sample_period_s: float = _ALT["sample_period_s"]
-    rounds: int = _ALT["rounds"]
-    point_sigma_m: float = _ALT["point_sigma_m"]
-    huber_k: float = _ALT["huber_k"]
-    prior_sigma_position_m: float = _ALT["prior_sigma_position_m"]
-    prior_sigma_deg: float = _ALT["prior_sigma_deg"]
-    min_path_spread_m: float = _ALT["min_path_spread_m"]
-    compute_sigma: bool = _ALT["compute_sigma"]
+    min_overlap_s: float = 2.0
+    max_gap_s: float = 0.5
+    max_offset_m: float = 1.5
+    max_spread_m: float = 0.35
+    refined_max_offset_m: float = 0.3
+    ambiguity_ratio: float = 0.5
+    sample_period_s: float = 0.2
+    rounds: int = 2
+    point_sigma_m: float = 0.03
+    huber_k: float = 1.345
+    prior_sigma_position_m: float = 0.5
+    prior_sigma_deg: float = 10.0
+    min_path_spread_m: float = 0.1
+    compute_sigma: bool = True
 
 
 @dataclass
