@@ -19,6 +19,7 @@ import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.common import robot_head_at
+from pedcal.errors import warnings_at_caller
 from pedcal.model import Log, SensorNetwork
 
 # Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
@@ -197,6 +198,7 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
     return out
 
 
+@warnings_at_caller
 def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     """The papers' figures of ``extrinsics`` on ``log`` (see the module docstring)."""
     missing = [sid for sid in log.sensors.ids if sid not in extrinsics]

@@ -245,3 +245,30 @@ def test_installed_network_table_has_empty_sigma_and_a_lone_sensor():
     assert df.shape[0] == 1 and df.loc["a", "yaw_deg"] == 10 and df["sigma_x_m"].isna().all()
     assert net.to_dict()["sensors"][0]["x_m"] == 1.0
     assert SensorNetwork([]).to_dataframe().shape[0] == 0
+
+
+def test_warnings_at_caller_reraises_every_warning_under_the_callers_filters():
+    import inspect
+
+    from pedcal.errors import DegenerateDataWarning, warnings_at_caller
+
+    @warnings_at_caller
+    def inner():
+        warnings.warn("first", DegenerateDataWarning, stacklevel=2)
+        warnings.warn("second", UserWarning, stacklevel=1)
+        return 7
+
+    @warnings_at_caller
+    def outer():
+        return inner()
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        line = inspect.currentframe().f_lineno + 1
+        assert outer() == 7
+    assert [(str(w.message), w.category, w.filename, w.lineno) for w in caught] == [
+        ("first", DegenerateDataWarning, __file__, line), ("second", UserWarning, __file__, line)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DegenerateDataWarning)
+        with pytest.raises(DegenerateDataWarning, match="first"):
+            outer()

@@ -11,7 +11,6 @@
 from __future__ import annotations
 
 import importlib
-import warnings
 from typing import Any
 
 from pedcal.calib.common import CalibrationResult
@@ -25,6 +24,7 @@ from pedcal.calib.options import (
     PedcalOptionError,
     resolve_options,
 )
+from pedcal.errors import warnings_at_caller
 from pedcal.model import Log
 
 METHODS = {
@@ -35,6 +35,7 @@ METHODS = {
 }
 
 
+@warnings_at_caller
 def calibrate(log: Log, method: str | None = None, *, options: MethodOptions | None = None,
               progress: bool = False, max_memory_gb: float | None = None, **kwargs: Any) -> CalibrationResult:
     """Calibrate every sensor of ``log`` with ``method``; returns a CalibrationResult whose
@@ -68,12 +69,7 @@ def calibrate(log: Log, method: str | None = None, *, options: MethodOptions | N
 
     log = check_calibration(log, max_memory_gb)   # validated; refused beyond the memory limit
     module, func = METHODS[method]
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        result = getattr(importlib.import_module(module), func)(log, progress=progress, **opts.to_kwargs())
-    for w in caught:     # re-raised at the caller's line, under the caller's warning filters
-        warnings.warn(w.message, w.category, stacklevel=2)
-    return result
+    return getattr(importlib.import_module(module), func)(log, progress=progress, **opts.to_kwargs())
 
 
 __all__ = ["calibrate", "CalibrationResult", "METHODS", "OPTIONS", "MethodOptions", "FactorGraphOptions",

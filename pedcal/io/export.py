@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pedcal import frames
-from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError, warnings_at_caller
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import SensorNetwork
 
@@ -161,6 +161,7 @@ def _launch_kind(path: Path, ros_version: int | None) -> tuple[str, int]:
                            "(XML launch)", path=path)
 
 
+@warnings_at_caller
 def export_extrinsics(network: SensorNetwork | str | Path, path: str | Path, fmt: str = "tf-launch", *,
                       ros_version: int | None = None, prefix: str = "", optical: bool = False) -> Path:
     """Write ``network`` (a SensorNetwork or a sensors YAML path) as ``fmt`` (FORMATS) to ``path``,

@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from pedcal.errors import warnings_at_caller
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, SensorNetwork
 
@@ -64,6 +65,7 @@ def _label(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", text)
 
 
+@warnings_at_caller
 def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork] | None = None) -> dict[str, Path]:
     """Write the TUM files of the module docstring into ``out_dir`` (atomically); returns
     {name: path}. ``extrinsics``: {label: SensorNetwork} to recompute the observed head path with."""
