@@ -288,14 +288,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("input", type=Path, help="calibrated YAML (tf-launch, urdf, json) or a log directory (tum)")
     s.add_argument("--format", required=True, choices=["tf-launch", "urdf", "json", "tum"])
     s.add_argument("-o", "--output", required=True, type=Path, help="output file (tum: a directory)")
-    s.add_argument("--ros", type=int, default=None, choices=[1, 2],
-                   help="tf-launch: ROS 1 (default) or ROS 2 launch XML; a .launch.py output is ROS 2 Python")
-    s.add_argument("--optical", action="store_true",
-                   help="tf-launch, urdf: add each sensor's <child>_optical frame (z forward, x right, y down)")
+    s.add_argument("--ros", type=int, default=1, choices=[1, 2], help="tf-launch: ROS 1 or ROS 2 launch XML")
     s.add_argument("--prefix", default="", help="child frame = prefix + sensor id")
     s.add_argument("--extrinsics", action="append", type=Path, default=[],
                    help="tum: also the head path seen with these extrinsics (repeatable)")
-    s.set_defaults(func=cmd_export)
+    s.add_argument("--optical", action="store_true",
+                   help="tf-launch, urdf: add each sensor's <child>_optical frame (z forward, x right, y down)")
+    # --ros unset: XML for ROS 1, or a ROS 2 Python launch file when the output is named .launch.py
+    s.set_defaults(func=cmd_export, ros=None)
 
     s = sub.add_parser("import-people", help="recorded pedestrian file (ATC, ETH/UCY, THOR) -> people CSV")
     s.add_argument("input", type=Path)

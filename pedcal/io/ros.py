@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from pedcal.errors import PedcalInputError, warnings_at_caller
+from pedcal.errors import PedcalInputError
 from pedcal.io.atomic import write_text_atomic
 from pedcal.io.logdir import meta_yaml_text, parse_float_column, write_table
 from pedcal.model import OBSERVATION_COLUMNS, ODOMETRY_COLUMNS, ROBOT_COLUMNS, Meta, SensorNetwork
@@ -484,7 +484,6 @@ def _parse_people(people) -> dict[str, str]:
     return out
 
 
-@warnings_at_caller
 def read_bag(path: str | Path, amcl_topic: str | None = None, odom_topic: str | None = None, *,
              localization: str = "auto", localization_topic: str | None = None, map_frame: str = "map",
              base_frame: str = "base_link", head_frame: str | None = None, people=None,
@@ -587,7 +586,6 @@ def _is_rostopic_csv(path: Path) -> bool:
         return f.readline().lstrip().startswith(("%time", "field."))
 
 
-@warnings_at_caller
 def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = None,
                odom_topic: str | None = None, *, sensors=None, head_offset_m=None, **options) -> dict[Path, int]:
     """Write a bag's log tables into ``out_dir`` atomically: robot.csv, odometry.csv,
