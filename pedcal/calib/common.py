@@ -172,8 +172,9 @@ class CalibrationResult:
     - ``keys.head_model``: ``Pose3`` whose z is the head point's vertical offset *measured from the
       default -head_radius_m* built into the robot poses: the offset reported in
       ``diagnostics.head_model.vertical_offset_m`` is ``-head_radius_m + z`` (z -0.052 m is an
-      offset of -0.102 m with the default radius); its x, y and rotation are held by tight
-      factors.
+      offset of -0.102 m with the default radius). Its prior holds x, y and the rotation at zero
+      and centres z on ``head_radius_m`` minus the ray shift (a dome's offset, -shift), give or
+      take the recipe's ``head_vertical_sigma_m``; every AMCL error node's height is tied to it.
 
     Held fixed in the graph (not variables): the tracker latency (estimated once before the
     graph, ``diagnostics.tracker_latency_s``; observation times are shifted by it), the head
