@@ -183,8 +183,8 @@ class CalibrationResult:
     corrections. So ``marginals()`` holds the graph's uncertainty given those, and
     ``position_covariance_m2`` (and the sigma of ``network``) adds the shifts' share (their sigma
     times the sensors' sensitivity to them) and widens sensors whose residuals exceed the noise
-    model (``diagnostics.model_mismatch``): it is never smaller than the marginals' (a few percent
-    larger on a well-modelled log). :meth:`reoptimize` adds factors to the graph and solves it again;
+    model (``diagnostics.model_mismatch``): it is never smaller than the marginals' (the 3-D sigma
+    about 10 % larger on docs/guide.md's simulated log). :meth:`reoptimize` adds factors to the graph and solves it again;
     :meth:`network_from_values` reads a SensorNetwork back from any ``gtsam.Values``."""
 
     network: SensorNetwork
