@@ -184,8 +184,9 @@ class CalibrationResult:
     ``position_covariance_m2`` (and the sigma of ``network``) adds the shifts' share (their sigma
     times the sensors' sensitivity to them) and widens sensors whose residuals exceed the noise
     model (``diagnostics.model_mismatch``): it is never smaller than the marginals' (the 3-D sigma
-    about 10 % larger on docs/guide.md's simulated log). :meth:`reoptimize` adds factors to the graph and solves it again;
-    :meth:`network_from_values` reads a SensorNetwork back from any ``gtsam.Values``."""
+    about 10 % larger on docs/guide.md's simulated log). :meth:`reoptimize` adds factors to the
+    graph and solves it again; :meth:`network_from_values` reads a SensorNetwork back from any
+    ``gtsam.Values``."""
 
     network: SensorNetwork
     method: str
