@@ -6,64 +6,17 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pedcal.detect.detection import Detection, detect, load_model, model_family
-from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, ground_referenced, read_point_cloud_report
+from pedcal.detect.detection import detect, load_model, model_family
+from pedcal.detect.files import FLOOR_MODES, FileDetections, detect_file  # noqa: F401  (their former home)
 from pedcal.errors import PedcalInputError
 
 MATCH_RADIUS_M = 0.5
 MIN_VISIBLE_POINTS = 10
 DISTANCE_BANDS_M = ((0.0, 2.0), (2.0, 3.5), (3.5, 5.0))
-
-
-@dataclass
-class FileDetections:
-    """What ``detect_file`` found and how it read the file."""
-
-    detections: list[Detection]
-    points: np.ndarray  # (N, 4) floor-referenced points the detector saw
-    raw_points: np.ndarray  # (N, 4) the valid points in the file's frame
-    floor_shift_m: float  # added to the file's z to put the floor at z = 0
-    read: CloudRead
-
-
-FLOOR_MODES = ("auto", "plane", "none")
-
-
-def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sensor_pose: str | None = None,
-                floor: str = "auto") -> FileDetections:
-    """Detections in a .pcd/.ply/.bin/.npy file.
-
-    The cloud is first thinned to the trained density when its sensor is denser
-    (``pedcal.detect.sensors.normalize_density``; ``sensor`` names it, else its ray spacing is
-    estimated). Then the floor goes to z = 0: with ``sensor_pose`` ("x,y,z,roll,pitch,yaw", m and
-    deg) the points are mapped into the base frame, whose z = 0 is the floor; otherwise ``floor``
-    "auto" subtracts the local ground height (``ground_referenced``: sloped streets, kerbs),
-    "plane" one RANSAC floor plane (``floor_referenced``), "none" takes the file's z as it is.
-    """
-    from pedcal.detect.sensors import normalize_density, parse_sensor_pose, to_base_frame
-
-    if floor not in FLOOR_MODES:
-        raise PedcalInputError(f"--floor {floor!r}: expected one of {', '.join(FLOOR_MODES)}", column="floor")
-    read = read_point_cloud_report(path)
-    pts = normalize_density(read.points, sensor)
-    height = {}  # the sensor's height above the floor, where known
-    if sensor_pose is not None:
-        position_m, ypr_deg = parse_sensor_pose(sensor_pose)
-        pts, dz = to_base_frame(pts, position_m, ypr_deg), float(position_m[2])
-        height = dict(sensor_height_m=dz, sensor_xy_m=(float(position_m[0]), float(position_m[1])))
-    elif floor in ("auto", "plane"):
-        pts, dz = ground_referenced(pts) if floor == "auto" else floor_referenced(pts)
-        height = dict(sensor_height_m=dz) if dz > 0 else {}
-    else:
-        dz = 0.0
-    dets = detect(pts, model, sensor=sensor, **height)
-    return FileDetections(dets, pts, read.points, dz, read)
 
 
 def detect_cli(args) -> int:
