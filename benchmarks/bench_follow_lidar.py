@@ -1,0 +1,128 @@
+"""Perception in the following loop: step times and with-target, ``--sensing lidar`` against ``ideal``.
+
+    .venv/bin/python benchmarks/bench_follow_lidar.py timing [--people 5 15 30] [--seeds 1] [--lidar fx8]
+    .venv/bin/python benchmarks/bench_follow_lidar.py compare [--densities 0.5 1 2] [--seeds 3]
+                                                      [--trackers paper factorgraph] [--out DIR]
+
+``timing`` plays the crowd scene with N people (the target and N - 1 walkers) with the LIDAR in the
+loop and the factor-graph tracker, and prints per frame (4 Hz) the median and 90th percentile of the
+raycast (scene build and ``render``), the detector, the tracker's step and their sum, wall and CPU
+(``time.process_time``) time, and the people within the LIDAR's reach.
+
+``compare`` runs each crowd density x seed x tracker with both sensing modes on the same episode and
+prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv``) the with-target fractions
+side by side, and, with the LIDAR, how often the detector found the target by range.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pedcal.sim.follow import FRAME_HZ, Planner, RobotController, crowd_episode
+from pedcal.sim.follow_lidar import LidarSensing
+from pedcal.track.follow import _make_tracker, run_episode
+
+
+def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
+    print(f"per frame, ms (median / 90th percentile); lidar {lidar}, tracker {tracker}, {seeds} seed(s), "
+          "crowd scene; the machine was shared")
+    print(f"{'people':>6} {'frames':>6} {'in reach':>8} {'raycast':>13} {'detect':>13} {'track':>13} "
+          f"{'step':>13} {'step cpu':>13}")
+    for n in people:
+        rows = []
+        for seed in range(seeds):
+            ep = crowd_episode(np.random.default_rng(seed), n_walkers=n - 1)
+            rng = np.random.default_rng(seed)
+            trk = _make_tracker(tracker, ep)
+            sense = LidarSensing(ep, rng, lidar)
+            ctrl = RobotController(v_max_mps=ep.robot_max_speed_mps)
+            planner = Planner(ep.occupancy) if ep.occupancy is not None else None
+            pose, stopped = np.asarray(ep.robot_pose0, float).copy(), True
+            for k in range(int(np.floor(ep.duration_s * FRAME_HZ)) + 1):
+                t = k / FRAME_HZ
+                people_t = ep.people_at(t)
+                target = next((p for w, p in people_t if w.person_id == ep.target_id), None)
+                c0, w0 = time.process_time(), time.perf_counter()
+                frame, _ = sense.frame(t, pose, people_t, target, stopped)
+                w1 = time.perf_counter()
+                out = trk.step(frame)
+                w2, c2 = time.perf_counter(), time.process_time()
+                st = sense.frame_stats[-1]
+                rows.append(dict(raycast=st["raycast_s"], detect=st["detect_s"], track=w2 - w1, step=w2 - w0,
+                                 cpu=c2 - c0, reach=st["people_in_range"]))
+                v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner)
+                pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, ep.occupancy)
+        d = pd.DataFrame(rows)
+
+        def q(col, d=d):
+            return f"{1e3 * d[col].median():6.1f} /{1e3 * d[col].quantile(0.9):6.1f}"
+
+        print(f"{n:>6} {len(d):>6} {d['reach'].mean():>8.1f} {q('raycast')} {q('detect')} {q('track')} "
+              f"{q('step')} {q('cpu')}", flush=True)
+
+
+def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str, out: Path | None) -> None:
+    rows, frames = [], []
+    print(f"{'density':>7} {'seed':>4} {'tracker':<12} {'ideal':>6} {'lidar':>6} {'diff':>6} {'det/frame':>9} "
+          f"{'target found':>12} {'s lidar':>7}")
+    for dens in densities:
+        for seed in range(seeds):
+            for tr in trackers:
+                res = {}
+                for sensing in ("ideal", "lidar"):
+                    ep = crowd_episode(np.random.default_rng(seed), density_per_10m2=dens)
+                    t0 = time.perf_counter()
+                    r = run_episode(ep, tr, seed, sensing=sensing, lidar=lidar if sensing == "lidar" else None)
+                    if sensing == "lidar":
+                        st = r.log.assign(density=dens, seed=seed, tracker=tr)
+                        frames.append(st.drop(columns=["claimed_person"]))
+                    res[sensing] = (r, time.perf_counter() - t0)
+                wi, wl = (res[s][0].metrics.with_target_fraction for s in ("ideal", "lidar"))
+                found = st["lidar_target_detected"][st["lidar_target_range_m"] <= 5.0].mean()
+                rows.append(dict(density=dens, seed=seed, tracker=tr, ideal=wi, lidar=wl, diff=wl - wi,
+                                 ideal_det_per_frame=res["ideal"][0].log["n_detections"].mean(),
+                                 lidar_det_per_frame=res["lidar"][0].log["n_detections"].mean(),
+                                 target_found_within_5m=found, lidar_wall_s=res["lidar"][1]))
+                print(f"{dens:>7g} {seed:>4} {tr:<12} {wi:>6.3f} {wl:>6.3f} {wl - wi:>+6.3f} "
+                      f"{rows[-1]['lidar_det_per_frame']:>9.2f} {found:>12.3f} {res['lidar'][1]:>7.1f}", flush=True)
+    d = pd.DataFrame(rows)
+    print("\nmedian with-target per density and tracker (ideal / lidar):")
+    for (dens, tr), g in d.groupby(["density", "tracker"]):
+        print(f"  {dens:g} {tr:<12} {g['ideal'].median():.3f} / {g['lidar'].median():.3f} "
+              f"(mean difference {g['diff'].mean():+.3f})")
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        d.to_csv(out / "crowd.csv", index=False)
+        pd.concat(frames).to_csv(out / "crowd_frames.csv", index=False)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="mode", required=True)
+    s = sub.add_parser("timing")
+    s.add_argument("--people", nargs="+", type=int, default=[5, 15, 30])
+    s.add_argument("--seeds", type=int, default=1)
+    s.add_argument("--lidar", default="fx8")
+    s.add_argument("--tracker", default="factorgraph")
+    s = sub.add_parser("compare")
+    s.add_argument("--densities", nargs="+", type=float, default=[0.5, 1.0, 2.0])
+    s.add_argument("--seeds", type=int, default=3)
+    s.add_argument("--trackers", nargs="+", default=["paper", "factorgraph"])
+    s.add_argument("--lidar", default="fx8")
+    s.add_argument("--out", type=Path, default=None)
+    args = p.parse_args()
+    warnings.simplefilter("ignore")
+    if args.mode == "timing":
+        timing(args.people, args.seeds, args.lidar, args.tracker)
+    else:
+        compare(args.densities, args.seeds, args.trackers, args.lidar, args.out)
+
+
+if __name__ == "__main__":
+    main()
