@@ -10,8 +10,9 @@ raycast (scene build and ``render``), the detector, the tracker's step and their
 (``time.process_time``) time, and the people within the LIDAR's reach.
 
 ``compare`` runs each crowd density x seed x tracker with both sensing modes on the same episode and
-prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv``) the with-target fractions
-side by side, and, with the LIDAR, how often the detector found the target by range.
+prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv``, the LIDAR runs' follow logs)
+the with-target fractions side by side, and, with the LIDAR, how often the detector found the target
+within 5 m and its detections near nobody (false) per frame.
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
 def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str, out: Path | None) -> None:
     rows, frames = [], []
     print(f"{'density':>7} {'seed':>4} {'tracker':<12} {'ideal':>6} {'lidar':>6} {'diff':>6} {'det/frame':>9} "
-          f"{'target found':>12} {'s lidar':>7}")
+          f"{'target found':>12} {'false/frame':>11} {'s lidar':>7}")
     for dens in densities:
         for seed in range(seeds):
             for tr in trackers:
@@ -88,9 +89,11 @@ def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str,
                 rows.append(dict(density=dens, seed=seed, tracker=tr, ideal=wi, lidar=wl, diff=wl - wi,
                                  ideal_det_per_frame=res["ideal"][0].log["n_detections"].mean(),
                                  lidar_det_per_frame=res["lidar"][0].log["n_detections"].mean(),
-                                 target_found_within_5m=found, lidar_wall_s=res["lidar"][1]))
+                                 target_found_within_5m=found,
+                                 false_per_frame=st["lidar_false_detections"].mean(), lidar_wall_s=res["lidar"][1]))
                 print(f"{dens:>7g} {seed:>4} {tr:<12} {wi:>6.3f} {wl:>6.3f} {wl - wi:>+6.3f} "
-                      f"{rows[-1]['lidar_det_per_frame']:>9.2f} {found:>12.3f} {res['lidar'][1]:>7.1f}", flush=True)
+                      f"{rows[-1]['lidar_det_per_frame']:>9.2f} {found:>12.3f} {rows[-1]['false_per_frame']:>11.3f} "
+                      f"{res['lidar'][1]:>7.1f}", flush=True)
     d = pd.DataFrame(rows)
     print("\nmedian with-target per density and tracker (ideal / lidar):")
     for (dens, tr), g in d.groupby(["density", "tracker"]):

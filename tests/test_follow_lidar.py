@@ -9,6 +9,7 @@ import pytest
 
 from pedcal.cli import EXIT_BAD_INPUT, main
 from pedcal.errors import PedcalInputError
+from pedcal.follow_types import PersonDetection
 from pedcal.sim.follow import Episode, box_map, make_episode, route_walker
 from pedcal.sim.follow_lidar import (
     LidarSensing,
@@ -213,3 +214,26 @@ def test_cli_bad_sensing_exits_2(capsys, argv, message):
     err = capsys.readouterr().err
     assert code == EXIT_BAD_INPUT
     assert message in err and "Traceback" not in err
+
+
+def test_frame_stats_count_found_people_and_false_detections(monkeypatch):
+    """Two people 2 m ahead, 1.2 m apart: both found, no false detection. With the detector's output
+    replaced by one detection on "a" and one 2 m from anybody: one person found, one false."""
+    ep = Episode("two", [standing("a", [2.0, 0.6]), standing("b", [2.0, -0.6])], "a", np.zeros(3), 5.0,
+                 box_map((-3.0, -3.0, 8.0, 3.0), []))
+    s = LidarSensing(ep, np.random.default_rng(4), clutter_per_10m2=0.0)
+    s.frame(0.0, np.zeros(3), ep.people_at(0.0), np.array([2.0, 0.6]), True)
+    st = s.frame_stats[-1]
+    assert (st["detections"], st["people_detected"], st["false_detections"]) == (2, 2, 0)
+    assert st["target_detected"] and st["target_range_m"] == pytest.approx(np.hypot(2.0, 0.6))
+
+    def fake(t_s, pose, people):
+        s.frame_stats.append({"t_s": t_s})
+        return [PersonDetection(np.array([2.1, 0.5]), 1.7, 0.9, np.full(25, 0.04)),
+                PersonDetection(np.array([4.0, 0.0]), 1.7, 0.9, np.full(25, 0.04))]
+    monkeypatch.setattr(s, "detections", fake)
+    frame, _ = s.frame(0.25, np.zeros(3), ep.people_at(0.25), None, True)
+    assert len(frame.detections) == 2
+    st = s.frame_stats[-1]
+    assert (st["people_detected"], st["false_detections"], st["target_detected"]) == (1, 1, False)
+    assert np.isnan(st["target_range_m"])

@@ -259,7 +259,8 @@ class LidarSensing:
     build and ``render``) and detecting (``detect_s``), the people present and within the LIDAR's
     reach, the points and detections, and, from ``frame``, the target's range from the robot
     (``target_range_m``, NaN when absent) and whether a detection lies within ``TARGET_MATCH_M`` of
-    it (``target_detected``).
+    it (``target_detected``), the people with a detection that near (``people_detected``) and the
+    detections near nobody (``false_detections``).
     """
 
     def __init__(self, episode: Episode, rng: np.random.Generator, lidar: str | LidarModel = DEFAULT_LIDAR,
@@ -367,10 +368,12 @@ class LidarSensing:
         dets = self.detections(t_s, pose, people)
         xy = np.array([p for _, p in people]).reshape(-1, 2)
         target = None if target_xy_world_m is None else to_robot(target_xy_world_m, pose)[0]
+        det_xy = np.array([d.xy_robot_m for d in dets]).reshape(-1, 2)
+        near = np.linalg.norm(det_xy[:, None, :] - to_robot(xy, pose)[None, :, :], axis=2) <= TARGET_MATCH_M
         self.frame_stats[-1].update(
             target_range_m=np.nan if target is None else float(np.hypot(*target)),
-            target_detected=target is not None and any(np.hypot(*(d.xy_robot_m - target)) <= TARGET_MATCH_M
-                                                       for d in dets))
+            target_detected=bool(target is not None and np.any(np.hypot(*(det_xy - target).T) <= TARGET_MATCH_M)),
+            people_detected=int(near.any(axis=0).sum()), false_detections=int((~near.any(axis=1)).sum()))
         return replace(base, detections=tuple(dets)), visible_people(pose, xy, self.occupancy)
 
 
