@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_follow_lidar.py timing [--people 5 15 30] [--seeds 1] [--lidar fx8]
     .venv/bin/python benchmarks/bench_follow_lidar.py compare [--densities 0.5 1 2] [--seeds 3]
                                                       [--trackers paper factorgraph] [--out DIR]
+    .venv/bin/python benchmarks/bench_follow_lidar.py report --crowd DIR --ideal DIR --lidar DIR
 
 ``timing`` plays the crowd scene with N people (the target and N - 1 walkers) with the LIDAR in the
 loop and the factor-graph tracker, and prints per frame (4 Hz) the median and 90th percentile of the
@@ -13,6 +14,9 @@ raycast (scene build and ``render``), the detector, the tracker's step and their
 prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv``, the LIDAR runs' follow logs)
 the with-target fractions side by side, and, with the LIDAR, how often the detector found the target
 within 5 m and its detections near nobody (false) per frame.
+
+``report`` turns ``compare``'s folder and two ``pedcal follow-bench`` folders (``--sensing ideal`` and
+``lidar``, same recordings, trackers and seeds) into markdown tables, pairing the bench's episodes.
 """
 
 from __future__ import annotations
@@ -105,6 +109,29 @@ def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str,
         pd.concat(frames).to_csv(out / "crowd_frames.csv", index=False)
 
 
+def report(crowd: Path, ideal: Path, lidar: Path) -> str:
+    """Markdown tables of with-target, ideal against LIDAR sensing: the crowd scene (``compare``'s
+    ``crowd.csv``) and the real recordings (two ``pedcal follow-bench`` folders, paired by episode)."""
+    c = pd.read_csv(crowd / "crowd.csv")
+    out = ["| crowd density (per 10 m²) | tracker | seeds | ideal median | LIDAR median | mean LIDAR − ideal "
+           "| largest difference | LIDAR false detections / frame |", "|---|---|---|---|---|---|---|---|"]
+    for (dens, tr), g in c.groupby(["density", "tracker"]):
+        big = g["diff"].iloc[int(np.argmax(np.abs(g["diff"].to_numpy())))]
+        out.append(f"| {dens:g} | {tr} | {len(g)} | {g['ideal'].median():.3f} | {g['lidar'].median():.3f} "
+                   f"| {g['diff'].mean():+.3f} | {big:+.3f} | {g['false_per_frame'].mean():.3f} |")
+    key = ["recording", "target", "tracker", "seed"]
+    e = pd.read_parquet(ideal / "episodes.parquet").merge(pd.read_parquet(lidar / "episodes.parquet"), on=key,
+                                                          suffixes=("_ideal", "_lidar"))
+    out += ["", "| recording | tracker | episodes | ideal median / p10 | LIDAR median / p10 | mean LIDAR − ideal "
+            "| episodes more than 0.05 lower |", "|---|---|---|---|---|---|---|"]
+    for (rec, tr), g in e.groupby(["recording", "tracker"], sort=False):
+        wi, wl = g["with_target_fraction_ideal"], g["with_target_fraction_lidar"]
+        out.append(f"| {rec} | {tr} | {len(g)} | {wi.median():.3f} / {wi.quantile(0.1):.3f} "
+                   f"| {wl.median():.3f} / {wl.quantile(0.1):.3f} | {(wl - wi).mean():+.3f} "
+                   f"| {int((wl < wi - 0.05).sum())} |")
+    return "\n".join(out) + "\n"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="mode", required=True)
@@ -119,10 +146,16 @@ def main() -> None:
     s.add_argument("--trackers", nargs="+", default=["paper", "factorgraph"])
     s.add_argument("--lidar", default="fx8")
     s.add_argument("--out", type=Path, default=None)
+    s = sub.add_parser("report")
+    s.add_argument("--crowd", type=Path, required=True, help="compare's --out folder")
+    s.add_argument("--ideal", type=Path, required=True, help="pedcal follow-bench -o folder, --sensing ideal")
+    s.add_argument("--lidar", type=Path, required=True, help="the same bench with --sensing lidar")
     args = p.parse_args()
     warnings.simplefilter("ignore")
     if args.mode == "timing":
         timing(args.people, args.seeds, args.lidar, args.tracker)
+    elif args.mode == "report":
+        print(report(args.crowd, args.ideal, args.lidar), end="")
     else:
         compare(args.densities, args.seeds, args.trackers, args.lidar, args.out)
 
