@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/bench_follow_lidar.py compare [--densities 0.5 1 2] [--seeds 3]
                                                       [--trackers paper factorgraph] [--out DIR]
     .venv/bin/python benchmarks/bench_follow_lidar.py report --crowd DIR --ideal DIR --lidar DIR
+    .venv/bin/python benchmarks/bench_follow_lidar.py near [--distances 0.8 1 1.2 1.5 2 3] [--frames 12]
 
 ``timing`` plays the crowd scene with N people (the target and N - 1 walkers) with the LIDAR in the
 loop and the factor-graph tracker, and prints per frame (4 Hz) the median and 90th percentile of the
@@ -11,9 +12,11 @@ raycast (scene build and ``render``), the detector, the tracker's step and their
 (``time.process_time``) time, and the people within the LIDAR's reach.
 
 ``compare`` runs each crowd density x seed x tracker with both sensing modes on the same episode and
-prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv``, the LIDAR runs' follow logs)
+prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv.gz``, the LIDAR runs' follow logs)
 the with-target fractions side by side, and, with the LIDAR, how often the detector found the target
 within 5 m and its detections near nobody (false) per frame.
+
+``near`` counts the frames in which the detector finds a lone person walking ahead at each distance.
 
 ``report`` turns ``compare``'s folder and two ``pedcal follow-bench`` folders (``--sensing ideal`` and
 ``lidar``, same recordings, trackers and seeds) into markdown tables, pairing the bench's episodes.
@@ -106,7 +109,24 @@ def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str,
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         d.to_csv(out / "crowd.csv", index=False)
-        pd.concat(frames).to_csv(out / "crowd_frames.csv", index=False)
+        pd.concat(frames).to_csv(out / "crowd_frames.csv.gz", index=False)
+
+
+def near(distances: list[float], frames: int, lidar: str) -> None:
+    """How often the detector finds a lone person walking ahead at a fixed distance from the robot
+    (the robot following at the person's 1 m/s, no walls nor clutter)."""
+    from pedcal.sim.follow import Episode, route_walker
+
+    print(f"lone walker ahead, {frames} frames each, lidar {lidar}")
+    for dist in distances:
+        w = route_walker("p", [[dist, 0.0], [dist + 60.0, 0.0]], 1.0)
+        ep = Episode("near", [w], "p", np.zeros(3), frames / FRAME_HZ, None)
+        sense = LidarSensing(ep, np.random.default_rng(1), lidar, clutter_per_10m2=0.0)
+        for k in range(frames):
+            t = k / FRAME_HZ
+            sense.frame(t, np.array([t * 1.0, 0.0, 0.0]), ep.people_at(t), w.at(t), False)
+        found = sum(st["target_detected"] for st in sense.frame_stats)
+        print(f"  {dist:4.1f} m: found in {found} of {frames} frames", flush=True)
 
 
 def report(crowd: Path, ideal: Path, lidar: Path) -> str:
@@ -146,6 +166,10 @@ def main() -> None:
     s.add_argument("--trackers", nargs="+", default=["paper", "factorgraph"])
     s.add_argument("--lidar", default="fx8")
     s.add_argument("--out", type=Path, default=None)
+    s = sub.add_parser("near")
+    s.add_argument("--distances", nargs="+", type=float, default=[0.8, 1.0, 1.2, 1.5, 2.0, 3.0])
+    s.add_argument("--frames", type=int, default=12)
+    s.add_argument("--lidar", default="fx8")
     s = sub.add_parser("report")
     s.add_argument("--crowd", type=Path, required=True, help="compare's --out folder")
     s.add_argument("--ideal", type=Path, required=True, help="pedcal follow-bench -o folder, --sensing ideal")
@@ -154,6 +178,8 @@ def main() -> None:
     warnings.simplefilter("ignore")
     if args.mode == "timing":
         timing(args.people, args.seeds, args.lidar, args.tracker)
+    elif args.mode == "near":
+        near(args.distances, args.frames, args.lidar)
     elif args.mode == "report":
         print(report(args.crowd, args.ideal, args.lidar), end="")
     else:
