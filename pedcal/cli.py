@@ -410,7 +410,7 @@ def _sensing_options(s: argparse.ArgumentParser) -> None:
                    help="ideal: the abstract detection model (default); lidar: the simulated LIDAR and the "
                         "shipped detector every frame")
     s.add_argument("--lidar", default=None, metavar="PRESET",
-                   help="with --sensing lidar: the LIDAR preset (default fx8, the paper's FX8 pair)")
+                   help="with --sensing lidar: the LIDAR preset or sensor name (default fx8, the paper's FX8 pair)")
 
 
 def configure_logging(quiet: bool = False, verbose: int = 0) -> None:

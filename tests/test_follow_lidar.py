@@ -10,10 +10,11 @@ import pytest
 from pedcal.cli import EXIT_BAD_INPUT, main
 from pedcal.errors import PedcalInputError
 from pedcal.follow_types import PersonDetection
-from pedcal.sim.follow import Episode, box_map, make_episode, route_walker
+from pedcal.sim.follow import Episode, Walker, box_map, make_episode, route_walker
 from pedcal.sim.follow_lidar import (
     LidarSensing,
     check_sensing,
+    lidar_preset,
     place_clutter,
     points_in_box,
     reflectance_histogram_of,
@@ -200,6 +201,25 @@ def test_run_episode_ideal_is_recorded_as_ideal():
 def test_check_sensing(sensing, lidar, match):
     with pytest.raises(PedcalInputError, match=match):
         check_sensing(sensing, lidar)
+
+
+def test_lidar_names_are_presets_or_sensor_names():
+    assert lidar_preset("fx8") == "fx8" and lidar_preset("vlp16") == "spin16"
+    assert lidar_preset("depth-camera") == "depth_camera"
+    check_sensing("lidar", "os1-32")  # no error
+    with pytest.raises(PedcalInputError, match="sensor name"):
+        lidar_preset("fx9")
+
+
+def test_walker_samples_follow_the_span():
+    """Every 0.25 s of the episode within each walker's span; a scripted walker (``stays``) stands
+    at its last position after it, a recorded one is gone."""
+    moving = Walker("a", np.array([0.5, 1.5]), np.array([[0.0, 0.0], [2.0, 0.0]]))
+    staying = route_walker("b", [[0.0, 1.0], [1.0, 1.0]], 1.0)  # walks 1 s, then stays
+    pts = walker_samples([moving, staying], duration_s=2.0)
+    np.testing.assert_allclose(pts[:5], [[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [1.5, 0.0], [2.0, 0.0]])
+    np.testing.assert_allclose(pts[5:], [[0.0, 1.0], [0.25, 1.0], [0.5, 1.0], [0.75, 1.0]] + [[1.0, 1.0]] * 5)
+    assert walker_samples([], 2.0).shape == (0, 2)
 
 
 @pytest.mark.parametrize("argv, message", [

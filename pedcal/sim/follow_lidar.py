@@ -79,16 +79,26 @@ CARRYING_SHARE = 0.3  # people carrying a bag (pedcal.sim.scene.random_person's 
 
 
 def check_sensing(sensing: str, lidar: str | None = None) -> None:
-    """A clear error for an unknown ``sensing`` mode or LIDAR preset (``lidar`` only with "lidar")."""
+    """A clear error for an unknown ``sensing`` mode or LIDAR (``lidar`` only with "lidar"; a
+    ``LIDAR_PRESETS`` name or a ``pedcal.detect.sensors.SENSORS`` name, ``lidar_preset``)."""
     if sensing not in SENSING_MODES:
         raise PedcalInputError(f"--sensing {sensing!r}: expected one of {', '.join(SENSING_MODES)}",
                                column="sensing")
-    if lidar is not None and lidar not in LIDAR_PRESETS:
-        raise PedcalInputError(f"--lidar {lidar!r}: expected one of {', '.join(sorted(LIDAR_PRESETS))}",
-                               column="lidar")
+    if lidar is not None:
+        lidar_preset(lidar)
     if lidar is not None and sensing != "lidar":
         raise PedcalInputError(f"--lidar {lidar!r} goes with --sensing lidar (the ideal model has no LIDAR)",
                                column="lidar")
+
+
+def lidar_preset(name: str) -> str:
+    """The ``LIDAR_PRESETS`` name of a preset or of a ``SENSORS`` name (``vlp16`` -> ``spin16``)."""
+    if name in LIDAR_PRESETS:
+        return name
+    if name in SENSORS:
+        return SENSORS[name][0]
+    raise PedcalInputError(f"--lidar {name!r}: expected a LIDAR preset ({', '.join(sorted(LIDAR_PRESETS))}) or a "
+                           f"sensor name ({', '.join(sorted(SENSORS))})", column="lidar")
 
 
 def lidar_mounts(lidar: LidarModel) -> tuple[Mount, ...]:
@@ -145,8 +155,14 @@ def _map_axes(occupancy: OccupancyMap) -> np.ndarray:
 def walker_samples(walkers: list[Walker], duration_s: float, step_s: float = CLEARANCE_STEP_S) -> np.ndarray:
     """(N, 2) every walker's positions every ``step_s`` over the episode."""
     t = np.arange(0.0, duration_s + step_s / 2, step_s)
-    pts = [p for w in walkers for p in (w.at(ti) for ti in t) if p is not None]
-    return np.array(pts, dtype=float).reshape(-1, 2)
+    pts = [np.zeros((0, 2))]
+    for w in walkers:  # Walker.at at every time of its span at once (np.interp holds the last position)
+        if len(w.t_s) == 0:
+            continue
+        ti = t[(t >= w.t_s[0]) & ((t <= w.t_s[-1]) | w.stays)]
+        pts.append(np.column_stack([np.interp(ti, w.t_s, w.xy_world_m[:, 0]),
+                                    np.interp(ti, w.t_s, w.xy_world_m[:, 1])]))
+    return np.vstack(pts)
 
 
 def place_clutter(episode: Episode, rng: np.random.Generator, per_10m2: float = CLUTTER_PER_10M2,
@@ -266,8 +282,7 @@ class LidarSensing:
     def __init__(self, episode: Episode, rng: np.random.Generator, lidar: str | LidarModel = DEFAULT_LIDAR,
                  clutter_per_10m2: float = CLUTTER_PER_10M2, model=None):
         if isinstance(lidar, str):
-            check_sensing("lidar", lidar)
-            lidar = LIDAR_PRESETS[lidar]
+            lidar = LIDAR_PRESETS[lidar_preset(lidar)]
         self.lidar = lidar
         self.mounts = lidar_mounts(lidar)
         self.episode = episode
@@ -386,5 +401,5 @@ def make_sensing(sensing: str, episode: Episode, rng: np.random.Generator, lidar
     return LidarSensing(episode, rng, lidar or DEFAULT_LIDAR)
 
 
-__all__ = ["SENSING_MODES", "DEFAULT_LIDAR", "LidarSensing", "make_sensing", "check_sensing", "wall_boxes",
-           "wall_meshes", "place_clutter", "walker_samples", "points_in_box", "reflectance_histogram_of"]
+__all__ = ["SENSING_MODES", "DEFAULT_LIDAR", "LidarSensing", "make_sensing", "check_sensing", "lidar_preset",
+           "wall_boxes", "wall_meshes", "place_clutter", "walker_samples", "points_in_box", "reflectance_histogram_of"]

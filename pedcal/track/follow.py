@@ -253,15 +253,15 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     """Play ``episode`` with the tracker named ``tracker`` (see ``make_tracker``) and score it.
 
     ``sensing``: ``"ideal"``, the abstract detection model (``pedcal.sim.follow.Sensing``), or
-    ``"lidar"``, the simulated LIDAR ``lidar`` (a ``LIDAR_PRESETS`` name, the FX8 pair by default)
+    ``"lidar"``, the simulated LIDAR ``lidar`` (a ``LIDAR_PRESETS`` or ``SENSORS`` name, the FX8 pair by default)
     and the shipped detector every frame (``pedcal.sim.follow_lidar.LidarSensing``)."""
-    from pedcal.sim.follow_lidar import DEFAULT_LIDAR, check_sensing, make_sensing
+    from pedcal.sim.follow_lidar import DEFAULT_LIDAR, check_sensing, lidar_preset, make_sensing
 
     check_sensing(sensing, lidar)
     rng = np.random.default_rng(seed)
     trk = _make_tracker(tracker, episode)
     sense = make_sensing(sensing, episode, rng, lidar)
-    sensing_name = "ideal" if sensing == "ideal" else f"lidar:{lidar or DEFAULT_LIDAR}"
+    sensing_name = "ideal" if sensing == "ideal" else f"lidar:{lidar_preset(lidar or DEFAULT_LIDAR)}"
     ctrl = RobotController(v_max_mps=episode.robot_max_speed_mps)
     planner = Planner(episode.occupancy) if episode.occupancy is not None else None
     pose = np.asarray(episode.robot_pose0, dtype=float).copy()
