@@ -11,10 +11,11 @@ loop and the factor-graph tracker, and prints per frame (4 Hz) the median and 90
 raycast (scene build and ``render``), the detector, the tracker's step and their sum, wall and CPU
 (``time.process_time``) time, and the people within the LIDAR's reach.
 
-``compare`` runs each crowd density x seed x tracker with both sensing modes on the same episode and
-prints (and with ``--out`` writes ``crowd.csv`` and ``crowd_frames.csv.gz``, the LIDAR runs' follow logs)
-the with-target fractions side by side, and, with the LIDAR, how often the detector found the target
-within 5 m and its detections near nobody (false) per frame.
+``compare`` runs each crowd density (and ``--scenes`` scripted scene) x seed x tracker with both
+sensing modes on the same episode and prints (and with ``--out`` writes ``crowd.csv`` and
+``crowd_frames.csv.gz``, the LIDAR runs' follow logs) the with-target fractions side by side, and,
+with the LIDAR, how often the detector found the target within 5 m and its detections near nobody
+(false) per frame.
 
 ``near`` counts the frames in which the detector finds a lone person walking ahead at each distance.
 
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pedcal.sim.follow import FRAME_HZ, Planner, RobotController, crowd_episode
+from pedcal.sim.follow import FRAME_HZ, Planner, RobotController, crowd_episode, make_episode
 from pedcal.sim.follow_lidar import LidarSensing
 from pedcal.track.follow import _make_tracker, run_episode
 
@@ -75,36 +76,38 @@ def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
               f"{q('step')} {q('cpu')}", flush=True)
 
 
-def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str, out: Path | None) -> None:
+def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str, out: Path | None,
+            scenes: tuple[str, ...] = ()) -> None:
     rows, frames = [], []
-    print(f"{'density':>7} {'seed':>4} {'tracker':<12} {'ideal':>6} {'lidar':>6} {'diff':>6} {'det/frame':>9} "
+    cases = [(sc, sc, None) for sc in scenes] + [(f"crowd@{d:g}", "crowd", d) for d in densities]
+    print(f"{'scene':>10} {'seed':>4} {'tracker':<12} {'ideal':>6} {'lidar':>6} {'diff':>6} {'det/frame':>9} "
           f"{'target found':>12} {'false/frame':>11} {'s lidar':>7}")
-    for dens in densities:
+    for label, scene, dens in cases:
         for seed in range(seeds):
             for tr in trackers:
                 res = {}
                 for sensing in ("ideal", "lidar"):
-                    ep = crowd_episode(np.random.default_rng(seed), density_per_10m2=dens)
+                    ep = make_episode(scene, seed, dens)
                     t0 = time.perf_counter()
                     r = run_episode(ep, tr, seed, sensing=sensing, lidar=lidar if sensing == "lidar" else None)
                     if sensing == "lidar":
-                        st = r.log.assign(density=dens, seed=seed, tracker=tr)
+                        st = r.log.assign(scene=label, density=dens, seed=seed, tracker=tr)
                         frames.append(st.drop(columns=["claimed_person"]))
                     res[sensing] = (r, time.perf_counter() - t0)
                 wi, wl = (res[s][0].metrics.with_target_fraction for s in ("ideal", "lidar"))
                 found = st["lidar_target_detected"][st["lidar_target_range_m"] <= 5.0].mean()
-                rows.append(dict(density=dens, seed=seed, tracker=tr, ideal=wi, lidar=wl, diff=wl - wi,
+                rows.append(dict(scene=label, density=dens, seed=seed, tracker=tr, ideal=wi, lidar=wl, diff=wl - wi,
                                  ideal_det_per_frame=res["ideal"][0].log["n_detections"].mean(),
                                  lidar_det_per_frame=res["lidar"][0].log["n_detections"].mean(),
                                  target_found_within_5m=found,
                                  false_per_frame=st["lidar_false_detections"].mean(), lidar_wall_s=res["lidar"][1]))
-                print(f"{dens:>7g} {seed:>4} {tr:<12} {wi:>6.3f} {wl:>6.3f} {wl - wi:>+6.3f} "
+                print(f"{label:>10} {seed:>4} {tr:<12} {wi:>6.3f} {wl:>6.3f} {wl - wi:>+6.3f} "
                       f"{rows[-1]['lidar_det_per_frame']:>9.2f} {found:>12.3f} {rows[-1]['false_per_frame']:>11.3f} "
                       f"{res['lidar'][1]:>7.1f}", flush=True)
     d = pd.DataFrame(rows)
-    print("\nmedian with-target per density and tracker (ideal / lidar):")
-    for (dens, tr), g in d.groupby(["density", "tracker"]):
-        print(f"  {dens:g} {tr:<12} {g['ideal'].median():.3f} / {g['lidar'].median():.3f} "
+    print("\nmedian with-target per scene and tracker (ideal / lidar):")
+    for (label, tr), g in d.groupby(["scene", "tracker"], sort=False):
+        print(f"  {label} {tr:<12} {g['ideal'].median():.3f} / {g['lidar'].median():.3f} "
               f"(mean difference {g['diff'].mean():+.3f})")
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -133,11 +136,13 @@ def report(crowd: Path, ideal: Path, lidar: Path) -> str:
     """Markdown tables of with-target, ideal against LIDAR sensing: the crowd scene (``compare``'s
     ``crowd.csv``) and the real recordings (two ``pedcal follow-bench`` folders, paired by episode)."""
     c = pd.read_csv(crowd / "crowd.csv")
-    out = ["| crowd density (per 10 m²) | tracker | seeds | ideal median | LIDAR median | mean LIDAR − ideal "
+    if "scene" not in c:  # written before the scripted scenes could be compared
+        c["scene"] = [f"crowd@{v:g}" for v in c["density"]]
+    out = ["| scene (crowd@people per 10 m²) | tracker | seeds | ideal median | LIDAR median | mean LIDAR − ideal "
            "| largest difference | LIDAR false detections / frame |", "|---|---|---|---|---|---|---|---|"]
-    for (dens, tr), g in c.groupby(["density", "tracker"]):
+    for (label, tr), g in c.groupby(["scene", "tracker"], sort=False):
         big = g["diff"].iloc[int(np.argmax(np.abs(g["diff"].to_numpy())))]
-        out.append(f"| {dens:g} | {tr} | {len(g)} | {g['ideal'].median():.3f} | {g['lidar'].median():.3f} "
+        out.append(f"| {label} | {tr} | {len(g)} | {g['ideal'].median():.3f} | {g['lidar'].median():.3f} "
                    f"| {g['diff'].mean():+.3f} | {big:+.3f} | {g['false_per_frame'].mean():.3f} |")
     key = ["recording", "target", "tracker", "seed"]
     e = pd.read_parquet(ideal / "episodes.parquet").merge(pd.read_parquet(lidar / "episodes.parquet"), on=key,
@@ -161,7 +166,8 @@ def main() -> None:
     s.add_argument("--lidar", default="fx8")
     s.add_argument("--tracker", default="factorgraph")
     s = sub.add_parser("compare")
-    s.add_argument("--densities", nargs="+", type=float, default=[0.5, 1.0, 2.0])
+    s.add_argument("--densities", nargs="*", type=float, default=[0.5, 1.0, 2.0])
+    s.add_argument("--scenes", nargs="*", default=[], help="scripted scenes too (passing corner crossing)")
     s.add_argument("--seeds", type=int, default=3)
     s.add_argument("--trackers", nargs="+", default=["paper", "factorgraph"])
     s.add_argument("--lidar", default="fx8")
@@ -183,7 +189,7 @@ def main() -> None:
     elif args.mode == "report":
         print(report(args.crowd, args.ideal, args.lidar), end="")
     else:
-        compare(args.densities, args.seeds, args.trackers, args.lidar, args.out)
+        compare(args.densities, args.seeds, args.trackers, args.lidar, args.out, tuple(args.scenes))
 
 
 if __name__ == "__main__":
