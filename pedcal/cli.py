@@ -183,7 +183,8 @@ def cmd_follow(args) -> int:
         check_output(args.output, inputs=[args.people], directory=True)
     with preflight.limits(max_follow_s=args.max_duration_s):
         res = run_follow(args.scenario, tracker=args.tracker, seed=args.seed, people_csv=args.people,
-                         target_id=args.target, progress=not args.json, density_per_10m2=args.density)
+                         target_id=args.target, progress=not args.json, density_per_10m2=args.density,
+                         sensing=args.sensing, lidar=args.lidar)
     if args.output is not None:
         res.save(args.output)
     if args.json:
@@ -216,7 +217,7 @@ def cmd_follow_bench(args) -> int:
 
     path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
                             min_duration_s=args.min_duration, max_targets=args.max_targets,
-                            files=args.files, progress=not args.quiet)
+                            files=args.files, progress=not args.quiet, sensing=args.sensing, lidar=args.lidar)
     print(f"wrote {path}")
     return 0
 
@@ -385,6 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --people: refuse a target trajectory longer than this (default 3600 s)")
     s.add_argument("--density", type=float, default=None, metavar="P10M2",
                    help="crowd scene: people per 10 m^2 (default: 12 walkers, about 0.5)")
+    _sensing_options(s)
     s.set_defaults(func=cmd_follow)
 
     s = sub.add_parser("follow-bench", help="follow every long-present person of every real recording and "
@@ -401,8 +403,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="at most N targets per recording (the longest present; default all)")
     s.add_argument("-o", "--out", type=Path, default=Path("follow-bench"), help="output folder")
     s.add_argument("-q", "--quiet", action="store_true")
+    _sensing_options(s)
     s.set_defaults(func=cmd_follow_bench)
     return p
+
+
+def _sensing_options(s: argparse.ArgumentParser) -> None:
+    """``--sensing`` and ``--lidar`` of ``follow`` and ``follow-bench`` (checked by ``check_sensing``)."""
+    s.add_argument("--sensing", default="ideal", metavar="MODE",
+                   help="ideal: the abstract detection model (default); lidar: the simulated LIDAR and the "
+                        "shipped detector every frame")
+    s.add_argument("--lidar", default=None, metavar="PRESET",
+                   help="with --sensing lidar: the LIDAR preset or sensor name (default fx8, the paper's FX8 pair)")
 
 
 def configure_logging(quiet: bool = False, verbose: int = 0) -> None:

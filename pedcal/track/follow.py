@@ -24,7 +24,6 @@ from pedcal.sim.follow import (
     Episode,
     Planner,
     RobotController,
-    Sensing,
     in_field_of_view,
     make_episode,
     people_episode,
@@ -210,6 +209,7 @@ class FollowResult:
     log: pd.DataFrame = field(repr=False)
     notes: str = ""
     target_id: str = "target"
+    sensing: str = "ideal"  # "ideal" (the abstract detection model) or "lidar:PRESET" (LIDAR and detector)
 
     def to_dict(self) -> dict:
         return self.metrics.to_dict()
@@ -219,7 +219,8 @@ class FollowResult:
         return self.log.copy()
 
     def format_table(self) -> str:
-        rows = [f"follow {self.scenario} (tracker {self.tracker}, seed {self.seed}, target {self.target_id})"]
+        rows = [f"follow {self.scenario} (tracker {self.tracker}, seed {self.seed}, target {self.target_id}, "
+                f"sensing {self.sensing})"]
         for k, v in self.to_dict().items():
             rows.append(f"  {k:<24} {'-' if v is None else (f'{v:.3f}' if isinstance(v, float) else v)}")
         rows.append(f"  with_target_fraction: frames, from the first choice of a target on, where the claimed "
@@ -232,7 +233,8 @@ class FollowResult:
         out.mkdir(parents=True, exist_ok=True)
         j = out / "follow.json"
         write_text_atomic(j, json.dumps({"scenario": self.scenario, "tracker": self.tracker, "seed": self.seed,
-                                         "target": self.target_id, "notes": self.notes, **self.to_dict()},
+                                         "target": self.target_id, "sensing": self.sensing, "notes": self.notes,
+                                         **self.to_dict()},
                                         indent=2) + "\n")
         p = out / "follow_log.parquet"
         with atomic_path(p) as tmp:
@@ -250,11 +252,20 @@ def _make_tracker(name: str, episode: Episode):
     return make_tracker(name)
 
 
-def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progress: bool = False) -> FollowResult:
-    """Play ``episode`` with the tracker named ``tracker`` (see ``make_tracker``) and score it."""
+def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progress: bool = False,
+                sensing: str = "ideal", lidar: str | None = None) -> FollowResult:
+    """Play ``episode`` with the tracker named ``tracker`` (see ``make_tracker``) and score it.
+
+    ``sensing``: ``"ideal"``, the abstract detection model (``pedcal.sim.follow.Sensing``), or
+    ``"lidar"``, the simulated LIDAR ``lidar`` (a ``LIDAR_PRESETS`` or ``SENSORS`` name, the FX8 pair by default)
+    and the shipped detector every frame (``pedcal.sim.follow_lidar.LidarSensing``)."""
+    from pedcal.sim.follow_lidar import DEFAULT_LIDAR, check_sensing, lidar_preset, make_sensing
+
+    check_sensing(sensing, lidar)
     rng = np.random.default_rng(seed)
     trk = _make_tracker(tracker, episode)
-    sensing = Sensing(episode.occupancy, rng)
+    sense = make_sensing(sensing, episode, rng, lidar)
+    sensing_name = "ideal" if sensing == "ideal" else f"lidar:{lidar_preset(lidar or DEFAULT_LIDAR)}"
     ctrl = RobotController(v_max_mps=episode.robot_max_speed_mps)
     planner = Planner(episode.occupancy) if episode.occupancy is not None else None
     pose = np.asarray(episode.robot_pose0, dtype=float).copy()
@@ -269,7 +280,7 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
         ids = [w.person_id for w, _ in people]
         xy = np.array([p for _, p in people]).reshape(-1, 2)
         target_xy = next((p for w, p in people if w.person_id == episode.target_id), None)
-        frame, vis = sensing.frame(t, pose, people, target_xy, stopped)
+        frame, vis = sense.frame(t, pose, people, target_xy, stopped)
         out: TrackerOutput = trk.step(frame)
         tr_ids = [e.track_id for e in out.tracks]
         tr_xy = np.array([e.xy_world_m for e in out.tracks]).reshape(-1, 2)
@@ -299,8 +310,10 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     log = pd.DataFrame(rows)
     log["target_track_id"] = log["target_track_id"].astype("Int64")
     log["claimed_person"] = log["claimed_person"].astype(object)
+    if getattr(sense, "frame_stats", None):  # the LIDAR's per-frame figures (times, target found)
+        log = log.join(pd.DataFrame(sense.frame_stats).drop(columns="t_s").add_prefix("lidar_"))
     metrics = FollowMetrics(**follow_metrics(log, episode.target_id), **mot.summary())
-    return FollowResult(episode.name, tracker, seed, metrics, log, episode.notes, episode.target_id)
+    return FollowResult(episode.name, tracker, seed, metrics, log, episode.notes, episode.target_id, sensing_name)
 
 
 def read_people(path: str | Path) -> pd.DataFrame:
@@ -313,23 +326,28 @@ def read_people(path: str | Path) -> pd.DataFrame:
 
 def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: int = 0, people_csv=None,
                target_id: str | None = None, progress: bool = False,
-               density_per_10m2: float | None = None) -> FollowResult:
+               density_per_10m2: float | None = None, sensing: str = "ideal",
+               lidar: str | None = None) -> FollowResult:
     """Run the scenario ``scenario`` (``pedcal.sim.follow.SCENARIOS``; ``density_per_10m2`` sets the
     crowd scene's people per 10 m^2), or, with ``people_csv`` (a ``t, person, x, y`` file, a
-    recording or such a DataFrame), those trajectories with ``target_id`` carrying the transmitter."""
+    recording or such a DataFrame), those trajectories with ``target_id`` carrying the transmitter;
+    ``sensing`` and ``lidar`` as :func:`run_episode`'s."""
+    from pedcal.sim.follow_lidar import check_sensing
+
+    check_sensing(sensing, lidar)
     if isinstance(people_csv, pd.DataFrame):
         from pedcal.errors import PedcalInputError
 
         if target_id is None:
             raise PedcalInputError("a people table needs target_id (the person carrying the transmitter)")
-        return run_episode(people_episode(people_csv, str(target_id)), tracker, seed, progress)
+        return run_episode(people_episode(people_csv, str(target_id)), tracker, seed, progress, sensing, lidar)
     if people_csv is not None:
         from pedcal.io.preflight import check_follow_people
 
         episode = people_episode(check_follow_people(people_csv, target_id), str(target_id), people_csv)
     else:
         episode = make_episode(scenario or "passing", seed, density_per_10m2)
-    return run_episode(episode, tracker, seed, progress)
+    return run_episode(episode, tracker, seed, progress, sensing, lidar)
 
 
 __all__ = ["METRIC_KEYS", "MATCH_DISTANCE_M", "HIDDEN_HOLD_M", "NEAR_M", "FollowMetrics", "FollowResult",

@@ -42,11 +42,15 @@ class BenchCase:
     duration_s: float
     tracker: str
     seed: int
+    sensing: str = "ideal"  # "ideal" or "lidar" (``run_episode``'s)
+    lidar: str | None = None  # with "lidar": the LIDAR preset (default the FX8 pair)
 
     def replay_command(self, out_dir: str = "replay") -> str:
         """The command that plays this episode again and saves its log."""
+        sensing = "" if self.sensing == "ideal" else f" --sensing {self.sensing}" + \
+            (f" --lidar {self.lidar}" if self.lidar else "")
         return (f"pedcal follow --people {self.path.as_posix()} --target {self.target} --tracker {self.tracker} "
-                f"--seed {self.seed} -o {out_dir}")
+                f"--seed {self.seed}{sensing} -o {out_dir}")
 
 
 def eligible_targets(people: pd.DataFrame, min_duration_s: float = MIN_DURATION_S,
@@ -87,7 +91,8 @@ def run_case(case: BenchCase, people: pd.DataFrame) -> FollowResult:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return run_episode(people_episode(people, case.target, case.path), case.tracker, case.seed)
+        return run_episode(people_episode(people, case.target, case.path), case.tracker, case.seed,
+                           sensing=case.sensing, lidar=case.lidar)
 
 
 def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -182,14 +187,20 @@ def _slug(rec: str) -> str:
 
 def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "follow-bench", *,
                      trackers=None, seeds: int = 3, min_duration_s: float = MIN_DURATION_S,
-                     max_targets: int | None = None, files=None, progress: bool = True) -> Path:
+                     max_targets: int | None = None, files=None, progress: bool = True,
+                     sensing: str = "ideal", lidar: str | None = None) -> Path:
     """Run the bench and write ``episodes.parquet`` (one row per episode: metrics and replay
     command), ``summary.csv``, ``bench.md`` and the worst episodes' plots under ``figures/``, all
-    atomically. Returns the path of ``bench.md``."""
+    atomically. Returns the path of ``bench.md``. ``sensing`` / ``lidar``: the detections of every
+    episode (``run_episode``'s: the abstract model, or the simulated LIDAR and the detector)."""
+    from dataclasses import replace
+
     from pedcal.plotting import save_png
+    from pedcal.sim.follow_lidar import check_sensing
     from pedcal.sim.walkers import SHARED_DATA
     from pedcal.track.trackers import TRACKERS
 
+    check_sensing(sensing, lidar)
     data_dir = Path(data_dir) if data_dir is not None else SHARED_DATA
     if not data_dir.is_dir():
         raise PedcalInputError("recordings folder not found (give --data-dir)", path=data_dir)
@@ -201,6 +212,7 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
         raise PedcalInputError(f"--seeds {seeds}: expected at least 1")
     files = list(files or RECORDINGS)
     cases, tables, recordings = bench_cases(data_dir, files, trackers, seeds, min_duration_s, max_targets)
+    cases = [replace(c, sensing=sensing, lidar=lidar) for c in cases]
     out = Path(out_dir)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     rows, worst = [], {}
@@ -209,7 +221,8 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
         res = run_case(case, tables[case.recording])
         m = res.to_dict()
         rows.append(dict(recording=case.recording, target=case.target, duration_s=case.duration_s,
-                         tracker=case.tracker, seed=case.seed, **m, replay=case.replay_command()))
+                         tracker=case.tracker, seed=case.seed, sensing=res.sensing, **m,
+                         replay=case.replay_command()))
         key = (case.recording, case.tracker)
         if key not in worst or m["with_target_fraction"] < worst[key][0]:
             worst[key] = (m["with_target_fraction"], res, case)
@@ -217,8 +230,8 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
             log.info(f"follow-bench {k}/{len(cases)}: {case.recording} target {case.target} {case.tracker} "
                      f"seed {case.seed}: with_target {m['with_target_fraction']:.3f} "
                      f"({time.perf_counter() - t0:.0f} s)", extra={"progress": (k, len(cases))})
-    episodes = pd.DataFrame(rows, columns=["recording", "target", "duration_s", "tracker", "seed", *METRIC_KEYS,
-                                           "replay"])
+    episodes = pd.DataFrame(rows, columns=["recording", "target", "duration_s", "tracker", "seed", "sensing",
+                                           *METRIC_KEYS, "replay"])
     summary = summarize(episodes) if len(episodes) else pd.DataFrame()
     for (rec, tracker), (_, res, case) in worst.items():
         fig = plot_episode(res, f"{rec}, target {case.target}, {tracker}, seed {case.seed}: "
@@ -230,6 +243,7 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
         summary.to_csv(tmp, index=False)
     cmd = (f"pedcal follow-bench --files {' '.join(files)} --trackers {' '.join(trackers)} --seeds {seeds} "
            f"--min-duration {min_duration_s:g}" + (f" --max-targets {max_targets}" if max_targets else "")
+           + ("" if sensing == "ideal" else f" --sensing {sensing}" + (f" --lidar {lidar}" if lidar else ""))
            + f" -o {out.as_posix()}")
     md = bench_markdown(summary, recordings, dict(command=cmd, min_duration_s=min_duration_s, seeds=seeds))
     path = out / "bench.md"
