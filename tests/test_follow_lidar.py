@@ -204,7 +204,7 @@ def test_check_sensing(sensing, lidar, match):
 
 
 def test_lidar_names_are_presets_or_sensor_names():
-    assert lidar_preset("fx8") == "fx8" and lidar_preset("vlp16") == "spin16"
+    assert lidar_preset("fx8") == "fx8" and lidar_preset("os1-32") == "spin32"
     assert lidar_preset("depth-camera") == "depth_camera"
     check_sensing("lidar", "os1-32")  # no error
     with pytest.raises(PedcalInputError, match="sensor name"):

@@ -92,7 +92,7 @@ def check_sensing(sensing: str, lidar: str | None = None) -> None:
 
 
 def lidar_preset(name: str) -> str:
-    """The ``LIDAR_PRESETS`` name of a preset or of a ``SENSORS`` name (``vlp16`` -> ``spin16``)."""
+    """The ``LIDAR_PRESETS`` name of a preset or of a ``SENSORS`` name (``os1-32`` -> ``spin32``)."""
     if name in LIDAR_PRESETS:
         return name
     if name in SENSORS:
