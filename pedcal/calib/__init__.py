@@ -47,6 +47,9 @@ def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, 
     if method not in METHODS:
         raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")
     from pedcal.io.preflight import check_calibration
+    from pedcal.options import check
+
+    check(**{k: options[k] for k in ("sensor_height_sigma_m", "ceiling_height_m") if k in options})
 
     log = check_calibration(log, options.pop("max_memory_gb", None))   # validated; refused beyond the memory limit
     module, func = METHODS[method]

@@ -24,6 +24,7 @@ import yaml
 from pedcal.errors import PedcalInputError, show
 from pedcal.io import plausible
 from pedcal.io.atomic import write_text_atomic
+from pedcal.io.inputs import read_bytes_capped
 from pedcal.model import SENSOR_STATUSES, SensorExtrinsics, SensorNetwork
 
 SENSOR_KEYS = ("id", "position", "ypr_deg", "quaternion_wxyz", "sigma", "observations", "status", "unobservable")
@@ -31,19 +32,11 @@ SENSOR_KEYS = ("id", "position", "ypr_deg", "quaternion_wxyz", "sigma", "observa
 
 # ------------------------------------------------------------------------------------------- reading
 def read_text_file(path: str | Path, what: str = "file") -> str:
-    """A UTF-8 text file (a BOM is allowed); a missing file, a directory, no permission or bytes
-    that are not UTF-8 raise PedcalInputError naming the file."""
+    """A UTF-8 text file (a BOM is allowed); a missing file, a directory, a device, FIFO or socket,
+    a file beyond pedcal.io.inputs.MAX_TEXT_BYTES, no permission or bytes that are not UTF-8 raise
+    PedcalInputError naming the file."""
     path = Path(path)
-    if not path.exists():
-        raise PedcalInputError(f"{what} not found", path=path)
-    if path.is_dir():
-        raise PedcalInputError(f"is a directory, expected a {what}", path=path)
-    try:
-        data = path.read_bytes()
-    except PermissionError:
-        raise PedcalInputError("cannot read: permission denied", path=path) from None
-    except OSError as e:
-        raise PedcalInputError(f"cannot read: {e.strerror or e}", path=path) from None
+    data = read_bytes_capped(path, what)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:

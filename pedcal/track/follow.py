@@ -313,14 +313,18 @@ def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: i
     """Run the scenario ``scenario`` (``pedcal.sim.follow.SCENARIOS``; ``density_per_10m2`` sets the
     crowd scene's people per 10 m^2), or, with ``people_csv`` (a ``t, person, x, y`` file, a
     recording or such a DataFrame), those trajectories with ``target_id`` carrying the transmitter."""
+    from pedcal.io.preflight import check_follow_people
+    from pedcal.options import check
+
+    check(seed=seed, density_per_10m2=density_per_10m2)
     if isinstance(people_csv, pd.DataFrame):
         from pedcal.errors import PedcalInputError
 
         if target_id is None:
             raise PedcalInputError("a people table needs target_id (the person carrying the transmitter)")
-        return run_episode(people_episode(people_csv, str(target_id)), tracker, seed, progress)
+        return run_episode(people_episode(check_follow_people(people_csv, target_id), str(target_id)), tracker,
+                           seed, progress)
     if people_csv is not None:
-        from pedcal.io.preflight import check_follow_people
 
         episode = people_episode(check_follow_people(people_csv, target_id), str(target_id), people_csv)
     else:
