@@ -44,3 +44,36 @@ def read_bytes_capped(path: str | Path, what: str = "file", max_bytes: int = MAX
         raise PedcalInputError(f"larger than {max_bytes / 1024 ** 2:g} MB, more than a {what} holds "
                                "(a wrong file?)", path=path)
     return data
+
+
+def read_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_TEXT_BYTES):
+    """A JSON file's value; a file that is no regular file, too large, not UTF-8, not JSON, nested
+    beyond the parser's recursion limit or holding an integer of thousands of digits raises
+    PedcalInputError naming it."""
+    import json
+
+    data = read_bytes_capped(path, what, max_bytes)
+    try:
+        return json.loads(data.decode("utf-8-sig"))
+    except UnicodeDecodeError as e:
+        raise PedcalInputError(f"not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start})", path=path) from None
+    except json.JSONDecodeError as e:
+        raise PedcalInputError(f"not valid JSON: {e.msg} at line {e.lineno}, column {e.colno}", path=path) from None
+    except RecursionError:
+        raise PedcalInputError("not a usable JSON file: nested too deeply", path=path) from None
+    except ValueError as e:          # an integer beyond Python's digit limit
+        raise PedcalInputError(f"not a usable JSON file: {str(e)[:120]}", path=path) from None
+
+
+def check_records(records: list[dict], path, *, finite=(), positive=()) -> list[dict]:
+    """Each record's ``finite`` fields are finite numbers and its ``positive`` fields finite and > 0
+    (a box of negative, NaN or infinite size is no box); else PedcalInputError naming the row."""
+    import math
+
+    for row, rec in enumerate(records):
+        for name in (*finite, *positive):
+            v = rec[name]
+            if not math.isfinite(v) or (name in positive and v <= 0):
+                want = "a finite number > 0" if name in positive else "a finite number"
+                raise PedcalInputError(f"{name} = {v!r}: expected {want}", path=path, row=row, column=name)
+    return records
