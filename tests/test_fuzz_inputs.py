@@ -794,3 +794,247 @@ def test_unwritable_output_folder_is_refused_even_as_root(case, monkeypatch):
     code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml", "-q"], case, names=("c.yaml",))
     assert code == EXIT_BAD_INPUT and "permission denied" in err, err
     assert not (ro / "c.yaml").exists()
+
+
+# ======================================================================= hostile classes
+# Special files, a full disk, option domains walked from the parser, structural tricks in point
+# clouds, models and labels, corrupted bag payloads, library calls with wrong types, Ctrl-C at
+# start-up. Every case goes through run_cli's contract (or its parse-time twin below).
+def run_cli_refused_at_parse(argv: list[str], names=()) -> str:
+    """An option value outside its domain: argparse exits 2 before any work, the last stderr
+    line ``pedcal CMD: error: argument --OPT: ...``; returns that line."""
+    err = io.StringIO()
+    TALLY["cases"] += 1
+    with pytest.raises(SystemExit) as exc, contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        main([str(a) for a in argv])
+    assert exc.value.code == EXIT_BAD_INPUT, err.getvalue()
+    line = err.getvalue().strip().splitlines()[-1]
+    assert line.startswith(f"pedcal {argv[0]}: error: argument "), line
+    assert "Traceback" not in err.getvalue()
+    if names:
+        assert any(n in line for n in names), line
+    TALLY["clean errors"] += 1
+    return line
+
+
+def _special(path: Path, kind: str):
+    """Make a FIFO, a UNIX socket or a character device (/dev/null's numbers) at ``path``; returns
+    the socket to keep it open, or None."""
+    import socket
+    import stat as stat_mod
+
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "socket":
+        s = socket.socket(socket.AF_UNIX)
+        s.bind(str(path))
+        return s
+    else:
+        os.mknod(path, 0o666 | stat_mod.S_IFCHR, os.makedev(1, 3))
+    return None
+
+
+SPECIAL_KINDS = ["fifo", "socket"] + (["device"] if os.geteuid() == 0 else [])
+
+
+def _kind_of(path: Path) -> str:
+    import stat as stat_mod
+
+    mode = os.lstat(path).st_mode
+    return ("fifo" if stat_mod.S_ISFIFO(mode) else "socket" if stat_mod.S_ISSOCK(mode)
+            else "device" if stat_mod.S_ISCHR(mode) else "other")
+
+
+@pytest.mark.parametrize("kind", SPECIAL_KINDS)
+def test_special_file_as_output_is_never_replaced(case, kind):
+    out = case.parent / "out"
+    node = out / "node"
+    keep = _special(node, kind)
+    try:
+        for argv in (["calibrate", case / "log", "-o", node, "-q"],
+                     ["import-people", case / "people.csv", "-o", node],
+                     ["export", case / "calibrated.yaml", "--format", "json", "-o", node],
+                     ["follow", "--people", case / "people.csv", "--target", "0", "-o", node, "--json"],
+                     ["report", case / "log", "--extrinsics", case / "calibrated.yaml", "--out", node, "-q"]):
+            code, _, err = run_cli(argv, case, names=("node",))
+            assert code == EXIT_BAD_INPUT and "never replaces" in err, err
+            assert _kind_of(node) == kind
+    finally:
+        if keep is not None:
+            keep.close()
+
+
+@pytest.mark.parametrize("kind", SPECIAL_KINDS)
+def test_special_file_as_input_is_refused_without_blocking(case, kind):
+    """A FIFO would block a reader forever; a device such as /dev/zero would fill memory."""
+    log = case / "log"
+    cases = {"sensors.yaml": lambda p: ["evaluate", log, "--extrinsics", case / "calibrated.yaml"],
+             "meta.yaml": lambda p: ["evaluate", log, "--extrinsics", case / "calibrated.yaml"],
+             "calibrated.yaml": lambda p: ["evaluate", log, "--extrinsics", p],
+             "graph.toml": lambda p: ["calibrate", log, "--graph", p, "-o", case.parent / "out" / "c.yaml"],
+             "cloud.pcd": lambda p: ["detect", p]}
+    for name, argv_of in cases.items():
+        path = log / name if name in ("sensors.yaml", "meta.yaml") else case / name
+        backup = path.with_suffix(".bak")
+        if path.exists():
+            path.rename(backup)
+        keep = _special(path, kind)
+        try:
+            code, _, err = run_cli(argv_of(path), case, names=(name,))
+            assert code == EXIT_BAD_INPUT and "regular" in err, err
+        finally:
+            if keep is not None:
+                keep.close()
+            path.unlink()
+            if backup.exists():
+                backup.rename(path)
+
+
+def test_dev_zero_as_extrinsics_is_refused(case):
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", "/dev/zero"], case, names=("/dev/zero",))
+    assert code == EXIT_BAD_INPUT and "character device" in err
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 64 kB tmpfs where the machine lets us mount one (root), else None."""
+    import subprocess
+
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        yield None
+        return
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_full_disk_is_one_line_and_keeps_the_old_output(case, small_disk, monkeypatch):
+    """Writing a calibrated YAML, a people CSV (Arrow's writer) and a follow folder onto a full
+    disk: exit 2, one line naming the output, the previous output byte for byte."""
+    import errno
+
+    if small_disk is None:            # simulate ENOSPC in the writes instead
+        small_disk = case.parent / "out"
+        real_write = os.write
+
+        def full(fd, data):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        monkeypatch.setattr(os, "write", full)
+        monkeypatch.setattr(Path, "write_text", lambda self, *a, **k: full(0, b""))
+        del real_write
+    old = small_disk / "c.yaml"
+    old.write_text("old: 1\n")
+    filler = small_disk / "filler"
+    with contextlib.suppress(OSError):
+        filler.write_bytes(b"\0" * 64 * 1024)
+    before = old.read_bytes()
+    for argv, target in ((["calibrate", case / "log", "-o", old, "-q"], "c.yaml"),
+                         (["import-people", case / "people.csv", "-o", small_disk / "p.csv"], "p.csv"),
+                         (["follow", "--people", case / "people.csv", "--target", "0", "-o", small_disk / "f",
+                           "--json"], "f")):
+        code, _, err = run_cli(argv, case, names=(target,))
+        assert code == EXIT_BAD_INPUT and "no space left" in err, err
+    assert old.read_bytes() == before
+    assert not list(small_disk.glob(".*tmp*"))
+
+
+# ----------------------------------------------------------------------- option domains
+def _numeric_actions():
+    """(command, option string, nargs, domain) of every option whose type carries a domain."""
+    import argparse
+
+    from pedcal.cli import build_parser
+
+    out, untyped = [], []
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for command, parser in sub.choices.items():
+        for action in parser._actions:
+            domain = getattr(action.type, "domain", None)
+            if domain is not None:
+                out.append((command, action.option_strings[-1] if action.option_strings else None, action.nargs,
+                            domain))
+            elif action.type in (int, float) and not action.choices:
+                untyped.append(f"{command} {action.option_strings}")
+    return out, untyped
+
+
+def _outside(domain, rng) -> list[str]:
+    """Values outside ``domain``: not numbers, not finite, beyond each bound, a fraction for an integer."""
+    vals = ["nan", "inf", "-inf", "", "abc", "1e400", "0x10"]
+    if domain.lo is not None:
+        below = domain.lo - max(1.0, abs(domain.lo)) * rng.uniform(1e-3, 1)
+        vals.append(repr(domain.lo) if domain.lo_open else repr(below))
+        if domain.lo_open:
+            vals.append(repr(domain.lo - rng.uniform(1e-9, 1)))
+    if domain.hi is not None:
+        vals.append(repr(domain.hi + max(1.0, abs(domain.hi)) * rng.uniform(1e-3, 10)))
+        vals.append("1e300")
+    if domain.kind is int:
+        vals += ["1.5", "2e3"]
+    if domain.kind is int and domain.lo is not None:
+        vals.append(str(int(domain.lo) - 1))
+    return vals
+
+
+def test_every_numeric_option_has_a_domain():
+    actions, untyped = _numeric_actions()
+    assert not untyped, f"numeric options without a domain (pedcal.options): {untyped}"
+    assert len(actions) >= 15
+
+
+def test_option_values_outside_their_domain_are_refused_at_parse():
+    rng = np.random.default_rng(2718)
+    actions, _ = _numeric_actions()
+    n = 0
+    for command, option, nargs, domain in actions:
+        if option is None:
+            continue
+        width = nargs if isinstance(nargs, int) else 1
+        for bad in _outside(domain, rng):
+            for slot in range(width):        # the bad value in each position of a multi-value option
+                values = ["1"] * width
+                values[slot] = bad
+                argv = [command, f"{option}={bad}"] if width == 1 else [command, option, *values]
+                line = run_cli_refused_at_parse(argv, names=(option,))
+                assert option in line
+                n += 1
+    assert n > 150
+
+
+def test_library_checks_the_same_domains(case):
+    """The library keywords of those options refuse the same values, before any work."""
+    from pedcal import read_log, simulate_logs
+    from pedcal.calib import calibrate
+    from pedcal.detect.detection import detect
+    from pedcal.errors import PedcalInputError
+    from pedcal.track.follow import run_follow as follow
+
+    log = read_log(case / "log")
+    pts = np.zeros((10, 4))
+    calls = [lambda: calibrate(log, sensor_height_sigma_m=float("nan")),
+             lambda: calibrate(log, sensor_height_sigma_m=1e-300),
+             lambda: calibrate(log, ceiling_height_m=-3.0), lambda: calibrate(log, ceiling_height_m=1e300),
+             lambda: calibrate(log, max_memory_gb=float("nan")),
+             lambda: detect(pts, threshold=float("nan")), lambda: detect(pts, cell_size_m=0.0),
+             lambda: follow("crowd", density_per_10m2=1e6), lambda: follow("crowd", density_per_10m2=-0.0),
+             lambda: follow("passing", seed=-1), lambda: simulate_logs("sparse", seed=-1)]
+    for call in calls:
+        TALLY["cases"] += 1
+        with pytest.raises(PedcalInputError, match="expected"):
+            call()
+        TALLY["clean errors"] += 1
+
+
+@pytest.mark.parametrize("argv_of,names", [
+    (lambda c: ["calibrate", c / "log", "-o", c.parent / "out" / "c.yaml", "--graph", c / "g.toml"], "g.toml"),
+])
+@pytest.mark.parametrize("value", ["-0.01", "nan", "0.0", "1e300"])
+def test_graph_recipe_sigmas_have_a_domain(case, argv_of, names, value):
+    (case / "g.toml").write_text(f"lateral_sigma_m = {value}\n")
+    code, _, err = run_cli(argv_of(case), case, names=(names,))
+    assert code == EXIT_BAD_INPUT and "lateral_sigma_m" in err, err

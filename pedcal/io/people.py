@@ -37,4 +37,5 @@ def write_people_csv(df: pd.DataFrame, path: str | Path) -> Path:
         raise ValueError(f"people table lacks column(s) {', '.join(missing)}")
     out = df[list(PEOPLE_COLUMNS) + [c for c in df.columns if c not in PEOPLE_COLUMNS]].reset_index(drop=True)
     out = out.astype({"person": str, "t": float, "x": float, "y": float})
+    validate_people(out)           # NaN, 1e300 or nanosecond stamps would not read back
     return write_table(out, Path(path))

@@ -321,7 +321,12 @@ def sensors_yaml_text(network: SensorNetwork) -> str:
 
 
 def write_sensors_yaml(network: SensorNetwork, path: str | Path) -> Path:
-    """Write any of the three schemas (fields that are None are left out), atomically."""
-    path = Path(path)
+    """Write any of the three schemas (fields that are None are left out), atomically; a network
+    with a NaN or implausible pose is refused (it would not read back)."""
+    from pedcal.io.logdir import check_network
+    from pedcal.options import require_path
+
+    path = require_path(path, "path")
+    check_network(network, "network")
     write_text_atomic(path, sensors_yaml_text(network))
     return path
