@@ -192,7 +192,19 @@ def _into_folder(args, name: str, run) -> int:
             sys.stdout.write(text.getvalue().replace(str(tmp), str(target)))
         if code:
             raise _Failed(code)
+        _rename_in_texts(tmp, str(tmp), str(target))
     return code
+
+
+def _rename_in_texts(folder: Path, old: str, new: str) -> None:
+    """The folder's text files (a report's command line, its links) name the folder, not the
+    temporary they were written into."""
+    for p in folder.rglob("*"):
+        if p.suffix in (".md", ".json", ".csv", ".txt", ".yaml", ".html") and p.is_file() \
+                and p.stat().st_size < 64 * 1024 ** 2:
+            data = p.read_bytes()
+            if old.encode() in data:
+                p.write_bytes(data.replace(old.encode(), new.encode()))
 
 
 class _Failed(Exception):
@@ -475,12 +487,23 @@ def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
     for h in [h for h in logger.handlers if isinstance(h, ProgressHandler)]:
         logger.removeHandler(h)
     handler = ProgressHandler()
-    handler.setFormatter(logging.Formatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
+    handler.setFormatter(_TaggedFormatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
     logger.addHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
     # a Python warning (degenerate data, an assumption the data cannot check) reaches the user as
     # one line through the same handler, not as a source location and a line of library code
     warnings.showwarning = _warning_to_log
+
+
+class _TaggedFormatter(logging.Formatter):
+    """A warning logged by the library reads ``warning: ...`` like a Python warning, so it stands
+    apart from the error line below it."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if record.levelno >= logging.WARNING and not text.startswith(("warning: ", "WARNING ", "ERROR ")):
+            text = f"warning: {text}"
+        return text
 
 
 def _warning_to_log(message, category, filename, lineno, file=None, line=None) -> None:

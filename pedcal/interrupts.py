@@ -11,6 +11,7 @@ answers it, by shutting its workers down.
 from __future__ import annotations
 
 import contextlib
+import logging
 import signal
 import sys
 
@@ -19,6 +20,7 @@ EXIT_INTERRUPTED = 130
 
 def _on_sigint(signum, frame):
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # a second Ctrl-C does not interrupt the clean-up
+    logging.disable(logging.CRITICAL)     # the shutdown's own messages (Dask killing its workers) are noise now
     try:
         print("interrupted", file=sys.stderr, flush=True)
     except (OSError, ValueError):
