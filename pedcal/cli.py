@@ -165,7 +165,7 @@ def cmd_detect_eval(args) -> int:
     from pedcal.detect.detect_cli import detect_eval_cli
     from pedcal.io.atomic import check_output
 
-    if args.output is None:
+    if args.output is None or args.real is None:      # -o holds the pictures of --real frames
         return detect_eval_cli(args)
     check_output(args.output, inputs=[args.real, args.model], directory=True)
     return _into_folder(args, "output", detect_eval_cli)
