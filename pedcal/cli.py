@@ -40,8 +40,10 @@ def _json_default(o):
 
 # ----------------------------------------------------------------------------------------- commands
 def cmd_simulate(args) -> int:
+    from pedcal.io.atomic import check_output
     from pedcal.sim import simulate
 
+    check_output(args.output, inputs=[args.scenario if Path(args.scenario).exists() else None], directory=True)
     result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
                       **({"vary_nuisances": True} if getattr(args, "vary_nuisances", False) else {}))
     print(result.summary())
@@ -142,7 +144,9 @@ def cmd_import_people(args) -> int:
 
 def cmd_demo(args) -> int:
     from pedcal.demo import run_demo
+    from pedcal.io.atomic import check_output
 
+    check_output(args.output, directory=True)
     return run_demo(args.output, seed=args.seed, scenario=args.scenario)
 
 
