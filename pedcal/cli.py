@@ -517,7 +517,10 @@ def _warning_to_log(message, category, filename, lineno, file=None, line=None) -
 def main(argv: list[str] | None = None) -> int:
     previous = interrupts.install()      # Ctrl-C: one line, exit 130, from here on
     try:
-        args = build_parser().parse_args(argv)
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as e:      # usage error (an option outside its domain...) or --help: the code
+            return e.code if isinstance(e.code, int) else EXIT_BAD_INPUT
         configure_logging(quiet=args.log_quiet, verbose=args.verbose)
         return _run(args)
     finally:

@@ -7,12 +7,13 @@ the option that raises the limit, instead of exhausting the machine.
 from __future__ import annotations
 
 import contextlib
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log
 from pedcal.options import check, require, require_path
 
@@ -70,9 +71,10 @@ def check_calibration(log: Log, max_memory_gb: float | None = None) -> Log:
     require(log, "log", Log, "a pedcal.Log (pedcal.read_log(PATH) reads a log directory)")
     check(max_memory_gb=max_memory_gb)
     log = validate(log, _sources(log), rows_required=False)
-    if len(log.observations) == 0:     # said at once, not after the solver has set up every sensor
-        raise PedcalInputError(f"no observations (the table has no rows): none of the {len(log.sensors)} sensors "
-                               "can be calibrated", path=_sources(log).get("observations", "Log.observations"))
+    if len(log.observations) == 0:     # said at once, not after the method has set up every sensor
+        where = _sources(log).get("observations", "Log.observations")
+        warnings.warn(f"{where}: no observations (the table has no rows): none of the {len(log.sensors)} sensors "
+                      "can be calibrated; each comes back with status no-data", DegenerateDataWarning, stacklevel=3)
     check_robot_near_sensors(log)
     limit_gb = _limits["max_memory_gb"] if max_memory_gb is None else float(max_memory_gb)
     need = calibration_memory_bytes(log)
