@@ -15,9 +15,11 @@ import sys
 import warnings
 from pathlib import Path
 
+from pedcal import interrupts, options
 from pedcal.errors import PedcalInputError
 
 EXIT_BAD_INPUT = 2
+SCHEDULER_CONNECT_S = 10      # a Dask scheduler that does not answer within this is refused
 
 
 def _print_json(obj) -> None:
@@ -38,8 +40,10 @@ def _json_default(o):
 
 # ----------------------------------------------------------------------------------------- commands
 def cmd_simulate(args) -> int:
+    from pedcal.io.atomic import check_output
     from pedcal.sim import simulate
 
+    check_output(args.output, inputs=[args.scenario if Path(args.scenario).exists() else None], directory=True)
     result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
                       **({"vary_nuisances": True} if getattr(args, "vary_nuisances", False) else {}))
     print(result.summary())
@@ -141,13 +145,18 @@ def cmd_import_people(args) -> int:
 
 def cmd_demo(args) -> int:
     from pedcal.demo import run_demo
+    from pedcal.io.atomic import check_output
 
+    check_output(args.output, directory=True)
     return run_demo(args.output, seed=args.seed, scenario=args.scenario)
 
 
 def cmd_train_detector(args) -> int:
     from pedcal.detect.train import train_detector_cli
+    from pedcal.io.atomic import check_output
 
+    if args.output is not None:
+        check_output(args.output, inputs=[args.labelled])
     return train_detector_cli(args)
 
 
@@ -159,17 +168,77 @@ def cmd_detect(args) -> int:
 
 def cmd_detect_eval(args) -> int:
     from pedcal.detect.detect_cli import detect_eval_cli
+    from pedcal.io.atomic import check_output
 
-    return detect_eval_cli(args)
+    if args.output is None or args.real is None:      # -o holds the pictures of --real frames
+        return detect_eval_cli(args)
+    check_output(args.output, inputs=[args.real, args.model], directory=True)
+    return _into_folder(args, "output", detect_eval_cli)
+
+
+def _into_folder(args, name: str, run) -> int:
+    """``run(args)`` writing the folder ``args.<name>`` all at once (pedcal.io.atomic.atomic_dir):
+    into a temporary sibling that takes its place when ``run`` succeeds; the printed text names
+    the folder, not the temporary."""
+    import contextlib
+    import io
+
+    from pedcal.io.atomic import atomic_dir
+
+    target = getattr(args, name)
+    text = io.StringIO()
+    with atomic_dir(target) as tmp:
+        setattr(args, name, tmp)
+        try:
+            with contextlib.redirect_stdout(text):
+                code = run(args)
+        finally:
+            setattr(args, name, target)
+            sys.stdout.write(text.getvalue().replace(str(tmp), str(target)))
+        if code:
+            raise _Failed(code)
+        _rename_in_texts(tmp, str(tmp), str(target))
+    return code
+
+
+def _rename_in_texts(folder: Path, old: str, new: str) -> None:
+    """The folder's text files (a report's command line, its links) name the folder, not the
+    temporary they were written into."""
+    for p in folder.rglob("*"):
+        if p.suffix in (".md", ".json", ".csv", ".txt", ".yaml", ".html") and p.is_file() \
+                and p.stat().st_size < 64 * 1024 ** 2:
+            data = p.read_bytes()
+            if old.encode() in data:
+                p.write_bytes(data.replace(old.encode(), new.encode()))
+
+
+class _Failed(Exception):
+    """A command that wrote into a folder returned a failure code: the folder is left as it was."""
+
+    def __init__(self, code: int):
+        self.code = code
 
 
 def cmd_report(args) -> int:
     from pedcal.io.atomic import check_output
     from pedcal.report.command import report_command
 
-    if args.out is not None:
-        check_output(args.out, inputs=[args.log, *args.extrinsics], directory=True)
-    return report_command(args)
+    if args.out is None and args.log is None and args.from_results is None:
+        args.out = Path("reports/default")       # the sweep's default folder, written all at once too
+    if args.out is None or getattr(args, "rerun_tracking", False):
+        return report_command(args)
+    check_output(args.out, inputs=[args.log, *args.extrinsics, args.from_results], directory=True)
+    if args.scheduler is not None:
+        import dask
+
+        dask.config.set({"distributed.comm.timeouts.connect": f"{SCHEDULER_CONNECT_S}s"})
+    try:
+        return _into_folder(args, "out", report_command)
+    except OSError as e:          # TimeoutError is one: no scheduler answers at the address
+        if args.scheduler is None or e.filename is not None:
+            raise
+        raise PedcalInputError(f"cannot reach the Dask scheduler at {args.scheduler} within "
+                               f"{SCHEDULER_CONNECT_S} s: {e}") from None
 
 
 def cmd_follow(args) -> int:
@@ -186,7 +255,10 @@ def cmd_follow(args) -> int:
                          target_id=args.target, progress=not args.json, density_per_10m2=args.density,
                          sensing=args.sensing, lidar=args.lidar)
     if args.output is not None:
-        res.save(args.output)
+        from pedcal.io.atomic import atomic_dir
+
+        with atomic_dir(args.output) as tmp:       # follow.json and follow_log.parquet change together
+            res.save(tmp)
     if args.json:
         _print_json(res.to_dict())
     else:
@@ -213,7 +285,11 @@ def _list_follow_targets(args) -> int:
 
 
 def cmd_follow_bench(args) -> int:
+    from pedcal.io.atomic import check_output
+    from pedcal.sim.walkers import SHARED_DATA
     from pedcal.track.follow_bench import run_follow_bench
+
+    check_output(args.out, inputs=[args.data_dir or SHARED_DATA], directory=True)
 
     path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
                             min_duration_s=args.min_duration, max_targets=args.max_targets,
@@ -231,8 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="simulate a scenario: a calibration log and an evaluation log")
     s.add_argument("scenario", help="scenario name in datasets/ (paper, sparse, mall) or a scenario file")
-    s.add_argument("-o", "--output", required=True, type=Path, help="output directory")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("-o", "--output", required=True, type=options.path, help="output directory")
+    s.add_argument("--seed", type=options.arg("seed"), default=0)
     s.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     s.add_argument("--vary-nuisances", action="store_true",
                    help="draw the nuisance models (head point, AMCL error, odometry, latency, depth noise) "
@@ -240,30 +316,30 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_simulate)
 
     s = sub.add_parser("evaluate", help="the papers' accuracy figures of an extrinsics file on a log")
-    s.add_argument("log", type=Path)
-    s.add_argument("--extrinsics", required=True, type=Path)
+    s.add_argument("log", type=options.path)
+    s.add_argument("--extrinsics", required=True, type=options.path)
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_evaluate)
 
     s = sub.add_parser("calibrate", help="calibrate the ceiling sensors of a log")
-    s.add_argument("log", type=Path)
-    s.add_argument("-o", "--output", required=True, type=Path, help="calibrated sensors YAML")
+    s.add_argument("log", type=options.path)
+    s.add_argument("-o", "--output", required=True, type=options.path, help="calibrated sensors YAML")
     s.add_argument("--method", default="factorgraph",
                    choices=["factorgraph", "gridsearch", "alternative", "closedform"])
-    s.add_argument("--graph", type=Path, default=None, help="factor-graph recipe (graphs/*.toml)")
+    s.add_argument("--graph", type=options.path, default=None, help="factor-graph recipe (graphs/*.toml)")
     s.add_argument("--online", action="store_true", help="incremental (iSAM2) calibration")
-    s.add_argument("--max-memory-gb", type=float, default=None,
+    s.add_argument("--max-memory-gb", type=options.arg("max_memory_gb"), default=None,
                    help="refuse a log whose graph would need more memory (default 4)")
-    s.add_argument("--sensor-height-sigma", type=float, default=None, metavar="M",
+    s.add_argument("--sensor-height-sigma", type=options.arg("sensor_height_sigma"), default=None, metavar="M",
                    help="height reference: the installed sensor heights are measured to this sigma (m)")
-    s.add_argument("--ceiling-height", type=float, default=None, metavar="M",
+    s.add_argument("--ceiling-height", type=options.arg("ceiling_height"), default=None, metavar="M",
                    help="height reference: every sensor is at this height (m), to --sensor-height-sigma")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("import-bag", help="ROS 1/2 bag or rostopic echo -p CSV -> a log directory")
-    s.add_argument("bag", type=Path)
-    s.add_argument("-o", "--output", required=True, type=Path, help="log directory")
+    s.add_argument("bag", type=options.path)
+    s.add_argument("-o", "--output", required=True, type=options.path, help="log directory")
     s.add_argument("--amcl-topic", default=None)
     s.add_argument("--odom-topic", default=None)
     s.add_argument("--localization", default="auto", choices=["auto", "amcl", "odometry", "tf"],
@@ -272,26 +348,26 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--map-frame", default="map")
     s.add_argument("--base-frame", default="base_link")
     s.add_argument("--head-frame", default=None, help="head offset from /tf (base frame -> this frame)")
-    s.add_argument("--head-offset", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+    s.add_argument("--head-offset", type=options.arg("head_offset"), nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="head top in the base frame (m), written to meta.yaml")
     s.add_argument("--people", action="append", default=None, metavar="TOPIC=SENSOR",
                    help="people-tracker topic of one ceiling sensor -> observations.csv (repeatable; SENSOR "
                         "defaults to the topic name)")
     s.add_argument("--people-frame", default="auto", choices=["auto", "world", "sensor", "optical"],
                    help="frame of the people points (auto: from each header)")
-    s.add_argument("--sensors", type=Path, default=None,
+    s.add_argument("--sensors", type=options.path, default=None,
                    help="installed sensors.yaml: maps sensor/optical-frame points, copied into the log")
-    s.add_argument("--pose-sigma", type=float, nargs=2, default=None, metavar=("M", "DEG"),
+    s.add_argument("--pose-sigma", type=options.arg("pose_sigma"), nargs=2, default=None, metavar=("M", "DEG"),
                    help="localization sigma when the source has no covariance (/tf)")
     s.set_defaults(func=cmd_import_bag)
 
     s = sub.add_parser("export", help="calibrated extrinsics as a ROS launch file, URDF or JSON; a log's paths as TUM")
-    s.add_argument("input", type=Path, help="calibrated YAML (tf-launch, urdf, json) or a log directory (tum)")
+    s.add_argument("input", type=options.path, help="calibrated YAML (tf-launch, urdf, json) or a log directory (tum)")
     s.add_argument("--format", required=True, choices=["tf-launch", "urdf", "json", "tum"])
-    s.add_argument("-o", "--output", required=True, type=Path, help="output file (tum: a directory)")
+    s.add_argument("-o", "--output", required=True, type=options.path, help="output file (tum: a directory)")
     s.add_argument("--ros", type=int, default=1, choices=[1, 2], help="tf-launch: ROS 1 or ROS 2 launch XML")
     s.add_argument("--prefix", default="", help="child frame = prefix + sensor id")
-    s.add_argument("--extrinsics", action="append", type=Path, default=[],
+    s.add_argument("--extrinsics", action="append", type=options.path, default=[],
                    help="tum: also the head path seen with these extrinsics (repeatable)")
     s.add_argument("--optical", action="store_true",
                    help="tf-launch, urdf: add each sensor's <child>_optical frame (z forward, x right, y down)")
@@ -299,52 +375,53 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_export, ros=None)
 
     s = sub.add_parser("import-people", help="recorded pedestrian file (ATC, ETH/UCY, THOR) -> people CSV")
-    s.add_argument("input", type=Path)
-    s.add_argument("-o", "--output", required=True, type=Path)
+    s.add_argument("input", type=options.path)
+    s.add_argument("-o", "--output", required=True, type=options.path)
     s.add_argument("--kind", default="auto", choices=["auto", "atc", "eth_ucy", "thor", "people"])
-    s.add_argument("--fps", type=float, default=None,
+    s.add_argument("--fps", type=options.arg("fps"), default=None,
                    help="frame rate of a frame-numbered (ETH/UCY) file whose name does not identify the recording")
     s.set_defaults(func=cmd_import_people)
 
     s = sub.add_parser("demo", help="simulate the paper scenario, calibrate it, print the accuracy table")
-    s.add_argument("-o", "--output", type=Path, default=Path("runs/paper"))
+    s.add_argument("-o", "--output", type=options.path, default=Path("runs/paper"))
     s.add_argument("--scenario", default="paper")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=options.arg("seed"), default=0)
     s.set_defaults(func=cmd_demo)
 
     s = sub.add_parser("train-detector", help="train the person classifier (RealAdaBoost)")
-    s.add_argument("-o", "--output", type=Path, default=None,
+    s.add_argument("-o", "--output", type=options.path, default=None,
                    help="model file (default: the shipped one of --family)")
     s.add_argument("--family", default="general", choices=["general", "fx8"],
                    help="general: every trained LIDAR (default); fx8: the paper's FX8 pair's own model")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--frames", type=int, default=None, help="simulated training frames (default: the family's)")
-    s.add_argument("--labelled", type=Path, default=None, help="a user's labelled clusters instead")
+    s.add_argument("--seed", type=options.arg("seed"), default=0)
+    s.add_argument("--frames", type=options.arg("frames"), default=None,
+                   help="simulated training frames (default: the family's)")
+    s.add_argument("--labelled", type=options.path, default=None, help="a user's labelled clusters instead")
     s.set_defaults(func=cmd_train_detector)
 
     s = sub.add_parser("detect", help="detect people in a point cloud file (.pcd, .ply, KITTI .bin, .npy)")
-    s.add_argument("file", type=Path)
-    s.add_argument("--model", type=Path, default=None)
+    s.add_argument("file", type=options.path)
+    s.add_argument("--model", type=options.path, default=None)
     s.add_argument("--json", action="store_true")
     s.add_argument("--sensor", default=None, help="fx8, depth-camera, vlp16, os1-32, hdl32, hdl64, pandar40, "
                                                   "solid-dense, sparse-tof (default: ray spacing estimated from "
                                                   "the cloud)")
     g = s.add_mutually_exclusive_group()
-    g.add_argument("--sensor-pose", default=None, metavar="x,y,z,roll,pitch,yaw",
+    g.add_argument("--sensor-pose", default=None, type=options.sensor_pose, metavar="x,y,z,roll,pitch,yaw",
                    help="the sensor's pose above the floor (m, deg; positive pitch looks down)")
     g.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],
                    help="auto: local ground height (default); plane: one RANSAC plane; none: z is already floor height")
     s.set_defaults(func=cmd_detect)
 
     s = sub.add_parser("detect-eval", help="recall and precision on freshly simulated frames")
-    s.add_argument("--frames", type=int, default=200)
-    s.add_argument("--seed", type=int, default=12345)
+    s.add_argument("--frames", type=options.arg("frames"), default=200)
+    s.add_argument("--seed", type=options.arg("seed"), default=12345)
     s.add_argument("--preset", default="fx8", help="LIDAR preset (default: the paper's FX8 pair)")
-    s.add_argument("--model", type=Path, default=None)
+    s.add_argument("--model", type=options.path, default=None)
     s.add_argument("--json", action="store_true")
-    s.add_argument("--real", type=Path, default=None,
+    s.add_argument("--real", type=options.path, default=None,
                    help="a folder of real frames (NAME.pcd + NAME.json boxes) instead of simulated ones")
-    s.add_argument("-o", "--output", type=Path, default=None, help="with --real: bird's-eye pictures here")
+    s.add_argument("-o", "--output", type=options.path, default=None, help="with --real: bird's-eye pictures here")
     s.add_argument("--sensor", default=None, help="with --real: the sensor, as for pedcal detect")
     s.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],
                    help="with --real: as for pedcal detect")
@@ -352,56 +429,60 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("report", help="accuracy report (methods x scenarios x seeds vs the papers' tables), "
                                       "or compare extrinsics files on a log")
-    s.add_argument("log", nargs="?", type=Path, default=None, help="compare --extrinsics files on this log")
-    s.add_argument("--extrinsics", action="append", type=Path, default=[], help="calibrated YAML (repeatable)")
+    s.add_argument("log", nargs="?", type=options.path, default=None, help="compare --extrinsics files on this log")
+    s.add_argument("--extrinsics", action="append", type=options.path, default=[], help="calibrated YAML (repeatable)")
     s.add_argument("--scenarios", nargs="+", default=None, metavar="NAME[:SEEDS]",
                    help="default: paper sparse mall:3")
-    s.add_argument("--seeds", type=int, default=10, help="seeds 0..N-1 per scenario (default 10)")
+    s.add_argument("--seeds", type=options.arg("seeds"), default=10, help="seeds 0..N-1 per scenario (default 10)")
     s.add_argument("--methods", nargs="+", default=None, help="default: every method and the installed extrinsics")
-    s.add_argument("--out", type=Path, default=None, help="output directory (default reports/default)")
-    s.add_argument("--from-results", type=Path, default=None, help="rebuild the report from saved results")
+    s.add_argument("--out", type=options.path, default=None, help="output directory (default reports/default)")
+    s.add_argument("--from-results", type=options.path, default=None, help="rebuild the report from saved results")
     s.add_argument("--rerun-tracking", action="store_true",
                    help="with --from-results: run the following part again, keep the calibration tables")
-    s.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
-    s.add_argument("--workers", type=int, default=None, help="local Dask worker processes (default: cores)")
+    s.add_argument("--scheduler", default=None, type=options.scheduler_address,
+                   help="address of a running Dask scheduler")
+    s.add_argument("--workers", type=options.arg("workers"), default=None,
+                   help="local Dask worker processes (default: cores)")
     s.add_argument("--serial", action="store_true", help="run in this process, without Dask")
     s.add_argument("--follow-scenes", nargs="+", default=None, metavar="SCENE",
                    help="following scenes for the tracking tables (default: passing corner crossing crowd recorded)")
     s.add_argument("--follow-trackers", nargs="+", default=None, metavar="TRACKER",
                    help="default: paper lidar-only factorgraph")
-    s.add_argument("--follow-seeds", type=int, default=None,
+    s.add_argument("--follow-seeds", type=options.arg("follow_seeds"), default=None,
                    help="following seeds 0..N-1 per scene (default 5; 0 leaves the tracking tables out)")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_report)
 
     s = sub.add_parser("follow", help="follow one person in simulation and score the tracker")
     s.add_argument("scenario", nargs="?", default="passing", help="passing, corner, crossing, crowd, recorded")
-    s.add_argument("--people", type=Path, default=None, help="trajectories CSV (t, person, x, y) instead")
+    s.add_argument("--people", type=options.path, default=None, help="trajectories CSV (t, person, x, y) instead")
     s.add_argument("--target", default=None, help="with --people: the person carrying the transmitter")
     s.add_argument("--tracker", default="paper", choices=["paper", "lidar-only", "factorgraph"])
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=options.arg("seed"), default=0)
     s.add_argument("--json", action="store_true")
-    s.add_argument("-o", "--output", type=Path, default=None, help="save follow.json and follow_log.parquet here")
-    s.add_argument("--max-duration-s", type=float, default=None,
+    s.add_argument("-o", "--output", type=options.path, default=None,
+                   help="save follow.json and follow_log.parquet here")
+    s.add_argument("--max-duration-s", type=options.arg("max_duration_s"), default=None,
                    help="with --people: refuse a target trajectory longer than this (default 3600 s)")
-    s.add_argument("--density", type=float, default=None, metavar="P10M2",
+    s.add_argument("--density", type=options.arg("density"), default=None, metavar="P10M2",
                    help="crowd scene: people per 10 m^2 (default: 12 walkers, about 0.5)")
     _sensing_options(s)
     s.set_defaults(func=cmd_follow)
 
     s = sub.add_parser("follow-bench", help="follow every long-present person of every real recording and "
                        "report the distribution per recording and tracker")
-    s.add_argument("--data-dir", type=Path, default=None, help="the recordings folder (default: ../shared/data)")
+    s.add_argument("--data-dir", type=options.path, default=None,
+                   help="the recordings folder (default: ../shared/data)")
     s.add_argument("--files", nargs="+", default=None, metavar="FILE",
                    help="recordings under the data folder (default: ATC, ETH, HOTEL, ZARA, THOR)")
     s.add_argument("--trackers", nargs="+", default=None, metavar="TRACKER",
                    help="default: paper lidar-only factorgraph")
-    s.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per target (default 3)")
-    s.add_argument("--min-duration", type=float, default=45.0, metavar="S",
+    s.add_argument("--seeds", type=options.arg("seeds"), default=3, help="seeds 0..N-1 per target (default 3)")
+    s.add_argument("--min-duration", type=options.arg("min_duration"), default=45.0, metavar="S",
                    help="a target is present at least this long (default 45 s)")
-    s.add_argument("--max-targets", type=int, default=None, metavar="N",
+    s.add_argument("--max-targets", type=options.arg("max_targets"), default=None, metavar="N",
                    help="at most N targets per recording (the longest present; default all)")
-    s.add_argument("-o", "--out", type=Path, default=Path("follow-bench"), help="output folder")
+    s.add_argument("-o", "--out", type=options.path, default=Path("follow-bench"), help="output folder")
     s.add_argument("-q", "--quiet", action="store_true")
     _sensing_options(s)
     s.set_defaults(func=cmd_follow_bench)
@@ -426,7 +507,7 @@ def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
     for h in [h for h in logger.handlers if isinstance(h, ProgressHandler)]:
         logger.removeHandler(h)
     handler = ProgressHandler()
-    handler.setFormatter(logging.Formatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
+    handler.setFormatter(_TaggedFormatter("%(message)s" if verbose == 0 else "%(levelname)s %(name)s: %(message)s"))
     logger.addHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
     # a Python warning (degenerate data, an assumption the data cannot check) reaches the user as
@@ -434,13 +515,35 @@ def configure_logging(quiet: bool = False, verbose: int = 0) -> None:
     warnings.showwarning = _warning_to_log
 
 
+class _TaggedFormatter(logging.Formatter):
+    """A warning logged by the library reads ``warning: ...`` like a Python warning, so it stands
+    apart from the error line below it."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        if record.levelno >= logging.WARNING and not text.startswith(("warning: ", "WARNING ", "ERROR ")):
+            text = f"warning: {text}"
+        return text
+
+
 def _warning_to_log(message, category, filename, lineno, file=None, line=None) -> None:
     logging.getLogger("pedcal").warning(f"warning: {message}")
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    configure_logging(quiet=args.log_quiet, verbose=args.verbose)
+    previous = interrupts.install()      # Ctrl-C: one line, exit 130, from here on
+    try:
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as e:      # usage error (an option outside its domain...) or --help: the code
+            return e.code if isinstance(e.code, int) else EXIT_BAD_INPUT
+        configure_logging(quiet=args.log_quiet, verbose=args.verbose)
+        return _run(args)
+    finally:
+        interrupts.restore(previous)
+
+
+def _run(args) -> int:
     try:
         return int(args.func(args) or 0)
     except PedcalInputError as e:
@@ -454,17 +557,25 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as e:
+        from pedcal.io.atomic import _is_space_error
+
+        if _is_space_error(e):        # a writer outside pedcal.io.atomic met a full disk
+            print(f"pedcal {args.command}: error: {e.filename or 'an output'}: cannot write output: no space left "
+                  "on the device", file=sys.stderr)
+            return EXIT_BAD_INPUT
         if e.filename is None:
             raise
         # a path the user gave that cannot be read or written (permission, a directory, under a file)
         print(f"pedcal {args.command}: error: {e.filename}: {e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except _Failed as e:
+        return e.code
     except MemoryError:
         print(f"pedcal {args.command}: error: out of memory", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:       # raised by a library that installed its own SIGINT handling
         print("interrupted", file=sys.stderr)
-        return 130
+        return interrupts.EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

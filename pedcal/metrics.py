@@ -21,6 +21,7 @@ from pedcal import frames
 from pedcal.calib.common import robot_head_at
 from pedcal.errors import warnings_at_caller
 from pedcal.model import Log, SensorNetwork
+from pedcal.options import require
 
 # Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
 # Observation stamps are that much later than the instant the head was where it was seen.
@@ -201,6 +202,8 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
 @warnings_at_caller
 def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     """The papers' figures of ``extrinsics`` on ``log`` (see the module docstring)."""
+    require(log, "log", Log, "a pedcal.Log (pedcal.read_log(PATH))")
+    require(extrinsics, "extrinsics", SensorNetwork, "a pedcal.SensorNetwork (pedcal.read_sensors_yaml(PATH))")
     missing = [sid for sid in log.sensors.ids if sid not in extrinsics]
     per_sensor: dict[str, dict] = {}
 

@@ -44,5 +44,7 @@ def test_follow_bench_on_zara_and_hotel(shared_data, tmp_path, capsys):
 
 
 def test_follow_bench_missing_recording_exits_2(tmp_path, capsys):
-    assert main(["follow-bench", "--data-dir", str(tmp_path), "--files", "nope.csv", "-o", str(tmp_path / "o")]) == 2
+    (tmp_path / "data").mkdir()
+    assert main(["follow-bench", "--data-dir", str(tmp_path / "data"), "--files", "nope.csv", "-o",
+                 str(tmp_path / "o")]) == 2
     assert "nope.csv" in capsys.readouterr().err

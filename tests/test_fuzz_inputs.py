@@ -794,3 +794,557 @@ def test_unwritable_output_folder_is_refused_even_as_root(case, monkeypatch):
     code, _, err = run_cli(["calibrate", case / "log", "-o", ro / "c.yaml", "-q"], case, names=("c.yaml",))
     assert code == EXIT_BAD_INPUT and "permission denied" in err, err
     assert not (ro / "c.yaml").exists()
+
+
+# ======================================================================= hostile classes
+# Special files, a full disk, option domains walked from the parser, structural tricks in point
+# clouds, models and labels, corrupted bag payloads, library calls with wrong types, Ctrl-C at
+# start-up. Every case goes through run_cli's contract (or its parse-time twin below).
+def run_cli_refused_at_parse(argv: list[str], names=()) -> str:
+    """An option value outside its domain: argparse refuses it before any work (main returns 2), the last stderr
+    line ``pedcal CMD: error: argument --OPT: ...``; returns that line."""
+    err = io.StringIO()
+    TALLY["cases"] += 1
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main([str(a) for a in argv])
+    assert code == EXIT_BAD_INPUT, err.getvalue()
+    line = err.getvalue().strip().splitlines()[-1]
+    assert line.startswith(f"pedcal {argv[0]}: error: argument "), line
+    assert "Traceback" not in err.getvalue()
+    if names:
+        assert any(n in line for n in names), line
+    TALLY["clean errors"] += 1
+    return line
+
+
+def _special(path: Path, kind: str):
+    """Make a FIFO, a UNIX socket or a character device (/dev/null's numbers) at ``path``; returns
+    the socket to keep it open, or None."""
+    import socket
+    import stat as stat_mod
+
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "socket":
+        s = socket.socket(socket.AF_UNIX)
+        s.bind(str(path))
+        return s
+    else:
+        os.mknod(path, 0o666 | stat_mod.S_IFCHR, os.makedev(1, 3))
+    return None
+
+
+SPECIAL_KINDS = ["fifo", "socket"] + (["device"] if os.geteuid() == 0 else [])
+
+
+def _kind_of(path: Path) -> str:
+    import stat as stat_mod
+
+    mode = os.lstat(path).st_mode
+    return ("fifo" if stat_mod.S_ISFIFO(mode) else "socket" if stat_mod.S_ISSOCK(mode)
+            else "device" if stat_mod.S_ISCHR(mode) else "other")
+
+
+@pytest.mark.parametrize("kind", SPECIAL_KINDS)
+def test_special_file_as_output_is_never_replaced(case, kind):
+    out = case.parent / "out"
+    node = out / "node"
+    keep = _special(node, kind)
+    try:
+        for argv in (["calibrate", case / "log", "-o", node, "-q"],
+                     ["import-people", case / "people.csv", "-o", node],
+                     ["export", case / "calibrated.yaml", "--format", "json", "-o", node],
+                     ["follow", "--people", case / "people.csv", "--target", "0", "-o", node, "--json"],
+                     ["report", case / "log", "--extrinsics", case / "calibrated.yaml", "--out", node, "-q"]):
+            code, _, err = run_cli(argv, case, names=("node",))
+            assert code == EXIT_BAD_INPUT and "never replaces" in err, err
+            assert _kind_of(node) == kind
+    finally:
+        if keep is not None:
+            keep.close()
+
+
+@pytest.mark.parametrize("kind", SPECIAL_KINDS)
+def test_special_file_as_input_is_refused_without_blocking(case, kind):
+    """A FIFO would block a reader forever; a device such as /dev/zero would fill memory."""
+    log = case / "log"
+    cases = {"sensors.yaml": lambda p: ["evaluate", log, "--extrinsics", case / "calibrated.yaml"],
+             "meta.yaml": lambda p: ["evaluate", log, "--extrinsics", case / "calibrated.yaml"],
+             "calibrated.yaml": lambda p: ["evaluate", log, "--extrinsics", p],
+             "graph.toml": lambda p: ["calibrate", log, "--graph", p, "-o", case.parent / "out" / "c.yaml"],
+             "cloud.pcd": lambda p: ["detect", p]}
+    for name, argv_of in cases.items():
+        path = log / name if name in ("sensors.yaml", "meta.yaml") else case / name
+        backup = path.with_suffix(".bak")
+        if path.exists():
+            path.rename(backup)
+        keep = _special(path, kind)
+        try:
+            code, _, err = run_cli(argv_of(path), case, names=(name,))
+            assert code == EXIT_BAD_INPUT and "regular" in err, err
+        finally:
+            if keep is not None:
+                keep.close()
+            path.unlink()
+            if backup.exists():
+                backup.rename(path)
+
+
+def test_dev_zero_as_extrinsics_is_refused(case):
+    code, _, err = run_cli(["evaluate", case / "log", "--extrinsics", "/dev/zero"], case, names=("/dev/zero",))
+    assert code == EXIT_BAD_INPUT and "character device" in err
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 64 kB tmpfs where the machine lets us mount one (root), else None."""
+    import subprocess
+
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        yield None
+        return
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_full_disk_is_one_line_and_keeps_the_old_output(case, small_disk, monkeypatch):
+    """Writing a calibrated YAML, a people CSV (Arrow's writer) and a follow folder onto a full
+    disk: exit 2, one line naming the output, the previous output byte for byte."""
+    import errno
+
+    if small_disk is None:            # simulate ENOSPC in the writes instead
+        small_disk = case.parent / "out"
+        real_write = os.write
+
+        def full(fd, data):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        monkeypatch.setattr(os, "write", full)
+        monkeypatch.setattr(Path, "write_text", lambda self, *a, **k: full(0, b""))
+        del real_write
+    old = small_disk / "c.yaml"
+    old.write_text("old: 1\n")
+    filler = small_disk / "filler"
+    with contextlib.suppress(OSError):
+        filler.write_bytes(b"\0" * 64 * 1024)
+    before = old.read_bytes()
+    for argv, target in ((["calibrate", case / "log", "-o", old, "-q"], "c.yaml"),
+                         (["import-people", case / "people.csv", "-o", small_disk / "p.csv"], "p.csv"),
+                         (["follow", "--people", case / "people.csv", "--target", "0", "-o", small_disk / "f",
+                           "--json"], "f")):
+        code, _, err = run_cli(argv, case, names=(target,))
+        assert code == EXIT_BAD_INPUT and "no space left" in err, err
+    assert old.read_bytes() == before
+    assert not list(small_disk.glob(".*tmp*"))
+
+
+# ----------------------------------------------------------------------- option domains
+def _numeric_actions():
+    """(command, option string, nargs, domain) of every option whose type carries a domain."""
+    import argparse
+
+    from pedcal.cli import build_parser
+
+    out, untyped = [], []
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for command, parser in sub.choices.items():
+        for action in parser._actions:
+            domain = getattr(action.type, "domain", None)
+            if domain is not None:
+                out.append((command, action.option_strings[-1] if action.option_strings else None, action.nargs,
+                            domain))
+            elif action.type in (int, float) and not action.choices:
+                untyped.append(f"{command} {action.option_strings}")
+    return out, untyped
+
+
+def _outside(domain, rng) -> list[str]:
+    """Values outside ``domain``: not numbers, not finite, beyond each bound, a fraction for an integer."""
+    vals = ["nan", "inf", "-inf", "", "abc", "1e400", "0x10"]
+    if domain.lo is not None:
+        below = domain.lo - max(1.0, abs(domain.lo)) * rng.uniform(1e-3, 1)
+        vals.append(repr(domain.lo) if domain.lo_open else repr(below))
+        if domain.lo_open:
+            vals.append(repr(domain.lo - rng.uniform(1e-9, 1)))
+    if domain.hi is not None:
+        vals.append(repr(domain.hi + max(1.0, abs(domain.hi)) * rng.uniform(1e-3, 10)))
+        vals.append("1e300")
+    if domain.kind is int:
+        vals += ["1.5", "2e3"]
+    if domain.kind is int and domain.lo is not None:
+        vals.append(str(int(domain.lo) - 1))
+    return vals
+
+
+def test_every_numeric_option_has_a_domain():
+    actions, untyped = _numeric_actions()
+    assert not untyped, f"numeric options without a domain (pedcal.options): {untyped}"
+    assert len(actions) >= 15
+
+
+def test_option_values_outside_their_domain_are_refused_at_parse():
+    rng = np.random.default_rng(2718)
+    actions, _ = _numeric_actions()
+    n = 0
+    for command, option, nargs, domain in actions:
+        if option is None:
+            continue
+        width = nargs if isinstance(nargs, int) else 1
+        for bad in _outside(domain, rng):
+            for slot in range(width):        # the bad value in each position of a multi-value option
+                values = ["1"] * width
+                values[slot] = bad
+                argv = [command, f"{option}={bad}"] if width == 1 else [command, option, *values]
+                line = run_cli_refused_at_parse(argv, names=(option,))
+                assert option in line
+                n += 1
+    assert n > 150
+
+
+def test_library_checks_the_same_domains(case):
+    """The library keywords of those options refuse the same values, before any work."""
+    from pedcal import read_log, simulate_logs
+    from pedcal.calib import calibrate
+    from pedcal.detect.detection import detect
+    from pedcal.errors import PedcalInputError
+    from pedcal.track.follow import run_follow as follow
+
+    log = read_log(case / "log")
+    pts = np.zeros((10, 4))
+    calls = [lambda: calibrate(log, sensor_height_sigma_m=float("nan")),
+             lambda: calibrate(log, sensor_height_sigma_m=1e-300),
+             lambda: calibrate(log, ceiling_height_m=-3.0), lambda: calibrate(log, ceiling_height_m=1e300),
+             lambda: calibrate(log, max_memory_gb=float("nan")),
+             lambda: detect(pts, threshold=float("nan")), lambda: detect(pts, cell_size_m=0.0),
+             lambda: follow("crowd", density_per_10m2=1e6), lambda: follow("crowd", density_per_10m2=-0.0),
+             lambda: follow("passing", seed=-1), lambda: simulate_logs("sparse", seed=-1)]
+    for call in calls:
+        TALLY["cases"] += 1
+        with pytest.raises(PedcalInputError, match="expected"):
+            call()
+        TALLY["clean errors"] += 1
+
+
+@pytest.mark.parametrize("argv_of,names", [
+    (lambda c: ["calibrate", c / "log", "-o", c.parent / "out" / "c.yaml", "--graph", c / "g.toml"], "g.toml"),
+])
+@pytest.mark.parametrize("value", ["-0.01", "nan", "0.0", "1e300"])
+def test_graph_recipe_sigmas_have_a_domain(case, argv_of, names, value):
+    (case / "g.toml").write_text(f"lateral_sigma_m = {value}\n")
+    code, _, err = run_cli(argv_of(case), case, names=(names,))
+    assert code == EXIT_BAD_INPUT and "lateral_sigma_m" in err, err
+
+
+# ------------------------------------------------------- point clouds, models, labels (structure)
+def _pcd(fields="x y z", size="4 4 4", typ="F F F", count="1 1 1", width=1, points=None, data="binary",
+         body=b"\0" * 12) -> bytes:
+    points = width if points is None else points
+    return (f"VERSION .7\nFIELDS {fields}\nSIZE {size}\nTYPE {typ}\nCOUNT {count}\nWIDTH {width}\nHEIGHT 1\n"
+            f"POINTS {points}\nDATA {data}\n").encode() + body
+
+
+def _cloud_tricks(d: Path) -> dict[str, Path]:
+    out = {}
+
+    def put(name, data):
+        (d / name).write_bytes(data)
+        out[name] = d / name
+
+    put("count0.pcd", _pcd(count="0 1 1", body=b"\0" * 8))
+    put("width0.pcd", _pcd(width=0, body=b""))
+    put("listx.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty list uchar float x\nproperty float y\n"
+                     b"property float z\nend_header\n2 1 2 3 4\n")
+    for name, dt in (("subarray.npy", [("x", "f8", (3,)), ("y", "f8"), ("z", "f8")]),
+                     ("text.npy", [("x", "U4"), ("y", "f8"), ("z", "f8")]),
+                     ("nested.npy", [("x", [("a", "f8")]), ("y", "f8"), ("z", "f8")])):
+        np.save(d / name, np.zeros(4, dtype=dt))
+        out[name] = d / name
+    np.savez(d / "archive.npz", a=np.zeros((3, 3)))
+    (d / "archive.npz").rename(d / "archive.npy")
+    out["archive.npy"] = d / "archive.npy"
+    sparse = d.parent / "sparse" / "sparse.bin"    # beside the inputs: the harness would checksum 6 GB
+    sparse.parent.mkdir()
+    with open(sparse, "wb") as f:                  # 6 GB, no block allocated
+        f.truncate(6 * 10 ** 9)
+    out["sparse.bin"] = sparse
+    rng = np.random.default_rng(31)
+    for k in range(12):                            # generated header damage: a key's value replaced
+        key = rng.choice(["FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "POINTS", "DATA"])
+        value = rng.choice(["0", "-1", "", "x", "4 4", "0 0 0", "99999999999", "F", "binary_compressed", "nan"])
+        text = _pcd(body=rng.bytes(int(rng.integers(0, 40)))).decode("latin-1")
+        text = re.sub(rf"^{key} .*$", f"{key} {value}", text, count=1, flags=re.M)
+        put(f"gen{k}.pcd", text.encode("latin-1"))
+    return out
+
+
+def test_point_cloud_structure_tricks(tmp_path):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for name, path in _cloud_tricks(inputs).items():
+        code, _, err = run_cli(["detect", path, "--json"], inputs, names=(name,))
+        assert code in (0, EXIT_BAD_INPUT), err
+        if not name.startswith("gen"):
+            assert code == EXIT_BAD_INPUT, (name, err)
+
+
+def _model_tricks(d: Path) -> dict[str, Path]:
+    from pedcal.detect.detection import model_path
+
+    src = dict(np.load(model_path("general")))
+    fx8 = dict(np.load(model_path("fx8")))
+    h_nan = src["h"].copy()
+    h_nan[3, 2] = np.nan
+    edges_desc = src["edges"].copy()
+    edges_desc[5] = edges_desc[5][::-1]
+    tricks = {"feature out of range": dict(src, feature=src["feature"] + 1000),
+              "negative feature": dict(src, feature=-src["feature"] - 1),
+              "NaN weights": dict(src, h=h_nan), "truncated edges": dict(src, edges=src["edges"][:, :3]),
+              "edges decreasing": dict(src, edges=edges_desc), "h wrong shape": dict(src, h=src["h"][:10]),
+              "tree edges truncated": dict(fx8, edges=fx8["edges"][:, :2]),
+              "tree depth 40": dict(fx8, tree_depth=np.int64(40)), "bias inf": dict(src, bias=np.float64(np.inf)),
+              "no h": {k: v for k, v in src.items() if k != "h"}}
+    out = {}
+    for k, (name, arrays) in enumerate(tricks.items()):
+        out[name] = d / f"model{k}.npz"
+        np.savez(out[name], **arrays)
+    (d / "garbage.npz").write_bytes(np.random.default_rng(5).bytes(300))
+    out["garbage"] = d / "garbage.npz"
+    cut = (d / "model0.npz").read_bytes()
+    (d / "cut.npz").write_bytes(cut[: len(cut) // 2])
+    out["truncated file"] = d / "cut.npz"
+    return out
+
+
+def test_detector_model_structure_tricks(tmp_path):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    rng = np.random.default_rng(8)
+    cloud = np.column_stack([rng.uniform(-5, 5, (3000, 2)), rng.uniform(0, 1.8, 3000), rng.uniform(0, 1, 3000)])
+    np.save(inputs / "frame.npy", cloud)
+    for name, path in _model_tricks(inputs).items():
+        code, _, err = run_cli(["detect", inputs / "frame.npy", "--model", path, "--floor", "none", "--json"],
+                               inputs, names=(path.name,))
+        assert code == EXIT_BAD_INPUT, (name, err)
+
+
+def _label_tricks() -> dict[str, str]:
+    box = {"obj_type": "Pedestrian", "obj_id": "1", "psr": {"position": {"x": 1, "y": 0, "z": 0.9},
+                                                             "scale": {"x": 0.5, "y": 0.5, "z": 1.7},
+                                                             "rotation": {"x": 0, "y": 0, "z": 0}}}
+
+    def with_scale(v):
+        b = json.loads(json.dumps(box))
+        b["psr"]["scale"]["y"] = v
+        return json.dumps([b]).replace('"@@"', v if isinstance(v, str) else "0")
+
+    return {"nested 100000 deep": "[" * 100_000 + "]" * 100_000, "5000-digit integer": "[" + "9" * 5000 + "]",
+            "400-digit size": with_scale("@@").replace("0.5, \"z\"", "1" + "0" * 400 + ", \"z\"", 1),
+            "negative size": with_scale(-0.5), "NaN size": with_scale("@@").replace('"y": 0', '"y": NaN', 1),
+            "infinite size": with_scale("@@").replace('"y": 0', '"y": Infinity', 1), "zero size": with_scale(0.0)}
+
+
+@pytest.mark.parametrize("name", list(_label_tricks()))
+def test_label_file_tricks(tmp_path, name):
+    inputs = tmp_path / "in"
+    real = inputs / "real"
+    real.mkdir(parents=True)
+    rng = np.random.default_rng(9)
+    np.save(real / "f0.npy", np.column_stack([rng.uniform(-5, 5, (500, 2)), rng.uniform(0, 1.8, 500),
+                                              np.zeros(500)]))
+    (real / "f0.json").write_text(_label_tricks()[name])
+    code, _, err = run_cli(["detect-eval", "--real", real, "--floor", "none", "--json"], inputs, names=("f0.json",))
+    assert code == EXIT_BAD_INPUT, err
+
+
+# ------------------------------------------------------------------------ corrupted bag payloads
+def _odometry_bag(path: Path, version: int, payload=None) -> None:
+    """A small bag of nav_msgs/Odometry on /odom (map frame) and an empty /tf; ``payload(k, data)``
+    replaces message k's serialized bytes."""
+    from tests.rosbag_fixture import BagWriter, header, make, pose
+
+    msgtype = "nav_msgs/msg/Odometry"
+    with BagWriter(path, version) as w:
+        ts = w.ts
+        conn = w.writer.add_connection("/odom", msgtype, typestore=ts)
+        tf = w.writer.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=ts)
+        for k in range(30):
+            t = 100.0 + 0.2 * k
+            cov = make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=pose(ts, (0.1 * k, 0.0, 0.0)),
+                       covariance=np.diag([0.01, 0.01, 0, 0, 0, 0.003]).ravel())
+            msg = make(ts, msgtype, header=header(ts, t, "map"), child_frame_id="base_link", pose=cov)
+            data = ts.serialize_ros1(msg, msgtype) if version == 1 else ts.serialize_cdr(msg, msgtype)
+            w.writer.write(conn, int(t * 1e9), bytes(payload(k, bytes(data))) if payload else data)
+            w.writer.write(tf, int(t * 1e9), b"" if payload else (
+                ts.serialize_ros1 if version == 1 else ts.serialize_cdr)(make(ts, "tf2_msgs/msg/TFMessage"),
+                                                                         "tf2_msgs/msg/TFMessage"))
+
+
+BAG_DAMAGE = {
+    "truncated payloads": lambda rng: lambda k, d: d[: int(rng.integers(0, len(d)))],
+    "random payloads": lambda rng: lambda k, d: rng.bytes(int(rng.integers(0, 2 * len(d)))),
+    "one payload cut": lambda rng: lambda k, d: d[:7] if k == 17 else d,
+}
+
+
+@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("damage", list(BAG_DAMAGE))
+def test_corrupted_bag_payloads(tmp_path, version, damage):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    bag = inputs / ("b.bag" if version == 1 else "b")
+    _odometry_bag(bag, version, BAG_DAMAGE[damage](np.random.default_rng(17)))
+    code, _, err = run_cli(["import-bag", bag, "-o", tmp_path / "out", "--localization", "odometry",
+                            "--pose-sigma", "0.1", "5"], inputs, names=("b",))
+    assert code == EXIT_BAD_INPUT and re.search(r"topic /(odom|tf), message \d+", err), err
+
+
+def test_ros1_bag_with_flipped_bytes(tmp_path):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    clean = tmp_path / "clean.bag"
+    _odometry_bag(clean, 1)
+    data = clean.read_bytes()
+    rng = np.random.default_rng(23)
+    for k in range(10):
+        bad = bytearray(data)
+        for i in rng.integers(0, len(bad), int(rng.integers(1, 20))):
+            bad[i] ^= 0xFF
+        bag = inputs / f"flip{k}.bag"
+        bag.write_bytes(bytes(bad))
+        code, _, err = run_cli(["import-bag", bag, "-o", tmp_path / f"out{k}", "--localization", "odometry",
+                                "--pose-sigma", "0.1", "5"], inputs, names=(bag.name,))
+        assert code in (0, EXIT_BAD_INPUT), err
+
+
+def test_import_into_a_folder_holding_parquet_tables_is_refused(case, tmp_path):
+    bag = case / "b.bag"
+    _odometry_bag(bag, 1)
+    out = tmp_path / "out" / "log"
+    out.mkdir()
+    pd.DataFrame({"t": [0.0]}).to_parquet(out / "robot.parquet")
+    code, _, err = run_cli(["import-bag", bag, "-o", out, "--localization", "odometry", "--pose-sigma", "0.1", "5"],
+                           case, names=("robot.parquet",))
+    assert code == EXIT_BAD_INPUT and not (out / "robot.csv").exists(), err
+
+
+# ------------------------------------------------------------------ library calls, wrong types
+def test_library_calls_with_wrong_types_name_the_argument(case):
+    import pedcal
+    from pedcal.errors import PedcalInputError
+
+    log = pedcal.read_log(case / "log")
+    calls = {"calibrate(None)": (lambda: pedcal.calibrate(None), "log"),
+             "calibrate('path')": (lambda: pedcal.calibrate(str(case / "log")), "log"),
+             "evaluate(log, 'path')": (lambda: pedcal.evaluate(log, str(case / "calibrated.yaml")), "extrinsics"),
+             "evaluate(None, net)": (lambda: pedcal.evaluate(None, log.sensors), "log"),
+             "write_log(None)": (lambda: pedcal.write_log(None, case.parent / "out" / "w"), "log"),
+             "write_log(log, None)": (lambda: pedcal.write_log(log, None), "path"),
+             "read_log(None)": (lambda: pedcal.read_log(None), "path"),
+             "read_log(3)": (lambda: pedcal.read_log(3), "path"),
+             "write_sensors_yaml(net, None)": (lambda: pedcal.write_sensors_yaml(log.sensors, None), "path")}
+    for name, (call, arg) in calls.items():
+        TALLY["cases"] += 1
+        with pytest.raises((TypeError, PedcalInputError)) as exc:
+            call()
+        assert arg in str(exc.value), (name, exc.value)
+        assert not isinstance(exc.value, AttributeError)
+        TALLY["clean errors"] += 1
+    assert not (case.parent / "out" / "w").exists()
+
+
+def test_library_refuses_what_would_not_read_back(case):
+    import pedcal
+    import pedcal.io
+    from pedcal.errors import PedcalInputError
+    from pedcal.model import SensorExtrinsics, SensorNetwork
+    from pedcal.track.follow import run_follow
+
+    log = pedcal.read_log(case / "log")
+    people = pd.read_csv(case / "people.csv", dtype={"person": str})
+    nan_net = SensorNetwork([SensorExtrinsics("a", [np.nan, 0, 2.6], [0, 45, 0])])
+    calls = [lambda: pedcal.write_sensors_yaml(nan_net, case.parent / "out" / "n.yaml"),
+             lambda: pedcal.write_people_csv(people.assign(x=np.nan), case.parent / "out" / "p.csv"),
+             lambda: pedcal.write_log(log.__class__(sensors=log.sensors, robot=log.robot.assign(x=np.nan),
+                                                    observations=log.observations), case.parent / "out" / "l"),
+             lambda: pedcal.io.validate(log.__class__(sensors=log.sensors, observations=log.observations,
+                                                   robot=pd.concat([log.robot, log.robot[["x"]]], axis=1))),
+             lambda: run_follow(people_csv=people.drop(columns="y"), target_id="0"),
+             lambda: run_follow(people_csv=people.assign(x=np.nan), target_id="0"),
+             lambda: run_follow(people_csv=people.assign(x=1e300), target_id="0")]
+    for call in calls:
+        TALLY["cases"] += 1
+        with pytest.raises(PedcalInputError):
+            call()
+        TALLY["clean errors"] += 1
+    assert not list((case.parent / "out").iterdir())
+
+
+# ------------------------------------------------------ outputs inside inputs, folders at once
+def test_outputs_inside_inputs_for_every_writing_command(case, tmp_path):
+    labelled = case / "L.npz"
+    np.savez(labelled, X=np.zeros((4, 264)), y=np.array([0, 1, 0, 1]))
+    real = case / "real"
+    real.mkdir()
+    for argv, name in ((["train-detector", "--labelled", labelled, "-o", labelled], "L.npz"),
+                       (["detect-eval", "--real", real, "-o", real], "real"),
+                       (["detect-eval", "--real", real, "-o", real / "pics"], "pics"),
+                       (["follow-bench", "--data-dir", case, "-o", case], "in"),
+                       (["follow-bench", "--data-dir", case, "-o", case / "bench"], "bench")):
+        code, _, err = run_cli(argv, case, names=(name,))
+        assert code == EXIT_BAD_INPUT and "input" in err, err
+
+
+def test_folder_output_changes_all_at_once(case, monkeypatch):
+    """A failure between follow.json and follow_log.parquet leaves the previous folder intact."""
+    from pedcal.track.follow import FollowResult
+
+    out = case.parent / "out" / "f"
+    code, _, err = run_cli(["follow", "--people", case / "people.csv", "--target", "0", "-o", out, "--json"], case)
+    assert code == 0, err
+    before = checksums(out)
+    (out / "mine.txt").write_text("kept")
+    real_save = FollowResult.save
+
+    def save_then_fail(self, out_dir):
+        real_save(self, out_dir)
+        raise PermissionError(13, "Permission denied", str(Path(out_dir) / "follow_log.parquet"))
+
+    monkeypatch.setattr(FollowResult, "save", save_then_fail)
+    code, _, err = run_cli(["follow", "--people", case / "people.csv", "--target", "1", "-o", out, "--json"], case)
+    assert code == EXIT_BAD_INPUT, err
+    assert checksums(out) == {**before, "mine.txt": checksums(out)["mine.txt"]}
+    assert sorted(p.name for p in out.parent.iterdir()) == ["f"]
+    monkeypatch.setattr(FollowResult, "save", real_save)
+    code, _, err = run_cli(["follow", "--people", case / "people.csv", "--target", "1", "-o", out, "--json"], case)
+    assert code == 0 and (out / "mine.txt").read_text() == "kept", err
+    assert json.loads((out / "follow.json").read_text())["target"] == "1"
+
+
+# ---------------------------------------------------------------------------- Ctrl-C at start-up
+@pytest.mark.parametrize("delay_s", [0.3, 0.8, 1.6])
+def test_ctrl_c_at_start_up_is_one_line_and_130(case, delay_s):
+    """SIGINT while the command imports its libraries and starts: 'interrupted', exit 130, no
+    traceback, no output. (Python's own start-up, before pedcal's first line runs, is outside.)"""
+    import subprocess
+    import sys
+    import time
+
+    out = case.parent / "out" / "c.yaml"
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    proc = subprocess.Popen([sys.executable, "-m", "pedcal.cli", "calibrate", str(case / "log"), "-o", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    TALLY["cases"] += 1
+    text = err.decode()
+    assert "Traceback" not in text, text
+    assert proc.returncode == 130, (proc.returncode, text)
+    assert [ln for ln in text.splitlines() if not ln.startswith(("warning: ", "["))][-1] == "interrupted", text
+    assert not out.exists()
+    TALLY["clean errors"] += 1

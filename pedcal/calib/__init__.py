@@ -66,6 +66,9 @@ def calibrate(log: Log, method: str | None = None, *, options: MethodOptions | N
     Warnings the calibration raises point at the line that called ``calibrate``."""
     method, opts = resolve_options(method, options, kwargs)
     from pedcal.io.preflight import check_calibration
+    from pedcal.options import check
+
+    check(**{k: options[k] for k in ("sensor_height_sigma_m", "ceiling_height_m") if k in options})
 
     log = check_calibration(log, max_memory_gb)   # validated; refused beyond the memory limit
     module, func = METHODS[method]

@@ -95,7 +95,7 @@ from pedcal.calib.amcl_model import AmclErrorModel, assumed_model
 from pedcal.calib.common import HeadModel, ModelMismatch, head_interpolator, head_world, interpolate_pose2
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal, wrap_angle_rad
-from pedcal.io.sensors_yaml import flow_vector
+from pedcal.io.sensors_yaml import flow_vector, read_text_file
 from pedcal.metrics import (
     AMCL_MODEL_KEY,
     HEAD_MODEL_KEY,
@@ -106,6 +106,7 @@ from pedcal.metrics import (
     ODOMETRY_MODEL_KEY,
 )
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+from pedcal.options import check_recipe_numbers
 
 try:
     import tomllib
@@ -227,9 +228,7 @@ class GraphRecipe:
         if not path.exists() and not path.suffix and (GRAPHS_DIR / f"{path}.toml").exists():
             path = GRAPHS_DIR / f"{path}.toml"
         try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise PedcalInputError("graph recipe not found", path=path) from None
+            data = tomllib.loads(read_text_file(path, "graph recipe"))   # a regular file, size capped
         except tomllib.TOMLDecodeError as e:
             raise PedcalInputError(f"not valid TOML: {e}", path=path) from None
         flat = {}
@@ -248,6 +247,7 @@ class GraphRecipe:
                 raise PedcalInputError(f"key '{k}' must be {type(default).__name__}, got {v!r}", path=path)
         if "name" not in flat:
             flat["name"] = path.stem
+        check_recipe_numbers(flat, cls(), path)
         return cls(**flat)
 
 

@@ -36,7 +36,9 @@ from scipy.spatial import ConvexHull, QhullError
 
 from pedcal.detect.adaboost import RealAdaBoost
 from pedcal.detect.features import DEFAULT_SENSOR_HEIGHT_M, N_FEATURES, features_matrix, scan_steps_rad
+from pedcal.detect.model_check import load_checked
 from pedcal.errors import PedcalInputError
+from pedcal.options import check
 
 CELL_SIZE_M = 0.1
 MIN_CELL_SPAN_M = 0.2
@@ -562,7 +564,7 @@ def load_model(path: str | Path | None = None, family: str = "general") -> RealA
     """The classifier at ``path`` (default: the shipped model of ``family``, ``model_path``)."""
     p = Path(path) if path is not None else model_path(family)
     mtime = p.stat().st_mtime if p.exists() else 0.0
-    model = _load_cached(str(p), mtime)
+    model = load_checked(lambda: _load_cached(str(p), mtime), p)    # structure checked (model_check)
     if model.n_features_ != N_FEATURES:
         raise PedcalInputError(f"the model was trained on {model.n_features_} features per cluster, the "
                                f"detector computes {N_FEATURES}; retrain it with pedcal train-detector", path=p)
@@ -587,6 +589,7 @@ def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *
     of the base), seen from where a cluster's top is hidden or not (``top_occluded``). Returns
     every gated cluster as a Detection; ``is_person`` is ``score >= threshold``.
     """
+    check(threshold=threshold, cell_size_m=cell_size_m, gap_cells=gap_cells)
     pts = np.asarray(points, dtype=float)
     if pts.ndim == 2 and pts.shape[1] == 3:
         pts = np.column_stack([pts, np.zeros(len(pts))])

@@ -35,6 +35,7 @@ import numpy as np
 import open3d as o3d
 
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
+from pedcal.io.inputs import regular_file
 
 SUFFIXES = (".bin", ".pcd", ".ply", ".npy")
 _INTENSITY_FIELDS = ("intensity", "reflectance", "scalar_intensity", "scalar_Intensity", "i", "remission")
@@ -42,6 +43,9 @@ _COLOUR_FIELDS = (("red", "green", "blue"), ("r", "g", "b"))
 MAX_RANGE_M = 1000.0  # horizontal distance beyond which a point is taken as corrupt
 MAX_HEADER_BYTES = 1 << 16
 MAX_POINTS = 200_000_000  # a header promising more is not a point cloud this reader will allocate
+# One frame of a 128-beam LIDAR is a few MB; a file beyond this (a sparse file, a whole map) would be
+# read whole into memory, and then copied as float64.
+MAX_FILE_BYTES = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -162,6 +166,8 @@ def _pcd_header(raw: bytes, path: Path) -> PcdHeader:
     for name in ("x", "y", "z"):
         if name not in fields:
             raise PedcalInputError(f"the PCD has no {name!r} field (FIELDS {' '.join(fields)})", path=path)
+        if counts[fields.index(name)] < 1:
+            raise PedcalInputError(f"the PCD field {name!r} has COUNT 0 (no values): expected COUNT 1", path=path)
     return PcdHeader(fields, sizes, types, counts, width, height, points, data, pos)
 
 
@@ -179,6 +185,8 @@ def read_pcd(path: Path) -> tuple[np.ndarray, tuple[int, int] | None]:
     values: dict[str, np.ndarray] = {}
     if h.data == "ascii":
         values = _pcd_ascii(body, h, cols, path)
+    elif n == 0:
+        values = {name: np.empty(0) for name in cols}
     elif h.data == "binary":
         need = n * h.point_bytes
         if len(body) < need:
@@ -290,12 +298,27 @@ def read_ply(path: Path) -> np.ndarray:
         if not {"x", "y", "z"} <= names:
             raise PedcalInputError(f"the PLY vertex element has no x, y, z properties ({', '.join(sorted(names))})",
                                    path=path)
-        values = {k: vertex.data[k] for k in names if vertex.data[k].dtype != object}
+        values = _numeric_fields({k: vertex.data[k] for k in names}, "PLY vertex property", path)
     except PedcalInputError:
         raise
     except Exception as e:  # noqa: BLE001 - hostile bytes fail in plyfile with many exception types
         raise PedcalInputError(f"not a readable PLY point cloud: {e}", path=path) from None
     return _assemble(values, len(vertex.data))
+
+
+def _numeric_fields(columns: dict, what: str, path: Path) -> dict[str, np.ndarray]:
+    """The columns holding one number per point; x, y, z must be such columns (not a list, a
+    sub-array, text or a nested record)."""
+    def numeric(v) -> bool:
+        return isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype.kind in "fiub" and not v.dtype.names
+
+    for name in ("x", "y", "z"):
+        v = columns[name]
+        if not numeric(v):
+            kind = ("lists" if v.dtype == object else "records" if v.dtype.names else
+                    "text" if v.dtype.kind in "US" else f"{v.dtype} values of shape {v.shape[1:] or v.dtype.shape}")
+            raise PedcalInputError(f"the {what} {name!r} holds {kind}, expected one number per point", path=path)
+    return {k: v for k, v in columns.items() if numeric(v)}
 
 
 def read_kitti_bin(path: Path) -> np.ndarray:
@@ -312,13 +335,17 @@ def read_npy(path: Path) -> tuple[np.ndarray, tuple[int, int] | None]:
     except Exception as e:  # noqa: BLE001 - a corrupt header fails in numpy's parser with any of a dozen types
 
         raise PedcalInputError(f"not a readable .npy array: {e}", path=path) from None
+    if not isinstance(arr, np.ndarray):      # np.load opens an .npz archive whatever its name
+        arr.close()
+        raise PedcalInputError("an .npz archive named .npy: expected one .npy array", path=path)
     if arr.dtype.names:
         if not {"x", "y", "z"} <= set(arr.dtype.names):
             raise PedcalInputError(f"a structured .npy needs x, y, z fields; it has {', '.join(arr.dtype.names)}",
                                    path=path)
         organized = arr.shape if arr.ndim == 2 and arr.shape[0] > 1 else None
         flat = arr.reshape(-1)
-        return _assemble({k: flat[k] for k in arr.dtype.names if flat[k].ndim == 1}, len(flat)), organized
+        return _assemble(_numeric_fields({k: flat[k] for k in arr.dtype.names}, "structured .npy field", path),
+                         len(flat)), organized
     if arr.dtype.kind not in "fiu" or arr.ndim not in (2, 3) or arr.shape[-1] < 3:
         raise PedcalInputError(f"a .npy point cloud is (N, 3+) or organized (H, W, 3+) numbers; got "
                                f"{arr.dtype} {arr.shape}", path=path)
@@ -341,8 +368,12 @@ def reflectance_scale(intensity: np.ndarray) -> np.ndarray:
 def read_point_cloud_report(path: str | Path) -> CloudRead:
     """Read a .pcd, .ply, .bin or .npy file: the finite points and what was dropped."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise PedcalInputError("no such point-cloud file", path=path)
+    size = regular_file(path, "point-cloud file").stat().st_size     # a FIFO or device is not read
+    if size > MAX_FILE_BYTES:
+        raise PedcalInputError(f"{size / 1e9:.3g} GB, more than one frame's point cloud (up to "
+                               f"{MAX_FILE_BYTES / 1e9:.3g} GB is read): crop or split it", path=path)
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
         raise PedcalInputError(f"unknown point-cloud type '{suffix}', expected one of {', '.join(SUFFIXES)}",

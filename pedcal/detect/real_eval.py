@@ -16,13 +16,13 @@ every labelled pedestrian is accounted for. With ``out_dir``, a bird's-eye pictu
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pedcal.errors import PedcalInputError
+from pedcal.io.inputs import check_records, read_json
 
 GROW_M = 0.3
 RANGE_BANDS_M = ((0.0, 10.0), (10.0, 15.0), (15.0, 20.0), (20.0, 30.0), (30.0, np.inf))
@@ -33,10 +33,7 @@ CLOUD_SUFFIXES = (".pcd", ".bin", ".ply", ".npy")
 
 def read_boxes(path: Path) -> list[dict]:
     """Boxes of a label file as dicts ``type, id, cx, cy, cz, length, width, height, yaw``."""
-    try:
-        raw = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise PedcalInputError(f"not a readable JSON label file: {e}", path=path) from None
+    raw = read_json(path, "JSON label file")    # regular file, size capped, depth and digits bounded
     if not isinstance(raw, list):
         raise PedcalInputError("a label file is a JSON list of boxes", path=path)
     out = []
@@ -46,10 +43,10 @@ def read_boxes(path: Path) -> list[dict]:
             out.append(dict(type=str(b["obj_type"]), id=str(b.get("obj_id", row)), cx=float(p["x"]),
                             cy=float(p["y"]), cz=float(p["z"]), length=float(s["x"]), width=float(s["y"]),
                             height=float(s["z"]), yaw=float(r["z"])))
-        except (KeyError, TypeError, ValueError) as e:
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
             raise PedcalInputError(f"box without obj_type / psr.position, scale, rotation ({e})", path=path,
                                    row=row) from None
-    return out
+    return check_records(out, path, finite=("cx", "cy", "cz", "yaw"), positive=("length", "width", "height"))
 
 
 def in_box(xy: np.ndarray, box: dict, grow_m: float = 0.0) -> np.ndarray:

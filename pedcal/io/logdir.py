@@ -40,6 +40,7 @@ from pedcal.model import (
     Meta,
     SensorNetwork,
 )
+from pedcal.options import require, require_path
 
 TABLE_FORMATS = ("csv", "parquet")
 VARIANCE_COLUMNS = ("cov_xx", "cov_yy", "cov_yawyaw")
@@ -169,6 +170,10 @@ def typed_table(raw: pd.DataFrame, columns: tuple[str, ...], text_columns: tuple
                                path=where, column=missing[0])
     if required and len(raw) == 0:
         raise PedcalInputError("table has no data rows", path=where)
+    repeated = [c for c in columns if names.count(c) > 1]
+    if repeated:                 # which of them is meant? (a file's repeated header, a DataFrame's columns)
+        raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times; keep one",
+                               path=where, column=repeated[0])
     position = {n: i for i, n in reversed(list(enumerate(names)))}   # the first of repeated names
     out = {}
     for c in columns:
@@ -395,7 +400,7 @@ def meta_yaml_text(meta: Meta) -> str:
 # ---------------------------------------------------------------------------------------- log dirs
 def read_log(path: str | Path) -> Log:
     """Read and validate a log directory (LOG_FORMAT.md). Bad input raises PedcalInputError."""
-    directory = Path(path)
+    directory = require_path(path, "path")
     if not directory.is_dir():
         raise PedcalInputError("log directory not found" if not directory.exists() else
                                "expected a log directory (sensors.yaml, robot.csv, observations.csv)",
@@ -483,7 +488,9 @@ def write_log(log: Log, path: str | Path, fmt: str = "csv") -> dict[str, Path]:
     """
     if fmt not in TABLE_FORMATS:
         raise ValueError(f"fmt must be one of {TABLE_FORMATS}, got {fmt!r}")
-    directory = Path(path)
+    require(log, "log", Log, "a pedcal.Log")
+    directory = require_path(path, "path")
+    validate(log, rows_required=False)    # nothing written of a log that would not read back (NaN, 1e300, ...)
     directory.mkdir(parents=True, exist_ok=True)
     tables = {"robot": log.robot, "observations": log.observations, "odometry": log.odometry,
               "truth_robot": log.truth_robot, "truth_observations": log.truth_observations}

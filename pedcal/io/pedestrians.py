@@ -17,6 +17,7 @@ from pedcal.errors import PedcalInputError, show
 from pedcal.io.logdir import parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
+from pedcal.options import require_path
 
 ATC_COLUMNS = ("time_unix_s", "person_id", "x", "y", "velocity", "motion_angle")
 ETH_UCY_COLUMNS = ("frame", "ped_id", "x", "y")
@@ -194,7 +195,7 @@ def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = N
     """Read any supported recording into ``t, person, x, y``; ``kind`` is auto, atc, eth_ucy, thor
     or people (pedcal's own CSV). ``fps``: the frame rate of a frame-numbered (ETH/UCY) file,
     needed when its name does not identify the recording; the other layouts carry seconds."""
-    path = Path(path)
+    path = require_path(path, "path")
     if kind == "auto":
         kind = detect_kind(path)
     readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}

@@ -9,11 +9,12 @@ import pandas as pd
 from pedcal.errors import PedcalInputError
 from pedcal.io.logdir import check_coordinates, check_times, read_table, typed_table, write_table
 from pedcal.model import PEOPLE_COLUMNS
+from pedcal.options import require_path
 
 
 def read_people_csv(path: str | Path) -> pd.DataFrame:
     """Read a people CSV (or .parquet); ``person`` is text; rows keep file order."""
-    path = Path(path)
+    path = require_path(path, "path")
     if not path.is_file():
         raise PedcalInputError("file not found", path=path)
     if path.is_dir():
@@ -37,4 +38,5 @@ def write_people_csv(df: pd.DataFrame, path: str | Path) -> Path:
         raise ValueError(f"people table lacks column(s) {', '.join(missing)}")
     out = df[list(PEOPLE_COLUMNS) + [c for c in df.columns if c not in PEOPLE_COLUMNS]].reset_index(drop=True)
     out = out.astype({"person": str, "t": float, "x": float, "y": float})
+    validate_people(out)           # NaN, 1e300 or nanosecond stamps would not read back
     return write_table(out, Path(path))

@@ -7,13 +7,15 @@ the option that raises the limit, instead of exhausting the machine.
 from __future__ import annotations
 
 import contextlib
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log
+from pedcal.options import check, require, require_path
 
 # The factor graph (pedcal.calib.factorgraph) holds a robot pose at every AMCL stamp with gaps longer
 # than 0.25 s filled, and a node of the AMCL error process every 1 s; each costs GTSAM values,
@@ -40,6 +42,7 @@ _limits = {"max_memory_gb": DEFAULT_MAX_MEMORY_GB, "max_follow_s": DEFAULT_MAX_F
 @contextlib.contextmanager
 def limits(**values):
     """Set limits (``max_memory_gb``, ``max_follow_s``) for the calls inside; None keeps the default."""
+    check(**values)
     old = dict(_limits)
     _limits.update({k: v for k, v in values.items() if v is not None})
     try:
@@ -65,7 +68,13 @@ def check_calibration(log: Log, max_memory_gb: float | None = None) -> Log:
     ``max_memory_gb``; returns the validated log."""
     from pedcal.io.logdir import validate
 
+    require(log, "log", Log, "a pedcal.Log (pedcal.read_log(PATH) reads a log directory)")
+    check(max_memory_gb=max_memory_gb)
     log = validate(log, _sources(log), rows_required=False)
+    if len(log.observations) == 0:     # said at once, not after the method has set up every sensor
+        where = _sources(log).get("observations", "Log.observations")
+        warnings.warn(f"{where}: no observations (the table has no rows): none of the {len(log.sensors)} sensors "
+                      "can be calibrated; each comes back with status no-data", DegenerateDataWarning, stacklevel=3)
     check_robot_near_sensors(log)
     limit_gb = _limits["max_memory_gb"] if max_memory_gb is None else float(max_memory_gb)
     need = calibration_memory_bytes(log)
@@ -118,8 +127,15 @@ def check_follow_people(people_csv, target_id: str | None) -> pd.DataFrame:
     from pedcal.io.pedestrians import read_pedestrians
 
     if target_id is None:
-        raise PedcalInputError("--people needs --target (the person carrying the transmitter)", path=people_csv)
-    people = read_pedestrians(people_csv)
+        raise PedcalInputError("--people needs --target (the person carrying the transmitter)",
+                               path=None if isinstance(people_csv, pd.DataFrame) else people_csv)
+    if isinstance(people_csv, pd.DataFrame):     # a table in memory gets the checks of a file
+        from pedcal.io.people import validate_people
+
+        people = validate_people(people_csv)
+        people_csv = "people table"
+    else:
+        people = read_pedestrians(require_path(people_csv, "people_csv"))
     tgt = people["t"].to_numpy(dtype=float)[people["person"].astype(str).to_numpy() == str(target_id)]
     if len(tgt) >= 2:
         span = float(tgt.max() - tgt.min())

@@ -31,10 +31,11 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import PedcalInputError, show
 from pedcal.io.atomic import write_text_atomic
 from pedcal.io.logdir import meta_yaml_text, parse_float_column, write_table
 from pedcal.model import OBSERVATION_COLUMNS, ODOMETRY_COLUMNS, ROBOT_COLUMNS, Meta, SensorNetwork
+from pedcal.options import check
 
 AMCL_MSGTYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 ODOM_MSGTYPE = "nav_msgs/msg/Odometry"
@@ -158,6 +159,8 @@ def _open_reader(paths: list[Path]):
         reader.open()
     except (AnyReaderError, OSError, ValueError) as e:
         raise PedcalInputError(f"cannot open as a ROS 1 or ROS 2 bag: {e}", path=paths[0]) from None
+    except Exception as e:       # noqa: BLE001 - damaged index or header bytes fail with other types too
+        raise PedcalInputError(f"cannot open as a ROS 1 or ROS 2 bag (damaged?): {_brief(e)}", path=paths[0]) from None
     return reader
 
 
@@ -196,10 +199,33 @@ def _stamp_s(stamp) -> float:
 
 
 def _messages(reader, topic: str):
-    """(log time s, message) of one topic in bag order."""
+    """(log time s, message) of one topic in bag order. A record the bag reader cannot read or a
+    payload it cannot decode (a truncated or corrupted bag) raises PedcalInputError naming the
+    topic and the message's index."""
     conns = [c for c in reader.connections if c.topic == topic]
-    for conn, t_ns, raw in reader.messages(connections=conns):
-        yield t_ns * 1e-9, reader.deserialize(raw, conn.msgtype)
+    where = reader.paths[0] if getattr(reader, "paths", None) else None
+    records = reader.messages(connections=conns)
+    index = 0
+    while True:
+        try:
+            conn, t_ns, raw = next(records)
+        except StopIteration:
+            return
+        except Exception as e:   # noqa: BLE001 - the bag reader fails on damaged bytes with many types
+            raise PedcalInputError(f"topic {topic}, message {index}: cannot read the bag record (truncated or "
+                                   f"corrupt bag): {_brief(e)}", path=where) from None
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as e:   # noqa: BLE001 - idem, for the message's payload
+            raise PedcalInputError(f"topic {topic}, message {index}: cannot decode its {conn.msgtype} payload "
+                                   f"(truncated or corrupt): {_brief(e)}", path=where) from None
+        yield t_ns * 1e-9, msg
+        index += 1
+
+
+def _brief(e: BaseException) -> str:
+    text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    return show(f"{type(e).__name__}: {text}" if text else type(e).__name__, 160)[1:-1]
 
 
 def _first_frame(reader, topic: str) -> str | None:
@@ -586,6 +612,20 @@ def _is_rostopic_csv(path: Path) -> bool:
         return f.readline().lstrip().startswith(("%time", "field."))
 
 
+def _check_import_options(out_dir, head_offset_m, pose_sigma) -> None:
+    """Before any work: the numbers in their domains (pedcal.options) and an output folder that
+    will read back as one log (no table of the other format beside the CSV written)."""
+    if pose_sigma is not None:
+        check(pose_sigma_m=pose_sigma[0], pose_sigma_rad=pose_sigma[1])
+    for v in ([] if head_offset_m is None else np.asarray(head_offset_m, dtype=object).ravel()):
+        check(head_offset=v)
+    for name in ("robot", "odometry", "observations"):
+        other = Path(out_dir) / f"{name}.parquet"
+        if other.exists():
+            raise PedcalInputError(f"the folder holds {other.name}; the import writes {name}.csv, and a log "
+                                   "with both does not read: remove it or import into another folder", path=other)
+
+
 def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = None,
                odom_topic: str | None = None, *, sensors=None, head_offset_m=None, **options) -> dict[Path, int]:
     """Write a bag's log tables into ``out_dir`` atomically: robot.csv, odometry.csv,
@@ -598,6 +638,7 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
     from pedcal.io.sensors_yaml import read_sensors_yaml, write_sensors_yaml
 
     bag = Path(bag)
+    _check_import_options(out_dir, head_offset_m, options.get("pose_sigma"))
     network = read_sensors_yaml(sensors) if isinstance(sensors, (str, Path)) else sensors
     if _is_rostopic_csv(bag):
         robot = read_rostopic_amcl_csv(bag)

@@ -24,26 +24,20 @@ import yaml
 from pedcal.errors import PedcalInputError, show
 from pedcal.io import plausible
 from pedcal.io.atomic import write_text_atomic
+from pedcal.io.inputs import read_bytes_capped
 from pedcal.model import SENSOR_STATUSES, SensorExtrinsics, SensorNetwork
+from pedcal.options import require_path
 
 SENSOR_KEYS = ("id", "position", "ypr_deg", "quaternion_wxyz", "sigma", "observations", "status", "unobservable")
 
 
 # ------------------------------------------------------------------------------------------- reading
 def read_text_file(path: str | Path, what: str = "file") -> str:
-    """A UTF-8 text file (a BOM is allowed); a missing file, a directory, no permission or bytes
-    that are not UTF-8 raise PedcalInputError naming the file."""
-    path = Path(path)
-    if not path.exists():
-        raise PedcalInputError(f"{what} not found", path=path)
-    if path.is_dir():
-        raise PedcalInputError(f"is a directory, expected a {what}", path=path)
-    try:
-        data = path.read_bytes()
-    except PermissionError:
-        raise PedcalInputError("cannot read: permission denied", path=path) from None
-    except OSError as e:
-        raise PedcalInputError(f"cannot read: {e.strerror or e}", path=path) from None
+    """A UTF-8 text file (a BOM is allowed); a missing file, a directory, a device, FIFO or socket,
+    a file beyond pedcal.io.inputs.MAX_TEXT_BYTES, no permission or bytes that are not UTF-8 raise
+    PedcalInputError naming the file."""
+    path = require_path(path, "path")
+    data = read_bytes_capped(path, what)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
@@ -142,7 +136,7 @@ def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = Fal
 
 def read_sensors_yaml(path: str | Path) -> SensorNetwork:
     """Read an installed, truth or calibrated sensors YAML file into a SensorNetwork."""
-    path = Path(path)
+    path = require_path(path, "path")
     data, root = load_yaml_file(path)
     if not isinstance(data, dict) or "sensors" not in data:
         raise PedcalInputError("expected a mapping with a 'sensors' list (LOG_FORMAT.md, sensors.yaml)",
@@ -328,7 +322,11 @@ def sensors_yaml_text(network: SensorNetwork) -> str:
 
 
 def write_sensors_yaml(network: SensorNetwork, path: str | Path) -> Path:
-    """Write any of the three schemas (fields that are None are left out), atomically."""
-    path = Path(path)
+    """Write any of the three schemas (fields that are None are left out), atomically; a network
+    with a NaN or implausible pose is refused (it would not read back)."""
+    from pedcal.io.logdir import check_network
+
+    path = require_path(path, "path")
+    check_network(network, "network")
     write_text_atomic(path, sensors_yaml_text(network))
     return path

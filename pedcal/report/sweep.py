@@ -287,12 +287,16 @@ def run_sweep(config: SweepConfig, *, scheduler: str | None = None, workers: int
     else:
         from dask.distributed import Client, LocalCluster, as_completed
 
+        from pedcal.interrupts import children_ignore
+
         cluster = None
         if scheduler is None:
             n = workers or os.cpu_count() or 1
             _progress(progress, f"starting a local Dask cluster: {n} worker processes, 1 thread each")
             # ":0": any free port for the scheduler's HTTP endpoint, so parallel sweeps do not collide.
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
+            with children_ignore():      # Ctrl-C reaches the workers too: this process alone answers it
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                       silence_logs=logging.CRITICAL)   # a task's error reaches us as its result
         try:
             with Client(scheduler or cluster) as client:
                 futures = [client.submit(_run_task, task, key=f"pedcal-report-{task[0]}-{task[1]}-{task[2]}",

@@ -19,6 +19,7 @@ import yaml
 from pedcal.calib.common import head_world, interpolate_pose2
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, Meta, SensorNetwork
+from pedcal.options import check
 from pedcal.sim import ceiling, robot, walkers
 from pedcal.sim.nuisances import vary
 from pedcal.sim.scenario import Scenario, load_scenario
@@ -211,6 +212,7 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     ``noise_free=True`` turns every nuisance off; ``vary_nuisances=True`` draws the nuisance
     models from the seed (:func:`pedcal.sim.nuisances.draw_nuisances`), after the overrides.
     The same seed gives identical logs."""
+    check(seed=seed)
     noise_free = bool(overrides.pop("noise_free", False))
     vary_nuisances = bool(overrides.pop("vary_nuisances", False))
     sc = load_scenario(scenario).resolve(noise_free=noise_free, seed=seed, **overrides)

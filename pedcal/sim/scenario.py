@@ -18,6 +18,7 @@ from pathlib import Path
 import yaml
 
 from pedcal.errors import PedcalInputError
+from pedcal.io.sensors_yaml import read_text_file
 
 DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
@@ -352,7 +353,7 @@ def load_scenario(name_or_path: str | Path | Scenario, *, _seen: tuple = ()) -> 
     if path.resolve() in _seen:
         raise PedcalInputError("scenario files include each other in a loop", path=path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+        data = yaml.safe_load(read_text_file(path, "scenario file")) or {}   # a regular file, size capped
     except yaml.YAMLError as exc:
         raise PedcalInputError(f"not valid YAML ({exc})", path=path) from None
     if not isinstance(data, dict):

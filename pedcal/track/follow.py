@@ -332,17 +332,20 @@ def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: i
     crowd scene's people per 10 m^2), or, with ``people_csv`` (a ``t, person, x, y`` file, a
     recording or such a DataFrame), those trajectories with ``target_id`` carrying the transmitter;
     ``sensing`` and ``lidar`` as :func:`run_episode`'s."""
+    from pedcal.io.preflight import check_follow_people
+    from pedcal.options import check
     from pedcal.sim.follow_lidar import check_sensing
 
+    check(seed=seed, density_per_10m2=density_per_10m2)
     check_sensing(sensing, lidar)
     if isinstance(people_csv, pd.DataFrame):
         from pedcal.errors import PedcalInputError
 
         if target_id is None:
             raise PedcalInputError("a people table needs target_id (the person carrying the transmitter)")
-        return run_episode(people_episode(people_csv, str(target_id)), tracker, seed, progress, sensing, lidar)
+        return run_episode(people_episode(check_follow_people(people_csv, target_id), str(target_id)), tracker,
+                           seed, progress, sensing, lidar)
     if people_csv is not None:
-        from pedcal.io.preflight import check_follow_people
 
         episode = people_episode(check_follow_people(people_csv, target_id), str(target_id), people_csv)
     else:

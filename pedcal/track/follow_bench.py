@@ -21,6 +21,7 @@ import pandas as pd
 
 from pedcal.errors import PedcalInputError
 from pedcal.io.atomic import atomic_path, write_text_atomic
+from pedcal.options import check
 from pedcal.track.follow import METRIC_KEYS, FollowResult, read_people, run_episode
 
 log = logging.getLogger(__name__)
@@ -208,6 +209,7 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
     for name in trackers:
         if name not in TRACKERS:
             raise PedcalInputError(f"--trackers: unknown tracker {name!r}; expected one of {', '.join(TRACKERS)}")
+    check(seeds=seeds, min_duration_s=min_duration_s, max_targets=max_targets)   # pedcal.options' domains
     if seeds < 1:
         raise PedcalInputError(f"--seeds {seeds}: expected at least 1")
     files = list(files or RECORDINGS)

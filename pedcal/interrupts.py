@@ -1,0 +1,75 @@
+"""Ctrl-C on the command line: one line and exit code 130, whenever it comes.
+
+``install()`` (run by the command line's first import, and by ``main``) makes SIGINT raise
+SystemExit(130) after printing ``interrupted``: a SystemExit passes every ``except Exception`` of
+the work, runs the ``finally`` blocks that remove temporary outputs (pedcal.io.atomic), and is no
+traceback, also while the first modules are being imported; a process started with SIGINT ignored
+keeps ignoring it. ``children_ignore()`` starts helper processes (Dask workers) with SIGINT
+ignored: the terminal sends Ctrl-C to the whole process group, and the parent alone answers it,
+by shutting its workers down.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import signal
+import sys
+
+EXIT_INTERRUPTED = 130
+
+
+def _on_sigint(signum, frame):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)       # a second Ctrl-C does not interrupt the clean-up
+    logging.disable(logging.CRITICAL)     # the shutdown's own messages (Dask killing its workers) are noise now
+    try:
+        print("interrupted", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+    raise SystemExit(EXIT_INTERRUPTED)
+
+
+def install():
+    """SIGINT -> one line and SystemExit(130); returns the previous handler (for ``restore``)."""
+    try:
+        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:   # started with Ctrl-C ignored (nohup, a background job)
+            return None
+        return signal.signal(signal.SIGINT, _on_sigint)
+    except ValueError:           # not the main thread: leave the interpreter's handling alone
+        return None
+
+
+def restore(previous) -> None:
+    if previous is not None:
+        with contextlib.suppress(ValueError):
+            signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def children_ignore():
+    """Processes started inside inherit SIGINT ignored (kept across exec: CPython installs its
+    KeyboardInterrupt handler only where SIGINT is at its default)."""
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _running_the_command_line() -> bool:
+    """This process is ``python -m pedcal.cli`` or the ``pedcal`` script (not a library user)."""
+    import os
+
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return getattr(spec, "name", None) == "pedcal.cli" or os.path.basename(sys.argv[0] if sys.argv else "") in (
+        "pedcal", "pedcal.exe")
+
+
+# The command line imports this module before anything heavy, so that a Ctrl-C while the rest loads
+# is already one line; a library user's SIGINT handling is left alone.
+if _running_the_command_line():
+    install()

@@ -1,0 +1,79 @@
+"""Reading an input file defensively: only a regular file is read (a FIFO would block forever,
+``/dev/zero`` would fill memory, a socket or a device is no file of data), and never more bytes
+than the format can sensibly hold. Every text reader of pedcal (YAML, TOML, JSON labels) and the
+table readers share this check.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pedcal.errors import PedcalInputError
+from pedcal.io.atomic import special_kind
+
+# sensors.yaml of 10 000 sensors is ~2 MB, a graph recipe or a label file a few kB.
+MAX_TEXT_BYTES = 64 * 1024 ** 2
+
+
+def regular_file(path: str | Path, what: str = "file") -> Path:
+    """``path`` as a Path when it is a regular file (a symbolic link to one is followed); a missing
+    path, a directory, a device, FIFO or socket raise PedcalInputError naming it."""
+    path = Path(path)
+    if path.is_dir():
+        raise PedcalInputError(f"is a directory, expected a {what}", path=path)
+    kind = special_kind(path)
+    if kind is not None:
+        raise PedcalInputError(f"is {kind}, expected a regular {what} (pedcal reads only regular files)", path=path)
+    if not path.is_file():
+        raise PedcalInputError(f"{what} not found", path=path)
+    return path
+
+
+def read_bytes_capped(path: str | Path, what: str = "file", max_bytes: int = MAX_TEXT_BYTES) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``; larger files, unreadable ones and the
+    checks of ``regular_file`` raise PedcalInputError naming the file."""
+    path = regular_file(path, what)
+    try:
+        with open(path, "rb") as f:
+            data = f.read(max_bytes + 1)
+    except PermissionError:
+        raise PedcalInputError("cannot read: permission denied", path=path) from None
+    except OSError as e:
+        raise PedcalInputError(f"cannot read: {e.strerror or e}", path=path) from None
+    if len(data) > max_bytes:
+        raise PedcalInputError(f"larger than {max_bytes / 1024 ** 2:g} MB, more than a {what} holds "
+                               "(a wrong file?)", path=path)
+    return data
+
+
+def read_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_TEXT_BYTES):
+    """A JSON file's value; a file that is no regular file, too large, not UTF-8, not JSON, nested
+    beyond the parser's recursion limit or holding an integer of thousands of digits raises
+    PedcalInputError naming it."""
+    import json
+
+    data = read_bytes_capped(path, what, max_bytes)
+    try:
+        return json.loads(data.decode("utf-8-sig"))
+    except UnicodeDecodeError as e:
+        raise PedcalInputError(f"not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start})", path=path) from None
+    except json.JSONDecodeError as e:
+        raise PedcalInputError(f"not valid JSON: {e.msg} at line {e.lineno}, column {e.colno}", path=path) from None
+    except RecursionError:
+        raise PedcalInputError("not a usable JSON file: nested too deeply", path=path) from None
+    except ValueError as e:          # an integer beyond Python's digit limit
+        raise PedcalInputError(f"not a usable JSON file: {str(e)[:120]}", path=path) from None
+
+
+def check_records(records: list[dict], path, *, finite=(), positive=()) -> list[dict]:
+    """Each record's ``finite`` fields are finite numbers and its ``positive`` fields finite and > 0
+    (a box of negative, NaN or infinite size is no box); else PedcalInputError naming the row."""
+    import math
+
+    for row, rec in enumerate(records):
+        for name in (*finite, *positive):
+            v = rec[name]
+            if not math.isfinite(v) or (name in positive and v <= 0):
+                want = "a finite number > 0" if name in positive else "a finite number"
+                raise PedcalInputError(f"{name} = {v!r}: expected {want}", path=path, row=row, column=name)
+    return records
