@@ -286,9 +286,11 @@ def _list_follow_targets(args) -> int:
 
 def cmd_follow_bench(args) -> int:
     from pedcal.io.atomic import check_output
+    from pedcal.sim.follow_lidar import check_sensing
     from pedcal.sim.walkers import SHARED_DATA
     from pedcal.track.follow_bench import run_follow_bench
 
+    check_sensing(args.sensing, args.lidar)   # the options first, then the file system
     check_output(args.out, inputs=[args.data_dir or SHARED_DATA], directory=True)
 
     path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,

@@ -68,7 +68,7 @@ def calibrate(log: Log, method: str | None = None, *, options: MethodOptions | N
     from pedcal.io.preflight import check_calibration
     from pedcal.options import check
 
-    check(**{k: options[k] for k in ("sensor_height_sigma_m", "ceiling_height_m") if k in options})
+    check(**{k: getattr(opts, k, None) for k in ("sensor_height_sigma_m", "ceiling_height_m")})
 
     log = check_calibration(log, max_memory_gb)   # validated; refused beyond the memory limit
     module, func = METHODS[method]
