@@ -424,6 +424,7 @@ class CrowdAvoidance:
     margin_m: float = 0.1
     k_touch_m: float = 0.5  # penalty weight: metres per second of speed against 1 / (seconds to touch)
     k_slow: float = 0.5  # penalty per m/s below the wanted speed: going round beats waiting behind somebody
+    k_turn: float = 0.3  # penalty per m/s of a velocity pointing behind the robot (half (1 - cos) of the turn)
     range_m: float = 6.0  # people farther than this from the robot are left out
     robot_radius_m: float = ROBOT_RADIUS_M
     person_radius_m: float = PERSON_RADIUS_M
@@ -435,7 +436,8 @@ class CrowdAvoidance:
         return xy[near], vel[near]
 
     def velocity(self, xy_world_m: np.ndarray, u_want_mps: np.ndarray, v_max_mps: float,
-                 people_xy_world_m: np.ndarray, people_v_world_mps: np.ndarray) -> np.ndarray:
+                 people_xy_world_m: np.ndarray, people_v_world_mps: np.ndarray, yaw_rad: float | None = None
+                 ) -> np.ndarray:
         """The velocity (2,) to steer for from ``xy_world_m`` wanting ``u_want_mps`` (2,), people at
         ``people_xy_world_m`` (N, 2) moving at ``people_v_world_mps`` (N, 2)."""
         x0 = np.asarray(xy_world_m, float)
@@ -457,6 +459,9 @@ class CrowdAvoidance:
         t_touch = np.where(hit.any(axis=1), tk[np.argmax(hit, axis=1)], np.inf)
         short = np.maximum(np.hypot(*u_want) - np.hypot(u[:, 0], u[:, 1]), 0.0)
         cost = np.linalg.norm(u - u_want, axis=1) + self.k_slow * short + self.k_touch_m / t_touch
+        if yaw_rad is not None:  # a unicycle turns before it drives: a velocity behind it costs its turn
+            cost += self.k_turn * np.hypot(u[:, 0], u[:, 1]) * 0.5 * (1.0 - np.cos(np.arctan2(u[:, 1], u[:, 0])
+                                                                                   - yaw_rad))
         return u[int(np.argmin(cost))]
 
     def step_is_clear(self, pose_world_robot: np.ndarray, v_mps: float, w_radps: float,
@@ -514,7 +519,7 @@ class RobotController:
         if people:
             people_v = (np.zeros_like(people_xy_world_m) if people_v_world_mps is None
                         else people_v_world_mps)
-            u = self.avoid.velocity(pose_est[:2], u, self.v_max_mps, people_xy_world_m, people_v)
+            u = self.avoid.velocity(pose_est[:2], u, self.v_max_mps, people_xy_world_m, people_v, pose_est[2])
         speed = float(np.hypot(*u))
         heading = float(np.arctan2(u[1], u[0])) if speed > 1e-9 else aim_rad  # still: face the aim
         heading_err = float(wrap_angle_rad(heading - pose_est[2]))
