@@ -92,3 +92,18 @@ def test_robot_yields_to_a_person_walking_at_it():
     assert np.linalg.norm(robot[-1] - [6.0, 0.0]) <= 0.5
     robot, people = drive(RobotController(avoid=None), head_on, (6.0, 0.0), n_frames=60)
     assert robot_contact_frames(robot, people)[1].any()
+
+
+def test_following_past_a_bystander_on_the_targets_path_goes_round_and_keeps_the_target():
+    from pedcal.track.follow import run_follow
+
+    t = np.arange(0.0, 25.0, 0.25)
+    people = pd.concat([pd.DataFrame({"t": t, "person": "a", "x": 0.8 * t, "y": 0.0}),
+                        pd.DataFrame({"t": t, "person": "b", "x": 8.0, "y": 0.4})])  # stands by the path
+    res = run_follow(people_csv=people, target_id="a", tracker="paper", seed=0)
+    m, log = res.metrics, res.log
+    assert m.robot_contacts == 0 and m.contact_frame_fraction == 0.0 and not log["robot_contact"].any()
+    assert m.min_clearance_m == pytest.approx(log["clearance_m"].min()) and m.min_clearance_m > 0.0
+    gap_b = np.hypot(log["robot_x"] - 8.0, log["robot_y"] - 0.4) - TOUCH_M
+    assert gap_b.min() > 0.0 and log["robot_x"].iloc[-1] > 10.0  # went round b, and on after the target
+    assert m.with_target_fraction >= 0.9
