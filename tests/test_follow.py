@@ -157,6 +157,7 @@ def test_cli_follow_json_keys(capsys, tmp_path):
     assert out["frames"] > 50 and 0.0 <= out["with_target_fraction"] <= 1.0
     saved = json.loads((tmp_path / "follow.json").read_text())
     assert saved["scenario"] == "passing" and saved["frames"] == out["frames"]
+    assert saved["tracker"] == "factorgraph"  # the default
     log = pd.read_parquet(tmp_path / "follow_log.parquet")
     assert len(log) == out["frames"] and {"t", "robot_x", "est_x", "target_x", "state"} <= set(log.columns)
 
