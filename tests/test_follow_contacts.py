@@ -107,3 +107,17 @@ def test_following_past_a_bystander_on_the_targets_path_goes_round_and_keeps_the
     gap_b = np.hypot(log["robot_x"] - 8.0, log["robot_y"] - 0.4) - TOUCH_M
     assert gap_b.min() > 0.0 and log["robot_x"].iloc[-1] > 10.0  # went round b, and on after the target
     assert m.with_target_fraction >= 0.9
+
+
+def test_people_are_perceived_where_they_are_relative_to_the_robot():
+    from pedcal.sim.follow import Episode, route_walker, to_robot
+    from pedcal.track.follow import perceived_people
+
+    walker = route_walker("w", [[2.0, 1.0], [12.0, 1.0]], 1.0)            # 1 m/s along +x from t = 0
+    late = route_walker("late", [[0.0, 3.0], [0.0, 9.0]], 1.0, t0_s=5.0)  # appears at t = 5 s
+    ep = Episode("e", [walker, late], "w", np.zeros(3), 10.0)
+    true, est = np.array([1.0, 0.5, 0.3]), np.array([1.1, 0.45, 0.35])   # localization off by 0.05 rad
+    xy, v = perceived_people(ep, 5.0, true, est)
+    np.testing.assert_allclose(to_robot(xy, est), to_robot(np.array([[7.0, 1.0], [0.0, 3.0]]), true), atol=1e-12)
+    np.testing.assert_allclose(v[0], [np.cos(0.05), np.sin(0.05)], atol=1e-9)  # turned with the pose error
+    np.testing.assert_allclose(v[1], [0.0, 0.0])  # just appeared: no velocity yet
