@@ -8,7 +8,9 @@ Prints one row per scenario (``crowd@D``: the crowd scene at D people per 10 m^2
 seeds: median, 10th percentile and minimum of ``with_target_fraction`` (frames holding the target; a
 robot that lost it scores those frames as failures), mean ``near_fraction`` (robot within 3 m),
 id switches, losses, mean reacquire time (a loss never recovered counts until the end), followed to
-the end, MOTA, IDF1, and wall and CPU seconds per run. The real recordings are
+the end, MOTA, IDF1, robot-caused contacts per minute and the share of frames with one (over all
+the seeds' frames), the least clearance between the robot's disc and a person's, and wall and CPU
+seconds per run. The real recordings are
 ``pedcal follow-bench``'s.
 """
 
@@ -38,7 +40,8 @@ def main() -> None:
     args = p.parse_args()
     warnings.simplefilter("ignore")
     print(f"{'scenario':<10} {'tracker':<12} {'seeds':>5} {'with_med':>8} {'p10':>6} {'min':>6} {'near':>6} "
-          f"{'switch':>7} {'lost':>5} {'reacq_s':>8} {'to_end':>7} {'mota':>6} {'idf1':>6} {'s/run':>6} {'cpu/run':>7}")
+          f"{'switch':>7} {'lost':>5} {'reacq_s':>8} {'to_end':>7} {'mota':>6} {'idf1':>6} {'cont/min':>8} "
+          f"{'cont_fr%':>8} {'clear_m':>7} {'s/run':>6} {'cpu/run':>7}")
     for label, sc, dens in cases(args.scenarios, args.densities):
         for tr in args.trackers:
             rows, t0, c0 = [], time.perf_counter(), time.process_time()
@@ -52,10 +55,15 @@ def main() -> None:
                 return float(np.mean(v)) if v else float("nan")
 
             w = [r["with_target_fraction"] for r in rows]
+            frames = np.array([r["frames"] for r in rows], float)
+            contacts = sum(r["robot_contacts"] for r in rows)
+            contact_frames = np.sum([r["contact_frame_fraction"] for r in rows] * frames) / frames.sum()
+            clear = min((r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None), default=np.nan)
             print(f"{label:<10} {tr:<12} {args.seeds:>5} {np.median(w):>8.3f} {np.percentile(w, 10):>6.3f} "
                   f"{np.min(w):>6.3f} {mean('near_fraction'):>6.3f} {mean('id_switches'):>7.2f} "
                   f"{mean('lost_episodes'):>5.2f} {mean('mean_reacquire_s'):>8.2f} {mean('followed_to_end'):>7.2f} "
-                  f"{mean('mota'):>6.3f} {mean('idf1'):>6.3f} {dt:>6.2f} {dc:>7.2f}", flush=True)
+                  f"{mean('mota'):>6.3f} {mean('idf1'):>6.3f} {contacts / (frames.sum() / 4.0 / 60.0):>8.2f} "
+                  f"{100 * contact_frames:>8.2f} {clear:>7.2f} {dt:>6.2f} {dc:>7.2f}", flush=True)
 
 
 if __name__ == "__main__":

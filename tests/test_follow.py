@@ -87,6 +87,14 @@ def test_hidden_target_estimate_beyond_a_metre_is_not_held():
     assert m["lost_episodes"] == 1 and m["mean_reacquire_s"] == pytest.approx(1.0)  # lost from frame 5 to 9
 
 
+def test_hidden_target_without_an_estimate_is_not_held():
+    log = hand_log()
+    log.loc[5, ["est_target_x", "est_target_y"]] = np.nan  # hidden, and the tracker has no estimate
+    m = follow_metrics(log, "T")
+    assert m["with_target_fraction"] == pytest.approx(6 / 10)
+    assert m["lost_episodes"] == 1 and m["lost_position_error_m"] is None
+
+
 def test_follow_metrics_never_recovered():
     log = hand_log().iloc[:9]
     m = follow_metrics(log, "T")
@@ -149,6 +157,7 @@ def test_cli_follow_json_keys(capsys, tmp_path):
     assert out["frames"] > 50 and 0.0 <= out["with_target_fraction"] <= 1.0
     saved = json.loads((tmp_path / "follow.json").read_text())
     assert saved["scenario"] == "passing" and saved["frames"] == out["frames"]
+    assert saved["tracker"] == "factorgraph"  # the default
     log = pd.read_parquet(tmp_path / "follow_log.parquet")
     assert len(log) == out["frames"] and {"t", "robot_x", "est_x", "target_x", "state"} <= set(log.columns)
 

@@ -48,3 +48,23 @@ def test_follow_bench_missing_recording_exits_2(tmp_path, capsys):
     assert main(["follow-bench", "--data-dir", str(tmp_path / "data"), "--files", "nope.csv", "-o",
                  str(tmp_path / "o")]) == 2
     assert "nope.csv" in capsys.readouterr().err
+
+
+def test_summary_worst_episode_is_the_minimum_of_several():
+    from pedcal.track.follow_bench import summarize
+
+    w = [0.9, 0.4, 0.95, 0.7]  # the worst neither first nor last
+    episodes = pd.DataFrame({"recording": "r.csv", "tracker": "paper", "target": ["a", "b", "c", "d"],
+                             "seed": [0, 1, 2, 0], "with_target_fraction": w, "near_fraction": 1.0,
+                             "followed_to_end": True, "id_switches": 0, "mean_reacquire_s": None,
+                             "robot_contacts": [0, 2, 0, 1], "frames": [100, 100, 200, 100],
+                             "contact_frame_fraction": [0.0, 0.03, 0.0, 0.01],
+                             "contacts_per_min": [0.0, 4.8, 0.0, 2.4], "min_clearance_m": [0.3, -0.1, 0.2, 0.0],
+                             "replay": [f"cmd {t}" for t in "abcd"]})
+    (row,) = summarize(episodes).itertuples()
+    assert row.worst == 0.4 and row.worst_target == "b" and row.worst_seed == 1 and row.worst_command == "cmd b"
+    assert row.median == pytest.approx(0.8) and row.p10 == pytest.approx(0.49)
+    # contacts pooled over all frames, not averaged over episodes
+    assert row.robot_contacts == 3 and row.contact_frames == pytest.approx(4 / 500)
+    assert row.contacts_per_min == pytest.approx(3 / (500 / 4.0 / 60.0))
+    assert row.min_clearance_m == pytest.approx(-0.1)

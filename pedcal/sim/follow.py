@@ -31,6 +31,7 @@ from pedcal.sim.espar import EsparSimulator
 
 FRAME_HZ = 4.0
 PERSON_RADIUS_M = 0.25
+ROBOT_RADIUS_M = 0.3  # the robot's disc: the planner keeps walls this far, contacts use it
 FOV_RAD = np.radians(120.0)
 MIN_RANGE_M, MAX_RANGE_M = 0.3, 5.0
 SIGMA_POS_M = 0.05
@@ -325,7 +326,7 @@ class Planner:
     :func:`scipy.sparse.csgraph.dijkstra` from the goal; the robot aims at the farthest point of the
     path within ``lookahead_m`` that it sees in a straight line."""
 
-    def __init__(self, occupancy: OccupancyMap, cell_m: float = 0.2, robot_radius_m: float = 0.3,
+    def __init__(self, occupancy: OccupancyMap, cell_m: float = 0.2, robot_radius_m: float = ROBOT_RADIUS_M,
                  lookahead_m: float = 1.5):
         from scipy import ndimage
         from scipy.sparse import coo_matrix
@@ -393,10 +394,99 @@ class Planner:
 
 
 @dataclass(frozen=True)
+class CrowdAvoidance:
+    """People as moving obstacles: velocity obstacles with a time horizon, sampled (van den Berg,
+    Lin and Manocha's RVO choice, penalty ``||u - u_want|| + k_touch / t_touch``, plus ``k_slow``
+    times the speed short of the wanted one), then a unicycle step that keeps clear.
+
+    The robot wants to move at ``u_want`` (the follow law's speed toward its aim). Every velocity u
+    of a polar grid (``n_speeds`` speeds up to v_max x ``n_headings`` headings, ``u_want`` and
+    standing still among them) is rolled out straight over ``horizon_s`` against every person
+    moving on at its current velocity; ``t_touch`` is the first time the robot's disc would come
+    within ``margin_m`` of touching a person's, nearer than waiting where it is would leave it
+    (infinite: never; moving away from somebody already close is no touch). The u of least penalty
+    is the velocity to steer for: it keeps the wish when nobody is in the way, and otherwise slows,
+    goes round, or waits. The speed term matters where a person stands in the way: the plain RVO
+    penalty ranks waiting behind them (``||u_want||``) at or above every sideways way round, and the
+    robot would wait for ever. Recorded walkers do not react to the robot, so nothing is left to
+    them.
+
+    The unicycle turns toward that velocity's heading and drives at its speed times the cosine of
+    the heading error (:meth:`RobotController.command`). A step that would end within ``margin_m``
+    of touching a person, where it is now or where it will be one frame on, and nearer to that
+    person than standing still would, is not driven: the robot only turns (a person walking into a
+    waiting robot is not its doing)."""
+
+    horizon_s: float = 2.0
+    step_s: float = 1.0 / FRAME_HZ
+    n_speeds: int = 6
+    n_headings: int = 24
+    margin_m: float = 0.1
+    k_touch_m: float = 0.5  # penalty weight: metres per second of speed against 1 / (seconds to touch)
+    k_slow: float = 0.5  # penalty per m/s below the wanted speed: going round beats waiting behind somebody
+    k_turn: float = 0.3  # penalty per m/s of a velocity pointing behind the robot (half (1 - cos) of the turn)
+    range_m: float = 6.0  # people farther than this from the robot are left out
+    robot_radius_m: float = ROBOT_RADIUS_M
+    person_radius_m: float = PERSON_RADIUS_M
+
+    def _near(self, xy_m: np.ndarray, people_xy_world_m, people_v_world_mps) -> tuple[np.ndarray, np.ndarray]:
+        xy = np.asarray(people_xy_world_m, float).reshape(-1, 2)
+        vel = np.nan_to_num(np.asarray(people_v_world_mps, float).reshape(-1, 2))
+        near = np.linalg.norm(xy - xy_m, axis=1) <= self.range_m
+        return xy[near], vel[near]
+
+    def velocity(self, xy_world_m: np.ndarray, u_want_mps: np.ndarray, v_max_mps: float,
+                 people_xy_world_m: np.ndarray, people_v_world_mps: np.ndarray, yaw_rad: float | None = None
+                 ) -> np.ndarray:
+        """The velocity (2,) to steer for from ``xy_world_m`` wanting ``u_want_mps`` (2,), people at
+        ``people_xy_world_m`` (N, 2) moving at ``people_v_world_mps`` (N, 2)."""
+        x0 = np.asarray(xy_world_m, float)
+        u_want = np.asarray(u_want_mps, float)
+        xy, vel = self._near(x0, people_xy_world_m, people_v_world_mps)
+        if len(xy) == 0:
+            return u_want
+        speed = np.linspace(0.0, v_max_mps, self.n_speeds)[1:]
+        head = np.linspace(-np.pi, np.pi, self.n_headings, endpoint=False)
+        u = np.concatenate([[u_want, np.zeros(2)],
+                            (speed[:, None, None] * np.stack([np.cos(head), np.sin(head)], axis=1)).reshape(-1, 2)])
+        tk = np.arange(1, int(round(self.horizon_s / self.step_s)) + 1) * self.step_s  # (H,)
+        rel = (xy - x0)[None, :, :] + tk[:, None, None] * vel[None]  # (H, N, 2) people from the start
+        dist = np.linalg.norm(rel[None] - tk[None, :, None, None] * u[:, None, None, :], axis=3)  # (S, H, N)
+        # a touch of the robot's making: within the margin, and nearer than waiting there would be
+        waiting = np.linalg.norm(rel, axis=2)  # (H, N)
+        hit = ((dist < self.robot_radius_m + self.person_radius_m + self.margin_m) & (dist < waiting[None])
+               ).any(axis=2)  # (S, H)
+        t_touch = np.where(hit.any(axis=1), tk[np.argmax(hit, axis=1)], np.inf)
+        short = np.maximum(np.hypot(*u_want) - np.hypot(u[:, 0], u[:, 1]), 0.0)
+        cost = np.linalg.norm(u - u_want, axis=1) + self.k_slow * short + self.k_touch_m / t_touch
+        if yaw_rad is not None:  # a unicycle turns before it drives: a velocity behind it costs its turn
+            cost += self.k_turn * np.hypot(u[:, 0], u[:, 1]) * 0.5 * (1.0 - np.cos(np.arctan2(u[:, 1], u[:, 0])
+                                                                                   - yaw_rad))
+        return u[int(np.argmin(cost))]
+
+    def step_is_clear(self, pose_world_robot: np.ndarray, v_mps: float, w_radps: float,
+                      people_xy_world_m: np.ndarray, people_v_world_mps: np.ndarray) -> bool:
+        """Whether the unicycle step (v, w) keeps ``margin_m`` from touching everybody it nears (both
+        where they are and where they will be a frame on)."""
+        pose = np.asarray(pose_world_robot, float)
+        if v_mps <= 0.0:
+            return True
+        xy, vel = self._near(pose[:2], people_xy_world_m, people_v_world_mps)
+        yaw = pose[2] + w_radps * self.step_s  # as RobotController.step: turn, then drive
+        nxt = pose[:2] + v_mps * self.step_s * np.array([np.cos(yaw), np.sin(yaw)])
+        there = np.concatenate([xy, xy + self.step_s * vel])
+        d = np.linalg.norm(there - nxt, axis=1)
+        nearer = d < np.linalg.norm(there - pose[:2], axis=1)
+        return not ((d < self.robot_radius_m + self.person_radius_m + self.margin_m) & nearer).any()
+
+
+@dataclass(frozen=True)
 class RobotController:
     """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking, to
     the tracker's goal when the target is not in view, still when asked to stop (turning in place to
-    the heading the tracker asks to face, if any)."""
+    the heading the tracker asks to face, if any). Given the people around it, it steers for the
+    velocity :class:`CrowdAvoidance` (``avoid``) picks and drives no step into them; ``avoid=None``
+    drives through people."""
 
     v_max_mps: float = 1.0
     w_max_radps: float = 1.5
@@ -406,24 +496,49 @@ class RobotController:
     goal_tolerance_m: float = 0.3
     clearance_m: float = 0.35  # the step is refused when this far ahead is occupied
     face_tolerance_rad: float = np.radians(45.0)  # asked to stop and face a heading: within the view
+    avoid: CrowdAvoidance | None = CrowdAvoidance()
 
-    def command(self, pose_est: np.ndarray, out: TrackerOutput, planner: Planner | None = None
+    def command(self, pose_est: np.ndarray, out: TrackerOutput, planner: Planner | None = None,
+                people_xy_world_m: np.ndarray | None = None, people_v_world_mps: np.ndarray | None = None
                 ) -> tuple[float, float]:
         """(v_mps, w_radps) from the estimated pose and the tracker's output; with a ``planner``,
         goals inside walls move to the nearest free cell and an aim behind a wall is reached along
-        the planned path."""
+        the planned path; with the people around (positions and velocities in the frame of
+        ``pose_est``), the robot goes where :class:`CrowdAvoidance` leads."""
         if out.stop_robot:
             if out.face_world_rad is None:
                 return 0.0, 0.0
             err = float(wrap_angle_rad(out.face_world_rad - pose_est[2]))
             return 0.0, (float(np.clip(self.k_w * err, -self.w_max_radps, self.w_max_radps))
                          if abs(err) > self.face_tolerance_rad else 0.0)
+        wanted = self._wanted_velocity(pose_est, out, planner)
+        if wanted is None:
+            return 0.0, 0.0
+        u, aim_rad = wanted
+        people = self.avoid is not None and people_xy_world_m is not None and len(people_xy_world_m) > 0
+        if people:
+            people_v = (np.zeros_like(people_xy_world_m) if people_v_world_mps is None
+                        else people_v_world_mps)
+            u = self.avoid.velocity(pose_est[:2], u, self.v_max_mps, people_xy_world_m, people_v, pose_est[2])
+        speed = float(np.hypot(*u))
+        heading = float(np.arctan2(u[1], u[0])) if speed > 1e-9 else aim_rad  # still: face the aim
+        heading_err = float(wrap_angle_rad(heading - pose_est[2]))
+        w = float(np.clip(self.k_w * heading_err, -self.w_max_radps, self.w_max_radps))
+        v = speed * max(0.0, np.cos(heading_err))
+        if people and not self.avoid.step_is_clear(pose_est, v, w, people_xy_world_m, people_v):
+            v = 0.0
+        return v, w
+
+    def _wanted_velocity(self, pose_est: np.ndarray, out: TrackerOutput, planner: Planner | None
+                         ) -> tuple[np.ndarray, float] | None:
+        """The follow law's velocity (2,) toward its aim, people left out, and the aim's direction
+        (rad); None without an aim."""
         if out.target_track_id is not None and out.target_xy_world_m is not None:
             aim, stand_off = np.asarray(out.target_xy_world_m, float), self.follow_distance_m
         elif out.goal_xy_world_m is not None:
             aim, stand_off = np.asarray(out.goal_xy_world_m, float), self.goal_tolerance_m
         else:
-            return 0.0, 0.0
+            return None
         if planner is not None:
             if stand_off == self.goal_tolerance_m:
                 aim = planner.nearest_free(aim)
@@ -433,10 +548,8 @@ class RobotController:
                     aim, stand_off = via, 0.0
         d = aim - pose_est[:2]
         dist = float(np.hypot(*d))
-        heading_err = float(wrap_angle_rad(np.arctan2(d[1], d[0]) - pose_est[2]))
-        w = float(np.clip(self.k_w * heading_err, -self.w_max_radps, self.w_max_radps))
-        v = float(np.clip(self.k_v * (dist - stand_off), 0.0, self.v_max_mps)) * max(0.0, np.cos(heading_err))
-        return v, w
+        speed = float(np.clip(self.k_v * (dist - stand_off), 0.0, self.v_max_mps))
+        return speed * d / max(dist, 1e-9), float(np.arctan2(d[1], d[0]))
 
     def step(self, pose_true: np.ndarray, v: float, w: float, dt_s: float,
              occupancy: OccupancyMap | None) -> tuple[np.ndarray, bool]:
@@ -678,7 +791,8 @@ def make_episode(name: str, seed: int = 0, density_per_10m2: float | None = None
 __all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route_walker", "random_walkers",
            "avoid_collisions", "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
            "in_field_of_view",
-           "visible_people", "SensorModel", "Sensing", "RobotController", "Episode", "SCENARIOS", "make_episode",
+           "visible_people", "SensorModel", "Sensing", "RobotController", "CrowdAvoidance", "ROBOT_RADIUS_M", "Episode",
+           "SCENARIOS", "make_episode",
            "people_episode", "candidate_targets", "robot_speed_for", "walkers_for_density", "CROWD_AREA_XY_M",
            "passing_episode", "corner_episode", "crossing_episode", "crowd_episode",
            "recorded_episode"]

@@ -21,6 +21,8 @@ from pedcal.follow_types import TrackerOutput
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.sim.follow import (
     FRAME_HZ,
+    PERSON_RADIUS_M,
+    ROBOT_RADIUS_M,
     Episode,
     Planner,
     RobotController,
@@ -28,6 +30,7 @@ from pedcal.sim.follow import (
     make_episode,
     people_episode,
     to_robot,
+    to_world,
 )
 
 MATCH_DISTANCE_M = 0.5
@@ -74,6 +77,19 @@ class FollowMetrics:
     lost_position_error_m: float | None
     """Median distance of the tracker's target estimate from the truth over the scored frames with
     the target out of sight (frames without an estimate left out); None if there are none."""
+    robot_contacts: int | None = None
+    """Contacts of the robot's making: runs of consecutive frames in which the robot's disc
+    (``ROBOT_RADIUS_M``) overlaps a person's (``PERSON_RADIUS_M``) after a step of its own that began
+    or deepened the overlap (it ends nearer the person than standing still would have left it); a
+    person walking into a waiting robot is not one (:func:`robot_contact_frames`). None when the log
+    holds no contact columns."""
+    contacts_per_min: float | None = None
+    """``robot_contacts`` per minute of the episode."""
+    contact_frame_fraction: float | None = None
+    """The share of all frames with a contact of the robot's making."""
+    min_clearance_m: float | None = None
+    """The least gap between the robot's disc and a person's over the episode (m; negative: they
+    overlapped, whoever's doing); None when nobody was ever present."""
     mota: float | None = None
     """CLEAR MOT accuracy over every person in the field of view (``motmetrics``, 0.5 m)."""
     motp: float | None = None
@@ -122,10 +138,48 @@ def with_target_frames(log: pd.DataFrame, target_id: str) -> np.ndarray:
     return is_target | hidden_held
 
 
+def robot_contact_frames(robot_xy_m: np.ndarray, people_xy_m: np.ndarray, robot_radius_m: float = ROBOT_RADIUS_M,
+                         person_radius_m: float = PERSON_RADIUS_M) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame of robot positions (N, 2) and people positions (N, P, 2; NaN where a person is
+    absent): the least gap between the robot's disc and a person's (m, NaN with nobody present), and
+    whether the robot's own step into that frame began or deepened an overlap with somebody (the
+    overlap there, and the robot nearer that person than at its previous position; never in the
+    first frame)."""
+    r = np.asarray(robot_xy_m, float).reshape(-1, 2)
+    p = np.asarray(people_xy_m, float).reshape(len(r), -1, 2)
+    touch = robot_radius_m + person_radius_m
+    d = np.linalg.norm(p - r[:, None, :], axis=2)  # (N, P), NaN for absent people
+    with np.errstate(invalid="ignore"):
+        gap = np.nanmin(np.where(np.isnan(d), np.inf, d), axis=1) - touch if p.shape[1] else np.full(len(r), np.inf)
+        gap = np.where(np.isfinite(gap), gap, np.nan)
+        caused = np.zeros(len(r), bool)
+        if len(r) > 1:
+            d_stay = np.linalg.norm(p[1:] - r[:-1, None, :], axis=2)  # had the robot not moved
+            caused[1:] = ((d[1:] < touch) & (d[1:] < d_stay)).any(axis=1)
+    return gap, caused
+
+
+def contact_metrics(log: pd.DataFrame) -> dict:
+    """``robot_contacts``, ``contacts_per_min``, ``contact_frame_fraction`` and ``min_clearance_m``
+    from a log's ``robot_contact`` (bool) and ``clearance_m`` columns (:func:`robot_contact_frames`);
+    all None when it has none."""
+    keys = ("robot_contacts", "contacts_per_min", "contact_frame_fraction", "min_clearance_m")
+    if not {"robot_contact", "clearance_m"} <= set(log.columns) or len(log) == 0:
+        return dict.fromkeys(keys)
+    caused = log["robot_contact"].to_numpy(bool)
+    t = log["t"].to_numpy(float)
+    minutes = (t[-1] - t[0] + (t[1] - t[0] if len(t) > 1 else 1.0 / FRAME_HZ)) / 60.0
+    gap = log["clearance_m"].to_numpy(float)
+    n = _runs(caused)
+    return dict(zip(keys, (n, n / minutes, float(caused.mean()),
+                           float(np.nanmin(gap)) if np.isfinite(gap).any() else None), strict=True))
+
+
 def follow_metrics(log: pd.DataFrame, target_id: str) -> dict:
     """The target figures of :class:`FollowMetrics` (all but CLEAR MOT) from a per-frame log with
     columns ``t``, ``robot_x/y``, ``target_visible``, ``state``, ``target_track_id``,
-    ``claimed_person``, ``target_x/y`` (NaN when the target is absent) and ``est_target_x/y``.
+    ``claimed_person``, ``target_x/y`` (NaN when the target is absent) and ``est_target_x/y``, and
+    the contact figures from ``robot_contact`` and ``clearance_m`` where it has them.
 
     ``claimed_person`` is the person the tracker's target track is matched to in that frame: the
     confirmed tracks are assigned one to one to all people present (visible or not; Hungarian on the
@@ -173,6 +227,7 @@ def follow_metrics(log: pd.DataFrame, target_id: str) -> dict:
         "searching_episodes": _runs(searching),
         "searching_frames": int(searching.sum()),
         "lost_position_error_m": float(np.median(err[hidden])) if hidden.any() else None,
+        **contact_metrics(log),
     }
 
 
@@ -252,6 +307,22 @@ def _make_tracker(name: str, episode: Episode):
     return make_tracker(name)
 
 
+def perceived_people(episode: Episode, t_s: float, pose_true: np.ndarray, pose_est: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Everyone present at ``t_s`` as the robot perceives them: positions (N, 2) and velocities over
+    the last frame (N, 2; zero for somebody who just appeared), where they are relative to the
+    robot put in the frame of its estimated pose (recorded walkers do not react to the robot, so
+    it must avoid all of them)."""
+    people = episode.people_at(t_s)
+    xy = np.array([p for _, p in people]).reshape(-1, 2)
+    before = [w.at(t_s - 1.0 / FRAME_HZ) for w, _ in people]
+    vel = np.array([(p - b) * FRAME_HZ if b is not None else np.zeros(2)
+                    for (_, p), b in zip(people, before, strict=True)]).reshape(-1, 2)
+    dyaw = float(pose_est[2] - pose_true[2])
+    c, s = np.cos(dyaw), np.sin(dyaw)
+    return to_world(to_robot(xy, pose_true), pose_est), vel @ np.array([[c, s], [-s, c]])
+
+
 def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progress: bool = False,
                 sensing: str = "ideal", lidar: str | None = None) -> FollowResult:
     """Play ``episode`` with the tracker named ``tracker`` (see ``make_tracker``) and score it.
@@ -274,11 +345,13 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     rows = []
     person_index = {w.person_id: i for i, w in enumerate(episode.walkers)}  # motmetrics takes numeric ids
     n_frames = int(np.floor(episode.duration_s * FRAME_HZ)) + 1
+    everyone_xy = np.full((n_frames, len(episode.walkers), 2), np.nan)  # for the contact figures
     for k in range(n_frames):
         t = k / FRAME_HZ
         people = episode.people_at(t)
         ids = [w.person_id for w, _ in people]
         xy = np.array([p for _, p in people]).reshape(-1, 2)
+        everyone_xy[k, [person_index[i] for i in ids]] = xy
         target_xy = next((p for w, p in people if w.person_id == episode.target_id), None)
         frame, vis = sense.frame(t, pose, people, target_xy, stopped)
         out: TrackerOutput = trk.step(frame)
@@ -302,12 +375,15 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
                      "est_target_x": np.nan if est_t is None else float(est_t[0]),
                      "est_target_y": np.nan if est_t is None else float(est_t[1]),
                      "stop_robot": bool(out.stop_robot)})
-        v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner)
+        v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner,
+                            *perceived_people(episode, t, pose, frame.pose_world_robot))
         pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, episode.occupancy)
         if progress and (k % 40 == 0 or k == n_frames - 1):
             logging.getLogger(__name__).info(f"follow {episode.name}: frame {k + 1}/{n_frames} t={t:.1f}s "
                                              f"state={out.state}", extra={"progress": (k + 1, n_frames)})
     log = pd.DataFrame(rows)
+    log["clearance_m"], log["robot_contact"] = robot_contact_frames(log[["robot_x", "robot_y"]].to_numpy(float),
+                                                                    everyone_xy)
     log["target_track_id"] = log["target_track_id"].astype("Int64")
     log["claimed_person"] = log["claimed_person"].astype(object)
     if getattr(sense, "frame_stats", None):  # the LIDAR's per-frame figures (times, target found)
@@ -324,7 +400,7 @@ def read_people(path: str | Path) -> pd.DataFrame:
     return read_pedestrians(path)
 
 
-def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: int = 0, people_csv=None,
+def run_follow(scenario: str | None = "passing", tracker: str = "factorgraph", seed: int = 0, people_csv=None,
                target_id: str | None = None, progress: bool = False,
                density_per_10m2: float | None = None, sensing: str = "ideal",
                lidar: str | None = None) -> FollowResult:
@@ -354,5 +430,6 @@ def run_follow(scenario: str | None = "passing", tracker: str = "paper", seed: i
 
 
 __all__ = ["METRIC_KEYS", "MATCH_DISTANCE_M", "HIDDEN_HOLD_M", "NEAR_M", "FollowMetrics", "FollowResult",
-           "follow_metrics", "with_target_frames", "match_people", "MotAccumulator",
+           "follow_metrics", "with_target_frames", "robot_contact_frames", "contact_metrics",
+           "perceived_people", "match_people", "MotAccumulator",
            "run_episode", "run_follow", "read_people"]

@@ -22,6 +22,7 @@ import pandas as pd
 from pedcal.errors import PedcalInputError
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.options import check
+from pedcal.sim.follow import FRAME_HZ
 from pedcal.track.follow import METRIC_KEYS, FollowResult, read_people, run_episode
 
 log = logging.getLogger(__name__)
@@ -99,18 +100,25 @@ def run_case(case: BenchCase, people: pd.DataFrame) -> FollowResult:
 def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per recording and tracker: episodes, median, 10th percentile and minimum of
     ``with_target_fraction``; median ``near_fraction``; share followed to the end; mean of the
-    episodes' mean reacquire times; the worst episode (lowest ``with_target_fraction``)."""
+    episodes' mean reacquire times; robot-caused contacts (their number, per minute and the share
+    of frames with one, over all the episodes' frames) and the least clearance of any episode; the
+    worst episode (lowest ``with_target_fraction``)."""
     rows = []
     for (rec, tracker), d in episodes.groupby(["recording", "tracker"], sort=False):
         w = d["with_target_fraction"].to_numpy(float)
         worst = d.iloc[int(np.argmin(w))]
         reacq = d["mean_reacquire_s"].astype(float)
+        frames = d["frames"].to_numpy(float)
+        contact_frames = float(np.sum(d["contact_frame_fraction"].to_numpy(float) * frames) / frames.sum())
         rows.append(dict(recording=rec, tracker=tracker, episodes=len(d), targets=d["target"].nunique(),
                          median=float(np.median(w)), p10=float(np.percentile(w, 10)), worst=float(w.min()),
                          near_median=float(d["near_fraction"].median()),
                          to_end=float(d["followed_to_end"].astype(float).mean()),
                          id_switches=float(d["id_switches"].mean()),
                          mean_reacquire_s=float(reacq.mean()) if reacq.notna().any() else None,
+                         robot_contacts=int(d["robot_contacts"].sum()),
+                         contacts_per_min=float(d["robot_contacts"].sum() / (frames.sum() / FRAME_HZ / 60.0)),
+                         contact_frames=contact_frames, min_clearance_m=float(d["min_clearance_m"].min()),
                          worst_target=str(worst["target"]), worst_seed=int(worst["seed"]),
                          worst_command=str(worst["replay"])))
     return pd.DataFrame(rows)
@@ -168,16 +176,21 @@ def bench_markdown(summary: pd.DataFrame, recordings: pd.DataFrame, config: dict
            "out of sight and the tracker's estimate of it is within 1 m (a robot that lost the target scores "
            "those frames as failures). *near* is the median share of frames with the robot within 3 m of the "
            "target; *reacquire* the mean of the episodes' mean reacquire times (a loss never recovered counts "
-           "until the end).", "",
+           "until the end). *contacts*: the robot's disc overlapping a person's after a step of its own that began "
+           "or deepened the overlap (a person walking into a waiting robot is not one), per minute and as the "
+           "share of all frames; *clearance* the least gap between the robot's disc and a person's in any "
+           "episode (negative: they overlapped, whoever's doing).", "",
            "| recording | people | eligible targets | longest presence (s) |", "|---|---|---|---|"]
     for r in recordings.itertuples():
         out.append(f"| {r.recording} | {r.people} | {r.eligible} | {r.longest_s:.1f} |")
     out += ["", "| recording | tracker | episodes | median | p10 | worst | near | to end | id switches "
-            "| reacquire (s) | worst episode |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+            "| reacquire (s) | contacts / min | contact frames | clearance (m) | worst episode |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in summary.itertuples():
         fig = f"figures/worst_{_slug(r.recording)}_{r.tracker}.png"
         out.append(f"| {r.recording} | {r.tracker} | {r.episodes} | {r.median:.3f} | {r.p10:.3f} | {r.worst:.3f} "
                    f"| {r.near_median:.3f} | {r.to_end:.2f} | {r.id_switches:.1f} | {_fmt(r.mean_reacquire_s, 2)} "
+                   f"| {r.contacts_per_min:.2f} | {100 * r.contact_frames:.2f} % | {_fmt(r.min_clearance_m, 2)} "
                    f"| [{r.worst_target} seed {r.worst_seed}]({fig}): `{r.worst_command}` |")
     return "\n".join(out) + "\n"
 
