@@ -30,7 +30,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pedcal.calib import graph as graph_layer
+from pedcal.calib import readback
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
@@ -505,7 +505,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
     n = len(prob.sensor_ids)
     keys = [S(i) for i in range(n)] + ([H(0)] if result.exists(H(0)) else [])
     has_h = result.exists(H(0))
-    joint = n <= graph_layer.JOINT_COV_MAX_SENSORS
+    joint = n <= readback.JOINT_COV_MAX_SENSORS
     if joint:
         C = joint_marginal_covariance(fg, result, keys)
         blocks = [C[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(len(keys))]
