@@ -369,7 +369,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
-            plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None)
+            plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
+            order=None if step is None else step.order)
         if not chord:
             full_step = step
         if select and "curvature_m" in names:
@@ -432,7 +433,7 @@ def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float, estimat
     if estimate and chi2 >= threshold_chi2:
         return step, nuis, chi2
     reduced = ProfileStep(dtheta=-np.linalg.solve(H[np.ix_(o, o)], g[o]), hessian=H[np.ix_(o, o)], z0=step.z0,
-                          Z=step.Z[:, o], cols=step.cols, M=None if step.M is None else step.M[:, o])
+                          Z=step.Z[:, o], cols=step.cols, M=None if step.M is None else step.M[:, o], order=step.order)
     return reduced, nuis[:-1], chi2
 
 
