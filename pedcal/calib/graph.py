@@ -498,7 +498,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         use = np.flatnonzero(prob.fac_key_index < n_pose)
         p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
         rng_m = np.linalg.norm(p_obs, axis=1)
-        keys = [S(sid_index[s]) for s in prob.fac_sensor[use]]
+        keys = [S(i) for i in prob.fac_sensor_index[use].tolist()]
         pose = prob.fac_key_index[use]
         # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
         # reward shifts that shrink them (a least-squares fit is no likelihood when its weights

@@ -23,6 +23,16 @@ from pedcal.frames import toward_sensor_horizontal
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 
+def per_row(names: np.ndarray, value_of, shape: tuple = ()) -> np.ndarray:
+    """``value_of(name)`` for every row of ``names``, stacked; each distinct name's value computed
+    once (hundreds of sensors over hundreds of thousands of observations). ``shape``: one value's
+    shape, for no rows."""
+    if not len(names):
+        return np.zeros((0,) + tuple(shape))
+    uniq, inverse = np.unique(names, return_inverse=True)
+    return np.stack([np.asarray(value_of(n)) for n in uniq])[np.asarray(inverse).ravel()]
+
+
 @dataclass
 class FactorGraphProblem:
     """Everything the graph needs, derived once from a log (kept for the online mode and tests)."""
@@ -86,7 +96,7 @@ class FactorGraphProblem:
         is left as single observations, for the robust kernel to judge each."""
         n = len(self.obs_key_index)
         sid_index = {sid: i for i, sid in enumerate(self.sensor_ids)}
-        sensor_i = np.array([sid_index[s] for s in self.obs_sensor], int)
+        sensor_i = per_row(self.obs_sensor, sid_index.get).astype(int)
         _, group, count = np.unique(self.obs_key_index * max(len(self.sensor_ids), 1) + sensor_i,
                                     return_inverse=True, return_counts=True)
         group = np.asarray(group).ravel()
@@ -132,7 +142,7 @@ class FactorGraphProblem:
             i = np.zeros(len(self.obs_t), int)
         self.obs_key_index = i
         disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
-        R = np.stack([rotations[s] for s in self.obs_sensor]) if len(self.obs_t) else np.zeros((0, 3, 3))
+        R = per_row(self.obs_sensor, rotations.get, (3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
         self._R_obs = R
@@ -298,7 +308,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     i, j = order[:-1][nxt], order[1:][nxt]
     if len(i) < min_pairs:
         return None
-    R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in prob.obs_sensor[i]])
+    R = per_row(prob.obs_sensor[i], lambda sid: prob.init_sensors[sid].rotation().matrix(), (3, 3))
     disp = prob.motion.displacement(prob.obs_t[j], prob.obs_t[i])
     p_i = prob.obs_p_raw[i]
     d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
