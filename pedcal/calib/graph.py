@@ -547,7 +547,7 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     # the robot's chain of poses eliminates faster sequentially, in one COLAMD ordering computed
     # once (the graph's structure does not change between iterations): ~20 % per iteration
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
-    params.setOrdering(gtsam.Ordering.ColamdGaussianFactorGraph(fg.linearize(values)))
+    params.setOrdering(fg.orderingCOLAMD())      # symbolic: the same order as of its linearization
     opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
     result = opt.optimize()
     if gauss_newton_step and result.exists(H(0)):
