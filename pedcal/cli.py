@@ -148,7 +148,7 @@ def cmd_demo(args) -> int:
     from pedcal.io.atomic import check_output
 
     check_output(args.output, directory=True)
-    return run_demo(args.output, seed=args.seed, scenario=args.scenario)
+    return run_demo(args.output, seed=args.seed, scenario=args.scenario, seeds=args.seeds)
 
 
 def cmd_train_detector(args) -> int:
@@ -388,6 +388,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", type=options.path, default=Path("runs/paper"))
     s.add_argument("--scenario", default="paper")
     s.add_argument("--seed", type=options.arg("seed"), default=0)
+    s.add_argument("--seeds", type=options.arg("seeds"), default=4,
+                   help="seeds from --seed on whose mean and spread are printed after --seed's table (default 4)")
     s.set_defaults(func=cmd_demo)
 
     s = sub.add_parser("train-detector", help="train the person classifier (RealAdaBoost)")

@@ -10,7 +10,7 @@ from pedcal.demo import METHOD_ORDER
 
 
 def test_demo_prints_every_method_and_saves_finite_results(tmp_path, capsys):
-    assert main(["demo", "-o", str(tmp_path / "paper")]) == 0
+    assert main(["demo", "-o", str(tmp_path / "paper"), "--seeds", "2"]) == 0
     out = capsys.readouterr().out
     for method in METHOD_ORDER:
         assert f"\n{method} " in out
@@ -29,3 +29,31 @@ def test_demo_prints_every_method_and_saves_finite_results(tmp_path, capsys):
         assert res[method]["sensor_position_rms_mm"] < 0.5 * res["installed"]["sensor_position_rms_mm"], method
     less = {m: res[m]["sensor_position_rms_less_amcl_mm"] for m in ("factorgraph", "gridsearch")}
     assert less["factorgraph"] < 0.5 * less["gridsearch"], less
+
+    # over the seeds: each method's mean and sample standard deviation of the seeds' own results,
+    # the first seed's among them
+    assert saved["seeds"] == [0, 1] and len(saved["per_seed"]) == 2
+    assert saved["per_seed"][0] == saved["results"]
+    assert "over seeds 0-1 (2 seeds)" in out
+    for method in METHOD_ORDER:
+        for key in ("sensor_position_rms_mm", "sensor_position_rms_xy_mm", "runtime_s"):
+            v = [r[method][key] for r in saved["per_seed"]]
+            got = saved["over_seeds"][method][key]
+            assert got["mean"] == np.mean(v) and got["std"] == np.std(v, ddof=1), (method, key)
+
+
+def test_demo_summary_of_one_seed_has_no_spread():
+    from pedcal.demo import summarize_seeds
+
+    one = {"factorgraph": {"sensor_position_rms_mm": 30.0, "sensor_position_rms_xy_mm": 20.0,
+                           "sensor_position_rms_less_amcl_mm": float("nan"), "runtime_s": 1.0}}
+    s = summarize_seeds([one])
+    assert list(s) == ["factorgraph"]
+    assert s["factorgraph"]["sensor_position_rms_mm"] == {"mean": 30.0, "std": 0.0}
+    assert np.isnan(s["factorgraph"]["sensor_position_rms_less_amcl_mm"]["mean"])
+
+
+def test_demo_refuses_fewer_than_one_seed(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path / "paper"), "--seeds", "0"]) == 2
+    assert "--seeds must be at least 1" in capsys.readouterr().err
+    assert not (tmp_path / "paper").exists()

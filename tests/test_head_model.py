@@ -287,13 +287,13 @@ def test_a_large_network_gets_each_sensors_marginal_not_the_joint_covariance(mon
     # above JOINT_COV_MAX_SENSORS the 3n x 3n joint is neither computed (a dense inverse of
     # 6000 x 6000 at 1000 sensors) nor written; each sensor's marginal is, equal to the joint's
     # diagonal block of a smaller network
-    import pedcal.calib.graph as graph
+    import pedcal.calib.readback as readback
 
     sim = simulate_logs("sparse", seed=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         small = calibrate_factorgraph(sim.calib)
-        monkeypatch.setattr(graph, "JOINT_COV_MAX_SENSORS", 2)      # stands for a network of hundreds
+        monkeypatch.setattr(readback, "JOINT_COV_MAX_SENSORS", 2)      # stands for a network of hundreds
         res = calibrate_factorgraph(sim.calib)
     n = len(res.network)
     assert "position_covariance_m2" not in res.network.extra and res.position_covariance_m2 is None

@@ -12,7 +12,7 @@ import pytest
 from pedcal.calib.common import interpolate_pose2
 from pedcal.calib.factorgraph import _estimate_nuisances, calibrate_factorgraph
 from pedcal.calib.graph import GraphRecipe, build_parts, observation_block, optimize_graph, prepare
-from pedcal.calib.profile import Columns, sparse_system
+from pedcal.calib.profile import Columns, _normal_solver, fill_reducing_order, sparse_system
 from pedcal.errors import DegenerateDataWarning
 from pedcal.sim import simulate_logs
 
@@ -45,6 +45,30 @@ def test_sparse_system_reproduces_gtsams_gauss_newton_step(dome_paper):
     assert abs(A_obs - A[-A_obs.shape[0]:, :]).max() < 1e-9
     assert np.allclose(b_obs, b[-len(b_obs):])
 
+
+
+def test_normal_solve_in_the_graphs_colamd_order_is_gtsams_step(dome_paper):
+    # the order is a permutation of every column (each variable's together) and the solve in it
+    # is GTSAM's Gauss-Newton step, as the solve in SuperLU's own ordering is
+    _, _, parts, result = dome_paper
+    gfg = parts.graph().linearize(result)
+    cols = Columns.of(result)
+    A, b = sparse_system(gfg, cols)
+    order = fill_reducing_order(gfg, cols)
+    assert np.array_equal(np.sort(order), np.arange(cols.n))
+    position = np.argsort(order)
+    for key in cols.keys:
+        at = position[cols.index([key])]
+        assert np.array_equal(at, at[0] + np.arange(cols.dim[key]))
+    step = np.asarray(gfg.optimize().vector(cols.keys)).ravel()
+    y = A.T @ b
+    for solve in (_normal_solver(A, order), _normal_solver(A)):
+        x = solve(y)
+        assert np.abs(x - step).max() < 1e-9 * max(np.abs(step).max(), 1.0)
+    # two right-hand sides at once, as the profile's sensitivities are solved
+    Y = np.column_stack([y, 2.0 * y])
+    X = _normal_solver(A, order)(Y)
+    assert np.abs(X[:, 1] - 2.0 * X[:, 0]).max() < 1e-9 * np.abs(X).max()
 
 def test_profile_estimate_and_sigma_match_the_nonlinear_profile(dome_paper):
     # the profile step's optimum and Hessian against the graph re-solved by Levenberg-Marquardt

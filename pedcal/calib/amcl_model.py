@@ -10,7 +10,7 @@ white error of 5 cm averages out to a millimetre over a few minutes, a wandering
 with a correlation time of 20 s to about 2 cm.
 
 :func:`assumed_model` is the model before any solve: the white share from AMCL's own jitter
-(:func:`pedcal.calib.graph.amcl_white_sigma`) and a fraction of the reported covariance, the
+(:func:`amcl_white_sigma`) and a fraction of the reported covariance, the
 wandering part at the reported std with the recipe's correlation time. :func:`estimate_model`
 replaces it after a first solve: where the ceiling sensors see the robot, its solved position
 is known to millimetres, so AMCL's residual there is AMCL's error (up to the constant the whole
@@ -23,8 +23,12 @@ by more than ``jump_threshold`` robust sigmas (and ``min_jump_m``) are jumps, le
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 VARIOGRAM_LAGS_S = np.array([0.2, 0.4, 0.8, 1.6, 3.2, 6.4, 12.8, 25.6, 51.2, 102.4])
 
@@ -82,8 +86,6 @@ def assumed_model(amcl, recipe) -> AmclErrorModel:
     """The model before any solve: the recipe's share of the reported covariance plus what AMCL's
     own jitter shows beyond it as the white error, the reported std as the wandering one with the
     recipe's correlation time."""
-    from pedcal.calib.graph import amcl_white_sigma
-
     sig = reported_sigma_m(amcl)
     excess = max(amcl_white_sigma(amcl) ** 2 - recipe.amcl_white_fraction ** 2 * sig ** 2, 0.0)
     return AmclErrorModel(white_sigma_m=float(np.sqrt(excess)), correlated_sigma_m=sig,
@@ -226,5 +228,40 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
                           variogram_sigma_m=[float(np.sqrt(v)) if np.isfinite(v) else float("nan") for v in gamma])
 
 
-__all__ = ["AmclErrorModel", "assumed_model", "estimate_model", "robust_variogram", "fit_variogram",
+def amcl_cov_body(cov_world: np.ndarray, yaw) -> np.ndarray:
+    """AMCL's (x, y, yaw) world covariance as a Pose3 tangent covariance [rx, ry, rz, tx, ty, tz]
+    in the body frame (GTSAM's convention), without the roll/pitch/z blocks. Vectorized: a
+    (N, 3, 3) stack with N yaws gives (N, 6, 6)."""
+    C = np.asarray(cov_world, float)
+    yaw = np.asarray(yaw, float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    Rt = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], -2)        # world -> body for xy
+    out = np.zeros(C.shape[:-2] + (6, 6))
+    out[..., 2, 2] = C[..., 2, 2]
+    out[..., 3:5, 3:5] = Rt @ C[..., :2, :2] @ np.swapaxes(Rt, -1, -2)
+    cross = (Rt @ C[..., :2, 2:3])[..., 0]
+    out[..., 3:5, 2] = cross
+    out[..., 2, 3:5] = cross
+    return out
+
+
+def amcl_white_sigma(amcl: pd.DataFrame) -> float:
+    """Std (m) of the white part of AMCL's position error, from its own jitter: on a smooth
+    trajectory each estimate's departure from the straight line through its two neighbours (in
+    time: AMCL publishes irregularly) is a white error times sqrt(1 + a^2 + b^2), a and b the
+    neighbours' interpolation weights (the robot's acceleration adds millimetres at AMCL's
+    rates; a slowly wandering error adds less). Median absolute deviation, so jumps and turns do
+    not count."""
+    tr = amcl.groupby("t", sort=True)[["x", "y"]].mean()
+    t, p = tr.index.to_numpy(float), tr.to_numpy(float)
+    if len(t) < 10:
+        return 0.0
+    b = ((t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))[:, None]      # weight of the next estimate
+    e = (p[1:-1] - ((1.0 - b) * p[:-2] + b * p[2:])) / np.sqrt(1.0 + (1.0 - b) ** 2 + b ** 2)
+    mad = np.median(np.abs(e - np.median(e, axis=0)), axis=0)
+    return float(1.4826 * np.sqrt(np.mean(mad ** 2)))
+
+
+__all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
+           "robust_variogram", "fit_variogram",
            "detect_jumps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]

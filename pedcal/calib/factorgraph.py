@@ -30,7 +30,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pedcal.calib import graph as graph_layer
+from pedcal.calib import readback
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
@@ -369,7 +369,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
-            plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None)
+            plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
+            order=None if step is None else step.order)
         if not chord:
             full_step = step
         if select and "curvature_m" in names:
@@ -432,7 +433,7 @@ def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float, estimat
     if estimate and chi2 >= threshold_chi2:
         return step, nuis, chi2
     reduced = ProfileStep(dtheta=-np.linalg.solve(H[np.ix_(o, o)], g[o]), hessian=H[np.ix_(o, o)], z0=step.z0,
-                          Z=step.Z[:, o], cols=step.cols, M=None if step.M is None else step.M[:, o])
+                          Z=step.Z[:, o], cols=step.cols, M=None if step.M is None else step.M[:, o], order=step.order)
     return reduced, nuis[:-1], chi2
 
 
@@ -505,7 +506,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
     n = len(prob.sensor_ids)
     keys = [S(i) for i in range(n)] + ([H(0)] if result.exists(H(0)) else [])
     has_h = result.exists(H(0))
-    joint = n <= graph_layer.JOINT_COV_MAX_SENSORS
+    joint = n <= readback.JOINT_COV_MAX_SENSORS
     if joint:
         C = joint_marginal_covariance(fg, result, keys)
         blocks = [C[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(len(keys))]

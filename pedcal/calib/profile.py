@@ -14,8 +14,9 @@ Minimizing over dx for each dtheta, the profile, leaves
 so the profile error 1/2 |r_p|^2 (GTSAM's error, chi^2 / 2) is quadratic in dtheta with gradient
 M^T rho0 and Hessian M^T M, to which theta's prior adds. A and b come from GTSAM's linearization
 (``GaussianFactorGraph.sparseJacobian_``), B's column j from the observation block rebuilt at
-theta + h e_j; the k + 1 solves with N share one sparse factorization (SuperLU), a chord step's
-single solve takes one of its own. The Hessian's inverse is theta's covariance, and Z
+theta + h e_j; the k + 1 solves with N share one sparse factorization (SuperLU, in a COLAMD order
+of the graph computed once and kept across steps), a chord step's single solve takes one of its
+own. The Hessian's inverse is theta's covariance, and Z
 carries it into every variable: the marginal over theta, not the conditional at its estimate.
 z0 is the Gauss-Newton step at theta itself, which also settles directions Levenberg-Marquardt
 barely moves along (a flat gauge held by weak priors only).
@@ -93,13 +94,40 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     return A, b
 
 
-def _normal_solver(A: sps.csr_matrix):
-    """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with a
-    minimum-degree ordering of the symmetric matrix and no pivoting: it is positive definite, the
-    graph's priors hold every variable)."""
-    N = (A.T @ A).tocsc()
-    lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    return lambda y: lu.solve(np.asarray(y, float))
+def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.ndarray:
+    """A fill-reducing order of the system's columns: GTSAM's COLAMD ordering of the linearized
+    graph's variables, each variable's columns together. It depends on the graph's structure
+    alone, so one order serves every factorization of the same graph (the profile's steps)."""
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+    keys = [ordering.at(i) for i in range(ordering.size())]
+    missing = sorted(set(cols.keys) - set(keys))           # variables no factor touches, last
+    return cols.index(keys + missing)
+
+
+def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
+    """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
+    pivoting: the matrix is positive definite, the graph's priors hold every variable), in the
+    fill-reducing column ``order`` (:func:`fill_reducing_order`) or, without one, SuperLU's
+    minimum-degree ordering of the symmetric matrix."""
+    if order is None:
+        N = (A.T @ A).tocsc()
+        lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        return lambda y: lu.solve(np.asarray(y, float))
+    # A's columns renumbered into the order (its values shared, not copied), so that the normal
+    # matrix is formed permuted: no permuted copies of it
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    A = A.tocsr()
+    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
+    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                   options={"SymmetricMode": True})
+
+    def solve(y):
+        y = np.asarray(y, float)
+        x = np.empty_like(y)
+        x[order] = lu.solve(y[order])
+        return x
+    return solve
 
 
 @dataclass
@@ -115,6 +143,7 @@ class ProfileStep:
     Z: np.ndarray
     cols: Columns
     M: np.ndarray | None = None    # the profile residual's change with theta (rows of the system, k)
+    order: np.ndarray | None = None   # the fill-reducing column order its factorization used
 
     @property
     def covariance(self) -> np.ndarray:
@@ -145,7 +174,8 @@ def sqrt_weights(reweighted_norm: np.ndarray, kernel: str, k: float) -> np.ndarr
 def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.Values, theta: np.ndarray,
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
-                 plain=None, plain0=None, previous: ProfileStep | None = None) -> ProfileStep:
+                 plain=None, plain0=None, previous: ProfileStep | None = None,
+                 order: np.ndarray | None = None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -164,7 +194,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
     its Hessian, sensitivity Z and M are kept and only the variables' step z0 and the
-    gradient are taken here (a chord step of Newton's method: one solve instead of k + 1)."""
+    gradient are taken here (a chord step of Newton's method: one solve instead of k + 1).
+
+    ``order``: the fill-reducing column order of an earlier step on the same graph (its
+    ``order``), so that the ordering is computed once per graph, not once per step."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
     plain_build, plain_idx = plain if plain is not None else (None, ())
@@ -182,13 +215,18 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     # the k + 1 solves share the normal matrix N = A^T A (the systems differ in right-hand sides
     # only): one sparse factorization, then z0 = N^-1 A^T b and Z = N^-1 A^T B
-    solve = _normal_solver(sps.vstack([A_f, A_o, A_p], format="csr"))
+    if order is None or len(order) != cols.n:
+        lin = gtsam.GaussianFactorGraph()
+        for g in (g_fixed, g_obs0) + ((g_plain0,) if plain_build is not None else ()):
+            lin.push_back(g)
+        order = fill_reducing_order(lin, cols)
+    solve = _normal_solver(sps.vstack([A_f, A_o, A_p], format="csr"), order)
     z0 = solve(A_f.T @ b_f + A_o.T @ b_o0 + A_p.T @ b_p0)
     if previous is not None and previous.M is not None:
         rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
         grad = previous.M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
         return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
-                           Z=previous.Z, cols=cols, M=previous.M)
+                           Z=previous.Z, cols=cols, M=previous.M, order=order)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     rows = _factor_rows(obs0)
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
@@ -217,7 +255,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     M = np.vstack([A_f @ Z, A_o @ Z - B_o, A_p @ Z - B_p])
     grad = M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
     hess = M.T @ M + info
-    return ProfileStep(dtheta=-np.linalg.solve(hess, grad), hessian=hess, z0=z0, Z=Z, cols=cols, M=M)
+    return ProfileStep(dtheta=-np.linalg.solve(hess, grad), hessian=hess, z0=z0, Z=Z, cols=cols, M=M, order=order)
 
 
 def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
@@ -263,4 +301,4 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
 
 
 __all__ = ["Nuisance", "Columns", "ProfileStep", "profile_step", "sparse_system", "gauss_newton_step", "retract_flat",
-           "sqrt_weights", "joint_marginal_covariance"]
+           "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]

@@ -1,0 +1,136 @@
+"""The robot's motion as the graph uses it: its head frame, the wheel odometry with its systematic
+errors calibrated against AMCL (:func:`calibrate_odometry`), AMCL smoothed where it stands in for
+odometry, and the short-term displacement of the head between two nearby instants
+(:class:`RobotMotion`)."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pandas as pd
+
+from pedcal.calib.common import head_interpolator, head_world, interpolate_pose2
+from pedcal.model import Log
+
+
+def head_frame(x: float, y: float, yaw: float, head_m: np.ndarray) -> gtsam.Pose3:
+    """The robot's head frame: the base pose (x, y, yaw) composed with the head offset
+    ``head_m`` (base frame; its z is the dome centre's height)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return gtsam.Pose3(gtsam.Rot3.Yaw(yaw), np.array([x + c * head_m[0] - s * head_m[1],
+                                                      y + s * head_m[0] + c * head_m[1], head_m[2]]))
+
+
+
+def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
+    """A t/x/y/yaw table smoothed by a Gaussian of ``sigma_s`` seconds (x, y and unwrapped yaw;
+    the samples taken as evenly spaced at their median interval; ends by reflection)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    tr = track.groupby("t", sort=True)[["x", "y", "yaw"]].mean()
+    t = tr.index.to_numpy(float)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    s = max(sigma_s / dt, 1e-6)
+    xy_yaw = np.column_stack([tr["x"].to_numpy(float), tr["y"].to_numpy(float), np.unwrap(tr["yaw"].to_numpy(float))])
+    out = gaussian_filter1d(xy_yaw, s, axis=0, mode="reflect")
+    return pd.DataFrame({"t": t, "x": out[:, 0], "y": out[:, 1], "yaw": out[:, 2]})
+
+
+def smoothed_increment_var(white_sigma_m: float, dt_s, rate_hz: float, smooth_s: float):
+    """Variance (m^2, per axis) of the increment over ``dt_s`` of a white jitter of std
+    ``white_sigma_m`` sampled at ``rate_hz`` and smoothed by a Gaussian of ``smooth_s`` seconds
+    (:func:`smoothed_track`): the kernel's slope squared summed over the samples,
+    white^2 dt^2 / (rate 4 sqrt(pi) s^3), for dt up to about s."""
+    return white_sigma_m ** 2 * np.asarray(dt_s, float) ** 2 / (rate_hz * 4.0 * np.sqrt(np.pi) * smooth_s ** 3)
+
+
+
+def calibrate_odometry(odometry: pd.DataFrame, amcl: pd.DataFrame, window_s: float = 20.0,
+                       amcl_correlation_s: float = 20.0, drift_prior_deg_per_m: float = 2.0,
+                       drift_prior_deg_per_s: float = 0.2):
+    """Wheel odometry with its systematic errors removed: a heading drift per metre driven and
+    per second (wheel-base error, gyro bias) from a least-squares fit of the odometry-minus-AMCL
+    heading against distance and time over the whole run, and the distance scale from the
+    displacements over ``window_s`` windows (AMCL's wander averages out over many windows).
+    At a steady speed distance and time are nearly collinear, so the two drifts are held by a
+    weak prior (``drift_prior_*``, far beyond a working odometry's) and the AMCL heading samples
+    are weighted as the independent ones they are: one per 2 x ``amcl_correlation_s``.
+    Returns (DataFrame t, x, y, yaw in the odometry frame, dict of the estimates)."""
+    odo = odometry.sort_values("t")
+    t = odo["t"].to_numpy(float)
+    xy = odo[["x", "y"]].to_numpy(float)
+    yaw = np.unwrap(odo["yaw"].to_numpy(float))
+    c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
+    d = np.diff(xy, axis=0)
+    fwd, left = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
+    dyaw, dt = np.diff(yaw), np.diff(t)
+    dist = np.hypot(fwd, left)
+    s_m = np.r_[0.0, np.cumsum(dist)]
+    est = dict(scale=1.0, yaw_drift_deg_per_m=0.0, yaw_drift_deg_per_s=0.0)
+    at = amcl.sort_values("t")
+    ta = at["t"].to_numpy(float)
+    inside = (t >= ta[0]) & (t <= ta[-1])
+    if inside.sum() >= 10 and t[inside][-1] - t[inside][0] > 2 * window_s:
+        yaw_a = np.interp(t[inside], ta, np.unwrap(at["yaw"].to_numpy(float)))
+        diff = np.unwrap(yaw[inside] - yaw_a)
+        n = int(inside.sum())
+        span = t[inside][-1] - t[inside][0]
+        sig_yaw = float(np.sqrt(np.median(at["cov_yawyaw"].to_numpy(float)))) if "cov_yawyaw" in at else 0.02
+        # weight of one sample: n_eff / n independent samples of AMCL's heading std
+        w = np.sqrt(max(span / (2.0 * amcl_correlation_s), 1.0) / n) / max(sig_yaw, 1e-4)
+        M = np.column_stack([np.ones(n), s_m[inside], t[inside] - t[inside][0]]) * w
+        prior = np.diag([0.0, 1.0 / np.radians(drift_prior_deg_per_m), 1.0 / np.radians(drift_prior_deg_per_s)])
+        coef = np.linalg.lstsq(np.vstack([M, prior]), np.r_[diff * w, np.zeros(3)], rcond=None)[0]
+        est["yaw_drift_deg_per_m"] = float(np.degrees(coef[1]))
+        est["yaw_drift_deg_per_s"] = float(np.degrees(coef[2]))
+        dyaw = dyaw - coef[1] * dist - coef[2] * dt
+    yaw_c = np.r_[yaw[0], yaw[0] + np.cumsum(dyaw)]
+    cc, sc = np.cos(yaw_c[:-1]), np.sin(yaw_c[:-1])
+    xy_c = xy[0] + np.r_[np.zeros((1, 2)), np.cumsum(np.column_stack([cc * fwd - sc * left, sc * fwd + cc * left]),
+                                                     axis=0)]
+    if inside.sum() >= 10:
+        edges = np.arange(max(t[0], ta[0]), min(t[-1], ta[-1]), window_s)
+        if len(edges) >= 3:
+            da = np.diff(np.column_stack([np.interp(edges, ta, at["x"].to_numpy(float)),
+                                          np.interp(edges, ta, at["y"].to_numpy(float))]), axis=0)
+            do = np.diff(np.column_stack([np.interp(edges, t, xy_c[:, 0]), np.interp(edges, t, xy_c[:, 1])]), axis=0)
+            na, no = np.linalg.norm(da, axis=1), np.linalg.norm(do, axis=1)
+            if np.sum(no ** 2) > 1.0:        # the robot drove at least a metre per window on average
+                est["scale"] = float(np.sum(na * no) / np.sum(no ** 2))
+    xy_c = xy_c[0] + est["scale"] * (xy_c - xy_c[0])
+    return pd.DataFrame({"t": t, "x": xy_c[:, 0], "y": xy_c[:, 1], "yaw": yaw_c}), est
+
+
+class RobotMotion:
+    """The robot's short-term motion: where the head moves between two nearby instants, from
+    the (calibrated) wheel odometry rotated into the map by AMCL's heading, or from the AMCL
+    spline when there is no odometry."""
+
+    def __init__(self, log: Log, odometry: pd.DataFrame | None):
+        self.head_offset = np.asarray(log.meta.head_offset_m, float)
+        self.amcl_head = head_interpolator(log)
+        self.odo = odometry
+        if odometry is not None:
+            amcl = log.robot.sort_values("t")
+            self.ta = amcl["t"].to_numpy(float)
+            self.yaw_a = np.unwrap(amcl["yaw"].to_numpy(float))
+
+    def displacement(self, t_from: np.ndarray, t_to: np.ndarray) -> np.ndarray:
+        """World displacement (N, 3) of the head top from ``t_from`` to ``t_to``."""
+        if self.odo is None:
+            return self.amcl_head(t_to) - self.amcl_head(t_from)
+        h0 = head_world(interpolate_pose2(self.odo, t_from), self.head_offset)
+        h1 = head_world(interpolate_pose2(self.odo, t_to), self.head_offset)
+        mid = 0.5 * (t_from + t_to)
+        # heading of the map relative to the odometry frame at that time (AMCL minus odometry)
+        rot = np.interp(mid, self.ta, self.yaw_a) - interpolate_pose2(self.odo, mid)[:, 2]
+        c, s = np.cos(rot), np.sin(rot)
+        d = h1 - h0
+        return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]])
+
+    def velocity(self, t: np.ndarray, h: float = 0.02) -> np.ndarray:
+        return self.displacement(t - h, t + h) / (2 * h)
+
+
+
+__all__ = ["head_frame", "smoothed_track", "smoothed_increment_var", "calibrate_odometry", "RobotMotion"]

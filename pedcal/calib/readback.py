@@ -1,0 +1,177 @@
+"""The calibrated network read back from the solved graph: each sensor's pose with its sigma in
+world axes and as rotation angles, the directions the data left unconstrained (kept at the
+installed values), and the tracker, AMCL, odometry and noise models recorded beside it."""
+
+from __future__ import annotations
+
+import logging
+import warnings
+
+import gtsam
+import numpy as np
+
+from pedcal import frames
+from pedcal.calib.common import HeadModel, ModelMismatch
+from pedcal.calib.keys import S
+from pedcal.calib.problem import FactorGraphProblem
+from pedcal.calib.recipe import GraphRecipe
+from pedcal.errors import DegenerateDataWarning
+from pedcal.io.sensors_yaml import flow_vector
+from pedcal.metrics import (
+    AMCL_MODEL_KEY,
+    HEAD_MODEL_KEY,
+    JOINT_COV_KEY,
+    LATENCY_KEY,
+    MISMATCH_KEY,
+    NOISE_KEY,
+    ODOMETRY_MODEL_KEY,
+)
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+
+
+def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World-axes position covariance and 1-sigma of position (m) and ypr (deg) from GTSAM's
+    Pose3 marginal (body frame, rotation first)."""
+    R = T.rotation().matrix()
+    cov_pos_world = R @ cov_body[3:, 3:] @ R.T
+    ypr0 = frames.ypr_deg_from_rot(R)
+    J = np.zeros((3, 3))
+    eps = 1e-6
+    for c in range(3):
+        w = np.zeros(3)
+        w[c] = eps
+        d = frames.ypr_deg_from_rot(R @ gtsam.Rot3.Expmap(w).matrix()) - ypr0
+        J[:, c] = (d + 180.0) % 360.0 - 180.0
+    J /= eps
+    cov_ypr = J @ cov_body[:3, :3] @ J.T
+    return cov_pos_world, np.sqrt(np.diag(cov_pos_world)), np.sqrt(np.maximum(np.diag(cov_ypr), 0.0))
+
+
+def rotation_sigma_deg(cov_body: np.ndarray) -> np.ndarray:
+    """1-sigma (deg) of a sensor's orientation as a rotation vector in its own frame (about its
+    optical axis x, its y and its z), from GTSAM's Pose3 covariance (body frame, rotation
+    first): defined at any pitch, unlike yaw/pitch/roll, whose yaw and roll blur together when
+    the sensor looks straight down."""
+    return np.degrees(np.sqrt(np.maximum(np.diag(cov_body)[:3], 0.0)))
+
+
+_DIRECTION_NAMES_ROT = ("rotation about world x", "rotation about world y", "yaw")
+_DIRECTION_NAMES_POS = ("x", "y", "z")
+
+
+def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, threshold: float = 0.5):
+    """Directions of a sensor pose the data left unconstrained: eigen-directions of the posterior
+    covariance whitened by the installed prior whose variance the data reduced by less than
+    ``threshold`` (posterior sigma > threshold x prior sigma). Returns (names, whitened basis)."""
+    p = np.r_[[np.radians(recipe.sensor_prior_sigma_deg)] * 3, [recipe.sensor_prior_sigma_m] * 3]
+    Cw = cov_body / np.outer(p, p)
+    evals, evecs = np.linalg.eigh(0.5 * (Cw + Cw.T))
+    bad = evecs[:, evals > threshold ** 2]
+    names = []
+    R = T.rotation().matrix()
+    for v in bad.T:     # whitened: rotation and translation parts are comparable
+        if np.linalg.norm(v[:3]) >= np.linalg.norm(v[3:]):
+            names.append(_DIRECTION_NAMES_ROT[int(np.argmax(np.abs(R @ v[:3])))])
+        else:
+            names.append(_DIRECTION_NAMES_POS[int(np.argmax(np.abs(R @ v[3:])))])
+    return sorted(set(names)), bad
+
+
+
+# marginal is): at 1000 sensors it would be 9 M numbers, about 100 MB of text, and a dense inverse
+# of 6000 x 6000 takes a minute.
+JOINT_COV_MAX_SENSORS = 200
+
+
+def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *, head_model: HeadModel | None = None,
+                   joint_position_cov: np.ndarray | None = None, mismatch: ModelMismatch | None = None) -> np.ndarray:
+    """Record the tracker model the graph used (latency, head-point model with its sigma), the
+    joint covariance of the sensors' positions and the model check in the calibrated network and
+    return the mask of the observations used as the robot's."""
+    network.extra[LATENCY_KEY] = round(prob.latency_s, 4)
+    if head_model is None:
+        head_model = HeadModel(vertical_offset_m=-prob.recipe.head_radius_m, ray_shift_m=prob.ray_shift_m,
+                               estimated=False)
+    network.extra[HEAD_MODEL_KEY] = {k: (round(v, 5) if isinstance(v, float) else v)
+                                     for k, v in head_model.to_dict().items() if v != ""}
+    if joint_position_cov is not None and len(prob.sensor_ids) <= JOINT_COV_MAX_SENSORS:
+        network.extra[JOINT_COV_KEY] = {"sensors": list(prob.sensor_ids), "order": "x y z per sensor",
+                                        "matrix": [flow_vector([float(f"{v:.4e}") for v in row])
+                                                   for row in joint_position_cov]}
+    elif len(prob.sensor_ids) > JOINT_COV_MAX_SENSORS:
+        logging.getLogger(__name__).warning(
+            f"the joint covariance of {len(prob.sensor_ids)} sensors' positions ({3 * len(prob.sensor_ids)} x "
+            f"{3 * len(prob.sensor_ids)}) is not computed above {JOINT_COV_MAX_SENSORS} sensors (each sensor's "
+            "marginal is); CalibrationResult.marginals().jointMarginalCovariance(keys) gives any part of it")
+    if prob.amcl_model is not None and prob.recipe.amcl:
+        network.extra[AMCL_MODEL_KEY] = prob.amcl_model.to_dict()
+    if prob.odometry is not None and prob.odometry_estimates:
+        network.extra[ODOMETRY_MODEL_KEY] = {k: (round(v, 6) if isinstance(v, float) else v)
+                                             for k, v in prob.odometry_estimates.items()}
+    if prob.noise_estimate:
+        network.extra[NOISE_KEY] = {k: (round(v, 6) if isinstance(v, float) else v)
+                                    for k, v in prob.noise_estimate.items()}
+    if mismatch is not None:
+        ratios = {k: round(v, 3) for k, v in mismatch.variance_ratio.items()}
+        network.extra[MISMATCH_KEY] = {"sensors": mismatch.sensors, "threshold": mismatch.threshold,
+                                       "variance_ratio": ratios, "misfit": mismatch.misfit}
+        if mismatch.head_model_misfit:
+            network.extra[MISMATCH_KEY]["head_model"] = mismatch.head_model_misfit
+    mask = np.zeros(len(log.observations), bool)
+    mask[prob.rows_used] = True
+    return mask
+
+
+def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progress: bool,
+                         marginals: gtsam.Marginals | None = None,
+                         cov_out: dict | None = None, cov_body: dict | None = None) -> SensorNetwork:
+    """The calibrated network from the graph's solution; ``cov_out`` (optional) receives each
+    sensor's world-axes position covariance (m^2). ``cov_body``: each sensor's Pose3 covariance
+    (body frame, rotation first) when the caller has it, else the graph's marginals."""
+    rec = prob.recipe
+    if marginals is None and cov_body is None:
+        marginals = gtsam.Marginals(fg, result)
+    people_count = {sid: 0 for sid in prob.sensor_ids}
+    for _, seen in prob.people:
+        for sid, _ in seen:
+            people_count[sid] += 1
+    # robot observations per sensor, counted once (not a comparison of every row per sensor)
+    ids, counts = np.unique(prob.obs_sensor, return_counts=True) if rec.robot else ([], [])
+    obs_count = dict(zip(ids, counts, strict=True))
+    out = []
+    for i, sid in enumerate(prob.sensor_ids):
+        installed = log.sensors[sid]
+        n_obs = int(obs_count.get(sid, 0))
+        T = result.atPose3(S(i))
+        cov = cov_body[sid] if cov_body is not None else marginals.marginalCovariance(S(i))
+        if n_obs + people_count[sid] == 0:
+            warnings.warn(f"sensor {sid}: no observation of the robot or of shared people; "
+                          "its installed pose is kept", DegenerateDataWarning, stacklevel=2)
+            _, sp, sy = sensor_sigma_world(installed.T_world_sensor, cov)
+            out.append(SensorExtrinsics(sid, installed.position_m, installed.ypr_deg, sigma_position_m=sp,
+                                        sigma_ypr_deg=sy, sigma_rotation_deg=rotation_sigma_deg(cov),
+                                        observations=0, status="no-data"))
+            continue
+        names, bad = observability(T, cov, rec)
+        status = "ok"
+        if names:
+            status = "degenerate"
+            # keep the installed value along the unconstrained directions
+            p = np.r_[[np.radians(rec.sensor_prior_sigma_deg)] * 3, [rec.sensor_prior_sigma_m] * 3]
+            delta = installed.T_world_sensor.localCoordinates(T) / p
+            delta -= bad @ (bad.T @ delta)
+            T = installed.T_world_sensor.retract(delta * p)
+            warnings.warn(f"sensor {sid}: the data leave {', '.join(names)} unconstrained; the installed "
+                          "value is kept there", DegenerateDataWarning, stacklevel=2)
+        cov_pos, sp, sy = sensor_sigma_world(T, cov)
+        if cov_out is not None:
+            cov_out[sid] = cov_pos
+        out.append(SensorExtrinsics.from_pose3(sid, T, sigma_position_m=sp, sigma_ypr_deg=sy,
+                                               sigma_rotation_deg=rotation_sigma_deg(cov),
+                                               observations=n_obs, status=status,
+                                               unobservable=names or None))
+    return SensorNetwork(out, frame=log.sensors.frame)
+
+
+__all__ = ["sensor_sigma_world", "rotation_sigma_deg", "observability", "finish_network",
+           "JOINT_COV_MAX_SENSORS"]

@@ -1,0 +1,173 @@
+"""The factor graph's recipe (graphs/*.toml): which factor families it holds and their noise
+models, and the depth sensors' noise model it implies (:func:`observation_sigmas`)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from pedcal.errors import PedcalInputError
+from pedcal.io.sensors_yaml import read_text_file
+from pedcal.options import check_recipe_numbers
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+GRAPHS_DIR = Path(__file__).resolve().parents[2] / "graphs"
+
+
+# ------------------------------------------------------------------------------------------ recipe
+@dataclass
+class GraphRecipe:
+    """Which factor families and noise models the graph holds (graphs/*.toml)."""
+
+    name: str = "default"
+    description: str = ""
+    # factor families
+    robot: bool = True              # the robot's observations (sensor -> head)
+    odometry: bool = True           # wheel odometry between-factors when odometry.csv exists
+    smoothness: bool = True         # motion smoothness when there is no odometry
+    people: bool = True             # people seen by two or more sensors at once
+    amcl: bool = True               # AMCL poses as a correlated-error measurement
+    # sensor prior from the installed extrinsics (how far a hand measurement can be off)
+    sensor_prior_sigma_m: float = 0.5
+    sensor_prior_sigma_deg: float = 10.0
+    # depth sensor model: sigma_range = floor + k r^2 (x far_factor past reliable_range_m),
+    # lateral sigma of the head-top extraction (plus the latency jitter times the robot's speed)
+    range_sigma_floor_m: float = 0.005
+    range_sigma_k_per_m: float = 1.5e-3
+    reliable_range_m: float = 3.5
+    far_factor: float = 2.0
+    lateral_sigma_m: float = 0.012
+    # the three above estimated from consecutive observations (estimate_observation_noise) unless false
+    estimate_observation_noise: bool = True
+    # head-point model (module docstring, "Head point"): the prior is a dome of radius
+    # head_radius_m (vertical offset -r, ray shift r); both are estimated unless
+    # estimate_head_model is false
+    head_radius_m: float = 0.05
+    estimate_head_model: bool = True
+    head_vertical_sigma_m: float = 0.03     # prior sigma of the vertical offset about -ray shift
+    head_ray_shift_sigma_m: float = 0.05    # prior sigma of the shift toward the sensor
+    head_ray_shift_step_m: float = 0.02     # step of the shifts' profile likelihood
+    estimate_head_horizontal_shift: bool = True   # a constant horizontal shift toward the sensor too
+    head_horizontal_shift_sigma_m: float = 0.05   # its prior sigma (mean 0)
+    # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
+    # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
+    # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the
+    # default: not estimated, but when its chi^2 reaches head_curvature_widen_chi2, about two
+    # sigma, the misfit is named in model_mismatch and the sensors' covariance carries the move
+    # estimating it would make). Over the nuisance zoo's 80 logs without it, the other shifts'
+    # model inexactness gave it a chi^2 of 3-54 and estimating it cost 2-5 mm of sensor RMS; the
+    # simulated centroid tracker gives 20-145, and with it not widened for below 60 the sensors'
+    # errors relative to their mean were 1.5-1.9x their sigma on paper and sparse (40 seeds), 1.0
+    # and 1.15x widened from 4.
+    head_curvature: str = "widen"
+    head_curvature_sigma_m: float = 0.02
+    head_curvature_select_chi2: float = 60.0
+    head_curvature_widen_chi2: float = 4.0
+    # height reference: the installed sensor heights measured to this sigma (0: no reference),
+    # or, with ceiling_height_m > 0, every sensor at that height to this sigma
+    sensor_height_sigma_m: float = 0.0
+    ceiling_height_m: float = 0.0
+    robust_kernel: str = "huber"    # huber | cauchy | tukey | none
+    robust_k: float = 1.345
+    # AMCL error process (std from AMCL's reported covariance)
+    amcl_correlation_s: float = 20.0
+    amcl_node_spacing_s: float = 1.0   # nodes of the error process (a small fraction of tau)
+    amcl_white_fraction: float = 0.2   # share of AMCL's reported std that is white, per stamp
+    # AMCL's error model (white std, wandering std and correlation time, jumps) estimated from the
+    # residuals of a first solve (pedcal.calib.amcl_model); the three above are its starting point
+    estimate_amcl_model: bool = True
+    amcl_jump_threshold: float = 5.0   # robust sigmas off the running median: a jump, left out
+    amcl_min_jump_m: float = 0.1       # ... and at least this far off
+    # robot poses: one per AMCL stamp, gaps longer than this filled
+    max_pose_gap_s: float = 0.25
+    # odometry: systematic errors estimated and removed, then white noise per sqrt(second)
+    # and a residual scale / heading drift
+    odometry_calibrate: bool = True
+    odometry_white_sigma_m: float = 0.005          # per sqrt(s)
+    odometry_white_yaw_sigma_deg: float = 0.25     # per sqrt(s)
+    odometry_sigma_per_m: float = 0.003            # residual scale error
+    odometry_yaw_sigma_deg_per_m: float = 0.05     # residual heading drift
+    # what the calibration left of odometry's systematic errors (scale, heading drift per metre
+    # and per second), estimated in the graph against what the sensors saw (a calibration against
+    # a wandering AMCL leaves errors the graph would otherwise take as the robot's true motion);
+    # prior sigmas of these corrections
+    estimate_odometry_errors: bool = True
+    odometry_scale_sigma: float = 0.01
+    odometry_drift_sigma_deg_per_m: float = 0.1
+    odometry_drift_sigma_deg_per_s: float = 0.01
+    smoothness_sigma_mps: float = 0.05
+    # without odometry, AMCL jitter above this (m, amcl_white_sigma) makes the short-term motion
+    # come from AMCL smoothed over amcl_smooth_s (s)
+    amcl_smooth_above_m: float = 0.01
+    amcl_smooth_s: float = 0.5
+    # robot planarity
+    planar_sigma_deg: float = 0.5
+    head_height_sigma_m: float = 0.02
+    # tracker latency
+    estimate_latency: bool = True
+    latency_max_s: float = 0.4
+    # people association for shared observations (at most one shared point per period)
+    people_sample_s: float = 0.5
+    people_misfit_sigma: float = 5.0   # a shared sighting whose views the first solve puts this far apart is dropped
+    # initializer: closedform | gridsearch | installed
+    init: str = "closedform"
+    max_iterations: int = 50
+    relative_error_tol: float = 1e-5
+
+    @classmethod
+    def load(cls, path: str | Path) -> GraphRecipe:
+        path = Path(path)
+        if not path.exists() and not path.suffix and (GRAPHS_DIR / f"{path}.toml").exists():
+            path = GRAPHS_DIR / f"{path}.toml"
+        try:
+            data = tomllib.loads(read_text_file(path, "graph recipe"))   # a regular file, size capped
+        except tomllib.TOMLDecodeError as e:
+            raise PedcalInputError(f"not valid TOML: {e}", path=path) from None
+        flat = {}
+        for k, v in data.items():
+            if isinstance(v, dict):       # [sections] are only for readability
+                flat.update(v)
+            else:
+                flat[k] = v
+        known = {f.name: f for f in fields(cls)}
+        for k, v in flat.items():
+            if k not in known:
+                raise PedcalInputError(f"unknown key '{k}', expected one of {', '.join(known)}", path=path)
+            default = getattr(cls(), k)
+            if isinstance(default, bool) != isinstance(v, bool) or (
+                    isinstance(default, float) and not isinstance(v, (int, float))):
+                raise PedcalInputError(f"key '{k}' must be {type(default).__name__}, got {v!r}", path=path)
+        if "name" not in flat:
+            flat["name"] = path.stem
+        check_recipe_numbers(flat, cls(), path)
+        return cls(**flat)
+
+
+
+def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:
+    """(N, 3) sigmas [bearing rad, bearing rad, range m] of a head seen at ``range_m``:
+    structured-light depth noise grows with range squared (Khoshelham and Elberink 2012),
+    doubled past the reliable range; the lateral error is a distance across the ray."""
+    r = np.asarray(range_m, float)
+    sig_r = recipe.range_sigma_floor_m + recipe.range_sigma_k_per_m * r ** 2
+    sig_r = np.where(r > recipe.reliable_range_m, recipe.far_factor * sig_r, sig_r)
+    sig_b = recipe.lateral_sigma_m / np.maximum(r, 0.3)
+    return np.column_stack([sig_b, sig_b, sig_r])
+
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def _log(progress: bool, msg: str) -> None:
+    if progress:
+        logging.getLogger(__name__).info(f"[factorgraph] {msg}")
+
+
+
+__all__ = ["GraphRecipe", "GRAPHS_DIR", "observation_sigmas"]
