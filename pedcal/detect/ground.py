@@ -73,9 +73,10 @@ def polar_coordinates(xy: np.ndarray, sensor_xy=(0.0, 0.0)) -> tuple[np.ndarray,
     """Continuous (sector, range bin) coordinates of horizontal positions ``xy`` (N, 2) about the
     sensor (step 1): cell (s, k) holds the positions with ``floor(u) == s`` and
     ``floor(v + 0.5) == k``; ``v`` is k at the middle of bin k (``range_bin_centre``)."""
-    d = np.asarray(xy, dtype=float).reshape(-1, 2) - np.asarray(sensor_xy, dtype=float)
-    u = (np.arctan2(d[:, 1], d[:, 0]) + np.pi) * (N_SECTORS / (2 * np.pi))
-    v = np.hypot(d[:, 0], d[:, 1]) / RANGE_BIN_M - 0.5
+    # single precision: a 1e-7 share of a sector or a range bin is far below anything that matters
+    d = (np.asarray(xy, dtype=float).reshape(-1, 2) - np.asarray(sensor_xy, dtype=float)).astype(np.float32)
+    u = (np.arctan2(d[:, 1], d[:, 0]) + np.float32(np.pi)) * np.float32(N_SECTORS / (2 * np.pi))
+    v = np.hypot(d[:, 0], d[:, 1]) * np.float32(1 / RANGE_BIN_M) - np.float32(0.5)
     far = np.flatnonzero(v >= _N_FINE - 0.5)
     v[far] = _N_FINE - 0.5 + np.log((v[far] + 0.5) / _N_FINE) / np.log(RANGE_BIN_GROWTH)
     return u, v
@@ -109,16 +110,19 @@ class GroundEstimate:
 
     def _bilinear(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         n_s, n_b = self.grid_z_m.shape
-        g = np.concatenate([self.grid_z_m, self.grid_z_m[:, -1:]], axis=1).ravel()  # bin n_b repeats the last
-        u = u - 0.5  # sector s's centre at u = s
-        s0 = np.floor(u).astype(np.int64)
+        # the sectors wrap round: one more on each side; bin n_b repeats the last
+        g = np.vstack([self.grid_z_m[-1:], self.grid_z_m, self.grid_z_m[:1]])
+        g = np.concatenate([g, g[:, -1:]], axis=1).astype(np.float32).ravel()
+        u = np.asarray(u, dtype=np.float32) + np.float32(0.5)  # sector s's centre at u = s + 1 in g
+        s0 = u.astype(np.int64)
         wu = u - s0
-        v = np.clip(v, 0.0, n_b - 1.0)
+        v = np.clip(np.asarray(v, dtype=np.float32), 0.0, n_b - 1.0)
         k0 = v.astype(np.int64)
         wv = v - k0
-        a = (s0 % n_s) * (n_b + 1) + k0  # the sectors wrap round
-        b = ((s0 + 1) % n_s) * (n_b + 1) + k0
-        return (1 - wu) * ((1 - wv) * g[a] + wv * g[a + 1]) + wu * ((1 - wv) * g[b] + wv * g[b + 1])
+        a = s0 * (n_b + 1) + k0
+        b = a + (n_b + 1)
+        out = (1 - wu) * ((1 - wv) * g[a] + wv * g[a + 1]) + wu * ((1 - wv) * g[b] + wv * g[b + 1])
+        return out.astype(float)
 
     def as_dict(self) -> dict:
         """What the CLI's JSON output says about the ground."""
