@@ -146,10 +146,12 @@ def _cell_candidates(cell: np.ndarray, z: np.ndarray, n_cells: int) -> tuple[np.
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     # supported: the (need - 1)-th point after it is of the same cell and within SUPPORT_BAND_M
     need = np.minimum(SUPPORT_POINTS, counts[scell])
-    ahead = np.minimum(np.arange(len(skey)) + need - 1, len(skey) - 1)
-    ok_at = np.flatnonzero(skey[ahead] - skey <= SUPPORT_BAND_M)
+    ahead = np.arange(len(skey)) + need - 1
+    inside = ahead < len(skey)
+    ok_at = np.flatnonzero(inside & (skey[np.where(inside, ahead, 0)] - skey <= SUPPORT_BAND_M))
     ok_cell = scell[ok_at]
-    first = np.r_[True, ok_cell[1:] != ok_cell[:-1]]  # the lowest supported point of each cell
+    first = np.ones(len(ok_cell), dtype=bool)  # the lowest supported point of each cell
+    first[1:] = ok_cell[1:] != ok_cell[:-1]
     pick = starts.copy()  # no supported level: the lowest point
     pick[ok_cell[first]] = ok_at[first]
     out = np.full(n_cells, np.nan)
@@ -240,8 +242,8 @@ def estimate_ground(points: np.ndarray, sensor_xyz=(0.0, 0.0, 0.0), *, warn: boo
         grid = _fill(cand, cand_r, ok, r_bin_m) if ok.any() else grid
     n_ground = int(ok.sum())
     if n_ground < MIN_GROUND_CELLS:
-        notes.append(f"no ground found: {n_ground} of {int(filled.sum())} occupied cells hold ground; the "
-                     "lowest points are taken as the ground")
+        notes.append(f"no ground found: {n_ground} ground cells among {int(filled.sum())} occupied, fewer than "
+                     f"{MIN_GROUND_CELLS}; the lowest points are taken as the ground")
         grid = _fill(cand, cand_r, filled, r_bin_m)
     ground_here = float(_at_sensor(grid, r_bin_m))
     height = sz - ground_here
