@@ -11,23 +11,28 @@
    ``SUPPORT_BAND_M`` above it. A lone return below the road does not count; a cell holding only
    an object gives that object's lowest level, which step 3 rejects.
 3. Each sector is walked outward from the sensor, as a ray-based ground filter does: a candidate
-   is ground when it lies within ``MAX_STEP_M + MAX_SLOPE * d`` of the last ground of its sector,
-   ``d`` metres nearer (a kerb, a ramp, a sloped street are followed); a candidate farther below
-   is a stray return (multipath: real street scans hold short runs of points 1-6 m below the road,
-   reflected off car bodies and windows), one farther above an object's body (a car's side, a
-   wall). The walk starts at the frame's ground near the sensor: the median, over sectors, of
-   each sector's nearest candidate.
+   is ground when it lies within ``max(MAX_STEP_M, MAX_SLOPE * d)`` of the last ground of its own
+   sector and of each sector within ``WALK_SECTORS`` of it, ``d`` metres away (its range minus
+   theirs, at most ``MAX_GAP_M``, plus the lateral distance between the sectors): a kerb, or a
+   ramp or sloped street, is followed; a candidate farther below is a stray return (multipath:
+   real street scans hold short runs of points 1-6 m below the road, reflected off car bodies and
+   windows), one farther above an object's body (a car's side, a wall). A sector whose candidates
+   stay below for ``RELOCK_CELLS`` cells in a row, consistent among themselves, has found a lower
+   ground (a ramp down) and takes it. The walk starts at the frame's ground near the sensor: the
+   median, over sectors, of each sector's nearest candidate.
 4. Ground cells that disagree with the ground of the neighbouring sectors at the same range (the
    median over ``CONSENSUS_SECTORS`` sectors and ``CONSENSUS_BINS`` bins) by more than
-   ``MAX_STEP_M`` are dropped (a sector that walked onto strays behind an occluder), then every
-   cell between two ground cells of its sector gets their linear interpolation, cells beyond the
-   last (or before the first) that ground cell's value, and sectors without ground the nearest
-   sector's.
-5. ``GroundEstimate.height_at`` is the bilinear interpolation of that grid.
+   ``MAX_STEP_M`` are dropped (a sector that walked onto strays behind an occluder); each bin's
+   ground is then the linear interpolation in range between the ground cells of its sector (at
+   their points' own ranges), constant beyond the first and last, and sectors without ground take
+   the nearest sector's. Fewer than ``MIN_GROUND_CELLS`` ground cells: every cell's candidate is
+   taken, with a warning.
+5. ``GroundEstimate.height_at`` is the bilinear interpolation of that grid, in azimuth (round the
+   circle) and range bin.
 
-What the estimate found is checked (``GroundEstimate.warnings``, each also logged as a warning): ground at or
-above the sensor (``MIN_SENSOR_CLEARANCE_M``: a cloud holding no ground, a cloud in the wrong
-frame), a ground plane tilted by more than ``MAX_GROUND_TILT_DEG`` within ``TILT_RADIUS_M`` of the
+What the estimate found is checked (``GroundEstimate.warnings``, each also logged as a warning):
+ground at, or less than ``MIN_SENSOR_CLEARANCE_M`` below, the sensor (a cloud holding no ground, a
+cloud in the wrong frame), a ground plane tilted by more than ``MAX_GROUND_TILT_DEG`` within ``TILT_RADIUS_M`` of the
 sensor (no street or floor is that steep: a camera's optical frame read as a body frame, a
 mis-stated sensor pose), no ground found at all.
 
@@ -245,7 +250,7 @@ def estimate_ground(points: np.ndarray, sensor_xyz=(0.0, 0.0, 0.0), *, warn: boo
         notes.append(f"no ground found: {n_ground} ground cells among {int(filled.sum())} occupied, fewer than "
                      f"{MIN_GROUND_CELLS}; the lowest points are taken as the ground")
         grid = _fill(cand, cand_r, filled, r_bin_m)
-    ground_here = float(_at_sensor(grid, r_bin_m))
+    ground_here = _at_sensor(grid)
     height = sz - ground_here
     if height < MIN_SENSOR_CLEARANCE_M:
         where = f"{-height:.2f} m above" if height < 0 else f"only {height:.2f} m below"
@@ -273,7 +278,7 @@ def _consensus(grid: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
-def _at_sensor(grid: np.ndarray, r_bin_m: np.ndarray) -> float:
+def _at_sensor(grid: np.ndarray) -> float:
     """The ground height under the sensor: the median over sectors of the nearest bin's ground."""
     col = grid[:, 0]
     return float(np.nanmedian(col)) if np.isfinite(col).any() else np.nan
