@@ -19,7 +19,8 @@
    windows), one farther above an object's body (a car's side, a wall). A sector whose candidates
    stay below for ``RELOCK_CELLS`` cells in a row, consistent among themselves, has found a lower
    ground (a ramp down) and takes it. The walk starts at the frame's ground near the sensor: the
-   median, over sectors, of each sector's nearest candidate.
+   median, over sectors, of each sector's nearest candidate, seen at the median of their ranges
+   (cells nearer the sensor than that are held to it by their distance from there too).
 4. Ground cells that disagree with the ground of the neighbouring sectors at the same range (the
    median over ``CONSENSUS_SECTORS`` sectors and ``CONSENSUS_BINS`` bins) by more than
    ``MAX_STEP_M`` are dropped (a sector that walked onto strays behind an occluder); each bin's
@@ -167,7 +168,7 @@ def _cell_candidates(cell: np.ndarray, z: np.ndarray, n_cells: int) -> tuple[np.
     return out, at
 
 
-def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: float) -> np.ndarray:
+def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: float, r_start_m: float) -> np.ndarray:
     """Step 3: (sectors, bins) which candidates are ground, each sector walked outward. A
     candidate must lie within the slope cone of the last ground of its own sector and of every
     sector within ``WALK_SECTORS`` of it (the lateral distance between them counted at the slope).
@@ -176,7 +177,7 @@ def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: 
     street) and takes it: strays below the ground are runs of a few decimetres, not metres."""
     n_s, n_b = cand.shape
     ref_z = np.full(n_s, z_start)
-    ref_r = np.zeros(n_s)
+    ref_r = np.full(n_s, r_start_m)  # where the start was seen: the sensor's own position is no ground
     run_z, run_r, run_n = np.full(n_s, np.nan), np.zeros(n_s), np.zeros(n_s, dtype=np.int64)
     ok = np.zeros((n_s, n_b), dtype=bool)
     shifts = np.arange(-WALK_SECTORS, WALK_SECTORS + 1)
@@ -186,7 +187,7 @@ def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: 
         lateral_m = np.abs(shifts)[:, None] * (2 * np.pi / n_s) * r_bin_m[k]
         z = ref_z[nb]
         # a kerb, or a slope over the distance: not both
-        sl = np.maximum(MAX_SLOPE * (np.minimum(r - ref_r[nb], MAX_GAP_M) + lateral_m), MAX_STEP_M)
+        sl = np.maximum(MAX_SLOPE * (np.minimum(np.abs(r - ref_r[nb]), MAX_GAP_M) + lateral_m), MAX_STEP_M)
         good = (c <= (z + sl).min(axis=0)) & (c >= (z - sl).max(axis=0))
         below = np.isfinite(c) & ~good & (c < ref_z)
         same_run = below & (np.abs(c - run_z) <= np.maximum(MAX_STEP_M, MAX_SLOPE * (r - run_r)))
@@ -239,8 +240,9 @@ def estimate_ground(points: np.ndarray, sensor_xyz=(0.0, 0.0, 0.0), *, warn: boo
     filled = np.isfinite(cand)
     notes: list[str] = []
     first = np.argmax(filled, axis=1)
-    near = cand[np.arange(N_SECTORS), first][filled.any(axis=1)]
-    ok = _walk(cand, cand_r, r_bin_m, float(np.median(near)))
+    seen = filled.any(axis=1)
+    near_z, near_r = cand[np.arange(N_SECTORS), first][seen], cand_r[np.arange(N_SECTORS), first][seen]
+    ok = _walk(cand, cand_r, r_bin_m, float(np.median(near_z)), float(np.median(near_r)))
     grid = _fill(cand, cand_r, ok, r_bin_m)
     if ok.any():
         ok &= np.abs(cand - _consensus(grid, ok)) <= MAX_STEP_M
