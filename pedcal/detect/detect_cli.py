@@ -20,18 +20,21 @@ DISTANCE_BANDS_M = ((0.0, 2.0), (2.0, 3.5), (3.5, 5.0))
 
 
 def detect_cli(args) -> int:
-    """``pedcal detect FILE [--sensor S] [--sensor-pose x,y,z,roll,pitch,yaw | --floor MODE] [--model M]
-    [--json]``."""
+    """``pedcal detect FILE [--sensor S] [--frame body|optical] [--sensor-pose x,y,z,roll,pitch,yaw |
+    --floor MODE] [--model M] [--json]``."""
     res = detect_file(args.file, args.model, sensor=getattr(args, "sensor", None),
-                      sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"))
+                      sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"),
+                      frame=getattr(args, "frame", "body"))
     dets, dz = res.detections, res.floor_shift_m
     if res.read.summary():
         logging.getLogger(__name__).warning(f"{args.file}: {res.read.summary()}")
     if args.json:
-        print(json.dumps([d.to_dict() for d in dets], indent=2))
+        print(json.dumps(dict(detections=[d.to_dict() for d in dets], floor_shift_m=float(dz),
+                              ground=res.ground.as_dict() if res.ground is not None else None,
+                              warnings=res.warnings), indent=2))
         return 0
     if dz:
-        print(f"# floor {-dz:.3f} m below the file's z = 0 (median); heights are above the floor")
+        print(f"# floor {abs(dz):.3f} m {'below' if dz > 0 else 'ABOVE'} the sensor; heights are above the floor")
     print(f"{'x_m':>8} {'y_m':>8} {'height_m':>8} {'width_m':>8} {'depth_m':>8} {'score':>6}  is_person")
     for d in dets:
         print(f"{d.x:8.3f} {d.y:8.3f} {d.height:8.3f} {d.width:8.3f} {d.depth:8.3f} {d.score:6.3f}  {d.is_person}")
