@@ -31,6 +31,7 @@ Bin statistics are computed for all features at once with one ``np.bincount`` pe
 from __future__ import annotations
 
 import io
+import json
 import logging
 import zipfile
 from pathlib import Path
@@ -58,6 +59,7 @@ class RealAdaBoost:
         self.h_: np.ndarray | None = None
         self.n_features_: int = 0
         self.bias_: float = 0.0  # b of F(x), moves the decision threshold
+        self.metadata_: dict = {}  # how the model was chosen (JSON-serializable), saved with it
 
     # ------------------------------------------------------------------------------------ training
     def _bin_edges(self, X: np.ndarray) -> np.ndarray:
@@ -199,13 +201,7 @@ class RealAdaBoost:
                       n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed), bias=np.float64(self.bias_))
         if self.tree_depth:  # (absent: one feature's bins per round, as in files before the trees)
             arrays["tree_depth"] = np.int64(self.tree_depth)
-        with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
-            for name, arr in arrays.items():
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                info.compress_type = zipfile.ZIP_DEFLATED
-                buf = io.BytesIO()
-                np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
-                zf.writestr(info, buf.getvalue())
+        write_npz(path, arrays, self.metadata_)
 
     @classmethod
     def load(cls, path: str | Path) -> RealAdaBoost:
@@ -221,7 +217,34 @@ class RealAdaBoost:
                 m.h_ = d["h"].astype(float)
                 m.n_features_ = int(d["n_features"])
                 m.bias_ = float(d["bias"]) if "bias" in d.files else 0.0  # files before the offset
+                m.metadata_ = read_metadata(d)
         except (OSError, ValueError, KeyError) as e:
             raise PedcalInputError(f"not a RealAdaBoost model .npz (feature, edges, h, n_features, "
                                    f"n_bins, n_rounds, seed): {e}", path=path) from None
         return m
+
+
+def write_npz(path: str | Path, arrays: dict, metadata: dict | None = None) -> None:
+    """Write ``arrays`` to an .npz atomically and byte-reproducibly (fixed zip timestamps, unlike
+    ``np.savez``, so the same training gives the same file); ``metadata`` goes in as JSON text
+    (``metadata_json``, read back by ``read_metadata``)."""
+    arrays = dict(arrays)
+    if metadata:
+        arrays["metadata_json"] = np.frombuffer(json.dumps(metadata, sort_keys=True).encode(), dtype=np.uint8)
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
+            zf.writestr(info, buf.getvalue())
+
+
+def read_metadata(npz) -> dict:
+    """The metadata a model file was saved with (``write_npz``), {} when it has none."""
+    if "metadata_json" not in npz.files:
+        return {}
+    try:
+        return json.loads(npz["metadata_json"].tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"unreadable metadata_json: {e}") from None

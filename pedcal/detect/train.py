@@ -50,9 +50,17 @@ from pathlib import Path
 import numpy as np
 
 from pedcal.detect.adaboost import RealAdaBoost
-from pedcal.detect.detection import FAMILY_CUT_LOW, FAMILY_OCCLUDED_LOW, FLOOR_TOLERANCE_M, model_path, segment
-from pedcal.detect.features import N_FEATURES, features_matrix, scan_steps_rad
-from pedcal.errors import PedcalInputError
+from pedcal.detect.detection import (
+    FAMILY_CUT_LOW,
+    FAMILY_OCCLUDED_LOW,
+    FLOOR_TOLERANCE_M,
+    candidate_features,
+    model_path,
+    segment,
+)
+from pedcal.detect.features import N_FEATURES, N_FEATURES_BEFORE_G5, features_matrix, scan_steps_rad
+from pedcal.detect.lodo import REAL_COPIES, Config
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 
 TRAIN_STREAM = 7101
 EVAL_STREAM = 7202
@@ -73,6 +81,25 @@ TRAIN_PRESETS = (("fx8", 0.45), ("fx8_far", 0.1), ("spin16", 0.06), ("spin32", 0
 FX8_TRAIN_PRESETS = (("fx8", 0.8), ("fx8_far", 0.2))
 
 
+# The general model's classifier and threshold, chosen by leave-one-dataset-out validation
+# (``pedcal train-detector --select``, ``pedcal.detect.lodo.select_config``; see README).
+GENERAL_CONFIG = Config(classifier="gbt", intensity="frame", n_features=N_FEATURES, real_weight=5.0, n_rounds=300)
+GENERAL_THRESHOLD = 0.5
+LODO_TITLE = "leave-one-dataset-out (each real dataset scored by a model trained without it):"
+SELECT_FRAMES = 1200  # simulated frames of the selection's training sets (the choice, not the model)
+CANDIDATE_CONFIGS = (
+    Config("adaboost", "raw", N_FEATURES_BEFORE_G5, 1.0, 0, 300),  # the paper's classifier, Kidono-style features
+    Config("adaboost", "frame", N_FEATURES, 5.0, 0, 300),
+    Config("adaboost", "frame", N_FEATURES, 5.0, 3, 300),
+    Config("gbt", "raw", N_FEATURES, 5.0),
+    Config("gbt", "frame", N_FEATURES, 5.0),
+    Config("gbt", "none", N_FEATURES, 5.0),
+    Config("gbt", "frame", N_FEATURES_BEFORE_G5, 5.0),
+    Config("gbt", "frame", N_FEATURES, 1.0),
+    Config("gbt", "frame", N_FEATURES, 20.0),
+)
+
+
 @dataclass(frozen=True)
 class ModelFamily:
     """How one shipped model is trained (``pedcal train-detector --family NAME``); the detector
@@ -82,6 +109,12 @@ class ModelFamily:
     frames: int  # simulated training frames by default
     n_rounds: int
     tree_depth: int  # RealAdaBoost's partitions: 0 one feature's bins, D > 0 depth-D trees
+    # With a Config (pedcal.detect.lodo): that classifier, trained on the simulated frames and the
+    # real labelled frames (augmented), at the decision threshold ``threshold`` (P(person)), both
+    # chosen by leave-one-dataset-out validation. None: RealAdaBoost on simulated frames alone,
+    # its threshold chosen on simulated validation frames.
+    config: Config | None = None
+    threshold: float | None = None
 
 
 # "general": every trained LIDAR, one feature's bins per round (Misu and Miura's classifier).
@@ -92,7 +125,7 @@ class ModelFamily:
 # with depth-2 trees, 0.946 and 0.967 with depth-3 trees (16000 frames each). Its frames cost
 # ~20 ms each, so it gets more of them (8000 -> 16000 frames: recall 0.938 -> 0.942, depth 2).
 MODEL_FAMILIES = {
-    "general": ModelFamily(TRAIN_PRESETS, DEFAULT_FRAMES, N_ROUNDS, 0),
+    "general": ModelFamily(TRAIN_PRESETS, DEFAULT_FRAMES, N_ROUNDS, 0, GENERAL_CONFIG, GENERAL_THRESHOLD),
     "fx8": ModelFamily(FX8_TRAIN_PRESETS, 16000, 400, 3),
 }
 
@@ -206,42 +239,49 @@ def label_clusters(frame, candidates, min_purity: float = 0.6, min_person_share:
     return labels
 
 
-def frame_training_clusters(frame, family: str = "general") -> tuple[np.ndarray, np.ndarray]:
+def frame_training_clusters(frame, family: str = "general", intensity="raw"):
     """(features, labels) of the unambiguous gated clusters of one simulated frame (``label_clusters``),
     segmented as ``detect`` segments the frames of the model ``family``, the features with the
-    frame's ray steps as ``detect`` computes them."""
+    frame's ray steps as ``detect`` computes them and its intensity read as ``intensity``
+    (``pedcal.detect.detection.INTENSITY_MODES``); a tuple of modes gives {mode: features}."""
     pts = frame.points.astype(float)
     steps = scan_steps_rad(pts, frame.sensor_height_m)
     cands = [c for c in segment(pts, cut_low=FAMILY_CUT_LOW[family], occluded_low=FAMILY_OCCLUDED_LOW[family],
                                 scan_steps=steps, sensor_xyz=tuple(frame.sensor_positions_base.mean(axis=0)))
              if c.gated]
     lab = label_clusters(frame, cands, above_floor=FAMILY_OCCLUDED_LOW[family])
-    cands = [c for c, v in zip(cands, lab, strict=True) if v >= 0]
-    if not cands:
-        return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
-    return features_matrix([pts[c.indices] for c in cands], steps), lab[lab >= 0]
+    groups = [c.indices for c, v in zip(cands, lab, strict=True) if v >= 0]
+    modes = (intensity,) if isinstance(intensity, str) else tuple(intensity)
+    X = {m: candidate_features(pts, groups, steps, m) if groups else np.zeros((0, N_FEATURES)) for m in modes}
+    return (X[intensity] if isinstance(intensity, str) else X), lab[lab >= 0]
 
 
 def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *,
-                           stream: int = TRAIN_STREAM, family: str = "general") -> tuple[np.ndarray, np.ndarray]:
+                           stream: int = TRAIN_STREAM, family: str = "general", intensity="raw"):
     """(features (n, N_FEATURES), labels (n,)) of every unambiguous gated cluster of ``frames``
     simulated frames of ``stream`` (TRAIN_STREAM, or VALIDATION_STREAM for the threshold), their
-    LIDARs drawn from the model ``family``'s presets and segmented as its frames are."""
-    feats, labels = [], []
+    LIDARs drawn from the model ``family``'s presets and segmented as its frames are; with a tuple
+    of ``intensity`` modes, ({mode: features}, labels)."""
+    modes = (intensity,) if isinstance(intensity, str) else tuple(intensity)
+    feats, labels = {m: [] for m in modes}, []
     t0 = time.monotonic()
     presets = MODEL_FAMILIES[family].presets
     for k in range(frames):
-        X, y = frame_training_clusters(simulated_frame(stream, seed, k, presets=presets), family)
+        X, y = frame_training_clusters(simulated_frame(stream, seed, k, presets=presets), family, modes)
         if len(y):
-            feats.append(X)
+            for m in modes:
+                feats[m].append(X[m])
             labels.append(y)
         if progress and ((k + 1) % 250 == 0 or k + 1 == frames):
             n = sum(len(v) for v in labels)
             logging.getLogger(__name__).info(f"  simulated {k + 1}/{frames} frames, {n} gated clusters "
                                              f"({time.monotonic() - t0:.0f} s)", extra={"progress": (k + 1, frames)})
-    if not feats:
-        return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
-    return np.vstack(feats), np.concatenate(labels)
+    if not labels:
+        X = {m: np.zeros((0, N_FEATURES)) for m in modes}
+        y = np.zeros(0, dtype=np.int64)
+    else:
+        X, y = {m: np.vstack(v) for m, v in feats.items()}, np.concatenate(labels)
+    return (X[intensity] if isinstance(intensity, str) else X), y
 
 
 def _read_cluster(path: Path) -> np.ndarray:
@@ -368,10 +408,88 @@ def train_detector(frames: int | None = None, seed: int = 0, labelled: str | Pat
     return model
 
 
+def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "general", data_dir=None,
+                    config: Config | None = None, threshold: float | None = None, select: bool = False,
+                    select_frames: int = SELECT_FRAMES, real_copies: int = REAL_COPIES, progress: bool = False):
+    """The classifier of a model ``family`` with a Config (``MODEL_FAMILIES``), trained on
+    ``frames`` simulated frames and every labelled real frame under ``data_dir`` (default
+    ``pedcal.detect.real_eval.default_data_dir``) with ``real_copies`` augmented copies each
+    (``pedcal.detect.lodo``). ``config`` and ``threshold`` default to the family's; with
+    ``select``, they are chosen anew among ``CANDIDATE_CONFIGS`` and ``lodo.THRESHOLDS`` by
+    leave-one-dataset-out validation on ``select_frames`` simulated frames
+    (``lodo.select_config``: the best worst left-out dataset). The model's ``metadata_`` holds
+    the leave-one-dataset-out table of the shipped configuration and threshold (``lodo``), and
+    with ``select`` every candidate's worst and mean score. Without real frames a
+    DegenerateDataWarning says the model is trained on simulated frames alone.
+    Deterministic given the arguments and the data."""
+    from pedcal.detect import lodo
+    from pedcal.detect.real_eval import default_data_dir
+
+    log = logging.getLogger(__name__)
+    fam = MODEL_FAMILIES[family]
+    n_sim = fam.frames if frames is None else int(frames)
+    root = Path(data_dir) if data_dir is not None else default_data_dir()
+    records = []
+    if root.is_dir():
+        records = lodo.real_clusters(root, real_copies, seed, progress=progress)
+    else:
+        warnings.warn(f"no real recordings at {root}: the detector is trained on simulated frames alone and "
+                      "no leave-one-dataset-out table can be made", DegenerateDataWarning, stacklevel=2)
+    metadata: dict = dict(simulated_frames=n_sim, seed=seed, real_copies=real_copies,
+                          real_frames=sorted({r.frame for r in records}))
+    if select and records:
+        modes = tuple(sorted({c.intensity for c in CANDIDATE_CONFIGS}))
+        sim_sel = simulated_training_set(select_frames, seed, progress, family=family, intensity=modes)
+        results = {}
+        for c in CANDIDATE_CONFIGS:
+            t0 = time.monotonic()
+            results[c.name()] = lodo.lodo(c, sim_sel, records, seed)
+            if progress:
+                log.info(f"  LODO {c.name()} ({time.monotonic() - t0:.0f} s)")
+        name, threshold, _ = lodo.select_config(results)
+        config = next(c for c in CANDIDATE_CONFIGS if c.name() == name)
+        metadata["selection"] = lodo.selection_rows(results)
+        metadata["selection_frames"] = select_frames
+    config = config or fam.config
+    threshold = fam.threshold if threshold is None else float(threshold)
+    X_sim, y_sim = simulated_training_set(n_sim, seed, progress, family=family, intensity=config.intensity)
+    if records:
+        if progress:
+            log.info("leave-one-dataset-out table of the chosen configuration")
+        table = lodo.lodo(config, ({config.intensity: X_sim}, y_sim), records, seed, thresholds=(threshold,))
+        metadata["lodo"] = table[threshold]
+    X_real, y_real = lodo.stack_real(records, config.intensity, config.n_features)
+    if progress:
+        log.info(f"training {config.name()} on {len(y_sim)} simulated clusters ({int(y_sim.sum())} people) and "
+                 f"{len(y_real)} real ones ({int(y_real.sum())} people)")
+    model = lodo.fit_config(config, X_sim, y_sim, X_real, y_real, seed)
+    model.set_threshold(lodo.probability_decision(model, threshold))
+    model.metadata_.update(metadata, threshold=threshold)
+    model.training_size_ = len(y_sim) + len(y_real)
+    X = np.vstack([X_sim[:, :config.n_features], X_real[:, :config.n_features]])
+    model.training_accuracy_ = float((model.predict(X) == np.concatenate([y_sim, y_real])).mean())
+    return model
+
+
 def train_detector_cli(args) -> int:
     """``pedcal train-detector [--family F] [-o MODEL] [--seed S] [--frames N] [--labelled PATH]``."""
+    from pedcal.detect.lodo import format_lodo, format_selection
+
     family = getattr(args, "family", "general")
     output = Path(args.output) if args.output is not None else model_path(family)
+    if MODEL_FAMILIES[family].config is not None and args.labelled is None:
+        model = train_with_real(frames=args.frames, seed=args.seed, family=family,
+                                data_dir=getattr(args, "data_dir", None), select=getattr(args, "select", False),
+                                progress=True)
+        model.save(output)
+        meta = model.metadata_
+        print(f"wrote {output}: {meta['config']} on {model.training_size_} clusters, training accuracy "
+              f"{model.training_accuracy_:.4f}, threshold P >= {meta['threshold']:.2f}")
+        if "selection" in meta:
+            print(format_selection(meta["selection"]))
+        if "lodo" in meta:
+            print(format_lodo(meta["lodo"], LODO_TITLE))
+        return 0
     model = train_detector(frames=args.frames, seed=args.seed, labelled=args.labelled, family=family,
                            progress=True)
     model.save(output)
