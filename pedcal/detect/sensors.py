@@ -31,11 +31,16 @@ RANGE_BAND_M = 0.5  # voxel sizes are constant within bands of this width
 SENSORS: dict[str, tuple[str, tuple[float, float]]] = {
     "fx8": ("fx8", (60.0 / 96, 50.0 / 60)),
     "depth-camera": ("depth_camera", (58.0 / 639, 45.0 / 479)),
-    "vlp16": ("spin16", (0.2, 2.0)),
+    "vlp16": ("vlp16", (0.2, 2.0)),
+    "vlp32c": ("vlp32c", (0.2, 1.0 / 3.0)),  # 1/3 deg between its beams about the horizon
     "os1-32": ("spin32", (360.0 / 1024, 40.0 / 31)),
+    "os1-64": ("os1_64", (360.0 / 2048, 45.0 / 63)),
+    "os1-128": ("os1_128", (360.0 / 1024, 45.0 / 127)),
     "hdl32": ("hdl32", (0.2, 1.33)),
     "hdl64": ("hdl64", (0.18, 0.42)),
     "pandar40": ("pandar40", (0.2, 1.0 / 3.0)),  # 1/3 deg between its beams about the horizon
+    "realsense-d435": ("realsense_d435", (87.0 / 847, 58.0 / 479)),
+    "depth-vga-wide": ("depth_vga_wide", (87.0 / 639, 58.0 / 479)),
     "solid-dense": ("solid_dense", (70.0 / 159, 55.0 / 99)),
     "sparse-tof": ("sparse_tof", (60.0 / 63, 45.0 / 39)),
 }

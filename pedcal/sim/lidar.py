@@ -5,9 +5,19 @@ The tracking paper (Misu and Miura) uses two FX8 3D LIDARs on the robot's front:
 apart they cover 120 deg. ``LIDAR_PRESETS`` also holds sparser/denser and longer-range sensors so
 a detector can be trained across resolutions.
 
+The common spinning LIDARs are presets with the beam layouts of their data sheets (``vlp16``,
+``vlp32c``, ``hdl32``, ``hdl64e``, ``os1_64``, ``os1_128``) and so are depth cameras of the
+Kinect / RealSense class (``realsense_d435``, ``depth_vga_wide``: pinhole pixel grids, depth
+noise growing with the range squared, no intensity). Real frames hold what a clean raycast does
+not: stray returns metres below the ground (multipath, ``stray_below_share``), intensities on
+other scales or none (``intensity_model``); ``random_nuisances`` draws such a variant of a preset
+per frame and ``random_mount`` a mount on a robot (0.4-1.2 m) or a car roof (1.7-2.0 m).
+
 Frames: the robot base frame has z = 0 on the floor, x forward, y left (pedcal.frames). A
 ``Mount`` places a LIDAR on the base with the pedcal convention (sensor x = optical axis,
-positive pitch looks down). ``render`` returns points in the base frame.
+positive pitch looks down). ``render`` returns points in the base frame;
+``LidarFrame.points_in_sensor`` gives one mount's points in its sensor frame or in the camera
+optical frame (REP 103: x right, y down, z forward), ``LidarFrame.organized`` as an image.
 """
 
 from __future__ import annotations
@@ -22,6 +32,14 @@ from pedcal.errors import PedcalInputError
 from pedcal.frames import rot_from_ypr_deg
 from pedcal.sim.scene import Scene
 
+STRAY_ID = -3  # object id of stray returns below the ground (floor -1, ceiling -2)
+RANGE_NOISE_MODELS = ("uniform", "gaussian", "quadratic")
+INTENSITY_MODELS = ("unit", "uint8", "none")
+STRAY_MODES = ("along_ray", "vertical")
+PROJECTIONS = ("spherical", "pinhole")
+# Sensor frame (x forward, y left, z up) -> camera optical frame (REP 103: x right, y down, z forward).
+R_OPTICAL_SENSOR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
 
 @dataclass(frozen=True)
 class LidarModel:
@@ -30,11 +48,26 @@ class LidarModel:
     packed closer near the horizon; ``n_vertical`` is then their number, ``fov_vertical_deg`` and
     ``vertical_center_deg`` follow from them: ``LidarModel.from_beams``).
 
+    ``projection="pinhole"`` (depth cameras): the rays go through a pixel grid evenly spaced in
+    tan(angle) over the fields of view (a camera's image plane), not evenly in angle.
+
     Range noise is added along the ray: ``range_noise="uniform"`` draws from
-    +-sqrt(3)·std (the FX8's "+-50 mm" is such a band), ``"gaussian"`` from N(0, std).
+    +-sqrt(3)·std (the FX8's "+-50 mm" is such a band), ``"gaussian"`` from N(0, std),
+    ``"quadratic"`` from N(0, std · (r / 1 m)^2): a stereo or structured-light camera's depth error
+    grows with the range squared (sigma_z = z^2 · sigma_d / (f · b), disparity noise sigma_d,
+    focal length f, baseline b), ``range_noise_std_m`` is its value at 1 m.
     Intensity (0..1) = reflectance · |cos(incidence)| · min(1, (ref_range / r)^exponent) + noise;
     returns weaker than ``min_return_intensity`` are lost, and each ray drops out with
-    ``dropout_prob``.
+    ``dropout_prob``. ``intensity_model`` sets what the frame reports: ``"unit"`` that 0..1
+    reflectance (KITTI's scale), ``"uint8"`` it as integers 0..255 (Velodyne and Ouster drivers,
+    Argoverse), ``"none"`` zeros (a sensor without intensity).
+
+    Stray returns (multipath: an echo off a wet road or a car's glass that comes back late, seen in
+    real street frames as points metres below the road): each return becomes one with probability
+    ``stray_below_share``, placed a depth drawn uniformly from ``stray_depth_m`` below the floor
+    (z = 0): ``stray_mode="along_ray"`` on its own ray, further out (kept only when that is
+    within ``max_range_m`` and the ray points down), ``"vertical"`` straight below its hit. Its
+    intensity is the return's times U(0.05, 0.5), its object id ``STRAY_ID``.
     """
 
     name: str
@@ -54,6 +87,11 @@ class LidarModel:
     rate_hz: float = 4.0
     vertical_center_deg: float = 0.0  # elevation of the centre row (up positive)
     elevations_deg: tuple[float, ...] | None = None  # beam elevations, ascending (up positive)
+    projection: str = "spherical"
+    intensity_model: str = "unit"
+    stray_below_share: float = 0.0
+    stray_depth_m: tuple[float, float] = (1.0, 6.0)
+    stray_mode: str = "along_ray"
 
     def __post_init__(self):
         bad = []
@@ -71,8 +109,22 @@ class LidarModel:
             bad.append("fov_horizontal_deg must be in (0, 360], fov_vertical_deg in [0, 180)")
         if not (0 <= self.min_range_m < self.max_range_m):
             bad.append("need 0 <= min_range_m < max_range_m")
-        if self.range_noise not in ("uniform", "gaussian"):
-            bad.append("range_noise must be 'uniform' or 'gaussian'")
+        if self.range_noise not in RANGE_NOISE_MODELS:
+            bad.append(f"range_noise must be one of {RANGE_NOISE_MODELS}")
+        if self.projection not in PROJECTIONS:
+            bad.append(f"projection must be one of {PROJECTIONS}")
+        elif self.projection == "pinhole" and (self.elevations_deg is not None or self.fov_horizontal_deg >= 180
+                                               or self.vertical_center_deg != 0.0):
+            bad.append("a pinhole camera needs fov_horizontal_deg < 180, vertical_center_deg 0 and no beam table")
+        if self.intensity_model not in INTENSITY_MODELS:
+            bad.append(f"intensity_model must be one of {INTENSITY_MODELS}")
+        if self.stray_mode not in STRAY_MODES:
+            bad.append(f"stray_mode must be one of {STRAY_MODES}")
+        if not 0 <= self.stray_below_share < 1:
+            bad.append("stray_below_share must be in [0, 1)")
+        lo_hi = tuple(self.stray_depth_m)
+        if len(lo_hi) != 2 or not 0 < lo_hi[0] <= lo_hi[1]:
+            bad.append("stray_depth_m must be (min, max) with 0 < min <= max")
         if not 0 <= self.dropout_prob < 1:
             bad.append("dropout_prob must be in [0, 1)")
         if self.range_noise_std_m < 0 or self.intensity_noise_std < 0:
@@ -105,8 +157,24 @@ class LidarModel:
         return _ray_directions(self)
 
 
+def _pinhole_grid(lidar: LidarModel) -> tuple[np.ndarray, np.ndarray]:
+    """(y / x, z / x) of every pixel ray of a pinhole camera, row-major by ascending elevation
+    (columns from azimuth -fov/2 to +fov/2, as a spherical grid's)."""
+    half_h, half_v = np.radians(lidar.fov_horizontal_deg) / 2, np.radians(lidar.fov_vertical_deg) / 2
+    ty = np.linspace(-np.tan(half_h), np.tan(half_h), lidar.n_horizontal)
+    tz = np.linspace(-np.tan(half_v), np.tan(half_v), lidar.n_vertical)
+    ty_grid, tz_grid = np.meshgrid(ty, tz)
+    return ty_grid.ravel(), tz_grid.ravel()
+
+
 @lru_cache(maxsize=64)
 def _ray_angles(lidar: LidarModel) -> tuple[np.ndarray, np.ndarray]:
+    if lidar.projection == "pinhole":
+        ty, tz = _pinhole_grid(lidar)
+        az, el = np.arctan(ty), np.arctan2(tz, np.hypot(1.0, ty))
+        az.setflags(write=False)
+        el.setflags(write=False)
+        return az, el
     half_h = np.radians(lidar.fov_horizontal_deg) / 2
     if lidar.fov_horizontal_deg >= 360.0:  # spinning: no duplicate column at +-180
         az = np.linspace(-np.pi, np.pi, lidar.n_horizontal, endpoint=False)
@@ -125,8 +193,13 @@ def _ray_angles(lidar: LidarModel) -> tuple[np.ndarray, np.ndarray]:
 
 @lru_cache(maxsize=64)
 def _ray_directions(lidar: LidarModel) -> np.ndarray:
-    az, el = _ray_angles(lidar)
-    d = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    if lidar.projection == "pinhole":
+        ty, tz = _pinhole_grid(lidar)
+        d = np.column_stack([np.ones_like(ty), ty, tz])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+    else:
+        az, el = _ray_angles(lidar)
+        d = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     d.setflags(write=False)
     return d
 
@@ -167,6 +240,45 @@ LIDAR_PRESETS: dict[str, LidarModel] = {
     "sparse_tof": LidarModel("sparse_tof", 64, 40, 60.0, 45.0, 0.3, 6.0, range_noise_std_m=0.04, rate_hz=10.0),
 }
 
+# The common spinning LIDARs with the beam layouts of their data sheets, 0.2 deg azimuth (10 Hz)
+# unless said, reporting intensity as their drivers do. ``hdl32`` above already is the HDL-32E's
+# layout (32 beams 1.33 deg apart, +10.67..-30.67 deg); ``spin16``, ``spin32`` and ``hdl64`` are
+# evenly spaced stand-ins the shipped detector models were trained on, kept as they are.
+VLP32C_ELEVATIONS_DEG = (  # Velodyne VLP-32C user manual: dense about the horizon, 1/3 deg at best
+    -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333, -3.0, -2.667,
+    -2.333, -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333, 0.667, 1.0, 1.333, 1.667, 2.333, 3.333,
+    4.667, 7.0, 10.333, 15.0)
+# HDL-64E S2: two blocks of 32 lasers, +2..-8.33 deg about 1/3 deg apart and -8.83..-24.9 deg about
+# 1/2 deg apart (26.9 deg in all); KITTI's sensor, whose frames report reflectance 0..1.
+HDL64E_ELEVATIONS_DEG = tuple(np.round(np.concatenate([np.linspace(2.0, -8.33, 32),
+                                                       np.linspace(-8.83, -24.9, 32)]), 4).tolist())
+_SPINNING = dict(range_noise="gaussian", rate_hz=10.0, dropout_prob=0.005)
+LIDAR_PRESETS.update({
+    # Velodyne VLP-16: 16 beams 2 deg apart over +-15 deg, 100 m, +-3 cm.
+    "vlp16": LidarModel.from_beams("vlp16", np.arange(-15.0, 16.0, 2.0), 1800, 360.0, 0.5, 100.0,
+                                   range_noise_std_m=0.015, intensity_model="uint8", **_SPINNING),
+    # Velodyne VLP-32C: 32 beams over -25..+15 deg, packed about the horizon (Argoverse has two).
+    "vlp32c": LidarModel.from_beams("vlp32c", VLP32C_ELEVATIONS_DEG, 1800, 360.0, 0.5, 200.0,
+                                    range_noise_std_m=0.015, intensity_model="uint8", **_SPINNING),
+    "hdl64e": LidarModel.from_beams("hdl64e", HDL64E_ELEVATIONS_DEG, 2000, 360.0, 0.9, 120.0,
+                                    range_noise_std_m=0.02, intensity_model="unit", **_SPINNING),
+    # Ouster OS1 (rev. 6): evenly spaced beams over 45 deg (+-22.5), 2048 or 1024 columns, 0.3-120 m.
+    "os1_64": LidarModel("os1_64", 2048, 64, 360.0, 45.0, 0.3, 120.0, range_noise_std_m=0.02,
+                         intensity_model="uint8", **_SPINNING),
+    "os1_128": LidarModel("os1_128", 1024, 128, 360.0, 45.0, 0.3, 120.0, range_noise_std_m=0.02,
+                          intensity_model="uint8", **_SPINNING),
+    # Depth cameras of the RealSense D435 / wide Kinect class: 87 x 58 deg pinhole grids, 0.3-8 m, no
+    # intensity; depth noise sigma = c · r^2 with c = sigma_d / (f · b): the D435's 0.08 px subpixel
+    # disparity and 50 mm baseline with a 447 px focal length at 848 px give c = 3.6 mm at 1 m, with
+    # 337 px at 640 px c = 4.7 mm.
+    "realsense_d435": LidarModel("realsense_d435", 848, 480, 87.0, 58.0, 0.3, 8.0, range_noise_std_m=0.0036,
+                                 range_noise="quadratic", rate_hz=30.0, dropout_prob=0.02, projection="pinhole",
+                                 intensity_model="none"),
+    "depth_vga_wide": LidarModel("depth_vga_wide", 640, 480, 87.0, 58.0, 0.3, 8.0, range_noise_std_m=0.0047,
+                                 range_noise="quadratic", rate_hz=30.0, dropout_prob=0.02, projection="pinhole",
+                                 intensity_model="none"),
+})
+
 
 @dataclass(frozen=True)
 class Mount:
@@ -198,6 +310,68 @@ def fx8_pair_mounts(height_m: float = 1.0, yaw_deg: float = 30.0, pitch_deg: flo
     return (Mount(x_m, y_m, height_m, yaw_deg, pitch_deg), Mount(x_m, -y_m, height_m, -yaw_deg, pitch_deg))
 
 
+# Where a sensor sits above the floor: on a mobile robot, or on a car's roof.
+MOUNT_HEIGHTS_M = {"robot": (0.4, 1.2), "car": (1.7, 2.0)}
+
+
+def _preset(lidar: LidarModel | str) -> LidarModel:
+    if isinstance(lidar, str):
+        if lidar not in LIDAR_PRESETS:
+            raise PedcalInputError(f"unknown LIDAR preset {lidar!r}; expected one of {sorted(LIDAR_PRESETS)}",
+                                   column="lidar")
+        return LIDAR_PRESETS[lidar]
+    return lidar
+
+
+def mount_kinds(lidar: LidarModel | str) -> tuple[str, ...]:
+    """Where a sensor of this kind is mounted (``MOUNT_HEIGHTS_M`` keys): spinning LIDARs on a robot
+    or a car, cameras and narrow solid-state LIDARs on a robot."""
+    return ("robot", "car") if _preset(lidar).fov_horizontal_deg >= 360.0 else ("robot",)
+
+
+def draw_mount_height_m(lidar: LidarModel | str, rng: np.random.Generator, kind: str | None = None
+                        ) -> tuple[float, str]:
+    """(height above the floor in m, mount kind): the kind drawn evenly from ``mount_kinds`` unless
+    given, the height uniformly from its ``MOUNT_HEIGHTS_M`` range. Two draws whatever is given."""
+    kinds = mount_kinds(lidar)
+    pick = kinds[min(int(rng.random() * len(kinds)), len(kinds) - 1)]
+    kind = pick if kind is None else kind
+    if kind not in MOUNT_HEIGHTS_M:
+        raise PedcalInputError(f"mount kind must be one of {sorted(MOUNT_HEIGHTS_M)}, got {kind!r}", column="kind")
+    lo, hi = MOUNT_HEIGHTS_M[kind]
+    return float(lo + (hi - lo) * rng.random()), kind
+
+
+def random_mount(lidar: LidarModel | str, rng: np.random.Generator, kind: str | None = None) -> tuple[Mount, str]:
+    """(Mount, kind) for one frame: height from ``draw_mount_height_m``; a spinning LIDAR levelled
+    to within +-2 deg of pitch and roll, a camera or solid-state sensor pitched -3..12 deg (looking
+    down a little, as on a robot) with +-2 deg of roll. The FX8 pair is mounted by
+    ``fx8_pair_mounts(height_m=...)`` instead."""
+    height, kind = draw_mount_height_m(lidar, rng, kind)
+    spinning = _preset(lidar).fov_horizontal_deg >= 360.0
+    pitch = rng.uniform(-2.0, 2.0) if spinning else rng.uniform(-3.0, 12.0)
+    roll = rng.uniform(-2.0, 2.0)
+    return Mount(0.0, 0.0, height, 0.0, float(pitch), float(roll)), kind
+
+
+def random_nuisances(lidar: LidarModel | str, rng: np.random.Generator) -> LidarModel:
+    """A variant of a LIDAR for one frame, so that seeds vary what real sensors vary: stray returns
+    below the ground (none in half the frames, else a share log-uniform in 0.1-2 %, either
+    ``STRAY_MODES``), the intensity scale (``INTENSITY_MODELS``: 0..1 45 %, 0..255 35 %, absent 20 %;
+    cameras have none), range noise (the preset's std times 2^U(-1, 1), uniform or gaussian for a
+    LIDAR, quadratic for a camera) and ray dropout (the preset's plus U(0, 3 %)). Always the same
+    seven draws."""
+    lidar = _preset(lidar)
+    u = rng.random(7)
+    share = 0.0 if u[0] < 0.5 else float(10 ** (-3.0 + u[1] * np.log10(20.0)))
+    mode = STRAY_MODES[int(u[2] * len(STRAY_MODES))]
+    intensity = "none" if lidar.intensity_model == "none" else INTENSITY_MODELS[int(np.searchsorted([0.45, 0.8], u[3]))]
+    noise = lidar.range_noise if lidar.range_noise == "quadratic" else ("uniform" if u[4] < 0.5 else "gaussian")
+    return lidar.with_(stray_below_share=share, stray_mode=mode, intensity_model=intensity, range_noise=noise,
+                       range_noise_std_m=lidar.range_noise_std_m * float(2.0 ** (2 * u[5] - 1)),
+                       dropout_prob=min(lidar.dropout_prob + 0.03 * float(u[6]), 0.5))
+
+
 @dataclass
 class LidarFrame:
     """One simulated scan in the robot base frame.
@@ -207,7 +381,9 @@ class LidarFrame:
     int32 ray within that mount (row-major: elevation row · n_horizontal + azimuth column);
     ``objects``: ground truth per scene object (``Scene.truth()`` entries, positions in the base
     frame, plus ``visible_points``); ``sensor_positions_base``: (M, 3) where each mount's sensor sits
-    in the base frame (its height above the floor is ``[:, 2]``).
+    in the base frame (its height above the floor is ``[:, 2]``), ``R_base_sensors`` (M, 3, 3) how it
+    is turned. The intensity column is on the LIDAR's ``intensity_model`` scale (0..1, 0..255 or
+    zeros); stray returns below the ground have object id ``STRAY_ID``.
     """
 
     points: np.ndarray
@@ -217,6 +393,7 @@ class LidarFrame:
     objects: list[dict] = field(default_factory=list)
     stamp_s: float = 0.0
     sensor_positions_base: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    R_base_sensors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
 
     @property
     def sensor_height_m(self) -> float:
@@ -230,6 +407,31 @@ class LidarFrame:
     @property
     def intensity(self) -> np.ndarray:
         return self.points[:, 3]
+
+    def points_in_sensor(self, mount_index: int = 0, optical: bool = False) -> np.ndarray:
+        """(N_k, 4) the points mount ``mount_index`` saw, in its sensor frame (x forward, y left,
+        z up) or, ``optical``, in the camera optical frame (REP 103: x right, y down, z forward)."""
+        if not 0 <= mount_index < len(self.R_base_sensors):
+            raise PedcalInputError(f"mount_index {mount_index} out of range: the frame has "
+                                   f"{len(self.R_base_sensors)} mount(s) with known poses", column="mount_index")
+        sel = self.points[self.mount_index == mount_index]
+        R = self.R_base_sensors[mount_index]
+        xyz = (sel[:, :3].astype(float) - self.sensor_positions_base[mount_index]) @ R
+        if optical:
+            xyz = xyz @ R_OPTICAL_SENSOR.T
+        return np.column_stack([xyz, sel[:, 3]]).astype(np.float32)
+
+    def organized(self, lidar: LidarModel | str, mount_index: int = 0, optical: bool = True) -> np.ndarray:
+        """(n_vertical, n_horizontal, 4) one mount's points as an image, NaN where a ray returned
+        nothing, as a depth camera's organized cloud: row 0 the top (highest elevation), column 0
+        the left edge (largest azimuth); points as ``points_in_sensor``."""
+        lidar = _preset(lidar)
+        img = np.full((lidar.n_vertical * lidar.n_horizontal, 4), np.nan, dtype=np.float32)
+        rays = self.ray_index[self.mount_index == mount_index]
+        if len(rays) and rays.max() >= len(img):
+            raise PedcalInputError(f"the frame's rays do not fit {lidar.name!r} ({lidar.n_rays} rays)", column="lidar")
+        img[rays] = self.points_in_sensor(mount_index, optical)
+        return img.reshape(lidar.n_vertical, lidar.n_horizontal, 4)[::-1, ::-1]
 
     def visible_people(self, min_points: int = 10) -> list[dict]:
         """Ground truth of the people with at least ``min_points`` points in this frame."""
@@ -252,11 +454,7 @@ def render(scene: Scene, lidar: LidarModel | str, mounts, rng: np.random.Generat
     until the scene changes. Hits beyond [min_range, max_range] are dropped before noise; range
     noise moves a point along its ray.
     """
-    if isinstance(lidar, str):
-        if lidar not in LIDAR_PRESETS:
-            raise PedcalInputError(f"unknown LIDAR preset {lidar!r}; expected one of {sorted(LIDAR_PRESETS)}",
-                                   column="lidar")
-        lidar = LIDAR_PRESETS[lidar]
+    lidar = _preset(lidar)
     mounts = (mounts,) if isinstance(mounts, Mount) else tuple(mounts)
     if not mounts:
         raise PedcalInputError("render needs at least one Mount", column="mounts")
@@ -296,13 +494,18 @@ def render(scene: Scene, lidar: LidarModel | str, mounts, rng: np.random.Generat
         if lidar.range_noise == "uniform":
             half = np.sqrt(3.0) * lidar.range_noise_std_m
             range_m = range_m + rng.uniform(-half, half, len(idx))
-        else:
+        elif lidar.range_noise == "gaussian":
             range_m = range_m + rng.normal(0.0, lidar.range_noise_std_m, len(idx))
+        else:  # quadratic: sigma = std · (r / 1 m)^2
+            range_m = range_m + rng.normal(0.0, 1.0, len(idx)) * lidar.range_noise_std_m * range_m**2
     xyz_base = o_base[idx] + d_base[idx] * range_m[:, None]
+    intensity = np.clip(intensity, 0.0, 1.0)
+    object_id = geom_object_id[geom].astype(np.int32)
+    if lidar.stray_below_share > 0:
+        _stray_returns(lidar, rng, o_base[idx], d_base[idx], range_m, xyz_base, intensity, object_id)
     points = np.empty((len(idx), 4), dtype=np.float32)
     points[:, :3] = xyz_base
-    points[:, 3] = np.clip(intensity, 0.0, 1.0)
-    object_id = geom_object_id[geom].astype(np.int32)
+    points[:, 3] = {"unit": intensity, "uint8": np.round(255.0 * intensity), "none": 0.0}[lidar.intensity_model]
 
     counts = dict(zip(*np.unique(object_id, return_counts=True), strict=True))
     objects = []
@@ -316,4 +519,26 @@ def render(scene: Scene, lidar: LidarModel | str, mounts, rng: np.random.Generat
         objects.append(t)
     return LidarFrame(points=points, object_id=object_id, mount_index=(idx // n).astype(np.int16),
                       ray_index=(idx % n).astype(np.int32), objects=objects, stamp_s=stamp_s,
-                      sensor_positions_base=np.stack([m.position_base for m in mounts]))
+                      sensor_positions_base=np.stack([m.position_base for m in mounts]),
+                      R_base_sensors=np.stack([m.R_base_sensor for m in mounts]))
+
+
+def _stray_returns(lidar: LidarModel, rng: np.random.Generator, origin_base: np.ndarray, d_base: np.ndarray,
+                   range_m: np.ndarray, xyz_base: np.ndarray, intensity: np.ndarray, object_id: np.ndarray) -> None:
+    """Turn a ``stray_below_share`` of the returns into stray returns below the floor, in place
+    (``LidarModel``'s docstring). Three draws per return, whichever are picked."""
+    n = len(range_m)
+    pick = rng.random(n) < lidar.stray_below_share
+    lo, hi = lidar.stray_depth_m
+    depth = rng.uniform(lo, hi, n)
+    weaken = rng.uniform(0.05, 0.5, n)
+    if lidar.stray_mode == "along_ray":  # the echo comes back late: the point further out on its ray
+        down = d_base[:, 2] < -1e-6
+        t = np.where(down, (origin_base[:, 2] + depth) / np.where(down, -d_base[:, 2], 1.0), np.inf)
+        ok = pick & down & (t <= lidar.max_range_m) & (t > range_m)
+        xyz_base[ok] = origin_base[ok] + d_base[ok] * t[ok, None]
+    else:  # vertical: a ghost straight below the hit
+        ok = pick
+        xyz_base[ok, 2] = -depth[ok]
+    intensity[ok] *= weaken[ok]
+    object_id[ok] = STRAY_ID
