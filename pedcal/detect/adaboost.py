@@ -70,13 +70,22 @@ class RealAdaBoost:
         q = np.linspace(0.0, 1.0, self.n_bins + 1)[1:-1]
         return np.quantile(X, q, axis=0).T
 
-    def fit(self, X: np.ndarray, y: np.ndarray, progress: bool = False) -> RealAdaBoost:
+    def fit(self, X: np.ndarray, y: np.ndarray, progress: bool = False,
+            sample_weight: np.ndarray | None = None) -> RealAdaBoost:
+        """``sample_weight`` (n,) > 0: the initial weights D_1 (S&S Sec. 2), uniform by default."""
         X = np.asarray(X, dtype=float)
         y = np.asarray(y)
         if X.ndim != 2 or len(X) != len(y) or len(X) == 0:
             raise ValueError(f"X must be (n, F) and y (n,), got {X.shape} and {y.shape}")
         if not np.isfinite(X).all():
             raise ValueError("X holds NaN or infinite values")
+        if sample_weight is None:
+            w0 = np.full(len(y), 1.0 / len(y))
+        else:
+            w0 = np.asarray(sample_weight, dtype=float)
+            if w0.shape != (len(y),) or not (np.isfinite(w0).all() and (w0 > 0).all()):
+                raise ValueError(f"sample_weight must be (n,) = ({len(y)},) positive and finite")
+            w0 = w0 / w0.sum()
         y_pm = np.where(y > 0, 1.0, -1.0)
         if np.all(y_pm > 0) or np.all(y_pm < 0):
             raise ValueError("training needs both classes")
@@ -84,7 +93,7 @@ class RealAdaBoost:
         B = self.n_bins
         edges = self._bin_edges(X)
         if self.tree_depth > 0:
-            return self._fit_trees(X, y_pm, edges, progress)
+            return self._fit_trees(X, y_pm, edges, progress, w0)
         # Bin index of every sample in every feature, offset by feature so one bincount does all.
         bins = np.empty((n, F), dtype=np.int64)
         for f in range(F):
@@ -92,7 +101,7 @@ class RealAdaBoost:
         # Negatives are offset by F*B, so one bincount gives W+ and W- of every bin of every feature.
         codes = (bins + np.arange(F) * B + (y_pm < 0)[:, None] * (F * B)).ravel()
         eps = 1.0 / (n * B)
-        w = np.full(n, 1.0 / n)
+        w = w0
         feats, hs = [], []
         for t in range(self.n_rounds):
             wb = np.bincount(codes, weights=np.repeat(w, F), minlength=2 * F * B).reshape(2, F, B)
@@ -114,7 +123,8 @@ class RealAdaBoost:
         self.bias_ = 0.0
         return self
 
-    def _fit_trees(self, X: np.ndarray, y_pm: np.ndarray, edges: np.ndarray, progress: bool) -> RealAdaBoost:
+    def _fit_trees(self, X: np.ndarray, y_pm: np.ndarray, edges: np.ndarray, progress: bool,
+                   w0: np.ndarray) -> RealAdaBoost:
         """Rounds whose partitions are depth-``tree_depth`` trees (see the module docstring)."""
         n, F = X.shape
         B, D = self.n_bins, self.tree_depth
@@ -124,7 +134,7 @@ class RealAdaBoost:
         # (sample, feature) -> feature * B + bin, negatives offset by F * B; a node's offset on top
         codes = bins + np.arange(F) * B + (y_pm < 0)[:, None] * (F * B)
         eps = 1.0 / (n * 2**D)
-        w = np.full(n, 1.0 / n)
+        w = w0
         node_feature = np.zeros((self.n_rounds, 2**D - 1), dtype=np.int64)
         node_threshold = np.full((self.n_rounds, 2**D - 1), np.inf)
         leaves = np.zeros((self.n_rounds, 2**D))

@@ -124,19 +124,18 @@ def stack_real(records: list[RealClusters], mode: str, n_features: int, leave_ou
 def fit_config(config: Config, X_sim: np.ndarray, y_sim: np.ndarray, X_real: np.ndarray, y_real: np.ndarray,
                seed: int = 0):
     """A classifier of ``config`` trained on simulated and real clusters, the real ones weighted
-    ``config.real_weight`` (RealAdaBoost, which has no sample weights, gets them repeated)."""
+    ``config.real_weight`` (sample weights of LightGBM; RealAdaBoost's initial weights)."""
     from pedcal.detect.adaboost import RealAdaBoost
     from pedcal.detect.gbt import GradientBoostedTrees
 
     X = np.vstack([X_sim[:, :config.n_features], X_real[:, :config.n_features]])
     y = np.concatenate([y_sim, y_real])
+    w = np.concatenate([np.ones(len(y_sim)), np.full(len(y_real), config.real_weight)])
     if config.classifier == "gbt":
-        w = np.concatenate([np.ones(len(y_sim)), np.full(len(y_real), config.real_weight)])
         model = GradientBoostedTrees(n_estimators=config.n_rounds, seed=seed).fit(X, y, sample_weight=w)
     elif config.classifier == "adaboost":
-        reps = np.concatenate([np.ones(len(y_sim), int), np.full(len(y_real), max(int(round(config.real_weight)), 1))])
         model = RealAdaBoost(n_rounds=config.n_rounds, n_bins=16, seed=seed, tree_depth=config.tree_depth)
-        model.fit(np.repeat(X, reps, axis=0), np.repeat(y, reps))
+        model.fit(X, y, sample_weight=w)
     else:
         raise ValueError(f"unknown classifier {config.classifier!r}")
     model.metadata_ = dict(intensity=config.intensity, config=asdict(config))
