@@ -337,11 +337,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sensor", default=None, help="fx8, depth-camera, vlp16, os1-32, hdl32, hdl64, pandar40, "
                                                   "solid-dense, sparse-tof (default: ray spacing estimated from "
                                                   "the cloud)")
+    s.add_argument("--frame", default="body", choices=["body", "optical"],
+                   help="body: x forward, y left, z up (default); optical: a camera's optical frame, x right, "
+                        "y down, z forward. Detections are reported in the body frame")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--sensor-pose", default=None, metavar="x,y,z,roll,pitch,yaw",
-                   help="the sensor's pose above the floor (m, deg; positive pitch looks down)")
+                   help="the sensor's (body frame's) pose above the floor (m, deg; positive pitch looks down)")
     g.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],
-                   help="auto: local ground height (default); plane: one RANSAC plane; none: z is already floor height")
+                   help="auto: local ground height, stray returns below it ignored, implausible ground warned "
+                        "(default); plane: one RANSAC plane; none: z is already floor height")
     s.set_defaults(func=cmd_detect)
 
     s = sub.add_parser("detect-eval", help="recall and precision on freshly simulated frames")

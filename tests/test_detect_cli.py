@@ -53,10 +53,13 @@ def test_detect_cli_json_output(tmp_path, capsys):
     person_cloud(rng).astype("<f4").tofile(path)
     capsys.readouterr()
     assert main(["detect", str(path), "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
+    res = json.loads(capsys.readouterr().out)
+    assert set(res) == {"detections", "floor_shift_m", "ground", "warnings"}
+    out = res["detections"]
     assert len(out) == 1
     assert set(out[0]) == {"x", "y", "height", "width", "depth", "yaw", "score", "is_person", "n_points"}
     assert out[0]["x"] == pytest.approx(1.9, abs=0.15)
+    assert res["floor_shift_m"] == 0.0 and res["ground"] is None and res["warnings"] == []  # already z = 0 on the floor
     assert main(["detect", str(path)]) == 0
     assert "is_person" in capsys.readouterr().out
 
@@ -109,7 +112,7 @@ def test_kitti_pedestrian_is_a_person(shared_data, capsys):
     assert d.height == pytest.approx(1.83, abs=0.02)
     assert d.is_person and d.score > 0.5
     assert main(["detect", str(path), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)[0]["is_person"] is True
+    assert json.loads(capsys.readouterr().out)["detections"][0]["is_person"] is True
 
 
 def test_training_is_deterministic_by_seed(tmp_path):

@@ -164,3 +164,23 @@ def test_detect_eval_real_without_a_folder_runs_every_labelled_folder(tmp_path, 
     assert "kitti within 15 m, >= 10 points: recall 1.000 of 1" in out
     assert main(["detect-eval", "--real", "--data-dir", str(tmp_path / "nowhere")]) == 2
     assert main(["detect-eval", "--real", "--data-dir", str(root / "empty")]) == 2
+
+
+def test_real_clusters_are_what_detect_file_classifies(tmp_path):
+    """The training clusters of a real frame (copy 0) are the gated clusters ``detect_file`` scores:
+    same count, same box centres; the labelled pedestrian is a person, the car is not."""
+    from test_real_eval import _labelled_folder
+
+    from pedcal.detect.detect_cli import detect_file
+
+    root = tmp_path / "data"
+    root.mkdir()
+    folder = _labelled_folder(root, np.random.default_rng(0))
+    recs = lodo.real_clusters(root, copies=1, seed=0)
+    assert [(r.dataset, r.copy) for r in recs] == [("frames", 0), ("frames", 1)]
+    dets = detect_file(folder / "000001.bin").detections
+    assert recs[0].table["centres"] == pytest.approx(np.array([[d.x, d.y] for d in dets]))
+    assert recs[0].y.tolist().count(1) == 1 and len(recs[0].y) == len(dets)
+    assert recs[0].X["frame"].shape == (len(dets), N_FEATURES)
+    assert recs[0].table["ped_points"].tolist()[0] > 100
+    assert recs[1].table is None

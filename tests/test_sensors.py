@@ -58,7 +58,7 @@ def test_detect_cli_sensor_and_pose_flags(tmp_path, capsys):
     found = {}
     for flags in ([], ["--sensor", "hdl32"], ["--sensor-pose", "0,0,1.8,0,0,0"], ["--floor", "plane"]):
         assert main(["detect", str(path), "--json", *flags]) == 0
-        dets = [d for d in json.loads(capsys.readouterr().out) if d["is_person"]]
+        dets = [d for d in json.loads(capsys.readouterr().out)["detections"] if d["is_person"]]
         assert len(dets) == 1, flags
         found[tuple(flags)] = dets[0]
     for d in found.values():

@@ -13,7 +13,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pedcal.detect.detection import Detection, detect, load_model, model_family
-from pedcal.detect.pointcloud_io import CloudRead, floor_referenced, ground_referenced, read_point_cloud_report
+from pedcal.detect.ground import FLOOR_MODES, FRAMES, GroundEstimate, detector_frame
+from pedcal.detect.pointcloud_io import CloudRead, read_point_cloud_report
 from pedcal.errors import PedcalInputError
 
 MATCH_RADIUS_M = 0.5
@@ -26,59 +27,63 @@ class FileDetections:
     """What ``detect_file`` found and how it read the file."""
 
     detections: list[Detection]
-    points: np.ndarray  # (N, 4) floor-referenced points the detector saw
+    points: np.ndarray  # (N, 4) floor-referenced points the detector saw, in the sensor's body frame
     raw_points: np.ndarray  # (N, 4) the valid points in the file's frame
-    floor_shift_m: float  # added to the file's z to put the floor at z = 0
+    floor_shift_m: float  # added to the file's z (under the sensor) to put the floor at z = 0
     read: CloudRead
+    ground: GroundEstimate | None = None  # the local ground (``--floor auto``)
 
-
-FLOOR_MODES = ("auto", "plane", "none")
+    @property
+    def warnings(self) -> list[str]:
+        """What the ground estimate found implausible (``pedcal.detect.ground``)."""
+        return list(self.ground.warnings) if self.ground is not None else []
 
 
 def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sensor_pose: str | None = None,
-                floor: str = "auto") -> FileDetections:
+                floor: str = "auto", frame: str = "body") -> FileDetections:
     """Detections in a .pcd/.ply/.bin/.npy file.
 
     The cloud is first thinned to the trained density when its sensor is denser
     (``pedcal.detect.sensors.normalize_density``; ``sensor`` names it, else its ray spacing is
-    estimated). Then the floor goes to z = 0: with ``sensor_pose`` ("x,y,z,roll,pitch,yaw", m and
-    deg) the points are mapped into the base frame, whose z = 0 is the floor; otherwise ``floor``
-    "auto" subtracts the local ground height (``ground_referenced``: sloped streets, kerbs),
-    "plane" one RANSAC floor plane (``floor_referenced``), "none" takes the file's z as it is.
+    estimated). A cloud in a camera's optical frame (``frame="optical"``: x right, y down, z
+    forward) is turned into the sensor's body frame (x forward, y left, z up), where detections are
+    reported. Then the floor goes to z = 0 (``pedcal.detect.ground.detector_frame``): with
+    ``sensor_pose`` ("x,y,z,roll,pitch,yaw" of the body frame, m and deg) the points are mapped
+    into the base frame, whose z = 0 is the floor; otherwise ``floor`` "auto" subtracts the local
+    ground height (``ground_referenced``: sloped streets, kerbs, ramps; stray returns below the
+    road ignored; implausible ground logged), "plane" one RANSAC floor plane
+    (``floor_referenced``), "none" takes the file's z as it is.
     """
-    from pedcal.detect.sensors import normalize_density, parse_sensor_pose, to_base_frame
+    from pedcal.detect.sensors import normalize_density
 
     if floor not in FLOOR_MODES:
         raise PedcalInputError(f"--floor {floor!r}: expected one of {', '.join(FLOOR_MODES)}", column="floor")
+    if frame not in FRAMES:
+        raise PedcalInputError(f"--frame {frame!r}: expected one of {', '.join(FRAMES)}", column="frame")
     read = read_point_cloud_report(path)
     pts = normalize_density(read.points, sensor)
-    height = {}  # the sensor's height above the floor, where known
-    if sensor_pose is not None:
-        position_m, ypr_deg = parse_sensor_pose(sensor_pose)
-        pts, dz = to_base_frame(pts, position_m, ypr_deg), float(position_m[2])
-        height = dict(sensor_height_m=dz, sensor_xy_m=(float(position_m[0]), float(position_m[1])))
-    elif floor in ("auto", "plane"):
-        pts, dz = ground_referenced(pts) if floor == "auto" else floor_referenced(pts)
-        height = dict(sensor_height_m=dz) if dz > 0 else {}
-    else:
-        dz = 0.0
-    dets = detect(pts, model, sensor=sensor, **height)
-    return FileDetections(dets, pts, read.points, dz, read)
+    prepared = detector_frame(pts, frame=frame, floor=floor, sensor_pose=sensor_pose)
+    height = {} if prepared.sensor_height_m is None else dict(sensor_height_m=prepared.sensor_height_m)
+    dets = detect(prepared.points, model, sensor=sensor, sensor_xy_m=prepared.sensor_xy_m, **height)
+    return FileDetections(dets, prepared.points, read.points, prepared.floor_shift_m, read, prepared.ground)
 
 
 def detect_cli(args) -> int:
-    """``pedcal detect FILE [--sensor S] [--sensor-pose x,y,z,roll,pitch,yaw | --floor MODE] [--model M]
-    [--json]``."""
+    """``pedcal detect FILE [--sensor S] [--frame body|optical] [--sensor-pose x,y,z,roll,pitch,yaw |
+    --floor MODE] [--model M] [--json]``."""
     res = detect_file(args.file, args.model, sensor=getattr(args, "sensor", None),
-                      sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"))
+                      sensor_pose=getattr(args, "sensor_pose", None), floor=getattr(args, "floor", "auto"),
+                      frame=getattr(args, "frame", "body"))
     dets, dz = res.detections, res.floor_shift_m
     if res.read.summary():
         logging.getLogger(__name__).warning(f"{args.file}: {res.read.summary()}")
     if args.json:
-        print(json.dumps([d.to_dict() for d in dets], indent=2))
+        print(json.dumps(dict(detections=[d.to_dict() for d in dets], floor_shift_m=float(dz),
+                              ground=res.ground.as_dict() if res.ground is not None else None,
+                              warnings=res.warnings), indent=2))
         return 0
     if dz:
-        print(f"# floor {-dz:.3f} m below the file's z = 0 (median); heights are above the floor")
+        print(f"# floor {abs(dz):.3f} m {'below' if dz > 0 else 'ABOVE'} the sensor; heights are above the floor")
     print(f"{'x_m':>8} {'y_m':>8} {'height_m':>8} {'width_m':>8} {'depth_m':>8} {'score':>6}  is_person")
     for d in dets:
         print(f"{d.x:8.3f} {d.y:8.3f} {d.height:8.3f} {d.width:8.3f} {d.depth:8.3f} {d.score:6.3f}  {d.is_person}")

@@ -9,7 +9,7 @@
 5. ``min_area_box``: the minimum-area box of the points' horizontal convex hull by rotating
    calipers, giving width >= depth and the yaw of the width axis; height = max z (floor-based);
 6. ``passes_gate``: 0.8 <= h <= 2.0, w <= 1.2, d <= 1.2 m; a cluster taller than 2 m is cut
-   below 2 m (a person against a wall), one 0.8-2.0 m wide at its heads (``split_by_heads``:
+   below 2 m (a person against a wall), one 0.8-3.2 m wide at its heads (``split_by_heads``:
    people side by side; for the FX8 model's frames, one with a single head is cut free of the low
    objects it touches, ``split_low``: a pushed pram), and the parts are gated in turn (``segment``);
 7. the RealAdaBoost classifier on Kidono et al.'s 213 features, 47 metric height profiles and 4
@@ -18,7 +18,9 @@
    (``model_family``: the general one, or the FX8 pair's own).
 
 Frames: points are (N, 4) ``x, y, z, intensity`` in the robot's base (or sensor's) frame with z up
-and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame.
+and z = 0 at the floor, metres; ``Detection.x, y`` are the box centre in that frame. ``detect``
+takes a cloud as its sensor gives it too (``frame="optical"`` for a camera's optical frame,
+``floor="auto"`` for the local ground: ``pedcal.detect.ground``).
 """
 
 from __future__ import annotations
@@ -55,6 +57,12 @@ MAX_RANGE_M = 60.0  # detect() leaves out points farther from the sensor
 GATE_MAX_WIDTH_M = 1.2
 GATE_MAX_DEPTH_M = 1.2
 SPLIT_WIDTH_M = (0.8, 2.0)  # clusters this wide are tried for two or three heads (not walls, cars)
+# Wider clusters, up to GROUP_WIDTH_M (five or six people shoulder to shoulder), are cut at their
+# heads only into three or more parts that each pass the gate's width and show a body's depth
+# (GROUP_PART_MIN_DEPTH_M: the visible half of a torso is 0.15-0.3 m deep): a wall with a ragged
+# top, cut at its bumps, leaves flat slices.
+GROUP_WIDTH_M = 3.2
+GROUP_PART_MIN_DEPTH_M = 0.15
 HEAD_DIP_M = 0.15
 HEAD_KMEANS_STEPS = 3
 HEAD_MIN_SHARE = 0.7
@@ -288,7 +296,9 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
 
     With ``split_wide``, a cluster 0.8-2.0 m wide (``SPLIT_WIDTH_M``: two or three people side by
     side, who touch in the grid) is cut at its heads (``split_by_heads``); when it has two or more, the parts
-    follow and the whole stays ungated. With ``cut_low`` too, a wide cluster of one head (a person
+    follow and the whole stays ungated; one 2.0-3.2 m wide (``GROUP_WIDTH_M``: a group shoulder to
+    shoulder) only into three or more parts of a person's width and depth
+    (``GROUP_PART_MIN_DEPTH_M``). With ``cut_low`` too, a wide cluster of one head (a person
     pushing a pram) is cut free of the low objects it touches (``split_low``); a family's frames
     are segmented as its model was trained (``FAMILY_CUT_LOW``).
 
@@ -328,6 +338,12 @@ def segment(points: np.ndarray, cell_size_m: float = CELL_SIZE_M, min_cell_span_
                 if parts:
                     out[i] = replace(c, gated=False)
                     out += _candidates(pts, parts)
+            elif SPLIT_WIDTH_M[1] < c.box.width <= GROUP_WIDTH_M and c.height >= GATE_HEIGHT_M[0]:
+                parts = _candidates(pts, split_by_heads(pts, c.indices, cell_size_m))
+                if len(parts) >= 3 and all(p.box.width <= GATE_MAX_WIDTH_M and p.box.depth >= GROUP_PART_MIN_DEPTH_M
+                                           for p in parts):
+                    out[i] = replace(c, gated=False)
+                    out += parts
     if occluded_low:
         out = _gate_occluded_low(pts, out, scan_steps, sensor_xyz)
     return out
@@ -482,13 +498,13 @@ def _candidates(pts: np.ndarray, groups: list[np.ndarray]) -> list[Candidate]:
     top = np.maximum.reduceat(sub, starts, axis=0)
     low = np.minimum.reduceat(sub[:, :2], starts, axis=0)
     # Any enclosing rectangle's longer side is >= the points' diameter / sqrt(2) >= the longer
-    # axis-aligned extent / sqrt(2): beyond SPLIT_WIDTH_M[1] * sqrt(2) the cluster can neither pass
+    # axis-aligned extent / sqrt(2): beyond GROUP_WIDTH_M * sqrt(2) the cluster can neither pass
     # the gate nor be cut at heads. The minimum-area box's sides are at most the diameter, itself at
     # most sqrt(2) x the longer axis-aligned extent: a cluster taller than the gate and narrower
     # than SPLIT_WIDTH_M[0] / sqrt(2) (a pole, a trunk) can neither pass the gate nor be cut.
     ext = top[:, :2] - low
     cheap = ((sizes < MIN_CLUSTER_POINTS) | (top[:, 2] < GATE_HEIGHT_M[0])
-             | (ext.max(axis=1) > SPLIT_WIDTH_M[1] * np.sqrt(2))
+             | (ext.max(axis=1) > GROUP_WIDTH_M * np.sqrt(2))
              | ((top[:, 2] > GATE_HEIGHT_M[1]) & (ext.max(axis=1) * np.sqrt(2) <= SPLIT_WIDTH_M[0])))
     fitted = np.flatnonzero(~cheap)
     boxes = dict(zip(fitted, min_area_boxes(pts[:, :2], [groups[k] for k in fitted]), strict=True)) \
@@ -645,8 +661,9 @@ def gated_candidates(points: np.ndarray, *, cell_size_m: float = CELL_SIZE_M, ga
 
 def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
            threshold: float = 0.5, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0,
-           max_range_m: float = MAX_RANGE_M, sensor_height_m: float = DEFAULT_SENSOR_HEIGHT_M,
-           sensor: str | None = None, sensor_xy_m: tuple[float, float] = (0.0, 0.0)) -> list[Detection]:
+           max_range_m: float = MAX_RANGE_M, sensor_height_m: float | None = None,
+           sensor: str | None = None, sensor_xy_m: tuple[float, float] = (0.0, 0.0),
+           frame: str = "body", floor: str = "none") -> list[Detection]:
     """People in one frame: the gated clusters, each scored by the classifier.
 
     ``points`` is (N, 4) ``x, y, z, intensity`` with z = 0 at the floor (N, 3 gets intensity 0);
@@ -660,8 +677,25 @@ def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *
     few percent); ``sensor_xy_m`` where it sits horizontally (the FX8 pair's centre is 0.2 m ahead
     of the base), seen from where a cluster's top is hidden or not (``top_occluded``). Returns
     every gated cluster as a Detection; ``is_person`` is ``score >= threshold``.
+
+    A cloud as the sensor gives it (the sensor at the origin) is put into the detector's frame
+    first (``pedcal.detect.ground.detector_frame``): ``frame="optical"`` for a camera's optical
+    frame (x right, y down, z forward), ``floor="auto"`` to subtract the local ground (its
+    warnings are logged), ``"plane"`` one floor plane; the sensor's height is then the one found
+    unless ``sensor_height_m`` is given (``DEFAULT_SENSOR_HEIGHT_M`` when neither is known).
+    Detections are always in the sensor's body frame (x forward, y left, z up).
     """
-    pts, steps, family, cands = gated_candidates(points, cell_size_m=cell_size_m, gap_cells=gap_cells,
+    pts = np.asarray(points, dtype=float)
+    if frame != "body" or floor != "none":
+        from pedcal.detect.ground import detector_frame
+
+        prepared = detector_frame(pts, frame=frame, floor=floor)
+        pts = prepared.points
+        if sensor_height_m is None:
+            sensor_height_m = prepared.sensor_height_m
+    if sensor_height_m is None:
+        sensor_height_m = DEFAULT_SENSOR_HEIGHT_M
+    pts, steps, family, cands = gated_candidates(pts, cell_size_m=cell_size_m, gap_cells=gap_cells,
                                                  max_range_m=max_range_m, sensor_height_m=sensor_height_m,
                                                  sensor=sensor, sensor_xy_m=sensor_xy_m)
     if not cands:

@@ -2,7 +2,7 @@
 
 Real clusters. Every labelled frame of every folder of the real recordings
 (``pedcal.detect.real_eval.labelled_folders``) is prepared as ``pedcal detect`` prepares a file
-(density, floor: ``real_eval.prepared_frame``) and segmented as the detector segments it
+(density, ground: ``real_eval.prepared_frame``) and segmented as the detector segments it
 (``detection.gated_candidates``); each gated cluster is labelled from the boxes
 (``real_eval.label_real_clusters``: a person when its points mostly lie in one Pedestrian box;
 every other gated cluster, cyclists, bicycles, bollards, signs, cars and unlabelled street
@@ -73,7 +73,7 @@ class RealClusters:
 def real_clusters(data_dir=None, copies: int = REAL_COPIES, seed: int = 0, modes=("raw", "frame", "none"),
                   progress: bool = False, detect_options=None) -> list[RealClusters]:
     """Every labelled real frame and ``copies`` augmented copies of it, as RealClusters."""
-    from pedcal.detect.detection import DEFAULT_SENSOR_HEIGHT_M, candidate_features, gated_candidates
+    from pedcal.detect.detection import candidate_features, gated_candidates
     from pedcal.detect.pointcloud_io import read_point_cloud_report
     from pedcal.detect.real_eval import (
         augment_frame,
@@ -98,9 +98,8 @@ def real_clusters(data_dir=None, copies: int = REAL_COPIES, seed: int = 0, modes
                     pts_k, _ = augment_frame(raw, rng)
                 else:
                     pts_k = raw
-                res = prepared_frame(pts_k, detect_options)
-                height = res.floor_shift_m if res.floor_shift_m > 0 else DEFAULT_SENSOR_HEIGHT_M
-                pts, steps, _, cands = gated_candidates(res.points, sensor_height_m=height)
+                pts, height, xy = prepared_frame(pts_k, **(detect_options or {}))
+                pts, steps, _, cands = gated_candidates(pts, sensor_height_m=height, sensor_xy_m=xy)
                 groups = [c.indices for c in cands]
                 X = {m: candidate_features(pts, groups, steps, m) for m in modes}
                 out.append(RealClusters(dataset_of(cloud), cloud.stem, k, X, label_real_clusters(pts, cands, boxes),

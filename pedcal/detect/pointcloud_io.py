@@ -20,8 +20,7 @@ coordinate (the invalid pixels of an organized depth cloud) are dropped;
 ``read_point_cloud_report`` says how many. Points farther than ``MAX_RANGE_M`` (no LIDAR sees
 that far; such values are corrupt) are dropped too.
 
-``ground_referenced`` (local ground height) or ``floor_referenced`` (one floor plane) then puts
-z = 0 on the floor.
+``pedcal.detect.ground`` then puts z = 0 on the floor (the local ground height, or one floor plane).
 """
 
 from __future__ import annotations
@@ -32,7 +31,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 
@@ -380,85 +378,9 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
     return res.points
 
 
-GROUND_CELL_M = 1.0
-GROUND_MAX_STEP_M = 0.3
+# The ground (``ground_referenced``, ``floor_referenced``) lives in pedcal.detect.ground; its
+# names stay importable from here.
+from pedcal.detect.ground import floor_referenced, ground_referenced, is_floor_referenced  # noqa: E402
 
-
-def local_ground_z(points: np.ndarray, cell_m: float = GROUND_CELL_M, max_step_m: float = GROUND_MAX_STEP_M,
-                   window_cells: int = 5) -> np.ndarray:
-    """(N,) height of the ground under each point, for ground that is not one plane (a sloped
-    street, a ramp, a kerb).
-
-    The lowest point of each ``cell_m`` cell is its ground candidate; a candidate more than
-    ``max_step_m`` above the lowest candidate within ``window_cells`` x ``window_cells`` cells is an
-    object that hides the ground (a car's body, a wall's foot seen from above) and takes that
-    neighbourhood's lowest value instead; empty cells take the nearest filled cell's value. The
-    ground under a point is the bilinear interpolation of the cell values at their centres, so a
-    person standing across two cells is not cut by a step.
-    """
-    from scipy import ndimage
-
-    xy = points[:, :2]
-    origin = xy.min(axis=0)
-    ij = np.floor((xy - origin) / cell_m).astype(np.int64)
-    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
-    z_min = np.full(shape, np.inf)
-    np.minimum.at(z_min, (ij[:, 0], ij[:, 1]), points[:, 2])
-    filled = np.isfinite(z_min)
-    nb_min = ndimage.minimum_filter(z_min, size=window_cells, mode="nearest")
-    ground = np.where(z_min > nb_min + max_step_m, nb_min, z_min)
-    if not filled.all():
-        _, (ri, ci) = ndimage.distance_transform_edt(~filled, return_indices=True)
-        ground = ground[ri, ci]
-    uv = ((xy - origin) / cell_m - 0.5).T
-    return ndimage.map_coordinates(ground, uv, order=1, mode="nearest")
-
-
-def is_floor_referenced(points: np.ndarray) -> bool:
-    """Whether the cloud already has z = 0 on the floor: its lowest points (1st percentile of z)
-    lie within 0.1 m of z = 0 and none is below -0.1 m (the simulator's frames, a crop such as
-    KITTI's labelled pedestrian)."""
-    z = points[:, 2]
-    return abs(float(np.percentile(z, 1.0))) <= 0.1 and z.min() >= -0.1
-
-
-def ground_referenced(points: np.ndarray, **kwargs) -> tuple[np.ndarray, float]:
-    """The points with the local ground height (``local_ground_z``) subtracted from z, and the
-    median shift added to z (for a message). An already floor-referenced cloud is unchanged."""
-    if is_floor_referenced(points):
-        return points, 0.0
-    g = local_ground_z(points, **kwargs)
-    out = points.copy()
-    out[:, 2] -= g
-    return out, -float(np.median(g))
-
-
-def floor_referenced(points: np.ndarray, *, distance_threshold_m: float = 0.05,
-                     seed: int = 0) -> tuple[np.ndarray, float]:
-    """The points shifted so that z = 0 on one floor plane, and the shift that was added to z.
-
-    A cloud already floor-referenced (``is_floor_referenced``) is returned unchanged. Otherwise
-    (a KITTI scan has z = 0 at the sensor, the floor some 1.7 m below) the floor is the largest
-    near-horizontal plane found by RANSAC (open3d ``segment_plane``) among the lowest 30 % of the
-    points; its height under the sensor is subtracted. Without such a plane the 1st percentile of z
-    is taken as the floor and a DegenerateDataWarning says so. For ground that is not one plane
-    see ``ground_referenced``.
-    """
-    z = points[:, 2]
-    z_low = float(np.percentile(z, 1.0))
-    if is_floor_referenced(points):
-        return points, 0.0
-    floor_z = z_low
-    low = points[z <= np.percentile(z, 30.0), :3]
-    if len(low) >= 3:
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(low))
-        o3d.utility.random.seed(seed)
-        (a, b, c, d), inliers = pc.segment_plane(distance_threshold_m, 3, 200)
-        if abs(c) > 0.95 and len(inliers) >= 0.2 * len(low):
-            floor_z = float(np.median(low[inliers, 2]))
-        else:
-            warnings.warn("no horizontal floor plane among the lowest points; the floor is taken at the "
-                          f"1st percentile of z ({z_low:.2f} m)", DegenerateDataWarning, stacklevel=2)
-    out = points.copy()
-    out[:, 2] -= floor_z
-    return out, -floor_z
+__all__ = ["CloudRead", "read_point_cloud", "read_point_cloud_report", "reflectance_scale", "floor_referenced",
+           "ground_referenced", "is_floor_referenced"]

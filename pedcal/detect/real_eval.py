@@ -356,28 +356,18 @@ def augment_frame(points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndar
     return pts, what
 
 
-class _Recorder:
-    """A classifier that scores nothing (0) and keeps nothing: lets ``detect_file`` prepare a frame."""
+def prepared_frame(points: np.ndarray, *, sensor: str | None = None, floor: str = "auto"):
+    """(points, sensor height, sensor xy) of a frame (sensor at the origin) as ``detect_file``
+    prepares a file's before ``detect``: thinned to the trained density, floor at z = 0
+    (``pedcal.detect.ground.detector_frame``); the height is ``DEFAULT_SENSOR_HEIGHT_M`` when
+    the floor says none."""
+    from pedcal.detect.features import DEFAULT_SENSOR_HEIGHT_M
+    from pedcal.detect.ground import detector_frame
+    from pedcal.detect.sensors import normalize_density
 
-    metadata_: dict = {}
-    n_features_ = 0
-
-    def predict_proba(self, X):
-        return np.zeros(len(X))
-
-
-def prepared_frame(points: np.ndarray, detect_options=None):
-    """The frame as ``pedcal detect`` prepares a file (density, floor): ``detect_file`` of the
-    points written to a temporary .npy. Returns its FileDetections (``points`` floor-referenced,
-    ``floor_shift_m``)."""
-    import tempfile
-
-    from pedcal.detect.detect_cli import detect_file
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "frame.npy"
-        np.save(path, np.asarray(points, dtype=np.float32)[:, :4])
-        return detect_file(path, _Recorder(), **(detect_options or {}))
+    prepared = detector_frame(normalize_density(np.asarray(points, dtype=float), sensor), floor=floor)
+    height = DEFAULT_SENSOR_HEIGHT_M if prepared.sensor_height_m is None else prepared.sensor_height_m
+    return prepared.points, float(height), tuple(prepared.sensor_xy_m)
 
 
 def label_real_clusters(pts: np.ndarray, cands, boxes: list[dict]) -> np.ndarray:
