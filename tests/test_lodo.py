@@ -184,3 +184,22 @@ def test_real_clusters_are_what_detect_file_classifies(tmp_path):
     assert recs[0].X["frame"].shape == (len(dets), N_FEATURES)
     assert recs[0].table["ped_points"].tolist()[0] > 100
     assert recs[1].table is None
+
+
+def test_the_shipped_general_model_is_the_families_choice_with_its_lodo_table():
+    from pedcal.detect.detection import load_model
+    from pedcal.detect.train import MODEL_FAMILIES
+
+    m = load_model()
+    fam = MODEL_FAMILIES["general"]
+    assert m.metadata_["config"] == lodo.asdict(fam.config) and m.metadata_["threshold"] == fam.threshold
+    assert m.predict_proba(np.zeros((1, m.n_features_))).shape == (1,)
+    table = m.metadata_["lodo"]
+    assert set(table) == {"av2", "kitti", "sustech_points"}
+    for row in table.values():
+        assert row["people_near"] == sum(b["people"] for b in row["bands"][:lodo.N_NEAR_BANDS])
+        assert 0.0 <= row["recall_near"] <= 1.0 and row["fp_near_per_frame"] >= 0.0
+    # the selection stored with it: the chosen configuration has the best worst left-out dataset
+    rows = m.metadata_["selection"]
+    best = max(rows, key=lambda r: (r["worst"], r["mean"]))
+    assert best["config"] == fam.config.name() and best["threshold"] == fam.threshold

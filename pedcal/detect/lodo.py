@@ -201,16 +201,11 @@ def select_config(results: dict) -> tuple[str, float, dict]:
     """(config name, threshold, {dataset: metrics}) of the candidate whose *worst* left-out dataset
     is best (``dataset_score``); the mean over the datasets breaks ties. ``results`` is
     {config name: {threshold: {dataset: metrics}}} (``lodo`` of each candidate)."""
-    best, best_key = None, None
-    for name, by_t in results.items():
-        for t, by_d in by_t.items():
-            s = [dataset_score(m["recall_near"], m["fp_near_per_frame"]) for m in by_d.values()]
-            key = (min(s), float(np.mean(s)))
-            if best_key is None or key > best_key:
-                best, best_key = (name, float(t), by_d), key
-    if best is None:
+    rows = selection_rows(results)
+    if not rows:
         raise ValueError("no candidate to select from")
-    return best
+    best = max(rows, key=lambda r: (r["worst"], r["mean"]))  # the first of equals
+    return best["config"], best["threshold"], results[best["config"]][best["threshold"]]
 
 
 def _band_name(band_m) -> str:

@@ -276,7 +276,8 @@ def evaluate_all_real(data_dir: str | Path | None = None, model=None, *, detect_
 
 def format_all_real(results: dict) -> str:
     """One line per dataset and range band, then the totals."""
-    lines = [f"{'dataset':>15} {'band_m':>7} {'peds':>5} {'found':>5} {'recall':>7} {'FP':>4}"]
+    lines = ["every labelled pedestrian per range band (peds), found, recall, false persons (FP):",
+             f"{'dataset':>15} {'band_m':>7} {'peds':>5} {'found':>5} {'recall':>7} {'FP':>4}"]
     for name, res in results.items():
         for b in res["bands"]:
             lo, hi = b["band_m"]

@@ -97,8 +97,8 @@ FX8_TRAIN_PRESETS = (("fx8", 0.8), ("fx8_far", 0.2))
 
 # The general model's classifier and threshold, chosen by leave-one-dataset-out validation
 # (``pedcal train-detector --select``, ``pedcal.detect.lodo.select_config``; see README).
-GENERAL_CONFIG = Config(classifier="gbt", intensity="frame", n_features=N_FEATURES, real_weight=5.0, n_rounds=300)
-GENERAL_THRESHOLD = 0.5
+GENERAL_CONFIG = Config(classifier="gbt", intensity="raw", n_features=N_FEATURES, real_weight=5.0, n_rounds=300)
+GENERAL_THRESHOLD = 0.3
 LODO_TITLE = "leave-one-dataset-out (each real dataset scored by a model trained without it):"
 CANDIDATE_CONFIGS = (
     Config("gbt", "frame", N_FEATURES, 5.0),
