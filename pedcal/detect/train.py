@@ -127,7 +127,9 @@ class ModelFamily:
     threshold: float | None = None
 
 
-# "general": every trained LIDAR, one feature's bins per round (Misu and Miura's classifier).
+# "general": every trained LIDAR, simulated and real frames, the classifier of GENERAL_CONFIG (chosen by
+# leave-one-dataset-out validation); its RealAdaBoost rounds and depth serve train_detector (the
+# baseline on simulated frames alone, or a user's labelled clusters).
 # "fx8": the FX8 pair alone. Its clusters range from a dozen points at 5 m to thousands of a near
 # person cut at the knees and the head by the 50 deg vertical field of view; what a height, a
 # width or a point count says depends on the range, which a sum of one-feature curves cannot
