@@ -138,10 +138,13 @@ def test_no_points_and_no_ground_warn():
     est = estimate_ground(np.zeros((0, 4)), warn=False)
     assert est.warnings and "no points" in est.warnings[0]
     assert np.isnan(est.height_at(np.zeros((1, 2))))[0]
-    # one lone object: nothing the ground could be told from
+    # one lone object: nothing the ground could be told from; its lowest point is taken
     pts = np.array([[5.0, 0.0, -1.0, 0.0], [5.0, 0.05, 0.5, 0.0]])
     est = estimate_ground(pts, warn=False)
-    assert np.isfinite(est.sensor_height_m)
+    assert est.warnings == ["no ground found: 1 ground cells among 1 occupied, fewer than 3; the lowest points "
+                            "are taken as the ground"]
+    assert est.sensor_height_m == pytest.approx(1.0)
+    np.testing.assert_allclose(est.point_ground_z_m, -1.0)
 
 
 def test_body_from_optical_is_rep103():

@@ -11,23 +11,29 @@
    ``SUPPORT_BAND_M`` above it. A lone return below the road does not count; a cell holding only
    an object gives that object's lowest level, which step 3 rejects.
 3. Each sector is walked outward from the sensor, as a ray-based ground filter does: a candidate
-   is ground when it lies within ``MAX_STEP_M + MAX_SLOPE * d`` of the last ground of its sector,
-   ``d`` metres nearer (a kerb, a ramp, a sloped street are followed); a candidate farther below
-   is a stray return (multipath: real street scans hold short runs of points 1-6 m below the road,
-   reflected off car bodies and windows), one farther above an object's body (a car's side, a
-   wall). The walk starts at the frame's ground near the sensor: the median, over sectors, of
-   each sector's nearest candidate.
+   is ground when it lies within ``max(MAX_STEP_M, MAX_SLOPE * d)`` of the last ground of its own
+   sector and of each sector within ``WALK_SECTORS`` of it, ``d`` metres away (its range minus
+   theirs, at most ``MAX_GAP_M``, plus the lateral distance between the sectors): a kerb, or a
+   ramp or sloped street, is followed; a candidate farther below is a stray return (multipath:
+   real street scans hold short runs of points 1-6 m below the road, reflected off car bodies and
+   windows), one farther above an object's body (a car's side, a wall). A sector whose candidates
+   stay below for ``RELOCK_CELLS`` cells in a row, consistent among themselves, has found a lower
+   ground (a ramp down) and takes it. The walk starts at the frame's ground near the sensor: the
+   median, over sectors, of each sector's nearest candidate, seen at the median of their ranges
+   (cells nearer the sensor than that are held to it by their distance from there too).
 4. Ground cells that disagree with the ground of the neighbouring sectors at the same range (the
    median over ``CONSENSUS_SECTORS`` sectors and ``CONSENSUS_BINS`` bins) by more than
-   ``MAX_STEP_M`` are dropped (a sector that walked onto strays behind an occluder), then every
-   cell between two ground cells of its sector gets their linear interpolation, cells beyond the
-   last (or before the first) that ground cell's value, and sectors without ground the nearest
-   sector's.
-5. ``GroundEstimate.height_at`` is the bilinear interpolation of that grid.
+   ``MAX_STEP_M`` are dropped (a sector that walked onto strays behind an occluder); each bin's
+   ground is then the linear interpolation in range between the ground cells of its sector (at
+   their points' own ranges), constant beyond the first and last, and sectors without ground take
+   the nearest sector's. Fewer than ``MIN_GROUND_CELLS`` ground cells: every cell's candidate is
+   taken, with a warning.
+5. ``GroundEstimate.height_at`` is the bilinear interpolation of that grid, in azimuth (round the
+   circle) and range bin.
 
-What the estimate found is checked (``GroundEstimate.warnings``, each also logged as a warning): ground at or
-above the sensor (``MIN_SENSOR_CLEARANCE_M``: a cloud holding no ground, a cloud in the wrong
-frame), a ground plane tilted by more than ``MAX_GROUND_TILT_DEG`` within ``TILT_RADIUS_M`` of the
+What the estimate found is checked (``GroundEstimate.warnings``, each also logged as a warning):
+ground at, or less than ``MIN_SENSOR_CLEARANCE_M`` below, the sensor (a cloud holding no ground, a
+cloud in the wrong frame), a ground plane tilted by more than ``MAX_GROUND_TILT_DEG`` within ``TILT_RADIUS_M`` of the
 sensor (no street or floor is that steep: a camera's optical frame read as a body frame, a
 mis-stated sensor pose), no ground found at all.
 
@@ -73,9 +79,10 @@ def polar_coordinates(xy: np.ndarray, sensor_xy=(0.0, 0.0)) -> tuple[np.ndarray,
     """Continuous (sector, range bin) coordinates of horizontal positions ``xy`` (N, 2) about the
     sensor (step 1): cell (s, k) holds the positions with ``floor(u) == s`` and
     ``floor(v + 0.5) == k``; ``v`` is k at the middle of bin k (``range_bin_centre``)."""
-    d = np.asarray(xy, dtype=float).reshape(-1, 2) - np.asarray(sensor_xy, dtype=float)
-    u = (np.arctan2(d[:, 1], d[:, 0]) + np.pi) * (N_SECTORS / (2 * np.pi))
-    v = np.hypot(d[:, 0], d[:, 1]) / RANGE_BIN_M - 0.5
+    # single precision: a 1e-7 share of a sector or a range bin is far below anything that matters
+    d = (np.asarray(xy, dtype=float).reshape(-1, 2) - np.asarray(sensor_xy, dtype=float)).astype(np.float32)
+    u = (np.arctan2(d[:, 1], d[:, 0]) + np.float32(np.pi)) * np.float32(N_SECTORS / (2 * np.pi))
+    v = np.hypot(d[:, 0], d[:, 1]) * np.float32(1 / RANGE_BIN_M) - np.float32(0.5)
     far = np.flatnonzero(v >= _N_FINE - 0.5)
     v[far] = _N_FINE - 0.5 + np.log((v[far] + 0.5) / _N_FINE) / np.log(RANGE_BIN_GROWTH)
     return u, v
@@ -109,16 +116,19 @@ class GroundEstimate:
 
     def _bilinear(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         n_s, n_b = self.grid_z_m.shape
-        g = np.concatenate([self.grid_z_m, self.grid_z_m[:, -1:]], axis=1).ravel()  # bin n_b repeats the last
-        u = u - 0.5  # sector s's centre at u = s
-        s0 = np.floor(u).astype(np.int64)
+        # the sectors wrap round: one more on each side; bin n_b repeats the last
+        g = np.vstack([self.grid_z_m[-1:], self.grid_z_m, self.grid_z_m[:1]])
+        g = np.concatenate([g, g[:, -1:]], axis=1).astype(np.float32).ravel()
+        u = np.asarray(u, dtype=np.float32) + np.float32(0.5)  # sector s's centre at u = s + 1 in g
+        s0 = u.astype(np.int64)
         wu = u - s0
-        v = np.clip(v, 0.0, n_b - 1.0)
+        v = np.clip(np.asarray(v, dtype=np.float32), 0.0, n_b - 1.0)
         k0 = v.astype(np.int64)
         wv = v - k0
-        a = (s0 % n_s) * (n_b + 1) + k0  # the sectors wrap round
-        b = ((s0 + 1) % n_s) * (n_b + 1) + k0
-        return (1 - wu) * ((1 - wv) * g[a] + wv * g[a + 1]) + wu * ((1 - wv) * g[b] + wv * g[b + 1])
+        a = s0 * (n_b + 1) + k0
+        b = a + (n_b + 1)
+        out = (1 - wu) * ((1 - wv) * g[a] + wv * g[a + 1]) + wu * ((1 - wv) * g[b] + wv * g[b + 1])
+        return out.astype(float)
 
     def as_dict(self) -> dict:
         """What the CLI's JSON output says about the ground."""
@@ -142,10 +152,12 @@ def _cell_candidates(cell: np.ndarray, z: np.ndarray, n_cells: int) -> tuple[np.
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     # supported: the (need - 1)-th point after it is of the same cell and within SUPPORT_BAND_M
     need = np.minimum(SUPPORT_POINTS, counts[scell])
-    ahead = np.minimum(np.arange(len(skey)) + need - 1, len(skey) - 1)
-    ok_at = np.flatnonzero(skey[ahead] - skey <= SUPPORT_BAND_M)
+    ahead = np.arange(len(skey)) + need - 1
+    inside = ahead < len(skey)
+    ok_at = np.flatnonzero(inside & (skey[np.where(inside, ahead, 0)] - skey <= SUPPORT_BAND_M))
     ok_cell = scell[ok_at]
-    first = np.r_[True, ok_cell[1:] != ok_cell[:-1]]  # the lowest supported point of each cell
+    first = np.ones(len(ok_cell), dtype=bool)  # the lowest supported point of each cell
+    first[1:] = ok_cell[1:] != ok_cell[:-1]
     pick = starts.copy()  # no supported level: the lowest point
     pick[ok_cell[first]] = ok_at[first]
     out = np.full(n_cells, np.nan)
@@ -156,7 +168,7 @@ def _cell_candidates(cell: np.ndarray, z: np.ndarray, n_cells: int) -> tuple[np.
     return out, at
 
 
-def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: float) -> np.ndarray:
+def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: float, r_start_m: float) -> np.ndarray:
     """Step 3: (sectors, bins) which candidates are ground, each sector walked outward. A
     candidate must lie within the slope cone of the last ground of its own sector and of every
     sector within ``WALK_SECTORS`` of it (the lateral distance between them counted at the slope).
@@ -165,7 +177,7 @@ def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: 
     street) and takes it: strays below the ground are runs of a few decimetres, not metres."""
     n_s, n_b = cand.shape
     ref_z = np.full(n_s, z_start)
-    ref_r = np.zeros(n_s)
+    ref_r = np.full(n_s, r_start_m)  # where the start was seen: the sensor's own position is no ground
     run_z, run_r, run_n = np.full(n_s, np.nan), np.zeros(n_s), np.zeros(n_s, dtype=np.int64)
     ok = np.zeros((n_s, n_b), dtype=bool)
     shifts = np.arange(-WALK_SECTORS, WALK_SECTORS + 1)
@@ -175,7 +187,7 @@ def _walk(cand: np.ndarray, cand_r_m: np.ndarray, r_bin_m: np.ndarray, z_start: 
         lateral_m = np.abs(shifts)[:, None] * (2 * np.pi / n_s) * r_bin_m[k]
         z = ref_z[nb]
         # a kerb, or a slope over the distance: not both
-        sl = np.maximum(MAX_SLOPE * (np.minimum(r - ref_r[nb], MAX_GAP_M) + lateral_m), MAX_STEP_M)
+        sl = np.maximum(MAX_SLOPE * (np.minimum(np.abs(r - ref_r[nb]), MAX_GAP_M) + lateral_m), MAX_STEP_M)
         good = (c <= (z + sl).min(axis=0)) & (c >= (z - sl).max(axis=0))
         below = np.isfinite(c) & ~good & (c < ref_z)
         same_run = below & (np.abs(c - run_z) <= np.maximum(MAX_STEP_M, MAX_SLOPE * (r - run_r)))
@@ -228,18 +240,19 @@ def estimate_ground(points: np.ndarray, sensor_xyz=(0.0, 0.0, 0.0), *, warn: boo
     filled = np.isfinite(cand)
     notes: list[str] = []
     first = np.argmax(filled, axis=1)
-    near = cand[np.arange(N_SECTORS), first][filled.any(axis=1)]
-    ok = _walk(cand, cand_r, r_bin_m, float(np.median(near)))
+    seen = filled.any(axis=1)
+    near_z, near_r = cand[np.arange(N_SECTORS), first][seen], cand_r[np.arange(N_SECTORS), first][seen]
+    ok = _walk(cand, cand_r, r_bin_m, float(np.median(near_z)), float(np.median(near_r)))
     grid = _fill(cand, cand_r, ok, r_bin_m)
     if ok.any():
         ok &= np.abs(cand - _consensus(grid, ok)) <= MAX_STEP_M
         grid = _fill(cand, cand_r, ok, r_bin_m) if ok.any() else grid
     n_ground = int(ok.sum())
     if n_ground < MIN_GROUND_CELLS:
-        notes.append(f"no ground found: {n_ground} of {int(filled.sum())} occupied cells hold ground; the "
-                     "lowest points are taken as the ground")
+        notes.append(f"no ground found: {n_ground} ground cells among {int(filled.sum())} occupied, fewer than "
+                     f"{MIN_GROUND_CELLS}; the lowest points are taken as the ground")
         grid = _fill(cand, cand_r, filled, r_bin_m)
-    ground_here = float(_at_sensor(grid, r_bin_m))
+    ground_here = _at_sensor(grid)
     height = sz - ground_here
     if height < MIN_SENSOR_CLEARANCE_M:
         where = f"{-height:.2f} m above" if height < 0 else f"only {height:.2f} m below"
@@ -267,7 +280,7 @@ def _consensus(grid: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
-def _at_sensor(grid: np.ndarray, r_bin_m: np.ndarray) -> float:
+def _at_sensor(grid: np.ndarray) -> float:
     """The ground height under the sensor: the median over sectors of the nearest bin's ground."""
     col = grid[:, 0]
     return float(np.nanmedian(col)) if np.isfinite(col).any() else np.nan
