@@ -151,17 +151,42 @@ def test_intensity_models_rescale_or_drop_the_same_returns():
     unit = frames["unit"].intensity
     assert 0.0 <= unit.min() and unit.max() <= 1.0 and unit.max() > 0.3
     np.testing.assert_array_equal(frames["uint8"].xyz, frames["unit"].xyz)  # no draw changes
-    np.testing.assert_array_equal(frames["uint8"].intensity, np.round(255.0 * unit))
+    as_uint8 = frames["uint8"].intensity
+    assert np.all(as_uint8 == np.round(as_uint8)) and as_uint8.max() <= 255.0
+    np.testing.assert_allclose(as_uint8, 255.0 * unit, atol=0.5 + 1e-4)  # (unit is float32)
     assert (frames["none"].intensity == 0).all()
     with pytest.raises(PedcalInputError, match="intensity_model"):
         LIDAR_PRESETS["vlp16"].with_(intensity_model="dB")
 
 
+def test_calibrated_intensity_does_not_fall_off_with_range():
+    """hdl64e reports calibrated reflectance as KITTI does: a wall reads the same at 4 and 12 m
+    (straight ahead, where the incidence is nil); with the raw model it reads (4 / 12)^0.5 as much,
+    and a calibrated cos^0.5 incidence term makes a grazing floor brighter than cos does."""
+    def wall_reading(lidar, x):
+        frame = render(Scene([_wall(x, 0.5)]), lidar, Mount(0.0, 0.0, 1.8), np.random.default_rng(0))
+        ahead = (frame.object_id == 0) & (np.abs(frame.xyz[:, 1]) < 0.05) & (np.abs(frame.xyz[:, 2] - 1.8) < 0.3)
+        return float(frame.intensity[ahead].mean())
+
+    calibrated = LIDAR_PRESETS["hdl64e"].with_(**NOISELESS)
+    raw = calibrated.with_(intensity_range_exponent=0.5, intensity_incidence_exponent=1.0)
+    assert wall_reading(calibrated, 4.0) == pytest.approx(0.5, abs=0.01)
+    assert wall_reading(calibrated, 12.0) == pytest.approx(wall_reading(calibrated, 4.0), rel=0.01)
+    assert wall_reading(raw, 12.0) / wall_reading(raw, 4.0) == pytest.approx((4.0 / 12.0) ** 0.5, rel=0.02)
+    floor = {k: render(Scene(), m, Mount(0.0, 0.0, 1.8), np.random.default_rng(0)) for k, m in
+             (("calibrated", calibrated), ("cos", calibrated.with_(intensity_incidence_exponent=1.0)))}
+    ratio = floor["calibrated"].intensity / floor["cos"].intensity
+    cos_inc = 1.8 / np.linalg.norm(floor["cos"].xyz - [0.0, 0.0, 1.8], axis=1)  # the floor's normal is z
+    np.testing.assert_allclose(ratio, cos_inc ** -0.5, rtol=1e-3)
+    with pytest.raises(PedcalInputError, match="exponents"):
+        calibrated.with_(intensity_incidence_exponent=-1.0)
+
+
 @pytest.mark.parametrize("mode", STRAY_MODES)
 def test_stray_returns_lie_one_to_six_metres_below_the_floor(mode):
     """On a bare floor a 64-beam LIDAR at 1.8 m with 3 % stray returns: every stray is 1-6 m
-    below the floor, on its own ray (along_ray) or below its true hit (vertical); about 3 % of the
-    returns that can stray do; without the option nothing lies below the floor."""
+    below the floor, on its own ray (along_ray) or below its true hit (vertical, patch); about 3 %
+    of the returns that can stray do; without the option nothing lies below the floor."""
     base = LIDAR_PRESETS["hdl64e"].with_(**NOISELESS)
     mount = Mount(0.0, 0.0, 1.8)
     clean = render(Scene(), base, mount, np.random.default_rng(5))
@@ -184,6 +209,8 @@ def test_stray_returns_lie_one_to_six_metres_below_the_floor(mode):
     else:
         np.testing.assert_allclose(stray.xyz[is_stray, :2], clean.xyz[is_stray, :2], atol=1e-5)
         share = is_stray.mean()
+    if mode == "patch":  # 1-3 sheets of the bare floor, each moved down by one depth
+        assert 1 <= len(np.unique(np.round(z, 4))) <= 3
     assert share == pytest.approx(0.03, abs=4 * np.sqrt(0.03 * 0.97 / len(clean.points)) + 0.002)
     assert np.all(stray.intensity[is_stray] <= 0.5 * clean.intensity[is_stray] + 1e-6)
     with pytest.raises(PedcalInputError, match="stray_below_share"):
@@ -219,8 +246,11 @@ def test_random_nuisances_vary_by_seed_and_keep_the_geometry():
     assert {v.intensity_model for v in variants} == set(INTENSITY_MODELS)
     assert {v.stray_mode for v in variants if v.stray_below_share > 0} == set(STRAY_MODES)
     shares = np.array([v.stray_below_share for v in variants])
-    assert 0.35 < np.mean(shares == 0) < 0.65 and shares.max() <= 0.02 and shares[shares > 0].min() >= 1e-3
+    assert 0.35 < np.mean(shares == 0) < 0.65 and shares.max() <= 0.005 and shares[shares > 0].min() >= 1e-4
     assert {v.range_noise for v in variants} == {"uniform", "gaussian"}
+    calibrated = [v for v in variants if v.intensity_range_exponent == 0.0]
+    assert 60 < len(calibrated) < 140 and all(0 <= v.intensity_incidence_exponent <= 0.5 for v in calibrated)
+    assert all(v.intensity_incidence_exponent == 1.0 for v in variants if v.intensity_range_exponent == 0.5)
     base = LIDAR_PRESETS["vlp32c"]
     assert all(v.elevations_deg == base.elevations_deg and v.n_horizontal == base.n_horizontal for v in variants)
     cams = [random_nuisances("realsense_d435", np.random.default_rng(s)) for s in range(30)]
@@ -242,3 +272,12 @@ def test_named_sensors_state_their_presets_ray_steps(name):
     fine = np.diff(el).min() if lidar.elevations_deg is not None else np.ptp(el) / (len(el) - 1)
     assert el_step == pytest.approx(fine, rel=2e-3)
     assert needs_thinning(np.zeros((0, 4)), name) == (lidar.projection == "pinhole")
+
+
+@pytest.mark.parametrize("mode", STRAY_MODES)
+def test_stray_returns_of_an_empty_frame(mode):
+    """A camera looking at the open sky returns nothing, strays or not."""
+    lidar = LIDAR_PRESETS["depth_vga_wide"].with_(stray_below_share=0.1, stray_mode=mode)
+    frame = render(Scene(), lidar, Mount(0.0, 0.0, 1.0, 0.0, -80.0), np.random.default_rng(0))
+    assert frame.points.shape == (0, 4) and frame.organized(lidar).shape == (480, 640, 4)
+    assert np.isnan(frame.organized(lidar)).all()

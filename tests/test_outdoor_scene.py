@@ -11,10 +11,17 @@ import pytest
 from pedcal.detect.detection import segment
 from pedcal.detect.train import label_clusters, random_rig
 from pedcal.sim.lidar import Mount, render
-from pedcal.sim.scene import CLUTTER_KINDS, OUTDOOR_CLUTTER_KINDS, OUTDOOR_CLUTTER_WEIGHTS, make_clutter, random_scene
+from pedcal.sim.scene import (
+    CLUTTER_KINDS,
+    OUTDOOR_CLUTTER_KINDS,
+    OUTDOOR_CLUTTER_WEIGHTS,
+    STREET_CLUTTER_KINDS,
+    make_clutter,
+    random_scene,
+)
 
 
-@pytest.mark.parametrize("kind", OUTDOOR_CLUTTER_KINDS)
+@pytest.mark.parametrize("kind", STREET_CLUTTER_KINDS)
 def test_every_outdoor_kind_builds_a_mesh_standing_on_the_floor(kind):
     rng = np.random.default_rng(3)
     for _ in range(5):

@@ -47,6 +47,13 @@ OUTDOOR_CLUTTER_WEIGHTS = {
     "tree": 2.0, "street_pole": 2.0, "bollard": 1.5, "bush": 1.5, "car": 1.5, "cyclist": 1.0, "kerb": 0.5,
     "wall": 0.5, "sign": 1.0, "pole": 1.0, "cabinet": 1.0, "panel": 1.0,
 }
+# Added street furniture: sign posts (a pole with plates at its top) and parked bicycles (one to
+# three in a rack). A separate mix, so that scenes drawn with OUTDOOR_CLUTTER_WEIGHTS stay as they were.
+STREET_CLUTTER_KINDS = OUTDOOR_CLUTTER_KINDS + ("sign_post", "bicycle")
+STREET_CLUTTER_WEIGHTS = {**OUTDOOR_CLUTTER_WEIGHTS, "sign_post": 1.5, "bicycle": 1.5}
+# What ``hide_partly`` stands in front of a person, indoors and in a street.
+HIDING_KINDS_INDOOR = ("person", "box", "pillar", "trolley", "potted_plant")
+HIDING_KINDS_STREET = ("person", "car", "bush", "cabinet", "panel")
 CLUTTER_IN_VIEW = 0.75  # share of non-wall clutter random_scene puts inside the sensors' cone
 FLOOR_ID = -1
 CEILING_ID = -2
@@ -117,6 +124,11 @@ def _rot_z(yaw_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _rot_x(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
 def _rot_y(angle_rad: float) -> np.ndarray:
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
@@ -144,6 +156,17 @@ def cylinder(p0, p1, radius_m: float, reflectance: float, resolution: int = 8) -
     x /= np.linalg.norm(x)
     R = np.column_stack([x, np.cross(z, x), z])
     return _mesh("cylinder", (radius_m, radius_m, length), R, (p0 + p1) / 2.0, reflectance, resolution)
+
+
+def ring(center, radius_m: float, tube_m: float, reflectance: float, axis: str = "y") -> Mesh:
+    """A torus (a bicycle wheel's tyre and rim) of the given radius and tube radius, its axis along
+    local ``axis`` ("x", "y" or "z"); an open3d torus."""
+    m = o3d.geometry.TriangleMesh.create_torus(torus_radius=radius_m, tube_radius=tube_m, radial_resolution=20,
+                                               tubular_resolution=6)
+    R = {"z": np.eye(3), "y": _rot_x(np.pi / 2), "x": _rot_y(np.pi / 2)}[axis]
+    v = np.asarray(m.vertices, dtype=float) @ R.T + np.asarray(center, dtype=float)
+    t = np.asarray(m.triangles, dtype=np.int32)
+    return Mesh(v, t, np.full(len(t), reflectance, dtype=np.float32))
 
 
 def frustum(z0_m: float, z1_m: float, radii0_m, radii1_m, reflectance: float, resolution: int = 12,
@@ -471,12 +494,75 @@ def clutter_mesh(kind: str, rng: np.random.Generator, *, ceiling_height_m: float
         mesh = Mesh.concat(parts)
         mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)
         return mesh, dict(width_m=w, depth_m=2 * spread, radius_m=np.hypot(w, 2 * spread) / 2)
+    if kind == "sign_post":  # a traffic sign: a thin pole with one or two plates at its top
+        radius, top = u(0.025, 0.05), u(2.0, 3.2)
+        parts = [cylinder((0, 0, 0), (0, 0, top), radius, refl * 0.6, 8)]
+        plate_refl = float(u(0.5, 1.0))  # retroreflective sheeting
+        z, widest = top, 0.0
+        for k in range(1 + int(rng.random() < 0.3)):
+            shape, size = int(rng.integers(3)), u(0.4, 0.9)
+            w, h = size, size * u(0.6, 1.4)  # (the aspect drawn for every shape, used by rectangles)
+            h = min(h, z - 1.1) if shape == 1 else size  # plates stay above 1.1 m
+            if k and z - h < 1.1:  # (a second one only where there is room)
+                break
+            centre = (radius + 0.02, 0.0, z - h / 2)
+            if shape == 0:  # round
+                parts.append(cylinder((radius + 0.01, 0, centre[2]), (radius + 0.03, 0, centre[2]), size / 2,
+                                      plate_refl, 16))
+            elif shape == 1:  # rectangular, wider than tall or taller than wide
+                parts.append(box(centre, (0.02, w, h), plate_refl))
+            else:  # a diamond: a square turned 45 deg
+                parts.append(_mesh("box", (0.02, size / np.sqrt(2), size / np.sqrt(2)), _rot_x(np.pi / 4), centre,
+                                   plate_refl))
+            widest = max(widest, w)
+            z -= h + 0.05
+        return Mesh.concat(parts), dict(width_m=widest, depth_m=0.1, radius_m=max(widest / 2, 0.15))
+    if kind == "bicycle":  # one to three parked bicycles side by side (a rack), each leaning a little
+        n = int(rng.integers(1, 4))
+        spacing = u(0.45, 0.7)
+        parts = []
+        length = 0.0
+        for i in range(n):
+            bike = _bicycle_mesh(rng)
+            lean = u(-0.2, 0.2)  # rad about the bike's long axis
+            v = bike.vertices @ _rot_x(lean).T
+            if rng.random() < 0.5:  # racks hold bikes both ways round
+                v = v * np.array([-1.0, -1.0, 1.0])
+            v[:, 1] += (i - (n - 1) / 2) * spacing
+            parts.append(Mesh(v, bike.triangles, bike.reflectance))
+            length = max(length, float(np.ptp(bike.vertices[:, 0])))
+        mesh = Mesh.concat(parts)
+        mesh.vertices[:, 2] = np.maximum(mesh.vertices[:, 2], 0.0)
+        width = (n - 1) * spacing + 0.6
+        return mesh, dict(width_m=width, depth_m=length, radius_m=np.hypot(length, width) / 2)
     if kind == "kerb":  # a low step along local x (as walls, a chain of collision circles)
         length, h = u(3.0, 12.0), u(0.1, 0.25)
         parts = [box((0, 0, h / 2), (length, 0.25, h), refl)]
         return Mesh.concat(parts), dict(width_m=0.25, depth_m=length, length_m=length, radius_m=0.125)
-    raise PedcalInputError(f"clutter kind must be one of {CLUTTER_KINDS + OUTDOOR_CLUTTER_KINDS}, got {kind!r}",
+    raise PedcalInputError(f"clutter kind must be one of {CLUTTER_KINDS + STREET_CLUTTER_KINDS}, got {kind!r}",
                            column="kind")
+
+
+def _bicycle_mesh(rng: np.random.Generator) -> Mesh:
+    """A bicycle along local x, standing upright, its wheels touching the floor: two tyres, the frame's
+    tubes, fork, handlebar and saddle."""
+    u = rng.uniform
+    wheel, base = u(0.3, 0.36), u(0.98, 1.12)
+    refl, tube = float(u(0.1, 0.9)), u(0.013, 0.022)
+    rear, front = np.array([-base / 2, 0.0, wheel]), np.array([base / 2, 0.0, wheel])
+    bracket = np.array([-0.05, 0.0, wheel - 0.03])
+    seat_top = np.array([-base / 2 + 0.35, 0.0, wheel + u(0.45, 0.6)])
+    head = np.array([base / 2 - 0.12, 0.0, wheel + u(0.42, 0.55)])
+    parts = [ring(rear, wheel - 0.02, 0.02, 0.08), ring(front, wheel - 0.02, 0.02, 0.08)]
+    for a, b in ((bracket, seat_top), (seat_top, head), (bracket, head), (head, front), (bracket, rear),
+                 (seat_top, rear)):
+        parts.append(cylinder(a, b, tube, refl, 6))
+    bar = head + np.array([-0.05, 0.0, 0.12])
+    parts.append(cylinder(head, bar, tube, refl, 6))
+    half_bar = u(0.2, 0.3)
+    parts.append(cylinder(bar + [0.0, -half_bar, 0.0], bar + [0.0, half_bar, 0.0], 0.014, float(u(0.05, 0.5)), 6))
+    parts.append(box(seat_top + [0.0, 0.0, 0.05], (0.25, 0.12, 0.05), float(u(0.05, 0.3))))
+    return Mesh.concat(parts)
 
 
 # --------------------------------------------------------------------------------------------
@@ -762,12 +848,93 @@ def random_person(rng: np.random.Generator, *, static: bool) -> SceneObject:
     return make_person(height, width, depth, pose, reflectance, rng, random_clothing=True)
 
 
+def _group_layout(rng: np.random.Generator, members: list[SceneObject]) -> np.ndarray:
+    """(n, 3) [ahead_m, left_m, yaw_offset_rad] of each member relative to the row's centre and
+    heading: side by side with 0-0.12 m between shoulders, each up to 0.1 m ahead of or behind the
+    row, turned by N(0, 0.15 rad)."""
+    n = len(members)
+    widths = np.array([m.width_m for m in members])
+    gaps = rng.uniform(0.0, 0.12, max(n - 1, 0))
+    left = np.concatenate([[0.0], np.cumsum((widths[:-1] + widths[1:]) / 2 + gaps)])
+    left -= (left[0] + left[-1]) / 2
+    return np.column_stack([rng.uniform(-0.1, 0.1, n), left, rng.normal(0.0, 0.15, n)])
+
+
+def _arrange_group(members: list[SceneObject], layout: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> None:
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    for m, (ahead, left, dyaw) in zip(members, layout, strict=True):
+        m.x_m, m.y_m = float(x_m + c * ahead - s * left), float(y_m + s * ahead + c * left)
+        m.yaw_rad = float(np.angle(np.exp(1j * (yaw_rad + dyaw))))
+
+
+def person_group(rng: np.random.Generator, n: int, *, static: bool, x_m: float = 0.0, y_m: float = 0.0,
+                 yaw_rad: float = 0.0, velocity_mps=(0.0, 0.0)) -> list[SceneObject]:
+    """``n`` random people (``random_person``) standing or walking together shoulder to shoulder,
+    the row centred on (x, y) and facing ``yaw_rad`` (``_group_layout``), all with one velocity.
+    Their footprints' collision circles overlap each other: place them as one (``random_scene``'s
+    ``n_groups``). A scanner sees them as one wide cluster to be cut at the heads."""
+    if n < 1:
+        raise PedcalInputError(f"a group needs at least one person, got {n}", column="n")
+    members = [random_person(rng, static=static) for _ in range(n)]
+    _arrange_group(members, _group_layout(rng, members), x_m, y_m, yaw_rad)
+    for m in members:
+        m.velocity_mps = tuple(float(v) for v in velocity_mps)
+    return members
+
+
+def _bearings(mesh: Mesh, origin_xy, about_rad: float) -> tuple[float, float]:
+    """(min, max) bearing of a mesh's vertices seen from ``origin_xy``, relative to ``about_rad``."""
+    v = mesh.vertices
+    rel = np.angle(np.exp(1j * (np.arctan2(v[:, 1] - origin_xy[1], v[:, 0] - origin_xy[0]) - about_rad)))
+    return float(rel.min()), float(rel.max())
+
+
+def hide_partly(scene: Scene, person: SceneObject, rng: np.random.Generator, *, kinds=HIDING_KINDS_STREET,
+                origin_xy=(0.0, 0.0), margin_m: float = 0.05, min_range_m: float = 0.8,
+                covered=(0.25, 0.75)) -> SceneObject | None:
+    """Put an object of one of ``kinds`` (clutter kinds, or "person": a standing stranger) between
+    ``person`` and the sensor at ``origin_xy`` so that it hides part of them, and add it to the scene.
+
+    The occluder stands 0.1-1.2 m nearer than the person (between their collision circles), turned
+    at random, and moved sideways (about the origin) until its outline covers a fraction drawn from
+    ``covered`` of the person's width in bearing, from the left or the right (its mesh's bearings
+    against the person's): a low occluder (a car, a bush, a box) hides also less than their
+    height. Returns the occluder, or None when no such place is clear of the scene's objects (and
+    of a 0.5 m robot at the origin) after 30 tries.
+    """
+    kind = str(kinds[int(rng.integers(len(kinds)))])
+    occ = random_person(rng, static=True) if kind == "person" else make_clutter(kind, rng)
+    dist = float(np.hypot(person.x_m - origin_xy[0], person.y_m - origin_xy[1]))
+    bearing = float(np.arctan2(person.y_m - origin_xy[1], person.x_m - origin_xy[0]))
+    p_lo, p_hi = _bearings(person.mesh_scene(), origin_xy, bearing)
+    placed = [o.collision_circles() for o in scene.objects] + [np.array([[*origin_xy, 0.5]])]
+    for _ in range(30):
+        d_occ = dist - person.radius_m - occ.radius_m - rng.uniform(0.1, 1.2)
+        yaw, share, left = rng.uniform(-np.pi, np.pi), rng.uniform(*covered), rng.random() < 0.5
+        if d_occ < max(min_range_m, occ.radius_m + 0.5):
+            continue
+        occ.x_m, occ.y_m = origin_xy[0] + d_occ * np.cos(bearing), origin_xy[1] + d_occ * np.sin(bearing)
+        occ.yaw_rad = float(yaw)
+        o_lo, o_hi = _bearings(occ.mesh_scene(), origin_xy, bearing)
+        # left (larger bearing): the occluder's right edge at the person's left edge minus the share
+        shift = (p_hi - share * (p_hi - p_lo) - o_lo) if left else (p_lo + share * (p_hi - p_lo) - o_hi)
+        b = bearing + shift
+        occ.x_m = float(origin_xy[0] + d_occ * np.cos(b))
+        occ.y_m = float(origin_xy[1] + d_occ * np.sin(b))
+        occ.yaw_rad = float(yaw + shift)
+        if _clear(occ.collision_circles(), placed, margin_m):
+            scene.add(occ)
+            return occ
+    return None
+
+
 def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(3, 10),
                  area=(0.8, 5.0, -4.0, 4.0), fov_half_angle_deg: float = 60.0,
                  static_fraction: float = 0.4, allow_occlusion: bool = True,
                  walking_speed_mps=(0.4, 1.5), ceiling_height_m: float | None = None,
                  max_person_range_m: float | None = None, margin_m: float = 0.05,
-                 clutter_weights: dict[str, float] | None = None) -> Scene:
+                 clutter_weights: dict[str, float] | None = None, n_groups=0, group_size=(2, 5),
+                 hidden_share: float = 0.0) -> Scene:
     """A random scene in front of the robot (robot base at the origin facing +x).
 
     People are placed inside ``area`` = (x_min, x_max, y_min, y_max), within
@@ -781,7 +948,12 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
     ``allow_occlusion=False`` nothing nearer overlaps a person in bearing from the origin.
     Objects that cannot be placed after many draws are left out with a warning.
     ``clutter_weights`` (kind -> relative frequency) replaces the indoor mix ``CLUTTER_WEIGHTS``,
-    e.g. with ``OUTDOOR_CLUTTER_WEIGHTS`` for a street.
+    e.g. with ``OUTDOOR_CLUTTER_WEIGHTS`` or ``STREET_CLUTTER_WEIGHTS`` for a street.
+    ``n_groups`` (a count or (min, max)) rows of ``group_size`` people standing or walking
+    shoulder to shoulder (``person_group``) go in after the single people; a ``hidden_share`` of
+    all people then get an occluder in front (``hide_partly``: ``HIDING_KINDS_INDOOR``, or
+    ``HIDING_KINDS_STREET`` with ``clutter_weights``). Both draw nothing at their defaults (0), so
+    a scene drawn without them is the same as before they existed.
     """
     rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
     x_min, x_max, y_min, y_max = area
@@ -790,6 +962,11 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
                                column="area")
     if not 0.0 <= static_fraction <= 1.0:
         raise PedcalInputError(f"static_fraction must be in [0, 1], got {static_fraction}", column="static_fraction")
+    if not 0.0 <= hidden_share <= 1.0:
+        raise PedcalInputError(f"hidden_share must be in [0, 1], got {hidden_share}", column="hidden_share")
+    if hidden_share > 0 and not allow_occlusion:
+        raise PedcalInputError("hidden_share > 0 hides people on purpose: it needs allow_occlusion=True",
+                               column="hidden_share")
     n_p = _range_draw(rng, n_people, "n_people")
     n_c = _range_draw(rng, n_clutter, "n_clutter")
     ceiling = 2.7 if ceiling_height_m is None else ceiling_height_m
@@ -838,6 +1015,28 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
             return True
         return False
 
+    def place_group(members: list[SceneObject]) -> bool:
+        layout = _group_layout(rng, members)
+        for _ in range(200):
+            r, b = rng.uniform(r_min, r_max), rng.uniform(-half_fov, half_fov)
+            _arrange_group(members, layout, r * np.cos(b), r * np.sin(b), rng.uniform(-np.pi, np.pi))
+            xy = np.array([[m.x_m, m.y_m] for m in members])
+            rr, bb = np.hypot(xy[:, 0], xy[:, 1]), np.abs(np.arctan2(xy[:, 1], xy[:, 0]))
+            if not (np.all((xy[:, 0] >= x_min) & (xy[:, 0] <= x_max) & (xy[:, 1] >= y_min) & (xy[:, 1] <= y_max))
+                    and np.all((rr >= r_min) & (rr <= r_max) & (bb <= half_fov))):
+                continue
+            circles = np.vstack([m.collision_circles() for m in members])
+            if not _clear(circles, placed, margin_m):
+                continue
+            if not allow_occlusion and any(_occludes(o, m) or (o.is_person and _occludes(m, o))
+                                           for o in scene.objects for m in members):
+                continue
+            placed.append(circles)
+            for m in members:
+                scene.add(m)
+            return True
+        return False
+
     for kind in walls:
         if not place(make_clutter(kind, rng, ceiling_height_m=ceiling), False):
             dropped.append(kind)
@@ -855,6 +1054,24 @@ def random_scene(rng: np.random.Generator | int, *, n_people=(1, 6), n_clutter=(
             if _clear(pram.collision_circles(), placed[:-1], margin_m):  # (not against its own pusher)
                 placed.append(pram.collision_circles())
                 scene.add(pram)
+    n_g = 0 if np.isscalar(n_groups) and n_groups == 0 else _range_draw(rng, n_groups, "n_groups")
+    for _ in range(n_g):
+        static = bool(rng.random() < static_fraction)
+        members = person_group(rng, _range_draw(rng, group_size, "group_size"), static=static)
+        if not place_group(members):
+            dropped.append(f"group of {len(members)}")
+            continue
+        if not static:
+            speed, yaw = rng.uniform(*walking_speed_mps), members[0].yaw_rad
+            for m in members:
+                m.velocity_mps = (float(speed * np.cos(yaw)), float(speed * np.sin(yaw)))
+    if hidden_share > 0:
+        kinds_hiding = HIDING_KINDS_INDOOR if clutter_weights is None else HIDING_KINDS_STREET
+        for p in list(scene.people):
+            if rng.random() < hidden_share:
+                occ = hide_partly(scene, p, rng, kinds=kinds_hiding, margin_m=margin_m)
+                if occ is not None:
+                    placed.append(occ.collision_circles())
     for kind in rest:
         if not place(make_clutter(kind, rng, ceiling_height_m=ceiling), False):
             dropped.append(kind)
