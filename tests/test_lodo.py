@@ -203,3 +203,29 @@ def test_the_shipped_general_model_is_the_families_choice_with_its_lodo_table():
     rows = m.metadata_["selection"]
     best = max(rows, key=lambda r: (r["worst"], r["mean"]))
     assert best["config"] == fam.config.name() and best["threshold"] == fam.threshold
+
+
+def test_detect_eval_lodo_recomputes_the_table(tmp_path, capsys):
+    """``--lodo`` retrains the model's configuration without each dataset and prints its table."""
+    from dataclasses import asdict
+
+    from test_real_eval import _labelled_folder
+
+    root = tmp_path / "data"
+    root.mkdir()
+    _labelled_folder(root, np.random.default_rng(0))
+    rng = np.random.default_rng(9)
+    X = rng.normal(size=(200, N_FEATURES))
+    m = GradientBoostedTrees(n_estimators=5).fit(X, (X[:, 0] > 0).astype(int))
+    config = lodo.Config("gbt", "raw", N_FEATURES, 5.0, 0, 20)
+    m.metadata_ = dict(intensity="raw", config=asdict(config), simulated_frames=6, real_copies=0, seed=0,
+                       threshold=0.3)
+    m.save(tmp_path / "g.npz")
+    assert main(["detect-eval", "--frames", "1", "--model", str(tmp_path / "g.npz"), "--lodo",
+                 "--data-dir", str(root)]) == 0
+    out = capsys.readouterr().out
+    assert "(recomputed)" in out and "frames      1" in out and "0-10: 1/1" in out
+    m.metadata_ = {}
+    m.save(tmp_path / "h.npz")
+    assert main(["detect-eval", "--frames", "1", "--model", str(tmp_path / "h.npz"), "--lodo"]) == 2
+    assert "train-detector" in capsys.readouterr().err
