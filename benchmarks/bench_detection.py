@@ -60,7 +60,7 @@ def main() -> None:
 
 
 def bench_real(model, repeats: int, data_dir=None) -> None:
-    from pedcal.detect.detect_cli import detect_file
+    from pedcal.detect.files import detect_file
     from pedcal.detect.real_eval import dataset_of, frame_pairs, labelled_folders
     from pedcal.errors import PedcalInputError
 

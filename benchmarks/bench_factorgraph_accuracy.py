@@ -81,7 +81,7 @@ def reference_head_rms_mm(sim) -> tuple[float, float]:
 
 def coverage(ev, res):
     """(per-axis |e| / sigma, 3-D Mahalanobis d^2) for every sensor the graph calibrated."""
-    cov = getattr(res.diagnostics, "position_cov_world_m2", {})
+    cov = getattr(res.diagnostics, "position_covariance_m2", {})
     ratios, d2 = [], []
     for s in ev.sensors:
         ext = res.network[s.id]

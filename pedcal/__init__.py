@@ -32,8 +32,37 @@ when a function is called with ``progress=True``); route or mute them with
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
+
+if TYPE_CHECKING:     # what static tools (mypy, pyright, IDEs) see; at run time __getattr__ loads them
+    from pedcal.calib import calibrate as calibrate
+    from pedcal.calib.common import CalibrationResult as CalibrationResult
+    from pedcal.detect.detection import detect as detect
+    from pedcal.errors import PedcalInputError as PedcalInputError
+    from pedcal.io.export import export_extrinsics as export_extrinsics
+    from pedcal.io.logdir import read_log as read_log
+    from pedcal.io.logdir import write_log as write_log
+    from pedcal.io.pedestrians import read_pedestrians as read_pedestrians
+    from pedcal.io.people import read_people_csv as read_people_csv
+    from pedcal.io.people import write_people_csv as write_people_csv
+    from pedcal.io.ros import import_bag as import_bag
+    from pedcal.io.ros import read_bag as read_bag
+    from pedcal.io.sensors_yaml import read_sensors_yaml as read_sensors_yaml
+    from pedcal.io.sensors_yaml import write_sensors_yaml as write_sensors_yaml
+    from pedcal.io.tum import write_tum as write_tum
+    from pedcal.metrics import EvaluationResult as EvaluationResult
+    from pedcal.metrics import evaluate as evaluate
+    from pedcal.model import Log as Log
+    from pedcal.model import Meta as Meta
+    from pedcal.model import SensorExtrinsics as SensorExtrinsics
+    from pedcal.model import SensorNetwork as SensorNetwork
+    from pedcal.report.compare import compare_extrinsics as compare_extrinsics
+    from pedcal.sim import simulate as simulate
+    from pedcal.sim import simulate_logs as simulate_logs
+    from pedcal.track.follow import FollowResult as FollowResult
+    from pedcal.track.follow import run_follow as follow
 
 # public name -> (module, attribute); resolved lazily by __getattr__ (PEP 562).
 _EXPORTS = {
@@ -65,10 +94,38 @@ _EXPORTS = {
     "PedcalInputError": ("pedcal.errors", "PedcalInputError"),
 }
 
-__all__ = ["__version__", *_EXPORTS]
+__all__ = [  # a literal list, so static tools read it (tests/test_typing.py checks it against _EXPORTS)
+    "__version__",
+    "read_log",
+    "write_log",
+    "read_sensors_yaml",
+    "write_sensors_yaml",
+    "read_people_csv",
+    "write_people_csv",
+    "read_pedestrians",
+    "read_bag",
+    "import_bag",
+    "export_extrinsics",
+    "write_tum",
+    "Log",
+    "Meta",
+    "SensorNetwork",
+    "SensorExtrinsics",
+    "simulate",
+    "simulate_logs",
+    "calibrate",
+    "CalibrationResult",
+    "evaluate",
+    "EvaluationResult",
+    "compare_extrinsics",
+    "follow",
+    "FollowResult",
+    "detect",
+    "PedcalInputError",
+]
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> object:
     try:
         module, attr = _EXPORTS[name]
     except KeyError:

@@ -121,7 +121,8 @@ def cmd_export(args) -> int:
     if args.extrinsics:
         raise PedcalInputError("--extrinsics goes with --format tum; give the calibrated YAML as INPUT",
                                path=args.input)
-    path = export_extrinsics(args.input, args.output, args.format, ros_version=args.ros, prefix=args.prefix)
+    path = export_extrinsics(args.input, args.output, args.format, ros_version=args.ros, prefix=args.prefix,
+                             optical=args.optical)
     print(f"wrote {path}")
     return 0
 
@@ -298,7 +299,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--prefix", default="", help="child frame = prefix + sensor id")
     s.add_argument("--extrinsics", action="append", type=Path, default=[],
                    help="tum: also the head path seen with these extrinsics (repeatable)")
-    s.set_defaults(func=cmd_export)
+    s.add_argument("--optical", action="store_true",
+                   help="tf-launch, urdf: add each sensor's <child>_optical frame (z forward, x right, y down)")
+    # --ros unset: XML for ROS 1, or a ROS 2 Python launch file when the output is named .launch.py
+    s.set_defaults(func=cmd_export, ros=None)
 
     s = sub.add_parser("import-people", help="recorded pedestrian file (ATC, ETH/UCY, THOR) -> people CSV")
     s.add_argument("input", type=Path)

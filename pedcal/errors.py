@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import functools
+import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
+
+F = TypeVar("F", bound=Callable)
 
 
 class PedcalInputError(ValueError):
@@ -29,6 +35,23 @@ class PedcalInputError(ValueError):
 
 class DegenerateDataWarning(UserWarning):
     """The data leave something unestimable; the message says what."""
+
+
+def warnings_at_caller(func: F) -> F:
+    """Decorate a public entry point: the warnings raised while it runs are re-raised at the line
+    that called it (under the caller's warning filters), not at the line inside pedcal that found
+    the problem, so ``-W error`` and per-module filters work on the user's script."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = func(*args, **kwargs)
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=2)
+        return result
+
+    return wrapper  # type: ignore[return-value]
 
 
 def show(value, limit: int = 40) -> str:

@@ -13,6 +13,10 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+# A camera's optical frame (z forward, x right, y down; REP 103 "_optical") in its body frame:
+# R_sensor_optical = Rz(-90 deg) Ry(0) Rx(-90 deg), so p_sensor = R_sensor_optical @ p_optical = (z, -x, -y).
+OPTICAL_YPR_DEG = (-90.0, 0.0, -90.0)
+
 
 def rot_from_ypr_deg(ypr_deg) -> np.ndarray:
     """3x3 rotation matrix R_world_sensor from [yaw, pitch, roll] in degrees."""

@@ -15,9 +15,11 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.common import robot_head_at
+from pedcal.errors import warnings_at_caller
 from pedcal.model import Log, SensorNetwork
 
 # Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
@@ -102,7 +104,22 @@ class EvaluationResult:
     missing_sensors: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
+        """The figures as nested plain values (``pedcal evaluate --json``); ``to_dataframe()``
+        gives the per-sensor part as a table."""
         return asdict(self)
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per scored sensor, indexed by id: ``error_x_mm``, ``error_y_mm``, ``error_z_mm``
+        (estimated - true, world axes), ``position_error_norm_mm``, ``orientation_error_deg``,
+        ``head_rms_mm`` (NaN without head observations) and ``head_observations``."""
+        rows = [{"id": s.id, **dict(zip(("error_x_mm", "error_y_mm", "error_z_mm"), map(float, s.position_error_mm),
+                                        strict=True)),
+                 "position_error_norm_mm": s.position_error_norm_mm, "orientation_error_deg": s.orientation_error_deg,
+                 "head_rms_mm": np.nan if s.head_rms_mm is None else s.head_rms_mm,
+                 "head_observations": s.head_observations} for s in self.sensors]
+        columns = ["id", "error_x_mm", "error_y_mm", "error_z_mm", "position_error_norm_mm", "orientation_error_deg",
+                   "head_rms_mm", "head_observations"]
+        return pd.DataFrame(rows, columns=columns).set_index("id")
 
     def format_table(self) -> str:
         out = []
@@ -181,6 +198,7 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
     return out
 
 
+@warnings_at_caller
 def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     """The papers' figures of ``extrinsics`` on ``log`` (see the module docstring)."""
     missing = [sid for sid in log.sensors.ids if sid not in extrinsics]

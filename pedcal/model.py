@@ -24,7 +24,26 @@ TRUTH_OBSERVATION_COLUMNS = ("row", "who")
 PEOPLE_COLUMNS = ("t", "person", "x", "y")
 
 SENSOR_STATUSES = ("ok", "degenerate", "no-data")
+# Columns of a sensor's row in to_dict() / to_dataframe() tables (one row per sensor).
+POSITION_COLUMNS = ("x_m", "y_m", "z_m")
+YPR_COLUMNS = ("yaw_deg", "pitch_deg", "roll_deg")
+SIGMA_POSITION_COLUMNS = ("sigma_x_m", "sigma_y_m", "sigma_z_m")
+SIGMA_YPR_COLUMNS = ("sigma_yaw_deg", "sigma_pitch_deg", "sigma_roll_deg")
+SIGMA_ROTATION_COLUMNS = ("sigma_rotation_x_deg", "sigma_rotation_y_deg", "sigma_rotation_z_deg")
 DEFAULT_HEAD_OFFSET_M = (0.0, 0.0, 1.35)
+
+
+def plain(value):
+    """numpy scalars and arrays as Python numbers and lists, recursively (for JSON / YAML)."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 @dataclass
@@ -64,6 +83,23 @@ class SensorExtrinsics:
 
     def to_world(self, points_sensor: np.ndarray) -> np.ndarray:
         return frames.world_from_sensor(points_sensor, self.position_m, self.ypr_deg)
+
+    def to_dict(self) -> dict:
+        """One flat row: ``id``, ``x_m``, ``y_m``, ``z_m``, ``yaw_deg``, ``pitch_deg``, ``roll_deg``
+        (T_world_sensor), then what a calibration says of the sensor (``sigma_x_m`` ...
+        ``sigma_roll_deg``, ``sigma_rotation_x_deg`` ... (a rotation vector in the sensor frame),
+        ``observations``, ``status``, ``unobservable`` as one comma-separated text): None where it
+        says nothing. Plain Python numbers and text only, no lists (a table cell each)."""
+        row: dict = {"id": self.id}
+        row.update(zip(POSITION_COLUMNS, map(float, self.position_m), strict=True))
+        row.update(zip(YPR_COLUMNS, map(float, self.ypr_deg), strict=True))
+        for names, sigma in ((SIGMA_POSITION_COLUMNS, self.sigma_position_m), (SIGMA_YPR_COLUMNS, self.sigma_ypr_deg),
+                             (SIGMA_ROTATION_COLUMNS, self.sigma_rotation_deg)):
+            row.update(zip(names, [None] * 3 if sigma is None else map(float, np.reshape(sigma, 3)), strict=True))
+        row["observations"] = None if self.observations is None else int(self.observations)
+        row["status"] = self.status
+        row["unobservable"] = None if self.unobservable is None else ",".join(self.unobservable)
+        return row
 
     def to_sensor(self, points_world: np.ndarray) -> np.ndarray:
         return frames.sensor_from_world(points_world, self.position_m, self.ypr_deg)
@@ -107,6 +143,17 @@ class SensorNetwork:
         return SensorNetwork([replace(s, position_m=s.position_m.copy(), ypr_deg=s.ypr_deg.copy())
                               for s in self.sensors], self.frame, dict(self.extra))
 
+    def to_dict(self) -> dict:
+        """``frame``, ``sensors`` (one flat row per sensor, :meth:`SensorExtrinsics.to_dict`) and
+        ``extra`` (the file's other top-level keys, numpy values as plain numbers and lists)."""
+        return {"frame": self.frame, "sensors": [s.to_dict() for s in self.sensors], "extra": plain(self.extra)}
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per sensor, indexed by id: the columns of :meth:`SensorExtrinsics.to_dict`."""
+        rows = [s.to_dict() for s in self.sensors]
+        columns = list(SensorExtrinsics("_", np.zeros(3), np.zeros(3)).to_dict())
+        return pd.DataFrame(rows, columns=columns).set_index("id")
+
 
 @dataclass
 class Meta:
@@ -128,6 +175,35 @@ class Log:
     truth_robot: pd.DataFrame | None = None
     truth_observations: pd.DataFrame | None = None
     path: Path | None = None
+
+    def to_dict(self) -> dict:
+        """What the log holds, briefly: ``path``, ``meta`` (head offset and notes), ``sensors`` (the
+        installed network, :meth:`SensorNetwork.to_dict`), ``truth`` (or None) and ``tables``: per
+        table its rows and time span (s); the tables themselves are DataFrames already."""
+        tables = {}
+        for name in ("robot", "observations", "odometry", "truth_robot", "truth_observations"):
+            table = getattr(self, name)
+            if table is None:
+                continue
+            t = table["t"].to_numpy(float) if "t" in table and len(table) else np.zeros(0)
+            tables[name] = {"rows": len(table), "t_start_s": float(t.min()) if t.size else None,
+                            "t_end_s": float(t.max()) if t.size else None}
+        return {"path": None if self.path is None else str(self.path),
+                "meta": {"head_offset_m": plain(self.meta.head_offset_m), "notes": plain(self.meta.notes)},
+                "sensors": self.sensors.to_dict(), "truth": None if self.truth is None else self.truth.to_dict(),
+                "tables": tables}
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per installed sensor (the columns of :meth:`SensorNetwork.to_dataframe`) with
+        ``observation_rows`` (its rows in observations.csv) and, when the log has truth.yaml, the
+        true pose as ``truth_x_m`` ... ``truth_roll_deg``."""
+        df = self.sensors.to_dataframe()
+        counts = self.observations["sensor"].astype(str).value_counts() if len(self.observations) else pd.Series()
+        df["observation_rows"] = [int(counts.get(sid, 0)) for sid in df.index]
+        if self.truth is not None:
+            truth = self.truth.to_dataframe()[list(POSITION_COLUMNS + YPR_COLUMNS)].add_prefix("truth_")
+            df = df.join(truth)
+        return df
 
     def observation_points_sensor(self) -> np.ndarray:
         """Head points in each sensor's own frame, undoing the installed extrinsics

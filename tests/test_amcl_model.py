@@ -91,7 +91,7 @@ def test_the_graph_estimates_the_kind_of_amcl_error_it_was_given(kind):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         res = calibrate_factorgraph(sim.calib)
-    model = res.diagnostics.amcl_model
+    model = res.diagnostics.amcl_error_model
     assert model.source == "estimated"
     if kind == "white":
         assert model.correlated_sigma_m == 0.0
@@ -112,7 +112,7 @@ def test_amcl_jumps_seen_by_the_sensors_are_left_out():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         res = calibrate_factorgraph(sim.calib)
-    model = res.diagnostics.amcl_model
+    model = res.diagnostics.amcl_error_model
     amcl = sim.calib.robot.sort_values("t", kind="stable")
     truth = interpolate_pose2(sim.calib.truth_robot, amcl["t"].to_numpy(float))
     err = np.hypot(amcl["x"].to_numpy(float) - truth[:, 0], amcl["y"].to_numpy(float) - truth[:, 1])

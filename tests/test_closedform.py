@@ -54,7 +54,7 @@ def test_noise_free_true_association_recovers_truth():
     is_robot = log.truth_observations["who"].to_numpy() == "robot"
     res = calibrate_closedform(log, is_robot=is_robot)
     assert res.method == "closedform"
-    assert res.diagnostics.latency_s == pytest.approx(0.1, abs=1e-3)
+    assert res.diagnostics.tracker_latency_s == pytest.approx(0.1, abs=1e-3)
     pos_mm, ang_deg = _errors(res.network, log.truth)
     assert max(pos_mm.values()) < 1.0
     assert max(ang_deg.values()) < 0.01
@@ -128,7 +128,7 @@ def test_noise_free_paper_scenario_association_and_closed_form_are_exact(paper_n
     pos_mm, ang_deg = _errors(res.network, log.truth)
     assert max(pos_mm.values()) < 1.0
     assert max(ang_deg.values()) < 0.01
-    assert abs(res.diagnostics.latency_s) < 1e-3
+    assert abs(res.diagnostics.tracker_latency_s) < 1e-3
 
 
 def test_paper_scenario_with_default_nuisances():
@@ -140,6 +140,6 @@ def test_paper_scenario_with_default_nuisances():
     res = calibrate_closedform(log)
     score = score_association(log, res.is_robot)
     assert score["precision"] >= 0.99 and score["recall"] >= 0.98
-    assert res.diagnostics.latency_s == pytest.approx(0.1, abs=0.03)   # the scenario's tracker latency
+    assert res.diagnostics.tracker_latency_s == pytest.approx(0.1, abs=0.03)   # the scenario's tracker latency
     # AMCL's correlated error is the floor of a per-sensor fit; the installed poses are ~370 mm off
     assert evaluate(log, res.network).sensor_position_rms_mm.combined < 80.0

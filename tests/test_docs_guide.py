@@ -1,6 +1,8 @@
 """docs/guide.md runs: its python blocks and the `pedcal` lines of its sh blocks, in order, in an
 empty directory holding the guide's three inputs (a ROS bag, installed extrinsics, a pedestrian
-recording). Other shell lines (evo) name tools outside pedcal and are not run."""
+recording) as docs/make_guide_inputs.py writes them, the command the guide gives. Other shell
+lines (pip, evo) name tools outside pedcal and are not run. The README's Python block runs too,
+in an empty directory."""
 
 from __future__ import annotations
 
@@ -12,41 +14,45 @@ from pathlib import Path
 import numpy as np
 
 from pedcal.cli import main
-from pedcal.io import write_sensors_yaml
 
-GUIDE = Path(__file__).resolve().parents[1] / "docs" / "guide.md"
+ROOT = Path(__file__).resolve().parents[1]
+GUIDE = ROOT / "docs" / "guide.md"
 BLOCK = re.compile(r"^```(python|sh)\n(.*?)^```", re.S | re.M)
 
 
-def _recording(path: Path) -> None:
-    """ETH/UCY layout (frame ped_id x y, frames step 10 at 25 fps): three people for 30 s."""
-    rows = []
-    for frame in range(0, 750, 10):
-        s = frame / 25.0
-        rows += [(frame, 1, 0.9 * s - 10, 0.0), (frame, 2, 12 - 0.8 * s, 1.5), (frame, 3, 0.5 * s - 8, -2.0)]
-    path.write_text("".join(f"{f}\t{p}.0\t{x:.3f}\t{y:.3f}\n" for f, p, x, y in rows))
+def _make_guide_inputs(out_dir: Path) -> list[Path]:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_guide_inputs", ROOT / "docs" / "make_guide_inputs.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.make_guide_inputs(out_dir)
+
+
+DEPRECATED_NAME = r".* is deprecated, use .*"      # pedcal.deprecation's message
 
 
 def test_guide_examples_run(tmp_path, monkeypatch):
     import logging
-
-    from tests.test_ros_import import SENSORS, write_scene_bag
+    import warnings
 
     levels = {name: logging.getLogger(name).level for name in ("pedcal", "pedcal.calib")}
     try:
-        _run_guide(tmp_path, monkeypatch, SENSORS, write_scene_bag)
+        with warnings.catch_warnings():   # the guide uses no deprecated pedcal name
+            warnings.filterwarnings("error", message=DEPRECATED_NAME, category=DeprecationWarning)
+            _run_guide(tmp_path, monkeypatch)
     finally:                                            # the guide sets logger levels
         for name, level in levels.items():
             logging.getLogger(name).setLevel(level)
 
 
-def _run_guide(tmp_path, monkeypatch, SENSORS, write_scene_bag):  # noqa: N803
-
-    write_scene_bag(tmp_path / "run.bag", 1)
-    write_sensors_yaml(SENSORS, tmp_path / "installed.yaml")
-    _recording(tmp_path / "recording.txt")
+def _run_guide(tmp_path, monkeypatch):
+    text = GUIDE.read_text()
+    assert "python REPO/docs/make_guide_inputs.py .\n" in text and "pip install evo\n" in text
+    written = _make_guide_inputs(tmp_path)
+    assert [p.name for p in written] == ["run.bag", "installed.yaml", "recording.txt"]
     monkeypatch.chdir(tmp_path)
-    blocks = BLOCK.findall(GUIDE.read_text())
+    blocks = BLOCK.findall(text)
     assert [k for k, _ in blocks].count("python") >= 5 and [k for k, _ in blocks].count("sh") >= 5
     namespace: dict = {}
     ran = 0
@@ -68,3 +74,23 @@ def _run_guide(tmp_path, monkeypatch, SENSORS, write_scene_bag):  # noqa: N803
     assert os.path.getsize(tmp_path / "runs/sparse/sensors.urdf") > 0
     assert os.path.getsize(tmp_path / "runs/sparse/graph.png") > 0
     assert namespace["fg"].position_covariance_m2.shape == (3 * len(namespace["fg"].network),) * 2
+    assert (tmp_path / "runs/sparse/sensors.launch.py").read_text().count("static_transform_publisher") == 2 * len(
+        namespace["fg"].network)                        # --optical: a sensor's frame and its optical frame
+    assert abs(namespace["shift_x"][namespace["first"]] - 0.05) < 2e-3
+
+
+README = ROOT / "README.md"
+
+
+def test_readme_python_block_runs_in_an_empty_directory(tmp_path, monkeypatch):
+    import warnings
+
+    blocks = [code for kind, code in BLOCK.findall(README.read_text()) if kind == "python"]
+    assert len(blocks) == 1
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    with warnings.catch_warnings():       # the README uses no deprecated pedcal name
+        warnings.filterwarnings("error", message=DEPRECATED_NAME, category=DeprecationWarning)
+        exec(compile(blocks[0], "README.md python block", "exec"), namespace)   # noqa: S102
+    assert (tmp_path / "runs/paper/eval/observations.csv").is_file()
+    assert set(namespace["result"].network.ids) == set(namespace["log"].sensors.ids)

@@ -94,7 +94,7 @@ def test_estimated_latency_is_recovered():
     log.observations["t"] += 0.12          # stamps 120 ms late
     res = calibrate_factorgraph(log, graph=_exact_recipe(estimate_latency=True),
                                 is_robot=np.ones(len(log.observations), bool))
-    assert res.diagnostics.latency_s == pytest.approx(0.12, abs=0.004)
+    assert res.diagnostics.tracker_latency_s == pytest.approx(0.12, abs=0.004)
     for s in res.network:
         assert np.linalg.norm(s.position_m - log.truth[s.id].position_m) < 5e-3
 

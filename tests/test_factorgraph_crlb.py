@@ -64,8 +64,8 @@ def test_crlb_matches_numeric_fisher_information_of_one_sensor():
     cov_world, _, _ = sensor_sigma_world(T0, np.linalg.inv(info))
     sid = prob.sensor_ids[0]
     # the graph's bound also carries the trajectory's (small) uncertainty: equal within 10 %
-    assert np.trace(bound.position_cov_world_m2[sid]) == pytest.approx(np.trace(cov_world), rel=0.10)
-    assert np.trace(bound.position_cov_world_m2[sid]) >= 0.99 * np.trace(cov_world)
+    assert np.trace(bound.position_covariance_m2[sid]) == pytest.approx(np.trace(cov_world), rel=0.10)
+    assert np.trace(bound.position_covariance_m2[sid]) >= 0.99 * np.trace(cov_world)
 
 
 def test_crlb_shrinks_as_one_over_n():
@@ -74,8 +74,8 @@ def test_crlb_shrinks_as_one_over_n():
     quarter = _tight_amcl_log(keep_every=4)
     b_full = sensor_position_crlb(full, rec, is_robot=np.ones(len(full.observations), bool))
     b_quarter = sensor_position_crlb(quarter, rec, is_robot=np.ones(len(quarter.observations), bool))
-    for sid, c in b_full.position_cov_world_m2.items():
-        ratio = np.trace(b_quarter.position_cov_world_m2[sid]) / np.trace(c)
+    for sid, c in b_full.position_covariance_m2.items():
+        ratio = np.trace(b_quarter.position_covariance_m2[sid]) / np.trace(c)
         assert 3.4 < ratio < 4.6, (sid, ratio)
     assert b_quarter.rms_bound_mm == pytest.approx(2.0 * b_full.rms_bound_mm, rel=0.08)
     assert b_full.efficiency_ratio(2 * b_full.rms_bound_mm) == pytest.approx(2.0)

@@ -56,8 +56,10 @@ def test_rostopic_amcl_csv_bad_input(tmp_path, shared_data):
 
 def test_ros2_bag_odometry(tmp_path, shared_data):
     bag = shared_data / "turtlebot4_ros2_bag"
-    tables = read_bag(bag)
-    assert tables.robot is None             # the drive has no localization (only odom -> base_link)
+    with pytest.raises(PedcalInputError, match="no localization in the bag"):
+        read_bag(bag)                       # the drive has no localization (only odom -> base_link)
+    tables = read_bag(bag, require_localization=False)
+    assert tables.robot is None
     assert "no /tf chain 'map' -> 'base_link'" in tables.missing
     odo = tables.odometry
     assert list(odo.columns) == list(ODOMETRY_COLUMNS) and len(odo) == 920
@@ -67,7 +69,7 @@ def test_ros2_bag_odometry(tmp_path, shared_data):
     speed = np.hypot(np.diff(odo["x"]), np.diff(odo["y"])) / np.diff(odo["t"])
     assert np.median(speed[np.isfinite(speed)]) < 0.5
     # The .db3 file names the same bag.
-    assert len(read_bag(next(bag.glob("*.db3"))).odometry) == 920
+    assert len(read_bag(next(bag.glob("*.db3")), require_localization=False).odometry) == 920
 
     # Without localization the import is refused (calibrate would need robot.csv) and writes nothing.
     with pytest.raises(PedcalInputError, match="no localization in the bag"):

@@ -171,7 +171,7 @@ def test_real_clusters_are_what_detect_file_classifies(tmp_path):
     same count, same box centres; the labelled pedestrian is a person, the car is not."""
     from test_real_eval import _labelled_folder
 
-    from pedcal.detect.detect_cli import detect_file
+    from pedcal.detect.files import detect_file
 
     root = tmp_path / "data"
     root.mkdir()

@@ -211,6 +211,16 @@ def test_bag_without_localization_exits_2(tmp_path, capsys):
     assert not (tmp_path / "log").exists()
 
 
+def test_read_bag_without_localization_raises_like_the_cli(tmp_path):
+    path = bag_path(tmp_path, 2)
+    write_scene_bag(path, 2, localization=False)
+    with pytest.raises(PedcalInputError, match="no localization in the bag") as err:
+        read_bag(path, people=["/s01/people=s01"], sensors=SENSORS)
+    assert "'map' -> 'base_link'" in str(err.value) and err.value.path == str(path)
+    tables = read_bag(path, people=["/s01/people=s01"], sensors=SENSORS, require_localization=False)
+    assert tables.robot is None and "PoseWithCovarianceStamped" in tables.missing and len(tables.observations) > 0
+
+
 def test_real_turtlebot_bag(shared_data, tmp_path, capsys):
     bag = shared_data / "turtlebot4_ros2_bag"
     code = main(["import-bag", str(bag), "-o", str(tmp_path / "none")])

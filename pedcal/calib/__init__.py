@@ -11,8 +11,20 @@
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 from pedcal.calib.common import CalibrationResult
+from pedcal.calib.options import (
+    OPTIONS,
+    AlternativeOptions,
+    ClosedFormOptions,
+    FactorGraphOptions,
+    GridSearchOptions,
+    MethodOptions,
+    PedcalOptionError,
+    resolve_options,
+)
+from pedcal.errors import warnings_at_caller
 from pedcal.model import Log
 
 METHODS = {
@@ -23,11 +35,18 @@ METHODS = {
 }
 
 
-def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, **options) -> CalibrationResult:
+@warnings_at_caller
+def calibrate(log: Log, method: str | None = None, *, options: MethodOptions | None = None,
+              progress: bool = False, max_memory_gb: float | None = None, **kwargs: Any) -> CalibrationResult:
     """Calibrate every sensor of ``log`` with ``method``; returns a CalibrationResult whose
     ``network`` is the calibrated schema of LOG_FORMAT.md.
 
-    ``progress=True`` logs progress at INFO on the ``pedcal`` logger. ``options`` by method:
+    ``options``: the method's typed options (``pedcal.calib.OPTIONS``): FactorGraphOptions,
+    GridSearchOptions, AlternativeOptions or ClosedFormOptions; ``method`` defaults to the one of
+    ``options``, else ``factorgraph``. The same options may come as keywords
+    (``calibrate(log, method="gridsearch", angle_step_deg=0.05)``); a name the method does not take
+    is refused before any work, with the method's names listed (PedcalOptionError: a
+    PedcalInputError and a TypeError). By method:
 
     - ``factorgraph``: ``graph`` (a recipe name in graphs/, a TOML path or a GraphRecipe),
       ``online`` (True: incremental iSAM2), ``is_robot`` (bool mask over ``log.observations``
@@ -42,15 +61,16 @@ def calibrate(log: Log, method: str = "factorgraph", *, progress: bool = False, 
     - ``closedform``: ``is_robot``, ``latency_s``, ``min_pairs``, ``collinear_spread_m``, and the
       association's parameters (``pedcal.calib.association.DEFAULT_PARAMS``)
 
-    An option a method does not take raises an error naming it. ``log`` is validated first
-    (pedcal.io.validate) and refused when it would need more than ``max_memory_gb`` (default 4)."""
-    if method not in METHODS:
-        raise ValueError(f"unknown calibration method '{method}', expected one of {', '.join(METHODS)}")
+    ``progress=True`` logs progress at INFO on the ``pedcal`` logger. ``log`` is validated first
+    (pedcal.io.validate) and refused when it would need more than ``max_memory_gb`` (default 4).
+    Warnings the calibration raises point at the line that called ``calibrate``."""
+    method, opts = resolve_options(method, options, kwargs)
     from pedcal.io.preflight import check_calibration
 
-    log = check_calibration(log, options.pop("max_memory_gb", None))   # validated; refused beyond the memory limit
+    log = check_calibration(log, max_memory_gb)   # validated; refused beyond the memory limit
     module, func = METHODS[method]
-    return getattr(importlib.import_module(module), func)(log, progress=progress, **options)
+    return getattr(importlib.import_module(module), func)(log, progress=progress, **opts.to_kwargs())
 
 
-__all__ = ["calibrate", "CalibrationResult", "METHODS"]
+__all__ = ["calibrate", "CalibrationResult", "METHODS", "OPTIONS", "MethodOptions", "FactorGraphOptions",
+           "GridSearchOptions", "AlternativeOptions", "ClosedFormOptions", "PedcalOptionError"]

@@ -71,7 +71,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                                        f"{is_robot.shape}", path=log.path)
             if latency_s is None:
                 latency_s = estimate_latency(log, is_robot)
-        diagnostics.latency_s = float(latency_s)
+        diagnostics.tracker_latency_s = float(latency_s)
 
         sensor_col = log.observations["sensor"].astype(str).to_numpy()
         p_sensor_all = log.observation_points_sensor()

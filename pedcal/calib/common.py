@@ -3,40 +3,39 @@
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 from scipy.interpolate import CubicSpline
 
-from pedcal.model import Log, SensorNetwork
+from pedcal.deprecation import renamed_fields
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork, plain
+
+if TYPE_CHECKING:
+    import gtsam
+
+    from pedcal.calib.amcl_model import AmclErrorModel
+    from pedcal.calib.online import OnlineTrace
 
 
-def _plain(value):
-    """numpy scalars and arrays as Python numbers and lists, recursively (for JSON / YAML)."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
+@renamed_fields(latency_s="tracker_latency_s")
 @dataclass
 class Diagnostics:
     """What every calibration method reports beside the extrinsics (None where a method has no
-    such thing); each method's own part is a subclass."""
+    such thing); each method's own part is a subclass. Names follow the calibrated YAML's
+    (``tracker_latency_s``, ...); the former names still read, with a DeprecationWarning."""
 
-    latency_s: float | None = None              # tracker latency the method applied (s)
+    tracker_latency_s: float | None = None      # tracker latency the method applied (s)
     association_runtime_s: float | None = None  # time spent picking out the robot (s)
 
     def to_dict(self) -> dict:
-        return _plain(asdict(self))
+        return plain(asdict(self))
 
 
+@renamed_fields(latency_s="tracker_latency_s")
 @dataclass
 class GridSearchDiagnostics(Diagnostics):
     # per searched sensor its GridSearchResult (pedcal.calib.gridsearch): the objective values
@@ -51,12 +50,14 @@ class GridSearchDiagnostics(Diagnostics):
         return {sid: s.on_range_edge for sid, s in self.sensors.items() if s.on_range_edge}
 
 
+@renamed_fields(latency_s="tracker_latency_s")
 @dataclass
 class ClosedFormDiagnostics(Diagnostics):
     unpaired_robot_observations: int = 0      # robot rows outside robot.csv's time span
     rms_residual_m: dict[str, float] = field(default_factory=dict)   # per fitted sensor
 
 
+@renamed_fields(latency_s="tracker_latency_s")
 @dataclass
 class AlternativeDiagnostics(Diagnostics):
     pairs: list[str] = field(default_factory=list)            # sensor pairs with shared sightings
@@ -88,7 +89,7 @@ class HeadModel:
     note: str = ""
 
     def to_dict(self) -> dict:
-        return _plain(asdict(self))
+        return plain(asdict(self))
 
 
 @dataclass
@@ -103,9 +104,11 @@ class ModelMismatch:
     head_model_misfit: str = ""     # a systematic misfit of the head-point model, in words
 
     def to_dict(self) -> dict:
-        return _plain(asdict(self))
+        return plain(asdict(self))
 
 
+@renamed_fields(latency_s="tracker_latency_s", odometry="odometry_model", amcl_model="amcl_error_model",
+                position_cov_world_m2="position_covariance_m2")
 @dataclass
 class FactorGraphDiagnostics(Diagnostics):
     recipe: str = ""
@@ -115,13 +118,15 @@ class FactorGraphDiagnostics(Diagnostics):
     build_s: float = 0.0
     optimize_s: float = 0.0
     shared_people: int = 0                        # instants two sensors saw one person
-    odometry: dict = field(default_factory=dict)  # estimated scale and heading drifts
+    odometry_model: dict = field(default_factory=dict)  # estimated scale and heading drifts
     head_model: HeadModel | None = None
     model_mismatch: ModelMismatch | None = None
-    position_cov_world_m2: dict[str, np.ndarray] = field(default_factory=dict)   # per sensor
-    amcl_model: object | None = None              # AmclErrorModel the graph was solved with
+    # per sensor its 3x3 position covariance, world axes (m^2): the diagonal blocks of
+    # CalibrationResult.position_covariance_m2
+    position_covariance_m2: dict[str, np.ndarray] = field(default_factory=dict)
+    amcl_error_model: AmclErrorModel | None = None       # the AMCL error model the graph was solved with
     observation_noise: dict = field(default_factory=dict)   # the sensors' noise estimated from the log
-    online_trace: object | None = None            # OnlineTrace of the incremental solver
+    online_trace: OnlineTrace | None = None               # trace of the incremental solver
 
 
 @dataclass
@@ -151,7 +156,37 @@ class CalibrationResult:
     sensor, robot pose, AMCL error node, person and nuisance variable), ``marginals()`` (GTSAM
     Marginals, computed on first use), ``position_covariance_m2`` (the joint covariance of all
     sensors' positions, world axes, 3n x 3n in ``network`` order, with the head model's and the
-    model check's share) and ``factor_residuals()`` (each factor's whitened residual)."""
+    model check's share) and ``factor_residuals()`` (each factor's whitened residual).
+
+    The graph's variables and their frames (``keys`` names each; all in the map frame):
+
+    - ``keys.sensors[id]``: ``Pose3`` T_world_sensor (sensor x = optical axis, pedcal/frames.py).
+    - ``keys.robot_poses[k]``: ``Pose3`` of the robot's *head point*, not its base: the base pose
+      (x, y, yaw) at ``keys.robot_pose_times[k]`` composed with meta.yaml's head offset, at the
+      head point's height: the head top plus the vertical offset, i.e. head offset z minus the
+      recipe's ``head_radius_m`` (0.05 m by default, the offset's initial value) plus the head
+      model's z. The base is this pose moved back by the horizontal head offset, at z = 0.
+    - ``keys.amcl_errors[j]``: ``Pose3``, a pure world translation: AMCL's slowly wandering error
+      at ``keys.amcl_error_times[j]`` (its inverse, F = E^-1).
+    - ``keys.people[m]``: ``Point3`` of a person's head seen by two sensors at once.
+    - ``keys.head_model``: ``Pose3`` whose z is the head point's vertical offset *measured from the
+      default -head_radius_m* built into the robot poses: the offset reported in
+      ``diagnostics.head_model.vertical_offset_m`` is ``-head_radius_m + z`` (z -0.052 m is an
+      offset of -0.102 m with the default radius). Its prior holds x, y and the rotation at zero
+      and centres z on ``head_radius_m`` minus the ray shift (a dome's offset, -shift), give or
+      take the recipe's ``head_vertical_sigma_m``; every AMCL error node's height is tied to it.
+
+    Held fixed in the graph (not variables): the tracker latency (estimated once before the
+    graph, ``diagnostics.tracker_latency_s``; observation times are shifted by it), the head
+    point's shifts toward the sensor along the ray and horizontally (and its curvature), which a
+    profile likelihood around the graph estimates, AMCL's error model and the odometry's
+    corrections. So ``marginals()`` holds the graph's uncertainty given those, and
+    ``position_covariance_m2`` (and the sigma of ``network``) adds the shifts' share (their sigma
+    times the sensors' sensitivity to them) and widens sensors whose residuals exceed the noise
+    model (``diagnostics.model_mismatch``): it is never smaller than the marginals' (the 3-D sigma
+    about 10 % larger on docs/guide.md's simulated log). :meth:`reoptimize` adds factors to the
+    graph and solves it again; :meth:`network_from_values` reads a SensorNetwork back from any
+    ``gtsam.Values``."""
 
     network: SensorNetwork
     method: str
@@ -160,14 +195,15 @@ class CalibrationResult:
     # an observation of the robot (None when the method does not pick out the robot).
     is_robot: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
-    graph: object | None = None          # gtsam.NonlinearFactorGraph
-    values: object | None = None         # gtsam.Values
+    graph: gtsam.NonlinearFactorGraph | None = None
+    values: gtsam.Values | None = None
     keys: GraphKeys | None = None
     position_covariance_m2: np.ndarray | None = None
-    _marginals: object | None = field(default=None, repr=False)
+    _marginals: gtsam.Marginals | None = field(default=None, repr=False)
 
-    def marginals(self):
-        """GTSAM Marginals of the solution (computed on first use; None without a graph)."""
+    def marginals(self) -> gtsam.Marginals | None:
+        """GTSAM Marginals of the solution (computed on first use; None without a graph). They
+        are the graph's own: see the class docstring for what ``position_covariance_m2`` adds."""
         if self._marginals is None and self.graph is not None:
             import gtsam
 
@@ -180,6 +216,78 @@ class CalibrationResult:
         if self.graph is None:
             return []
         return [np.asarray(self.graph.at(n).whitenedError(self.values)) for n in range(self.graph.size())]
+
+    def network_from_values(self, values: gtsam.Values, marginals: gtsam.Marginals | None = None) -> SensorNetwork:
+        """The SensorNetwork of ``values`` (e.g. ``values`` after your own solve of ``graph``): each
+        sensor's pose read from its key, status, observations and the file's extra keys kept from
+        ``network``; with ``marginals`` the sigma are theirs (the graph's alone: no head-model
+        share, no widening), else None. A sensor whose key ``values`` lacks is refused."""
+        from pedcal.calib.graph import rotation_sigma_deg, sensor_sigma_world
+
+        if self.keys is None:
+            raise ValueError(f"method {self.method!r} has no graph: its result holds no GTSAM keys")
+        out = []
+        for s in self.network:
+            key = self.keys.sensors[s.id]
+            if not values.exists(key):
+                raise KeyError(f"values hold no pose of sensor {s.id!r} (key {key})")
+            T = values.atPose3(key)
+            extra: dict[str, Any] = {"sigma_position_m": None, "sigma_ypr_deg": None, "sigma_rotation_deg": None}
+            if marginals is not None:
+                cov = marginals.marginalCovariance(key)
+                _, extra["sigma_position_m"], extra["sigma_ypr_deg"] = sensor_sigma_world(T, cov)
+                extra["sigma_rotation_deg"] = rotation_sigma_deg(cov)
+            moved = SensorExtrinsics.from_pose3(s.id, T)
+            out.append(replace(s, position_m=moved.position_m, ypr_deg=moved.ypr_deg, **extra))
+        return SensorNetwork(out, self.network.frame, dict(self.network.extra))
+
+    def reoptimize(self, extra_factors: gtsam.NonlinearFactorGraph | Iterable[gtsam.NonlinearFactor],
+                   params: gtsam.LevenbergMarquardtParams | None = None) -> CalibrationResult:
+        """Solve ``graph`` plus ``extra_factors`` (a NonlinearFactorGraph or factors on
+        ``keys``' symbols, e.g. a ``gtsam.PriorFactorPose3`` on one sensor's key) again with
+        Levenberg-Marquardt from ``values``; returns a new result whose ``network``,
+        ``position_covariance_m2`` and sigma are the new graph's own (its marginals: what the
+        class docstring says is held fixed stays so, and no head-model share is added).
+        ``self`` is left unchanged."""
+        import gtsam
+
+        if self.graph is None or self.values is None or self.keys is None:
+            raise ValueError(f"method {self.method!r} has no graph to re-optimize")
+        graph = gtsam.NonlinearFactorGraph(self.graph)
+        if isinstance(extra_factors, gtsam.NonlinearFactorGraph):
+            graph.push_back(extra_factors)
+        else:
+            for factor in extra_factors:
+                graph.add(factor)
+        values = gtsam.LevenbergMarquardtOptimizer(graph, self.values,
+                                                   params or gtsam.LevenbergMarquardtParams()).optimize()
+        marginals = gtsam.Marginals(graph, values)
+        network = self.network_from_values(values, marginals)
+        keys = [self.keys.sensors[sid] for sid in network.ids]
+        C = marginals.jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
+        n = len(keys)
+        R = np.stack([values.atPose3(k).rotation().matrix() for k in keys])
+        Ct = C.reshape(n, 6, n, 6)[:, 3:, :, 3:]     # Pose3 tangent: rotation, then body-frame translation
+        joint_pos = np.einsum("iab,ibjc,jdc->iajd", R, Ct, R).reshape(3 * n, 3 * n)
+        return replace(self, network=network, graph=graph, values=values, position_covariance_m2=joint_pos,
+                       _marginals=marginals)
+
+    def to_dict(self) -> dict:
+        """``method``, ``runtime_s``, ``network`` (:meth:`SensorNetwork.to_dict`: one flat row per
+        sensor), ``diagnostics`` (its ``to_dict()``), ``robot_observations`` (rows used as the robot,
+        or None) and ``position_covariance_m2`` ({sensors: ids, matrix: 3n x 3n lists} or None).
+        The GTSAM objects are left out."""
+        cov = self.position_covariance_m2
+        return {"method": self.method, "runtime_s": float(self.runtime_s), "network": self.network.to_dict(),
+                "diagnostics": self.diagnostics.to_dict(),
+                "robot_observations": None if self.is_robot is None else int(np.sum(self.is_robot)),
+                "position_covariance_m2": None if cov is None else {"sensors": self.network.ids,
+                                                                     "matrix": plain(np.asarray(cov))}}
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per sensor, indexed by id: :meth:`SensorNetwork.to_dataframe`'s columns (x_m,
+        y_m, z_m, the angles, their sigma, observations, status)."""
+        return self.network.to_dataframe()
 
     def summary(self) -> str:
         lines = [f"method {self.method}: {len(self.network)} sensors in {self.runtime_s:.2f} s"]

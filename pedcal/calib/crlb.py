@@ -32,24 +32,26 @@ import numpy as np
 
 from pedcal.calib.common import interpolate_pose2
 from pedcal.calib.graph import GraphRecipe, S, X, build_graph, head_frame, prepare, sensor_sigma_world
+from pedcal.deprecation import renamed_fields
 from pedcal.errors import PedcalInputError
 from pedcal.model import Log
 
 
+@renamed_fields(position_cov_world_m2="position_covariance_m2")
 @dataclass
 class CRLBResult:
     """Per sensor the bound on the world-axes position covariance (m^2)."""
 
-    position_cov_world_m2: dict[str, np.ndarray]
+    position_covariance_m2: dict[str, np.ndarray]
     recipe: str
 
     @property
     def rms_bound_mm(self) -> float:
         """sqrt of the mean over sensors of trace(CRLB): the bound on the RMS 3-D position error."""
-        return float(1000.0 * np.sqrt(np.mean([np.trace(c) for c in self.position_cov_world_m2.values()])))
+        return float(1000.0 * np.sqrt(np.mean([np.trace(c) for c in self.position_covariance_m2.values()])))
 
     def sigma_mm(self, sensor_id: str) -> np.ndarray:
-        return 1000.0 * np.sqrt(np.diag(self.position_cov_world_m2[sensor_id]))
+        return 1000.0 * np.sqrt(np.diag(self.position_covariance_m2[sensor_id]))
 
     def efficiency_ratio(self, position_rms_mm: float) -> float:
         """An estimate's RMS sensor position error over the bound (1 = efficient)."""
@@ -107,7 +109,7 @@ def sensor_position_crlb(log: Log, recipe: str | GraphRecipe | None = None, *,
     cov = {}
     for i, sid in enumerate(prob.sensor_ids):
         cov[sid], _, _ = sensor_sigma_world(truth.atPose3(S(i)), marginals.marginalCovariance(S(i)))
-    return CRLBResult(position_cov_world_m2=cov, recipe=rec.name)
+    return CRLBResult(position_covariance_m2=cov, recipe=rec.name)
 
 
 __all__ = ["sensor_position_crlb", "CRLBResult", "true_values"]

@@ -104,10 +104,10 @@ def evaluate_real(folder: str | Path, model=None, out_dir: str | Path | None = N
                   frames: list[str] | None = None) -> dict:
     """Per frame and per range band: pedestrians, found, person detections, false positives.
 
-    ``detect_options`` go to ``pedcal.detect.detect_cli.detect_file`` (sensor, pose, floor);
+    ``detect_options`` go to ``pedcal.detect.files.detect_file`` (sensor, pose, floor);
     ``frames`` restricts the evaluation to these frame names (file stems).
     """
-    from pedcal.detect.detect_cli import detect_file
+    from pedcal.detect.files import detect_file
 
     pairs = frame_pairs(Path(folder))
     if frames is not None:
@@ -193,7 +193,7 @@ def bev_picture(path: Path, res, boxes: list[dict], persons, matched_box: dict, 
     blue), person detections (red: false, green: matched), other gated clusters (small grey)."""
     from matplotlib.patches import Polygon
 
-    from pedcal.report.figures import new_figure, save_png
+    from pedcal.plotting import new_figure, save_png
 
     fig = new_figure(8, 8)
     ax = fig.add_subplot(111)

@@ -487,7 +487,8 @@ def _parse_people(people) -> dict[str, str]:
 def read_bag(path: str | Path, amcl_topic: str | None = None, odom_topic: str | None = None, *,
              localization: str = "auto", localization_topic: str | None = None, map_frame: str = "map",
              base_frame: str = "base_link", head_frame: str | None = None, people=None,
-             people_frame: str = "auto", sensors: SensorNetwork | None = None, pose_sigma=None) -> BagLog:
+             people_frame: str = "auto", sensors: SensorNetwork | None = None, pose_sigma=None,
+             require_localization: bool = True) -> BagLog:
     """Read a ROS 1 .bag or ROS 2 bag (folder, .db3, .mcap) into log tables (see the module doc).
 
     ``localization``: auto, amcl, odometry or tf; ``amcl_topic`` / ``localization_topic`` name the
@@ -498,6 +499,10 @@ def read_bag(path: str | Path, amcl_topic: str | None = None, odom_topic: str | 
     optical; ``sensors``: the installed extrinsics, needed for sensor and optical frames.
     ``pose_sigma``: (m, rad) for a localization without covariance. Rows are in time order
     (observations: stable in bag order within a time).
+
+    A bag without localization is refused with PedcalInputError saying what it lacks (as
+    ``pedcal import-bag`` does); ``require_localization=False`` returns it with ``robot`` None and
+    that text in ``missing`` (e.g. to read only the people topics).
     """
     path = Path(path)
     if localization not in LOCALIZATION_SOURCES:
@@ -561,9 +566,17 @@ def read_bag(path: str | Path, amcl_topic: str | None = None, odom_topic: str | 
             out.observations = _observations(reader, topics, people, people_frame, map_frame, sensors, path)
             if out.observations is not None:
                 out.sources["observations"] = ", ".join(f"{t} ({topics[t]}) as sensor {s}" for t, s in people.items())
+        if out.robot is None and require_localization:     # after every other topic was checked
+            raise _no_localization(out, path)
         return out
     finally:
         reader.close()
+
+
+def _no_localization(tables: BagLog, bag: Path) -> PedcalInputError:
+    return PedcalInputError(f"no localization in the bag, so no robot.csv (calibration needs it): "
+                            f"{tables.missing}. Choose a source with --localization amcl|odometry|tf "
+                            "(localization= in Python), --map-frame or --base-frame", path=bag)
 
 
 def _is_rostopic_csv(path: Path) -> bool:
@@ -594,9 +607,7 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
     else:
         tables = read_bag(bag, amcl_topic=amcl_topic, odom_topic=odom_topic, sensors=network, **options)
     if tables.robot is None:
-        raise PedcalInputError(f"no localization in the bag, so no robot.csv (calibration needs it): "
-                               f"{tables.missing}. Choose a source with --localization amcl|odometry|tf, "
-                               f"--map-frame or --base-frame", path=bag)
+        raise _no_localization(tables, bag)
     if head_offset_m is not None:
         tables.head_offset_m = np.asarray(head_offset_m, float).reshape(3)
     out_dir = Path(out_dir)

@@ -10,8 +10,17 @@ lines start with ``#``; times strictly increase.
   sensors should see)
 - ``truth_robot.tum``, ``truth_head.tum``: the same from truth_robot.csv, when the log has it
 - ``head_<label>.tum``: the robot's head as the ceiling sensors saw it, recomputed with each
-  extrinsics given (and ``head_installed.tum`` with the log's sensors.yaml). Head points carry the
-  identity orientation (a point has none); observations at the same time are averaged.
+  extrinsics given (and ``head_installed.tum`` with the log's sensors.yaml), as ``pedcal evaluate``
+  scores it: the head-point model of the extrinsics file undone (``head_model``) and its tracker
+  latency applied, each point stamped at the observation's time minus ``tracker_latency_s`` (the
+  instant the head was there; the file's header comment states the latency). Head points carry the
+  identity orientation ``0 0 0 1`` (a point has none); observations at the same time are averaged.
+
+evo pairs two paths' poses whose stamps differ by at most ``--t_max_diff`` (default 0.01 s). The
+observed head paths are at the trackers' stamps, the reference at its own rate (truth_head.tum:
+the simulator's truth rate, 20 Hz; head.tum: AMCL's), so pass half the reference's period
+(``evo_ape tum truth_head.tum head_X.tum --t_max_diff 0.025``) to pair every observation with its
+nearest reference pose; with the default, 10 ms of every 50 ms pair.
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from pedcal.errors import warnings_at_caller
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, SensorNetwork
 
@@ -55,11 +65,12 @@ def _label(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", text)
 
 
+@warnings_at_caller
 def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork] | None = None) -> dict[str, Path]:
     """Write the TUM files of the module docstring into ``out_dir`` (atomically); returns
     {name: path}. ``extrinsics``: {label: SensorNetwork} to recompute the observed head path with."""
     from pedcal.calib.common import head_world
-    from pedcal.metrics import reproject_observations, robot_rows
+    from pedcal.metrics import LATENCY_KEY, reproject_observations, robot_rows
 
     out_dir = Path(out_dir)
     written: dict[str, Path] = {}
@@ -89,7 +100,9 @@ def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork
             ok = np.isfinite(pts).all(axis=1)
             if not ok.any():
                 continue
-            mean = pd.DataFrame(pts[ok], columns=["x", "y", "z"]).groupby(t_obs[ok], sort=True).mean()
+            latency_s = float(net.extra.get(LATENCY_KEY, 0.0) or 0.0)     # as pedcal evaluate applies it
+            mean = pd.DataFrame(pts[ok], columns=["x", "y", "z"]).groupby(t_obs[ok] - latency_s, sort=True).mean()
             put(f"head_{_label(label)}", mean.index.to_numpy(float), mean.to_numpy(float),
-                comment=f"robot head seen by the ceiling sensors with the {label} extrinsics (rows by {how})")
+                comment=f"robot head seen by the ceiling sensors with the {label} extrinsics (rows by {how}), "
+                        f"stamped at the observation time minus the tracker latency {latency_s!r} s")
     return written

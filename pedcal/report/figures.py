@@ -1,36 +1,19 @@
 """Report figures: matplotlib on the Agg canvas (no pyplot state, no display), saved atomically
-as PNG without a date or software stamp, so the same results give the same bytes."""
+as PNG without a date or software stamp, so the same results give the same bytes (the canvas and
+the writer are pedcal.plotting's, shared with the detector's and the follower's pictures)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import matplotlib
 import numpy as np
 import pandas as pd
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 from matplotlib.ticker import MaxNLocator
 
-from pedcal.io.atomic import atomic_path
+from pedcal.plotting import DPI, PNG_METADATA, new_figure, save_png  # noqa: F401  (report code imports them here)
 
 METHOD_COLORS = {"installed": "#7f7f7f", "alternative": "#d62728", "gridsearch": "#1f77b4",
                  "closedform": "#2ca02c", "factorgraph": "#9467bd"}
-PNG_METADATA = {"Software": None}
-DPI = 100
-
-
-def new_figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def save_png(fig: Figure, path: Path) -> None:
-    """Write ``fig`` atomically as a PNG without metadata that changes from run to run."""
-    with matplotlib.rc_context({"svg.hashsalt": "pedcal", "path.simplify": True}), atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI, metadata=PNG_METADATA)
 
 
 def color(method: str, k: int = 0) -> str:

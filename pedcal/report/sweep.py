@@ -254,7 +254,7 @@ def crlb_records(log, **labels) -> list[dict]:
 
     res = sensor_position_crlb(log)
     out = []
-    for sid, cov in res.position_cov_world_m2.items():
+    for sid, cov in res.position_covariance_m2.items():
         sig = res.sigma_mm(sid)
         out.append(dict(labels, sensor=str(sid), crlb_x_mm=float(sig[0]), crlb_y_mm=float(sig[1]),
                         crlb_z_mm=float(sig[2]), crlb_3d_mm=float(1000.0 * np.sqrt(np.trace(cov)))))

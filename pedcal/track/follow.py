@@ -214,6 +214,10 @@ class FollowResult:
     def to_dict(self) -> dict:
         return self.metrics.to_dict()
 
+    def to_dataframe(self) -> pd.DataFrame:
+        """The per-frame log (one row per frame; the columns of ``follow_log.parquet``)."""
+        return self.log.copy()
+
     def format_table(self) -> str:
         rows = [f"follow {self.scenario} (tracker {self.tracker}, seed {self.seed}, target {self.target_id})"]
         for k, v in self.to_dict().items():

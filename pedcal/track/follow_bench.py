@@ -114,7 +114,7 @@ def plot_episode(res: FollowResult, title: str):
     """Robot path, target path and, along the target path, who the tracker claimed: the target
     (green), somebody else (red), nobody while the hidden target's estimate is within 1 m (blue
     crosses), nobody otherwise (grey)."""
-    from pedcal.report.figures import new_figure
+    from pedcal.plotting import new_figure
     from pedcal.track.follow import with_target_frames
 
     log = res.log
@@ -186,7 +186,7 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
     """Run the bench and write ``episodes.parquet`` (one row per episode: metrics and replay
     command), ``summary.csv``, ``bench.md`` and the worst episodes' plots under ``figures/``, all
     atomically. Returns the path of ``bench.md``."""
-    from pedcal.report.figures import save_png
+    from pedcal.plotting import save_png
     from pedcal.sim.walkers import SHARED_DATA
     from pedcal.track.trackers import TRACKERS
 
