@@ -151,6 +151,9 @@ def cmd_demo(args) -> int:
     return run_demo(args.output, seed=args.seed, scenario=args.scenario, seeds=args.seeds)
 
 
+ALL_REAL = Path("<every labelled folder>")  # detect-eval --real without a folder
+
+
 def cmd_train_detector(args) -> int:
     from pedcal.detect.train import train_detector_cli
     from pedcal.io.atomic import check_output
@@ -168,10 +171,14 @@ def cmd_detect(args) -> int:
 
 def cmd_detect_eval(args) -> int:
     from pedcal.detect.detect_cli import detect_eval_cli
+    from pedcal.detect.real_eval import detect_eval_extras
     from pedcal.io.atomic import check_output
 
+    if args.real == ALL_REAL:  # --real without a folder: every labelled folder of the real recordings
+        return detect_eval_extras(args, all_real=True)
     if args.output is None or args.real is None:      # -o holds the pictures of --real frames
-        return detect_eval_cli(args)
+        rc = detect_eval_cli(args)
+        return rc if rc or args.real is not None else detect_eval_extras(args, all_real=False)
     check_output(args.output, inputs=[args.real, args.model], directory=True)
     return _into_folder(args, "output", detect_eval_cli)
 
@@ -401,6 +408,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frames", type=options.arg("frames"), default=None,
                    help="simulated training frames (default: the family's)")
     s.add_argument("--labelled", type=options.path, default=None, help="a user's labelled clusters instead")
+    s.add_argument("--data-dir", type=options.path, default=None,
+                   help="general family: the real labelled recordings trained on (default: $PEDCAL_DATA, else "
+                        "../shared/data beside the repository)")
+    s.add_argument("--select", action="store_true",
+                   help="general family: choose classifier, features and threshold anew by leave-one-dataset-"
+                        "out validation over the candidates (slow) instead of the family's choice")
     s.set_defaults(func=cmd_train_detector)
 
     s = sub.add_parser("detect", help="detect people in a point cloud file (.pcd, .ply, KITTI .bin, .npy)")
@@ -427,8 +440,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--preset", default="fx8", help="LIDAR preset (default: the paper's FX8 pair)")
     s.add_argument("--model", type=options.path, default=None)
     s.add_argument("--json", action="store_true")
-    s.add_argument("--real", type=options.path, default=None,
-                   help="a folder of real frames (NAME.pcd + NAME.json boxes) instead of simulated ones")
+    s.add_argument("--real", type=options.path, default=None, nargs="?", const=ALL_REAL,
+                   help="a folder of real frames (NAME.pcd + NAME.json boxes) instead of simulated ones; "
+                        "without a folder, every labelled folder under --data-dir, per dataset and range band")
+    s.add_argument("--data-dir", type=options.path, default=None,
+                   help="the real recordings (default: $PEDCAL_DATA, else ../shared/data beside the repository)")
+    s.add_argument("--lodo", action="store_true",
+                   help="recompute the general model's leave-one-dataset-out table (retrains it once per "
+                        "real dataset; slow) instead of printing the one stored with it")
     s.add_argument("-o", "--output", type=options.path, default=None, help="with --real: bird's-eye pictures here")
     s.add_argument("--sensor", default=None, help="with --real: the sensor, as for pedcal detect")
     s.add_argument("--floor", default="auto", choices=["auto", "plane", "none"],

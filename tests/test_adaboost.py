@@ -108,3 +108,19 @@ def test_trees_learn_what_one_feature_partitions_cannot(tmp_path):
     with np.load(tmp_path / "flat.npz") as d:
         assert "tree_depth" not in d.files
     assert RealAdaBoost.load(tmp_path / "flat.npz").tree_depth == 0
+
+
+@pytest.mark.parametrize("depth", [0, 2])
+def test_sample_weights_are_the_initial_weights(depth):
+    rng = np.random.default_rng(11)
+    X = rng.normal(size=(400, 4))
+    y = (X[:, 0] + rng.normal(0, 1.0, 400) > 0).astype(int)
+    plain = RealAdaBoost(n_rounds=15, n_bins=8, tree_depth=depth).fit(X, y)
+    uniform = RealAdaBoost(n_rounds=15, n_bins=8, tree_depth=depth).fit(X, y, sample_weight=np.full(400, 3.0))
+    assert uniform.decision_function(X) == pytest.approx(plain.decision_function(X))
+    # weighting the people tenfold makes more of the overlap people
+    heavy = RealAdaBoost(n_rounds=15, n_bins=8, tree_depth=depth).fit(X, y, sample_weight=np.where(y > 0, 10.0, 1.0))
+    assert heavy.predict(X).sum() > plain.predict(X).sum()
+    for bad in (np.zeros(400), np.ones(3), np.full(400, np.nan)):
+        with pytest.raises(ValueError, match="sample_weight"):
+            RealAdaBoost(n_rounds=2).fit(X, y, sample_weight=bad)

@@ -9,6 +9,7 @@ from pedcal.detect import detection as det
 from pedcal.detect.features import (
     BAND_M,
     HALF_WIDTH_M,
+    HEAD_DEPTH_M,
     INTENSITY_MAX,
     MIN_RANGE_M,
     N_BANDS,
@@ -16,6 +17,7 @@ from pedcal.detect.features import (
     N_SLICES,
     N_TOP_BANDS,
     TOP_BAND_M,
+    TORSO_BAND_M,
     Z_TOP_M,
     block_slices,
     features_matrix,
@@ -64,7 +66,7 @@ def _axes(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def reference_cluster_features(points: np.ndarray, scan_steps=(np.nan, np.nan)) -> np.ndarray:
-    """The 264-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
+    """The N_FEATURES-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] < 3 or len(pts) == 0:
         raise ValueError(f"a cluster is a non-empty (N, 4) array, got shape {pts.shape}")
@@ -153,6 +155,21 @@ def reference_cluster_features(points: np.ndarray, scan_steps=(np.nan, np.nan)) 
         rows = np.ptp(z) / (r * d_el) + 1
         cols = np.ptp(bearing) / daz + 1
         f[b["scan_normalized"]] = [n * (r * daz) * (r * d_el), rows, cols, n / (rows * cols)]
+
+    # g5: eigen shape, verticality, rms radius, torso and head widths along e1, their ratio, aspect
+    vals, vecs = np.linalg.eigh(cov3)
+    l3, l2, l1 = vals
+    if l1 > 0:
+        shape = [(l1 - l2) / l1, (l2 - l3) / l1, max(l3, 0.0) / l1, abs(vecs[2, 2])]
+    else:
+        shape = [0.0, 0.0, 0.0, 0.0]
+    torso = (z >= TORSO_BAND_M[0]) & (z <= TORSO_BAND_M[1])
+    head = z >= z.max() - HEAD_DEPTH_M
+    torso_w = np.ptp(u[torso]) if torso.any() else 0.0
+    head_w = np.ptp(u[head])
+    f[b["pole_or_person"]] = shape + [np.sqrt(max(cov3[0, 0] + cov3[1, 1], 0.0)), torso_w, head_w,
+                                      head_w / torso_w if torso_w > 0 else 0.0,
+                                      np.ptp(u) / np.ptp(z) if np.ptp(z) > 0 else 0.0]
     return f
 
 
@@ -233,8 +250,9 @@ def _check_frame(pts: np.ndarray) -> int:
             if c.gated:  # (a wide cluster cut at its heads stays ungated whatever its box)
                 assert det.passes_gate(c.height, ref.width, ref.depth, len(c.indices))
     gated = [c for c in cands if c.gated]
-    score = model.predict_proba(np.vstack([reference_cluster_features(pts[c.indices], steps) for c in gated])) \
-        if gated else np.zeros(0)
+    pts_m = det.intensity_for(pts, getattr(model, "metadata_", {}).get("intensity", "raw"))  # as the model reads it
+    score = model.predict_proba(np.vstack([reference_cluster_features(pts_m[c.indices], steps)[:model.n_features_]
+                                           for c in gated])) if gated else np.zeros(0)
     got_dets = det.detect(pts, model)
     assert len(got_dets) == len(gated)
     for d, c, s in zip(got_dets, gated, score, strict=True):

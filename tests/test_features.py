@@ -7,16 +7,19 @@ import pytest
 from pedcal.detect.features import (
     BLOCKS,
     N_FEATURES,
+    N_FEATURES_BEFORE_G5,
     N_KIDONO,
     block_slices,
     cluster_features,
     features_matrix,
+    frame_normalized_intensity,
     scan_steps_rad,
 )
 
 
-def test_blocks_sum_to_213_plus_47_plus_4():
-    assert sum(n for _, n in BLOCKS) == N_FEATURES == 264
+def test_blocks_sum_to_213_plus_47_plus_4_plus_9():
+    assert sum(n for _, n in BLOCKS) == N_FEATURES == 273
+    assert block_slices()["pole_or_person"] == slice(N_FEATURES_BEFORE_G5, N_FEATURES)
     b = block_slices()
     assert b["intensity_hist"].stop == N_KIDONO == 213
     shape = sum(n for name, n in BLOCKS[:8])
@@ -147,3 +150,42 @@ def test_scan_measures_of_a_person_sized_board_and_a_pole():
     assert rows == pytest.approx([1.7 / (10 * steps[1]) + 1] * 2, rel=0.05)
     assert cols[0] == pytest.approx(0.5 / (10 * steps[0]), rel=0.1) and cols[1] <= 3
     assert fill[0] == pytest.approx(1.0, rel=0.1)
+
+
+def test_g5_tells_a_pole_from_a_person():
+    """A 0.1 m pole, 1.8 m high: a line (linearity ~1), vertical, head as wide as its shaft. A
+    person-shaped cluster: 0.45 m shoulders under a 0.2 m head."""
+    rng = np.random.default_rng(5)
+    n = 600
+    pole = np.column_stack([8.0 + rng.uniform(-0.05, 0.05, n), rng.uniform(-0.05, 0.05, n),
+                            rng.uniform(0.0, 1.8, n), np.zeros(n)])
+    z = rng.uniform(0.0, 1.75, n)
+    half_width = np.where(z > 1.5, 0.1, np.where(z > 0.9, 0.225, 0.15))
+    person = np.column_stack([8.0 + rng.uniform(-0.1, 0.1, n), rng.uniform(-1, 1, n) * half_width, z, np.zeros(n)])
+    g = block_slices()["pole_or_person"]
+    fp, fq = cluster_features(pole)[g], cluster_features(person)[g]
+    linearity, planarity, scattering, vertical, radius, torso_w, head_w, ratio, aspect = fp
+    assert linearity > 0.98 and vertical > 0.999 and radius == pytest.approx(np.sqrt(2 * 0.1**2 / 12), rel=0.1)
+    assert linearity + planarity + scattering == pytest.approx(1.0)
+    assert ratio == pytest.approx(1.0, abs=0.1) and aspect < 0.1
+    assert fq[7] == pytest.approx(0.2 / 0.45, abs=0.05) and fq[5] == pytest.approx(0.45, abs=0.02)
+    assert fq[0] < fp[0] and fq[4] > fp[4]
+
+
+def test_g5_of_one_point_is_zero():
+    assert (cluster_features(np.array([[3.0, 0.0, 1.0, 0.2]]))[block_slices()["pole_or_person"]] == 0).all()
+
+
+def test_frame_normalized_intensity_removes_the_units():
+    rng = np.random.default_rng(6)
+    pts = np.column_stack([rng.uniform(1, 10, (500, 3)), rng.uniform(0, 1, 500)])
+    kitti, argo = frame_normalized_intensity(pts), frame_normalized_intensity(pts * [1, 1, 1, 255.0])
+    assert kitti == pytest.approx(argo)
+    assert np.percentile(kitti[:, 3], 95) == pytest.approx(1.0, abs=0.01)
+    none = pts.copy()
+    none[:, 3] = 0.0
+    assert (frame_normalized_intensity(none)[:, 3] == 0).all()
+    assert (frame_normalized_intensity(pts[:, :3])[:, 3] == 0).all()
+    nan = pts.copy()
+    nan[0, 3] = np.nan
+    assert np.isfinite(frame_normalized_intensity(nan)).all()

@@ -31,6 +31,7 @@ Bin statistics are computed for all features at once with one ``np.bincount`` pe
 from __future__ import annotations
 
 import io
+import json
 import logging
 import zipfile
 from pathlib import Path
@@ -58,6 +59,7 @@ class RealAdaBoost:
         self.h_: np.ndarray | None = None
         self.n_features_: int = 0
         self.bias_: float = 0.0  # b of F(x), moves the decision threshold
+        self.metadata_: dict = {}  # how the model was chosen (JSON-serializable), saved with it
 
     # ------------------------------------------------------------------------------------ training
     def _bin_edges(self, X: np.ndarray) -> np.ndarray:
@@ -68,13 +70,22 @@ class RealAdaBoost:
         q = np.linspace(0.0, 1.0, self.n_bins + 1)[1:-1]
         return np.quantile(X, q, axis=0).T
 
-    def fit(self, X: np.ndarray, y: np.ndarray, progress: bool = False) -> RealAdaBoost:
+    def fit(self, X: np.ndarray, y: np.ndarray, progress: bool = False,
+            sample_weight: np.ndarray | None = None) -> RealAdaBoost:
+        """``sample_weight`` (n,) > 0: the initial weights D_1 (S&S Sec. 2), uniform by default."""
         X = np.asarray(X, dtype=float)
         y = np.asarray(y)
         if X.ndim != 2 or len(X) != len(y) or len(X) == 0:
             raise ValueError(f"X must be (n, F) and y (n,), got {X.shape} and {y.shape}")
         if not np.isfinite(X).all():
             raise ValueError("X holds NaN or infinite values")
+        if sample_weight is None:
+            w0 = np.full(len(y), 1.0 / len(y))
+        else:
+            w0 = np.asarray(sample_weight, dtype=float)
+            if w0.shape != (len(y),) or not (np.isfinite(w0).all() and (w0 > 0).all()):
+                raise ValueError(f"sample_weight must be (n,) = ({len(y)},) positive and finite")
+            w0 = w0 / w0.sum()
         y_pm = np.where(y > 0, 1.0, -1.0)
         if np.all(y_pm > 0) or np.all(y_pm < 0):
             raise ValueError("training needs both classes")
@@ -82,7 +93,7 @@ class RealAdaBoost:
         B = self.n_bins
         edges = self._bin_edges(X)
         if self.tree_depth > 0:
-            return self._fit_trees(X, y_pm, edges, progress)
+            return self._fit_trees(X, y_pm, edges, progress, w0)
         # Bin index of every sample in every feature, offset by feature so one bincount does all.
         bins = np.empty((n, F), dtype=np.int64)
         for f in range(F):
@@ -90,7 +101,7 @@ class RealAdaBoost:
         # Negatives are offset by F*B, so one bincount gives W+ and W- of every bin of every feature.
         codes = (bins + np.arange(F) * B + (y_pm < 0)[:, None] * (F * B)).ravel()
         eps = 1.0 / (n * B)
-        w = np.full(n, 1.0 / n)
+        w = w0
         feats, hs = [], []
         for t in range(self.n_rounds):
             wb = np.bincount(codes, weights=np.repeat(w, F), minlength=2 * F * B).reshape(2, F, B)
@@ -112,7 +123,8 @@ class RealAdaBoost:
         self.bias_ = 0.0
         return self
 
-    def _fit_trees(self, X: np.ndarray, y_pm: np.ndarray, edges: np.ndarray, progress: bool) -> RealAdaBoost:
+    def _fit_trees(self, X: np.ndarray, y_pm: np.ndarray, edges: np.ndarray, progress: bool,
+                   w0: np.ndarray) -> RealAdaBoost:
         """Rounds whose partitions are depth-``tree_depth`` trees (see the module docstring)."""
         n, F = X.shape
         B, D = self.n_bins, self.tree_depth
@@ -122,7 +134,7 @@ class RealAdaBoost:
         # (sample, feature) -> feature * B + bin, negatives offset by F * B; a node's offset on top
         codes = bins + np.arange(F) * B + (y_pm < 0)[:, None] * (F * B)
         eps = 1.0 / (n * 2**D)
-        w = np.full(n, 1.0 / n)
+        w = w0
         node_feature = np.zeros((self.n_rounds, 2**D - 1), dtype=np.int64)
         node_threshold = np.full((self.n_rounds, 2**D - 1), np.inf)
         leaves = np.zeros((self.n_rounds, 2**D))
@@ -199,13 +211,7 @@ class RealAdaBoost:
                       n_rounds=np.int64(self.n_rounds), seed=np.int64(self.seed), bias=np.float64(self.bias_))
         if self.tree_depth:  # (absent: one feature's bins per round, as in files before the trees)
             arrays["tree_depth"] = np.int64(self.tree_depth)
-        with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
-            for name, arr in arrays.items():
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                info.compress_type = zipfile.ZIP_DEFLATED
-                buf = io.BytesIO()
-                np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
-                zf.writestr(info, buf.getvalue())
+        write_npz(path, arrays, self.metadata_)
 
     @classmethod
     def load(cls, path: str | Path) -> RealAdaBoost:
@@ -221,7 +227,34 @@ class RealAdaBoost:
                 m.h_ = d["h"].astype(float)
                 m.n_features_ = int(d["n_features"])
                 m.bias_ = float(d["bias"]) if "bias" in d.files else 0.0  # files before the offset
+                m.metadata_ = read_metadata(d)
         except (OSError, ValueError, KeyError) as e:
             raise PedcalInputError(f"not a RealAdaBoost model .npz (feature, edges, h, n_features, "
                                    f"n_bins, n_rounds, seed): {e}", path=path) from None
         return m
+
+
+def write_npz(path: str | Path, arrays: dict, metadata: dict | None = None) -> None:
+    """Write ``arrays`` to an .npz atomically and byte-reproducibly (fixed zip timestamps, unlike
+    ``np.savez``, so the same training gives the same file); ``metadata`` goes in as JSON text
+    (``metadata_json``, read back by ``read_metadata``)."""
+    arrays = dict(arrays)
+    if metadata:
+        arrays["metadata_json"] = np.frombuffer(json.dumps(metadata, sort_keys=True).encode(), dtype=np.uint8)
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asarray(arr), allow_pickle=False)
+            zf.writestr(info, buf.getvalue())
+
+
+def read_metadata(npz) -> dict:
+    """The metadata a model file was saved with (``write_npz``), {} when it has none."""
+    if "metadata_json" not in npz.files:
+        return {}
+    try:
+        return json.loads(npz["metadata_json"].tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"unreadable metadata_json: {e}") from None

@@ -37,7 +37,14 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
 from pedcal.detect.adaboost import RealAdaBoost
-from pedcal.detect.features import DEFAULT_SENSOR_HEIGHT_M, N_FEATURES, features_matrix, scan_steps_rad
+from pedcal.detect.features import (
+    DEFAULT_SENSOR_HEIGHT_M,
+    N_FEATURES,
+    N_FEATURES_BEFORE_G5,
+    features_matrix,
+    frame_normalized_intensity,
+    scan_steps_rad,
+)
 from pedcal.detect.model_check import load_checked
 from pedcal.errors import PedcalInputError
 from pedcal.options import check
@@ -571,20 +578,87 @@ def model_family(sensor: str | None = None, scan_steps: tuple[float, float] | No
     return next((f for f, members in FAMILY_SENSORS.items() if sensor in members), "general")
 
 
+def load_classifier(path: str | Path):
+    """A RealAdaBoost or a GradientBoostedTrees model from its .npz, whichever the file holds."""
+    from pedcal.detect.gbt import GradientBoostedTrees
+
+    p = Path(path)
+    try:
+        with np.load(p, allow_pickle=False) as d:
+            trees = "lightgbm_model" in d.files
+    except (OSError, ValueError):
+        trees = False  # RealAdaBoost.load names the problem
+    return GradientBoostedTrees.load(p) if trees else RealAdaBoost.load(p)
+
+
 @functools.lru_cache(maxsize=4)
-def _load_cached(path: str, mtime: float) -> RealAdaBoost:
-    return RealAdaBoost.load(path)
+def _load_cached(path: str, mtime: float):
+    return load_classifier(path)
 
 
-def load_model(path: str | Path | None = None, family: str = "general") -> RealAdaBoost:
+def load_model(path: str | Path | None = None, family: str = "general"):
     """The classifier at ``path`` (default: the shipped model of ``family``, ``model_path``)."""
     p = Path(path) if path is not None else model_path(family)
     mtime = p.stat().st_mtime if p.exists() else 0.0
     model = load_checked(lambda: _load_cached(str(p), mtime), p)    # structure checked (model_check)
-    if model.n_features_ != N_FEATURES:
+    if model.n_features_ not in (N_FEATURES, N_FEATURES_BEFORE_G5):
         raise PedcalInputError(f"the model was trained on {model.n_features_} features per cluster, the "
                                f"detector computes {N_FEATURES}; retrain it with pedcal train-detector", path=p)
     return model
+
+
+# How a model reads intensity (its ``metadata_["intensity"]``): "raw" as the file holds it (models
+# trained on simulated frames alone, whose intensities are 0-1), "frame" divided by the frame's
+# 95th percentile (``frame_normalized_intensity``: sensors with other units), "none" left out (0).
+INTENSITY_MODES = ("raw", "frame", "none")
+
+
+def intensity_for(points: np.ndarray, mode: str = "raw") -> np.ndarray:
+    """The (N, 4) frame with its intensity as a model of intensity ``mode`` reads it."""
+    if mode not in INTENSITY_MODES:
+        raise PedcalInputError(f"unknown intensity mode {mode!r}; expected one of {', '.join(INTENSITY_MODES)}",
+                               column="intensity")
+    if mode == "frame":
+        return frame_normalized_intensity(points)
+    if mode == "none":
+        out = np.zeros((len(points), 4))
+        out[:, :3] = np.asarray(points, dtype=float)[:, :3]
+        return out
+    return points
+
+
+def candidate_features(points: np.ndarray, groups: list[np.ndarray], scan_steps, intensity: str = "raw",
+                       n_features: int = N_FEATURES) -> np.ndarray:
+    """(len(groups), n_features) features of the clusters (groups of row indices of ``points``), the
+    frame's intensity read as ``intensity`` (``intensity_for``); a model trained on the first
+    ``n_features`` (older files: N_FEATURES_BEFORE_G5) gets those."""
+    pts = intensity_for(points, intensity)
+    return features_matrix([pts[g] for g in groups], scan_steps)[:, :n_features]
+
+
+def score_candidates(clf, points: np.ndarray, groups: list[np.ndarray], scan_steps) -> np.ndarray:
+    """P(person) of each cluster under the classifier ``clf``, its features as ``clf`` was trained on."""
+    mode = getattr(clf, "metadata_", {}).get("intensity", "raw")
+    return clf.predict_proba(candidate_features(points, groups, scan_steps, mode, clf.n_features_))
+
+
+def gated_candidates(points: np.ndarray, *, cell_size_m: float = CELL_SIZE_M, gap_cells: int = 0,
+                     max_range_m: float = MAX_RANGE_M, sensor_height_m: float = DEFAULT_SENSOR_HEIGHT_M,
+                     sensor: str | None = None, sensor_xy_m: tuple[float, float] = (0.0, 0.0)):
+    """(points (N, 4) within ``max_range_m``, the frame's ray steps, its model family, the gated
+    Candidates): what ``detect`` classifies, and what training on real frames labels."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim == 2 and pts.shape[1] == 3:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
+    if pts.ndim == 2 and len(pts) and max_range_m is not None:
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range_m]
+    steps = scan_steps_rad(pts, sensor_height_m) if pts.ndim == 2 and len(pts) else (np.nan, np.nan)
+    family = model_family(sensor, steps)
+    cands = [c for c in segment(pts, cell_size_m=cell_size_m, gap_cells=gap_cells, cut_low=FAMILY_CUT_LOW[family],
+                                occluded_low=FAMILY_OCCLUDED_LOW[family], scan_steps=steps,
+                                sensor_xyz=(*sensor_xy_m, sensor_height_m))
+             if c.gated]
+    return pts, steps, family, cands
 
 
 def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *,
@@ -624,19 +698,12 @@ def detect(points: np.ndarray, model: RealAdaBoost | str | Path | None = None, *
             sensor_height_m = prepared.sensor_height_m
     if sensor_height_m is None:
         sensor_height_m = DEFAULT_SENSOR_HEIGHT_M
-    if pts.ndim == 2 and pts.shape[1] == 3:
-        pts = np.column_stack([pts, np.zeros(len(pts))])
-    if pts.ndim == 2 and len(pts) and max_range_m is not None:
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range_m]
-    steps = scan_steps_rad(pts, sensor_height_m) if pts.ndim == 2 and len(pts) else (np.nan, np.nan)
-    family = model_family(sensor, steps)
-    cands = [c for c in segment(pts, cell_size_m=cell_size_m, gap_cells=gap_cells, cut_low=FAMILY_CUT_LOW[family],
-                                occluded_low=FAMILY_OCCLUDED_LOW[family], scan_steps=steps,
-                                sensor_xyz=(*sensor_xy_m, sensor_height_m))
-             if c.gated]
+    pts, steps, family, cands = gated_candidates(pts, cell_size_m=cell_size_m, gap_cells=gap_cells,
+                                                 max_range_m=max_range_m, sensor_height_m=sensor_height_m,
+                                                 sensor=sensor, sensor_xy_m=sensor_xy_m)
     if not cands:
         return []
     clf = model if hasattr(model, "predict_proba") else load_model(model, family if model is None else "general")
-    score = clf.predict_proba(features_matrix([pts[c.indices] for c in cands], steps))
+    score = score_candidates(clf, pts, [c.indices for c in cands], steps)
     return [Detection(c.box.cx, c.box.cy, c.height, c.box.width, c.box.depth, c.box.yaw,
                       float(s), bool(s >= threshold), len(c.indices)) for c, s in zip(cands, score, strict=True)]

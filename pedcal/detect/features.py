@@ -27,8 +27,9 @@ g1  height bands, 10 x (length, largest gap)      213     20
 g2  top profile, 8 x (length, width, share)       233     24
 g3  lowest z, highest z, centroid distance        257      3
 g4  in the scan's rays: area, rows, columns, fill  260      4
+g5  pole or person: eigen shape, widths            264      9
 ==============================================  =====  =====
-total                                                     264
+total                                                     273
 
 Blocks g1-g3 extend Kidono's set with metric profiles that do not depend on the sensor's
 resolution or the cluster's own height (Kidono's slices do: they split the cluster's height
@@ -51,6 +52,20 @@ scan's rays the pole covers a few hundredths of a square metre and the person ha
 Without the steps (``scan_steps_rad=None``) each cluster's own points estimate them; when they
 cannot (too few points), g4 is 0.
 
+Block g5 tells a thin pole or sign post from a person when a sparse scan leaves few points: from
+the eigenvalues l1 >= l2 >= l3 of the 3-D covariance, linearity (l1 - l2) / l1, planarity
+(l2 - l3) / l1 and scattering l3 / l1 (a pole is a line, a sign a plane, a person a volume);
+verticality, |z| of the principal axis; the horizontal rms radius sqrt(var x + var y), m; the
+widest extent along e1 over the torso and shoulders (0.8-1.6 m above the floor) and the extent
+along e1 of the top 0.25 m (the head), m, and their ratio (a person's head is narrower than
+the shoulders, a post's top is as wide as its shaft, a sign's wider); and the box's width over
+its height. Undefined values (a single point, no point at those heights) are 0.
+
+Intensity units differ between sensors (KITTI's reflectance 0-1, Argoverse's 0-255, a
+simulator's 0-1, none at all): ``frame_normalized_intensity`` divides a frame's intensities by
+their 95th percentile before the features see them, so f9-f10 describe a cluster relative to its
+own frame.
+
 The cluster's own axes: e1 is the major principal axis of the horizontal (x, y) spread, e2 the
 minor one, signed so that e2 points away from the sensor (e1 = e2 rotated by +90 deg). The *main
 plane* is the vertical plane spanned by e1 and z, the *secondary plane* the one spanned by e2
@@ -65,7 +80,8 @@ from __future__ import annotations
 
 import numpy as np
 
-N_FEATURES = 264
+N_FEATURES = 273
+N_FEATURES_BEFORE_G5 = 264  # models trained before block g5 read the first 264
 N_KIDONO = 213  # Kidono et al.'s features come first
 
 # (name, count) in order; the sum is checked at import.
@@ -84,6 +100,7 @@ BLOCKS: tuple[tuple[str, int], ...] = (
     ("top_profile", 8 * 3),
     ("z_extent_distance", 3),
     ("scan_normalized", 4),
+    ("pole_or_person", 9),
 )
 assert sum(n for _, n in BLOCKS) == N_FEATURES
 
@@ -102,6 +119,9 @@ STEP_RANGE_M = (1.0, 40.0)
 STEP_MAX_POINTS = 5000
 STEP_MIN_GAP_RAD = np.radians(0.1)  # elevation gaps smaller than this are one scan line's jitter
 DEFAULT_SENSOR_HEIGHT_M = 1.0
+TORSO_BAND_M = (0.8, 1.6)  # g5: torso and shoulders above the floor
+HEAD_DEPTH_M = 0.25  # g5: the top of the cluster
+INTENSITY_PERCENTILE = 95.0  # frame_normalized_intensity
 
 
 def block_slices() -> dict[str, slice]:
@@ -238,13 +258,29 @@ def scan_steps_rad(points: np.ndarray, sensor_height_m: float = DEFAULT_SENSOR_H
     return (daz, float(np.median(gaps))) if len(gaps) else (float("nan"), float("nan"))
 
 
+def frame_normalized_intensity(points: np.ndarray) -> np.ndarray:
+    """The (N, 4) frame with its intensities divided by their ``INTENSITY_PERCENTILE``th percentile
+    over the points with a positive intensity, so frames of sensors with other intensity units
+    (0-1, 0-255) give clusters the same features. A frame with no positive intensity (none
+    recorded) or an (N, 3) one gets intensity 0; NaN intensities count as 0."""
+    pts = np.asarray(points, dtype=float)
+    out = np.zeros((len(pts), 4))
+    out[:, :3] = pts[:, :3]
+    if pts.ndim == 2 and pts.shape[1] > 3 and len(pts):
+        inten = np.nan_to_num(pts[:, 3], nan=0.0, posinf=0.0, neginf=0.0)
+        positive = inten[inten > 0]
+        if len(positive):
+            out[:, 3] = np.maximum(inten, 0.0) / np.percentile(positive, INTENSITY_PERCENTILE)
+    return out
+
+
 def cluster_features(points: np.ndarray, scan_steps=None) -> np.ndarray:
-    """The 264-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
+    """The N_FEATURES-vector of one cluster (N, 4) ``x, y, z, intensity``; see the module table."""
     return features_matrix([points], scan_steps)[0]
 
 
 def features_matrix(clusters, scan_steps=None) -> np.ndarray:
-    """(len(clusters), 264) features of a sequence of clusters, each (N, 4) ``x, y, z, intensity``
+    """(len(clusters), N_FEATURES) features of a sequence of clusters, each (N, 4) ``x, y, z, intensity``
     (N, 3: intensity 0); see the module table. ``scan_steps``: the frame's (azimuth, elevation)
     ray steps in rad (``scan_steps_rad``) for block g4; None estimates them from each cluster.
 
@@ -344,4 +380,30 @@ def features_matrix(clusters, scan_steps=None) -> np.ndarray:
         cols = span / daz + 1.0
         g4 = np.column_stack([n * r * daz * r * d_el, rows, cols, n / (rows * cols)])
     f[:, b["scan_normalized"]] = np.where(np.isfinite(g4), g4, 0.0)
+    f[:, b["pole_or_person"]] = _pole_or_person(seg, cov3, u, z, z_min, z_max)
     return f
+
+
+def _pole_or_person(seg: _Segments, cov3: np.ndarray, u: np.ndarray, z: np.ndarray, z_min: np.ndarray,
+                    z_max: np.ndarray) -> np.ndarray:
+    """Block g5 (see the module docstring), (k, 9)."""
+    cov = np.empty((seg.k, 3, 3))
+    for c, (i, j) in enumerate(_UPPER_PAIRS):
+        cov[:, i, j] = cov[:, j, i] = cov3[:, c]
+    vals, vecs = np.linalg.eigh(cov)  # ascending
+    l3, l2, l1 = vals[:, 0], vals[:, 1], vals[:, 2]
+    safe = np.where(l1 > 0, l1, 1.0)
+    shape = np.column_stack([(l1 - l2) / safe, (l2 - l3) / safe, np.maximum(l3, 0.0) / safe]) * (l1 > 0)[:, None]
+    vertical = np.abs(vecs[:, 2, 2]) * (l1 > 0)
+    radius = np.sqrt(np.maximum(cov3[:, 0] + cov3[:, 3], 0.0))
+    cid = seg.cid
+    torso = (z >= TORSO_BAND_M[0]) & (z <= TORSO_BAND_M[1])
+    head = z >= (z_max - HEAD_DEPTH_M)[cid]
+    zeros = np.zeros(len(z), dtype=np.int64)
+    torso_w = seg.extents(zeros, 1, u, torso)[:, 0, 0]
+    head_w = seg.extents(zeros, 1, u, head)[:, 0, 0]
+    ratio = np.where(torso_w > 0, head_w / np.where(torso_w > 0, torso_w, 1.0), 0.0)
+    width = seg.extents(zeros, 1, u)[:, 0, 0]
+    height = z_max - z_min
+    aspect = np.where(height > 0, width / np.where(height > 0, height, 1.0), 0.0)
+    return np.column_stack([shape, vertical, radius, torso_w, head_w, ratio, aspect])

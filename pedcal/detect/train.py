@@ -4,13 +4,15 @@ clusters, -> Kidono features (and the metric profiles and scan-ray measures afte
 Simulated training set. Frame k of seed s draws everything (LIDAR preset, mounts, scene, noise)
 from ``np.random.default_rng([TRAIN_STREAM, s, k])``; ``pedcal detect-eval`` uses the stream tag
 ``EVAL_STREAM`` instead, so its frames never coincide with training frames. The presets mix the
-paper's FX8 pair (45 % of the frames; mount height and pitch varied) with longer-range, spinning
-(16, 32 and 64 evenly spaced beams, and the pandar40's 40 packed about the horizon; on a robot
+paper's FX8 pair (20 % of the general model's frames; mount height and pitch varied) with longer-range, spinning
+(16, 32 and 64 evenly spaced beams, the pandar40's 40 packed about the horizon, and the data
+sheets' layouts of VLP-16, VLP-32C, HDL-64E and OS1-64/128 with per-frame nuisances; on a robot
 or a car roof, people out to 20 m) and dense LIDARs, so the classifier sees people at many
 resolutions and ranges. People wear skirts, coats and backpacks and push prams
-(``pedcal.sim.scene.random_person``). No real frame is trained on: the only
-labelled real frames in the shared data (SUSTechPOINTS) are the real-data evaluation of
-``pedcal detect-eval --real``, and KITTI's single labelled pedestrian is a test. Scenes come from
+(``pedcal.sim.scene.random_person``). The general model is also trained on the real labelled
+frames (``train_with_real``, ``pedcal.detect.lodo``), and its classifier, features and threshold
+are chosen by leave-one-dataset-out validation; KITTI's single labelled pedestrian is a test.
+Scenes come from
 ``pedcal.sim.scene.random_scene``: static and walking people, people carrying bags, clutter
 (walls, pillars, poles, chairs, plants, signs, trolleys, boxes, coat stands); for the spinning
 LIDARs, ``OUTDOOR_SHARE`` of the frames are streets instead (``OUTDOOR_CLUTTER_WEIGHTS``: tree
@@ -50,14 +52,26 @@ from pathlib import Path
 import numpy as np
 
 from pedcal.detect.adaboost import RealAdaBoost
-from pedcal.detect.detection import FAMILY_CUT_LOW, FAMILY_OCCLUDED_LOW, FLOOR_TOLERANCE_M, model_path, segment
-from pedcal.detect.features import N_FEATURES, features_matrix, scan_steps_rad
-from pedcal.errors import PedcalInputError
+from pedcal.detect.detection import (
+    FAMILY_CUT_LOW,
+    FAMILY_OCCLUDED_LOW,
+    FLOOR_TOLERANCE_M,
+    candidate_features,
+    model_path,
+    segment,
+)
+from pedcal.detect.features import N_FEATURES, N_FEATURES_BEFORE_G5, features_matrix, scan_steps_rad
+from pedcal.detect.lodo import REAL_COPIES, Config
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 
 TRAIN_STREAM = 7101
 EVAL_STREAM = 7202
 VALIDATION_STREAM = 7303  # frames that choose the decision threshold, never trained on
 DEFAULT_FRAMES = 6000
+# The general model's simulated frames: with the real frames beside them, fewer than the 6000 of
+# RealAdaBoost on simulation alone (their LIDARs' frames hold 40-60k points each; training and
+# the choice of the model take ~10 min of CPU time with 600).
+GENERAL_FRAMES = 600
 VALIDATION_SHARE = 0.2  # validation frames per training frame
 N_ROUNDS = 600
 # The detector's targets: the threshold balances the shortfalls from both (``choose_threshold``).
@@ -68,9 +82,32 @@ COMPANION_SHARE = 0.3  # people given a companion beside them in training scenes
 OUTDOOR_SHARE = 0.6  # spinning-LIDAR frames set in a street rather than a hall
 
 # (preset, probability); mounts are drawn per frame in ``random_rig``.
-TRAIN_PRESETS = (("fx8", 0.45), ("fx8_far", 0.1), ("spin16", 0.06), ("spin32", 0.07), ("hdl32", 0.07),
-                 ("hdl64", 0.07), ("pandar40", 0.08), ("solid_dense", 0.1))
+# The general model serves every LIDAR but the FX8 pair (which has its own): most of its frames
+# come from the spinning LIDARs with their data sheets' beam layouts (VLP-16, VLP-32C, HDL-64E,
+# OS1-64/128), each frame with its own nuisances (``NUISANCE_PRESETS``), beside evenly spaced
+# beams, a dense solid-state sensor and some FX8 frames.
+TRAIN_PRESETS = (("fx8", 0.15), ("fx8_far", 0.05), ("spin16", 0.05), ("spin32", 0.05), ("hdl32", 0.07),
+                 ("hdl64", 0.05), ("pandar40", 0.06), ("solid_dense", 0.07), ("vlp16", 0.1), ("vlp32c", 0.12),
+                 ("hdl64e", 0.1), ("os1_64", 0.08), ("os1_128", 0.05))
+# Presets whose training frames draw what real sensors vary (``pedcal.sim.lidar.random_nuisances``:
+# stray returns below the ground, intensity 0-1, 0-255 or absent, range noise, dropout).
+NUISANCE_PRESETS = ("vlp16", "vlp32c", "hdl64e", "os1_64", "os1_128")
 FX8_TRAIN_PRESETS = (("fx8", 0.8), ("fx8_far", 0.2))
+
+
+# The general model's classifier and threshold, chosen by leave-one-dataset-out validation
+# (``pedcal train-detector --select``, ``pedcal.detect.lodo.select_config``; see README).
+GENERAL_CONFIG = Config(classifier="gbt", intensity="raw", n_features=N_FEATURES, real_weight=5.0, n_rounds=300)
+GENERAL_THRESHOLD = 0.3
+LODO_TITLE = "leave-one-dataset-out (each real dataset scored by a model trained without it):"
+CANDIDATE_CONFIGS = (
+    Config("gbt", "frame", N_FEATURES, 5.0),
+    Config("gbt", "none", N_FEATURES, 5.0),
+    Config("gbt", "raw", N_FEATURES, 5.0),
+    Config("gbt", "frame", N_FEATURES_BEFORE_G5, 5.0),  # without block g5
+    Config("adaboost", "raw", N_FEATURES_BEFORE_G5, 5.0, 0, 300),  # the paper's classifier, Kidono-style features
+    Config("adaboost", "frame", N_FEATURES, 5.0, 0, 300),
+)
 
 
 @dataclass(frozen=True)
@@ -82,9 +119,17 @@ class ModelFamily:
     frames: int  # simulated training frames by default
     n_rounds: int
     tree_depth: int  # RealAdaBoost's partitions: 0 one feature's bins, D > 0 depth-D trees
+    # With a Config (pedcal.detect.lodo): that classifier, trained on the simulated frames and the
+    # real labelled frames (augmented), at the decision threshold ``threshold`` (P(person)), both
+    # chosen by leave-one-dataset-out validation. None: RealAdaBoost on simulated frames alone,
+    # its threshold chosen on simulated validation frames.
+    config: Config | None = None
+    threshold: float | None = None
 
 
-# "general": every trained LIDAR, one feature's bins per round (Misu and Miura's classifier).
+# "general": every trained LIDAR, simulated and real frames, the classifier of GENERAL_CONFIG (chosen by
+# leave-one-dataset-out validation); its RealAdaBoost rounds and depth serve train_detector (the
+# baseline on simulated frames alone, or a user's labelled clusters).
 # "fx8": the FX8 pair alone. Its clusters range from a dozen points at 5 m to thousands of a near
 # person cut at the knees and the head by the 50 deg vertical field of view; what a height, a
 # width or a point count says depends on the range, which a sum of one-feature curves cannot
@@ -92,7 +137,7 @@ class ModelFamily:
 # with depth-2 trees, 0.946 and 0.967 with depth-3 trees (16000 frames each). Its frames cost
 # ~20 ms each, so it gets more of them (8000 -> 16000 frames: recall 0.938 -> 0.942, depth 2).
 MODEL_FAMILIES = {
-    "general": ModelFamily(TRAIN_PRESETS, DEFAULT_FRAMES, N_ROUNDS, 0),
+    "general": ModelFamily(TRAIN_PRESETS, GENERAL_FRAMES, N_ROUNDS, 0, GENERAL_CONFIG, GENERAL_THRESHOLD),
     "fx8": ModelFamily(FX8_TRAIN_PRESETS, 16000, 400, 3),
 }
 
@@ -135,7 +180,7 @@ def simulated_frame(stream: int, seed: int, k: int, preset: str | None = None,
     ``presets`` (default TRAIN_PRESETS) with a random rig; "fx8" is the paper's pair at its default
     mounts in a default scene; another preset gets a random rig and scene as in training
     (``random_rig``)."""
-    from pedcal.sim.lidar import fx8_pair_mounts, render
+    from pedcal.sim.lidar import fx8_pair_mounts, random_nuisances, render
     from pedcal.sim.scene import random_scene
 
     rng = np.random.default_rng([stream, seed, k])
@@ -152,7 +197,8 @@ def simulated_frame(stream: int, seed: int, k: int, preset: str | None = None,
         scene = random_scene(rng, **scene_kw)
     if scene_kw:  # training rigs (not the paper's default evaluation scene): people in pairs too
         add_companions(scene, rng)
-    return render(scene, preset, mounts, rng)
+    lidar = random_nuisances(preset, rng) if preset in NUISANCE_PRESETS else preset
+    return render(scene, lidar, mounts, rng)
 
 
 def add_companions(scene, rng: np.random.Generator, share: float = COMPANION_SHARE) -> int:
@@ -206,42 +252,49 @@ def label_clusters(frame, candidates, min_purity: float = 0.6, min_person_share:
     return labels
 
 
-def frame_training_clusters(frame, family: str = "general") -> tuple[np.ndarray, np.ndarray]:
+def frame_training_clusters(frame, family: str = "general", intensity="raw"):
     """(features, labels) of the unambiguous gated clusters of one simulated frame (``label_clusters``),
     segmented as ``detect`` segments the frames of the model ``family``, the features with the
-    frame's ray steps as ``detect`` computes them."""
+    frame's ray steps as ``detect`` computes them and its intensity read as ``intensity``
+    (``pedcal.detect.detection.INTENSITY_MODES``); a tuple of modes gives {mode: features}."""
     pts = frame.points.astype(float)
     steps = scan_steps_rad(pts, frame.sensor_height_m)
     cands = [c for c in segment(pts, cut_low=FAMILY_CUT_LOW[family], occluded_low=FAMILY_OCCLUDED_LOW[family],
                                 scan_steps=steps, sensor_xyz=tuple(frame.sensor_positions_base.mean(axis=0)))
              if c.gated]
     lab = label_clusters(frame, cands, above_floor=FAMILY_OCCLUDED_LOW[family])
-    cands = [c for c, v in zip(cands, lab, strict=True) if v >= 0]
-    if not cands:
-        return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
-    return features_matrix([pts[c.indices] for c in cands], steps), lab[lab >= 0]
+    groups = [c.indices for c, v in zip(cands, lab, strict=True) if v >= 0]
+    modes = (intensity,) if isinstance(intensity, str) else tuple(intensity)
+    X = {m: candidate_features(pts, groups, steps, m) if groups else np.zeros((0, N_FEATURES)) for m in modes}
+    return (X[intensity] if isinstance(intensity, str) else X), lab[lab >= 0]
 
 
 def simulated_training_set(frames: int, seed: int = 0, progress: bool = False, *,
-                           stream: int = TRAIN_STREAM, family: str = "general") -> tuple[np.ndarray, np.ndarray]:
+                           stream: int = TRAIN_STREAM, family: str = "general", intensity="raw"):
     """(features (n, N_FEATURES), labels (n,)) of every unambiguous gated cluster of ``frames``
     simulated frames of ``stream`` (TRAIN_STREAM, or VALIDATION_STREAM for the threshold), their
-    LIDARs drawn from the model ``family``'s presets and segmented as its frames are."""
-    feats, labels = [], []
+    LIDARs drawn from the model ``family``'s presets and segmented as its frames are; with a tuple
+    of ``intensity`` modes, ({mode: features}, labels)."""
+    modes = (intensity,) if isinstance(intensity, str) else tuple(intensity)
+    feats, labels = {m: [] for m in modes}, []
     t0 = time.monotonic()
     presets = MODEL_FAMILIES[family].presets
     for k in range(frames):
-        X, y = frame_training_clusters(simulated_frame(stream, seed, k, presets=presets), family)
+        X, y = frame_training_clusters(simulated_frame(stream, seed, k, presets=presets), family, modes)
         if len(y):
-            feats.append(X)
+            for m in modes:
+                feats[m].append(X[m])
             labels.append(y)
         if progress and ((k + 1) % 250 == 0 or k + 1 == frames):
             n = sum(len(v) for v in labels)
             logging.getLogger(__name__).info(f"  simulated {k + 1}/{frames} frames, {n} gated clusters "
                                              f"({time.monotonic() - t0:.0f} s)", extra={"progress": (k + 1, frames)})
-    if not feats:
-        return np.zeros((0, N_FEATURES)), np.zeros(0, dtype=np.int64)
-    return np.vstack(feats), np.concatenate(labels)
+    if not labels:
+        X = {m: np.zeros((0, N_FEATURES)) for m in modes}
+        y = np.zeros(0, dtype=np.int64)
+    else:
+        X, y = {m: np.vstack(v) for m, v in feats.items()}, np.concatenate(labels)
+    return (X[intensity] if isinstance(intensity, str) else X), y
 
 
 def _read_cluster(path: Path) -> np.ndarray:
@@ -368,10 +421,99 @@ def train_detector(frames: int | None = None, seed: int = 0, labelled: str | Pat
     return model
 
 
+def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "general", data_dir=None,
+                    config: Config | None = None, threshold: float | None = None, select: bool = False,
+                    real_copies: int = REAL_COPIES, progress: bool = False):
+    """The classifier of a model ``family`` with a Config (``MODEL_FAMILIES``), trained on
+    ``frames`` simulated frames and every labelled real frame under ``data_dir`` (default
+    ``pedcal.detect.real_eval.default_data_dir``) with ``real_copies`` augmented copies each
+    (``pedcal.detect.lodo``); see ``fit_with_real``. Without real frames a DegenerateDataWarning
+    says the model is trained on simulated frames alone. Deterministic given the arguments and
+    the data."""
+    from pedcal.detect import lodo
+    from pedcal.detect.real_eval import default_data_dir
+
+    fam = MODEL_FAMILIES[family]
+    n_sim = fam.frames if frames is None else int(frames)
+    root = Path(data_dir) if data_dir is not None else default_data_dir()
+    records = []
+    if root.is_dir():
+        records = lodo.real_clusters(root, real_copies, seed, progress=progress)
+    else:
+        warnings.warn(f"no real recordings at {root}: the detector is trained on simulated frames alone and "
+                      "no leave-one-dataset-out table can be made", DegenerateDataWarning, stacklevel=2)
+    modes = tuple(sorted({c.intensity for c in CANDIDATE_CONFIGS})) if select and records \
+        else ((config or fam.config).intensity,)
+    sim = simulated_training_set(n_sim, seed, progress, family=family, intensity=modes)
+    model = fit_with_real(sim, records, seed, config=config or fam.config,
+                          threshold=fam.threshold if threshold is None else threshold, select=select, progress=progress)
+    model.metadata_.update(simulated_frames=n_sim, real_copies=real_copies)
+    return model
+
+
+def fit_with_real(sim: tuple[dict, np.ndarray], records: list, seed: int = 0, *, config: Config,
+                  threshold: float, select: bool = False, progress: bool = False):
+    """A classifier of ``config`` trained on the simulated clusters ``sim`` ({intensity mode:
+    features}, labels) and the real ones ``records`` (``lodo.real_clusters``, every copy), whose
+    offset puts P(person) = 0.5 at the probability ``threshold``. With ``select``, ``config`` and
+    ``threshold`` are chosen anew among ``CANDIDATE_CONFIGS`` and ``lodo.THRESHOLDS`` by
+    leave-one-dataset-out validation on these same clusters (``lodo.select_config``: the best
+    worst left-out dataset). The model's ``metadata_`` holds the leave-one-dataset-out table of
+    its configuration and threshold (``lodo``) and, with ``select``, every candidate's scores."""
+    from pedcal.detect import lodo
+
+    log = logging.getLogger(__name__)
+    metadata: dict = dict(seed=seed, real_frames=sorted({r.frame for r in records}))
+    table = None
+    if select and records:
+        results = {}
+        for c in CANDIDATE_CONFIGS:
+            t0 = time.monotonic()
+            results[c.name()] = lodo.lodo(c, sim, records, seed)
+            if progress:
+                log.info(f"  LODO {c.name()} ({time.monotonic() - t0:.0f} s)")
+        name, threshold, table = lodo.select_config(results)
+        config = next(c for c in CANDIDATE_CONFIGS if c.name() == name)
+        metadata["selection"] = lodo.selection_rows(results)
+    elif records:
+        if progress:
+            log.info("leave-one-dataset-out table of the configuration")
+        table = lodo.lodo(config, sim, records, seed, thresholds=(threshold,))[float(threshold)]
+    if table is not None:
+        metadata["lodo"] = table
+    X_sim, y_sim = sim[0][config.intensity], sim[1]
+    X_real, y_real = lodo.stack_real(records, config.intensity, config.n_features)
+    if progress:
+        log.info(f"training {config.name()} on {len(y_sim)} simulated clusters ({int(y_sim.sum())} people) and "
+                 f"{len(y_real)} real ones ({int(y_real.sum())} people)")
+    model = lodo.fit_config(config, X_sim, y_sim, X_real, y_real, seed)
+    model.set_threshold(lodo.probability_decision(model, threshold))
+    model.metadata_.update(metadata, threshold=float(threshold))
+    model.training_size_ = len(y_sim) + len(y_real)
+    X = np.vstack([X_sim[:, :config.n_features], X_real[:, :config.n_features]])
+    model.training_accuracy_ = float((model.predict(X) == np.concatenate([y_sim, y_real])).mean())
+    return model
+
+
 def train_detector_cli(args) -> int:
     """``pedcal train-detector [--family F] [-o MODEL] [--seed S] [--frames N] [--labelled PATH]``."""
+    from pedcal.detect.lodo import format_lodo, format_selection
+
     family = getattr(args, "family", "general")
     output = Path(args.output) if args.output is not None else model_path(family)
+    if MODEL_FAMILIES[family].config is not None and args.labelled is None:
+        model = train_with_real(frames=args.frames, seed=args.seed, family=family,
+                                data_dir=getattr(args, "data_dir", None), select=getattr(args, "select", False),
+                                progress=True)
+        model.save(output)
+        meta = model.metadata_
+        print(f"wrote {output}: {meta['config']} on {model.training_size_} clusters, training accuracy "
+              f"{model.training_accuracy_:.4f}, threshold P >= {meta['threshold']:.2f}")
+        if "selection" in meta:
+            print(format_selection(meta["selection"]))
+        if "lodo" in meta:
+            print(format_lodo(meta["lodo"], LODO_TITLE))
+        return 0
     model = train_detector(frames=args.frames, seed=args.seed, labelled=args.labelled, family=family,
                            progress=True)
     model.save(output)
