@@ -568,7 +568,8 @@ def main(argv: list[str] | None = None) -> int:
         configure_logging(quiet=args.log_quiet, verbose=args.verbose)
         return _run(args)
     finally:
-        interrupts.restore(previous)
+        if not interrupts.running_the_command_line():   # a Ctrl-C while the process exits is one line too
+            interrupts.restore(previous)
 
 
 def _run(args) -> int:
@@ -604,6 +605,10 @@ def _run(args) -> int:
     except KeyboardInterrupt:       # raised by a library that installed its own SIGINT handling
         print("interrupted", file=sys.stderr)
         return interrupts.EXIT_INTERRUPTED
+    except ImportError as e:        # Ctrl-C while a compiled module initialized (GTSAM): its SystemExit is
+        if interrupts.caused_by_interrupt(e):       # re-raised as "initialization failed"
+            return interrupts.EXIT_INTERRUPTED
+        raise
 
 
 if __name__ == "__main__":

@@ -29,6 +29,19 @@ def _on_sigint(signum, frame):
     raise SystemExit(EXIT_INTERRUPTED)
 
 
+def caused_by_interrupt(error: BaseException) -> bool:
+    """``error`` was raised because of the SystemExit of a Ctrl-C (``_on_sigint``): somewhere in its
+    chain of causes (an extension module's initialization turns it into ImportError)."""
+    seen = set()
+    e = error
+    while e is not None and id(e) not in seen:
+        if isinstance(e, SystemExit) and e.code == EXIT_INTERRUPTED:
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def install():
     """SIGINT -> one line and SystemExit(130); returns the previous handler (for ``restore``)."""
     try:
@@ -60,7 +73,7 @@ def children_ignore():
         signal.signal(signal.SIGINT, previous)
 
 
-def _running_the_command_line() -> bool:
+def running_the_command_line() -> bool:
     """This process is ``python -m pedcal.cli`` or the ``pedcal`` script (not a library user)."""
     import os
 
@@ -71,5 +84,5 @@ def _running_the_command_line() -> bool:
 
 # The command line imports this module before anything heavy, so that a Ctrl-C while the rest loads
 # is already one line; a library user's SIGINT handling is left alone.
-if _running_the_command_line():
+if running_the_command_line():
     install()

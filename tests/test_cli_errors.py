@@ -154,3 +154,23 @@ def test_a_warning_reaches_the_user_as_one_line(capsys):
         warnings.warn("sensor s01: cannot estimate roll", UserWarning, stacklevel=1)
     err = capsys.readouterr().err
     assert err.strip() == "warning: sensor s01: cannot estimate roll"
+
+
+def test_an_import_failed_by_ctrl_c_is_an_interrupt_not_an_error():
+    """A Ctrl-C while a compiled module initializes reaches the command as ImportError('initialization
+    failed') whose cause is the handler's SystemExit(130): exit 130, not a traceback."""
+    from pedcal.interrupts import EXIT_INTERRUPTED, caused_by_interrupt
+
+    def chained(inner: BaseException) -> ImportError:
+        try:
+            try:
+                raise inner
+            except BaseException as e:
+                raise ImportError("initialization failed") from e
+        except ImportError as outer:
+            return outer
+
+    assert caused_by_interrupt(chained(SystemExit(EXIT_INTERRUPTED)))
+    assert not caused_by_interrupt(chained(SystemExit(1)))
+    assert not caused_by_interrupt(chained(ValueError("bad wheel")))
+    assert not caused_by_interrupt(ImportError("no module named gtsam"))

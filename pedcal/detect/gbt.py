@@ -100,6 +100,8 @@ class GradientBoostedTrees:
     def load(cls, path: str | Path) -> GradientBoostedTrees:
         import lightgbm
 
+        from pedcal.detect.model_check import lightgbm_text_problem
+
         path = Path(path)
         if not path.is_file():
             raise PedcalInputError("no such model file", path=path)
@@ -108,7 +110,11 @@ class GradientBoostedTrees:
                 n_est, leaves, min_child, seed = (int(v) for v in d["hyper"])
                 lr, sub, col = (float(v) for v in d["hyper_float"])
                 m = cls(n_est, leaves, lr, min_child, sub, col, seed)
-                m.booster_ = lightgbm.Booster(model_str=d["lightgbm_model"].tobytes().decode())
+                text = d["lightgbm_model"].tobytes().decode()
+                problem = lightgbm_text_problem(text)    # LightGBM aborts the process on a damaged text
+                if problem is not None:
+                    raise PedcalInputError(f"not a usable detector model: {problem}", path=path)
+                m.booster_ = lightgbm.Booster(model_str=text)
                 m.n_features_ = int(d["n_features"])
                 m.bias_ = float(d["bias"])
                 m.metadata_ = read_metadata(d)

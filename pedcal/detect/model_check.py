@@ -17,7 +17,7 @@ from pedcal.errors import PedcalInputError
 
 # array name in the file -> attribute of the loaded model
 ARRAYS = {"feature": "feature_", "edges": "edges_", "h": "h_", "n_features": "n_features_", "bias": "bias_",
-          "tree_depth": "tree_depth", "n_bins": "n_bins"}
+          "tree_depth": "tree_depth", "n_bins": "n_bins", "lightgbm_model": "booster_"}
 MAX_TREE_DEPTH = 20
 
 
@@ -92,8 +92,46 @@ def _edges_monotone(a: dict) -> str | None:
 
 _edges_monotone.needs = ("edges", "tree_depth")
 
+def _booster_features(a: dict) -> str | None:
+    """A gradient-boosted-trees model (pedcal.detect.gbt): its trees split the n_features it says."""
+    got, n = int(a["lightgbm_model"].num_feature()), int(a["n_features"])
+    if got != n:
+        return f"'lightgbm_model' splits {got} features, 'n_features' says {n}"
+    return None
+
+
+_booster_features.needs = ("lightgbm_model", "n_features")
+
 # order matters: the scalars and the finiteness first, then the shapes the later rules index by
-RULES = [_finite("edges"), _finite("h"), _finite("bias"), _scalars, _feature_indices, _shapes, _edges_monotone]
+RULES = [_finite("edges"), _finite("h"), _finite("bias"), _scalars, _feature_indices, _shapes, _edges_monotone,
+         _booster_features]
+
+
+def lightgbm_text_problem(text: str) -> str | None:
+    """What is wrong with a LightGBM model text (pedcal.detect.gbt's ``lightgbm_model``), or None.
+    LightGBM aborts the whole process on a text it cannot parse (a truncated file, a hand edit), so
+    its layout is checked first: the ``tree`` header, ``tree_sizes`` (each tree block's length in
+    characters) locating every ``Tree=k`` block exactly, then ``end of trees`` and the parameters."""
+    if not text.startswith("tree\n"):
+        return "'lightgbm_model' does not start with LightGBM's 'tree' header"
+    i = text.find("\ntree_sizes=")
+    if i < 0:
+        return "'lightgbm_model' has no 'tree_sizes' line"
+    line = text[i + len("\ntree_sizes="): text.find("\n", i + 1)]
+    try:
+        sizes = [int(v) for v in line.split()]
+    except ValueError:
+        return "'lightgbm_model' has a 'tree_sizes' line that is not a list of integers"
+    pos = text.find("Tree=0\n")
+    if pos < 0 or not sizes or min(sizes) <= 0:
+        return "'lightgbm_model' holds no tree"
+    for k, size in enumerate(sizes):
+        if not text.startswith(f"Tree={k}\n", pos):
+            return f"'lightgbm_model' tree {k} is not where 'tree_sizes' puts it (the text is damaged or cut)"
+        pos += size
+    if not text.startswith("end of trees", pos) or "end of parameters" not in text[pos:]:
+        return "'lightgbm_model' ends before 'end of trees' / 'end of parameters' (the text is cut)"
+    return None
 
 
 def model_arrays(model) -> dict:
