@@ -109,11 +109,17 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     pivoting: the matrix is positive definite, the graph's priors hold every variable), in the
     fill-reducing column ``order`` (:func:`fill_reducing_order`) or, without one, SuperLU's
     minimum-degree ordering of the symmetric matrix."""
-    N = (A.T @ A).tocsc()
     if order is None:
+        N = (A.T @ A).tocsc()
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         return lambda y: lu.solve(np.asarray(y, float))
-    lu = spla.splu(N[order][:, order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+    # A's columns renumbered into the order (its values shared, not copied), so that the normal
+    # matrix is formed permuted: no permuted copies of it
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    A = A.tocsr()
+    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
+    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                    options={"SymmetricMode": True})
 
     def solve(y):
