@@ -13,10 +13,10 @@ import pedcal.calib.factorgraph as factorgraph
 from pedcal.calib import calibrate
 from pedcal.calib.amcl_model import detect_jumps
 from pedcal.calib.factorgraph import _estimate_nuisances, model_check
-from pedcal.calib.graph import GraphRecipe, build_parts, observation_block, optimize_graph, prepare
-from pedcal.errors import DegenerateDataWarning
+from pedcal.calib.graph import GraphRecipe, observation_block, optimize_graph
 from pedcal.sim import simulate_logs
 from pedcal.sim.robot import ou_process
+from tests.test_profile import solved_graph
 
 
 @pytest.fixture(scope="module")
@@ -118,12 +118,7 @@ def shifted_paper():
     rec = GraphRecipe.load("default")
     rec.estimate_amcl_model = False
     rec.head_ray_shift_sigma_m = rec.head_horizontal_shift_sigma_m = 0.004
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DegenerateDataWarning)
-        prob = prepare(sim.calib, rec)
-        parts = build_parts(sim.calib, prob)
-        result, _ = optimize_graph(parts.graph(), parts.values, rec)
-    return sim, prob, parts, result
+    return (sim, *solved_graph(sim.calib, rec))
 
 
 def test_profile_step_from_away_from_the_prior_mean_matches_the_nonlinear_profile(shifted_paper):
