@@ -10,8 +10,10 @@ lines start with ``#``; times strictly increase.
   sensors should see)
 - ``truth_robot.tum``, ``truth_head.tum``: the same from truth_robot.csv, when the log has it
 - ``head_<label>.tum``: the robot's head as the ceiling sensors saw it, recomputed with each
-  extrinsics given (and ``head_installed.tum`` with the log's sensors.yaml). Head points carry the
-  identity orientation (a point has none); observations at the same time are averaged.
+  extrinsics given (and ``head_installed.tum`` with the log's sensors.yaml), stamped at the instant
+  the head was there under that calibration (the stamp less its ``tracker_latency_s`` and each
+  sensor's ``clock_offset_s``). Head points carry the identity orientation (a point has none);
+  observations at the same time are averaged.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork
     """Write the TUM files of the module docstring into ``out_dir`` (atomically); returns
     {name: path}. ``extrinsics``: {label: SensorNetwork} to recompute the observed head path with."""
     from pedcal.calib.common import head_world
-    from pedcal.metrics import reproject_observations, robot_rows
+    from pedcal.metrics import LATENCY_KEY, reproject_observations, robot_rows, sensor_time_correction_s
 
     out_dir = Path(out_dir)
     written: dict[str, Path] = {}
@@ -83,8 +85,13 @@ def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork
         if not mask.any():
             logging.getLogger(__name__).warning("no observation of the robot found: no observed head path written")
             return written
-        t_obs = log.observations["t"].to_numpy(float)[mask]
+        t_stamp = log.observations["t"].to_numpy(float)[mask]
+        sensors = log.observations["sensor"].astype(str).to_numpy()[mask]
         for label, net in networks.items():
+            # at the instant the head was there: less the tracker latency and each sensor's clock
+            # offset a calibration estimated (none for the installed extrinsics)
+            t_obs = t_stamp - sensor_time_correction_s(net.extra, sensors,
+                                                       float(net.extra.get(LATENCY_KEY, 0.0) or 0.0))
             pts = reproject_observations(log, net, mask)[mask]
             ok = np.isfinite(pts).all(axis=1)
             if not ok.any():
