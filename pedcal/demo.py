@@ -128,6 +128,9 @@ def format_summary(summary: dict, scenario: str, seeds: list[int]) -> str:
 def run_demo(out_dir: Path, seed: int = 0, scenario: str = "paper", seeds: int = 4) -> int:
     """The demo: ``seed``'s table (its logs and calibrated YAMLs written to ``out_dir``), then the
     methods over ``seeds`` seeds from ``seed`` on (the others simulated in memory)."""
+    import warnings
+
+    from pedcal.errors import DegenerateDataWarning
     from pedcal.metrics import amcl_run_mean_error_m
     from pedcal.sim import simulate, simulate_logs
 
@@ -150,7 +153,9 @@ def run_demo(out_dir: Path, seed: int = 0, scenario: str = "paper", seeds: int =
     per_seed, seed_list = [results], list(range(seed, seed + seeds))
     for s in seed_list[1:]:
         logging.getLogger(__name__).info(f"[demo] seed {s} ...")
-        per_seed.append(run_methods(simulate_logs(scenario, seed=s), None, progress=False))
+        with warnings.catch_warnings():     # the first seed's warnings were shown; the others' repeat them
+            warnings.simplefilter("ignore", DegenerateDataWarning)
+            per_seed.append(run_methods(simulate_logs(scenario, seed=s), None, progress=False))
     summary = summarize_seeds(per_seed)
     if seeds > 1:
         print()
