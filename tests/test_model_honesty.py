@@ -22,13 +22,15 @@ from tests.test_profile import solved_graph
 @pytest.fixture(scope="module")
 def misfit_pair():
     """A log whose sensors' clocks are off by up to 0.15 s each (the robot is seen where it was
-    up to 45 mm earlier or later, a misfit the graph's shared latency cannot absorb), calibrated
-    twice: as it is, and with the model check's variance ratios forced to 1 (the sigma before
-    widening)."""
+    up to 45 mm earlier or later), calibrated by a graph told to keep one shared latency (a misfit
+    it cannot absorb) twice: as it is, and with the model check's variance ratios forced to 1
+    (the sigma before widening)."""
     sim = simulate_logs("paper", seed=2, duration_s=150.0, clock_offset_s=0.15)
+    rec = GraphRecipe.load("default")
+    rec.clock_offsets = False
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        widened = calibrate(sim.calib, method="factorgraph")
+        widened = calibrate(sim.calib, method="factorgraph", graph=rec)
         original = factorgraph.model_check
 
         def unwidened_check(prob, result, threshold=1.5):
@@ -37,7 +39,7 @@ def misfit_pair():
 
         factorgraph.model_check = unwidened_check
         try:
-            plain = calibrate(sim.calib, method="factorgraph")
+            plain = calibrate(sim.calib, method="factorgraph", graph=rec)
         finally:
             factorgraph.model_check = original
     return widened, plain
