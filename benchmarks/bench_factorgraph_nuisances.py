@@ -1,9 +1,12 @@
 """The factor graph against the grid search on logs whose nuisance models it does not assume:
 every seed draws its head-point model, AMCL error, odometry, latency and depth noise from the
-simulator's zoo (``simulate_logs(..., vary_nuisances=True)``, ``pedcal simulate --vary-nuisances``).
+simulator's zoo (``simulate_logs(..., vary_nuisances=True)``, ``pedcal simulate --vary-nuisances``);
+with ``--zoo`` also the zoo's further families (head points that ramp or saturate with distance,
+one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalizations:
+``--vary-nuisances zoo``), and the figures split by family.
 
     nice -n 10 .venv/bin/python benchmarks/bench_factorgraph_nuisances.py \
-        [--scenarios paper sparse corridor cross] [--seeds 20] [--first-seed 0] [--jobs 1]
+        [--scenarios paper sparse corridor cross lhall] [--seeds 20] [--first-seed 0] [--jobs 1] [--zoo]
 
 Per scenario (means over seeds): sensor position RMS of the factor graph and of the grid search
 (3-D and horizontal, mm; evaluated on the evaluation log, pedcal.metrics.evaluate), their ratio;
@@ -15,7 +18,10 @@ share (their mean, whose sigma the joint covariance gives) and the rest (1 when 
 right); the head-model error: over the robot's sightings in the calibration run, the RMS of
 (estimated - simulated) head-point offset from the head top, after removing the mean vertical
 part (which the robot cannot tell from the sensors' heights), its RMS over seeds and its worst
-seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time.
+seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time;
+the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <= 12 mm and
+<= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
+mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, within 1 sigma per axis.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ from pedcal.calib import calibrate
 from pedcal.calib.common import interpolate_pose2
 from pedcal.metrics import amcl_run_mean_error_m, evaluate, robot_rows
 from pedcal.sim import simulate_logs
-from pedcal.sim.nuisances import head_model_truth, head_point
+from pedcal.sim.nuisances import head_model_truth, head_point, sensor_clocks, sensor_head_models, zoo_families
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:
@@ -39,15 +45,21 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
     vertical part), mm, over the robot's sightings of the calibration log."""
     log, sc = sim.calib, sim.scenario
     mask, _ = robot_rows(log)
-    t = log.observations["t"].to_numpy(float)[mask] - sc.latency_s
     sensors = log.observations["sensor"].astype(str).to_numpy()[mask]
+    index = {sid: k for k, sid in enumerate(log.truth.ids)}
+    k_sensor = np.array([index[sid] for sid in sensors], dtype=int)
+    offset, _ = sensor_clocks(sc, len(log.truth))
+    t = log.observations["t"].to_numpy(float)[mask] - sc.latency_s - offset[k_sensor]
     pose = interpolate_pose2(log.truth_robot, t)
     off = np.asarray(sc.head_offset_m, float)
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
     top = np.column_stack([pose[:, 0] + c * off[0] - s * off[1], pose[:, 1] + s * off[0] + c * off[1],
                            np.full(len(t), off[2])])
     sensor_pos = np.stack([log.truth[sid].position_m for sid in sensors])
-    true_off = head_point(top, sensor_pos, sc) - top
+    true_off = np.zeros_like(top)
+    for k, model in enumerate(sensor_head_models(sc, len(log.truth))):
+        mine = k_sensor == k
+        true_off[mine] = head_point(top[mine], sensor_pos[mine], model) - top[mine]
     q = top + np.array([0.0, 0.0, head.vertical_offset_m])
     u = sensor_pos - q
     u_h = np.column_stack([u[:, :2], np.zeros(len(u))])
@@ -78,10 +90,11 @@ def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tu
     return z_shared, z_rest
 
 
-def run_one(scenario: str, seed: int) -> dict:
+def run_one(scenario: str, seed: int, zoo: bool = False) -> dict:
     warnings.simplefilter("ignore")
-    sim = simulate_logs(scenario, seed=seed, vary_nuisances=True)
+    sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo" if zoo else True)
     out = dict(scenario=scenario, seed=seed, nuisances=head_model_truth(sim.scenario),
+               families=zoo_families(sim.scenario),
                amcl=sim.scenario.amcl_error, odometry=sim.scenario.odometry, latency_s=sim.scenario.latency_s,
                depth=sim.scenario.depth_noise_model,
                amcl_mean_xy_mm=float(1000 * np.linalg.norm(amcl_run_mean_error_m(sim.calib))))
@@ -117,11 +130,13 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--verbose", action="store_true", help="one line per seed")
+    ap.add_argument("--zoo", action="store_true", help="--vary-nuisances zoo, figures split by family")
     args = ap.parse_args()
-    tasks = [(sc, s) for sc in args.scenarios for s in range(args.first_seed, args.first_seed + args.seeds)]
+    tasks = [(sc, s, args.zoo) for sc in args.scenarios for s in range(args.first_seed, args.first_seed + args.seeds)]
     with ProcessPoolExecutor(args.jobs) as ex:
         results = list(ex.map(run_one, *zip(*tasks, strict=True)))
-    print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), --vary-nuisances")
+    print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), "
+          f"--vary-nuisances{' zoo' if args.zoo else ''}")
     print("| scenario | graph RMS 3-D / xy (mm) | grid search 3-D / xy (mm) | graph / grid (xy) | "
           "AMCL run-mean error xy (mm) | graph / grid xy less AMCL's run mean (mm) | within 1 sigma x,y,z (%) | "
           "within 2 sigma x,y,z (%) | error / sigma RMS, shared / rest (xy) | head model shape RMS / worst, "
@@ -135,7 +150,7 @@ def main() -> None:
                       f" grid {r['gridsearch']['rms_mm']:6.1f}"
                       f"  head {r['head_shape_mm']:5.1f} dz {r['head_dz_mm']:+6.1f}  mismatch {r['mismatch']}"
                       f"  | {r['nuisances']}, AMCL {r['amcl']}, odometry {r['odometry']}, "
-                      f"latency {r['latency_s']:.2f}, depth {r['depth']}")
+                      f"latency {r['latency_s']:.2f}, depth {r['depth']}, {r['families']}")
         g = np.mean([r["factorgraph"]["rms_mm"] for r in rs])
         gxy = np.mean([r["factorgraph"]["rms_xy_mm"] for r in rs])
         b = np.mean([r["gridsearch"]["rms_mm"] for r in rs])
@@ -158,6 +173,37 @@ def main() -> None:
               f"{grel:.1f} / {brel:.1f} | "
               f"{w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {w2[0]:.0f}, {w2[1]:.0f}, {w2[2]:.0f} | {z_text} | "
               f"{shape:.1f} / {worst:.1f}, {dz:.1f} | {wall:.2f} / {cpu:.2f} |")
+    print_targets(results)
+    if args.zoo:
+        print_families(results)
+
+
+def _xy(r: dict) -> tuple[float, float]:
+    return r["factorgraph"]["rms_xy_mm"], r["factorgraph"]["rms_xy_mm"] / r["gridsearch"]["rms_xy_mm"]
+
+
+def print_targets(results: list[dict]) -> None:
+    """Per scenario: the worst log's horizontal RMS and graph / grid ratio, and how many logs
+    meet <= 12 mm and <= 0.35x the grid search horizontally."""
+    print("\n| scenario | logs | worst xy RMS (mm) | worst graph / grid xy | logs <= 12 mm xy | logs <= 0.35x grid |")
+    print("|---|---|---|---|---|---|")
+    for sc in dict.fromkeys(r["scenario"] for r in results):
+        xy = np.array([_xy(r) for r in results if r["scenario"] == sc])
+        print(f"| {sc} | {len(xy)} | {xy[:, 0].max():.1f} | {xy[:, 1].max():.2f} | {int(np.sum(xy[:, 0] <= 12.0))} | "
+              f"{int(np.sum(xy[:, 1] <= 0.35))} |")
+
+
+def print_families(results: list[dict]) -> None:
+    """The figures split by the family each zoo nuisance fell in (all scenarios pooled)."""
+    print("\n| family | logs | graph xy RMS mean / worst (mm) | graph / grid xy | within 1 sigma x,y,z (%) |")
+    print("|---|---|---|---|---|")
+    for family in ("head", "clock", "mounts", "amcl"):
+        for value in sorted({r["families"][family] for r in results}):
+            rs = [r for r in results if r["families"][family] == value]
+            xy = np.array([_xy(r) for r in rs])
+            w1 = 100 * np.mean(np.concatenate([r["ratios"] for r in rs]) <= 1.0, axis=0)
+            print(f"| {family}: {value} | {len(rs)} | {xy[:, 0].mean():.1f} / {xy[:, 0].max():.1f} | "
+                  f"{xy[:, 1].mean():.2f} | {w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} |")
 
 
 if __name__ == "__main__":

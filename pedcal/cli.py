@@ -45,7 +45,8 @@ def cmd_simulate(args) -> int:
 
     check_output(args.output, inputs=[args.scenario if Path(args.scenario).exists() else None], directory=True)
     result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
-                      **({"vary_nuisances": True} if getattr(args, "vary_nuisances", False) else {}))
+                      **({"vary_nuisances": True if args.vary_nuisances == "classic" else "zoo"}
+                         if getattr(args, "vary_nuisances", None) else {}))
     print(result.summary())
     return 0
 
@@ -319,9 +320,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, type=options.path, help="output directory")
     s.add_argument("--seed", type=options.arg("seed"), default=0)
     s.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    s.add_argument("--vary-nuisances", action="store_true",
+    s.add_argument("--vary-nuisances", nargs="?", const="classic", choices=("classic", "zoo"), default=None,
                    help="draw the nuisance models (head point, AMCL error, odometry, latency, depth noise) "
-                        "from the seed")
+                        "from the seed; 'zoo' also head points that ramp or saturate with distance, one per "
+                        "sensor, per-sensor clock offsets and skews, mixed heights, wall mounts, relocalizations")
     s.set_defaults(func=cmd_simulate)
 
     s = sub.add_parser("evaluate", help="the papers' accuracy figures of an extrinsics file on a log")

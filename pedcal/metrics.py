@@ -26,6 +26,20 @@ from pedcal.options import require
 # Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
 # Observation stamps are that much later than the instant the head was where it was seen.
 LATENCY_KEY = "tracker_latency_s"
+# ... and each sensor's clock offset about it with its sigma ({sensor: s}; pedcal.calib.clocks).
+CLOCK_OFFSET_KEY = "clock_offset_s"
+SIGMA_CLOCK_OFFSET_KEY = "sigma_clock_offset_s"
+
+
+def sensor_time_correction_s(extra: dict, sensors: np.ndarray, latency_s: float) -> np.ndarray:
+    """What to subtract from each observation's stamp (``sensors``: its sensor id) under a
+    calibrated YAML's top-level ``extra``: the tracker latency plus the sensor's clock offset."""
+    table = {str(k): float(v) for k, v in (extra.get(CLOCK_OFFSET_KEY) or {}).items()}
+    if not table:
+        return np.full(len(sensors), latency_s)
+    return latency_s + np.array([table.get(str(s), 0.0) for s in sensors], float)
+
+
 # Extra top-level key of a calibrated YAML: the radius (m) of the head dome the calibration
 # modelled. A tracker sees the point of the dome that faces it; the head top is that point moved
 # r along the viewing ray (to the dome centre) and r up. Absent or 0: points are taken as seen.
@@ -234,7 +248,8 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     if mask.any():
         p_world = reproject_observations(log, extrinsics, mask)
-        t = log.observations["t"].to_numpy(float) - latency_s
+        # the tracker latency plus each sensor's own clock offset (pedcal.calib.clocks)
+        t = log.observations["t"].to_numpy(float) - sensor_time_correction_s(extrinsics.extra, sensor_col, latency_s)
         use = mask & np.isfinite(p_world[:, 0])
         reference = "truth_robot" if log.truth_robot is not None else "robot (AMCL)"
         head = np.full_like(p_world, np.nan)

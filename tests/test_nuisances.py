@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from pedcal import frames
 from pedcal.calib.common import interpolate_pose2
 from pedcal.sim import simulate_logs
-from pedcal.sim.nuisances import draw_nuisances, head_point, vary
+from pedcal.sim.nuisances import HEAD_KINDS, draw_nuisances, head_point, sensor_head_models, vary, zoo_families
 from pedcal.sim.robot import amcl_table
 from pedcal.sim.scenario import Scenario, load_scenario
 
@@ -106,3 +107,98 @@ def test_absent_odometry_and_linear_depth_noise():
     assert sim.calib.odometry is None
     with pytest.raises(Exception, match="expected one of"):
         simulate_logs("paper", seed=1, head_point="ellipsoid")
+
+
+# ------------------------------------------------------------------------------ the zoo's families
+def test_ramp_and_saturate_head_points_follow_horizontal_distance():
+    sc = Scenario().resolve(head_point="ramp", head_shift_m=0.04, head_ramp_m=2.0)
+    sat = sc.resolve(head_point="saturate")
+    for d_h, ramp_mm, sat_mm in ((0.5, 30.0, 10.0), (1.0, 20.0, 20.0), (2.0, 0.0, 40.0), (3.5, 0.0, 40.0)):
+        sensor = np.array([[d_h, 0.0, 2.6]])
+        np.testing.assert_allclose(head_point(TOP, sensor, sc)[0] - TOP[0], [ramp_mm / 1000, 0, 0], atol=1e-12)
+        np.testing.assert_allclose(head_point(TOP, sensor, sat)[0] - TOP[0], [sat_mm / 1000, 0, 0], atol=1e-12)
+    # toward the sensor whatever its bearing
+    d = head_point(TOP, np.array([[0.0, -0.5, 2.6]]), sc)[0] - TOP[0]
+    np.testing.assert_allclose(d, [0.0, -0.03, 0.0], atol=1e-12)
+
+
+def test_zoo_leaves_the_classic_draw_alone_and_draws_every_alternative():
+    base = load_scenario("lhall")
+    classic = [vary(base.resolve(seed=s)) for s in range(40)]
+    zoo = [vary(base.resolve(seed=s), zoo=True) for s in range(40)]
+    assert [vary(base.resolve(seed=s), zoo=False) for s in range(3)] == classic[:3]
+    for c, z in zip(classic, zoo, strict=True):      # what the zoo does not draw stays the classic draw
+        assert (z.latency_s, z.depth_noise_model, z.odometry) == (c.latency_s, c.depth_noise_model, c.odometry)
+    fam = [zoo_families(z) for z in zoo]
+    assert {f["clock"] for f in fam} == {"shared", "offsets", "skew"}
+    assert {f["mounts"] for f in fam} == {"ceiling", "mixed", "wall"}
+    assert "relocalization" in {f["amcl"] for f in fam} and "per-sensor" in {f["head"] for f in fam}
+    assert {z.head_point for z in zoo} == set(HEAD_KINDS)
+    assert all(abs(z.clock_offset_s) <= 0.15 for z in zoo)
+
+
+def test_per_sensor_clock_offsets_shift_only_that_sensors_stamps():
+    kw = dict(seed=3, duration_s=60.0)
+    plain = simulate_logs("paper", **kw).calib
+    late = simulate_logs("paper", clock_offset_s=0.15, **kw).calib
+    truth = late.meta.notes["simulated"]["truth"]["clock_offset_s"]
+    assert len(truth) == 10 and max(abs(v) for v in truth.values()) <= 0.15
+    assert np.std(list(truth.values())) > 0.03
+    for sid, offset in truth.items():
+        a = plain.observations[plain.observations["sensor"] == sid]
+        b = late.observations[late.observations["sensor"] == sid]
+        np.testing.assert_allclose(b["t"].to_numpy() - a["t"].to_numpy(), offset, atol=1e-9)
+        np.testing.assert_allclose(b[["x", "y", "z"]].to_numpy(), a[["x", "y", "z"]].to_numpy())
+    assert "truth" not in plain.meta.notes["simulated"]
+
+
+def test_clock_skew_grows_with_time():
+    kw = dict(seed=3, duration_s=60.0)
+    plain = simulate_logs("paper", **kw).calib.observations
+    skewed = simulate_logs("paper", clock_skew_ppm=1000.0, **kw)
+    ppm = skewed.calib.meta.notes["simulated"]["truth"]["clock_skew_ppm"]
+    sc = skewed.scenario
+    for sid, rate in ppm.items():
+        a, b = plain[plain["sensor"] == sid], skewed.calib.observations[skewed.calib.observations["sensor"] == sid]
+        t_true = a["t"].to_numpy() - sc.latency_s      # the jitter is common to both, a small error here
+        np.testing.assert_allclose(b["t"].to_numpy() - a["t"].to_numpy(), 1e-6 * rate * (t_true - sc.start_time_s),
+                                   atol=1e-6 * abs(rate) * 0.1 + 1e-9)
+
+
+def test_lhall_wings_share_no_view_and_the_robot_joins_them():
+    from pedcal.sim.ceiling import coverage
+
+    sim = simulate_logs("lhall", seed=0)
+    net, sc = sim.calib.truth, sim.scenario
+    grid = np.mgrid[0:16:0.05, 0:16:0.05].reshape(2, -1).T
+    wing_x = np.array([s.position_m[0] < 16.0 - 3.0 for s in net])      # the wing along x ends at the corner
+    assert wing_x.sum() == 7 and (~wing_x).sum() == 7
+    for h in (1.35, 1.9):
+        seen = coverage(net, sc, np.column_stack([grid, np.full(len(grid), h)]))
+        assert not np.any(seen[wing_x].any(axis=0) & seen[~wing_x].any(axis=0))
+    who = sim.calib.truth_observations["who"].to_numpy()
+    assert sim.calib.observations.loc[who == "robot", "sensor"].nunique() == 14
+
+
+def test_mixed_heights_and_wall_mounts():
+    sim = simulate_logs("paper", seed=4, duration_s=30.0, sensor_height_range_m=[2.6, 4.5],
+                        wall_mounted_fraction=0.3)
+    z = np.array([s.position_m[2] for s in sim.calib.truth])
+    pitch = np.array([frames.ypr_deg_from_rot(s.R_world_sensor)[1] for s in sim.calib.truth])
+    assert np.all((z >= 2.6) & (z <= 4.5)) and np.ptp(z) > 0.8
+    wall = (pitch >= 10.0) & (pitch <= 25.0)
+    assert wall.sum() == 3                                    # the paper's pitches are 40-60 deg
+    # the layout's other draws are the seed's: yaw and x, y as without the mounts
+    plain = simulate_logs("paper", seed=4, duration_s=30.0).calib.truth
+    for a, b in zip(plain, sim.calib.truth, strict=True):
+        np.testing.assert_allclose(a.position_m[:2], b.position_m[:2])
+    with pytest.raises(Exception, match="0 < min <= max"):
+        Scenario().resolve(sensor_height_range_m=[3.0, 2.0])
+
+
+def test_per_sensor_heads_differ_and_are_recorded():
+    sim = simulate_logs("paper", seed=5, duration_s=30.0, per_sensor_head=True)
+    models = sim.calib.meta.notes["simulated"]["truth"]["head_point"]
+    assert len(models) == 10 and len(set(models.values())) > 3
+    heads = sensor_head_models(sim.scenario, 10)
+    assert [m.head_vertical_bias_m for m in heads] == [sim.scenario.head_vertical_bias_m] * 10

@@ -24,12 +24,17 @@ def dome_paper():
     sim = simulate_logs("paper", seed=3, head_point="dome", head_radius_m=0.07)
     rec = GraphRecipe.load("default")
     rec.estimate_amcl_model = False
+    return (sim, *solved_graph(sim.calib, rec))
+
+
+def solved_graph(log, rec):
+    """(problem, parts, solution) of ``log``'s graph under ``rec``, solved once."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
-        prob = prepare(sim.calib, rec)
-        parts = build_parts(sim.calib, prob)
+        prob = prepare(log, rec)
+        parts = build_parts(log, prob)
         result, _ = optimize_graph(parts.graph(), parts.values, rec)
-    return sim, prob, parts, result
+    return prob, parts, result
 
 
 def test_sparse_system_reproduces_gtsams_gauss_newton_step(dome_paper):

@@ -32,6 +32,7 @@ import numpy as np
 
 from pedcal.calib import readback
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
+from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
     BLOCKS,
@@ -145,6 +146,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
     mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
                           mismatch=mismatch)
+    record_clocks(network, prob, shifts)
     diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s, iterations=iterations,
                                          factors=fg.size(), build_s=t_build, optimize_s=t_opt,
                                          variables=result.size(), shared_people=len(prob.people),
@@ -343,6 +345,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         nuis += [Nuisance("odometry_scale_correction", 0.0, rec.odometry_scale_sigma, 1e-3),
                  Nuisance("odometry_drift_rad_per_m", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_m), 1e-4),
                  Nuisance("odometry_drift_rad_per_s", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_s), 1e-5)]
+    nuis += clock_nuisances(prob)          # each sensor's clock offset (pedcal.calib.clocks)
     select = curvature and rec.head_curvature in ("auto", "widen")
     unmodelled = None
     if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
@@ -556,7 +559,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         for name, sd in zip(shifts.names, np.sqrt(np.diag(shifts.cov)), strict=True):
             if name in ODOMETRY_NUISANCES:
                 _record_odometry_correction(prob.odometry_estimates, name, getattr(prob, name), float(sd))
-            else:
+            elif not is_clock_nuisance(name):
                 setattr(head, "sigma_" + name, float(sd))
     if has_h and reference == "none":
         head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "

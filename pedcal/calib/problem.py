@@ -16,6 +16,7 @@ import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.amcl_model import AmclErrorModel, amcl_white_sigma, assumed_model
+from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
@@ -82,10 +83,11 @@ class FactorGraphProblem:
 
     def head_points_sensor(self) -> np.ndarray:
         """The robot-observation factors' points (sensor frame) with the horizontal shift toward
-        the sensor taken out: the head point moved ray_shift_m along the ray from the offset
-        head top."""
+        the sensor and each sensor's clock offset (pedcal.calib.clocks) taken out: the head
+        point moved ray_shift_m along the ray from the offset head top."""
         return (self.fac_p_sensor - self.horizontal_shift_m * self.fac_toward_sensor
-                - self.curvature_m * self.fac_up_cos2)
+                - self.curvature_m * self.fac_up_cos2
+                + clock_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor))))   # each sensor's clock
 
     def merge_observations(self, max_sigmas: float = 4.0) -> None:
         """The graph's robot-observation factors: the observations one sensor made of the robot

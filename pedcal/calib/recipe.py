@@ -113,6 +113,10 @@ class GraphRecipe:
     # tracker latency
     estimate_latency: bool = True
     latency_max_s: float = 0.4
+    # each sensor's clock offset from the shared latency, a nuisance of the profile
+    # (pedcal.calib.clocks), prior 0 +- clock_offset_sigma_s (s)
+    clock_offsets: bool = True
+    clock_offset_sigma_s: float = 0.15
     # people association for shared observations (at most one shared point per period)
     people_sample_s: float = 0.5
     people_misfit_sigma: float = 5.0   # a shared sighting whose views the first solve puts this far apart is dropped

@@ -140,6 +140,9 @@ def json_text(network: SensorNetwork, *, prefix: str = "") -> str:
         for key in ("observations", "status", "unobservable"):
             if getattr(s, key) is not None:
                 d[key] = getattr(s, key)
+        for key in ("clock_offset_s", "sigma_clock_offset_s"):       # the sensor's own clock
+            if s.id in (network.extra.get(key) or {}):
+                d[key] = float(network.extra[key][s.id])
         sensors.append(d)
     return json.dumps({"frame": network.frame, "sensors": sensors}, indent=2) + "\n"
 

@@ -216,6 +216,13 @@ def _check_calibration_keys(extra: dict, path: Path) -> None:
         v = extra.get(key)
         if v is not None:
             _check_number(key, v, lo, hi, unit, path)
+    for key, lo in (("clock_offset_s", -plausible.MAX_ABS_LATENCY_S), ("sigma_clock_offset_s", 0.0)):
+        per_sensor = extra.get(key)
+        if per_sensor is not None and not isinstance(per_sensor, dict):
+            raise PedcalInputError(f"'{key}' must be a mapping of sensor id to seconds, got {show(per_sensor)}",
+                                   path=path)
+        for sid, v in (per_sensor or {}).items():
+            _check_number(f"{key}.{sid}", v, lo, plausible.MAX_ABS_LATENCY_S, "s", path)
     hm = extra.get("head_model")
     if hm is None:
         return

@@ -12,8 +12,9 @@ lines start with ``#``; times strictly increase.
 - ``head_<label>.tum``: the robot's head as the ceiling sensors saw it, recomputed with each
   extrinsics given (and ``head_installed.tum`` with the log's sensors.yaml), as ``pedcal evaluate``
   scores it: the head-point model of the extrinsics file undone (``head_model``) and its tracker
-  latency applied, each point stamped at the observation's time minus ``tracker_latency_s`` (the
-  instant the head was there; the file's header comment states the latency). Head points carry the
+  latency applied, each point stamped at the observation's time minus ``tracker_latency_s`` and
+  its sensor's ``clock_offset_s`` (the instant the head was there under that calibration; the
+  file's header comment states the latency). Head points carry the
   identity orientation ``0 0 0 1`` (a point has none); observations at the same time are averaged.
 
 evo pairs two paths' poses whose stamps differ by at most ``--t_max_diff`` (default 0.01 s). The
@@ -70,7 +71,13 @@ def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork
     """Write the TUM files of the module docstring into ``out_dir`` (atomically); returns
     {name: path}. ``extrinsics``: {label: SensorNetwork} to recompute the observed head path with."""
     from pedcal.calib.common import head_world
-    from pedcal.metrics import LATENCY_KEY, reproject_observations, robot_rows
+    from pedcal.metrics import (
+        CLOCK_OFFSET_KEY,
+        LATENCY_KEY,
+        reproject_observations,
+        robot_rows,
+        sensor_time_correction_s,
+    )
 
     out_dir = Path(out_dir)
     written: dict[str, Path] = {}
@@ -94,15 +101,21 @@ def write_tum(log: Log, out_dir: str | Path, extrinsics: dict[str, SensorNetwork
         if not mask.any():
             logging.getLogger(__name__).warning("no observation of the robot found: no observed head path written")
             return written
-        t_obs = log.observations["t"].to_numpy(float)[mask]
+        t_stamp = log.observations["t"].to_numpy(float)[mask]
+        sensors = log.observations["sensor"].astype(str).to_numpy()[mask]
         for label, net in networks.items():
+            # at the instant the head was there: less the tracker latency and each sensor's clock
+            # offset a calibration estimated (none for the installed extrinsics)
+            t_obs = t_stamp - sensor_time_correction_s(net.extra, sensors,
+                                                       float(net.extra.get(LATENCY_KEY, 0.0) or 0.0))
             pts = reproject_observations(log, net, mask)[mask]
             ok = np.isfinite(pts).all(axis=1)
             if not ok.any():
                 continue
             latency_s = float(net.extra.get(LATENCY_KEY, 0.0) or 0.0)     # as pedcal evaluate applies it
-            mean = pd.DataFrame(pts[ok], columns=["x", "y", "z"]).groupby(t_obs[ok] - latency_s, sort=True).mean()
+            mean = pd.DataFrame(pts[ok], columns=["x", "y", "z"]).groupby(t_obs[ok], sort=True).mean()
             put(f"head_{_label(label)}", mean.index.to_numpy(float), mean.to_numpy(float),
                 comment=f"robot head seen by the ceiling sensors with the {label} extrinsics (rows by {how}), "
-                        f"stamped at the observation time minus the tracker latency {latency_s!r} s")
+                        f"stamped at the observation time minus the tracker latency {latency_s!r} s"
+                        + (" and each sensor's clock offset" if net.extra.get(CLOCK_OFFSET_KEY) else ""))
     return written

@@ -21,7 +21,7 @@ from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, Meta, SensorNetwork
 from pedcal.options import check
 from pedcal.sim import ceiling, robot, walkers
-from pedcal.sim.nuisances import vary
+from pedcal.sim.nuisances import sensor_truth, vary
 from pedcal.sim.scenario import Scenario, load_scenario
 
 ROBOT, FALSE = "robot", "false"
@@ -192,8 +192,11 @@ def _run(true_net: SensorNetwork, installed: SensorNetwork, sc: Scenario, poses:
     truth_obs = pd.DataFrame({"row": np.arange(len(observations)),
                               "who": np.array(labels, dtype=object)[rep["entity"]].astype(str)})
     _progress(progress, f"{name}: {len(observations)} observations")
-    meta = Meta(head_offset_m=np.asarray(sc.head_offset_m, float),
-                notes={"simulated": {"scenario": sc.name, "seed": sc.seed, "run": name}})
+    simulated = {"scenario": sc.name, "seed": sc.seed, "run": name}
+    per_sensor = sensor_truth(sc, list(true_net.ids))
+    if per_sensor:      # the zoo's per-sensor nuisances, the truth of what a calibration may estimate
+        simulated["truth"] = per_sensor
+    meta = Meta(head_offset_m=np.asarray(sc.head_offset_m, float), notes={"simulated": simulated})
     return Log(sensors=installed.copy(), robot=amcl, observations=observations, odometry=odom, meta=meta,
                truth=true_net.copy(), truth_robot=truth, truth_observations=truth_obs)
 
@@ -210,14 +213,16 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     """Simulate the calibration and evaluation logs of ``scenario`` (a name in datasets/, a YAML
     path or a Scenario) in memory. ``overrides`` set any Scenario parameter by name;
     ``noise_free=True`` turns every nuisance off; ``vary_nuisances=True`` draws the nuisance
-    models from the seed (:func:`pedcal.sim.nuisances.draw_nuisances`), after the overrides.
+    models from the seed (:func:`pedcal.sim.nuisances.draw_nuisances`), after the overrides;
+    ``vary_nuisances="zoo"`` draws the zoo's further families too
+    (:func:`pedcal.sim.nuisances.draw_zoo`).
     The same seed gives identical logs."""
     check(seed=seed)
     noise_free = bool(overrides.pop("noise_free", False))
-    vary_nuisances = bool(overrides.pop("vary_nuisances", False))
+    vary_nuisances = overrides.pop("vary_nuisances", False)
     sc = load_scenario(scenario).resolve(noise_free=noise_free, seed=seed, **overrides)
     if vary_nuisances:
-        sc = vary(sc)
+        sc = vary(sc, zoo=vary_nuisances == "zoo")
     true_net, installed = networks(sc)
     ss_calib, ss_eval = np.random.SeedSequence(sc.seed).spawn(4)[2:]
     _progress(progress, f"scenario {sc.name}: {len(true_net)} sensors, driving the route")

@@ -12,17 +12,21 @@ import numpy as np
 from pedcal import frames
 from pedcal.errors import PedcalInputError
 from pedcal.model import SensorExtrinsics, SensorNetwork
-from pedcal.sim.nuisances import dome_point, head_point  # noqa: F401 (dome_point: public here)
+from pedcal.sim.nuisances import dome_point, head_point, sensor_clocks, sensor_head_models  # noqa: F401
 from pedcal.sim.scenario import Scenario
 
 
 def corridor_axes(sc: Scenario) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """The corridors of a ``corridor`` or ``cross`` layout: (start, end, width) of each centre
-    line (m)."""
+    """The corridors of a ``corridor``, ``cross`` or ``lhall`` layout: (start, end, width) of each
+    centre line (m). ``lhall``: a wing along x at y < width and a wing along y at
+    x > area_m[0] - width, sharing the corner square."""
     ax, ay = sc.area_m
     if sc.layout == "corridor":
         return [(np.array([0.0, ay / 2]), np.array([ax, ay / 2]), float(ay))]
     w = sc.corridor_width_m
+    if sc.layout == "lhall":
+        return [(np.array([0.0, w / 2]), np.array([ax, w / 2]), w),
+                (np.array([ax - w / 2, 0.0]), np.array([ax - w / 2, ay]), w)]
     return [(np.array([0.0, ay / 2]), np.array([ax, ay / 2]), w), (np.array([ax / 2, 0.0]), np.array([ax / 2, ay]), w)]
 
 
@@ -31,13 +35,17 @@ def _corridor_layout(sc: Scenario, rng: np.random.Generator) -> list[tuple[np.nd
     looking across; in a ``cross`` none over the crossing of the two corridors."""
     out = []
     corridors = corridor_axes(sc)
-    for start, end, width in corridors:
+    for n_c, (start, end, width) in enumerate(corridors):
         d = end - start
         length = float(np.linalg.norm(d))
         along = d / length
         left = np.array([-along[1], along[0]])
         n = sc.corridor_sensors
-        if len(corridors) > 1:      # skip the crossing: n sensors over the two arms
+        if sc.layout == "lhall":    # none within lhall_gap_m of the corner square
+            free = length - width - sc.lhall_gap_m
+            s_k = (np.arange(n) + 0.5) * free / n
+            s_k = s_k if n_c == 0 else length - s_k          # the x wing from its far end
+        elif len(corridors) > 1:    # skip the crossing: n sensors over the two arms
             half = (length - width) / 2
             s_k = np.r_[(np.arange(n // 2) + 0.5) * half / (n // 2),
                         half + width + (np.arange(n - n // 2) + 0.5) * half / (n - n // 2)]
@@ -90,7 +98,34 @@ def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
     return _keep(SensorNetwork(sensors), sc)
 
 
+def mount_draw(sc: Scenario, n: int) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """Mixed mounting heights (sensor_height_range_m; None when off) and which of the ``n``
+    sensors are wall-mounted (wall_mounted_fraction) at which pitch (wall_pitch_deg, deg), drawn
+    from a stream of their own so that the layout's other draws stay those of the seed."""
+    rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x4D0]))
+    z = rng.uniform(*sc.sensor_height_range_m, n) if sc.sensor_height_range_m is not None else None
+    wall = np.zeros(n, dtype=bool)
+    wall[rng.permutation(n)[:int(round(sc.wall_mounted_fraction * n))]] = True
+    return z, wall, rng.uniform(*sc.wall_pitch_deg, n)
+
+
+def _mounts(net: SensorNetwork, sc: Scenario) -> SensorNetwork:
+    """``net`` with the heights and wall mounts of :func:`mount_draw`."""
+    if sc.sensor_height_range_m is None and sc.wall_mounted_fraction <= 0.0:
+        return net
+    z, wall, wall_pitch = mount_draw(sc, len(net))
+    out = []
+    for k, s in enumerate(net):
+        ypr = frames.ypr_deg_from_rot(s.R_world_sensor)
+        if wall[k]:
+            ypr[1] = wall_pitch[k]
+        out.append(SensorExtrinsics(s.id, [s.position_m[0], s.position_m[1], s.position_m[2] if z is None else z[k]],
+                                    ypr))
+    return SensorNetwork(out)
+
+
 def _keep(net: SensorNetwork, sc: Scenario) -> SensorNetwork:
+    net = _mounts(net, sc)
     if sc.sensor_ids is not None:
         missing = [s for s in sc.sensor_ids if s not in net]
         if missing:
@@ -208,7 +243,8 @@ def tracker_observations(true_net: SensorNetwork, installed: SensorNetwork, sc: 
     rows, keep what the sensor sees, drop lost frames, misses and temporary track losses, take
     the dome point facing the sensor, add depth noise in the sensor frame (true extrinsics),
     map to the world with the INSTALLED extrinsics (p_world = R_inst p_sensor + t_inst,
-    LOG_FORMAT.md), stamp with the latency and number the tracks per sensor.
+    LOG_FORMAT.md), stamp with the latency (and each sensor's clock offset and skew) and number
+    the tracks per sensor.
 
     Returns arrays sorted by stamp: t, sensor (index), track, xyz, entity.
     """
@@ -247,7 +283,12 @@ def tracker_observations(true_net: SensorNetwork, installed: SensorNetwork, sc: 
     p_top = p_top_world[order]
     head = is_head[order]
     p_seen = p_top.copy()
-    p_seen[head] = head_point(p_top[head], t_true[s_o[head]], sc)
+    if sc.per_sensor_head:          # each sensor's own tracker
+        for i, model in enumerate(sensor_head_models(sc, len(true_net))):
+            mine = head & (s_o == i)
+            p_seen[mine] = head_point(p_top[mine], t_true[s_o[mine]], model)
+    else:
+        p_seen[head] = head_point(p_top[head], t_true[s_o[head]], sc)
     p_sensor = np.einsum("nji,nj->ni", R_true[s_o], p_seen - t_true[s_o])
     if len(p_sensor):
         p_sensor = measure(p_sensor, sc, rng)
@@ -255,6 +296,9 @@ def tracker_observations(true_net: SensorNetwork, installed: SensorNetwork, sc: 
     jitter = np.clip(rng.normal(0.0, sc.latency_jitter_s, len(t_o)), -3 * sc.latency_jitter_s,
                      3 * sc.latency_jitter_s) if sc.latency_jitter_s > 0 else 0.0
     stamp = t_o + sc.latency_s + jitter
+    if sc.clock_offset_s or sc.clock_skew_ppm:      # each sensor's own clock
+        offset, skew_ppm = sensor_clocks(sc, len(true_net))
+        stamp = stamp + offset[s_o] + 1e-6 * skew_ppm[s_o] * (t_o - sc.start_time_s)
     by_time = np.argsort(stamp, kind="stable")
     return {"t": stamp[by_time], "sensor": s_o[by_time], "track": track[by_time],
             "xyz": p_world[by_time], "entity": e_o[by_time]}

@@ -5,6 +5,12 @@ A calibration is judged on logs it did not generate: a head tracker that reports
 blob, a dome's facing point, a point shifted toward the sensor or the centroid of the head's top;
 AMCL whose error is white, slowly wandering, or wandering with jumps; odometry absent, off in
 scale or drifting in heading; a latency of 0-0.3 s; depth noise linear or quadratic in range.
+
+``--vary-nuisances zoo`` draws, besides, from a stream of its own (so the classic draw of a seed
+is unchanged): head points whose shift toward the sensor ramps down or saturates with horizontal
+distance, a head model per sensor (each sensor running its own tracker), per-sensor clock
+offsets (+-0.15 s) and skews, mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched
+10-25 deg and AMCL relocalizations (0.4 m held for 10 s).
 """
 
 from __future__ import annotations
@@ -64,8 +70,12 @@ def head_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, sc: Scenario) ->
     kind = sc.head_point
     if kind == "dome":
         out = dome_point(p, sensor_pos, sc.head_radius_m)
-    elif kind == "shift":
-        out = p + np.column_stack([sc.head_shift_m * u_h, np.zeros(len(p))])
+    elif kind in ("shift", "ramp", "saturate"):
+        # the shift toward the sensor against horizontal distance: constant, ramping down to
+        # nothing at head_ramp_m, or growing to head_shift_m there and saturating
+        frac = np.clip(d_h / sc.head_ramp_m, 0.0, 1.0) if kind != "shift" else np.ones_like(d_h)
+        shift = sc.head_shift_m * (1.0 - frac if kind == "ramp" else frac)
+        out = p + np.column_stack([shift * u_h, np.zeros(len(p))])
     elif kind == "centroid":
         if _CENTROID is None:
             _CENTROID = _centroid_table()
@@ -77,6 +87,61 @@ def head_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, sc: Scenario) ->
     if sc.head_vertical_bias_m:
         out = out + np.array([0.0, 0.0, sc.head_vertical_bias_m])
     return out
+
+
+HEAD_KINDS = ("top", "dome", "shift", "centroid", "ramp", "saturate")
+
+
+def _draw_head(rng: np.random.Generator) -> dict:
+    """A head model of the zoo: any kind, radius 0-0.12 m, shift 2-6 cm, ramp over 1-3 m."""
+    return dict(head_point=str(rng.choice(HEAD_KINDS)), head_radius_m=float(rng.uniform(0.0, 0.12)),
+                head_shift_m=float(rng.uniform(0.02, 0.06)), head_ramp_m=float(rng.uniform(1.0, 3.0)))
+
+
+def sensor_head_models(sc: Scenario, n: int) -> list[Scenario]:
+    """The head model of each of ``n`` sensors: ``sc`` itself, or with per_sensor_head one drawn
+    per sensor from the seed (:func:`_draw_head`; the vertical bias stays the scenario's)."""
+    if not sc.per_sensor_head:
+        return [sc] * n
+    rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x4EAD]))
+    return [sc.resolve(**_draw_head(rng)) for _ in range(n)]
+
+
+def sensor_clocks(sc: Scenario, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sensor clock offsets (s) and skews (ppm) of ``n`` sensors, uniform in +-clock_offset_s
+    and +-clock_skew_ppm, from a stream of their own (zeros when off)."""
+    rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0xC10C]))
+    offset = rng.uniform(-1.0, 1.0, n) * sc.clock_offset_s
+    return offset, rng.uniform(-1.0, 1.0, n) * sc.clock_skew_ppm
+
+
+def draw_zoo(rng: np.random.Generator) -> dict:
+    """One draw of the zoo's further families, as scenario overrides, each with its
+    alternatives: the head point (any of HEAD_KINDS, the same for every sensor or drawn per
+    sensor); clocks (shared, per-sensor offsets of up to +-0.15 s, offsets and skews up to
+    +-50 ppm); mounts (ceiling at sensor_height_m, mixed heights 2.6-4.5 m, or mixed heights with
+    a third of the sensors wall-mounted, pitched 10-25 deg); AMCL relocalizations (none beyond
+    the classic draw, or 0.4 m jumps held for 10 s every ~2 min)."""
+    out = _draw_head(rng)
+    out["per_sensor_head"] = bool(rng.random() < 0.5)
+    clocks = str(rng.choice(["shared", "offsets", "skew"]))
+    out["clock_offset_s"] = 0.0 if clocks == "shared" else float(rng.uniform(0.05, 0.15))
+    out["clock_skew_ppm"] = float(rng.uniform(10.0, 50.0)) if clocks == "skew" else 0.0
+    mounts = str(rng.choice(["ceiling", "mixed", "wall"]))
+    out["sensor_height_range_m"] = None if mounts == "ceiling" else [2.6, 4.5]
+    out["wall_mounted_fraction"] = 1.0 / 3.0 if mounts == "wall" else 0.0
+    if rng.random() < 0.5:
+        out.update(amcl_error="jumps", amcl_jump_m=0.4, amcl_jump_life_s=[10.0, 10.0], amcl_jump_rate_hz=1.0 / 120.0)
+    return out
+
+
+def zoo_families(sc: Scenario) -> dict[str, str]:
+    """The family each nuisance of the zoo falls in for ``sc`` (for splitting figures)."""
+    return {"head": ("per-sensor" if sc.per_sensor_head else sc.head_point),
+            "clock": ("skew" if sc.clock_skew_ppm else "offsets" if sc.clock_offset_s else "shared"),
+            "mounts": ("wall" if sc.wall_mounted_fraction else "mixed" if sc.sensor_height_range_m else "ceiling"),
+            "amcl": ("relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
+                     else sc.amcl_error)}
 
 
 def draw_nuisances(rng: np.random.Generator) -> dict:
@@ -97,19 +162,39 @@ def draw_nuisances(rng: np.random.Generator) -> dict:
     return out
 
 
-def vary(sc: Scenario) -> Scenario:
+def vary(sc: Scenario, zoo: bool = False) -> Scenario:
     """``sc`` with the nuisance zoo drawn from its seed (the draw has its own stream, so the
-    layout and the installed extrinsics stay those of the seed)."""
+    layout and the installed extrinsics stay those of the seed); ``zoo`` also draws the further
+    families (:func:`draw_zoo`) from a stream of their own, after the classic draw."""
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED]))
-    return sc.resolve(**draw_nuisances(rng))
+    out = sc.resolve(**draw_nuisances(rng))
+    if zoo:
+        out = out.resolve(**draw_zoo(np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED, 2]))))
+    return out
 
 
 def head_model_truth(sc: Scenario) -> str:
     """A one-line description of the scenario's head-point model."""
+    ramp = f"{1000 * sc.head_shift_m:.0f} mm over {sc.head_ramp_m:.1f} m"
     detail = {"dome": f"radius {1000 * sc.head_radius_m:.0f} mm", "shift": f"{1000 * sc.head_shift_m:.0f} mm",
+              "ramp": ramp, "saturate": ramp,
               "centroid": f"top {1000 * CENTROID_CAP_M:.0f} mm of a {1000 * HEAD_SPHERE_M:.0f} mm head",
               "top": ""}[sc.head_point]
     return f"{sc.head_point} {detail}, vertical bias {1000 * sc.head_vertical_bias_m:+.0f} mm".replace("  ", " ")
 
 
-__all__ = ["head_point", "dome_point", "draw_nuisances", "vary", "head_model_truth"]
+def sensor_truth(sc: Scenario, ids: list[str]) -> dict:
+    """The per-sensor nuisances of the zoo as a truth record (empty when every one is off):
+    clock offset (s) and skew (ppm), head model. (Mounts are in the true extrinsics.)"""
+    out: dict = {}
+    if sc.clock_offset_s or sc.clock_skew_ppm:
+        offset, skew = sensor_clocks(sc, len(ids))
+        out["clock_offset_s"] = {i: float(v) for i, v in zip(ids, offset, strict=True)}
+        out["clock_skew_ppm"] = {i: float(v) for i, v in zip(ids, skew, strict=True)}
+    if sc.per_sensor_head:
+        out["head_point"] = {i: head_model_truth(m) for i, m in zip(ids, sensor_head_models(sc, len(ids)), strict=True)}
+    return out
+
+
+__all__ = ["head_point", "dome_point", "draw_nuisances", "draw_zoo", "vary", "head_model_truth", "sensor_clocks",
+           "sensor_head_models", "sensor_truth", "zoo_families", "HEAD_KINDS"]

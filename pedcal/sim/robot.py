@@ -18,9 +18,9 @@ from pedcal.sim.scenario import Scenario
 
 
 def _corridor_route(sc: Scenario) -> np.ndarray:
-    """Up and down each corridor of a ``corridor`` / ``cross`` layout on lanes lane_spacing_m
-    apart (a single corridor twice, the lanes in reverse order the second time); from one
-    corridor to the next through the crossing."""
+    """Up and down each corridor of a ``corridor`` / ``cross`` / ``lhall`` layout on lanes
+    lane_spacing_m apart (a single corridor twice, the lanes in reverse order the second time);
+    from one corridor to the next through the crossing (``lhall``: the corner)."""
     from pedcal.sim.ceiling import corridor_axes
 
     m = sc.route_margin_m
@@ -34,8 +34,8 @@ def _corridor_route(sc: Scenario) -> np.ndarray:
         offsets = np.linspace(-half, half, max(2, int(round(2 * half / sc.lane_spacing_m)) + 1))
         if len(axes) == 1:
             offsets = np.r_[offsets, offsets[::-1]]
-        if n_c:
-            pts.append(tuple(start + 0.5 * d))                    # through the crossing
+        if n_c:                                                   # through the crossing / corner
+            pts.append(tuple(start + 0.5 * d) if sc.layout == "cross" else (start[0], axes[0][0][1]))
         for k, off in enumerate(offsets):
             a, b = start + m * along + off * left, end - m * along + off * left
             pts += [tuple(a), tuple(b)] if k % 2 == 0 else [tuple(b), tuple(a)]
@@ -164,9 +164,9 @@ def amcl_table(truth: pd.DataFrame, sc: Scenario, rng: np.random.Generator) -> p
         err_yaw = ou_process(rng, n, dt, np.radians(sc.amcl_sigma_yaw_deg), sc.amcl_tau_s)
     if sc.amcl_error == "jumps" and sc.amcl_jump_rate_hz > 0:
         # a wrong relocalization: the estimate jumps amcl_jump_m in a random direction and
-        # stays off for 2-10 s until the scan matcher recovers
+        # stays off for amcl_jump_life_s until the scan matcher recovers
         for _ in range(rng.poisson(sc.amcl_jump_rate_hz * (t[-1] - t[0]))):
-            t_j, life, ang = rng.uniform(t[0], t[-1]), rng.uniform(2.0, 10.0), rng.uniform(0, 2 * np.pi)
+            t_j, life, ang = rng.uniform(t[0], t[-1]), rng.uniform(*sc.amcl_jump_life_s), rng.uniform(0, 2 * np.pi)
             on = (t >= t_j) & (t < t_j + life)
             err_x[on] += sc.amcl_jump_m * np.cos(ang)
             err_y[on] += sc.amcl_jump_m * np.sin(ang)

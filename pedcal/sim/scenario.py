@@ -22,7 +22,8 @@ from pedcal.io.sensors_yaml import read_text_file
 
 DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
-CHOICES = {"layout": ("grid", "corridor", "cross"), "head_point": ("top", "dome", "shift", "centroid"),
+CHOICES = {"layout": ("grid", "corridor", "cross", "lhall"),
+           "head_point": ("top", "dome", "shift", "centroid", "ramp", "saturate"),
            "amcl_error": ("white", "correlated", "jumps"), "depth_noise_model": ("quadratic", "linear")}
 
 
@@ -71,7 +72,21 @@ class Scenario:
     """Width of the corridors of the ``corridor`` and ``cross`` layouts (m); ``corridor`` takes
     area_m[1]."""
     corridor_sensors: int = 16
-    """Sensors per corridor of the ``corridor`` and ``cross`` layouts."""
+    """Sensors per corridor of the ``corridor`` and ``cross`` layouts (per wing of ``lhall``)."""
+    lhall_gap_m: float = 3.0
+    """``lhall`` layout (an L-shaped hall: a wing along x and a wing along y joined at the
+    corner x > area_m[0] - width, y < width): length of each wing next to the corner square
+    without sensors (m), so that the two wings' sensors share no view and only the robot's path
+    joins them."""
+    sensor_height_range_m: list | None = None
+    """Mixed mounting heights: each sensor's height drawn uniformly in [min, max] (m) instead of
+    sensor_height_m +- height_jitter_m (e.g. [2.6, 4.5]: ceilings of a hall, a foyer, a
+    mezzanine). None: sensor_height_m."""
+    wall_mounted_fraction: float = 0.0
+    """Share of the sensors (chosen from the seed) mounted on a wall and pitched only
+    wall_pitch_deg down, looking far across the floor instead of down at it."""
+    wall_pitch_deg: list = field(default_factory=lambda: [10.0, 25.0])
+    """Range [min, max] of a wall-mounted sensor's downward pitch (deg), drawn uniformly."""
 
     # ---- depth sensor (ASUS Xtion Pro Live) -----------------------------------------------------
     hfov_deg: float = 58.0
@@ -93,6 +108,13 @@ class Scenario:
     depth capture, segmentation and the network delay add up to ~0.1 s."""
     latency_jitter_s: float = _nuisance(0.01)
     """Std of the per-report latency around latency_s (s)."""
+    clock_offset_s: float = _nuisance(0.0)
+    """Per-sensor clock offsets: each sensor's stamps are late by a further offset drawn
+    uniformly in [-this, +this] (s) from the seed (each tracker PC keeps its own clock; NTP
+    leaves ~0.1 s between machines)."""
+    clock_skew_ppm: float = _nuisance(0.0)
+    """Per-sensor clock rate error: each sensor's stamps drift by a rate drawn uniformly in
+    [-this, +this] (parts per million) times the time since start_time_s."""
     depth_noise_k_per_m: float = _nuisance(1.5e-3)
     """Depth noise along the ray, sigma = k r^2 (1/m): structured-light sensors (Khoshelham and
     Elberink 2012 report ~1.5e-3 r^2 for the Kinect/Xtion)."""
@@ -107,8 +129,19 @@ class Scenario:
     head_point: str = _nuisance("dome", off="top")
     """Which point of a head the tracker reports: ``top`` (the highest point), ``dome`` (the
     point of a dome of radius head_radius_m facing the sensor), ``shift`` (the top moved
-    head_shift_m horizontally toward the sensor) or ``centroid`` (the centroid of the part of the
-    top 10 cm of a 0.1 m head the sensor sees). Every one is then moved head_vertical_bias_m up."""
+    head_shift_m horizontally toward the sensor), ``centroid`` (the centroid of the part of the
+    top 10 cm of a 0.1 m head the sensor sees), ``ramp`` (a shift toward the sensor of
+    head_shift_m right under it that shrinks linearly to nothing at head_ramp_m of horizontal
+    distance) or ``saturate`` (a shift that grows linearly from nothing under the sensor to
+    head_shift_m at head_ramp_m and stays there). Every one is then moved head_vertical_bias_m
+    up."""
+    head_ramp_m: float = 2.0
+    """Horizontal distance (m) over which the ``ramp`` and ``saturate`` head points change."""
+    per_sensor_head: bool = False
+    """Each sensor runs its own tracker: its head point model (any of head_point's kinds) and
+    its horizontal parameters (radius, shift, ramp) are drawn per sensor from the seed; the
+    vertical bias stays head_vertical_bias_m (a per-sensor vertical offset is indistinguishable
+    from that sensor's height error)."""
     head_radius_m: float = _nuisance(0.1)
     """Radius of the head dome (m). The tracker reports the point of the dome facing the
     sensor, so the reported head moves toward the sensor horizontally and down with
@@ -205,6 +238,9 @@ class Scenario:
     """Size of AMCL's jumps (m), amcl_error ``jumps``."""
     amcl_jump_rate_hz: float = 1.0 / 90.0
     """Rate of AMCL's jumps (1/s), amcl_error ``jumps``."""
+    amcl_jump_life_s: list = field(default_factory=lambda: [2.0, 10.0])
+    """Range [min, max] of how long AMCL stays off after a jump (s), drawn uniformly; [10, 10]
+    is a wrong relocalization held for 10 s."""
     amcl_tau_s: float = 20.0
     """Correlation time of AMCL's error, a Gauss-Markov (Ornstein-Uhlenbeck) process (s): the
     particle cloud drifts slowly between scan matches, 10-30 s."""
@@ -276,7 +312,7 @@ class Scenario:
         return dataclasses.asdict(self)
 
 
-_OPTIONAL_TYPES = {"duration_s": float, "sensor_ids": list, "row_y_m": list}
+_OPTIONAL_TYPES = {"duration_s": float, "sensor_ids": list, "row_y_m": list, "sensor_height_range_m": list}
 _VARIABLE_LISTS = ("pitch_deg",)
 
 
@@ -325,6 +361,19 @@ def _typed(values: dict, source) -> Scenario:
             out["row_y_m"] = [float(v) for v in out["row_y_m"]]
         except (TypeError, ValueError):
             raise PedcalInputError("expected a list of numbers", path=source, column="row_y_m") from None
+    if out["sensor_height_range_m"] is not None:
+        try:
+            lo, hi = (float(v) for v in out["sensor_height_range_m"])
+        except (TypeError, ValueError):
+            raise PedcalInputError("expected [min, max] heights in metres", path=source,
+                                   column="sensor_height_range_m") from None
+        if not 0.0 < lo <= hi:
+            raise PedcalInputError(f"expected 0 < min <= max, got [{lo}, {hi}]", path=source,
+                                   column="sensor_height_range_m")
+        out["sensor_height_range_m"] = [lo, hi]
+    if not 0.0 <= out["wall_mounted_fraction"] <= 1.0:
+        raise PedcalInputError(f"expected a share in [0, 1], got {out['wall_mounted_fraction']}", path=source,
+                               column="wall_mounted_fraction")
     if out["sensor_ids"] is not None:
         out["sensor_ids"] = [str(s) for s in out["sensor_ids"]]
     return Scenario(**out)
