@@ -7,7 +7,6 @@ Each handler imports its library module lazily so that `pedcal --help` stays fas
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
@@ -23,19 +22,9 @@ SCHEDULER_CONNECT_S = 10      # a Dask scheduler that does not answer within thi
 
 
 def _print_json(obj) -> None:
-    print(json.dumps(obj, indent=2, sort_keys=False, default=_json_default))
+    from pedcal.jsontext import dumps
 
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+    print(dumps(obj, indent=2, sort_keys=False))
 
 
 # ----------------------------------------------------------------------------------------- commands

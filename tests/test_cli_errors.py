@@ -174,3 +174,31 @@ def test_an_import_failed_by_ctrl_c_is_an_interrupt_not_an_error():
     assert not caused_by_interrupt(chained(SystemExit(1)))
     assert not caused_by_interrupt(chained(ValueError("bad wheel")))
     assert not caused_by_interrupt(ImportError("no module named gtsam"))
+
+
+def test_json_output_is_strict_json_without_nan():
+    """--json output is RFC 8259 JSON: a figure with no value (a recall over no person) is null, not
+    a bare NaN that jq and JavaScript refuse; NumPy values and paths are plain."""
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from pedcal.jsontext import dumps
+
+    text = dumps({"recall": float("nan"), "worst": np.float64(np.inf), "n": np.int64(3),
+                  "bands": [np.nan, 0.5], "xy": np.array([1.0, np.nan]), "file": Path("a/b.pcd")})
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"recall": None, "worst": None, "n": 3, "bands": [None, 0.5], "xy": [1.0, None],
+                                "file": "a/b.pcd"}
+
+
+def test_detect_eval_json_with_no_person_in_view_is_valid_json(capsys):
+    """A simulated evaluation whose frames hold no person in some band prints JSON that parses."""
+    import json
+
+    assert main(["detect-eval", "--frames", "1", "--seed", "2", "--json"]) == 0   # bands with nobody in them
+    out = capsys.readouterr().out
+    assert "NaN" not in out
+    bands = json.loads(out)["bands"]
+    assert any(b["people"] == 0 and b["recall"] is None for b in bands)      # no person: no recall, null

@@ -74,6 +74,7 @@ from pedcal.calib.profile import (
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
+from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorNetwork
 
 
@@ -147,7 +148,8 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
                           mismatch=mismatch)
     record_clocks(network, prob, shifts)
-    diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s, iterations=iterations,
+    latency_s = float(network.extra.get(LATENCY_KEY, prob.latency_s))   # with the clock offsets' mean
+    diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=latency_s, iterations=iterations,
                                          factors=fg.size(), build_s=t_build, optimize_s=t_opt,
                                          variables=result.size(), shared_people=len(prob.people),
                                          odometry=prob.odometry_estimates, position_cov_world_m2=cov_world,

@@ -3,13 +3,13 @@ on freshly simulated frames of the paper's FX8 pair, or of another LIDAR preset)
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedcal import jsontext
 from pedcal.detect.detection import detect, load_model, model_family
 from pedcal.detect.files import FLOOR_MODES, FileDetections, detect_file  # noqa: F401  (their former home)
 from pedcal.errors import PedcalInputError
@@ -29,7 +29,7 @@ def detect_cli(args) -> int:
     if res.read.summary():
         logging.getLogger(__name__).warning(f"{args.file}: {res.read.summary()}")
     if args.json:
-        print(json.dumps(dict(detections=[d.to_dict() for d in dets], floor_shift_m=float(dz),
+        print(jsontext.dumps(dict(detections=[d.to_dict() for d in dets], floor_shift_m=float(dz),
                               ground=res.ground.as_dict() if res.ground is not None else None,
                               warnings=res.warnings), indent=2))
         return 0
@@ -124,12 +124,12 @@ def detect_eval_cli(args) -> int:
 
         options = dict(sensor=getattr(args, "sensor", None), floor=getattr(args, "floor", "auto"))
         res = evaluate_real(args.real, args.model, out_dir=args.output, detect_options=options)
-        print(json.dumps(res, indent=2) if args.json else format_real(res))
+        print(jsontext.dumps(res, indent=2) if args.json else format_real(res))
         return 0
     res = evaluate_detector(args.frames, args.seed, args.model, progress=not args.json,
                             preset=getattr(args, "preset", "fx8"))
     if args.json:
-        print(json.dumps({k: res[k] for k in ("recall", "precision", "frames", "bands", "poses", "preset")},
+        print(jsontext.dumps({k: res[k] for k in ("recall", "precision", "frames", "bands", "poses", "preset")},
                          indent=2))
         return 0
     print(f"{res['preset']} frames {res['frames']}: recall {res['recall']:.4f}, precision {res['precision']:.4f} "

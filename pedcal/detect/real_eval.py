@@ -16,13 +16,13 @@ every labelled pedestrian is accounted for. With ``out_dir``, a bird's-eye pictu
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pedcal import jsontext
 from pedcal.errors import PedcalInputError
 from pedcal.io.inputs import check_records, read_json
 
@@ -437,7 +437,7 @@ def detect_eval_extras(args, all_real: bool) -> int:
     if all_real:
         options = dict(sensor=getattr(args, "sensor", None), floor=getattr(args, "floor", "auto"))
         results = evaluate_all_real(data_dir, args.model, detect_options=options)
-        print(json.dumps(results, indent=2) if args.json else format_all_real(results))
+        print(jsontext.dumps(results, indent=2) if args.json else format_all_real(results))
         return 0
     if args.json:
         return 0
