@@ -83,9 +83,14 @@ def cmd_calibrate(args) -> int:
 
 def cmd_import_bag(args) -> int:
     from pedcal.io.atomic import check_output
-    from pedcal.io.ros import import_bag
 
     check_output(args.output, inputs=[args.bag, args.sensors], directory=True)
+    return _into_folder(args, "output", _import_bag)      # the log folder changes all at once
+
+
+def _import_bag(args) -> int:
+    from pedcal.io.ros import import_bag
+
     pose_sigma = None if args.pose_sigma is None else (args.pose_sigma[0], math.radians(args.pose_sigma[1]))
     written = import_bag(args.bag, args.output, amcl_topic=args.amcl_topic, odom_topic=args.odom_topic,
                          sensors=args.sensors, head_offset_m=args.head_offset, localization=args.localization,
@@ -102,14 +107,7 @@ def cmd_export(args) -> int:
 
     check_output(args.output, inputs=[args.input, *args.extrinsics], directory=args.format == "tum")
     if args.format == "tum":
-        from pedcal.io import read_log, read_sensors_yaml
-        from pedcal.io.tum import write_tum
-
-        log = read_log(args.input)
-        nets = {p.stem: read_sensors_yaml(p) for p in args.extrinsics}
-        for name, path in write_tum(log, args.output, nets).items():
-            print(f"wrote {path} ({name})")
-        return 0
+        return _into_folder(args, "output", _export_tum)    # the TUM files change all at once
     from pedcal.io.export import export_extrinsics
 
     if args.extrinsics:
@@ -118,6 +116,17 @@ def cmd_export(args) -> int:
     path = export_extrinsics(args.input, args.output, args.format, ros_version=args.ros, prefix=args.prefix,
                              optical=args.optical)
     print(f"wrote {path}")
+    return 0
+
+
+def _export_tum(args) -> int:
+    from pedcal.io import read_log, read_sensors_yaml
+    from pedcal.io.tum import write_tum
+
+    log = read_log(args.input)
+    nets = {p.stem: read_sensors_yaml(p) for p in args.extrinsics}
+    for name, path in write_tum(log, args.output, nets).items():
+        print(f"wrote {path} ({name})")
     return 0
 
 

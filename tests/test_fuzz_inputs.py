@@ -1336,6 +1336,37 @@ def test_folder_output_changes_all_at_once(case, monkeypatch):
     assert json.loads((out / "follow.json").read_text())["target"] == "1"
 
 
+def test_tum_export_folder_changes_all_at_once(case, monkeypatch):
+    """export --format tum writes several files: a failure after the first leaves the folder as it
+    was (a first export: no folder at all), never a mix of new and old paths."""
+    import pedcal.io.tum as tum
+
+    out = case.parent / "out" / "tum"
+    real_write = tum.write_text_atomic
+    calls = {"n": 0}
+
+    def write_then_fail(path, text, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_write(path, text, *args, **kwargs)
+
+    monkeypatch.setattr(tum, "write_text_atomic", write_then_fail)
+    code, _, err = run_cli(["export", case / "log", "--format", "tum", "-o", out], case)
+    assert code == EXIT_BAD_INPUT, err
+    assert not out.exists() and list(out.parent.iterdir()) == []       # nothing, not two of four files
+    monkeypatch.setattr(tum, "write_text_atomic", real_write)
+    code, _, err = run_cli(["export", case / "log", "--format", "tum", "-o", out], case)
+    assert code == 0, err
+    before = checksums(out)
+    calls["n"] = 0
+    monkeypatch.setattr(tum, "write_text_atomic", write_then_fail)
+    code, _, err = run_cli(["export", case / "log", "--format", "tum", "-o", out, "--extrinsics",
+                            case / "calibrated.yaml"], case)
+    assert code == EXIT_BAD_INPUT, err
+    assert checksums(out) == before and sorted(p.name for p in out.parent.iterdir()) == ["tum"]
+
+
 # ---------------------------------------------------------------------------- Ctrl-C at start-up
 @pytest.mark.parametrize("delay_s", [0.3, 0.6, 1.0])
 def test_ctrl_c_at_start_up_is_one_line_and_130(case, delay_s):

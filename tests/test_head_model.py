@@ -186,7 +186,8 @@ def test_result_carries_the_graph_keys_marginals_and_typed_diagnostics():
     assert len(residuals) == res.graph.size()
     assert res.diagnostics.head_model.to_dict()["height_reference"] == "none"
     d = res.diagnostics.to_dict()
-    assert d["tracker_latency_s"] == 0.0 and d["model_mismatch"]["sensors"] == []
+    # the latency written is the association's plus the sensors' clock offsets' mean: 0 within 1 ms here
+    assert d["tracker_latency_s"] == pytest.approx(0.0, abs=1e-3) and d["model_mismatch"]["sensors"] == []
 
 
 def test_jittery_amcl_without_odometry_is_smoothed_not_differenced():
