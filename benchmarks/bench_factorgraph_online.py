@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.graph import GraphRecipe, S, build_graph, prepare
-from pedcal.calib.online import _factor_times
+from pedcal.calib.online import _factor_times, factors_until
 
 
 def pass_ends(prob, gap_s: float) -> np.ndarray:
@@ -60,16 +60,7 @@ def main() -> None:
     pos, rows = 0, []
     sensor_keys = [S(i) for i in range(len(prob.sensor_ids))]
     for edge in np.r_[pass_ends(prob, args.gap_s), np.inf]:
-        new_graph, new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        while pos < len(order) and ft[order[pos]] <= edge:
-            f = graph.at(int(order[pos]))
-            new_graph.add(f)
-            for key in f.keys():
-                if key not in added:
-                    added.add(key)
-                    new_values.insert(key, values.atPose3(key) if chr(gtsam.Symbol(key).chr()) in "sxah"
-                                      else values.atPoint3(key))
-            pos += 1
+        new_graph, new_values, pos = factors_until(graph, values, order, ft, pos, edge, added)
         if new_graph.size() == 0:
             continue
         w0, c0 = time.perf_counter(), time.process_time()

@@ -51,6 +51,24 @@ def _factor_times(graph, prob) -> np.ndarray:
     return out
 
 
+def factors_until(graph, values, order: np.ndarray, ft: np.ndarray, pos: int, edge_s: float, added: set[int]
+                  ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, int]:
+    """The next iSAM2 update: the factors of ``graph`` in time ``order`` from ``pos`` whose time
+    (``ft``, ``_factor_times``) is at most ``edge_s``, with initial values of the variables not yet
+    in ``added`` (which it extends); returns them and the next position."""
+    new_graph, new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    while pos < len(order) and ft[order[pos]] <= edge_s:
+        f = graph.at(int(order[pos]))
+        new_graph.add(f)
+        for key in f.keys():
+            if key not in added:
+                added.add(key)
+                new_values.insert(key, values.atPose3(key) if chr(gtsam.Symbol(key).chr()) in "sxah"
+                                  else values.atPoint3(key))
+        pos += 1
+    return new_graph, new_values, pos
+
+
 def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: bool = False,
                      step_s: float = 10.0, converged_sigma_mm: float = 30.0) -> CalibrationResult:
     """Incremental calibration (iSAM2). ``step_s``: seconds of log consumed per update; a sensor
@@ -75,17 +93,7 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     edges = list(np.arange(t_start + step_s, t_end + step_s, step_s))
     sensor_keys = [S(i) for i in range(len(prob.sensor_ids))]
     for edge in edges:
-        new_graph = gtsam.NonlinearFactorGraph()
-        new_values = gtsam.Values()
-        while pos < len(order) and ft[order[pos]] <= edge:
-            f = graph.at(int(order[pos]))
-            new_graph.add(f)
-            for key in f.keys():
-                if key not in added:
-                    added.add(key)
-                    new_values.insert(key, values.atPose3(key) if chr(gtsam.Symbol(key).chr()) in "sxah"
-                                      else values.atPoint3(key))
-            pos += 1
+        new_graph, new_values, pos = factors_until(graph, values, order, ft, pos, edge, added)
         if new_graph.size() == 0:
             continue
         isam.update(new_graph, new_values)
