@@ -202,3 +202,19 @@ def test_detect_eval_json_with_no_person_in_view_is_valid_json(capsys):
     assert "NaN" not in out
     bands = json.loads(out)["bands"]
     assert any(b["people"] == 0 and b["recall"] is None for b in bands)      # no person: no recall, null
+
+
+def test_simulate_refuses_a_scenario_file_it_would_overwrite(tmp_path, capsys):
+    """simulate -o D writes D/scenario.yaml: a scenario file there is an input the output would
+    replace, refused before anything is written; beside it, it is read."""
+    import shutil
+
+    from pedcal.sim.scenario import DATASETS_DIR
+
+    out = tmp_path / "run"
+    out.mkdir()
+    shutil.copy(DATASETS_DIR / "paper.yaml", out / "scenario.yaml")
+    before = (out / "scenario.yaml").read_bytes()
+    assert main(["simulate", str(out / "scenario.yaml"), "-o", str(out), "-q"]) == 2
+    assert "scenario file is among what simulate writes" in capsys.readouterr().err
+    assert (out / "scenario.yaml").read_bytes() == before and sorted(p.name for p in out.iterdir()) == ["scenario.yaml"]

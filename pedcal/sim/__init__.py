@@ -17,6 +17,7 @@ import pandas as pd
 import yaml
 
 from pedcal.calib.common import head_world, interpolate_pose2
+from pedcal.errors import PedcalInputError
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, Meta, SensorNetwork
 from pedcal.options import check
@@ -240,8 +241,14 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
     truth) and ``out_dir/scenario.yaml`` (the resolved parameters, seed included)."""
     from pedcal.io import write_log
 
-    result = simulate_logs(scenario, seed=seed, progress=progress, **overrides)
     out_dir = Path(out_dir)
+    if isinstance(scenario, (str, Path)) and Path(scenario).is_file():
+        src = Path(scenario).resolve()
+        written = [(out_dir / "scenario.yaml").resolve(), (out_dir / "calib").resolve(), (out_dir / "eval").resolve()]
+        if src == written[0] or any(d in src.parents for d in written[1:]):
+            raise PedcalInputError(f"the scenario file is among what simulate writes into {out_dir} (scenario.yaml, "
+                                   "calib/, eval/); keep it elsewhere or choose another output", path=scenario)
+    result = simulate_logs(scenario, seed=seed, progress=progress, **overrides)
     for name, log in (("calib", result.calib), ("eval", result.eval)):
         log.path = out_dir / name
         write_log(log, log.path)
