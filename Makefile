@@ -11,11 +11,15 @@ OUT    ?= runs/paper
 
 setup: $(VENV)/.installed
 
-# open3d loads libusb-1.0 at import time; install it through apt when it is missing.
+# open3d loads libusb-1.0 and LightGBM the OpenMP runtime (libgomp) at import time; install them
+# through apt when they are missing.
 system-deps:
-	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
-		echo "installing libusb-1.0-0 (needed by open3d)"; \
-		$(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq libusb-1.0-0; \
+	@missing=""; \
+	ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || missing="$$missing libusb-1.0-0"; \
+	ldconfig -p 2>/dev/null | grep -q 'libgomp.so.1' || missing="$$missing libgomp1"; \
+	if [ -n "$$missing" ]; then \
+		echo "installing$$missing (needed by open3d / LightGBM)"; \
+		$(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq $$missing; \
 	fi
 
 $(VENV)/.installed: pyproject.toml | system-deps
