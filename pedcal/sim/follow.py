@@ -154,6 +154,118 @@ def avoid_collisions(walkers: list[Walker], fixed: list[Walker], duration_s: flo
     return res
 
 
+ROBOT_COMFORT_M = 0.15  # the gap a walker keeps from the robot's disc beyond contact (m)
+SIDESTEP_DEG = (0.0, 20.0, 40.0, 60.0, 80.0, 100.0, 130.0)  # headings a reacting walker tries, off its wish
+
+
+def on_frame_grid(walker: Walker, duration_s: float, dt_s: float = 1.0 / FRAME_HZ) -> Walker:
+    """``walker`` sampled at the frames (multiples of ``dt_s`` s) of its span within ``duration_s``,
+    so that each frame's position can be changed on its own (:class:`ReactiveCrowd`)."""
+    t = np.arange(0.0, duration_s + dt_s / 2, dt_s)
+    t = t[(t >= walker.t_s[0] - 1e-9) & ((t <= walker.t_s[-1] + 1e-9) | walker.stays)]
+    xy = np.array([walker.at(ti) if walker.at(ti) is not None else walker.xy_world_m[0] for ti in t]).reshape(-1, 2)
+    return Walker(walker.person_id, t, xy, walker.height_m, walker.reflectance_ab, walker.stays)
+
+
+class ReactiveCrowd:
+    """Simulated walkers who react to the robot as people do, frame by frame as the episode plays.
+
+    Each walker holds its planned trajectory (world frame, m, sampled at the frames); at every frame
+    (:meth:`react`) it heads from where it actually is for where its plan is at that frame (at most
+    0.5 m/s faster than the plan walks, so a detour rejoins the plan), and a step that would end
+    within ``ROBOT_RADIUS_M + PERSON_RADIUS_M + comfort_m`` of the robot's centre (now, or where the
+    robot's current velocity takes it in one frame) is not taken: the walker tries headings turned
+    off its wish (``SIDESTEP_DEG``, the side away from the robot first), then half its speed, then
+    waits; one already that close steps straight away from the robot. Steps into a wall or onto
+    another walker (the discs overlapping) are avoided when another step keeps off the robot too.
+    Recorded walkers are never given one: real people in a recording do not see the robot.
+
+    The walkers' ``xy_world_m`` at the frame just played is overwritten in place, so
+    ``Walker.at`` answers the reacted positions; :meth:`reset` restores the plan before an episode
+    is played (a run is deterministic per seed and may be repeated).
+    """
+
+    def __init__(self, walkers: list[Walker], occupancy: OccupancyMap | None = None,
+                 comfort_m: float = ROBOT_COMFORT_M, dt_s: float = 1.0 / FRAME_HZ):
+        self.walkers = walkers
+        self.plan = [w.xy_world_m.copy() for w in walkers]
+        self.occupancy = occupancy
+        self.keep_m = ROBOT_RADIUS_M + PERSON_RADIUS_M + comfort_m
+        self.dt_s = dt_s
+
+    def reset(self) -> None:
+        """Every walker back on its plan."""
+        for w, plan in zip(self.walkers, self.plan, strict=True):
+            w.xy_world_m = plan.copy()
+
+    def react(self, t_s: float, robot_xy_m: np.ndarray, robot_v_mps: np.ndarray) -> None:
+        """Place every walker present at ``t_s`` (a frame time, s) given the robot's centre (world, m)
+        at ``t_s`` and its velocity over the last frame (world, m/s)."""
+        r = np.asarray(robot_xy_m, float)
+        r_next = r + np.asarray(robot_v_mps, float) * self.dt_s
+        idx = []
+        for w in self.walkers:
+            i = int(np.searchsorted(w.t_s, t_s - 1e-6))
+            idx.append(i if i < len(w.t_s) and abs(w.t_s[i] - t_s) < 1e-6 else None)
+        prev = np.array([w.xy_world_m[i - 1] if i is not None and i > 0 else (np.nan, np.nan)
+                         for w, i in zip(self.walkers, idx, strict=True)]).reshape(-1, 2)
+        for j, (w, plan, i) in enumerate(zip(self.walkers, self.plan, idx, strict=True)):
+            if i is None:
+                continue
+            if i == 0:  # it appears where its plan puts it, outside the robot's keep-out disc
+                d = w.xy_world_m[0] - r
+                n = float(np.linalg.norm(d))
+                if n < self.keep_m:
+                    w.xy_world_m[0] = r + (d / n if n > 1e-9 else np.array([1.0, 0.0])) * self.keep_m
+                continue
+            cur = w.xy_world_m[i - 1]
+            own_speed = np.linalg.norm(plan[i] - plan[i - 1]) / self.dt_s
+            want = (plan[i] - cur) / self.dt_s
+            speed = float(np.linalg.norm(want))
+            if speed > own_speed + 0.5:
+                want *= (own_speed + 0.5) / speed
+            others = np.delete(prev, j, axis=0)
+            others = others[np.isfinite(others[:, 0])]
+            w.xy_world_m[i] = self._step(cur, want, r, r_next, others)
+
+    def _step(self, cur: np.ndarray, want: np.ndarray, r: np.ndarray, r_next: np.ndarray,
+              others: np.ndarray) -> np.ndarray:
+        """The walker's next position (world, m) from ``cur`` wishing to walk at ``want`` (m/s), the
+        robot's centre at ``r`` now and ``r_next`` a frame on, the other walkers at ``others`` (M, 2)."""
+        d_now = float(np.linalg.norm(cur - r))
+        cand = [np.zeros((0, 2))]
+        if d_now < self.keep_m:  # too close already (the robot came to it): stepping away comes first
+            away = (cur - r) / max(d_now, 1e-9)
+            cand.append((cur + away * min(self.keep_m - d_now, 1.5 * self.dt_s))[None])
+        if float(np.linalg.norm(want)) > 1e-9:
+            # headings off the wish, the side away from the robot first; full then half speed
+            side = np.sign(want[0] * (r - cur)[1] - want[1] * (r - cur)[0]) or 1.0  # +1: robot left of the wish
+            angles = np.radians([a * s for a in SIDESTEP_DEG for s in ((-side, side) if a else (1.0,))])
+            c, s = np.cos(angles), np.sin(angles)
+            dirs = np.stack([c * want[0] - s * want[1], s * want[0] + c * want[1]], axis=1)
+            cand += [cur + dirs * self.dt_s, cur + 0.5 * dirs * self.dt_s]
+        cand = np.concatenate([*cand, cur[None]])  # waiting last
+        # never nearer the robot than the keep-out distance, nor nearer than it already is when inside it
+        near_now = min(self.keep_m, d_now) - 1e-9
+        near_next = min(self.keep_m, float(np.linalg.norm(cur - r_next))) - 1e-9
+        clear = ((np.linalg.norm(cand - r, axis=1) >= near_now)
+                 & (np.linalg.norm(cand - r_next, axis=1) >= near_next) & ~self._walled(cur, cand))
+        clear[-1] = True  # waiting where it stands never brings it nearer the robot
+        if len(others):  # nor onto another walker (an overlap not begun nor deepened), where it can
+            d_cur = np.linalg.norm(cur - others, axis=1)
+            d = np.linalg.norm(cand[:, None] - others[None], axis=2)
+            free = (d >= np.minimum(2 * PERSON_RADIUS_M, d_cur)[None] - 1e-9).all(axis=1)
+            if (clear & free).any():
+                clear &= free
+        return cand[int(np.argmax(clear))]
+
+    def _walled(self, cur: np.ndarray, cand: np.ndarray) -> np.ndarray:
+        if self.occupancy is None:
+            return np.zeros(len(cand), bool)
+        return self.occupancy.is_occupied(cand) | segments_blocked(self.occupancy, np.broadcast_to(cur, cand.shape),
+                                                                   cand)
+
+
 def _random_clothing(rng: np.random.Generator) -> tuple[float, float]:
     mean = rng.uniform(0.1, 0.9)
     conc = rng.uniform(6.0, 20.0)
@@ -579,6 +691,7 @@ class Episode:
     notes: str = ""
     extra: dict = field(default_factory=dict)
     robot_max_speed_mps: float = 1.0  # the robot's top speed (RobotController.v_max_mps)
+    crowd: ReactiveCrowd | None = None  # simulated walkers who react to the robot (None: nobody does)
 
     def people_at(self, t_s: float) -> list[tuple[Walker, np.ndarray]]:
         out = []
@@ -669,10 +782,15 @@ def crowd_episode(rng: np.random.Generator, n_walkers: int = 12, density_per_10m
     duration = float(min(45.0, target.t_s[-1]))
     others = random_walkers(n_walkers, CROWD_AREA_XY_M, target.t_s[-1], rng, occ)
     others = avoid_collisions(others, [target], duration, occupancy=occ)
+    # everybody, the target too, steps around the robot as the episode plays: the walkers' plans
+    # were laid out before the robot moved, and a person walking its route (the target's included)
+    # would not walk through a robot standing in it
+    people = [on_frame_grid(w, duration) for w in [target, *others]]
     x0, y0, x1, y1 = CROWD_AREA_XY_M
     density = n_walkers * 10.0 / ((x1 - x0) * (y1 - y0))
-    return Episode("crowd", [target, *others], "target", np.array([0.0, 0.0, 0.0]), duration, occ,
-                   notes=f"{n_walkers} built-in random walkers ({density:.2f} people per 10 m^2)")
+    return Episode("crowd", people, "target", np.array([0.0, 0.0, 0.0]), duration, occ,
+                   notes=f"{n_walkers} built-in random walkers ({density:.2f} people per 10 m^2), "
+                         f"stepping around the robot", crowd=ReactiveCrowd(people, occ))
 
 
 RECORDED_FILE = "eth_ucy/biwi_hotel.txt"
@@ -789,7 +907,8 @@ def make_episode(name: str, seed: int = 0, density_per_10m2: float | None = None
 
 
 __all__ = ["FRAME_HZ", "PERSON_RADIUS_M", "N_REFLECTANCE_BINS", "Walker", "route_walker", "random_walkers",
-           "avoid_collisions", "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
+           "avoid_collisions", "ReactiveCrowd", "on_frame_grid",
+           "reflectance_histogram", "box_map", "segments_blocked", "to_robot", "to_world",
            "in_field_of_view",
            "visible_people", "SensorModel", "Sensing", "RobotController", "CrowdAvoidance", "ROBOT_RADIUS_M", "Episode",
            "SCENARIOS", "make_episode",

@@ -346,8 +346,13 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     person_index = {w.person_id: i for i, w in enumerate(episode.walkers)}  # motmetrics takes numeric ids
     n_frames = int(np.floor(episode.duration_s * FRAME_HZ)) + 1
     everyone_xy = np.full((n_frames, len(episode.walkers), 2), np.nan)  # for the contact figures
+    if episode.crowd is not None:  # simulated walkers who react to the robot start on their plans
+        episode.crowd.reset()
+    robot_v = np.zeros(2)  # the robot's velocity over the last frame (world frame, m/s)
     for k in range(n_frames):
         t = k / FRAME_HZ
+        if episode.crowd is not None:  # they see the robot where it is now and step around it
+            episode.crowd.react(t, pose[:2], robot_v)
         people = episode.people_at(t)
         ids = [w.person_id for w, _ in people]
         xy = np.array([p for _, p in people]).reshape(-1, 2)
@@ -377,7 +382,9 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
                      "stop_robot": bool(out.stop_robot)})
         v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner,
                             *perceived_people(episode, t, pose, frame.pose_world_robot))
+        pose_before = pose
         pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, episode.occupancy)
+        robot_v = (pose[:2] - pose_before[:2]) * FRAME_HZ
         if progress and (k % 40 == 0 or k == n_frames - 1):
             logging.getLogger(__name__).info(f"follow {episode.name}: frame {k + 1}/{n_frames} t={t:.1f}s "
                                              f"state={out.state}", extra={"progress": (k + 1, n_frames)})
