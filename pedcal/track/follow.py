@@ -334,6 +334,8 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
 
     check_sensing(sensing, lidar)
     rng = np.random.default_rng(seed)
+    if episode.crowd is not None:  # simulated walkers who react to the robot start on their plans
+        episode.crowd.reset()
     trk = _make_tracker(tracker, episode)
     sense = make_sensing(sensing, episode, rng, lidar)
     sensing_name = "ideal" if sensing == "ideal" else f"lidar:{lidar_preset(lidar or DEFAULT_LIDAR)}"
@@ -346,8 +348,6 @@ def run_episode(episode: Episode, tracker: str = "paper", seed: int = 0, progres
     person_index = {w.person_id: i for i, w in enumerate(episode.walkers)}  # motmetrics takes numeric ids
     n_frames = int(np.floor(episode.duration_s * FRAME_HZ)) + 1
     everyone_xy = np.full((n_frames, len(episode.walkers), 2), np.nan)  # for the contact figures
-    if episode.crowd is not None:  # simulated walkers who react to the robot start on their plans
-        episode.crowd.reset()
     robot_v = np.zeros(2)  # the robot's velocity over the last frame (world frame, m/s)
     for k in range(n_frames):
         t = k / FRAME_HZ
