@@ -53,8 +53,10 @@ def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
             ctrl = RobotController(v_max_mps=ep.robot_max_speed_mps)
             planner = Planner(ep.occupancy) if ep.occupancy is not None else None
             pose, stopped = np.asarray(ep.robot_pose0, float).copy(), True
+            robot_v = np.zeros(2)  # the robot's velocity over the last frame (world frame, m/s)
             for k in range(int(np.floor(ep.duration_s * FRAME_HZ)) + 1):
                 t = k / FRAME_HZ
+                ep.crowd.react(t, pose[:2], robot_v)  # the walkers step around the robot, as in run_episode
                 people_t = ep.people_at(t)
                 target = next((p for w, p in people_t if w.person_id == ep.target_id), None)
                 c0, w0 = time.process_time(), time.perf_counter()
@@ -66,7 +68,9 @@ def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
                 rows.append(dict(raycast=st["raycast_s"], detect=st["detect_s"], track=w2 - w1, step=w2 - w0,
                                  cpu=c2 - c0, reach=st["people_in_range"]))
                 v, w = ctrl.command(np.asarray(frame.pose_world_robot, float), out, planner)
+                pose_before = pose
                 pose, stopped = ctrl.step(pose, v, w, 1.0 / FRAME_HZ, ep.occupancy)
+                robot_v = (pose[:2] - pose_before[:2]) * FRAME_HZ
         d = pd.DataFrame(rows)
 
         def q(col, d=d):
