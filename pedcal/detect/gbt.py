@@ -118,6 +118,8 @@ class GradientBoostedTrees:
                 m.n_features_ = int(d["n_features"])
                 m.bias_ = float(d["bias"])
                 m.metadata_ = read_metadata(d)
+        except PedcalInputError:
+            raise
         except (OSError, ValueError, KeyError, UnicodeDecodeError, lightgbm.basic.LightGBMError) as e:
             raise PedcalInputError(f"not a gradient-boosted-trees model .npz (lightgbm_model, n_features, bias, "
                                    f"hyper): {e}", path=path) from None
