@@ -2,22 +2,15 @@
 
 pedcal's Python names follow the calibrated YAML's (``tracker_latency_s``, ``amcl_error_model``,
 ``odometry_model``, ``position_covariance_m2``). :func:`renamed_fields` keeps the former names of a
-dataclass working: reading or setting one, or passing it to the constructor from outside pedcal,
+dataclass working: reading or setting one, or passing it to the constructor,
 warns with a DeprecationWarning pointing at the caller's line.
 """
 
 from __future__ import annotations
 
 import functools
-import sys
 import warnings
 from typing import Any
-
-
-def _from_pedcal(depth: int) -> bool:
-    """Whether the frame ``depth`` levels above the caller belongs to pedcal itself."""
-    name = sys._getframe(depth + 1).f_globals.get("__name__", "")
-    return name == "pedcal" or name.startswith("pedcal.")
 
 
 def _warn(cls_name: str, old: str, new: str, stacklevel: int) -> None:
@@ -38,8 +31,7 @@ def renamed_fields(**renames: str):
                 if old in kwargs:
                     if new in kwargs:
                         raise TypeError(f"{cls.__name__}() got both {old!r} and its new name {new!r}")
-                    if not _from_pedcal(1):
-                        _warn(cls.__name__, old, new, 2)
+                    _warn(cls.__name__, old, new, 2)
                     kwargs[new] = kwargs.pop(old)
             init(self, *args, **kwargs)
 

@@ -131,6 +131,7 @@ def test_calibrating_raises_no_deprecation_warning(fg, sim):
         warnings.simplefilter("error", DeprecationWarning)
         warnings.simplefilter("ignore", pedcal.errors.DegenerateDataWarning)
         pedcal.calibrate(sim.calib, method="closedform")
+        pedcal.calibrate(sim.calib, method="factorgraph", online=True)   # pedcal's own code uses the new names
     assert fg.diagnostics.tracker_latency_s == pytest.approx(fg.network.extra["tracker_latency_s"], abs=1e-4)
 
 

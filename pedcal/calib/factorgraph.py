@@ -149,12 +149,12 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
                           mismatch=mismatch)
     record_clocks(network, prob, shifts)
     latency_s = float(network.extra.get(LATENCY_KEY, prob.latency_s))   # with the clock offsets' mean
-    diagnostics = FactorGraphDiagnostics(recipe=recipe.name, latency_s=latency_s, iterations=iterations,
+    diagnostics = FactorGraphDiagnostics(recipe=recipe.name, tracker_latency_s=latency_s, iterations=iterations,
                                          factors=fg.size(), build_s=t_build, optimize_s=t_opt,
                                          variables=result.size(), shared_people=len(prob.people),
-                                         odometry=prob.odometry_estimates, position_cov_world_m2=cov_world,
+                                         odometry_model=prob.odometry_estimates, position_covariance_m2=cov_world,
                                          head_model=head_model, model_mismatch=mismatch,
-                                         amcl_model=prob.amcl_model, observation_noise=prob.noise_estimate or {})
+                                         amcl_error_model=prob.amcl_model, observation_noise=prob.noise_estimate or {})
     return CalibrationResult(network=network, method="factorgraph", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, diagnostics=diagnostics, graph=fg, values=result,
                              keys=graph_keys(prob, result), position_covariance_m2=joint_pos)

@@ -119,7 +119,7 @@ def calibrate_online(log: Log, *, recipe: GraphRecipe, is_robot=None, progress: 
     mask = finish_network(log, prob, network)
     return CalibrationResult(network=network, method="factorgraph-online", runtime_s=time.perf_counter() - t0,
                              is_robot=mask, graph=graph, values=result,
-                             diagnostics=FactorGraphDiagnostics(recipe=recipe.name, latency_s=prob.latency_s,
+                             diagnostics=FactorGraphDiagnostics(recipe=recipe.name, tracker_latency_s=prob.latency_s,
                                                                 factors=graph.size(), variables=result.size(),
                                                                 shared_people=len(prob.people),
                                                                 online_trace=trace))
