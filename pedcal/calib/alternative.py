@@ -46,25 +46,11 @@ import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.common import AlternativeDiagnostics, CalibrationResult, Timer
+from pedcal.calib.options import AlternativeOptions
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
-DEFAULT_PARAMS = {
-    "min_overlap_s": 2.0,          # shortest simultaneous stretch that makes a track match
-    "max_gap_s": 0.5,              # never interpolate a track across a longer gap
-    "max_offset_m": 1.5,           # round 1: |median world offset| gate (installed errors ~1 m)
-    "max_spread_m": 0.35,          # round 1: RMS of the offset about its median
-    "refined_max_offset_m": 0.3,   # later rounds: |median world offset| gate
-    "ambiguity_ratio": 0.5,        # accept only if score < ratio x best competitor's score
-    "sample_period_s": 0.2,        # at most one shared point per track pair per period
-    "rounds": 2,                   # match -> solve rounds
-    "point_sigma_m": 0.03,         # head point noise of one tracker (isotropic, 1 sigma)
-    "huber_k": 1.345,              # Huber threshold, in sigmas
-    "prior_sigma_position_m": 0.5,  # weak prior at the installed position (1 sigma, per axis)
-    "prior_sigma_deg": 10.0,       # weak prior at the installed orientation (1 sigma, per axis)
-    "min_path_spread_m": 0.1,      # below this, a sensor's shared points are (nearly) on a line
-    "compute_sigma": True,         # marginal covariances -> sigma in the calibrated schema
-}
+DEFAULT_PARAMS = AlternativeOptions().to_kwargs()     # the fields of AlternativeOptions, commented there
 
 
 @dataclass

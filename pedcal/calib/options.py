@@ -106,25 +106,24 @@ class ClosedFormOptions(MethodOptions):
 
 @dataclass
 class AlternativeOptions(MethodOptions):
-    """SNAPCAT-3D style shared observations of people (Glas et al. 2015); the fields and defaults
-    are ``pedcal.calib.alternative.DEFAULT_PARAMS`` (gates, rounds, noise, priors; a test holds
-    them equal)."""
+    """SNAPCAT-3D style shared observations of people (Glas et al. 2015): gates, rounds, noise and
+    priors. Its defaults are ``pedcal.calib.alternative.DEFAULT_PARAMS``."""
 
     method: ClassVar[str] = "alternative"
-    min_overlap_s: float = 2.0
-    max_gap_s: float = 0.5
-    max_offset_m: float = 1.5
-    max_spread_m: float = 0.35
-    refined_max_offset_m: float = 0.3
-    ambiguity_ratio: float = 0.5
-    sample_period_s: float = 0.2
-    rounds: int = 2
-    point_sigma_m: float = 0.03
-    huber_k: float = 1.345
-    prior_sigma_position_m: float = 0.5
-    prior_sigma_deg: float = 10.0
-    min_path_spread_m: float = 0.1
-    compute_sigma: bool = True
+    min_overlap_s: float = 2.0          # shortest simultaneous stretch that makes a track match
+    max_gap_s: float = 0.5              # never interpolate a track across a longer gap
+    max_offset_m: float = 1.5           # round 1: |median world offset| gate (installed errors ~1 m)
+    max_spread_m: float = 0.35          # round 1: RMS of the offset about its median
+    refined_max_offset_m: float = 0.3   # later rounds: |median world offset| gate
+    ambiguity_ratio: float = 0.5        # accept only if score < ratio x best competitor's score
+    sample_period_s: float = 0.2        # at most one shared point per track pair per period
+    rounds: int = 2                     # match -> solve rounds
+    point_sigma_m: float = 0.03         # head point noise of one tracker (isotropic, 1 sigma)
+    huber_k: float = 1.345              # Huber threshold, in sigmas
+    prior_sigma_position_m: float = 0.5  # weak prior at the installed position (1 sigma, per axis)
+    prior_sigma_deg: float = 10.0       # weak prior at the installed orientation (1 sigma, per axis)
+    min_path_spread_m: float = 0.1      # below this, a sensor's shared points are (nearly) on a line
+    compute_sigma: bool = True          # marginal covariances -> sigma in the calibrated schema
 
 
 @dataclass
