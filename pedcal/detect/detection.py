@@ -593,14 +593,15 @@ def load_classifier(path: str | Path):
 
 @functools.lru_cache(maxsize=4)
 def _load_cached(path: str, mtime: float):
-    return load_classifier(path)
+    """The model at ``path``, its structure checked (model_check) once per file version."""
+    return load_checked(lambda: load_classifier(path), path)
 
 
 def load_model(path: str | Path | None = None, family: str = "general"):
     """The classifier at ``path`` (default: the shipped model of ``family``, ``model_path``)."""
     p = Path(path) if path is not None else model_path(family)
     mtime = p.stat().st_mtime if p.exists() else 0.0
-    model = load_checked(lambda: _load_cached(str(p), mtime), p)    # structure checked (model_check)
+    model = _load_cached(str(p), mtime)
     if model.n_features_ not in (N_FEATURES, N_FEATURES_BEFORE_G5):
         raise PedcalInputError(f"the model was trained on {model.n_features_} features per cluster, the "
                                f"detector computes {N_FEATURES}; retrain it with pedcal train-detector", path=p)
