@@ -17,7 +17,8 @@ sensing modes on the same episode and prints (and with ``--out`` writes ``crowd.
 with the LIDAR, how often the detector found the target within 5 m and its detections near nobody
 (false) per frame.
 
-``near`` counts the frames in which the detector finds a lone person walking ahead at each distance.
+``near`` counts the frames in which the detector finds a lone person walking ahead at each distance,
+first seen there and after the robot closed in from 1 m farther (the near-range hold).
 
 ``report`` turns ``compare``'s folder and two ``pedcal follow-bench`` folders (``--sensing ideal`` and
 ``lidar``, same recordings, trackers and seeds) into markdown tables, pairing the bench's episodes.
@@ -36,6 +37,9 @@ import pandas as pd
 from pedcal.sim.follow import FRAME_HZ, Planner, RobotController, crowd_episode, make_episode
 from pedcal.sim.follow_lidar import LidarSensing
 from pedcal.track.follow import _make_tracker, run_episode
+
+
+CLOSE_IN_FRAMES = 4  # near: frames the robot follows 1 m farther before closing in
 
 
 def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
@@ -121,19 +125,28 @@ def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str,
 
 def near(distances: list[float], frames: int, lidar: str) -> None:
     """How often the detector finds a lone person walking ahead at a fixed distance from the robot
-    (the robot following at the person's 1 m/s, no walls nor clutter)."""
+    (the robot following at the person's 1 m/s, no walls nor clutter): first seen at that distance
+    (the classifier alone), and after the robot closed in from 1 m farther (``CLOSE_IN_FRAMES``
+    frames 1 m farther, one 0.5 m farther, not counted): near-range detections held by the person
+    detected before (``LidarSensing.held_columns``)."""
     from pedcal.sim.follow import Episode, route_walker
 
     print(f"lone walker ahead, {frames} frames each, lidar {lidar}")
     for dist in distances:
-        w = route_walker("p", [[dist, 0.0], [dist + 60.0, 0.0]], 1.0)
-        ep = Episode("near", [w], "p", np.zeros(3), frames / FRAME_HZ, None)
-        sense = LidarSensing(ep, np.random.default_rng(1), lidar, clutter_per_10m2=0.0)
-        for k in range(frames):
-            t = k / FRAME_HZ
-            sense.frame(t, np.array([t * 1.0, 0.0, 0.0]), ep.people_at(t), w.at(t), False)
-        found = sum(st["target_detected"] for st in sense.frame_stats)
-        print(f"  {dist:4.1f} m: found in {found} of {frames} frames", flush=True)
+        found = []
+        for lead in (0, CLOSE_IN_FRAMES + 1):
+            w = route_walker("p", [[dist, 0.0], [dist + 60.0, 0.0]], 1.0)
+            ep = Episode("near", [w], "p", np.zeros(3), (frames + lead) / FRAME_HZ, None)
+            sense = LidarSensing(ep, np.random.default_rng(1), lidar, clutter_per_10m2=0.0)
+            for k in range(frames + lead):
+                t = k / FRAME_HZ
+                back_m = 0.0 if k >= lead else (1.0 if k < lead - 1 else 0.5)
+                sense.frame(t, np.array([t * 1.0 - back_m, 0.0, 0.0]), ep.people_at(t), w.at(t), False)
+            st = sense.frame_stats[lead:]
+            found.append((sum(s["target_detected"] for s in st), sum(s["near_rule"] for s in st)))
+        (cold, _), (warm, rule) = found
+        print(f"  {dist:4.1f} m: found in {cold} of {frames} frames first seen there, {warm} of {frames} after "
+              f"closing in ({rule} by the near-range hold)", flush=True)
 
 
 def report(crowd: Path, ideal: Path, lidar: Path) -> str:
