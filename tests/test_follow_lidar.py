@@ -11,7 +11,6 @@ from pedcal.cli import EXIT_BAD_INPUT, main
 from pedcal.errors import PedcalInputError
 from pedcal.follow_types import PersonDetection
 from pedcal.sim.follow import Episode, Walker, box_map, make_episode, route_walker
-from pedcal.sim.scene import SceneObject, box, make_clutter
 from pedcal.sim.follow_lidar import (
     HELD_THRESHOLD,
     HOLD_MAX_GATE_M,
@@ -26,6 +25,7 @@ from pedcal.sim.follow_lidar import (
     wall_boxes,
     wall_meshes,
 )
+from pedcal.sim.scene import SceneObject, box, make_clutter
 from pedcal.track.follow import run_episode
 
 

@@ -21,6 +21,15 @@ intensities (``N_REFLECTANCE_BINS`` bins over [0, 1], the tracker's appearance).
 detector misses is missed; a cluster of clutter or wall it scores a person is passed on as a false
 detection. The localization estimate and the ESPAR readings are ``Sensing``'s.
 
+Near the robot the FX8 pair sees a person only between its field of view's edges, a slab of torso
+the classifier scores low. So the sensing keeps its person detections of the last ``HOLD_S`` (in
+the world frame of the localization estimate: detection-level tracks) and passes on a cluster scored
+below the threshold that lies within the gate of one of them when it scores at least
+``HELD_THRESHOLD`` or is a person-sized column cut by the field of view at both edges
+(``pedcal.detect.near_range.fov_cut``): ``LidarSensing.held_columns``. A person first seen that near
+is not found; a pillar, a tall plant or a stack of boxes of a person's width where a person was a
+moment before is taken for one.
+
 Which people are *in sight* for scoring (``frame``'s second value, the follow log's
 ``target_visible``, CLEAR MOT's truth) is ``visible_people``, as with the abstract model, so both
 sensing modes are scored against the same truth.
@@ -289,8 +298,9 @@ class LidarSensing:
     build and ``render``) and detecting (``detect_s``), the people present and within the LIDAR's
     reach, the points and detections, and, from ``frame``, the target's range from the robot
     (``target_range_m``, NaN when absent) and whether a detection lies within ``TARGET_MATCH_M`` of
-    it (``target_detected``), the people with a detection that near (``people_detected``) and the
-    detections near nobody (``false_detections``).
+    it (``target_detected``), the people with a detection that near (``people_detected``), the
+    detections near nobody (``false_detections``) and those passed on by the hold (``near_rule``,
+    ``held_columns``).
     """
 
     def __init__(self, episode: Episode, rng: np.random.Generator, lidar: str | LidarModel = DEFAULT_LIDAR,
@@ -402,9 +412,10 @@ class LidarSensing:
     def held_columns(self, t_s: float, pose_estimate: np.ndarray, pts: np.ndarray, gated: list,
                      boxes: list[np.ndarray]) -> set[int]:
         """Indices into ``gated`` (the detector's gated clusters, ``boxes`` their points) of those
-        scored below the threshold that are person-sized columns cut by the field of view
-        (``fov_cut``) within the gate of a held person detection (``HOLD_GATE_M`` + ``HOLD_SPEED_MPS``
-        x its age, at most ``HOLD_S`` old)."""
+        scored below the threshold within the gate of a held person detection (``HOLD_GATE_M`` +
+        ``HOLD_SPEED_MPS`` x its age, at most ``HOLD_MAX_GATE_M``; at most ``HOLD_S`` old) that score
+        at least ``HELD_THRESHOLD`` or are person-sized columns cut by the field of view (``fov_cut``;
+        not with sensors ``sensor_views`` cannot describe)."""
         fresh = t_s - self.held_t_s <= HOLD_S
         weak = [k for k, d in enumerate(gated) if not d.is_person]
         if not weak or not fresh.any():
@@ -415,9 +426,10 @@ class LidarSensing:
         out = set()
         for k in weak:
             d = gated[k]
-            if np.any(np.hypot(*(held_robot - [d.x, d.y]).T) <= gate_m) and (
-                    d.score >= HELD_THRESHOLD
-                    or bool(self.views) and fov_cut(pts, boxes[k], d.width, d.depth, d.yaw, self.views, at_top, at_bottom)):
+            if not np.any(np.hypot(*(held_robot - [d.x, d.y]).T) <= gate_m):
+                continue
+            if d.score >= HELD_THRESHOLD or (
+                    self.views and fov_cut(pts, boxes[k], d.width, d.depth, d.yaw, self.views, at_top, at_bottom)):
                 out.add(k)
         return out
 
