@@ -5,6 +5,7 @@
                                                       [--trackers paper factorgraph] [--out DIR]
     .venv/bin/python benchmarks/bench_follow_lidar.py report --crowd DIR --ideal DIR --lidar DIR
     .venv/bin/python benchmarks/bench_follow_lidar.py near [--distances 0.8 1 1.2 1.5 2 3] [--frames 12]
+    .venv/bin/python benchmarks/bench_follow_lidar.py losses --people FILE --targets ID [ID ...]
 
 ``timing`` plays the crowd scene with N people (the target and N - 1 walkers) with the LIDAR in the
 loop and the factor-graph tracker, and prints per frame (4 Hz) the median and 90th percentile of the
@@ -17,7 +18,11 @@ sensing modes on the same episode and prints (and with ``--out`` writes ``crowd.
 with the LIDAR, how often the detector found the target within 5 m and its detections near nobody
 (false) per frame.
 
-``near`` counts the frames in which the detector finds a lone person walking ahead at each distance.
+``near`` counts the frames in which the detector finds a lone person walking ahead at each distance,
+first seen there and after the robot closed in from 1 m farther (the near-range hold).
+
+``losses`` plays recorded targets with both sensing modes and counts, with the LIDAR, why frames lack
+the target: out of sight, missed by the detector nearer than 1.1 m or farther, or detected.
 
 ``report`` turns ``compare``'s folder and two ``pedcal follow-bench`` folders (``--sensing ideal`` and
 ``lidar``, same recordings, trackers and seeds) into markdown tables, pairing the bench's episodes.
@@ -36,6 +41,8 @@ import pandas as pd
 from pedcal.sim.follow import FRAME_HZ, Planner, RobotController, crowd_episode, make_episode
 from pedcal.sim.follow_lidar import LidarSensing
 from pedcal.track.follow import _make_tracker, run_episode
+
+CLOSE_IN_FRAMES = 4  # near: frames the robot follows 1 m farther before closing in
 
 
 def timing(people: list[int], seeds: int, lidar: str, tracker: str) -> None:
@@ -121,19 +128,76 @@ def compare(densities: list[float], seeds: int, trackers: list[str], lidar: str,
 
 def near(distances: list[float], frames: int, lidar: str) -> None:
     """How often the detector finds a lone person walking ahead at a fixed distance from the robot
-    (the robot following at the person's 1 m/s, no walls nor clutter)."""
+    (the robot following at the person's 1 m/s, no walls nor clutter): first seen at that distance
+    (the classifier alone), and after the robot closed in from 1 m farther (``CLOSE_IN_FRAMES``
+    frames 1 m farther, one 0.5 m farther, not counted): near-range detections held by the person
+    detected before (``LidarSensing.held_columns``)."""
     from pedcal.sim.follow import Episode, route_walker
 
     print(f"lone walker ahead, {frames} frames each, lidar {lidar}")
     for dist in distances:
-        w = route_walker("p", [[dist, 0.0], [dist + 60.0, 0.0]], 1.0)
-        ep = Episode("near", [w], "p", np.zeros(3), frames / FRAME_HZ, None)
-        sense = LidarSensing(ep, np.random.default_rng(1), lidar, clutter_per_10m2=0.0)
-        for k in range(frames):
-            t = k / FRAME_HZ
-            sense.frame(t, np.array([t * 1.0, 0.0, 0.0]), ep.people_at(t), w.at(t), False)
-        found = sum(st["target_detected"] for st in sense.frame_stats)
-        print(f"  {dist:4.1f} m: found in {found} of {frames} frames", flush=True)
+        found = []
+        for lead in (0, CLOSE_IN_FRAMES + 1):
+            w = route_walker("p", [[dist, 0.0], [dist + 60.0, 0.0]], 1.0)
+            ep = Episode("near", [w], "p", np.zeros(3), (frames + lead) / FRAME_HZ, None)
+            sense = LidarSensing(ep, np.random.default_rng(1), lidar, clutter_per_10m2=0.0)
+            for k in range(frames + lead):
+                t = k / FRAME_HZ
+                back_m = 0.0 if k >= lead else (1.0 if k < lead - 1 else 0.5)
+                sense.frame(t, np.array([t * 1.0 - back_m, 0.0, 0.0]), ep.people_at(t), w.at(t), False)
+            st = sense.frame_stats[lead:]
+            found.append((sum(s["target_detected"] for s in st), sum(s["near_rule"] for s in st)))
+        (cold, _), (warm, rule) = found
+        print(f"  {dist:4.1f} m: found in {cold} of {frames} frames first seen there, {warm} of {frames} after "
+              f"closing in ({rule} by the near-range hold)", flush=True)
+
+
+NEAR_M = 1.1  # losses: nearer than this (robot to target centre) the FX8 pair sees a slab of torso
+
+
+def loss_causes(log: pd.DataFrame, target_id: str) -> dict:
+    """Why the frames of a LIDAR run's follow log lack the target (``with_target_frames`` false,
+    from the tracker's first choice on): the target out of sight (``target_visible`` false), in
+    sight but missed by the detector nearer than ``NEAR_M`` or farther, or detected (the tracker's
+    doing); and the detector's hits in sight, near and far, its false detections per frame and the
+    frames the robot spent nearer than ``NEAR_M``."""
+    from pedcal.track.follow import with_target_frames
+
+    held = with_target_frames(log, target_id)
+    scored = np.cumsum(~pd.isna(log["target_track_id"].to_numpy())) > 0
+    vis = log["target_visible"].to_numpy(bool)
+    near = log["lidar_target_range_m"].to_numpy(float) < NEAR_M
+    det = log["lidar_target_detected"].to_numpy(bool)
+    lost = scored & ~held
+    return dict(frames=int(scored.sum()), with_target=float(held[scored].mean()), near_frames=int((vis & near).sum()),
+                found_near=int((vis & near & det).sum()), far_frames=int((vis & ~near).sum()),
+                found_far=int((vis & ~near & det).sum()), lost=int(lost.sum()), lost_hidden=int((lost & ~vis).sum()),
+                lost_missed_near=int((lost & vis & near & ~det).sum()),
+                lost_missed_far=int((lost & vis & ~near & ~det).sum()), lost_detected=int((lost & vis & det).sum()),
+                false_per_frame=float(log["lidar_false_detections"].mean()),
+                held_near=int(log.get("lidar_near_rule", pd.Series(0, index=log.index)).sum()))
+
+
+def losses(people: Path, targets: list[str], tracker: str, seed: int, lidar: str) -> None:
+    """``loss_causes`` of each target's episode with the LIDAR, beside its with-target with the
+    abstract model (same episode, tracker and seed)."""
+    from pedcal.sim.follow import people_episode
+    from pedcal.track.follow import read_people
+
+    table = read_people(people)
+    rows = []
+    for t in targets:
+        ideal = run_episode(people_episode(table, t, people), tracker, seed).metrics.with_target_fraction
+        r = run_episode(people_episode(table, t, people), tracker, seed, sensing="lidar", lidar=lidar)
+        rows.append(dict(target=t, ideal=ideal, **loss_causes(r.log, t)))
+        print(pd.DataFrame(rows[-1:]).round(3).to_string(index=False, header=len(rows) == 1), flush=True)
+    d = pd.DataFrame(rows)
+    tot = d.drop(columns=["target", "ideal", "with_target", "false_per_frame"]).sum()
+    print(f"all: {tot['lost']} frames without the target: {tot['lost_missed_near']} missed nearer than {NEAR_M} m, "
+          f"{tot['lost_hidden']} out of sight, {tot['lost_missed_far']} missed farther, {tot['lost_detected']} "
+          f"detected (the tracker's); detector found the target in sight in {tot['found_near']} of "
+          f"{tot['near_frames']} frames nearer than {NEAR_M} m, {tot['found_far']} of {tot['far_frames']} farther; "
+          f"{(d['false_per_frame'] * d['frames']).sum() / d['frames'].sum():.4f} false detections per frame")
 
 
 def report(crowd: Path, ideal: Path, lidar: Path) -> str:
@@ -180,6 +244,12 @@ def main() -> None:
     s.add_argument("--distances", nargs="+", type=float, default=[0.8, 1.0, 1.2, 1.5, 2.0, 3.0])
     s.add_argument("--frames", type=int, default=12)
     s.add_argument("--lidar", default="fx8")
+    s = sub.add_parser("losses")
+    s.add_argument("--people", type=Path, required=True, help="a recording (pedcal follow --people)")
+    s.add_argument("--targets", nargs="+", required=True)
+    s.add_argument("--tracker", default="factorgraph")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--lidar", default="fx8")
     s = sub.add_parser("report")
     s.add_argument("--crowd", type=Path, required=True, help="compare's --out folder")
     s.add_argument("--ideal", type=Path, required=True, help="pedcal follow-bench -o folder, --sensing ideal")
@@ -190,6 +260,8 @@ def main() -> None:
         timing(args.people, args.seeds, args.lidar, args.tracker)
     elif args.mode == "near":
         near(args.distances, args.frames, args.lidar)
+    elif args.mode == "losses":
+        losses(args.people, args.targets, args.tracker, args.seed, args.lidar)
     elif args.mode == "report":
         print(report(args.crowd, args.ideal, args.lidar), end="")
     else:

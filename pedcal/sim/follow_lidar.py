@@ -21,6 +21,15 @@ intensities (``N_REFLECTANCE_BINS`` bins over [0, 1], the tracker's appearance).
 detector misses is missed; a cluster of clutter or wall it scores a person is passed on as a false
 detection. The localization estimate and the ESPAR readings are ``Sensing``'s.
 
+Near the robot the FX8 pair sees a person only between its field of view's edges, a slab of torso
+the classifier scores low. So the sensing keeps its person detections of the last ``HOLD_S`` (in
+the world frame of the localization estimate: detection-level tracks) and passes on a cluster scored
+below the threshold that lies within the gate of one of them when it scores at least
+``HELD_THRESHOLD`` or is a person-sized column cut by the field of view at both edges
+(``pedcal.detect.near_range.fov_cut``): ``LidarSensing.held_columns``. A person first seen that near
+is not found; a pillar, a tall plant or a stack of boxes of a person's width where a person was a
+moment before is taken for one.
+
 Which people are *in sight* for scoring (``frame``'s second value, the follow log's
 ``target_visible``, CLEAR MOT's truth) is ``visible_people``, as with the abstract model, so both
 sensing modes are scored against the same truth.
@@ -36,6 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pedcal.detect.detection import detect, load_model, model_family
+from pedcal.detect.near_range import edge_flags, fov_cut, sensor_views
 from pedcal.detect.sensors import SENSORS, THIN_BELOW_DEG, normalize_density
 from pedcal.errors import PedcalInputError
 from pedcal.follow_types import FollowFrame, PersonDetection
@@ -48,6 +58,7 @@ from pedcal.sim.follow import (
     SensorModel,
     Walker,
     to_robot,
+    to_world,
     visible_people,
 )
 from pedcal.sim.lidar import LIDAR_PRESETS, LidarModel, Mount, fx8_pair_mounts, render
@@ -76,6 +87,18 @@ GAIT_PHASES = np.linspace(-1.0, 1.0, 5)  # the stride of a walking body is the n
 TARGET_MATCH_M = 0.5  # frame_stats: a detection this close to the target found it (the follow scoring's match)
 HIST_BOX_MARGIN_M = 0.02  # a detection's histogram takes the points inside its box grown by this
 CARRYING_SHARE = 0.3  # people carrying a bag (pedcal.sim.scene.random_person's share)
+# Detection-level tracks (``LidarSensing.held_columns``): a cluster the classifier scores below a
+# person's threshold is passed on as a person when it lies within the gate of a person detected
+# (either way) at most HOLD_S before, HOLD_GATE_M + HOLD_SPEED_MPS x its age and at most
+# HOLD_MAX_GATE_M (in the world frame of the localization estimate), and either scores at least
+# HELD_THRESHOLD (the lower threshold inside a track's gate of tracking-by-detection) or is a
+# person-sized column cut by the field of view (pedcal.detect.near_range.fov_cut: too near for the
+# classifier to judge at all).
+HOLD_S = 2.0
+HOLD_GATE_M = 0.5
+HOLD_SPEED_MPS = 1.0
+HOLD_MAX_GATE_M = 1.0
+HELD_THRESHOLD = 0.1
 
 
 def check_sensing(sensing: str, lidar: str | None = None) -> None:
@@ -275,8 +298,9 @@ class LidarSensing:
     build and ``render``) and detecting (``detect_s``), the people present and within the LIDAR's
     reach, the points and detections, and, from ``frame``, the target's range from the robot
     (``target_range_m``, NaN when absent) and whether a detection lies within ``TARGET_MATCH_M`` of
-    it (``target_detected``), the people with a detection that near (``people_detected``) and the
-    detections near nobody (``false_detections``).
+    it (``target_detected``), the people with a detection that near (``people_detected``), the
+    detections near nobody (``false_detections``) and those passed on by the hold (``near_rule``,
+    ``held_columns``).
     """
 
     def __init__(self, episode: Episode, rng: np.random.Generator, lidar: str | LidarModel = DEFAULT_LIDAR,
@@ -315,6 +339,12 @@ class LidarSensing:
         self.sensor_height_m = float(np.mean([m.z_m for m in self.mounts]))
         self.frame_stats: list[dict] = []
         self.last_points: np.ndarray | None = None
+        try:  # the near-range rule needs level sensors with regular rows (the FX8 pair, the grids)
+            self.views = sensor_views(lidar, self.mounts)
+        except ValueError:
+            self.views = ()
+        self.held_xy_world_m = np.zeros((0, 2))  # person detections of the last HOLD_S (world frame, estimate)
+        self.held_t_s = np.zeros(0)
 
     def _body(self, walker: Walker) -> _Body:
         if walker.person_id not in self.bodies:
@@ -348,10 +378,13 @@ class LidarSensing:
             scene.add(SceneObject("person", True, body.mesh(phase), float(xy[0]), float(xy[1]), body.yaw_rad))
         return scene, in_range
 
-    def detections(self, t_s: float, pose_world_robot: np.ndarray, people: list[tuple[Walker, np.ndarray]]
-                   ) -> list[PersonDetection]:
-        """The detector's person detections in the LIDAR frame cast from the true pose (robot frame)."""
+    def detections(self, t_s: float, pose_world_robot: np.ndarray, people: list[tuple[Walker, np.ndarray]],
+                   pose_estimate: np.ndarray | None = None) -> list[PersonDetection]:
+        """The detector's person detections in the LIDAR frame cast from the true pose (robot frame),
+        and the clusters too near for the classifier held by a recent person detection
+        (``held_columns``; in the world frame of ``pose_estimate``, the true pose when None)."""
         pose = np.asarray(pose_world_robot, dtype=float)
+        est = pose if pose_estimate is None else np.asarray(pose_estimate, dtype=float)
         t0 = time.perf_counter()
         scene, in_range = self._scene(t_s, pose, people)
         frame = render(scene, self.lidar, self.mounts, self.render_rng, base_pose=pose, stamp_s=t_s)
@@ -361,18 +394,51 @@ class LidarSensing:
             pts = normalize_density(pts, self.sensor_name)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            dets = [d for d in detect(pts, self.model, sensor=self.lidar.name, sensor_height_m=self.sensor_height_m,
-                                      sensor_xy_m=self.sensor_xy_m) if d.is_person]
-        out = []
-        for d in dets:
-            idx = points_in_box(pts, d.x, d.y, d.width, d.depth, d.yaw, d.height)
-            out.append(PersonDetection(np.array([d.x, d.y]), float(d.height), float(d.score),
-                                       reflectance_histogram_of(pts[idx, 3])))
+            gated = detect(pts, self.model, sensor=self.lidar.name, sensor_height_m=self.sensor_height_m,
+                           sensor_xy_m=self.sensor_xy_m)
+        boxes = [points_in_box(pts, d.x, d.y, d.width, d.depth, d.yaw, d.height) for d in gated]
+        held = self.held_columns(t_s, est, pts, gated, boxes)
+        keep = [k for k, d in enumerate(gated) if d.is_person or k in held]
+        out = [PersonDetection(np.array([gated[k].x, gated[k].y]), float(gated[k].height), float(gated[k].score),
+                               reflectance_histogram_of(pts[boxes[k], 3])) for k in keep]
+        self._hold(t_s, est, np.array([d.xy_robot_m for d in out]).reshape(-1, 2))
         t2 = time.perf_counter()
         self.frame_stats.append(dict(t_s=t_s, raycast_s=t1 - t0, detect_s=t2 - t1, people=len(people),
-                                 people_in_range=in_range, points=len(pts), detections=len(out)))
+                                 people_in_range=in_range, points=len(pts), detections=len(out),
+                                 near_rule=len(held)))
         self.last_points = frame.points
         return out
+
+    def held_columns(self, t_s: float, pose_estimate: np.ndarray, pts: np.ndarray, gated: list,
+                     boxes: list[np.ndarray]) -> set[int]:
+        """Indices into ``gated`` (the detector's gated clusters, ``boxes`` their points) of those
+        scored below the threshold within the gate of a held person detection (``HOLD_GATE_M`` +
+        ``HOLD_SPEED_MPS`` x its age, at most ``HOLD_MAX_GATE_M``; at most ``HOLD_S`` old) that score
+        at least ``HELD_THRESHOLD`` or are person-sized columns cut by the field of view (``fov_cut``;
+        not with sensors ``sensor_views`` cannot describe)."""
+        fresh = t_s - self.held_t_s <= HOLD_S
+        weak = [k for k, d in enumerate(gated) if not d.is_person]
+        if not weak or not fresh.any():
+            return set()
+        held_robot = to_robot(self.held_xy_world_m[fresh], pose_estimate)
+        gate_m = np.minimum(HOLD_GATE_M + HOLD_SPEED_MPS * (t_s - self.held_t_s[fresh]), HOLD_MAX_GATE_M)
+        at_top, at_bottom = edge_flags(pts, self.views) if self.views else (None, None)
+        out = set()
+        for k in weak:
+            d = gated[k]
+            if not np.any(np.hypot(*(held_robot - [d.x, d.y]).T) <= gate_m):
+                continue
+            if d.score >= HELD_THRESHOLD or (
+                    self.views and fov_cut(pts, boxes[k], d.width, d.depth, d.yaw, self.views, at_top, at_bottom)):
+                out.add(k)
+        return out
+
+    def _hold(self, t_s: float, pose_estimate: np.ndarray, xy_robot_m: np.ndarray) -> None:
+        """Keep this frame's person detections (robot frame) in the world frame for ``HOLD_S``."""
+        xy_world = to_world(xy_robot_m, pose_estimate).reshape(-1, 2)
+        fresh = t_s - self.held_t_s <= HOLD_S
+        self.held_xy_world_m = np.vstack([self.held_xy_world_m[fresh], xy_world])
+        self.held_t_s = np.r_[self.held_t_s[fresh], np.full(len(xy_world), t_s)]
 
     def frame(self, t_s: float, pose_world_robot: np.ndarray, people: list[tuple[Walker, np.ndarray]],
               target_xy_world_m: np.ndarray | None, robot_stopped: bool) -> tuple[FollowFrame, np.ndarray]:
@@ -380,7 +446,7 @@ class LidarSensing:
         (``visible_people``, the scoring's truth)."""
         pose = np.asarray(pose_world_robot, dtype=float)
         base, _ = self.base.frame(t_s, pose, [], target_xy_world_m, robot_stopped)
-        dets = self.detections(t_s, pose, people)
+        dets = self.detections(t_s, pose, people, np.asarray(base.pose_world_robot, float))
         xy = np.array([p for _, p in people]).reshape(-1, 2)
         target = None if target_xy_world_m is None else to_robot(target_xy_world_m, pose)[0]
         det_xy = np.array([d.xy_robot_m for d in dets]).reshape(-1, 2)
