@@ -17,6 +17,8 @@ the calibrated YAML against the generator's truth.yaml here, with its own arithm
 - within 1 / 2 sigma x, y, z (%): share of per-axis position errors within 1 and 2 of the YAML's
   sigma.position_m; rot: the same for the sensor-frame rotation error log(R_true^T R_est) against
   sigma.rotation_deg when the YAML has it (else against sigma.ypr_deg is not meaningful and '-');
+- xy less shared shift: the xy RMS after taking out each log's mean horizontal error over its
+  sensors (what they share, such as AMCL's mean error over the run), the network's own shape;
 - installed: the installed extrinsics' xy RMS (the start); AMCL: the norm of AMCL's mean error
   over the run (mm), the error any calibration anchored to AMCL shares;
 - CPU (s): mean CPU time of one calibrate subprocess (user + sys, includes the import).
@@ -126,7 +128,7 @@ def _errs(rows):
 
 
 def summarize(rows, method):
-    rr = [r for r in rows if r["method"] == method]
+    rr = [r for r in rows if r["method"] == method and (r["rc"] != 0 or r.get("sensors"))]
     failed = sum(1 for r in rr if r["rc"] != 0)
     s = _errs([r for r in rr if r["rc"] == 0])
     if not s:
@@ -134,6 +136,7 @@ def summarize(rows, method):
     dx = np.array([x["dx"] for x in s]); dy = np.array([x["dy"] for x in s]); dz = np.array([x["dz"] for x in s])
     out = {"logs": len(rr), "failed": failed, "n": len(s),
            "xy_mm": 1000 * math.sqrt(np.mean(dx ** 2 + dy ** 2)), "z_mm": 1000 * math.sqrt(np.mean(dz ** 2)),
+           "xy_rel_mm": 1000 * math.sqrt(np.mean([x["dx_rel"] ** 2 + x["dy_rel"] ** 2 for x in s])),
            "yaw_deg": math.sqrt(np.mean([x["yaw_deg"] ** 2 for x in s])),
            "worst_log_xy_mm": max(1000 * math.sqrt(np.mean([x["dx"] ** 2 + x["dy"] ** 2 for x in r["sensors"]]))
                                   for r in rr if r["rc"] == 0),
@@ -154,12 +157,57 @@ def summarize(rows, method):
     return out
 
 
-def table(rows, methods, title):
+def by_family(rows):
     fams = [f for f in FAMILIES if any(r["family"] == f for r in rows)]
-    groups = [(f, [r for r in rows if r["family"] == f]) for f in fams] + [("pooled", rows)]
+    return [(f, [r for r in rows if r["family"] == f]) for f in fams] + [("pooled", rows)]
+
+
+def by_log_nuisance(rows):
+    """Groups of logs by what the generator drew for the whole log (AMCL, clocks, odometry)."""
+    keys = [("AMCL OU", lambda r: r["amcl_kind"] == "ou"), ("AMCL random walk", lambda r: r["amcl_kind"] == "rw"),
+            ("AMCL cov honest", lambda r: r["cov_factor"] == 1.0),
+            ("AMCL sigma x0.5", lambda r: r["cov_factor"] == 0.5), ("AMCL sigma x2", lambda r: r["cov_factor"] == 2.0),
+            ("AMCL jumps", lambda r: r.get("amcl_jumps", 0) > 0),
+            ("clock offsets", lambda r: r["clock_offsets"]), ("no clock offsets", lambda r: not r["clock_offsets"]),
+            ("odometry", lambda r: r["odometry"]), ("no odometry", lambda r: not r["odometry"])]
+    return [(name, [r for r in rows if f(r)]) for name, f in keys if any(f(r) for r in rows)]
+
+
+def by_sensor(rows, field_name):
+    """Groups of sensors (every log's rows kept, their sensors filtered) by a per-sensor field."""
+    values = sorted({x[field_name] for r in rows for x in r.get("sensors", []) if field_name in x})
+    return [(f"{field_name} {v}", [{**r, "sensors": [x for x in r.get("sensors", []) if x.get(field_name) == v]}
+                                   for r in rows]) for v in values]
+
+
+def attach_sensor_info(rows, out: Path):
+    """Each scored sensor gets its mount and head profile (from the log's xgen.json), each row
+    its AMCL jumps."""
+    cache = {}
+    for r in rows:
+        key = (r["family"], r["seed"])
+        if key not in cache:
+            cache[key] = json.loads((out / f"{r['family']}-{r['seed']}" / "log" / "xgen.json").read_text())
+        info = cache[key]
+        per = {s["id"]: s for s in info["sensors"]}
+        r["amcl_jumps"] = len(info["amcl"]["jumps"])
+        scored = [x for x in r.get("sensors", []) if not x.get("missing")]
+        if scored:
+            # the log's shared horizontal shift (what anchoring to AMCL's run mean moves all sensors by)
+            mean_xy = np.mean([[x["dx"], x["dy"]] for x in scored], axis=0)
+            for x in scored:
+                x["dx_rel"], x["dy_rel"] = x["dx"] - mean_xy[0], x["dy"] - mean_xy[1]
+        for x in r.get("sensors", []):
+            x["mount"] = per[x["id"]]["mount"]
+            x["profile"] = per[x["id"]]["profile"]["kind"]
+
+
+def table(rows, methods, title, groups=None, label="family"):
+    groups = by_family(rows) if groups is None else groups
+    groups = [(n, g) for n, g in groups if any(r.get("sensors") for r in g if r["method"] == "installed")]
     lines = [f"### {title}", ""]
-    head = ("| family | logs | sensors | installed xy | AMCL mean | " +
-            " | ".join(f"{m} xy / z (mm), yaw (deg)" for m in methods) +
+    head = (f"| {label} | logs | sensors | installed xy | AMCL mean | " +
+            " | ".join(f"{m} xy / xy less shared shift / z (mm), yaw (deg)" for m in methods) +
             (" | graph / grid xy" if {"factorgraph", "gridsearch"} <= set(methods) else "") +
             " | " + " | ".join(f"{m} within 1 sigma x, y, z / rot (%)" for m in methods) +
             " | " + " | ".join(f"{m} within 2 sigma x, y, z / rot (%)" for m in methods) +
@@ -172,7 +220,7 @@ def table(rows, methods, title):
         cells = [name, str(inst["logs"]), str(inst["n"]), f"{inst['xy_mm']:.0f}", f"{amcl:.1f}"]
         for m in methods:
             x = sm[m]
-            cells.append("failed" if x is None else f"{x['xy_mm']:.1f} / {x['z_mm']:.1f}, {x['yaw_deg']:.2f}"
+            cells.append("failed" if x is None else f"{x['xy_mm']:.1f} / {x['xy_rel_mm']:.1f} / {x['z_mm']:.1f}, {x['yaw_deg']:.2f}"
                          + (f" ({x['failed']} failed)" if x["failed"] else ""))
         if {"factorgraph", "gridsearch"} <= set(methods):
             a, b = sm["factorgraph"], sm["gridsearch"]
@@ -202,7 +250,14 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=None, help="where logs and results go (default: a temp dir)")
     ap.add_argument("--jobs", type=int, default=1, help="logs calibrated at once")
     ap.add_argument("--max-time", type=float, default=600.0, help="longest drive per log (s)")
+    ap.add_argument("--from-results", type=Path, default=None,
+                    help="print the tables of an earlier run's DIR (its results.jsonl and logs) without running")
     args = ap.parse_args(argv)
+    if args.from_results is not None:
+        rows = [json.loads(line) for line in (args.from_results / "results.jsonl").read_text().splitlines() if line]
+        methods = [m for m in args.methods if any(r["method"] == m for r in rows)]
+        print_tables(rows, methods, args.from_results, f"from {args.from_results}")
+        return 0
     out = args.out or Path(tempfile.mkdtemp(prefix="xgen-bench-"))
     out.mkdir(parents=True, exist_ok=True)
     jobs = [(f, s) for f in args.families for s in range(args.first_seed, args.first_seed + args.seeds)]
@@ -224,10 +279,20 @@ def main(argv=None):
                     if r["rc"] != 0:
                         print("   " + r.get("stderr", "").strip().replace("\n", "\n   "), flush=True)
             rows += res
-    print()
-    print(table(rows, args.methods, f"seeds {args.first_seed}..{args.first_seed + args.seeds - 1}, "
-                                    f"load {os.getloadavg()[0]:.2f} at the end"))
+    print_tables(rows, args.methods, out, f"seeds {args.first_seed}..{args.first_seed + args.seeds - 1}, "
+                                          f"load {os.getloadavg()[0]:.2f} at the end")
     return 0
+
+
+def print_tables(rows, methods, out: Path, title: str):
+    attach_sensor_info(rows, out)
+    print()
+    print(table(rows, methods, title))
+    print()
+    print(table(rows, methods, "by what the log drew (pooled over families)", by_log_nuisance(rows), "logs with"))
+    print()
+    print(table(rows, methods, "by sensor (pooled over families)", by_sensor(rows, "mount") + by_sensor(rows, "profile"),
+                "sensors"))
 
 
 if __name__ == "__main__":

@@ -303,24 +303,26 @@ def plan_waypoints(rng, layout: Layout, head_z_m: float, mode: str, margin_m: fl
                         pts.append((_clip(c + rad * np.array([math.cos(a), math.sin(a)]), rect, margin_m), reg))
                 else:
                     pts.append((_clip(c + rng.normal(0.0, 0.6, 2), rect, margin_m), reg))
-        return _route(layout, pts)
+        return pts
     if mode == "lawnmower":
+        # lanes along the longer side, then (half the time) across, each with its own offset
         pts = []
-        spacing = rng.uniform(1.0, 2.2)
+        spacing = rng.uniform(0.8, 1.6)
         for reg, rect in enumerate(layout.rects):
             x0, y0, x1, y1 = rect
-            along_x = (x1 - x0) >= (y1 - y0)
+            along_x = ((x1 - x0) >= (y1 - y0)) != (rng.random() < 0.3)
+            m = margin_m + rng.uniform(0.0, spacing / 2)
             if along_x:
-                lanes = np.arange(y0 + margin_m, y1 - margin_m + 1e-9, spacing)
+                lanes = np.arange(y0 + m, y1 - margin_m + 1e-9, spacing)
                 for k, y in enumerate(lanes):
                     a, b = (x0 + margin_m, x1 - margin_m) if k % 2 == 0 else (x1 - margin_m, x0 + margin_m)
                     pts += [(np.array([a, y]), reg), (np.array([b, y]), reg)]
             else:
-                lanes = np.arange(x0 + margin_m, x1 - margin_m + 1e-9, spacing)
+                lanes = np.arange(x0 + m, x1 - margin_m + 1e-9, spacing)
                 for k, x in enumerate(lanes):
                     a, b = (y0 + margin_m, y1 - margin_m) if k % 2 == 0 else (y1 - margin_m, y0 + margin_m)
                     pts += [(np.array([x, a]), reg), (np.array([x, b]), reg)]
-        return _route(layout, pts)
+        return pts
     if mode == "shuttle":
         # back and forth through each wing on lanes across its width, weaving a little
         pts = []
@@ -341,8 +343,19 @@ def plan_waypoints(rng, layout: Layout, head_z_m: float, mode: str, margin_m: fl
                         else:
                             p = np.array([x0 + off, y0 + margin_m + ui * (y1 - y0 - 2 * margin_m)])
                         pts.append((p, reg))
-        return _route(layout, pts)
+        return pts
     raise ValueError(mode)
+
+
+def plan_drive(rng, layout: Layout, head_z_m: float, mode: str, length_m: float):
+    """Plans of the mode, one after another (each drawn afresh), until the route is length_m long."""
+    pts = []
+    route = []
+    while True:
+        pts += plan_waypoints(rng, layout, head_z_m, mode)
+        route = _route(layout, pts)
+        if len(route) > 1 and np.sum(np.linalg.norm(np.diff(np.array(route), axis=0), axis=1)) >= length_m:
+            return route
 
 
 @dataclass
@@ -777,7 +790,7 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
     layout = make_layout(rng, family, head_offset[2])
     install_errors(rng, layout.sensors, scale=rng.uniform(0.7, 1.4))
     mode = PATH_MODES[family][rng.integers(2)]
-    wps = plan_waypoints(rng, layout, head_offset[2], mode)
+    wps = plan_drive(rng, layout, head_offset[2], mode, length_m=rng.uniform(120.0, 260.0))
     d = drive(rng, wps, max_time_s)
     t_base = 0.0 if rng.random() < 0.5 else float(1.7e9 + rng.integers(0, 10 ** 7))
     t_end = float(d.t_s[-1])
