@@ -133,7 +133,7 @@ def summarize(rows, method):
     s = _errs([r for r in rr if r["rc"] == 0])
     if not s:
         return None
-    dx = np.array([x["dx"] for x in s]); dy = np.array([x["dy"] for x in s]); dz = np.array([x["dz"] for x in s])
+    dx, dy, dz = (np.array([x[k] for x in s]) for k in ("dx", "dy", "dz"))
     out = {"logs": len(rr), "failed": failed, "n": len(s),
            "xy_mm": 1000 * math.sqrt(np.mean(dx ** 2 + dy ** 2)), "z_mm": 1000 * math.sqrt(np.mean(dz ** 2)),
            "xy_rel_mm": 1000 * math.sqrt(np.mean([x["dx_rel"] ** 2 + x["dy_rel"] ** 2 for x in s])),
@@ -220,7 +220,8 @@ def table(rows, methods, title, groups=None, label="family"):
         cells = [name, str(inst["logs"]), str(inst["n"]), f"{inst['xy_mm']:.0f}", f"{amcl:.1f}"]
         for m in methods:
             x = sm[m]
-            cells.append("failed" if x is None else f"{x['xy_mm']:.1f} / {x['xy_rel_mm']:.1f} / {x['z_mm']:.1f}, {x['yaw_deg']:.2f}"
+            cells.append("failed" if x is None else
+                         f"{x['xy_mm']:.1f} / {x['xy_rel_mm']:.1f} / {x['z_mm']:.1f}, {x['yaw_deg']:.2f}"
                          + (f" ({x['failed']} failed)" if x["failed"] else ""))
         if {"factorgraph", "gridsearch"} <= set(methods):
             a, b = sm["factorgraph"], sm["gridsearch"]
@@ -291,7 +292,8 @@ def print_tables(rows, methods, out: Path, title: str):
     print()
     print(table(rows, methods, "by what the log drew (pooled over families)", by_log_nuisance(rows), "logs with"))
     print()
-    print(table(rows, methods, "by sensor (pooled over families)", by_sensor(rows, "mount") + by_sensor(rows, "profile"),
+    sensor_groups = by_sensor(rows, "mount") + by_sensor(rows, "profile")
+    print(table(rows, methods, "by sensor (pooled over families)", sensor_groups,
                 "sensors"))
 
 

@@ -4,7 +4,6 @@ extrinsics, the orientation convention makes positive pitch look down)."""
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path

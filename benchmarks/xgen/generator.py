@@ -158,6 +158,16 @@ def _wall_spot(rng, rect):
     return np.array([x1, rng.uniform(y0 + 0.5, y1 - 0.5)]), math.pi
 
 
+def _one_room(rng, w_range, h_range, spacing_range, jitter_m, drop_p, margin_m, n_wall_range):
+    """A rectangular room with a jittered grid of ceiling sensors: rects, joints, AMCL axes, sensor
+    spots and the number of wall sensors."""
+    w, h = rng.uniform(*w_range), rng.uniform(*h_range)
+    rects = [(0.0, 0.0, w, h)]
+    axes = [rng.uniform(0, math.pi)]
+    spots = [(p, 0) for p in _grid_points(rng, rects[0], rng.uniform(*spacing_range), jitter_m, drop_p, margin_m)]
+    return rects, [], axes, spots, int(rng.integers(*n_wall_range))
+
+
 def make_layout(rng, family: str, head_z_m: float) -> Layout:
     ceiling_m = rng.uniform(2.6, 4.5)
 
@@ -165,12 +175,7 @@ def make_layout(rng, family: str, head_z_m: float) -> Layout:
         return float(np.clip(ceiling_m + rng.normal(0.0, 0.08), 2.6, 4.5))
 
     if family == "rooms":
-        w, h = rng.uniform(6.0, 14.0), rng.uniform(5.0, 10.0)
-        rects = [(0.0, 0.0, w, h)]
-        joints = []
-        axes = [rng.uniform(0, math.pi)]
-        spots = [(p, 0) for p in _grid_points(rng, rects[0], rng.uniform(2.5, 3.5), 0.3, 0.1, 1.0)]
-        n_wall = int(rng.integers(0, 3))
+        rects, joints, axes, spots, n_wall = _one_room(rng, (6.0, 14.0), (5.0, 10.0), (2.5, 3.5), 0.3, 0.1, 1.0, (0, 3))
     elif family == "lhall":
         wa, wb = rng.uniform(3.0, 5.0), rng.uniform(3.0, 5.0)
         la, lb = rng.uniform(12.0, 18.0), rng.uniform(10.0, 15.0)
@@ -194,12 +199,8 @@ def make_layout(rng, family: str, head_z_m: float) -> Layout:
         spots = [(np.array([x, width / 2 + rng.uniform(-0.3, 0.3) * width]), 0) for x in xs]
         n_wall = int(rng.integers(1, 4))
     elif family == "openhall":
-        w, h = rng.uniform(14.0, 22.0), rng.uniform(10.0, 16.0)
-        rects = [(0.0, 0.0, w, h)]
-        joints = []
-        axes = [rng.uniform(0, math.pi)]
-        spots = [(p, 0) for p in _grid_points(rng, rects[0], rng.uniform(3.5, 4.5), 0.7, 0.25, 1.2)]
-        n_wall = int(rng.integers(2, 5))
+        rects, joints, axes, spots, n_wall = _one_room(rng, (14.0, 22.0), (10.0, 16.0), (3.5, 4.5), 0.7, 0.25, 1.2,
+                                                       (2, 5))
     else:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
 
@@ -214,7 +215,8 @@ def make_layout(rng, family: str, head_z_m: float) -> Layout:
             # along the corridor from a side wall: turn the view toward its far end
             along = 0.0 if wall_xy[0] < rects[0][2] / 2 else math.pi
             inward = along + (inward - along) * 0.35
-        model, pos, r = _wall_sensor(rng, wall_xy, inward, float(np.clip(rng.uniform(2.6, 3.3), 2.6, ceiling_m)), region)
+        height_m = float(np.clip(rng.uniform(2.6, 3.3), 2.6, ceiling_m))
+        model, pos, r = _wall_sensor(rng, wall_xy, inward, height_m, region)
         sensors.append(Sensor(f"s{len(sensors) + 1:02d}", pos, r, model, "wall", region))
     return Layout(family, rects, sensors, joints, axes)
 
@@ -255,7 +257,7 @@ def _route(layout, points_regions):
     """Insert the joint between consecutive waypoints that lie in different wings only."""
     out = []
     prev = None
-    for p, reg in points_regions:
+    for p, _ in points_regions:
         if prev is not None and layout.joints:
             in_prev_only = _region_of_only(layout, prev)
             in_this_only = _region_of_only(layout, p)
@@ -403,7 +405,8 @@ def drive(rng, waypoints, max_time_s: float) -> Drive:
             v_cmd = v_leg * max(0.0, math.cos(err)) ** 3 * min(1.0, 0.25 + dist)
         v += float(np.clip(v_cmd - v, -a_max * SIM_DT_S, a_max * SIM_DT_S))
         w += float(np.clip(w_cmd - w, -alpha_max * SIM_DT_S, alpha_max * SIM_DT_S))
-        ts.append(t); xs.append(x); ys.append(y); yaws.append(yaw); vs.append(v); ws.append(w)
+        for column, value in ((ts, t), (xs, x), (ys, y), (yaws, yaw), (vs, v), (ws, w)):
+            column.append(value)
         # exact unicycle arc over one step
         if abs(w) > 1e-9:
             x += v / w * (math.sin(yaw + w * SIM_DT_S) - math.sin(yaw))
@@ -432,7 +435,8 @@ def amcl_error(rng, layout: Layout, d: Drive):
     kind = "ou" if rng.random() < 0.5 else "rw"
     err = np.zeros((n, 3))
     cov = np.zeros((n, 3, 3))
-    regions = np.array([_region_of(layout, np.array([x, y])) or 0 for x, y in zip(d.x_m[::25], d.y_m[::25])])
+    every = zip(d.x_m[::25], d.y_m[::25], strict=True)
+    regions = np.array([_region_of(layout, np.array([x, y])) or 0 for x, y in every])
     regions = np.repeat(regions, 25)[:n]
     params = {"kind": kind}
     if kind == "ou":
@@ -685,7 +689,8 @@ def observe(rng, s: Sensor, spec: TrackerSpec, head_fn, t_span, latency_s, t_mid
     p_meas_s = p_s + noise
     reported_w = p_meas_s @ s.installed_r_world_sensor.T + s.installed_position_m
     tc = t_cap[idx]
-    stamp = tc + latency_s + spec.clock_offset_s + spec.skew * (tc - t_mid_s) + rng.normal(0, spec.stamp_jitter_s + 1e-9, idx.size)
+    jitter = rng.normal(0, spec.stamp_jitter_s + 1e-9, idx.size)
+    stamp = tc + latency_s + spec.clock_offset_s + spec.skew * (tc - t_mid_s) + jitter
     seg = np.concatenate([[0], np.cumsum(np.diff(tc) > spec.new_track_gap_s)])
     return tc, stamp, reported_w, seg
 
@@ -843,7 +848,8 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
             p_s = (pw[ok] - s.position_m) @ s.r_world_sensor
             rep = p_s @ s.installed_r_world_sensor.T + s.installed_position_m
             for k, tk in enumerate(tt[ok]):
-                rows.append((tk + latency + spec.clock_offset_s, s.id, next_track, rep[k, 0], rep[k, 1], rep[k, 2], "false"))
+                stamp = tk + latency + spec.clock_offset_s
+                rows.append((stamp, s.id, next_track, rep[k, 0], rep[k, 1], rep[k, 2], "false"))
             next_track += 1
 
     order = sorted(range(len(rows)), key=lambda i: (rows[i][0], rows[i][1]))
