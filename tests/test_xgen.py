@@ -125,3 +125,40 @@ def test_head_profiles_shift_toward_the_sensor():
     cen = tracked_point({"kind": "centroid", "radius_m": 0.12, "half_height_m": 0.1, "slice_m": 0.1}, top, sensor)
     assert np.all(cen[:, 0] < top[:, 0]) and np.all(cen[:, 2] < top[:, 2])
     assert np.all(np.abs(cen[:, 1]) < 1e-3)  # the surface samples are symmetric to a fraction of a mm
+
+
+def test_ideal_log_sees_the_head_top_exactly(tmp_path):
+    # with every nuisance off, each robot observation mapped back with the true extrinsics is the
+    # true head top at stamp - latency (up to the files' rounding and the 20 Hz truth's interpolation)
+    d = tmp_path / "ideal"
+    info = generate(d, seed=2, family="rooms", max_time_s=30.0, ideal=("head", "noise", "clocks", "amcl", "people"))
+    obs = pd.read_csv(d / "observations.csv")
+    assert set(pd.read_csv(d / "truth_observations.csv")["who"]) == {"robot"}
+    robot = pd.read_csv(d / "robot.csv")
+    truth_robot = pd.read_csv(d / "truth_robot.csv")
+    x_true = np.interp(robot["t"], truth_robot["t"], truth_robot["x"])
+    assert np.max(np.abs(robot["x"] - x_true)) < 0.01   # AMCL is the truth
+    installed = {s["id"]: s for s in yaml.safe_load((d / "sensors.yaml").read_text())["sensors"]}
+    truth = {s["id"]: s for s in yaml.safe_load((d / "truth.yaml").read_text())["sensors"]}
+    head = np.asarray(info["head_offset_m"])
+    t_cap = obs["t"].to_numpy() - info["latency_s"]
+    yaw = np.interp(t_cap, truth_robot["t"], np.unwrap(truth_robot["yaw"]))
+    top = np.column_stack([np.interp(t_cap, truth_robot["t"], truth_robot["x"]) + np.cos(yaw) * head[0],
+                           np.interp(t_cap, truth_robot["t"], truth_robot["y"]) + np.sin(yaw) * head[0],
+                           np.full(len(obs), head[2])])
+    for sid, g in obs.groupby("sensor"):
+        r_inst = rot_world_sensor(*np.radians(installed[sid]["ypr_deg"]))
+        r_true = rot_world_sensor(*np.radians(truth[sid]["ypr_deg"]))
+        p_world = ((g[["x", "y", "z"]].to_numpy() - installed[sid]["position"]) @ r_inst) @ r_true.T
+        p_world += truth[sid]["position"]
+        assert np.max(np.linalg.norm(p_world - top[g.index], axis=1)) < 0.005, sid
+
+
+def test_ideal_switches_keep_the_rest_of_the_world(tmp_path):
+    generate(tmp_path / "a", seed=4, family="corridor", max_time_s=30.0)
+    generate(tmp_path / "b", seed=4, family="corridor", max_time_s=30.0, ideal=("head",))
+    for name in ("robot.csv", "truth.yaml", "sensors.yaml", "truth_robot.csv"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+    assert (tmp_path / "a" / "observations.csv").read_bytes() != (tmp_path / "b" / "observations.csv").read_bytes()
+    with pytest.raises(ValueError, match="unknown ideal"):
+        generate(tmp_path / "c", seed=0, family="rooms", ideal=("wind",))

@@ -559,6 +559,8 @@ def tracked_point(profile, top_w, sensor_w):
     u = to_s / np.maximum(d, 1e-6)[:, None]
     kind = profile["kind"]
     out = top_w.copy()
+    if kind == "none":                  # an ideal tracker (IDEAL "head")
+        return out
     if kind == "ramp":
         r = np.minimum(d, profile["sat_m"]) / profile["sat_m"]
         out[:, :2] += u * (profile["shift_m"] * r)[:, None]
@@ -609,6 +611,7 @@ class TrackerSpec:
     loss_mean_s: float
     p_outlier: float
     new_track_gap_s: float
+    noise_off: bool = False     # an ideal tracker (IDEAL "noise"): no noise, no outliers
 
 
 def draw_tracker(rng, clocks: bool) -> TrackerSpec:
@@ -686,6 +689,8 @@ def observe(rng, s: Sensor, spec: TrackerSpec, head_fn, t_span, latency_s, t_mid
     noise = ray * (s_r * corr[:, 0])[:, None] + e1 * (s_l * corr[:, 1])[:, None] + e2 * (s_l * corr[:, 2])[:, None]
     outl = rng.random(idx.size) < spec.p_outlier
     noise[outl] += rng.normal(0, 0.35, (int(outl.sum()), 3))
+    if spec.noise_off:
+        noise[:] = 0.0
     p_meas_s = p_s + noise
     reported_w = p_meas_s @ s.installed_r_world_sensor.T + s.installed_position_m
     tc = t_cap[idx]
@@ -782,11 +787,24 @@ PATH_MODES = {"rooms": ("tour", "lawnmower"), "lhall": ("tour", "shuttle"),
               "corridor": ("tour", "shuttle"), "openhall": ("tour", "lawnmower")}
 
 
-def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers_max: int = 5) -> dict:
+IDEAL = ("head", "noise", "clocks", "amcl", "people")
+
+
+def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers_max: int = 5,
+             ideal=()) -> dict:
     """Write one log directory (LOG_FORMAT.md) of the family from the seed; return what was drawn
-    (also written to ``xgen.json`` in the log, beside the format's truth files)."""
+    (also written to ``xgen.json`` in the log, beside the format's truth files).
+
+    ``ideal`` switches nuisances off, for diagnosis, in the same world (every draw is still made,
+    so the rest of the log is unchanged): "head" (the tracker reports the head top), "noise" (no
+    tracker noise or outliers), "clocks" (no per-sensor offsets, skew or stamp jitter; the shared
+    latency stays), "amcl" (AMCL reports the true pose, its covariance unchanged), "people" (no
+    pedestrians, no false tracks)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+    unknown = set(ideal) - set(IDEAL)
+    if unknown:
+        raise ValueError(f"unknown ideal {sorted(unknown)}; known: {', '.join(IDEAL)}")
     rng = np.random.default_rng([int(seed), FAMILY_CODE[family]])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -802,6 +820,8 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
 
     # AMCL
     err, cov_true, amcl_params = amcl_error(rng, layout, d)
+    if "amcl" in ideal:
+        err[:] = 0.0
     amcl_rate = rng.uniform(4.0, 15.0)
     t_amcl = np.arange(rng.uniform(0, 0.1), t_end, 1.0 / amcl_rate)
     t_amcl = np.sort(t_amcl + rng.normal(0, 0.1 / amcl_rate, len(t_amcl)).clip(-0.4 / amcl_rate, 0.4 / amcl_rate))
@@ -816,6 +836,13 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
     clocks = rng.random() < 0.7
     latency = float(rng.uniform(0.03, 0.20))
     specs = {s.id: draw_tracker(rng, clocks) for s in layout.sensors}
+    for spec in specs.values():
+        if "head" in ideal:
+            spec.profile = {"kind": "none"}
+        if "noise" in ideal:
+            spec.noise_off = True
+        if "clocks" in ideal:
+            spec.clock_offset_s, spec.skew, spec.stamp_jitter_s = 0.0, 0.0, 0.0
     robot_head = lambda t: _robot_head(d, head_offset, t)  # noqa: E731
     n_walk = int(rng.integers(0, walkers_max + 1))
     people = walkers(rng, layout, t_end, n_walk)
@@ -831,6 +858,8 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
             _, stamp, pts, seg = res
             tracks = next_track + seg
             next_track = int(tracks.max()) + 1 + int(rng.integers(0, 3))
+            if who != "robot" and "people" in ideal:
+                continue
             for k in range(len(stamp)):
                 rows.append((stamp[k], s.id, int(tracks[k]), pts[k, 0], pts[k, 1], pts[k, 2], who))
         # false tracks: short wandering blobs inside the view
@@ -849,7 +878,8 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
             rep = p_s @ s.installed_r_world_sensor.T + s.installed_position_m
             for k, tk in enumerate(tt[ok]):
                 stamp = tk + latency + spec.clock_offset_s
-                rows.append((stamp, s.id, next_track, rep[k, 0], rep[k, 1], rep[k, 2], "false"))
+                if "people" not in ideal:
+                    rows.append((stamp, s.id, next_track, rep[k, 0], rep[k, 1], rep[k, 2], "false"))
             next_track += 1
 
     order = sorted(range(len(rows)), key=lambda i: (rows[i][0], rows[i][1]))
@@ -903,7 +933,7 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
         "amcl": {**amcl_params, "rate_hz": float(amcl_rate), "reported_sigma_factor": cov_factor,
                  "run_mean_error_m": amcl_mean.tolist()},
         "latency_s": latency, "clock_offsets": clocks, "odometry": odo_params if has_odom else None,
-        "walkers": n_walk, "observations": len(rows),
+        "walkers": 0 if "people" in ideal else n_walk, "observations": len(rows), "ideal": sorted(ideal),
         "robot_observations": int(sum(1 for r in rows if r[6] == "robot")),
     }
     _write_atomic(out / "xgen.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
