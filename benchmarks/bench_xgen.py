@@ -7,6 +7,7 @@ a training set: do not tune pedcal to it.
     nice -n 5 .venv/bin/python benchmarks/bench_xgen.py [--seeds 4] [--first-seed 0] \
         [--families rooms lhall corridor openhall] [--methods factorgraph gridsearch] [--out DIR] [--jobs 1]
         [--ideal head noise clocks amcl people]   # diagnosis: the same worlds without these nuisances
+        [--head-profiles per-sensor|shared]       # one tracker profile per sensor (default) or per log
         [--from-results DIR]                      # the tables of an earlier run
 
 Per (family, seed) it writes a log into OUT/<family>-<seed>/log, runs ``pedcal calibrate LOG
@@ -46,10 +47,7 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from xgen import FAMILIES, generate  # noqa: E402
-from xgen.generator import (
-    IDEAL,  # noqa: E402
-    rot_world_sensor,  # noqa: E402
-)
+from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -102,10 +100,10 @@ def run_calibrate_rusage(log: Path, method: str, out_yaml: Path) -> dict:
             "stderr": err_path.read_text()[-1500:]}
 
 
-def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal=()) -> list:
+def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal=(), head_profiles="per-sensor"):
     d = out / f"{family}-{seed}"
     log = d / "log"
-    info = generate(log, seed, family, max_time_s=max_time_s, ideal=ideal)
+    info = generate(log, seed, family, max_time_s=max_time_s, ideal=ideal, head_profiles=head_profiles)
     truth = read_network(log / "truth.yaml")
     installed = read_network(log / "sensors.yaml")
     amcl_mean_mm = 1000 * float(np.linalg.norm(info["amcl"]["run_mean_error_m"]))
@@ -258,6 +256,8 @@ def main(argv=None):
     ap.add_argument("--max-time", type=float, default=600.0, help="longest drive per log (s)")
     ap.add_argument("--ideal", nargs="+", default=[], choices=IDEAL,
                     help="switch these nuisances off (diagnosis: the same worlds without them)")
+    ap.add_argument("--head-profiles", default="per-sensor", choices=HEAD_PROFILE_MODES,
+                    help="each tracker its own head-point profile, or one shared by all sensors of a log")
     ap.add_argument("--from-results", type=Path, default=None,
                     help="print the tables of an earlier run's DIR (its results.jsonl and logs) without running")
     args = ap.parse_args(argv)
@@ -270,10 +270,12 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     jobs = [(f, s) for f in args.families for s in range(args.first_seed, args.first_seed + args.seeds)]
     ideal = f", ideal: {' '.join(args.ideal)}" if args.ideal else ""
+    ideal += f", head profiles {args.head_profiles}"
     print(f"# xgen held-out exam: {len(jobs)} logs into {out}{ideal}; load {os.getloadavg()[0]:.2f}", flush=True)
     rows = []
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool, open(out / "results.jsonl", "w") as fh:
-        futures = [pool.submit(one_log, f, s, out, args.methods, args.max_time, args.ideal) for f, s in jobs]
+        futures = [pool.submit(one_log, f, s, out, args.methods, args.max_time, args.ideal, args.head_profiles)
+                   for f, s in jobs]
         for fut in futures:
             res = fut.result()
             for r in res:

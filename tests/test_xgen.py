@@ -4,6 +4,7 @@ extrinsics, the orientation convention makes positive pitch look down)."""
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
@@ -162,3 +163,13 @@ def test_ideal_switches_keep_the_rest_of_the_world(tmp_path):
     assert (tmp_path / "a" / "observations.csv").read_bytes() != (tmp_path / "b" / "observations.csv").read_bytes()
     with pytest.raises(ValueError, match="unknown ideal"):
         generate(tmp_path / "c", seed=0, family="rooms", ideal=("wind",))
+
+
+def test_shared_head_profiles_give_every_sensor_one_profile(tmp_path):
+    info = generate(tmp_path / "s", seed=3, family="openhall", max_time_s=20.0, head_profiles="shared")
+    assert len({json.dumps(s["profile"], sort_keys=True) for s in info["sensors"]}) == 1
+    per = generate(tmp_path / "p", seed=3, family="openhall", max_time_s=20.0)
+    assert per["sensors"][0]["profile"] == info["sensors"][0]["profile"]
+    assert (tmp_path / "s" / "truth.yaml").read_bytes() == (tmp_path / "p" / "truth.yaml").read_bytes()
+    with pytest.raises(ValueError, match="unknown head_profiles"):
+        generate(tmp_path / "x", seed=0, family="rooms", head_profiles="random")

@@ -788,10 +788,11 @@ PATH_MODES = {"rooms": ("tour", "lawnmower"), "lhall": ("tour", "shuttle"),
 
 
 IDEAL = ("head", "noise", "clocks", "amcl", "people")
+HEAD_PROFILE_MODES = ("per-sensor", "shared")
 
 
 def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers_max: int = 5,
-             ideal=()) -> dict:
+             ideal=(), head_profiles: str = "per-sensor") -> dict:
     """Write one log directory (LOG_FORMAT.md) of the family from the seed; return what was drawn
     (also written to ``xgen.json`` in the log, beside the format's truth files).
 
@@ -799,9 +800,15 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
     so the rest of the log is unchanged): "head" (the tracker reports the head top), "noise" (no
     tracker noise or outliers), "clocks" (no per-sensor offsets, skew or stamp jitter; the shared
     latency stays), "amcl" (AMCL reports the true pose, its covariance unchanged), "people" (no
-    pedestrians, no false tracks)."""
+    pedestrians, no false tracks).
+
+    ``head_profiles``: "per-sensor" (each tracker its own head-point profile and parameters) or
+    "shared" (one tracker software for all: every sensor gets the first sensor's profile; the bias
+    it produces still depends on each sensor's viewing geometry). The world is otherwise the same."""
     if family not in FAMILIES:
         raise ValueError(f"unknown family {family!r}; known: {', '.join(FAMILIES)}")
+    if head_profiles not in HEAD_PROFILE_MODES:
+        raise ValueError(f"unknown head_profiles {head_profiles!r}; known: {', '.join(HEAD_PROFILE_MODES)}")
     unknown = set(ideal) - set(IDEAL)
     if unknown:
         raise ValueError(f"unknown ideal {sorted(unknown)}; known: {', '.join(IDEAL)}")
@@ -836,7 +843,10 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
     clocks = rng.random() < 0.7
     latency = float(rng.uniform(0.03, 0.20))
     specs = {s.id: draw_tracker(rng, clocks) for s in layout.sensors}
+    first = specs[layout.sensors[0].id].profile
     for spec in specs.values():
+        if head_profiles == "shared":
+            spec.profile = dict(first)
         if "head" in ideal:
             spec.profile = {"kind": "none"}
         if "noise" in ideal:
@@ -934,6 +944,7 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
                  "run_mean_error_m": amcl_mean.tolist()},
         "latency_s": latency, "clock_offsets": clocks, "odometry": odo_params if has_odom else None,
         "walkers": 0 if "people" in ideal else n_walk, "observations": len(rows), "ideal": sorted(ideal),
+        "head_profiles": head_profiles,
         "robot_observations": int(sum(1 for r in rows if r[6] == "robot")),
     }
     _write_atomic(out / "xgen.json", json.dumps(info, indent=1, sort_keys=True) + "\n")
