@@ -1,0 +1,311 @@
+"""Held-out exam: pedcal's calibrations on logs from an independent generator (benchmarks/xgen).
+
+The generator shares no code and no modelling choice with pedcal's simulator (see
+benchmarks/xgen/README.md); its logs test whether the estimator generalizes. This is an exam, not
+a training set: do not tune pedcal to it.
+
+    nice -n 5 .venv/bin/python benchmarks/bench_xgen.py [--seeds 4] [--first-seed 0] \
+        [--families rooms lhall corridor openhall] [--methods factorgraph gridsearch] [--out DIR] [--jobs 1]
+        [--ideal head noise clocks amcl people]   # diagnosis: the same worlds without these nuisances
+        [--head-profiles per-sensor|shared]       # one tracker profile per sensor (default) or per log
+        [--from-results DIR]                      # the tables of an earlier run
+
+Per (family, seed) it writes a log into OUT/<family>-<seed>/log, runs ``pedcal calibrate LOG
+--method M`` as a subprocess for each method (its CPU time from the child's rusage), and scores
+the calibrated YAML against the generator's truth.yaml here, with its own arithmetic:
+- xy / z RMS (mm): sqrt of the mean over every sensor of every log of the family (pooled) of the
+  squared horizontal / vertical position error; every sensor counts, whatever its status (a
+  method that gives up on a sensor keeps its installed pose and is scored on it);
+- yaw (deg): RMS of the world-vertical component of the rotation error log(R_est R_true^T);
+- within 1 / 2 sigma x, y, z (%): share of per-axis position errors within 1 and 2 of the YAML's
+  sigma.position_m; rot: the same for the sensor-frame rotation error log(R_true^T R_est) against
+  sigma.rotation_deg when the YAML has it (else against sigma.ypr_deg is not meaningful and '-');
+- xy less shared shift: the xy RMS after taking out each log's mean horizontal error over its
+  sensors (what they share, such as AMCL's mean error over the run), the network's own shape;
+- installed: the installed extrinsics' xy RMS (the start); AMCL: the norm of AMCL's mean error
+  over the run (mm), the error any calibration anchored to AMCL shares;
+- CPU (s): mean CPU time of one calibrate subprocess (user + sys, includes the import).
+Results are also written to OUT/results.jsonl; the tables are printed per family and pooled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from xgen import FAMILIES, generate  # noqa: E402
+from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def read_network(path: Path) -> dict:
+    data = yaml.safe_load(path.read_text())
+    out = {}
+    for s in data["sensors"]:
+        ypr = np.radians(np.asarray(s["ypr_deg"], float))
+        sigma = s.get("sigma") or {}
+        out[str(s["id"])] = {
+            "p": np.asarray(s["position"], float), "R": rot_world_sensor(*ypr),
+            "sigma_p": np.asarray(sigma["position_m"], float) if "position_m" in sigma else None,
+            "sigma_rot_deg": np.asarray(sigma["rotation_deg"], float) if "rotation_deg" in sigma else None,
+            "status": s.get("status", "ok")}
+    return out
+
+
+def score(truth: dict, est: dict) -> dict:
+    """Per-sensor errors of est against truth (every sensor of the truth)."""
+    rows = []
+    for sid, t in truth.items():
+        e = est.get(sid)
+        if e is None:
+            rows.append({"id": sid, "missing": True})
+            continue
+        d = e["p"] - t["p"]
+        yaw_err = Rotation.from_matrix(e["R"] @ t["R"].T).as_rotvec()[2]
+        rot_s = Rotation.from_matrix(t["R"].T @ e["R"]).as_rotvec()
+        rows.append({"id": sid, "dx": d[0], "dy": d[1], "dz": d[2], "yaw_deg": math.degrees(yaw_err),
+                     "rot_deg": np.degrees(rot_s).tolist(),
+                     "sigma_p": None if e["sigma_p"] is None else e["sigma_p"].tolist(),
+                     "sigma_rot_deg": None if e["sigma_rot_deg"] is None else e["sigma_rot_deg"].tolist(),
+                     "status": e["status"]})
+    return {"sensors": rows}
+
+
+def run_calibrate_rusage(log: Path, method: str, out_yaml: Path) -> dict:
+    """pedcal calibrate as a subprocess, with its CPU time from os.wait4's rusage."""
+    cmd = [sys.executable, "-m", "pedcal.cli", "calibrate", str(log), "-o", str(out_yaml), "--method", method, "-q"]
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    err_path = out_yaml.with_suffix(".stderr.txt")
+    t0 = time.perf_counter()
+    with open(err_path, "w") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    wall = time.perf_counter() - t0
+    return {"rc": proc.returncode, "wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+            "stderr": err_path.read_text()[-1500:]}
+
+
+def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal=(), head_profiles="per-sensor"):
+    d = out / f"{family}-{seed}"
+    log = d / "log"
+    info = generate(log, seed, family, max_time_s=max_time_s, ideal=ideal, head_profiles=head_profiles)
+    truth = read_network(log / "truth.yaml")
+    installed = read_network(log / "sensors.yaml")
+    amcl_mean_mm = 1000 * float(np.linalg.norm(info["amcl"]["run_mean_error_m"]))
+    base = {"family": family, "seed": seed, "n_sensors": len(truth), "amcl_mean_mm": amcl_mean_mm,
+            "duration_s": info["duration_s"], "robot_observations": info["robot_observations"],
+            "amcl_kind": info["amcl"]["kind"], "cov_factor": info["amcl"]["reported_sigma_factor"],
+            "clock_offsets": info["clock_offsets"], "odometry": info["odometry"] is not None,
+            "profiles": sorted({s["profile"]["kind"] for s in info["sensors"]})}
+    results = [{**base, "method": "installed", **score(truth, installed), "rc": 0, "cpu_s": 0.0, "wall_s": 0.0}]
+    for m in methods:
+        y = d / f"{m}.yaml"
+        r = run_calibrate_rusage(log, m, y)
+        row = {**base, "method": m, **{k: r[k] for k in ("rc", "cpu_s", "wall_s")}}
+        if r["rc"] == 0 and y.exists():
+            row.update(score(truth, read_network(y)))
+        else:
+            row["stderr"] = r["stderr"]
+        results.append(row)
+    return results
+
+
+def _errs(rows):
+    """Every sensor's errors of a list of result rows."""
+    return [x for r in rows for x in r.get("sensors", []) if not x.get("missing")]
+
+
+def summarize(rows, method):
+    rr = [r for r in rows if r["method"] == method and (r["rc"] != 0 or r.get("sensors"))]
+    failed = sum(1 for r in rr if r["rc"] != 0)
+    s = _errs([r for r in rr if r["rc"] == 0])
+    if not s:
+        return None
+    dx, dy, dz = (np.array([x[k] for x in s]) for k in ("dx", "dy", "dz"))
+    out = {"logs": len(rr), "failed": failed, "n": len(s),
+           "xy_mm": 1000 * math.sqrt(np.mean(dx ** 2 + dy ** 2)), "z_mm": 1000 * math.sqrt(np.mean(dz ** 2)),
+           "xy_rel_mm": 1000 * math.sqrt(np.mean([x["dx_rel"] ** 2 + x["dy_rel"] ** 2 for x in s])),
+           "yaw_deg": math.sqrt(np.mean([x["yaw_deg"] ** 2 for x in s])),
+           "worst_log_xy_mm": max(1000 * math.sqrt(np.mean([x["dx"] ** 2 + x["dy"] ** 2 for x in r["sensors"]]))
+                                  for r in rr if r["rc"] == 0),
+           "not_ok": sum(1 for x in s if x["status"] != "ok"),
+           "cpu_s": float(np.mean([r["cpu_s"] for r in rr])), "wall_s": float(np.mean([r["wall_s"] for r in rr]))}
+    with_sigma = [x for x in s if x["sigma_p"] is not None]
+    if with_sigma:
+        e = np.abs(np.array([[x["dx"], x["dy"], x["dz"]] for x in with_sigma]))
+        sg = np.array([x["sigma_p"] for x in with_sigma])
+        out["cov1"] = (100 * np.mean(e <= sg, axis=0)).tolist()
+        out["cov2"] = (100 * np.mean(e <= 2 * sg, axis=0)).tolist()
+    with_rot = [x for x in s if x["sigma_rot_deg"] is not None]
+    if with_rot:
+        e = np.abs(np.array([x["rot_deg"] for x in with_rot]))
+        sg = np.array([x["sigma_rot_deg"] for x in with_rot])
+        out["rot1"] = float(100 * np.mean(e <= sg))
+        out["rot2"] = float(100 * np.mean(e <= 2 * sg))
+    return out
+
+
+def by_family(rows):
+    fams = [f for f in FAMILIES if any(r["family"] == f for r in rows)]
+    return [(f, [r for r in rows if r["family"] == f]) for f in fams] + [("pooled", rows)]
+
+
+def by_log_nuisance(rows):
+    """Groups of logs by what the generator drew for the whole log (AMCL, clocks, odometry)."""
+    keys = [("AMCL OU", lambda r: r["amcl_kind"] == "ou"), ("AMCL random walk", lambda r: r["amcl_kind"] == "rw"),
+            ("AMCL cov honest", lambda r: r["cov_factor"] == 1.0),
+            ("AMCL sigma x0.5", lambda r: r["cov_factor"] == 0.5), ("AMCL sigma x2", lambda r: r["cov_factor"] == 2.0),
+            ("AMCL jumps", lambda r: r.get("amcl_jumps", 0) > 0),
+            ("clock offsets", lambda r: r["clock_offsets"]), ("no clock offsets", lambda r: not r["clock_offsets"]),
+            ("odometry", lambda r: r["odometry"]), ("no odometry", lambda r: not r["odometry"])]
+    return [(name, [r for r in rows if f(r)]) for name, f in keys if any(f(r) for r in rows)]
+
+
+def by_sensor(rows, field_name):
+    """Groups of sensors (every log's rows kept, their sensors filtered) by a per-sensor field."""
+    values = sorted({x[field_name] for r in rows for x in r.get("sensors", []) if field_name in x})
+    return [(f"{field_name} {v}", [{**r, "sensors": [x for x in r.get("sensors", []) if x.get(field_name) == v]}
+                                   for r in rows]) for v in values]
+
+
+def attach_sensor_info(rows, out: Path):
+    """Each scored sensor gets its mount and head profile (from the log's xgen.json), each row
+    its AMCL jumps."""
+    cache = {}
+    for r in rows:
+        key = (r["family"], r["seed"])
+        if key not in cache:
+            cache[key] = json.loads((out / f"{r['family']}-{r['seed']}" / "log" / "xgen.json").read_text())
+        info = cache[key]
+        per = {s["id"]: s for s in info["sensors"]}
+        r["amcl_jumps"] = len(info["amcl"]["jumps"])
+        scored = [x for x in r.get("sensors", []) if not x.get("missing")]
+        if scored:
+            # the log's shared horizontal shift (what anchoring to AMCL's run mean moves all sensors by)
+            mean_xy = np.mean([[x["dx"], x["dy"]] for x in scored], axis=0)
+            for x in scored:
+                x["dx_rel"], x["dy_rel"] = x["dx"] - mean_xy[0], x["dy"] - mean_xy[1]
+        for x in r.get("sensors", []):
+            x["mount"] = per[x["id"]]["mount"]
+            x["profile"] = per[x["id"]]["profile"]["kind"]
+
+
+def table(rows, methods, title, groups=None, label="family"):
+    groups = by_family(rows) if groups is None else groups
+    groups = [(n, g) for n, g in groups if any(r.get("sensors") for r in g if r["method"] == "installed")]
+    lines = [f"### {title}", ""]
+    head = (f"| {label} | logs | sensors | installed xy | AMCL mean | " +
+            " | ".join(f"{m} xy / xy less shared shift / z (mm), yaw (deg)" for m in methods) +
+            (" | graph / grid xy" if {"factorgraph", "gridsearch"} <= set(methods) else "") +
+            " | " + " | ".join(f"{m} within 1 sigma x, y, z / rot (%)" for m in methods) +
+            " | " + " | ".join(f"{m} within 2 sigma x, y, z / rot (%)" for m in methods) +
+            " | worst log xy (mm) | not ok | " + " | ".join(f"{m} CPU / wall (s)" for m in methods) + " |")
+    lines += [head, "|" + "---|" * (head.count("|") - 1)]
+    for name, g in groups:
+        inst = summarize(g, "installed")
+        sm = {m: summarize(g, m) for m in methods}
+        amcl = float(np.sqrt(np.mean([r["amcl_mean_mm"] ** 2 for r in g if r["method"] == "installed"])))
+        cells = [name, str(inst["logs"]), str(inst["n"]), f"{inst['xy_mm']:.0f}", f"{amcl:.1f}"]
+        for m in methods:
+            x = sm[m]
+            cells.append("failed" if x is None else
+                         f"{x['xy_mm']:.1f} / {x['xy_rel_mm']:.1f} / {x['z_mm']:.1f}, {x['yaw_deg']:.2f}"
+                         + (f" ({x['failed']} failed)" if x["failed"] else ""))
+        if {"factorgraph", "gridsearch"} <= set(methods):
+            a, b = sm["factorgraph"], sm["gridsearch"]
+            cells.append("-" if a is None or b is None else f"{a['xy_mm'] / b['xy_mm']:.2f}")
+        for key, rot in (("cov1", "rot1"), ("cov2", "rot2")):
+            for m in methods:
+                x = sm[m]
+                if x is None or key not in x:
+                    cells.append("-")
+                else:
+                    cells.append(", ".join(f"{v:.0f}" for v in x[key]) + (f" / {x[rot]:.0f}" if rot in x else ""))
+        cells.append(" / ".join("-" if sm[m] is None else f"{sm[m]['worst_log_xy_mm']:.0f}" for m in methods))
+        cells.append(" / ".join("-" if sm[m] is None else str(sm[m]["not_ok"]) for m in methods))
+        for m in methods:
+            x = sm[m]
+            cells.append("-" if x is None else f"{x['cpu_s']:.1f} / {x['wall_s']:.1f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
+    ap.add_argument("--methods", nargs="+", default=["factorgraph", "gridsearch"])
+    ap.add_argument("--out", type=Path, default=None, help="where logs and results go (default: a temp dir)")
+    ap.add_argument("--jobs", type=int, default=1, help="logs calibrated at once")
+    ap.add_argument("--max-time", type=float, default=600.0, help="longest drive per log (s)")
+    ap.add_argument("--ideal", nargs="+", default=[], choices=IDEAL,
+                    help="switch these nuisances off (diagnosis: the same worlds without them)")
+    ap.add_argument("--head-profiles", default="per-sensor", choices=HEAD_PROFILE_MODES,
+                    help="each tracker its own head-point profile, or one shared by all sensors of a log")
+    ap.add_argument("--from-results", type=Path, default=None,
+                    help="print the tables of an earlier run's DIR (its results.jsonl and logs) without running")
+    args = ap.parse_args(argv)
+    if args.from_results is not None:
+        rows = [json.loads(line) for line in (args.from_results / "results.jsonl").read_text().splitlines() if line]
+        methods = [m for m in args.methods if any(r["method"] == m for r in rows)]
+        print_tables(rows, methods, args.from_results, f"from {args.from_results}")
+        return 0
+    out = args.out or Path(tempfile.mkdtemp(prefix="xgen-bench-"))
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [(f, s) for f in args.families for s in range(args.first_seed, args.first_seed + args.seeds)]
+    ideal = f", ideal: {' '.join(args.ideal)}" if args.ideal else ""
+    ideal += f", head profiles {args.head_profiles}"
+    print(f"# xgen held-out exam: {len(jobs)} logs into {out}{ideal}; load {os.getloadavg()[0]:.2f}", flush=True)
+    rows = []
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool, open(out / "results.jsonl", "w") as fh:
+        futures = [pool.submit(one_log, f, s, out, args.methods, args.max_time, args.ideal, args.head_profiles)
+                   for f, s in jobs]
+        for fut in futures:
+            res = fut.result()
+            for r in res:
+                fh.write(json.dumps(r) + "\n")
+                fh.flush()
+                if r["method"] != "installed":
+                    s = r.get("sensors") or []
+                    xy = 1000 * math.sqrt(np.mean([x["dx"] ** 2 + x["dy"] ** 2 for x in s])) if s else float("nan")
+                    print(f"{r['family']:>9} seed {r['seed']:>3} {r['method']:>11}: rc {r['rc']} xy {xy:7.1f} mm "
+                          f"cpu {r['cpu_s']:.1f} s  ({r['n_sensors']} sensors, AMCL {r['amcl_kind']}, "
+                          f"cov x{r['cov_factor']}, clocks {r['clock_offsets']}, odom {r['odometry']})", flush=True)
+                    if r["rc"] != 0:
+                        print("   " + r.get("stderr", "").strip().replace("\n", "\n   "), flush=True)
+            rows += res
+    print_tables(rows, args.methods, out, f"seeds {args.first_seed}..{args.first_seed + args.seeds - 1}, "
+                                          f"load {os.getloadavg()[0]:.2f} at the end")
+    return 0
+
+
+def print_tables(rows, methods, out: Path, title: str):
+    attach_sensor_info(rows, out)
+    print()
+    print(table(rows, methods, title))
+    print()
+    print(table(rows, methods, "by what the log drew (pooled over families)", by_log_nuisance(rows), "logs with"))
+    print()
+    sensor_groups = by_sensor(rows, "mount") + by_sensor(rows, "profile")
+    print(table(rows, methods, "by sensor (pooled over families)", sensor_groups,
+                "sensors"))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
