@@ -234,9 +234,6 @@ class ReactiveCrowd:
         robot's centre at ``r`` now and ``r_next`` a frame on, the other walkers at ``others`` (M, 2)."""
         d_now = float(np.linalg.norm(cur - r))
         cand = [np.zeros((0, 2))]
-        if d_now < self.keep_m:  # too close already (the robot came to it): stepping away comes first
-            away = (cur - r) / max(d_now, 1e-9)
-            cand.append((cur + away * min(self.keep_m - d_now, 1.5 * self.dt_s))[None])
         if float(np.linalg.norm(want)) > 1e-9:
             # headings off the wish, the side away from the robot first; full then half speed
             side = np.sign(want[0] * (r - cur)[1] - want[1] * (r - cur)[0]) or 1.0  # +1: robot left of the wish
@@ -244,20 +241,30 @@ class ReactiveCrowd:
             c, s = np.cos(angles), np.sin(angles)
             dirs = np.stack([c * want[0] - s * want[1], s * want[0] + c * want[1]], axis=1)
             cand += [cur + dirs * self.dt_s, cur + 0.5 * dirs * self.dt_s]
+        if d_now < self.keep_m:  # too close already (the robot came to it): a step straight away
+            away = (cur - r) / max(d_now, 1e-9)
+            cand.append((cur + away * min(self.keep_m - d_now, 1.5 * self.dt_s))[None])
         cand = np.concatenate([*cand, cur[None]])  # waiting last
-        # never nearer the robot than the keep-out distance, nor nearer than it already is when inside it
+        d_cand = np.minimum(np.linalg.norm(cand - r, axis=1), np.linalg.norm(cand - r_next, axis=1))
+        walled = self._walled(cur, cand)
+        # at the keep-out distance or beyond, now and a frame on (a walker already inside it walks
+        # on if a step restores the gap, else steps away); failing that, never nearer the robot
+        # than it already is; waiting where it stands never brings it nearer
+        comfortable = (d_cand >= self.keep_m - 1e-9) & ~walled
         near_now = min(self.keep_m, d_now) - 1e-9
         near_next = min(self.keep_m, float(np.linalg.norm(cur - r_next))) - 1e-9
         clear = ((np.linalg.norm(cand - r, axis=1) >= near_now)
-                 & (np.linalg.norm(cand - r_next, axis=1) >= near_next) & ~self._walled(cur, cand))
-        clear[-1] = True  # waiting where it stands never brings it nearer the robot
-        if len(others):  # nor onto another walker (an overlap not begun nor deepened), where it can
+                 & (np.linalg.norm(cand - r_next, axis=1) >= near_next) & ~walled)
+        clear[-1] = True
+        free = np.ones(len(cand), bool)
+        if len(others):  # nor onto another walker (an overlap not begun nor deepened)
             d_cur = np.linalg.norm(cur - others, axis=1)
             d = np.linalg.norm(cand[:, None] - others[None], axis=2)
             free = (d >= np.minimum(2 * PERSON_RADIUS_M, d_cur)[None] - 1e-9).all(axis=1)
-            if (clear & free).any():
-                clear &= free
-        return cand[int(np.argmax(clear))]
+        for ok in (comfortable & free, clear & free, clear):
+            if ok.any():
+                return cand[int(np.argmax(ok))]
+        return cur
 
     def _walled(self, cur: np.ndarray, cand: np.ndarray) -> np.ndarray:
         if self.occupancy is None:
