@@ -313,3 +313,32 @@ def test_robot_keeps_up_with_a_fast_recorded_target():
     people = pd.DataFrame({"t": t, "person": "a", "x": 1.5 * t, "y": 0.0})
     ep = people_episode(people, "a")
     assert ep.robot_max_speed_mps == pytest.approx(1.8)
+
+
+def causes_log(target_x_while_standing=3.0):
+    """40 frames at 4 Hz. The robot stands at x = 0 for frames 0-19, 3 m behind the target (people in
+    its way), then drives on at 2 m/s, 1 m behind it. The target is out of view in frames 12-19 (the
+    tracker has no estimate) and 32-35; in frames 20-24 it is in view but the tracker claims 'p'."""
+    k = np.arange(40)
+    robot_x = np.where(k < 20, 0.0, (k - 19) * 0.5)
+    target_x = np.where(k < 20, target_x_while_standing, robot_x + 1.0)
+    hidden = ((k >= 12) & (k <= 19)) | ((k >= 32) & (k <= 35))
+    claimed = np.where(hidden, None, np.where((k >= 20) & (k <= 24), "p", "T")).astype(object)
+    claimed[0] = None
+    return pd.DataFrame({"t": k * 0.25, "target_visible": ~hidden,
+                         "target_track_id": pd.array([None] + [1] * 39, dtype="Int64"),
+                         "claimed_person": pd.Series(claimed, dtype=object), "state": "Tracking",
+                         "robot_x": robot_x, "robot_y": 0.0, "target_x": target_x, "target_y": 0.0,
+                         "est_target_x": np.where(hidden, np.nan, target_x), "est_target_y": 0.0})
+
+
+def test_loss_causes_split_the_frames_without_the_target():
+    from pedcal.track.follow import loss_causes, with_target_frames
+
+    log = causes_log()
+    # frames 12-19: hidden after standing >= 2 s of the last 5 s, 3 m from the target: held back;
+    # frames 32-35: hidden, the standing (frames 13-19 in the window) now under 2 s: out of view
+    assert loss_causes(log, "T") == {"in_view": 5, "held_back": 8, "out_of_view": 4}
+    assert sum(loss_causes(log, "T").values()) == int((~with_target_frames(log, "T"))[1:].sum())
+    # standing within the follow distance (1 m) is not being held back
+    assert loss_causes(causes_log(1.0), "T") == {"in_view": 5, "held_back": 0, "out_of_view": 12}
