@@ -33,7 +33,8 @@ def cases(scenarios: list[str], densities: list[float]) -> list[tuple[str, str, 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--scenarios", nargs="+", default=["passing", "corner", "crossing", "crowd", "recorded"])
+    p.add_argument("--scenarios", nargs="*", default=["passing", "corner", "crossing", "crowd", "recorded"],
+                   help="scripted and walker scenes (none: only the crowd densities)")
     p.add_argument("--densities", nargs="*", type=float, default=[0.5, 1.0, 2.0],
                    help="crowd densities (people per 10 m^2) to add")
     p.add_argument("--trackers", nargs="+", default=["paper", "lidar-only", "factorgraph"])
