@@ -601,8 +601,10 @@ class CrowdAvoidance:
 
 @dataclass(frozen=True)
 class RobotController:
-    """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking, to
-    the tracker's goal when the target is not in view, still when asked to stop (turning in place to
+    """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking (speed
+    ``k_v`` times the distance beyond it, plus the target's own speed away from the robot, taken from
+    the person at the target's estimate, so it keeps that distance behind a walking target rather than
+    trailing it by its speed over ``k_v``), to the tracker's goal when the target is not in view, still when asked to stop (turning in place to
     the heading the tracker asks to face, if any). Given the people around it, it steers for the
     velocity :class:`CrowdAvoidance` (``avoid``) picks and drives no step into them; ``avoid=None``
     drives through people."""
@@ -635,6 +637,18 @@ class RobotController:
             return 0.0, 0.0
         u, aim_rad = wanted
         people = self.avoid is not None and people_xy_world_m is not None and len(people_xy_world_m) > 0
+        if (people_xy_world_m is not None and len(people_xy_world_m) and people_v_world_mps is not None
+                and out.target_track_id is not None and out.target_xy_world_m is not None):
+            # the target's own speed away from the robot added (feed-forward): the proportional law
+            # alone trails a walking target by its speed / k_v beyond the follow distance
+            d_t = np.linalg.norm(np.asarray(people_xy_world_m) - out.target_xy_world_m, axis=1)
+            if d_t.min() <= 0.5:
+                ahead = np.asarray(out.target_xy_world_m, float) - pose_est[:2]
+                ahead /= max(float(np.linalg.norm(ahead)), 1e-9)
+                v_away = float(np.asarray(people_v_world_mps)[int(np.argmin(d_t))] @ ahead)
+                if v_away > 0 and float(np.linalg.norm(u)) > 1e-9:
+                    speed = min(float(np.linalg.norm(u)) + v_away, self.v_max_mps)
+                    u = u / float(np.linalg.norm(u)) * speed
         if people:
             people_v = (np.zeros_like(people_xy_world_m) if people_v_world_mps is None
                         else people_v_world_mps)
