@@ -604,10 +604,10 @@ class RobotController:
     """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking (speed
     ``k_v`` times the distance beyond it, plus the target's own speed away from the robot, taken from
     the person at the target's estimate, so it keeps that distance behind a walking target rather than
-    trailing it by its speed over ``k_v``), to the tracker's goal when the target is not in view, still when asked to stop (turning in place to
-    the heading the tracker asks to face, if any). Given the people around it, it steers for the
-    velocity :class:`CrowdAvoidance` (``avoid``) picks and drives no step into them; ``avoid=None``
-    drives through people."""
+    trailing it by its speed over ``k_v``), to the tracker's goal when the target is not in view,
+    still when asked to stop (turning in place to the heading the tracker asks to face, if any). Given
+    the people around it, it steers for the velocity :class:`CrowdAvoidance` (``avoid``) picks and
+    drives no step into them; ``avoid=None`` drives through people."""
 
     v_max_mps: float = 1.0
     w_max_radps: float = 1.5
