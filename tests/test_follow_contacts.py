@@ -121,3 +121,40 @@ def test_people_are_perceived_where_they_are_relative_to_the_robot():
     np.testing.assert_allclose(to_robot(xy, est), to_robot(np.array([[7.0, 1.0], [0.0, 3.0]]), true), atol=1e-12)
     np.testing.assert_allclose(v[0], [np.cos(0.05), np.sin(0.05)], atol=1e-9)  # turned with the pose error
     np.testing.assert_allclose(v[1], [0.0, 0.0])  # just appeared: no velocity yet
+
+
+def test_following_adds_the_targets_speed_away_from_the_robot():
+    # the target 1.5 m ahead (0.3 m beyond the follow distance): the proportional law asks 0.3 m/s;
+    # walking away at 0.5 m/s, the target's speed is added (0.8 m/s), so the robot closes in to the
+    # follow distance instead of trailing it by 0.5 m; walking toward the robot, nothing is added
+    ctrl = RobotController(avoid=None)
+    out = TrackerOutput("Tracking", 1, np.array([1.5, 0.0]), None)
+    people = np.array([[1.5, 0.0], [0.0, 3.0]])  # the target and a bystander
+    pose = np.zeros(3)
+    v, w = ctrl.command(pose, out, None, people, np.array([[0.5, 0.0], [0.0, 0.0]]))
+    assert v == pytest.approx(0.3 + 0.5) and w == pytest.approx(0.0)
+    assert ctrl.command(pose, out, None, people, np.array([[-0.5, 0.0], [0.0, 0.0]]))[0] == pytest.approx(0.3)
+    assert ctrl.command(pose, out, None, people, None)[0] == pytest.approx(0.3)  # no velocities: the law alone
+    v_fast = ctrl.command(pose, out, None, people, np.array([[1.5, 0.0], [0.0, 0.0]]))[0]
+    assert v_fast == pytest.approx(ctrl.v_max_mps)  # capped at the top speed
+    # nobody within 0.5 m of the estimate (the target not among the people): the law alone
+    assert ctrl.command(pose, out, None, people[1:], np.zeros((1, 2)))[0] == pytest.approx(0.3)
+
+
+def simulate_follow(ctrl, n_frames=120, velocities=True):
+    """The robot following a target walking +x at 0.8 m/s from 1.5 m ahead, nobody else about (its
+    velocity given to the controller or not); the robot-to-target distance at the end (m)."""
+    pose, dt = np.zeros(3), 1.0 / FRAME_HZ
+    for k in range(n_frames):
+        target = np.array([1.5 + 0.8 * k * dt, 0.0])
+        out = TrackerOutput("Tracking", 1, target, None)
+        v, w = ctrl.command(pose, out, None, target[None], np.array([[0.8, 0.0]]) if velocities else None)
+        pose, _ = ctrl.step(pose, v, w, dt, None)
+    return float(np.linalg.norm(np.array([1.5 + 0.8 * n_frames * dt, 0.0]) - pose[:2]))
+
+
+def test_robot_settles_at_the_follow_distance_behind_a_walking_target():
+    ctrl = RobotController()
+    # steady state: k_v (d - 1.2) + 0.8 = 0.8, so d = 1.2 m; the law alone settles at 1.2 + 0.8 / k_v
+    assert simulate_follow(ctrl) == pytest.approx(ctrl.follow_distance_m, abs=0.05)
+    assert simulate_follow(ctrl, velocities=False) == pytest.approx(ctrl.follow_distance_m + 0.8 / ctrl.k_v, abs=0.05)

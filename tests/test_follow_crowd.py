@@ -3,10 +3,12 @@ disc); recorded and scripted walkers never do."""
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from pedcal.sim.follow import (
     FRAME_HZ,
     PERSON_RADIUS_M,
+    ROBOT_COMFORT_M,
     ROBOT_RADIUS_M,
     ReactiveCrowd,
     make_episode,
@@ -92,3 +94,34 @@ def test_people_table_and_scripted_walkers_do_not_react():
         np.testing.assert_array_equal(a, b)
     for name in ("passing", "corner", "crossing"):
         assert make_episode(name, 0).crowd is None
+
+
+KEEP_M = ROBOT_RADIUS_M + PERSON_RADIUS_M + ROBOT_COMFORT_M  # centre distance a reacting walker keeps (m)
+
+
+def test_walker_at_the_keep_out_distance_walks_on_past_the_robot():
+    # walkers start exactly at the keep-out distance of a standing robot (the floating-point boundary,
+    # on several sides) and plan to walk 4 m at 1 m/s along its tangent: nothing is in their way, and
+    # they walk it all (a "step away" of zero length once froze a walker there for seconds)
+    robot = np.array([0.3, 0.1])
+    for ang in np.linspace(0.0, 2 * np.pi, 12, endpoint=False):
+        n = np.array([np.cos(ang), np.sin(ang)])
+        start = robot + KEEP_M * n
+        w = on_frame_grid(route_walker("w0", [start, start + 4.0 * np.array([-n[1], n[0]])], 1.0), 4.0)
+        xy = play_against_standing_robot(robot, w, 4.0)
+        assert np.linalg.norm(xy[-1] - start) == pytest.approx(4.0, abs=0.05), ang
+        assert np.linalg.norm(xy - robot, axis=1).min() >= KEEP_M - 1e-9
+
+
+def test_walker_the_robot_came_too_close_to_restores_the_gap_and_walks_on():
+    # the robot stands 0.6 m from a walker (inside the 0.7 m it keeps) who walks past along +x
+    crowd_walker = on_frame_grid(route_walker("w0", [[-2.0, 0.6], [2.0, 0.6]], 1.0), 4.0)
+    crowd = ReactiveCrowd([crowd_walker])
+    crowd.reset()
+    i = 8  # t = 2 s: the plan is at (0, 0.6), right beside the robot
+    cur = crowd_walker.xy_world_m[i - 1]
+    np.testing.assert_allclose(cur, [-0.25, 0.6])
+    crowd.react(i / FRAME_HZ, np.array([-0.25, 0.0]), np.zeros(2))
+    step = crowd_walker.xy_world_m[i]
+    assert np.linalg.norm(step - [-0.25, 0.0]) >= KEEP_M - 1e-9  # the gap restored in one step
+    assert step[0] > cur[0] + 0.1  # while walking on along its wish

@@ -234,9 +234,6 @@ class ReactiveCrowd:
         robot's centre at ``r`` now and ``r_next`` a frame on, the other walkers at ``others`` (M, 2)."""
         d_now = float(np.linalg.norm(cur - r))
         cand = [np.zeros((0, 2))]
-        if d_now < self.keep_m:  # too close already (the robot came to it): stepping away comes first
-            away = (cur - r) / max(d_now, 1e-9)
-            cand.append((cur + away * min(self.keep_m - d_now, 1.5 * self.dt_s))[None])
         if float(np.linalg.norm(want)) > 1e-9:
             # headings off the wish, the side away from the robot first; full then half speed
             side = np.sign(want[0] * (r - cur)[1] - want[1] * (r - cur)[0]) or 1.0  # +1: robot left of the wish
@@ -244,20 +241,30 @@ class ReactiveCrowd:
             c, s = np.cos(angles), np.sin(angles)
             dirs = np.stack([c * want[0] - s * want[1], s * want[0] + c * want[1]], axis=1)
             cand += [cur + dirs * self.dt_s, cur + 0.5 * dirs * self.dt_s]
+        if d_now < self.keep_m:  # too close already (the robot came to it): a step straight away
+            away = (cur - r) / max(d_now, 1e-9)
+            cand.append((cur + away * min(self.keep_m - d_now, 1.5 * self.dt_s))[None])
         cand = np.concatenate([*cand, cur[None]])  # waiting last
-        # never nearer the robot than the keep-out distance, nor nearer than it already is when inside it
+        d_cand = np.minimum(np.linalg.norm(cand - r, axis=1), np.linalg.norm(cand - r_next, axis=1))
+        walled = self._walled(cur, cand)
+        # at the keep-out distance or beyond, now and a frame on (a walker already inside it walks
+        # on if a step restores the gap, else steps away); failing that, never nearer the robot
+        # than it already is; waiting where it stands never brings it nearer
+        comfortable = (d_cand >= self.keep_m - 1e-9) & ~walled
         near_now = min(self.keep_m, d_now) - 1e-9
         near_next = min(self.keep_m, float(np.linalg.norm(cur - r_next))) - 1e-9
         clear = ((np.linalg.norm(cand - r, axis=1) >= near_now)
-                 & (np.linalg.norm(cand - r_next, axis=1) >= near_next) & ~self._walled(cur, cand))
-        clear[-1] = True  # waiting where it stands never brings it nearer the robot
-        if len(others):  # nor onto another walker (an overlap not begun nor deepened), where it can
+                 & (np.linalg.norm(cand - r_next, axis=1) >= near_next) & ~walled)
+        clear[-1] = True
+        free = np.ones(len(cand), bool)
+        if len(others):  # nor onto another walker (an overlap not begun nor deepened)
             d_cur = np.linalg.norm(cur - others, axis=1)
             d = np.linalg.norm(cand[:, None] - others[None], axis=2)
             free = (d >= np.minimum(2 * PERSON_RADIUS_M, d_cur)[None] - 1e-9).all(axis=1)
-            if (clear & free).any():
-                clear &= free
-        return cand[int(np.argmax(clear))]
+        for ok in (comfortable & free, clear & free, clear):
+            if ok.any():
+                return cand[int(np.argmax(ok))]
+        return cur
 
     def _walled(self, cur: np.ndarray, cand: np.ndarray) -> np.ndarray:
         if self.occupancy is None:
@@ -594,11 +601,13 @@ class CrowdAvoidance:
 
 @dataclass(frozen=True)
 class RobotController:
-    """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking, to
-    the tracker's goal when the target is not in view, still when asked to stop (turning in place to
-    the heading the tracker asks to face, if any). Given the people around it, it steers for the
-    velocity :class:`CrowdAvoidance` (``avoid``) picks and drives no step into them; ``avoid=None``
-    drives through people."""
+    """Unicycle following the tracker: ``FOLLOW_DISTANCE_M`` behind the target while tracking (speed
+    ``k_v`` times the distance beyond it, plus the target's own speed away from the robot, taken from
+    the person at the target's estimate, so it keeps that distance behind a walking target rather than
+    trailing it by its speed over ``k_v``), to the tracker's goal when the target is not in view,
+    still when asked to stop (turning in place to the heading the tracker asks to face, if any). Given
+    the people around it, it steers for the velocity :class:`CrowdAvoidance` (``avoid``) picks and
+    drives no step into them; ``avoid=None`` drives through people."""
 
     v_max_mps: float = 1.0
     w_max_radps: float = 1.5
@@ -628,6 +637,18 @@ class RobotController:
             return 0.0, 0.0
         u, aim_rad = wanted
         people = self.avoid is not None and people_xy_world_m is not None and len(people_xy_world_m) > 0
+        if (people_xy_world_m is not None and len(people_xy_world_m) and people_v_world_mps is not None
+                and out.target_track_id is not None and out.target_xy_world_m is not None):
+            # the target's own speed away from the robot added (feed-forward): the proportional law
+            # alone trails a walking target by its speed / k_v beyond the follow distance
+            d_t = np.linalg.norm(np.asarray(people_xy_world_m) - out.target_xy_world_m, axis=1)
+            if d_t.min() <= 0.5:
+                ahead = np.asarray(out.target_xy_world_m, float) - pose_est[:2]
+                ahead /= max(float(np.linalg.norm(ahead)), 1e-9)
+                v_away = float(np.asarray(people_v_world_mps)[int(np.argmin(d_t))] @ ahead)
+                if v_away > 0 and float(np.linalg.norm(u)) > 1e-9:
+                    speed = min(float(np.linalg.norm(u)) + v_away, self.v_max_mps)
+                    u = u / float(np.linalg.norm(u)) * speed
         if people:
             people_v = (np.zeros_like(people_xy_world_m) if people_v_world_mps is None
                         else people_v_world_mps)

@@ -20,6 +20,7 @@ from scipy.optimize import linear_sum_assignment
 from pedcal.follow_types import TrackerOutput
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.sim.follow import (
+    FOLLOW_DISTANCE_M,
     FRAME_HZ,
     PERSON_RADIUS_M,
     ROBOT_RADIUS_M,
@@ -136,6 +137,34 @@ def with_target_frames(log: pd.DataFrame, target_id: str) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         hidden_held = ~visible & (err <= HIDDEN_HOLD_M)  # NaN (no estimate, target absent) is not held
     return is_target | hidden_held
+
+
+HELD_BACK_SPEED_MPS = 0.1  # the robot "stands" below this speed over a frame
+HELD_BACK_S = (5.0, 2.0)  # held back: standing at least 2 s of the last 5 s, farther than it follows from
+
+
+def loss_causes(log: pd.DataFrame, target_id: str) -> dict[str, int]:
+    """Why the scored frames of a follow log that are not with the target (``with_target_frames``)
+    are not: ``in_view``, the target in the robot's view and the tracker claiming somebody else or
+    nobody; ``held_back``, the target out of view after the robot stood (below
+    ``HELD_BACK_SPEED_MPS``) for at least ``HELD_BACK_S[1]`` s of the last ``HELD_BACK_S[0]`` s while
+    farther from the target than ``FOLLOW_DISTANCE_M`` + 0.4 m (people in its way); ``out_of_view``,
+    the rest (hidden behind people or walls, out of the field of view). Frame counts."""
+    held = with_target_frames(log, target_id)
+    scored = np.cumsum(log["target_track_id"].notna().to_numpy()) > 0
+    robot = log[["robot_x", "robot_y"]].to_numpy(float)
+    speed = np.r_[0.0, np.linalg.norm(np.diff(robot, axis=0), axis=1) * FRAME_HZ]
+    dist = np.linalg.norm(robot - log[["target_x", "target_y"]].to_numpy(float), axis=1)
+    with np.errstate(invalid="ignore"):
+        standing = (speed < HELD_BACK_SPEED_MPS) & (dist > FOLLOW_DISTANCE_M + 0.4)
+    window, least = int(round(HELD_BACK_S[0] * FRAME_HZ)), int(round(HELD_BACK_S[1] * FRAME_HZ))
+    c = np.r_[0, np.cumsum(standing)]
+    k = np.arange(len(log))
+    held_back = c[k + 1] - c[np.maximum(k + 1 - window, 0)] >= least
+    visible = log["target_visible"].to_numpy(bool)
+    lost = scored & ~held
+    return {"in_view": int((lost & visible).sum()), "held_back": int((lost & ~visible & held_back).sum()),
+            "out_of_view": int((lost & ~visible & ~held_back).sum())}
 
 
 def robot_contact_frames(robot_xy_m: np.ndarray, people_xy_m: np.ndarray, robot_radius_m: float = ROBOT_RADIUS_M,
@@ -437,6 +466,6 @@ def run_follow(scenario: str | None = "passing", tracker: str = "factorgraph", s
 
 
 __all__ = ["METRIC_KEYS", "MATCH_DISTANCE_M", "HIDDEN_HOLD_M", "NEAR_M", "FollowMetrics", "FollowResult",
-           "follow_metrics", "with_target_frames", "robot_contact_frames", "contact_metrics",
+           "follow_metrics", "with_target_frames", "loss_causes", "robot_contact_frames", "contact_metrics",
            "perceived_people", "match_people", "MotAccumulator",
            "run_episode", "run_follow", "read_people"]
