@@ -23,6 +23,8 @@ the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <=
 <= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
 mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, within 1 sigma per axis, and
 the per-sensor clock offsets' error about their mean (RMS) and the share within 1 and 2 sigma.
+On the L-shaped hall, each wing's mean error along x and y over its sigma (the wings share no
+view: the robot's path and AMCL join them).
 """
 
 from __future__ import annotations
@@ -94,6 +96,28 @@ def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
     return err / np.maximum([sigma.get(sid, np.inf) for sid in ids], 1e-9), err
 
 
+def wing_z(sim, network, joint_cov_m2: np.ndarray | None) -> dict:
+    """On the L-shaped hall, each wing's mean error along x and y over its sigma (from the joint
+    position covariance): {"x wing": (z_x, z_y), "y wing": (z_x, z_y)}; empty on other layouts.
+    The two wings share no view, so what joins them is the robot's path and AMCL."""
+    sc = sim.scenario
+    if sc.layout != "lhall" or joint_cov_m2 is None:
+        return {}
+    ids = list(network.ids)
+    E = np.array([network[sid].position_m - sim.calib.truth[sid].position_m for sid in ids])
+    in_y_wing = np.array([sim.calib.truth[sid].position_m[0] > sc.area_m[0] - sc.corridor_width_m - 0.5
+                          for sid in ids])
+    out = {}
+    for name, m in (("x wing", ~in_y_wing), ("y wing", in_y_wing)):
+        z = []
+        for axis in (0, 1):
+            w = np.zeros(3 * len(ids))
+            w[3 * np.flatnonzero(m) + axis] = 1.0 / m.sum()
+            z.append(float(E[m, axis].mean() / np.sqrt(w @ joint_cov_m2 @ w)))
+        out[name] = tuple(z)
+    return out
+
+
 def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The horizontal errors split into what the sensors share (their mean, x and y) and the rest
     (each sensor's departure from it), each over its sigma from the joint position covariance:
@@ -142,6 +166,7 @@ def run_one(scenario: str, seed: int, zoo: bool = False) -> dict:
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
             out["clock_z"], out["clock_err_s"] = clock_offset_errors(sim, res.network)
+            out["wings"] = wing_z(sim, res.network, res.position_covariance_m2)
     return out
 
 
@@ -196,6 +221,7 @@ def main() -> None:
               f"{w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {w2[0]:.0f}, {w2[1]:.0f}, {w2[2]:.0f} | {z_text} | "
               f"{shape:.1f} / {worst:.1f}, {dz:.1f} | {wall:.2f} / {cpu:.2f} |")
     print_targets(results)
+    print_wings(results)
     if args.zoo:
         print_families(results)
 
@@ -213,6 +239,20 @@ def print_targets(results: list[dict]) -> None:
         xy = np.array([_xy(r) for r in results if r["scenario"] == sc])
         print(f"| {sc} | {len(xy)} | {xy[:, 0].max():.1f} | {xy[:, 1].max():.2f} | {int(np.sum(xy[:, 0] <= 12.0))} | "
               f"{int(np.sum(xy[:, 1] <= 0.35))} |")
+
+
+def print_wings(results: list[dict]) -> None:
+    """The L-shaped hall's wings: each one's mean error along x and y over its sigma, mean and
+    RMS over the logs (0 and 1 when the sigma is right)."""
+    rs = [r for r in results if r.get("wings")]
+    if not rs:
+        return
+    print("\n| wing (L-shaped hall) | logs | mean error / sigma along x: mean, RMS | along y: mean, RMS |")
+    print("|---|---|---|---|")
+    for wing in ("x wing", "y wing"):
+        z = np.array([r["wings"][wing] for r in rs])
+        print(f"| {wing} | {len(z)} | {z[:, 0].mean():+.2f}, {np.sqrt(np.mean(z[:, 0] ** 2)):.2f} | "
+              f"{z[:, 1].mean():+.2f}, {np.sqrt(np.mean(z[:, 1] ** 2)):.2f} |")
 
 
 def print_families(results: list[dict]) -> None:
