@@ -11,6 +11,7 @@ import yaml
 
 from pedcal.calib import calibrate
 from pedcal.calib.headpoint import (
+    PER_SENSOR_HEIGHT_NOTE,
     PREFIX,
     SLOPE,
     hats,
@@ -138,6 +139,12 @@ def test_a_shift_ramping_down_with_distance_is_recovered_at_the_knots(ramp_log):
     # and the sensors sit better than under the constant shift (measured 36.4 -> 27.2 mm)
     assert res["off"].diagnostics.head_model.horizontal_profile is None
     assert _xy_rms_mm(sim, res["bic"].network) < 0.85 * _xy_rms_mm(sim, res["off"].network)
+
+
+def test_without_a_height_reference_the_note_says_a_per_sensor_offset_is_a_height_error(ramp_log):
+    _, res = ramp_log
+    note = res["off"].network.extra[HEAD_MODEL_KEY]["note"]
+    assert PER_SENSOR_HEIGHT_NOTE in note and note.count(PER_SENSOR_HEIGHT_NOTE) == 1
 
 
 def test_the_profile_goes_through_the_yaml_and_into_evaluate(ramp_log, tmp_path):

@@ -216,10 +216,22 @@ def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: 
             "shift_m": [round(float(v), 5) for v in shift], "sigma_shift_m": [round(float(v), 5) for v in sigma]}
 
 
+PER_SENSOR_HEIGHT_NOTE = ("A tracker whose head point sits higher or lower for one sensor than for the others "
+                          "moves that sensor's observations of the robot up or down alike: a vertical offset of "
+                          "one sensor's own is that sensor's height error, which the robot cannot tell apart; the "
+                          "installed heights as a reference (sensor_height_sigma_m) hold it.")
+
+
 def record_head_profile(head_model, prob, shifts) -> None:
     """Put the profile the solve kept (if any) into ``head_model`` (its ``horizontal_profile``),
-    from the nuisances' result ``shifts`` (None: nothing estimated)."""
-    if shifts is None or head_model is None:
+    from the nuisances' result ``shifts`` (None: nothing estimated); without a height reference
+    its note also says that a per-sensor vertical offset is a height error
+    (PER_SENSOR_HEIGHT_NOTE)."""
+    if head_model is None:
+        return
+    if head_model.height_reference == "none" and head_model.note and PER_SENSOR_HEIGHT_NOTE not in head_model.note:
+        head_model.note = f"{head_model.note} {PER_SENSOR_HEIGHT_NOTE}"
+    if shifts is None:
         return
     head_model.horizontal_profile = profile_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
 
