@@ -38,10 +38,11 @@ def is_clock_nuisance(name: str) -> bool:
     return name.startswith(PREFIX)
 
 
-def clock_nuisances(prob) -> list[Nuisance]:
+def clock_nuisances(prob, result=None) -> list[Nuisance]:
     """The per-sensor clock offsets to estimate (recipe ``clock_offsets``, prior 0 +-
     ``clock_offset_sigma_s``), one per sensor with MIN_FACTORS robot-observation factors; each
-    starts at 0 on ``prob`` the first time."""
+    starts at 0 on ``prob`` the first time. ``result``: the graph's current solution, whose
+    robot poses give the head's velocity from then on (:func:`solved_velocity_world`)."""
     rec = prob.recipe
     if not (rec.robot and rec.clock_offsets and rec.clock_offset_sigma_s > 0.0) or prob.fac_sensor_index is None:
         return []
@@ -53,7 +54,31 @@ def clock_nuisances(prob) -> list[Nuisance]:
             if not hasattr(prob, name):
                 setattr(prob, name, 0.0)
             out.append(Nuisance(name, 0.0, rec.clock_offset_sigma_s, STEP_S))
+    if out and result is not None:
+        prob._pose_velocity_world = solved_velocity_world(prob, result)
     return out
+
+
+def solved_velocity_world(prob, result) -> np.ndarray | None:
+    """(n_poses, 3) the head's world velocity at each robot pose from the solved poses: a
+    central difference over +-VELOCITY_HALF_WINDOW_S of the graph's x(k), which fuse odometry
+    (or AMCL's motion) with what every sensor saw. Without odometry the raw motion is AMCL's
+    own, whose wandering error's increments (a few cm/s over a second) the regressor would
+    carry; the solved path is the better measure of it. None without poses."""
+    from pedcal.calib.keys import X
+
+    t = prob.pose_times
+    n = sum(1 for k in range(len(t)) if result.exists(X(k)))
+    if n < 2:
+        return None
+    x = np.array([result.atPose3(X(k)).translation() for k in range(n)])
+    t = t[:n]
+    lo = np.clip(np.searchsorted(t, t - VELOCITY_HALF_WINDOW_S), 0, n - 1)
+    hi = np.clip(np.searchsorted(t, t + VELOCITY_HALF_WINDOW_S), 0, n - 1)
+    dt = t[hi] - t[lo]
+    v = (x[hi] - x[lo]) / np.maximum(dt, 1e-9)[:, None]
+    v[dt <= 0.0] = 0.0
+    return v
 
 
 def _velocity_sensor(prob) -> np.ndarray:
@@ -61,11 +86,15 @@ def _velocity_sensor(prob) -> np.ndarray:
     difference over +-VELOCITY_HALF_WINDOW_S), in its sensor's frame (the sensors' initial
     rotations: a degree off changes a millimetre-sized term by a few per cent); cached on the
     problem until its factors change."""
-    key = (id(prob.fac_key_index), len(prob.fac_key_index))
+    pose_v = getattr(prob, "_pose_velocity_world", None)
+    key = (id(prob.fac_key_index), len(prob.fac_key_index), id(pose_v))
     cached = getattr(prob, "_clock_velocity", None)
     if cached is not None and cached[0] == key:
         return cached[1]
-    v_world = prob.motion.velocity(prob.pose_times[prob.fac_key_index], h=VELOCITY_HALF_WINDOW_S)
+    if pose_v is not None and len(pose_v) > int(prob.fac_key_index.max(initial=0)):
+        v_world = pose_v[prob.fac_key_index]
+    else:
+        v_world = prob.motion.velocity(prob.pose_times[prob.fac_key_index], h=VELOCITY_HALF_WINDOW_S)
     R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[prob.fac_sensor_index]
     v = np.einsum("nji,nj->ni", R, v_world)
     prob._clock_velocity = (key, v)

@@ -349,7 +349,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         nuis += [Nuisance("odometry_scale_correction", 0.0, rec.odometry_scale_sigma, 1e-3),
                  Nuisance("odometry_drift_rad_per_m", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_m), 1e-4),
                  Nuisance("odometry_drift_rad_per_s", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_s), 1e-5)]
-    nuis += clock_nuisances(prob)          # each sensor's clock offset (pedcal.calib.clocks)
+    nuis += clock_nuisances(prob, result)  # each sensor's clock offset (pedcal.calib.clocks)
     nuis += head_profile_nuisances(prob)   # the horizontal shift against distance (pedcal.calib.headpoint)
     select_profile = any(is_head_profile(n.name) for n in nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
