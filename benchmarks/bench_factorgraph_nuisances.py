@@ -84,8 +84,12 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
 
 def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
     """Each estimated clock offset's error (s) about the offsets' mean, the truth's taken about
-    its own mean, and that error over its sigma; empty when the log or the calibration has none."""
-    offset, _ = sensor_clocks(sim.scenario, len(sim.calib.truth))
+    its own mean, and that error over its sigma; empty when the log or the calibration has none.
+    A skewed clock's offset is taken at the middle of the calibration run (the simulator stamps
+    offset + skew x (t - start))."""
+    offset, skew_ppm = sensor_clocks(sim.scenario, len(sim.calib.truth))
+    t = sim.calib.robot["t"].to_numpy(float)
+    offset = offset + 1e-6 * skew_ppm * (0.5 * (t.min() + t.max()) - sim.scenario.start_time_s)
     est, sigma = network.extra.get(CLOCK_OFFSET_KEY) or {}, network.extra.get(SIGMA_CLOCK_OFFSET_KEY) or {}
     if not np.any(offset) or not est:
         return np.zeros(0), np.zeros(0)
