@@ -21,7 +21,10 @@ part (which the robot cannot tell from the sensors' heights), its RMS over seeds
 seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time;
 the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <= 12 mm and
 <= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
-mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, within 1 sigma per axis.
+mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, within 1 sigma per axis, and
+the per-sensor clock offsets' error about their mean (RMS) and the share within 1 and 2 sigma.
+On the L-shaped hall, each wing's mean error along x and y over its sigma (the wings share no
+view: the robot's path and AMCL join them).
 """
 
 from __future__ import annotations
@@ -35,7 +38,13 @@ import numpy as np
 
 from pedcal.calib import calibrate
 from pedcal.calib.common import interpolate_pose2
-from pedcal.metrics import amcl_run_mean_error_m, evaluate, robot_rows
+from pedcal.metrics import (
+    CLOCK_OFFSET_KEY,
+    SIGMA_CLOCK_OFFSET_KEY,
+    amcl_run_mean_error_m,
+    evaluate,
+    robot_rows,
+)
 from pedcal.sim import simulate_logs
 from pedcal.sim.nuisances import head_model_truth, head_point, sensor_clocks, sensor_head_models, zoo_families
 
@@ -71,6 +80,46 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
     dz = float(d[:, 2].mean())
     d[:, 2] -= dz
     return float(1000 * np.sqrt(np.mean(np.sum(d ** 2, axis=1)))), 1000 * dz
+
+
+def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
+    """Each estimated clock offset's error (s) about the offsets' mean, the truth's taken about
+    its own mean, and that error over its sigma; empty when the log or the calibration has none.
+    A skewed clock's offset is taken at the middle of the calibration run (the simulator stamps
+    offset + skew x (t - start))."""
+    offset, skew_ppm = sensor_clocks(sim.scenario, len(sim.calib.truth))
+    t = sim.calib.robot["t"].to_numpy(float)
+    offset = offset + 1e-6 * skew_ppm * (0.5 * (t.min() + t.max()) - sim.scenario.start_time_s)
+    est, sigma = network.extra.get(CLOCK_OFFSET_KEY) or {}, network.extra.get(SIGMA_CLOCK_OFFSET_KEY) or {}
+    if not np.any(offset) or not est:
+        return np.zeros(0), np.zeros(0)
+    index = {sid: k for k, sid in enumerate(sim.calib.truth.ids)}
+    ids = [sid for sid in est if sid in index]
+    truth = np.array([offset[index[sid]] for sid in ids])
+    err = np.array([est[sid] for sid in ids]) - (truth - truth.mean())
+    return err / np.maximum([sigma.get(sid, np.inf) for sid in ids], 1e-9), err
+
+
+def wing_z(sim, network, joint_cov_m2: np.ndarray | None) -> dict:
+    """On the L-shaped hall, each wing's mean error along x and y over its sigma (from the joint
+    position covariance): {"x wing": (z_x, z_y), "y wing": (z_x, z_y)}; empty on other layouts.
+    The two wings share no view, so what joins them is the robot's path and AMCL."""
+    sc = sim.scenario
+    if sc.layout != "lhall" or joint_cov_m2 is None:
+        return {}
+    ids = list(network.ids)
+    E = np.array([network[sid].position_m - sim.calib.truth[sid].position_m for sid in ids])
+    in_y_wing = np.array([sim.calib.truth[sid].position_m[0] > sc.area_m[0] - sc.corridor_width_m - 0.5
+                          for sid in ids])
+    out = {}
+    for name, m in (("x wing", ~in_y_wing), ("y wing", in_y_wing)):
+        z = []
+        for axis in (0, 1):
+            w = np.zeros(3 * len(ids))
+            w[3 * np.flatnonzero(m) + axis] = 1.0 / m.sum()
+            z.append(float(E[m, axis].mean() / np.sqrt(w @ joint_cov_m2 @ w)))
+        out[name] = tuple(z)
+    return out
 
 
 def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -120,6 +169,8 @@ def run_one(scenario: str, seed: int, zoo: bool = False) -> dict:
             out["z_shared"], out["z_rest"] = shared_and_rest_z(E[:, :2] / 1000.0, res.position_covariance_m2)
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
+            out["clock_z"], out["clock_err_s"] = clock_offset_errors(sim, res.network)
+            out["wings"] = wing_z(sim, res.network, res.position_covariance_m2)
     return out
 
 
@@ -174,6 +225,7 @@ def main() -> None:
               f"{w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {w2[0]:.0f}, {w2[1]:.0f}, {w2[2]:.0f} | {z_text} | "
               f"{shape:.1f} / {worst:.1f}, {dz:.1f} | {wall:.2f} / {cpu:.2f} |")
     print_targets(results)
+    print_wings(results)
     if args.zoo:
         print_families(results)
 
@@ -193,17 +245,36 @@ def print_targets(results: list[dict]) -> None:
               f"{int(np.sum(xy[:, 1] <= 0.35))} |")
 
 
+def print_wings(results: list[dict]) -> None:
+    """The L-shaped hall's wings: each one's mean error along x and y over its sigma, mean and
+    RMS over the logs (0 and 1 when the sigma is right)."""
+    rs = [r for r in results if r.get("wings")]
+    if not rs:
+        return
+    print("\n| wing (L-shaped hall) | logs | mean error / sigma along x: mean, RMS | along y: mean, RMS |")
+    print("|---|---|---|---|")
+    for wing in ("x wing", "y wing"):
+        z = np.array([r["wings"][wing] for r in rs])
+        print(f"| {wing} | {len(z)} | {z[:, 0].mean():+.2f}, {np.sqrt(np.mean(z[:, 0] ** 2)):.2f} | "
+              f"{z[:, 1].mean():+.2f}, {np.sqrt(np.mean(z[:, 1] ** 2)):.2f} |")
+
+
 def print_families(results: list[dict]) -> None:
     """The figures split by the family each zoo nuisance fell in (all scenarios pooled)."""
-    print("\n| family | logs | graph xy RMS mean / worst (mm) | graph / grid xy | within 1 sigma x,y,z (%) |")
-    print("|---|---|---|---|---|")
+    print("\n| family | logs | graph xy RMS mean / worst (mm) | graph / grid xy | within 1 sigma x,y,z (%) | "
+          "clock offsets: error RMS (ms), within 1 / 2 sigma (%) |")
+    print("|---|---|---|---|---|---|")
     for family in ("head", "clock", "mounts", "amcl"):
         for value in sorted({r["families"][family] for r in results}):
             rs = [r for r in results if r["families"][family] == value]
             xy = np.array([_xy(r) for r in rs])
             w1 = 100 * np.mean(np.concatenate([r["ratios"] for r in rs]) <= 1.0, axis=0)
+            z = np.concatenate([r.get("clock_z", np.zeros(0)) for r in rs])
+            err = np.concatenate([r.get("clock_err_s", np.zeros(0)) for r in rs])
+            clock = (f"{1000 * np.sqrt(np.mean(err ** 2)):.1f}, {100 * np.mean(np.abs(z) <= 1):.0f} / "
+                     f"{100 * np.mean(np.abs(z) <= 2):.0f}" if len(z) else "-")
             print(f"| {family}: {value} | {len(rs)} | {xy[:, 0].mean():.1f} / {xy[:, 0].max():.1f} | "
-                  f"{xy[:, 1].mean():.2f} | {w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} |")
+                  f"{xy[:, 1].mean():.2f} | {w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {clock} |")
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ LATENCY_KEY = "tracker_latency_s"
 # ... and each sensor's clock offset about it with its sigma ({sensor: s}; pedcal.calib.clocks).
 CLOCK_OFFSET_KEY = "clock_offset_s"
 SIGMA_CLOCK_OFFSET_KEY = "sigma_clock_offset_s"
+SIGMA_LATENCY_KEY = "sigma_tracker_latency_s"
 
 
 def sensor_time_correction_s(extra: dict, sensors: np.ndarray, latency_s: float) -> np.ndarray:
@@ -192,7 +193,11 @@ def robot_truth_xy(log: Log, t: np.ndarray) -> np.ndarray:
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-dome correction the extrinsics file carries."""
+    from pedcal.calib.headpoint import horizontal_distance, shift_at
+
     vertical_m, ray_m, horizontal_m, curvature_m = head_model_of(extrinsics)
+    hm = extrinsics.extra.get(HEAD_MODEL_KEY)
+    profile = hm.get("horizontal_profile") if isinstance(hm, dict) else None
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -204,7 +209,10 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             p = p_sensor[m]
             # the head point moved back horizontally, down by the curvature and along the ray by
             # the shifts, then up by minus the offset: the top
-            if horizontal_m:
+            if profile is not None:        # the shift against horizontal distance (pedcal.calib.headpoint)
+                toward = frames.toward_sensor_horizontal(p, s.R_world_sensor)
+                p = p - shift_at(profile, horizontal_distance(p, toward))[:, None] * toward
+            elif horizontal_m:
                 p = p - horizontal_m * frames.toward_sensor_horizontal(p, s.R_world_sensor)
             if curvature_m:
                 p = p - curvature_m * frames.up_by_cos2_elevation(p, s.R_world_sensor)

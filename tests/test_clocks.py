@@ -12,7 +12,14 @@ from pedcal.calib.recipe import GraphRecipe
 from pedcal.errors import PedcalInputError
 from pedcal.io import read_sensors_yaml, write_sensors_yaml
 from pedcal.io.export import json_text
-from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, evaluate, sensor_time_correction_s
+from pedcal.metrics import (
+    CLOCK_OFFSET_KEY,
+    LATENCY_KEY,
+    SIGMA_CLOCK_OFFSET_KEY,
+    SIGMA_LATENCY_KEY,
+    evaluate,
+    sensor_time_correction_s,
+)
 from pedcal.sim import simulate_logs
 
 
@@ -51,6 +58,9 @@ def test_known_clock_offsets_are_recovered_with_their_sigma(offset_paper):
     assert all(0.001 < v < 0.05 for v in sigma.values())
     # the shared latency is their mean: about the offsets' mean, within 20 ms of the truth
     assert extra[LATENCY_KEY] == pytest.approx(sim.scenario.latency_s + true_mean, abs=0.02)
+    # with the sigma of the offsets' mean (measured 5 ms; 7.7 ms off)
+    assert 0.001 < extra[SIGMA_LATENCY_KEY] < 0.02
+    assert abs(extra[LATENCY_KEY] - sim.scenario.latency_s - true_mean) < 3 * extra[SIGMA_LATENCY_KEY]
     assert abs(np.mean(list(est.values()))) < 1e-3
     # and the sensors are placed better than under one shared latency
     assert _xy_rms_mm(sim, res[True].network) < 0.8 * _xy_rms_mm(sim, res[False].network)
@@ -103,3 +113,23 @@ def test_bad_clock_offsets_in_a_yaml_are_refused(tmp_path, bad, match):
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(PedcalInputError, match=match):
         read_sensors_yaml(path)
+
+
+def test_offsets_are_split_into_their_mean_and_departures_with_each_ones_sigma():
+    from pedcal.calib.clocks import centered_offsets
+
+    delta = np.array([0.10, 0.02, -0.03])
+    # offsets that share a latency error (correlation 0.8) and one of their own
+    C = 0.01 ** 2 * (0.2 * np.eye(3) + 0.8)
+    mean, sigma_mean, centred, sigma = centered_offsets(delta, C)
+    assert mean == pytest.approx(0.03)
+    np.testing.assert_allclose(centred, [0.07, -0.01, -0.06])
+    # var(mean) = 1^T C 1 / n^2 = 1e-4 (0.2 / 3 + 0.8); var(delta_i - mean) = 1e-4 x 0.2 x (1 - 1/3)
+    assert sigma_mean == pytest.approx(0.01 * np.sqrt(0.2 / 3 + 0.8))
+    np.testing.assert_allclose(sigma, 0.01 * np.sqrt(0.2 * 2 / 3))
+    # the shared part leaves the departures' sigma alone: it is the mean's
+    _, sigma_mean_own, _, sigma_own = centered_offsets(delta, 0.01 ** 2 * 0.2 * np.eye(3))
+    np.testing.assert_allclose(sigma_own, sigma)
+    assert sigma_mean > 3 * sigma_mean_own
+    # one offset: its departure from the mean is 0, sure
+    assert centered_offsets(np.array([0.05]), np.array([[1e-4]]))[3] == pytest.approx([0.0])

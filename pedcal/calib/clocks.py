@@ -20,21 +20,31 @@ from __future__ import annotations
 import numpy as np
 
 from pedcal.calib.profile import Nuisance
-from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY
+from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, SIGMA_LATENCY_KEY
 
 PREFIX = "clock_offset_s:"                        # nuisance names: PREFIX + sensor id
 MIN_FACTORS = 20        # a sensor with fewer robot-observation factors keeps the shared latency
 STEP_S = 0.01           # finite-difference step of the profile (the offset enters linearly)
+# half-width (s) of the central difference that gives the head's velocity: the offsets' regressor.
+# Wheel odometry's white increments (a millimetre per 50 ms step) over a 40 ms difference make a
+# velocity 7 % off at 0.3 m/s, AMCL's jitter far more, and an offset fitted to a noisy regressor is
+# off by more than its sigma says (paper, offsets of +-0.15 s, seeds 0, 3, 4: 37 % of the offsets
+# within 1 sigma at 0.02 s, 70 % at 0.25 s, 80 % at 0.5 s; without odometry 7 %, 27 %, 53 %);
+# the robot's speed changes over seconds, so a second's difference keeps its shape. Taken from the
+# graph's solved poses (solved_velocity_world), 73 % within 1 sigma there; on the L-shaped hall the
+# offsets shared by a wing still trade with the wing's place along its axis (README).
+VELOCITY_HALF_WINDOW_S = 0.5
 
 
 def is_clock_nuisance(name: str) -> bool:
     return name.startswith(PREFIX)
 
 
-def clock_nuisances(prob) -> list[Nuisance]:
+def clock_nuisances(prob, result=None) -> list[Nuisance]:
     """The per-sensor clock offsets to estimate (recipe ``clock_offsets``, prior 0 +-
     ``clock_offset_sigma_s``), one per sensor with MIN_FACTORS robot-observation factors; each
-    starts at 0 on ``prob`` the first time."""
+    starts at 0 on ``prob`` the first time. ``result``: the graph's current solution, whose
+    robot poses give the head's velocity from then on (:func:`solved_velocity_world`)."""
     rec = prob.recipe
     if not (rec.robot and rec.clock_offsets and rec.clock_offset_sigma_s > 0.0) or prob.fac_sensor_index is None:
         return []
@@ -46,18 +56,47 @@ def clock_nuisances(prob) -> list[Nuisance]:
             if not hasattr(prob, name):
                 setattr(prob, name, 0.0)
             out.append(Nuisance(name, 0.0, rec.clock_offset_sigma_s, STEP_S))
+    if out and result is not None:
+        prob._pose_velocity_world = solved_velocity_world(prob, result)
     return out
 
 
+def solved_velocity_world(prob, result) -> np.ndarray | None:
+    """(n_poses, 3) the head's world velocity at each robot pose from the solved poses: a
+    central difference over +-VELOCITY_HALF_WINDOW_S of the graph's x(k), which fuse odometry
+    (or AMCL's motion) with what every sensor saw. Without odometry the raw motion is AMCL's
+    own, whose wandering error's increments (a few cm/s over a second) the regressor would
+    carry; the solved path is the better measure of it. None without poses."""
+    from pedcal.calib.keys import X
+
+    t = prob.pose_times
+    n = sum(1 for k in range(len(t)) if result.exists(X(k)))
+    if n < 2:
+        return None
+    x = np.array([result.atPose3(X(k)).translation() for k in range(n)])
+    t = t[:n]
+    lo = np.clip(np.searchsorted(t, t - VELOCITY_HALF_WINDOW_S), 0, n - 1)
+    hi = np.clip(np.searchsorted(t, t + VELOCITY_HALF_WINDOW_S), 0, n - 1)
+    dt = t[hi] - t[lo]
+    v = (x[hi] - x[lo]) / np.maximum(dt, 1e-9)[:, None]
+    v[dt <= 0.0] = 0.0
+    return v
+
+
 def _velocity_sensor(prob) -> np.ndarray:
-    """(n_factors, 3) the head's velocity at each robot-observation factor's pose time, in its
-    sensor's frame (the sensors' initial rotations: a degree off changes a millimetre-sized term
-    by a few per cent); cached on the problem until its factors change."""
-    key = (id(prob.fac_key_index), len(prob.fac_key_index))
+    """(n_factors, 3) the head's velocity at each robot-observation factor's pose time (a central
+    difference over +-VELOCITY_HALF_WINDOW_S), in its sensor's frame (the sensors' initial
+    rotations: a degree off changes a millimetre-sized term by a few per cent); cached on the
+    problem until its factors change."""
+    pose_v = getattr(prob, "_pose_velocity_world", None)
+    key = (id(prob.fac_key_index), len(prob.fac_key_index), id(pose_v))
     cached = getattr(prob, "_clock_velocity", None)
     if cached is not None and cached[0] == key:
         return cached[1]
-    v_world = prob.motion.velocity(prob.pose_times[prob.fac_key_index])
+    if pose_v is not None and len(pose_v) > int(prob.fac_key_index.max(initial=0)):
+        v_world = pose_v[prob.fac_key_index]
+    else:
+        v_world = prob.motion.velocity(prob.pose_times[prob.fac_key_index], h=VELOCITY_HALF_WINDOW_S)
     R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[prob.fac_sensor_index]
     v = np.einsum("nji,nj->ni", R, v_world)
     prob._clock_velocity = (key, v)
@@ -81,10 +120,28 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
     return offsets[prob.fac_sensor_index[use], None] * _velocity_sensor(prob)[use]
 
 
+def centered_offsets(delta_s: np.ndarray, cov_s2: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """The offsets ``delta_s`` (n,) with covariance ``cov_s2`` (n, n) split into their mean, the
+    shared latency's correction, and each offset about it, so that the latency and the offsets
+    do not count the same time twice: (mean, its sigma, delta - mean, the sigma of each
+    delta_i - mean). With c_i = e_i - 1/n (e_i the i-th unit vector), var(delta_i - mean) =
+    c_i^T C c_i, and var(mean) = 1^T C 1 / n^2: offsets that move together (a latency error they
+    share) leave the centred ones sure and the mean unsure, not each offset unsure."""
+    delta_s = np.asarray(delta_s, float)
+    n = len(delta_s)
+    centre = np.eye(n) - 1.0 / n
+    mean = float(delta_s.mean())
+    sigma_mean = float(np.sqrt(max(np.sum(cov_s2) / n ** 2, 0.0)))
+    sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", centre, cov_s2, centre), 0.0))
+    return mean, sigma_mean, delta_s - mean, sigma
+
+
 def record_clocks(network, prob, shifts) -> None:
     """Write the estimated clock offsets to the calibrated network: the shared latency becomes
-    the association's plus the offsets' mean, each sensor's offset is taken about it, with its
-    sigma from the profile's covariance (``shifts``: the profile's result)."""
+    the association's plus the offsets' mean, with that mean's sigma, and each sensor's offset
+    is taken about it, with the sigma of its departure from the mean
+    (:func:`centered_offsets`, from the profile's covariance; ``shifts``: the profile's
+    result)."""
     if shifts is None:
         return
     idx = [j for j, n in enumerate(shifts.names) if is_clock_nuisance(n)]
@@ -92,11 +149,11 @@ def record_clocks(network, prob, shifts) -> None:
         return
     ids = [shifts.names[j][len(PREFIX):] for j in idx]
     delta = np.array([getattr(prob, shifts.names[j]) for j in idx])
-    sigma = np.sqrt(np.diag(shifts.cov)[idx])
-    mean = float(delta.mean())
+    mean, sigma_mean, centred, sigma = centered_offsets(delta, np.asarray(shifts.cov)[np.ix_(idx, idx)])
     network.extra[LATENCY_KEY] = round(prob.latency_s + mean, 4)
-    network.extra[CLOCK_OFFSET_KEY] = {sid: round(float(d - mean), 4) for sid, d in zip(ids, delta, strict=True)}
+    network.extra[SIGMA_LATENCY_KEY] = round(sigma_mean, 4)
+    network.extra[CLOCK_OFFSET_KEY] = {sid: round(float(d), 4) for sid, d in zip(ids, centred, strict=True)}
     network.extra[SIGMA_CLOCK_OFFSET_KEY] = {sid: round(float(s), 4) for sid, s in zip(ids, sigma, strict=True)}
 
 
-__all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance"]
+__all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets"]

@@ -87,9 +87,15 @@ class HeadModel:
     height_reference: str = "none"
     estimated: bool = True
     note: str = ""
+    # the horizontal shift against the horizontal distance from the sensor, where the data show
+    # one (pedcal.calib.headpoint.profile_record): it replaces horizontal_shift_m
+    horizontal_profile: dict | None = None
 
     def to_dict(self) -> dict:
-        return plain(asdict(self))
+        out = plain(asdict(self))
+        if out.get("horizontal_profile") is None:
+            out.pop("horizontal_profile", None)
+        return out
 
 
 @dataclass

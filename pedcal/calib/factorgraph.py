@@ -64,6 +64,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
+from pedcal.calib.headpoint import head_profile_nuisances, is_head_profile, record_head_profile, select_head_profile
 from pedcal.calib.profile import (
     Columns,
     Nuisance,
@@ -143,6 +144,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
     cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
+    record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
     mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
@@ -347,7 +349,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         nuis += [Nuisance("odometry_scale_correction", 0.0, rec.odometry_scale_sigma, 1e-3),
                  Nuisance("odometry_drift_rad_per_m", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_m), 1e-4),
                  Nuisance("odometry_drift_rad_per_s", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_s), 1e-5)]
-    nuis += clock_nuisances(prob)          # each sensor's clock offset (pedcal.calib.clocks)
+    nuis += clock_nuisances(prob, result)  # each sensor's clock offset (pedcal.calib.clocks)
+    nuis += head_profile_nuisances(prob)   # the horizontal shift against distance (pedcal.calib.headpoint)
+    select_profile = any(is_head_profile(n.name) for n in nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
     unmodelled = None
     if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
@@ -391,6 +395,12 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             names = [n.name for n in nuis]
             theta = np.array([getattr(prob, n) for n in names], float)
             full_step = step
+        if select_profile and not chord:
+            select_profile = False
+            step, nuis, compared = select_head_profile(prob, step, nuis)
+            _log(progress, f"head point shift against distance: {compared}")
+            names, full_step = [n.name for n in nuis], step
+            theta = np.array([getattr(prob, n) for n in names], float)
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -561,7 +571,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         for name, sd in zip(shifts.names, np.sqrt(np.diag(shifts.cov)), strict=True):
             if name in ODOMETRY_NUISANCES:
                 _record_odometry_correction(prob.odometry_estimates, name, getattr(prob, name), float(sd))
-            elif not is_clock_nuisance(name):
+            elif not (is_clock_nuisance(name) or is_head_profile(name)):
                 setattr(head, "sigma_" + name, float(sd))
     if has_h and reference == "none":
         head.note = (HEAD_HEIGHT_DEGENERACY + " Its prior is a dome's (offset = -shift) give or take "

@@ -91,6 +91,7 @@ from pedcal.calib.amcl_model import AmclErrorModel, amcl_cov_body, amcl_white_si
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import interpolate_pose2
+from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.keys import A, H, L, S, X  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
     RobotMotion,
@@ -499,6 +500,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         use = np.flatnonzero(prob.fac_key_index < n_pose)
         p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
+        p_obs = p_obs + head_profile_shift_sensor(prob, theta, use)   # shift vs distance (pedcal.calib.headpoint)
         rng_m = np.linalg.norm(p_obs, axis=1)
         keys = [S(i) for i in prob.fac_sensor_index[use].tolist()]
         pose = prob.fac_key_index[use]

@@ -17,6 +17,7 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.amcl_model import AmclErrorModel, amcl_white_sigma, assumed_model
 from pedcal.calib.clocks import clock_shift_sensor
+from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
@@ -87,7 +88,8 @@ class FactorGraphProblem:
         point moved ray_shift_m along the ray from the offset head top."""
         return (self.fac_p_sensor - self.horizontal_shift_m * self.fac_toward_sensor
                 - self.curvature_m * self.fac_up_cos2
-                + clock_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor))))   # each sensor's clock
+                + clock_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor)))    # each sensor's clock
+                + head_profile_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor))))   # shift vs distance
 
     def merge_observations(self, max_sigmas: float = 4.0) -> None:
         """The graph's robot-observation factors: the observations one sensor made of the robot

@@ -56,6 +56,13 @@ class GraphRecipe:
     head_ray_shift_step_m: float = 0.02     # step of the shifts' profile likelihood
     estimate_head_horizontal_shift: bool = True   # a constant horizontal shift toward the sensor too
     head_horizontal_shift_sigma_m: float = 0.05   # its prior sigma (mean 0)
+    # the horizontal shift as a function of the horizontal distance from the sensor
+    # (pedcal.calib.headpoint): bic (a constant, a line or head_profile_knots linear hats, the
+    # one of least chi^2 - k ln(n)), linear, knots, or off (the constant shift alone); each
+    # knot's departure from the constant has prior sigma head_profile_sigma_m
+    head_profile: str = "off"
+    head_profile_knots: int = 4
+    head_profile_sigma_m: float = 0.03
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
     # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the

@@ -192,6 +192,7 @@ def read_sensors_yaml(path: str | Path) -> SensorNetwork:
 # Top-level keys of a calibrated YAML that pedcal evaluate applies: (lowest, highest, unit).
 CALIBRATION_KEYS = {
     "tracker_latency_s": (-plausible.MAX_ABS_LATENCY_S, plausible.MAX_ABS_LATENCY_S, "s"),
+    "sigma_tracker_latency_s": (0.0, plausible.MAX_ABS_LATENCY_S, "s"),
     "head_radius_m": (0.0, plausible.MAX_HEAD_RADIUS_M, "m"),
 }
 
@@ -233,6 +234,27 @@ def _check_calibration_keys(extra: dict, path: Path) -> None:
         if hm.get(key) is not None:
             lo = 0.0 if key.startswith("sigma_") else -plausible.MAX_HEAD_RADIUS_M
             _check_number(f"head_model.{key}", hm[key], lo, plausible.MAX_HEAD_RADIUS_M, "m", path)
+    if hm.get("horizontal_profile") is not None:
+        _check_head_profile(hm["horizontal_profile"], path)
+
+
+def _check_head_profile(prof, path: Path) -> None:
+    """``head_model.horizontal_profile``: the horizontal shift toward the sensor (m) at increasing
+    horizontal distances (m), as many of each (pedcal.calib.headpoint)."""
+    where = "head_model.horizontal_profile"
+    if not isinstance(prof, dict) or not isinstance(prof.get("distance_m"), list) or \
+            not isinstance(prof.get("shift_m"), list):
+        raise PedcalInputError(f"'{where}' must be a mapping with lists distance_m and shift_m, got {show(prof)}",
+                               path=path)
+    d, shift = prof["distance_m"], prof["shift_m"]
+    if len(d) < 2 or len(d) != len(shift):
+        raise PedcalInputError(f"'{where}': distance_m and shift_m must be lists of the same length, 2 or more "
+                               f"(got {len(d)} and {len(shift)})", path=path)
+    for j, (dj, sj) in enumerate(zip(d, shift, strict=True)):
+        _check_number(f"{where}.distance_m[{j}]", dj, 0.0, 1e3, "m", path)
+        _check_number(f"{where}.shift_m[{j}]", sj, -plausible.MAX_HEAD_RADIUS_M, plausible.MAX_HEAD_RADIUS_M, "m", path)
+    if any(b <= a for a, b in zip(d[:-1], d[1:], strict=True)):
+        raise PedcalInputError(f"'{where}.distance_m' must increase, got {show(d)}", path=path)
 
 
 def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
