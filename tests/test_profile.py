@@ -153,3 +153,103 @@ def test_joint_marginal_covariance_equals_gtsams(dome_paper):
     ours = joint_marginal_covariance(fg, result, keys)
     theirs = gtsam.Marginals(fg, result).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
     assert np.allclose(ours, theirs, rtol=1e-6, atol=1e-12 * np.abs(theirs).max())
+
+
+def _rhs_against_gtsam(log, prob, values, thetas, seed=0):
+    """Largest |b| and largest difference between ObservationRhs and the right-hand side of the
+    observation block's own linearization, over ``thetas`` and unit / random sigma scales."""
+    from pedcal.calib.graph import ObservationRhs
+
+    cols = Columns.of(values)
+    rhs = ObservationRhs(log, prob, values)
+    rng = np.random.default_rng(seed)
+    n = observation_block(log, prob, values).size()
+    worst, size = 0.0, 0.0
+    for th in thetas:
+        for scale in (np.ones(n), np.exp(0.5 * rng.normal(size=n))):
+            gfg = observation_block(log, prob, values, theta=th, sigma_scale=scale).linearize(values)
+            b = sparse_system(gfg, cols)[1]
+            ours = rhs(th, scale)
+            assert ours.shape == b.shape
+            worst, size = max(worst, float(np.abs(ours - b).max())), max(size, float(np.abs(b).max()))
+    return worst, size
+
+
+def test_observation_rhs_equals_gtsams_linearization(dome_paper):
+    # the robot's bearing-range factors and the head offset's prior, at the solution and with
+    # every shift moved (the measurements change, the predictions do not)
+    sim, prob, parts, result = dome_paper
+    thetas = [None, {"ray_shift_m": 0.04, "horizontal_shift_m": -0.015, "curvature_m": 0.02}]
+    worst, size = _rhs_against_gtsam(sim.calib, prob, result, thetas)
+    assert size > 1.0                   # residuals of several sigma: the comparison is not vacuous
+    assert worst < 1e-8
+
+
+def test_observation_rhs_equals_gtsams_for_shared_people():
+    # the people's bearing-range factors to their Point3 variables (the robot counted as a person)
+    sim = simulate_logs("paper", seed=0)
+    rec = GraphRecipe.load("default")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        prob = prepare(sim.calib, rec, is_robot=np.zeros(len(sim.calib.observations), bool))
+        parts = build_parts(sim.calib, prob)
+    assert len(prob.people) > 100
+    # away from the initial values, so that predictions and measurements differ
+    values = parts.values.retract(_random_delta(parts.values, 0.01, seed=1))
+    worst, size = _rhs_against_gtsam(sim.calib, prob, values, [None, {"ray_shift_m": 0.03, "horizontal_shift_m": 0.01}])
+    assert size > 1.0
+    assert worst < 1e-8
+
+
+def _random_delta(values, sd, seed):
+    rng = np.random.default_rng(seed)
+    vv = gtsam.VectorValues()
+    dims = values.dims()
+    for key in values.keys():
+        vv.insert(key, sd * rng.normal(size=int(dims[key])))
+    return vv
+
+
+def test_unit3_basis_is_gtsams():
+    from pedcal.calib.graph import _unit3_basis
+
+    rng = np.random.default_rng(4)
+    n = rng.normal(size=(200, 3))
+    n[:3] = [[0.0, 0.0, 1.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 1.0]]      # ties between components
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    b1, b2 = _unit3_basis(n)
+    theirs = np.stack([gtsam.Unit3(v).basis() for v in n])
+    assert np.allclose(np.stack([b1, b2], axis=-1), theirs, atol=1e-12)
+
+
+def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
+    # B from the numpy right-hand side (exact weights) against B from rebuilt GTSAM factors
+    # (weights quantized to 0.1 %): the same step to a small fraction of its sigma
+    from pedcal.calib.graph import ObservationRhs, S
+    from pedcal.calib.profile import Nuisance, profile_step
+
+    sim, prob, parts, result = dome_paper
+    rec = prob.recipe
+    fixed = gtsam.NonlinearFactorGraph()
+    for name in ("sensors", "amcl", "motion"):
+        fixed.push_back(parts.blocks[name])
+    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
+            Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m)]
+    names = [n.name for n in nuis]
+    theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m])
+    rhs = ObservationRhs(sim.calib, prob, result)
+
+    def build(th, scale):
+        return observation_block(sim.calib, prob, result, theta=dict(zip(names, th, strict=True)),
+                                 sigma_scale=scale)
+
+    kw = dict(obs0=parts.blocks["observations"], kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1)
+    old = profile_step(fixed, build, result, theta, nuis, **kw)
+    new = profile_step(fixed, build, result, theta, nuis,
+                       residuals=lambda th, s: rhs(dict(zip(names, th, strict=True)), s), **kw)
+    sigma = np.sqrt(np.diag(old.covariance))
+    assert np.all(np.abs(new.dtheta - old.dtheta) < 0.02 * sigma)
+    assert np.allclose(new.hessian, old.hessian, rtol=0.02)
+    assert np.allclose(new.z0, old.z0)
+    sensors = Columns.of(result).index([S(i) for i in range(len(prob.sensor_ids))])
+    assert np.abs(new.Z[sensors] - old.Z[sensors]).max() < 0.02 * np.abs(old.Z[sensors]).max()

@@ -43,6 +43,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     GraphRecipe,
     H,
     L,
+    ObservationRhs,
     S,
     X,
     _log,
@@ -371,11 +372,13 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
+        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
-            order=None if step is None else step.order)
+            order=None if step is None else step.order,
+            residuals=lambda th, scale, f=rhs, nm=tuple(names): f(dict(zip(nm, th, strict=True)), scale))
         if not chord:
             full_step = step
         if select and "curvature_m" in names:

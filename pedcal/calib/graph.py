@@ -448,6 +448,110 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     return graph
 
 
+@dataclass
+class ObservationTerms:
+    """The observation block's factors as arrays, in the block's order (the head offset's prior,
+    then one bearing-range factor per robot observation and per person's sighting): what
+    :func:`observation_block` makes GTSAM factors of and :func:`observation_rhs` evaluates in
+    numpy. ``noise_range_m`` and ``noise_scale``: the range the sigmas are taken at (as observed)
+    and the factor's scale of them (1 / sqrt of the merged count, times ``sigma_scale``)."""
+
+    prior: tuple | None          # (mean Pose3, sigmas (6,)) of h(0)'s prior, or None
+    sensor: np.ndarray           # (n,) sensor index of each bearing-range factor
+    target: np.ndarray           # (n,) its target's key index: a robot pose k, or a person m
+    is_pose: np.ndarray          # (n,) whether the target is a robot pose x(k) (else a person l(m))
+    p_sensor: np.ndarray         # (n, 3) the measured head point, sensor frame (its direction)
+    range_m: np.ndarray          # (n,) the measured range (|p| plus the ray shift)
+    noise_range_m: np.ndarray    # (n,)
+    noise_scale: np.ndarray      # (n,)
+    robust: bool                 # whether the factors carry the robust kernel
+
+    def sigmas(self, recipe: GraphRecipe) -> np.ndarray:
+        """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them."""
+        rounded = _NoiseCache.keys(self.noise_range_m) * _NoiseCache.STEP_M
+        return observation_sigmas(recipe, rounded) * self.noise_scale[:, None]
+
+
+def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
+                      t_max: float | None = None, insert_values: bool = False,
+                      theta: dict | None = None, robust: bool = True,
+                      sigma_scale: np.ndarray | None = None) -> ObservationTerms:
+    """The observation block's factors as arrays (:class:`ObservationTerms`; the arguments are
+    :func:`observation_block`'s)."""
+    rec = prob.recipe
+    theta = theta or {}
+    rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
+    hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
+    cv = float(theta.get("curvature_m", prob.curvature_m))
+    n_pose = len(_pose_times(prob, t_max))
+    factor = 0           # index of the next factor (into sigma_scale)
+    prior = None
+    if rec.amcl and rec.estimate_head_model and values is not None and values.exists(H(0)):
+        # prior: the point lies on a dome, offset = -shift (a blob's top: both 0; a dome's
+        # facing point: -r and r), give or take head_vertical_sigma_m; h's height is the
+        # offset minus the initial -head_radius_m of the robot poses
+        tiny = np.radians(0.05)
+        h_prior = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, rec.head_radius_m - rho]))
+        sig = np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m])
+        if sigma_scale is not None:
+            sig = sig * sigma_scale[factor]
+            factor += 1
+        prior = (h_prior, sig)
+    sensor, target, is_pose, p_all, r_all, noise_r, noise_count = [], [], [], [], [], [], []
+    if rec.robot:
+        use = np.flatnonzero(prob.fac_key_index < n_pose)
+        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
+        p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
+        sensor.append(prob.fac_sensor_index[use])
+        target.append(prob.fac_key_index[use])
+        is_pose.append(np.ones(len(use), bool))
+        p_all.append(p_obs)
+        r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
+        # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
+        # reward shifts that shrink them (a least-squares fit is no likelihood when its weights
+        # depend on the parameters), a bias along the shifts' nearly degenerate combination
+        noise_r.append(np.linalg.norm(prob.fac_p_sensor[use], axis=1))
+        noise_count.append(np.asarray(prob.fac_count[use], int))
+    if rec.people:
+        sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+        seen_i, seen_p, seen_m, seen_r = [], [], [], []
+        for m, (t, seen) in enumerate(prob.people):
+            if t_max is not None and t > t_max:
+                continue
+            pts = []
+            for sid, p in seen:
+                R0 = prob.init_sensors[sid].rotation().matrix()
+                seen_r.append(float(np.linalg.norm(p)))
+                p = (p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
+                     - cv * frames.up_by_cos2_elevation(p[None, :], R0)[0])
+                seen_i.append(sid_index[sid])
+                seen_p.append(p)
+                seen_m.append(m)
+                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / float(np.linalg.norm(p)))))
+            if insert_values:
+                values.insert(L(m), np.mean(pts, axis=0))
+        if seen_p:
+            seen_p = np.asarray(seen_p)
+            sensor.append(np.asarray(seen_i, int))
+            target.append(np.asarray(seen_m, int))
+            is_pose.append(np.zeros(len(seen_m), bool))
+            p_all.append(seen_p)
+            r_all.append(np.linalg.norm(seen_p, axis=1) + rho)
+            noise_r.append(np.asarray(seen_r, float))
+            noise_count.append(np.ones(len(seen_m), int))
+
+    def cat(parts, shape=(0,), dtype=float):
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype)
+
+    count = cat(noise_count, dtype=int)
+    scale = 1.0 / np.sqrt(count)
+    if sigma_scale is not None:
+        scale = scale * np.asarray(sigma_scale[factor:factor + len(count)], float)
+    return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),
+                            is_pose=cat(is_pose, dtype=bool), p_sensor=cat(p_all, (0, 3)), range_m=cat(r_all),
+                            noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None)
+
+
 def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
                       t_max: float | None = None, insert_values: bool = False,
                       theta: dict | None = None, robust: bool = True,
@@ -460,78 +564,93 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     ``sigma_scale`` (one per factor, in order) multiplies each factor's sigmas instead of a
     kernel (a robust weight w frozen: 1 / sqrt(w); models are shared between equal scales);
     ``insert_values`` puts the people's initial positions into ``values``."""
-    rec = prob.recipe
-    theta = theta or {}
-    rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
-    hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
-    cv = float(theta.get("curvature_m", prob.curvature_m))
+    terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
+                              robust=robust, sigma_scale=sigma_scale)
     graph = gtsam.NonlinearFactorGraph()
-    n_pose = len(_pose_times(prob, t_max))
-    cache = _NoiseCache.of(rec, robust=robust and sigma_scale is None)
-    factor = 0           # index of the next factor (into sigma_scale)
-
-    def noises(range_m: np.ndarray, count: np.ndarray | None = None) -> list:
-        """Noise models of observations at these ranges, each the mean of ``count``: shared
-        cached ones, robust, or with each factor's sigmas scaled instead."""
-        nonlocal factor
-        count = np.ones(len(range_m), int) if count is None else np.asarray(count, int)
-        scale = 1.0 / np.sqrt(count)
-        if sigma_scale is not None:
-            scale = scale * np.asarray(sigma_scale[factor:factor + len(range_m)], float)
-            factor += len(range_m)
-        pairs, inverse = np.unique(np.column_stack([cache.keys(range_m), scale]), axis=0, return_inverse=True)
-        models = cache.models(pairs[:, 0], pairs[:, 1])
-        return [models[i] for i in inverse.ravel()]
-
-    if rec.amcl and rec.estimate_head_model and values is not None and values.exists(H(0)):
-        # prior: the point lies on a dome, offset = -shift (a blob's top: both 0; a dome's
-        # facing point: -r and r), give or take head_vertical_sigma_m; h's height is the
-        # offset minus the initial -head_radius_m of the robot poses
-        tiny = np.radians(0.05)
-        h_prior = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, rec.head_radius_m - rho]))
-        sig = np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m])
-        if sigma_scale is not None:
-            sig = sig * sigma_scale[factor]
-            factor += 1
-        graph.add(gtsam.PriorFactorPose3(H(0), h_prior, gtsam.noiseModel.Diagonal.Sigmas(sig)))
-    sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-    if rec.robot:
-        use = np.flatnonzero(prob.fac_key_index < n_pose)
-        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
-        p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
-        rng_m = np.linalg.norm(p_obs, axis=1)
-        keys = [S(i) for i in prob.fac_sensor_index[use].tolist()]
-        pose = prob.fac_key_index[use]
-        # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
-        # reward shifts that shrink them (a least-squares fit is no likelihood when its weights
-        # depend on the parameters), a bias along the shifts' nearly degenerate combination
-        for n, nm in enumerate(noises(np.linalg.norm(prob.fac_p_sensor[use], axis=1), prob.fac_count[use])):
-            graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(pose[n])), gtsam.Unit3(p_obs[n]),
-                                                   rng_m[n] + rho, nm))
-    if rec.people:
-        seen_keys, seen_p, seen_m, seen_r = [], [], [], []
-        for m, (t, seen) in enumerate(prob.people):
-            if t_max is not None and t > t_max:
-                continue
-            pts = []
-            for sid, p in seen:
-                R0 = prob.init_sensors[sid].rotation().matrix()
-                seen_r.append(float(np.linalg.norm(p)))
-                p = (p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
-                     - cv * frames.up_by_cos2_elevation(p[None, :], R0)[0])
-                seen_keys.append(S(sid_index[sid]))
-                seen_p.append(p)
-                seen_m.append(m)
-                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / float(np.linalg.norm(p)))))
-            if insert_values:
-                values.insert(L(m), np.mean(pts, axis=0))
-        if seen_p:
-            seen_p = np.asarray(seen_p)
-            r = np.linalg.norm(seen_p, axis=1)
-            for n, nm in enumerate(noises(np.asarray(seen_r))):
-                graph.add(gtsam.BearingRangeFactor3D(seen_keys[n], L(seen_m[n]), gtsam.Unit3(seen_p[n]),
-                                                     r[n] + rho, nm))
+    if terms.prior is not None:
+        graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
+    n = len(terms.sensor)
+    if not n:
+        return graph
+    cache = _NoiseCache.of(prob.recipe, robust=terms.robust)
+    pairs, inverse = np.unique(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]), axis=0,
+                               return_inverse=True)
+    models = cache.models(pairs[:, 0], pairs[:, 1])
+    inverse = np.asarray(inverse).ravel()
+    s_keys = [S(i) for i in terms.sensor.tolist()]
+    t_keys = [X(k) if pose else L(k) for k, pose in zip(terms.target.tolist(), terms.is_pose.tolist(), strict=True)]
+    range_m = terms.range_m.tolist()
+    for j in range(n):
+        if terms.is_pose[j]:
+            graph.add(gtsam.BearingRangeFactorPose3(s_keys[j], t_keys[j], gtsam.Unit3(terms.p_sensor[j]),
+                                                   range_m[j], models[inverse[j]]))
+        else:
+            graph.add(gtsam.BearingRangeFactor3D(s_keys[j], t_keys[j], gtsam.Unit3(terms.p_sensor[j]),
+                                                 range_m[j], models[inverse[j]]))
     return graph
+
+
+def _unit3_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GTSAM's tangent basis (b1, b2) of the unit vectors ``n`` (rows): b1 = n x a / |n x a|, a
+    the axis of n's smallest component (the first of equal ones), b2 = n x b1."""
+    a = np.abs(n)
+    first = np.where((a[:, 0] <= a[:, 1]) & (a[:, 0] <= a[:, 2]), 0, np.where(a[:, 1] <= a[:, 2], 1, 2))
+    axis = np.zeros_like(n)
+    axis[np.arange(len(n)), first] = 1.0
+    b1 = np.cross(n, axis)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    return b1, np.cross(n, b1)
+
+
+class ObservationRhs:
+    """The right-hand side b of the observation block's linearization at fixed ``values`` (b =
+    -whitened error, each factor's sigmas scaled by ``sigma_scale``, no robust kernel: what
+    ``sparse_system(observation_block(..., sigma_scale=scale).linearize(values))[1]`` gives),
+    evaluated in numpy: the predictions (each target in its sensor's frame, their directions'
+    tangent bases) are made once, each call re-measures. A bearing-range factor's error is
+    GTSAM's: -Local_pred(u_meas) for the bearing (Unit3 local coordinates at the predicted
+    direction: basis^T (theta / sin theta) (u_meas - cos theta u_pred)), predicted minus measured
+    range."""
+
+    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
+        self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
+        terms = observation_terms(log, prob, values, t_max=t_max)
+        n_s = len(prob.sensor_ids)
+        Rs = np.stack([values.atPose3(S(i)).rotation().matrix() for i in range(n_s)]) if n_s else np.zeros((0, 3, 3))
+        ts = np.stack([values.atPose3(S(i)).translation() for i in range(n_s)]) if n_s else np.zeros((0, 3))
+        target = np.zeros((len(terms.sensor), 3))
+        for pose, at in ((True, values.atPose3), (False, values.atPoint3)):
+            rows = np.flatnonzero(terms.is_pose == pose)
+            if len(rows):
+                u, inv = np.unique(terms.target[rows], return_inverse=True)
+                key = X if pose else L
+                got = [at(key(int(k))) for k in u]
+                target[rows] = np.array([g.translation() if pose else g for g in got], float).reshape(len(u), 3)[
+                    np.asarray(inv).ravel()]
+        d = np.einsum("nji,nj->ni", Rs[terms.sensor], target - ts[terms.sensor])
+        self.range_pred = np.linalg.norm(d, axis=1)
+        self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
+        self.basis = _unit3_basis(self.u_pred)
+        self.structure = (terms.sensor, terms.target, terms.is_pose)
+
+    def __call__(self, theta: dict | None, sigma_scale: np.ndarray | None = None) -> np.ndarray:
+        terms = observation_terms(self.log, self.prob, self.values, t_max=self.t_max, theta=theta,
+                                  sigma_scale=sigma_scale)
+        rows = []
+        if terms.prior is not None:
+            prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))
+            rows.append(-prior.whitenedError(self.values))
+        if len(terms.sensor):
+            u_meas = terms.p_sensor / np.linalg.norm(terms.p_sensor, axis=1, keepdims=True)
+            x = np.sum(self.u_pred * u_meas, axis=1)
+            # theta / sin(theta) (1 where the directions agree, as GTSAM takes it)
+            y = np.where(x > 1.0 - 1e-9, 1.0,
+                         np.arccos(np.clip(x, -1.0, 1.0)) / np.sqrt(np.maximum(1.0 - x * x, 1e-300)))
+            v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
+            err = np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
+                                   self.range_pred - terms.range_m])
+            rows.append((-err / terms.sigmas(self.prob.recipe)).ravel())
+        return np.concatenate(rows) if rows else np.zeros(0)
 
 
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,

@@ -175,7 +175,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
                  plain=None, plain0=None, previous: ProfileStep | None = None,
-                 order: np.ndarray | None = None) -> ProfileStep:
+                 order: np.ndarray | None = None, residuals=None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -197,7 +197,13 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     gradient are taken here (a chord step of Newton's method: one solve instead of k + 1).
 
     ``order``: the fill-reducing column order of an earlier step on the same graph (its
-    ``order``), so that the ordering is computed once per graph, not once per step."""
+    ``order``), so that the ordering is computed once per graph, not once per step.
+
+    ``residuals(theta, sigma_scale)``: optionally, the right-hand side b of the observation
+    factors' linearization at ``values`` (b = -whitened error, sigmas scaled, no kernel) computed
+    without building them (:class:`pedcal.calib.graph.ObservationRhs`): B's columns are then
+    its differences at theta + h and theta under the same weights, and ``observations`` is
+    called for nothing but ``obs0`` when that is not given."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
     plain_build, plain_idx = plain if plain is not None else (None, ())
@@ -232,12 +238,19 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
     sqrt_w = sqrt_weights(n_rob, *kernel)
     if sqrt_w is None:
-        _, b_plain0 = sparse_system(observations(theta, np.ones(obs0.size())).linearize(values), cols)
+        b_plain0 = (residuals(theta, np.ones(obs0.size())) if residuals is not None else
+                    sparse_system(observations(theta, np.ones(obs0.size())).linearize(values), cols)[1])
         n_plain = np.sqrt(np.add.reduceat(b_plain0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
         sqrt_w = np.where(n_plain > 1e-12, n_rob / np.maximum(n_plain, 1e-300), 1.0)
     sqrt_w[:plain_leading] = 1.0
-    # quantized to 0.1 % so that factors of equal range and weight share a noise model
-    scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
+    if residuals is not None:
+        # no factors are built: the weights exact, and b at theta under them the reference
+        scale = 1.0 / np.maximum(sqrt_w, 1e-12)
+        b_ref = residuals(theta, scale)
+    else:
+        # quantized to 0.1 % so that factors of equal range and weight share a noise model
+        scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
+        b_ref = b_o0
     B_o = np.zeros((len(b_o0), k))
     B_p = np.zeros((len(b_p0), k))
     for j, nu in enumerate(nuisances):
@@ -247,8 +260,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         th[j] += nu.step
         if j in plain_idx:
             B_p[:, j] = (sparse_system(plain_build(th).linearize(values), cols)[1] - b_p0) / nu.step
+        elif residuals is not None:
+            B_o[:, j] = (residuals(th, scale) - b_ref) / nu.step
         else:
-            B_o[:, j] = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_o0) / nu.step
+            B_o[:, j] = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_ref) / nu.step
     Z = solve(A_o.T @ B_o + A_p.T @ B_p).reshape(cols.n, k)
     # profile residual r_p = rho0 + M dtheta over the fixed, observation and plain rows
     rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
