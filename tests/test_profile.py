@@ -243,7 +243,9 @@ def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
         return observation_block(sim.calib, prob, result, theta=dict(zip(names, th, strict=True)),
                                  sigma_scale=scale)
 
-    kw = dict(obs0=parts.blocks["observations"], kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1)
+    # (the fixture's blocks may have been moved on by another test: the observations built here)
+    kw = dict(obs0=observation_block(sim.calib, prob, result), kernel=(rec.robust_kernel, rec.robust_k),
+              plain_leading=1)
     old = profile_step(fixed, build, result, theta, nuis, **kw)
     new = profile_step(fixed, build, result, theta, nuis,
                        residuals=lambda th, s: rhs(dict(zip(names, th, strict=True)), s), **kw)
@@ -253,3 +255,77 @@ def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
     assert np.allclose(new.z0, old.z0)
     sensors = Columns.of(result).index([S(i) for i in range(len(prob.sensor_ids))])
     assert np.abs(new.Z[sensors] - old.Z[sensors]).max() < 0.02 * np.abs(old.Z[sensors]).max()
+
+
+def test_disjoint_groups_share_no_factor():
+    from pedcal.calib.profile import _disjoint_groups
+
+    footprint = {1: [0, 1], 2: [2, 3], 3: [1, 5], 4: [7]}
+    # 0 has no footprint (it enters everything): alone; 2 joins 1; 3 shares factor 1 with that
+    # group, so it starts its own; 4 joins the first group it overlaps nothing of
+    assert _disjoint_groups([0, 1, 2, 3, 4], footprint) == [[0], [1, 2, 4], [3]]
+    assert _disjoint_groups([], footprint) == []
+
+
+def _clock_profile(dome_paper, footprint_of):
+    from pedcal.calib.clocks import clock_nuisances
+    from pedcal.calib.graph import ObservationRhs
+    from pedcal.calib.profile import Nuisance, profile_step
+
+    sim, prob, parts, result = dome_paper
+    prob = copy.deepcopy(prob)
+    rec = prob.recipe
+    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
+    nuis += clock_nuisances(prob)
+    names = [n.name for n in nuis]
+    theta = np.array([getattr(prob, n) for n in names], float)
+    fixed = gtsam.NonlinearFactorGraph()
+    for name in ("sensors", "amcl", "motion"):
+        fixed.push_back(parts.blocks[name])
+    rhs = ObservationRhs(sim.calib, prob, result)
+    step = profile_step(fixed, None, result, theta, nuis, obs0=observation_block(sim.calib, prob, result),
+                        kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1,
+                        residuals=lambda th, s: rhs(dict(zip(names, th, strict=True)), s),
+                        footprint=footprint_of(prob, rhs, names))
+    return step, nuis
+
+
+def _clock_footprints(prob, rhs, names):
+    index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    return {j: rhs.robot_factors(index[n.split(":", 1)[1]]) for j, n in enumerate(names) if n.startswith("clock")}
+
+
+def test_grouped_clock_columns_equal_one_by_one(dome_paper):
+    # the clock offsets moved together (each its own sensor's factors) give the columns moved
+    # one at a time: the same step, Hessian and sensitivities
+    together, nuis = _clock_profile(dome_paper, _clock_footprints)
+    alone, _ = _clock_profile(dome_paper, lambda prob, rhs, names: None)
+    assert len(nuis) >= 5                          # the ray shift and the sensors' clocks
+    assert np.allclose(together.hessian, alone.hessian, rtol=1e-9, atol=1e-9 * np.abs(alone.hessian).max())
+    assert np.allclose(together.dtheta, alone.dtheta, rtol=1e-7, atol=1e-12)
+    assert np.allclose(together.Z, alone.Z, rtol=1e-7, atol=1e-9 * np.abs(alone.Z).max())
+
+
+def test_a_wrong_footprint_falls_back_to_one_by_one(dome_paper):
+    # the ray shift enters every factor: declared as entering one sensor's alone, its group's
+    # rows outside the footprints move, and its nuisances are taken one at a time
+    def wrong(prob, rhs, names):
+        fp = _clock_footprints(prob, rhs, names)
+        fp[0] = rhs.robot_factors(len(prob.sensor_ids) - 1)[:1]
+        return fp
+
+    wrong_step, _ = _clock_profile(dome_paper, wrong)
+    alone, _ = _clock_profile(dome_paper, lambda prob, rhs, names: None)
+    assert np.allclose(wrong_step.hessian, alone.hessian, rtol=1e-9, atol=1e-9 * np.abs(alone.hessian).max())
+
+
+def test_profile_hessian_equals_the_formed_residual_change(dome_paper):
+    # M^T M from B^T B - (A^T B)^T Z equals M = A Z - B formed row by row, and the gradient M^T r
+    step, nuis = _clock_profile(dome_paper, _clock_footprints)
+    M = step.A @ step.Z - step.B.toarray()
+    info = np.diag([1.0 / n.prior_sigma ** 2 for n in nuis])
+    assert np.allclose(step.hessian, M.T @ M + info, rtol=1e-8, atol=1e-8 * np.abs(step.hessian).max())
+    r = np.random.default_rng(2).normal(size=M.shape[0])
+    from pedcal.calib.profile import _residual_change_t
+
+    assert np.allclose(_residual_change_t(step, r), M.T @ r, rtol=1e-8, atol=1e-8 * np.abs(M.T @ r).max())

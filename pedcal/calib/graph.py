@@ -631,7 +631,12 @@ class ObservationRhs:
         self.range_pred = np.linalg.norm(d, axis=1)
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
         self.basis = _unit3_basis(self.u_pred)
-        self.structure = (terms.sensor, terms.target, terms.is_pose)
+        self.sensor, self.is_pose = terms.sensor, terms.is_pose
+        self.first = int(terms.prior is not None)        # the prior leads the block
+
+    def robot_factors(self, sensor_index: int) -> np.ndarray:
+        """Indices in the block of the robot observations of sensor ``sensor_index``."""
+        return self.first + np.flatnonzero(self.is_pose & (self.sensor == sensor_index))
 
     def __call__(self, theta: dict | None, sigma_scale: np.ndarray | None = None) -> np.ndarray:
         terms = observation_terms(self.log, self.prob, self.values, t_max=self.t_max, theta=theta,
