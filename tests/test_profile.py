@@ -329,3 +329,32 @@ def test_profile_hessian_equals_the_formed_residual_change(dome_paper):
     from pedcal.calib.profile import _residual_change_t
 
     assert np.allclose(_residual_change_t(step, r), M.T @ r, rtol=1e-8, atol=1e-8 * np.abs(M.T @ r).max())
+
+
+def test_pose3_log_is_gtsams():
+    from pedcal.calib.graph import pose3_log
+
+    rng = np.random.default_rng(5)
+    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * scale), rng.normal(size=3))
+             for scale in (0.0, 1e-8, 1e-5, 1e-3, 0.3, 1.5) for _ in range(20)]
+    ours = pose3_log(np.stack([p.rotation().matrix() for p in poses]), np.stack([p.translation() for p in poses]))
+    theirs = np.stack([gtsam.Pose3.Logmap(p) for p in poses])
+    assert np.abs(ours - theirs).max() < 1e-10
+
+
+def test_motion_rhs_equals_gtsams_linearization(dome_paper):
+    # the odometry block's right-hand side with its calibration's corrections moved, at values
+    # away from the odometry's own path
+    from pedcal.calib.graph import MotionRhs, motion_block
+
+    sim, prob, parts, result = dome_paper
+    assert prob.odometry is not None
+    values = result.retract(_random_delta(result, 0.01, seed=3))
+    cols = Columns.of(values)
+    rhs = MotionRhs(sim.calib, prob, values)
+    for th in (None, {"odometry_scale_correction": 0.004, "odometry_drift_rad_per_m": 1e-3,
+                      "odometry_drift_rad_per_s": -2e-4}):
+        b = sparse_system(motion_block(sim.calib, prob, theta=th).linearize(values), cols)[1]
+        ours = rhs(th)
+        assert ours.shape == b.shape and np.abs(b).max() > 1.0
+        assert np.abs(ours - b).max() < 1e-7

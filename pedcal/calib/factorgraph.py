@@ -44,6 +44,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     GraphRecipe,
     H,
     L,
+    MotionRhs,
     ObservationRhs,
     S,
     X,
@@ -366,8 +367,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         theta = np.array([getattr(prob, n) for n in names], float)
         plain = None
         if odo:
+            motion_rhs = MotionRhs(log, prob, result)
             plain = (lambda th, nm=tuple(names): motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
+                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
+                     lambda th, f=motion_rhs, nm=tuple(names): f(dict(zip(nm, th, strict=True))))
         # the shifts enter the measurements linearly, so after a step of a few sigma the
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1

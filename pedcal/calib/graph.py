@@ -401,23 +401,7 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     head_m = _head_m(log, rec)
     dt = np.diff(times)
     if rec.odometry and prob.odometry is not None:
-        theta = theta or {}
-        scale, drift_m, drift_s = (float(theta.get(k, getattr(prob, k))) for k in ODOMETRY_NUISANCES)
-        src = interpolate_pose2(prob.odometry, times)
-        c, s_ = np.cos(src[:-1, 2]), np.sin(src[:-1, 2])
-        d = np.diff(src[:, :2], axis=0)
-        fwd, left = c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]
-        dist = np.hypot(fwd, left)
-        turn = wrap_angle_rad(np.diff(src[:, 2])) - drift_m * dist - drift_s * dt
-        fwd, left = (1.0 + scale) * fwd, (1.0 + scale) * left
-        st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * dist) ** 2) + 1e-4
-        sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
-                     + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * dist) ** 2) + 1e-5
-        # the head frame's increment H^-1 B H (B the base's, H the head offset h): the turn, and the
-        # base's translation plus the head offset carried round the turn, (Rz(turn) - I) h
-        c, s_ = np.cos(turn), np.sin(turn)
-        tx = fwd + (c - 1.0) * head_m[0] - s_ * head_m[1]
-        ty = left + s_ * head_m[0] + (c - 1.0) * head_m[1]
+        turn, tx, ty, sy, st = _odometry_steps(log, prob, times, theta)
         steps = [gtsam.Pose3(gtsam.Rot3.Yaw(turn[k]), np.array([tx[k], ty[k], 0.0])) for k in range(n_pose - 1)]
     elif rec.smoothness:
         amcl = log.robot.sort_values("t")
@@ -438,10 +422,8 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     else:
         return graph
     # one noise model per distinct (turn, translation) sigma, rounded to 0.1 %
-    q = np.round(np.log(np.column_stack([sy, st])) / 1e-3).astype(np.int64)
-    uniq, inverse = np.unique(q, axis=0, return_inverse=True)
-    models = [gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, a, b, b, 1e-3]))
-              for a, b in np.exp(uniq * 1e-3)]
+    uniq, inverse = np.unique(_motion_sigma_keys(sy, st), axis=0, return_inverse=True)
+    models = [gtsam.noiseModel.Diagonal.Sigmas(_motion_sigmas(row[None, :])[0]) for row in uniq]
     inverse = np.asarray(inverse).ravel()
     for k in range(n_pose - 1):
         graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), steps[k], models[inverse[k]]))
@@ -550,6 +532,97 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),
                             is_pose=cat(is_pose, dtype=bool), p_sensor=cat(p_all, (0, 3)), range_m=cat(r_all),
                             noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None)
+
+
+def _motion_sigma_keys(sigma_turn: np.ndarray, sigma_translation: np.ndarray) -> np.ndarray:
+    """(n, 2) the motion factors' (turn, translation) sigmas rounded to 0.1 % (log / 1e-3, int)."""
+    return np.round(np.log(np.column_stack([sigma_turn, sigma_translation])) / 1e-3).astype(np.int64)
+
+
+def _motion_sigmas(keys: np.ndarray) -> np.ndarray:
+    """(n, 6) a motion factor's sigmas [roll pitch yaw x y z] from its rounded keys."""
+    a, b = np.exp(np.asarray(keys, float) * 1e-3).T
+    tiny = np.full(len(a), 1e-3)
+    return np.column_stack([tiny, tiny, a, b, b, tiny])
+
+
+def _odometry_steps(log: Log, prob: FactorGraphProblem, times: np.ndarray, theta: dict | None):
+    """The odometry's increments between consecutive poses at ``times`` (the head frame's turn and
+    x, y translation) with the problem's corrections, ``theta`` overriding them by name, and
+    their sigmas (turn, translation): (turn, tx, ty, sigma_turn, sigma_translation)."""
+    rec = prob.recipe
+    head_m = _head_m(log, rec)
+    dt = np.diff(times)
+    theta = theta or {}
+    scale, drift_m, drift_s = (float(theta.get(k, getattr(prob, k))) for k in ODOMETRY_NUISANCES)
+    src = interpolate_pose2(prob.odometry, times)
+    c, s_ = np.cos(src[:-1, 2]), np.sin(src[:-1, 2])
+    d = np.diff(src[:, :2], axis=0)
+    fwd, left = c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]
+    dist = np.hypot(fwd, left)
+    turn = wrap_angle_rad(np.diff(src[:, 2])) - drift_m * dist - drift_s * dt
+    fwd, left = (1.0 + scale) * fwd, (1.0 + scale) * left
+    st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * dist) ** 2) + 1e-4
+    sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
+                 + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * dist) ** 2) + 1e-5
+    # the head frame's increment H^-1 B H (B the base's, H the head offset h): the turn, and the
+    # base's translation plus the head offset carried round the turn, (Rz(turn) - I) h
+    c, s_ = np.cos(turn), np.sin(turn)
+    tx = fwd + (c - 1.0) * head_m[0] - s_ * head_m[1]
+    ty = left + s_ * head_m[0] + (c - 1.0) * head_m[1]
+    return turn, tx, ty, sy, st
+
+
+def _rot3_log(R: np.ndarray) -> np.ndarray:
+    """(n, 3) SO(3) logarithm of rotation matrices (n, 3, 3) (angles below pi)."""
+    angle = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    vee = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
+    small = angle < 1e-6
+    f = np.where(small, 0.5 + angle ** 2 / 12.0, angle / (2.0 * np.sin(np.where(small, 1.0, angle))))
+    return f[:, None] * vee
+
+
+def pose3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(n, 6) GTSAM's Pose3 logarithm [w, u] of poses (R (n, 3, 3), t (n, 3)): w = Log(R) and
+    u = V(w)^-1 t = t - w x t / 2 + (1 - theta / (2 tan(theta / 2))) / theta^2 w x (w x t)."""
+    w = _rot3_log(R)
+    angle = np.linalg.norm(w, axis=1)
+    wt = np.cross(w, t)
+    big = angle > 1e-4
+    a = np.where(big, angle, 1.0)
+    c = np.where(big, (1.0 - a / (2.0 * np.tan(0.5 * a))) / a ** 2, 1.0 / 12.0 + angle ** 2 / 720.0)
+    return np.column_stack([w, t - 0.5 * wt + c[:, None] * np.cross(w, wt)])
+
+
+class MotionRhs:
+    """The right-hand side b of the odometry block's linearization at fixed ``values`` (b =
+    -whitened error, what ``sparse_system(motion_block(..., theta=...).linearize(values))[1]``
+    gives), in numpy: a BetweenFactorPose3's error Log(Z^-1 X_k^-1 X_k+1), Z the odometry's
+    increment. The poses' increments are taken once, each call re-measures."""
+
+    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
+        self.log, self.prob = log, prob
+        self.times = _pose_times(prob, t_max)
+        n = len(self.times)
+        poses = [values.atPose3(X(k)) for k in range(n)]
+        R = np.stack([p.rotation().matrix() for p in poses]) if n else np.zeros((0, 3, 3))
+        t = np.stack([p.translation() for p in poses]) if n else np.zeros((0, 3))
+        # X_k^-1 X_k+1
+        self.R_h = np.einsum("nji,njk->nik", R[:-1], R[1:])
+        self.t_h = np.einsum("nji,nj->ni", R[:-1], t[1:] - t[:-1])
+
+    def __call__(self, theta: dict | None) -> np.ndarray:
+        if len(self.times) < 2:
+            return np.zeros(0)
+        turn, tx, ty, sy, st = _odometry_steps(self.log, self.prob, self.times, theta)
+        c, s_ = np.cos(turn), np.sin(turn)
+        Rz_inv = np.zeros((len(turn), 3, 3))             # Z^-1's rotation, Rz(-turn)
+        Rz_inv[:, 0, 0] = Rz_inv[:, 1, 1] = c
+        Rz_inv[:, 0, 1], Rz_inv[:, 1, 0] = s_, -s_
+        Rz_inv[:, 2, 2] = 1.0
+        dt = self.t_h - np.column_stack([tx, ty, np.zeros(len(tx))])
+        err = pose3_log(Rz_inv @ self.R_h, np.einsum("nij,nj->ni", Rz_inv, dt))
+        return (-err / _motion_sigmas(_motion_sigma_keys(sy, st))).ravel()
 
 
 def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,

@@ -204,7 +204,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     ``plain``: optionally ``(build(theta), indices)``, factors without a robust kernel that only
     the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
     for those nuisances alone, the observations for the others; ``plain0``: those factors at
-    ``theta`` when already built.
+    ``theta`` when already built. A third element ``residuals(theta)``, their linearization's
+    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds.
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
     its Hessian, sensitivity Z and residual change M are kept and only the variables' step z0
@@ -228,7 +229,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     M^T r = Z^T A^T r - B^T r."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
-    plain_build, plain_idx = plain if plain is not None else (None, ())
+    plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
+    plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
     if plain_build is not None:
         g_plain0 = (plain0 if plain0 is not None else plain_build(theta)).linearize(values)
         A_p, b_p0 = sparse_system(g_plain0, cols)
@@ -279,10 +281,13 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     # b0 + h B_j
     columns: list = [None] * k
     moved = [j for j in range(k) if j not in plain_idx]
+    b_p_ref = plain_residuals(theta) if plain_residuals is not None and len(plain_idx) else b_p0
     for j in plain_idx:
         th = np.array(theta, float)
         th[j] += nuisances[j].step
-        d = (sparse_system(plain_build(th).linearize(values), cols)[1] - b_p0) / nuisances[j].step
+        b_p = (plain_residuals(th) if plain_residuals is not None
+               else sparse_system(plain_build(th).linearize(values), cols)[1])
+        d = (b_p - b_p_ref) / nuisances[j].step
         columns[j] = (np.flatnonzero(d) + len(b_o0), d[d != 0.0])
     if residuals is not None:
         for group in _disjoint_groups(moved, footprint or {}):
