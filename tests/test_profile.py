@@ -70,10 +70,13 @@ def test_normal_solve_in_the_graphs_colamd_order_is_gtsams_step(dome_paper):
     for solve in (_normal_solver(A, order), _normal_solver(A)):
         x = solve(y)
         assert np.abs(x - step).max() < 1e-9 * max(np.abs(step).max(), 1.0)
-    # two right-hand sides at once, as the profile's sensitivities are solved
+    # two right-hand sides at once, as the profile's sensitivities are solved (by the triangular
+    # factors' own solves): GTSAM's step too
     Y = np.column_stack([y, 2.0 * y])
     X = _normal_solver(A, order)(Y)
     assert np.abs(X[:, 1] - 2.0 * X[:, 0]).max() < 1e-9 * np.abs(X).max()
+    assert np.abs(X[:, 0] - step).max() < 1e-9 * max(np.abs(step).max(), 1.0)
+
 
 def test_profile_estimate_and_sigma_match_the_nonlinear_profile(dome_paper):
     # the profile step's optimum and Hessian against the graph re-solved by Levenberg-Marquardt

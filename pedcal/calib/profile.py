@@ -121,11 +121,22 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
     lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                    options={"SymmetricMode": True})
+    n = len(order)
+    unpermuted = np.array_equal(lu.perm_r, np.arange(n)) and np.array_equal(lu.perm_c, np.arange(n))
+    factors = []
 
     def solve(y):
         y = np.asarray(y, float)
         x = np.empty_like(y)
-        x[order] = lu.solve(y[order])
+        if y.ndim == 2 and y.shape[1] > 1 and unpermuted:
+            # many right-hand sides: the triangular factors' own solves, several times faster
+            # than SuperLU's (which takes the columns in turn)
+            if not factors:
+                factors.extend([lu.L.tocsr(), lu.U.tocsr()])
+            w = spla.spsolve_triangular(factors[0], y[order], lower=True, unit_diagonal=True)
+            x[order] = spla.spsolve_triangular(factors[1], w, lower=False)
+        else:
+            x[order] = lu.solve(y[order])
         return x
     return solve
 
