@@ -104,6 +104,9 @@ def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.nda
     return cols.index(keys + missing)
 
 
+SOLVE_BLOCK = 32     # right-hand sides solved at once by the triangular factors
+
+
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
     pivoting: the matrix is positive definite, the graph's priors hold every variable), in the
@@ -133,8 +136,11 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
             # than SuperLU's (which takes the columns in turn)
             if not factors:
                 factors.extend([lu.L.tocsr(), lu.U.tocsr()])
-            w = spla.spsolve_triangular(factors[0], y[order], lower=True, unit_diagonal=True)
-            x[order] = spla.spsolve_triangular(factors[1], w, lower=False)
+            # in blocks of columns, so that the solves' temporaries stay a few blocks' size
+            for c in range(0, y.shape[1], SOLVE_BLOCK):
+                block = slice(c, c + SOLVE_BLOCK)
+                w = spla.spsolve_triangular(factors[0], y[order, block], lower=True, unit_diagonal=True)
+                x[order, block] = spla.spsolve_triangular(factors[1], w, lower=False)
         else:
             x[order] = lu.solve(y[order])
         return x
