@@ -135,7 +135,7 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
             # many right-hand sides: the triangular factors' own solves, several times faster
             # than SuperLU's (which takes the columns in turn)
             if not factors:
-                factors.extend([lu.L.tocsr(), lu.U.tocsr()])
+                factors.extend([lu.L, lu.U])         # (CSC: the solves take them as they are)
             # in blocks of columns, so that the solves' temporaries stay a few blocks' size
             for c in range(0, y.shape[1], SOLVE_BLOCK):
                 block = slice(c, c + SOLVE_BLOCK)
