@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib.graph import GraphRecipe, S, build_graph, prepare
-from pedcal.calib.online import _factor_times, factors_until
+from pedcal.calib.online import _factor_times, factors_until, isam2_params
 
 
 def pass_ends(prob, gap_s: float) -> np.ndarray:
@@ -52,10 +52,7 @@ def main() -> None:
     graph, values = build_graph(log, prob)
     ft = _factor_times(graph, prob)
     order = np.argsort(ft, kind="stable")
-    params = gtsam.ISAM2Params()               # as pedcal.calib.online
-    params.setRelinearizeThreshold(0.001)
-    params.relinearizeSkip = 1
-    isam = gtsam.ISAM2(params)
+    isam = gtsam.ISAM2(isam2_params())               # as pedcal.calib.online
     added: set[int] = set()
     pos, rows = 0, []
     sensor_keys = [S(i) for i in range(len(prob.sensor_ids))]

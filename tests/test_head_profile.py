@@ -6,6 +6,7 @@ import warnings
 from types import SimpleNamespace
 
 import numpy as np
+import scipy.sparse as sps
 import pytest
 import yaml
 
@@ -74,7 +75,8 @@ def _step(grad: np.ndarray) -> tuple[ProfileStep, list]:
     H = np.eye(4) * 1e4 + A @ A.T * 1e3
     n_var = 5
     step = ProfileStep(dtheta=-np.linalg.solve(H, grad), hessian=H, z0=np.zeros(n_var), Z=np.zeros((n_var, 4)),
-                       cols=Columns(keys=[], offset={}, dim={}, n=n_var), M=np.zeros((7, 4)))
+                       cols=Columns(keys=[], offset={}, dim={}, n=n_var),
+                       A=sps.csr_matrix((7, n_var)), B=sps.csc_matrix((7, 4)))
     return step, nuis
 
 

@@ -70,10 +70,13 @@ def test_normal_solve_in_the_graphs_colamd_order_is_gtsams_step(dome_paper):
     for solve in (_normal_solver(A, order), _normal_solver(A)):
         x = solve(y)
         assert np.abs(x - step).max() < 1e-9 * max(np.abs(step).max(), 1.0)
-    # two right-hand sides at once, as the profile's sensitivities are solved
+    # two right-hand sides at once, as the profile's sensitivities are solved (by the triangular
+    # factors' own solves): GTSAM's step too
     Y = np.column_stack([y, 2.0 * y])
     X = _normal_solver(A, order)(Y)
     assert np.abs(X[:, 1] - 2.0 * X[:, 0]).max() < 1e-9 * np.abs(X).max()
+    assert np.abs(X[:, 0] - step).max() < 1e-9 * max(np.abs(step).max(), 1.0)
+
 
 def test_profile_estimate_and_sigma_match_the_nonlinear_profile(dome_paper):
     # the profile step's optimum and Hessian against the graph re-solved by Levenberg-Marquardt
@@ -153,3 +156,224 @@ def test_joint_marginal_covariance_equals_gtsams(dome_paper):
     ours = joint_marginal_covariance(fg, result, keys)
     theirs = gtsam.Marginals(fg, result).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
     assert np.allclose(ours, theirs, rtol=1e-6, atol=1e-12 * np.abs(theirs).max())
+
+
+def _rhs_against_gtsam(log, prob, values, thetas, seed=0):
+    """Largest |b| and largest difference between ObservationRhs and the right-hand side of the
+    observation block's own linearization, over ``thetas`` and unit / random sigma scales."""
+    from pedcal.calib.graph import ObservationRhs
+
+    cols = Columns.of(values)
+    rhs = ObservationRhs(log, prob, values)
+    rng = np.random.default_rng(seed)
+    n = observation_block(log, prob, values).size()
+    worst, size = 0.0, 0.0
+    for th in thetas:
+        for scale in (np.ones(n), np.exp(0.5 * rng.normal(size=n))):
+            gfg = observation_block(log, prob, values, theta=th, sigma_scale=scale).linearize(values)
+            b = sparse_system(gfg, cols)[1]
+            ours = rhs(th, scale)
+            assert ours.shape == b.shape
+            worst, size = max(worst, float(np.abs(ours - b).max())), max(size, float(np.abs(b).max()))
+    return worst, size
+
+
+def test_observation_rhs_equals_gtsams_linearization(dome_paper):
+    # the robot's bearing-range factors and the head offset's prior, at the solution and with
+    # every shift moved (the measurements change, the predictions do not)
+    sim, prob, parts, result = dome_paper
+    thetas = [None, {"ray_shift_m": 0.04, "horizontal_shift_m": -0.015, "curvature_m": 0.02}]
+    worst, size = _rhs_against_gtsam(sim.calib, prob, result, thetas)
+    assert size > 1.0                   # residuals of several sigma: the comparison is not vacuous
+    assert worst < 1e-8
+
+
+def test_observation_rhs_equals_gtsams_for_shared_people():
+    # the people's bearing-range factors to their Point3 variables (the robot counted as a person)
+    sim = simulate_logs("paper", seed=0)
+    rec = GraphRecipe.load("default")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        prob = prepare(sim.calib, rec, is_robot=np.zeros(len(sim.calib.observations), bool))
+        parts = build_parts(sim.calib, prob)
+    assert len(prob.people) > 100
+    # away from the initial values, so that predictions and measurements differ
+    values = parts.values.retract(_random_delta(parts.values, 0.01, seed=1))
+    worst, size = _rhs_against_gtsam(sim.calib, prob, values, [None, {"ray_shift_m": 0.03, "horizontal_shift_m": 0.01}])
+    assert size > 1.0
+    assert worst < 1e-8
+
+
+def _random_delta(values, sd, seed):
+    rng = np.random.default_rng(seed)
+    vv = gtsam.VectorValues()
+    dims = values.dims()
+    for key in values.keys():
+        vv.insert(key, sd * rng.normal(size=int(dims[key])))
+    return vv
+
+
+def test_unit3_basis_is_gtsams():
+    from pedcal.calib.graph import _unit3_basis
+
+    rng = np.random.default_rng(4)
+    n = rng.normal(size=(200, 3))
+    n[:3] = [[0.0, 0.0, 1.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 1.0]]      # ties between components
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    b1, b2 = _unit3_basis(n)
+    theirs = np.stack([gtsam.Unit3(v).basis() for v in n])
+    assert np.allclose(np.stack([b1, b2], axis=-1), theirs, atol=1e-12)
+
+
+def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
+    # B from the numpy right-hand side (exact weights) against B from rebuilt GTSAM factors
+    # (weights quantized to 0.1 %): the same step to a small fraction of its sigma
+    from pedcal.calib.graph import ObservationRhs, S
+    from pedcal.calib.profile import Nuisance, profile_step
+
+    sim, prob, parts, result = dome_paper
+    rec = prob.recipe
+    fixed = gtsam.NonlinearFactorGraph()
+    for name in ("sensors", "amcl", "motion"):
+        fixed.push_back(parts.blocks[name])
+    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
+            Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m)]
+    names = [n.name for n in nuis]
+    theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m])
+    rhs = ObservationRhs(sim.calib, prob, result)
+
+    def build(th, scale):
+        return observation_block(sim.calib, prob, result, theta=dict(zip(names, th, strict=True)),
+                                 sigma_scale=scale)
+
+    # (the fixture's blocks may have been moved on by another test: the observations built here)
+    kw = dict(obs0=observation_block(sim.calib, prob, result), kernel=(rec.robust_kernel, rec.robust_k),
+              plain_leading=1)
+    old = profile_step(fixed, build, result, theta, nuis, **kw)
+    new = profile_step(fixed, build, result, theta, nuis,
+                       residuals=lambda th, s: rhs(dict(zip(names, th, strict=True)), s), **kw)
+    sigma = np.sqrt(np.diag(old.covariance))
+    assert np.all(np.abs(new.dtheta - old.dtheta) < 0.02 * sigma)
+    assert np.allclose(new.hessian, old.hessian, rtol=0.02)
+    assert np.allclose(new.z0, old.z0)
+    sensors = Columns.of(result).index([S(i) for i in range(len(prob.sensor_ids))])
+    assert np.abs(new.Z[sensors] - old.Z[sensors]).max() < 0.02 * np.abs(old.Z[sensors]).max()
+
+
+def test_disjoint_groups_share_no_factor():
+    from pedcal.calib.profile import _disjoint_groups
+
+    footprint = {1: [0, 1], 2: [2, 3], 3: [1, 5], 4: [7]}
+    # 0 has no footprint (it enters everything): alone; 2 joins 1; 3 shares factor 1 with that
+    # group, so it starts its own; 4 joins the first group it overlaps nothing of
+    assert _disjoint_groups([0, 1, 2, 3, 4], footprint) == [[0], [1, 2, 4], [3]]
+    assert _disjoint_groups([], footprint) == []
+
+
+def _clock_profile(dome_paper, footprint_of):
+    from pedcal.calib.clocks import clock_nuisances
+    from pedcal.calib.graph import ObservationRhs
+    from pedcal.calib.profile import Nuisance, profile_step
+
+    sim, prob, parts, result = dome_paper
+    prob = copy.deepcopy(prob)
+    rec = prob.recipe
+    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
+    nuis += clock_nuisances(prob)
+    names = [n.name for n in nuis]
+    theta = np.array([getattr(prob, n) for n in names], float)
+    fixed = gtsam.NonlinearFactorGraph()
+    for name in ("sensors", "amcl", "motion"):
+        fixed.push_back(parts.blocks[name])
+    rhs = ObservationRhs(sim.calib, prob, result)
+    step = profile_step(fixed, None, result, theta, nuis, obs0=observation_block(sim.calib, prob, result),
+                        kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1,
+                        residuals=lambda th, s: rhs(dict(zip(names, th, strict=True)), s),
+                        footprint=footprint_of(prob, rhs, names))
+    return step, nuis
+
+
+def _clock_footprints(prob, rhs, names):
+    index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    return {j: rhs.robot_factors(index[n.split(":", 1)[1]]) for j, n in enumerate(names) if n.startswith("clock")}
+
+
+def test_grouped_clock_columns_equal_one_by_one(dome_paper):
+    # the clock offsets moved together (each its own sensor's factors) give the columns moved
+    # one at a time: the same step, Hessian and sensitivities
+    together, nuis = _clock_profile(dome_paper, _clock_footprints)
+    alone, _ = _clock_profile(dome_paper, lambda prob, rhs, names: None)
+    assert len(nuis) >= 5                          # the ray shift and the sensors' clocks
+    assert np.allclose(together.hessian, alone.hessian, rtol=1e-9, atol=1e-9 * np.abs(alone.hessian).max())
+    assert np.allclose(together.dtheta, alone.dtheta, rtol=1e-7, atol=1e-12)
+    assert np.allclose(together.Z, alone.Z, rtol=1e-7, atol=1e-9 * np.abs(alone.Z).max())
+
+
+def test_a_wrong_footprint_falls_back_to_one_by_one(dome_paper):
+    # the ray shift enters every factor: declared as entering one sensor's alone, its group's
+    # rows outside the footprints move, and its nuisances are taken one at a time
+    def wrong(prob, rhs, names):
+        fp = _clock_footprints(prob, rhs, names)
+        fp[0] = rhs.robot_factors(len(prob.sensor_ids) - 1)[:1]
+        return fp
+
+    wrong_step, _ = _clock_profile(dome_paper, wrong)
+    alone, _ = _clock_profile(dome_paper, lambda prob, rhs, names: None)
+    assert np.allclose(wrong_step.hessian, alone.hessian, rtol=1e-9, atol=1e-9 * np.abs(alone.hessian).max())
+
+
+def test_profile_hessian_equals_the_formed_residual_change(dome_paper):
+    # M^T M from B^T B - (A^T B)^T Z equals M = A Z - B formed row by row, and the gradient M^T r
+    step, nuis = _clock_profile(dome_paper, _clock_footprints)
+    M = step.A @ step.Z - step.B.toarray()
+    info = np.diag([1.0 / n.prior_sigma ** 2 for n in nuis])
+    assert np.allclose(step.hessian, M.T @ M + info, rtol=1e-8, atol=1e-8 * np.abs(step.hessian).max())
+    r = np.random.default_rng(2).normal(size=M.shape[0])
+    from pedcal.calib.profile import _residual_change_t
+
+    assert np.allclose(_residual_change_t(step, r), M.T @ r, rtol=1e-8, atol=1e-8 * np.abs(M.T @ r).max())
+
+
+def test_pose3_log_is_gtsams():
+    from pedcal.calib.graph import pose3_log
+
+    rng = np.random.default_rng(5)
+    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * scale), rng.normal(size=3))
+             for scale in (0.0, 1e-8, 1e-5, 1e-3, 0.3, 1.5) for _ in range(20)]
+    ours = pose3_log(np.stack([p.rotation().matrix() for p in poses]), np.stack([p.translation() for p in poses]))
+    theirs = np.stack([gtsam.Pose3.Logmap(p) for p in poses])
+    assert np.abs(ours - theirs).max() < 1e-10
+
+
+def test_motion_rhs_equals_gtsams_linearization(dome_paper):
+    # the odometry block's right-hand side with its calibration's corrections moved, at values
+    # away from the odometry's own path
+    from pedcal.calib.graph import MotionRhs, motion_block
+
+    sim, prob, parts, result = dome_paper
+    assert prob.odometry is not None
+    values = result.retract(_random_delta(result, 0.01, seed=3))
+    cols = Columns.of(values)
+    rhs = MotionRhs(sim.calib, prob, values)
+    for th in (None, {"odometry_scale_correction": 0.004, "odometry_drift_rad_per_m": 1e-3,
+                      "odometry_drift_rad_per_s": -2e-4}):
+        b = sparse_system(motion_block(sim.calib, prob, theta=th).linearize(values), cols)[1]
+        ours = rhs(th)
+        assert ours.shape == b.shape and np.abs(b).max() > 1.0
+        assert np.abs(ours - b).max() < 1e-7
+
+
+def test_normal_solve_of_many_right_hand_sides_in_blocks():
+    # more columns than one block of the triangular solves, in a scrambled column order: each
+    # column solves N x = y
+    import scipy.sparse as sps
+
+    from pedcal.calib.profile import SOLVE_BLOCK
+
+    rng = np.random.default_rng(0)
+    n = 120
+    A = (sps.random(400, n, density=0.05, random_state=1, format="csr")
+         + sps.vstack([sps.eye(n), sps.csr_matrix((400 - n, n))])).tocsr()
+    Y = rng.normal(size=(n, 2 * SOLVE_BLOCK + 6))
+    X = _normal_solver(A, rng.permutation(n))(Y)
+    assert np.abs((A.T @ A) @ X - Y).max() < 1e-10

@@ -89,17 +89,18 @@ def _velocity_sensor(prob) -> np.ndarray:
     rotations: a degree off changes a millimetre-sized term by a few per cent); cached on the
     problem until its factors change."""
     pose_v = getattr(prob, "_pose_velocity_world", None)
-    key = (id(prob.fac_key_index), len(prob.fac_key_index), id(pose_v))
+    # the cache holds the arrays it was made from, so an identity test cannot meet a new array
+    # that took a freed one's id (ids are reused once an object is gone)
     cached = getattr(prob, "_clock_velocity", None)
-    if cached is not None and cached[0] == key:
-        return cached[1]
+    if cached is not None and cached[0] is prob.fac_key_index and cached[1] is pose_v:
+        return cached[2]
     if pose_v is not None and len(pose_v) > int(prob.fac_key_index.max(initial=0)):
         v_world = pose_v[prob.fac_key_index]
     else:
         v_world = prob.motion.velocity(prob.pose_times[prob.fac_key_index], h=VELOCITY_HALF_WINDOW_S)
     R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[prob.fac_sensor_index]
     v = np.einsum("nji,nj->ni", R, v_world)
-    prob._clock_velocity = (key, v)
+    prob._clock_velocity = (prob.fac_key_index, pose_v, v)
     return v
 
 

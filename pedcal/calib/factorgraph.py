@@ -32,6 +32,7 @@ import numpy as np
 
 from pedcal.calib import readback
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
+from pedcal.calib.clocks import PREFIX as CLOCK_PREFIX
 from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
@@ -43,6 +44,8 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     GraphRecipe,
     H,
     L,
+    MotionRhs,
+    ObservationRhs,
     S,
     X,
     _log,
@@ -68,7 +71,6 @@ from pedcal.calib.headpoint import head_profile_nuisances, is_head_profile, reco
 from pedcal.calib.profile import (
     Columns,
     Nuisance,
-    ProfileStep,
     joint_marginal_covariance,
     profile_step,
     retract_flat,
@@ -369,17 +371,26 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         theta = np.array([getattr(prob, n) for n in names], float)
         plain = None
         if odo:
+            motion_rhs = MotionRhs(log, prob, result)
             plain = (lambda th, nm=tuple(names): motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
+                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
+                     lambda th, f=motion_rhs, nm=tuple(names): f(dict(zip(nm, th, strict=True))))
         # the shifts enter the measurements linearly, so after a step of a few sigma the
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
+        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
+        # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
+        index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+        footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(names)
+                     if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
-            order=None if step is None else step.order)
+            order=None if step is None else step.order,
+            residuals=lambda th, scale, f=rhs, nm=tuple(names): f(dict(zip(nm, th, strict=True)), scale),
+            footprint=footprint)
         if not chord:
             full_step = step
         if select and "curvature_m" in names:
@@ -447,8 +458,8 @@ def _select_curvature(step, nuis: list[Nuisance], threshold_chi2: float, estimat
     chi2 = float(g @ np.linalg.solve(H, g) - g[o] @ np.linalg.solve(H[np.ix_(o, o)], g[o]))
     if estimate and chi2 >= threshold_chi2:
         return step, nuis, chi2
-    reduced = ProfileStep(dtheta=-np.linalg.solve(H[np.ix_(o, o)], g[o]), hessian=H[np.ix_(o, o)], z0=step.z0,
-                          Z=step.Z[:, o], cols=step.cols, M=None if step.M is None else step.M[:, o], order=step.order)
+    reduced = step.select(o)
+    reduced.dtheta = -np.linalg.solve(H[np.ix_(o, o)], g[o])
     return reduced, nuis[:-1], chi2
 
 

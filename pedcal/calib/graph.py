@@ -402,23 +402,7 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     head_m = _head_m(log, rec)
     dt = np.diff(times)
     if rec.odometry and prob.odometry is not None:
-        theta = theta or {}
-        scale, drift_m, drift_s = (float(theta.get(k, getattr(prob, k))) for k in ODOMETRY_NUISANCES)
-        src = interpolate_pose2(prob.odometry, times)
-        c, s_ = np.cos(src[:-1, 2]), np.sin(src[:-1, 2])
-        d = np.diff(src[:, :2], axis=0)
-        fwd, left = c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]
-        dist = np.hypot(fwd, left)
-        turn = wrap_angle_rad(np.diff(src[:, 2])) - drift_m * dist - drift_s * dt
-        fwd, left = (1.0 + scale) * fwd, (1.0 + scale) * left
-        st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * dist) ** 2) + 1e-4
-        sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
-                     + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * dist) ** 2) + 1e-5
-        # the head frame's increment H^-1 B H (B the base's, H the head offset h): the turn, and the
-        # base's translation plus the head offset carried round the turn, (Rz(turn) - I) h
-        c, s_ = np.cos(turn), np.sin(turn)
-        tx = fwd + (c - 1.0) * head_m[0] - s_ * head_m[1]
-        ty = left + s_ * head_m[0] + (c - 1.0) * head_m[1]
+        turn, tx, ty, sy, st = _odometry_steps(log, prob, times, theta)
         steps = [gtsam.Pose3(gtsam.Rot3.Yaw(turn[k]), np.array([tx[k], ty[k], 0.0])) for k in range(n_pose - 1)]
     elif rec.smoothness:
         amcl = log.robot.sort_values("t")
@@ -439,14 +423,208 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     else:
         return graph
     # one noise model per distinct (turn, translation) sigma, rounded to 0.1 %
-    q = np.round(np.log(np.column_stack([sy, st])) / 1e-3).astype(np.int64)
-    uniq, inverse = np.unique(q, axis=0, return_inverse=True)
-    models = [gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, a, b, b, 1e-3]))
-              for a, b in np.exp(uniq * 1e-3)]
+    uniq, inverse = np.unique(_motion_sigma_keys(sy, st), axis=0, return_inverse=True)
+    models = [gtsam.noiseModel.Diagonal.Sigmas(_motion_sigmas(row[None, :])[0]) for row in uniq]
     inverse = np.asarray(inverse).ravel()
     for k in range(n_pose - 1):
         graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), steps[k], models[inverse[k]]))
     return graph
+
+
+@dataclass
+class ObservationTerms:
+    """The observation block's factors as arrays, in the block's order (the head offset's prior,
+    then one bearing-range factor per robot observation and per person's sighting): what
+    :func:`observation_block` makes GTSAM factors of and :func:`observation_rhs` evaluates in
+    numpy. ``noise_range_m`` and ``noise_scale``: the range the sigmas are taken at (as observed)
+    and the factor's scale of them (1 / sqrt of the merged count, times ``sigma_scale``)."""
+
+    prior: tuple | None          # (mean Pose3, sigmas (6,)) of h(0)'s prior, or None
+    sensor: np.ndarray           # (n,) sensor index of each bearing-range factor
+    target: np.ndarray           # (n,) its target's key index: a robot pose k, or a person m
+    is_pose: np.ndarray          # (n,) whether the target is a robot pose x(k) (else a person l(m))
+    p_sensor: np.ndarray         # (n, 3) the measured head point, sensor frame (its direction)
+    range_m: np.ndarray          # (n,) the measured range (|p| plus the ray shift)
+    noise_range_m: np.ndarray    # (n,)
+    noise_scale: np.ndarray      # (n,)
+    robust: bool                 # whether the factors carry the robust kernel
+
+    def sigmas(self, recipe: GraphRecipe) -> np.ndarray:
+        """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them."""
+        rounded = _NoiseCache.keys(self.noise_range_m) * _NoiseCache.STEP_M
+        return observation_sigmas(recipe, rounded) * self.noise_scale[:, None]
+
+
+def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
+                      t_max: float | None = None, insert_values: bool = False,
+                      theta: dict | None = None, robust: bool = True,
+                      sigma_scale: np.ndarray | None = None) -> ObservationTerms:
+    """The observation block's factors as arrays (:class:`ObservationTerms`; the arguments are
+    :func:`observation_block`'s)."""
+    rec = prob.recipe
+    theta = theta or {}
+    rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
+    hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
+    cv = float(theta.get("curvature_m", prob.curvature_m))
+    n_pose = len(_pose_times(prob, t_max))
+    factor = 0           # index of the next factor (into sigma_scale)
+    prior = None
+    if rec.amcl and rec.estimate_head_model and values is not None and values.exists(H(0)):
+        # prior: the point lies on a dome, offset = -shift (a blob's top: both 0; a dome's
+        # facing point: -r and r), give or take head_vertical_sigma_m; h's height is the
+        # offset minus the initial -head_radius_m of the robot poses
+        tiny = np.radians(0.05)
+        h_prior = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, rec.head_radius_m - rho]))
+        sig = np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m])
+        if sigma_scale is not None:
+            sig = sig * sigma_scale[factor]
+            factor += 1
+        prior = (h_prior, sig)
+    sensor, target, is_pose, p_all, r_all, noise_r, noise_count = [], [], [], [], [], [], []
+    if rec.robot:
+        use = np.flatnonzero(prob.fac_key_index < n_pose)
+        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
+        p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
+        p_obs = p_obs + head_profile_shift_sensor(prob, theta, use)   # shift vs distance (pedcal.calib.headpoint)
+        sensor.append(prob.fac_sensor_index[use])
+        target.append(prob.fac_key_index[use])
+        is_pose.append(np.ones(len(use), bool))
+        p_all.append(p_obs)
+        r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
+        # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
+        # reward shifts that shrink them (a least-squares fit is no likelihood when its weights
+        # depend on the parameters), a bias along the shifts' nearly degenerate combination
+        noise_r.append(np.linalg.norm(prob.fac_p_sensor[use], axis=1))
+        noise_count.append(np.asarray(prob.fac_count[use], int))
+    if rec.people:
+        sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+        seen_i, seen_p, seen_m, seen_r = [], [], [], []
+        for m, (t, seen) in enumerate(prob.people):
+            if t_max is not None and t > t_max:
+                continue
+            pts = []
+            for sid, p in seen:
+                R0 = prob.init_sensors[sid].rotation().matrix()
+                seen_r.append(float(np.linalg.norm(p)))
+                p = (p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
+                     - cv * frames.up_by_cos2_elevation(p[None, :], R0)[0])
+                seen_i.append(sid_index[sid])
+                seen_p.append(p)
+                seen_m.append(m)
+                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / float(np.linalg.norm(p)))))
+            if insert_values:
+                values.insert(L(m), np.mean(pts, axis=0))
+        if seen_p:
+            seen_p = np.asarray(seen_p)
+            sensor.append(np.asarray(seen_i, int))
+            target.append(np.asarray(seen_m, int))
+            is_pose.append(np.zeros(len(seen_m), bool))
+            p_all.append(seen_p)
+            r_all.append(np.linalg.norm(seen_p, axis=1) + rho)
+            noise_r.append(np.asarray(seen_r, float))
+            noise_count.append(np.ones(len(seen_m), int))
+
+    def cat(parts, shape=(0,), dtype=float):
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype)
+
+    count = cat(noise_count, dtype=int)
+    scale = 1.0 / np.sqrt(count)
+    if sigma_scale is not None:
+        scale = scale * np.asarray(sigma_scale[factor:factor + len(count)], float)
+    return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),
+                            is_pose=cat(is_pose, dtype=bool), p_sensor=cat(p_all, (0, 3)), range_m=cat(r_all),
+                            noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None)
+
+
+def _motion_sigma_keys(sigma_turn: np.ndarray, sigma_translation: np.ndarray) -> np.ndarray:
+    """(n, 2) the motion factors' (turn, translation) sigmas rounded to 0.1 % (log / 1e-3, int)."""
+    return np.round(np.log(np.column_stack([sigma_turn, sigma_translation])) / 1e-3).astype(np.int64)
+
+
+def _motion_sigmas(keys: np.ndarray) -> np.ndarray:
+    """(n, 6) a motion factor's sigmas [roll pitch yaw x y z] from its rounded keys."""
+    a, b = np.exp(np.asarray(keys, float) * 1e-3).T
+    tiny = np.full(len(a), 1e-3)
+    return np.column_stack([tiny, tiny, a, b, b, tiny])
+
+
+def _odometry_steps(log: Log, prob: FactorGraphProblem, times: np.ndarray, theta: dict | None):
+    """The odometry's increments between consecutive poses at ``times`` (the head frame's turn and
+    x, y translation) with the problem's corrections, ``theta`` overriding them by name, and
+    their sigmas (turn, translation): (turn, tx, ty, sigma_turn, sigma_translation)."""
+    rec = prob.recipe
+    head_m = _head_m(log, rec)
+    dt = np.diff(times)
+    theta = theta or {}
+    scale, drift_m, drift_s = (float(theta.get(k, getattr(prob, k))) for k in ODOMETRY_NUISANCES)
+    src = interpolate_pose2(prob.odometry, times)
+    c, s_ = np.cos(src[:-1, 2]), np.sin(src[:-1, 2])
+    d = np.diff(src[:, :2], axis=0)
+    fwd, left = c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]
+    dist = np.hypot(fwd, left)
+    turn = wrap_angle_rad(np.diff(src[:, 2])) - drift_m * dist - drift_s * dt
+    fwd, left = (1.0 + scale) * fwd, (1.0 + scale) * left
+    st = np.sqrt(rec.odometry_white_sigma_m ** 2 * dt + (rec.odometry_sigma_per_m * dist) ** 2) + 1e-4
+    sy = np.sqrt(np.radians(rec.odometry_white_yaw_sigma_deg) ** 2 * dt
+                 + (np.radians(rec.odometry_yaw_sigma_deg_per_m) * dist) ** 2) + 1e-5
+    # the head frame's increment H^-1 B H (B the base's, H the head offset h): the turn, and the
+    # base's translation plus the head offset carried round the turn, (Rz(turn) - I) h
+    c, s_ = np.cos(turn), np.sin(turn)
+    tx = fwd + (c - 1.0) * head_m[0] - s_ * head_m[1]
+    ty = left + s_ * head_m[0] + (c - 1.0) * head_m[1]
+    return turn, tx, ty, sy, st
+
+
+def _rot3_log(R: np.ndarray) -> np.ndarray:
+    """(n, 3) SO(3) logarithm of rotation matrices (n, 3, 3) (angles below pi)."""
+    angle = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    vee = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
+    small = angle < 1e-6
+    f = np.where(small, 0.5 + angle ** 2 / 12.0, angle / (2.0 * np.sin(np.where(small, 1.0, angle))))
+    return f[:, None] * vee
+
+
+def pose3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(n, 6) GTSAM's Pose3 logarithm [w, u] of poses (R (n, 3, 3), t (n, 3)): w = Log(R) and
+    u = V(w)^-1 t = t - w x t / 2 + (1 - theta / (2 tan(theta / 2))) / theta^2 w x (w x t)."""
+    w = _rot3_log(R)
+    angle = np.linalg.norm(w, axis=1)
+    wt = np.cross(w, t)
+    big = angle > 1e-4
+    a = np.where(big, angle, 1.0)
+    c = np.where(big, (1.0 - a / (2.0 * np.tan(0.5 * a))) / a ** 2, 1.0 / 12.0 + angle ** 2 / 720.0)
+    return np.column_stack([w, t - 0.5 * wt + c[:, None] * np.cross(w, wt)])
+
+
+class MotionRhs:
+    """The right-hand side b of the odometry block's linearization at fixed ``values`` (b =
+    -whitened error, what ``sparse_system(motion_block(..., theta=...).linearize(values))[1]``
+    gives), in numpy: a BetweenFactorPose3's error Log(Z^-1 X_k^-1 X_k+1), Z the odometry's
+    increment. The poses' increments are taken once, each call re-measures."""
+
+    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
+        self.log, self.prob = log, prob
+        self.times = _pose_times(prob, t_max)
+        n = len(self.times)
+        poses = [values.atPose3(X(k)) for k in range(n)]
+        R = np.stack([p.rotation().matrix() for p in poses]) if n else np.zeros((0, 3, 3))
+        t = np.stack([p.translation() for p in poses]) if n else np.zeros((0, 3))
+        # X_k^-1 X_k+1
+        self.R_h = np.einsum("nji,njk->nik", R[:-1], R[1:])
+        self.t_h = np.einsum("nji,nj->ni", R[:-1], t[1:] - t[:-1])
+
+    def __call__(self, theta: dict | None) -> np.ndarray:
+        if len(self.times) < 2:
+            return np.zeros(0)
+        turn, tx, ty, sy, st = _odometry_steps(self.log, self.prob, self.times, theta)
+        c, s_ = np.cos(turn), np.sin(turn)
+        Rz_inv = np.zeros((len(turn), 3, 3))             # Z^-1's rotation, Rz(-turn)
+        Rz_inv[:, 0, 0] = Rz_inv[:, 1, 1] = c
+        Rz_inv[:, 0, 1], Rz_inv[:, 1, 0] = s_, -s_
+        Rz_inv[:, 2, 2] = 1.0
+        dt = self.t_h - np.column_stack([tx, ty, np.zeros(len(tx))])
+        err = pose3_log(Rz_inv @ self.R_h, np.einsum("nij,nj->ni", Rz_inv, dt))
+        return (-err / _motion_sigmas(_motion_sigma_keys(sy, st))).ravel()
 
 
 def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
@@ -461,79 +639,98 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     ``sigma_scale`` (one per factor, in order) multiplies each factor's sigmas instead of a
     kernel (a robust weight w frozen: 1 / sqrt(w); models are shared between equal scales);
     ``insert_values`` puts the people's initial positions into ``values``."""
-    rec = prob.recipe
-    theta = theta or {}
-    rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
-    hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
-    cv = float(theta.get("curvature_m", prob.curvature_m))
+    terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
+                              robust=robust, sigma_scale=sigma_scale)
     graph = gtsam.NonlinearFactorGraph()
-    n_pose = len(_pose_times(prob, t_max))
-    cache = _NoiseCache.of(rec, robust=robust and sigma_scale is None)
-    factor = 0           # index of the next factor (into sigma_scale)
-
-    def noises(range_m: np.ndarray, count: np.ndarray | None = None) -> list:
-        """Noise models of observations at these ranges, each the mean of ``count``: shared
-        cached ones, robust, or with each factor's sigmas scaled instead."""
-        nonlocal factor
-        count = np.ones(len(range_m), int) if count is None else np.asarray(count, int)
-        scale = 1.0 / np.sqrt(count)
-        if sigma_scale is not None:
-            scale = scale * np.asarray(sigma_scale[factor:factor + len(range_m)], float)
-            factor += len(range_m)
-        pairs, inverse = np.unique(np.column_stack([cache.keys(range_m), scale]), axis=0, return_inverse=True)
-        models = cache.models(pairs[:, 0], pairs[:, 1])
-        return [models[i] for i in inverse.ravel()]
-
-    if rec.amcl and rec.estimate_head_model and values is not None and values.exists(H(0)):
-        # prior: the point lies on a dome, offset = -shift (a blob's top: both 0; a dome's
-        # facing point: -r and r), give or take head_vertical_sigma_m; h's height is the
-        # offset minus the initial -head_radius_m of the robot poses
-        tiny = np.radians(0.05)
-        h_prior = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, rec.head_radius_m - rho]))
-        sig = np.array([tiny, tiny, tiny, 1e-4, 1e-4, rec.head_vertical_sigma_m])
-        if sigma_scale is not None:
-            sig = sig * sigma_scale[factor]
-            factor += 1
-        graph.add(gtsam.PriorFactorPose3(H(0), h_prior, gtsam.noiseModel.Diagonal.Sigmas(sig)))
-    sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-    if rec.robot:
-        use = np.flatnonzero(prob.fac_key_index < n_pose)
-        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
-        p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
-        p_obs = p_obs + head_profile_shift_sensor(prob, theta, use)   # shift vs distance (pedcal.calib.headpoint)
-        rng_m = np.linalg.norm(p_obs, axis=1)
-        keys = [S(i) for i in prob.fac_sensor_index[use].tolist()]
-        pose = prob.fac_key_index[use]
-        # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
-        # reward shifts that shrink them (a least-squares fit is no likelihood when its weights
-        # depend on the parameters), a bias along the shifts' nearly degenerate combination
-        for n, nm in enumerate(noises(np.linalg.norm(prob.fac_p_sensor[use], axis=1), prob.fac_count[use])):
-            graph.add(gtsam.BearingRangeFactorPose3(keys[n], X(int(pose[n])), gtsam.Unit3(p_obs[n]),
-                                                   rng_m[n] + rho, nm))
-    if rec.people:
-        seen_keys, seen_p, seen_m, seen_r = [], [], [], []
-        for m, (t, seen) in enumerate(prob.people):
-            if t_max is not None and t > t_max:
-                continue
-            pts = []
-            for sid, p in seen:
-                R0 = prob.init_sensors[sid].rotation().matrix()
-                seen_r.append(float(np.linalg.norm(p)))
-                p = (p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
-                     - cv * frames.up_by_cos2_elevation(p[None, :], R0)[0])
-                seen_keys.append(S(sid_index[sid]))
-                seen_p.append(p)
-                seen_m.append(m)
-                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / float(np.linalg.norm(p)))))
-            if insert_values:
-                values.insert(L(m), np.mean(pts, axis=0))
-        if seen_p:
-            seen_p = np.asarray(seen_p)
-            r = np.linalg.norm(seen_p, axis=1)
-            for n, nm in enumerate(noises(np.asarray(seen_r))):
-                graph.add(gtsam.BearingRangeFactor3D(seen_keys[n], L(seen_m[n]), gtsam.Unit3(seen_p[n]),
-                                                     r[n] + rho, nm))
+    if terms.prior is not None:
+        graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
+    n = len(terms.sensor)
+    if not n:
+        return graph
+    cache = _NoiseCache.of(prob.recipe, robust=terms.robust)
+    pairs, inverse = np.unique(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]), axis=0,
+                               return_inverse=True)
+    models = cache.models(pairs[:, 0], pairs[:, 1])
+    inverse = np.asarray(inverse).ravel()
+    s_keys = [S(i) for i in terms.sensor.tolist()]
+    t_keys = [X(k) if pose else L(k) for k, pose in zip(terms.target.tolist(), terms.is_pose.tolist(), strict=True)]
+    range_m = terms.range_m.tolist()
+    for j in range(n):
+        if terms.is_pose[j]:
+            graph.add(gtsam.BearingRangeFactorPose3(s_keys[j], t_keys[j], gtsam.Unit3(terms.p_sensor[j]),
+                                                   range_m[j], models[inverse[j]]))
+        else:
+            graph.add(gtsam.BearingRangeFactor3D(s_keys[j], t_keys[j], gtsam.Unit3(terms.p_sensor[j]),
+                                                 range_m[j], models[inverse[j]]))
     return graph
+
+
+def _unit3_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GTSAM's tangent basis (b1, b2) of the unit vectors ``n`` (rows): b1 = n x a / |n x a|, a
+    the axis of n's smallest component (the first of equal ones), b2 = n x b1."""
+    a = np.abs(n)
+    first = np.where((a[:, 0] <= a[:, 1]) & (a[:, 0] <= a[:, 2]), 0, np.where(a[:, 1] <= a[:, 2], 1, 2))
+    axis = np.zeros_like(n)
+    axis[np.arange(len(n)), first] = 1.0
+    b1 = np.cross(n, axis)
+    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+    return b1, np.cross(n, b1)
+
+
+class ObservationRhs:
+    """The right-hand side b of the observation block's linearization at fixed ``values`` (b =
+    -whitened error, each factor's sigmas scaled by ``sigma_scale``, no robust kernel: what
+    ``sparse_system(observation_block(..., sigma_scale=scale).linearize(values))[1]`` gives),
+    evaluated in numpy: the predictions (each target in its sensor's frame, their directions'
+    tangent bases) are made once, each call re-measures. A bearing-range factor's error is
+    GTSAM's: -Local_pred(u_meas) for the bearing (Unit3 local coordinates at the predicted
+    direction: basis^T (theta / sin theta) (u_meas - cos theta u_pred)), predicted minus measured
+    range."""
+
+    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
+        self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
+        terms = observation_terms(log, prob, values, t_max=t_max)
+        n_s = len(prob.sensor_ids)
+        Rs = np.stack([values.atPose3(S(i)).rotation().matrix() for i in range(n_s)]) if n_s else np.zeros((0, 3, 3))
+        ts = np.stack([values.atPose3(S(i)).translation() for i in range(n_s)]) if n_s else np.zeros((0, 3))
+        target = np.zeros((len(terms.sensor), 3))
+        for pose, at in ((True, values.atPose3), (False, values.atPoint3)):
+            rows = np.flatnonzero(terms.is_pose == pose)
+            if len(rows):
+                u, inv = np.unique(terms.target[rows], return_inverse=True)
+                key = X if pose else L
+                got = [at(key(int(k))) for k in u]
+                target[rows] = np.array([g.translation() if pose else g for g in got], float).reshape(len(u), 3)[
+                    np.asarray(inv).ravel()]
+        d = np.einsum("nji,nj->ni", Rs[terms.sensor], target - ts[terms.sensor])
+        self.range_pred = np.linalg.norm(d, axis=1)
+        self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
+        self.basis = _unit3_basis(self.u_pred)
+        self.sensor, self.is_pose = terms.sensor, terms.is_pose
+        self.first = int(terms.prior is not None)        # the prior leads the block
+
+    def robot_factors(self, sensor_index: int) -> np.ndarray:
+        """Indices in the block of the robot observations of sensor ``sensor_index``."""
+        return self.first + np.flatnonzero(self.is_pose & (self.sensor == sensor_index))
+
+    def __call__(self, theta: dict | None, sigma_scale: np.ndarray | None = None) -> np.ndarray:
+        terms = observation_terms(self.log, self.prob, self.values, t_max=self.t_max, theta=theta,
+                                  sigma_scale=sigma_scale)
+        rows = []
+        if terms.prior is not None:
+            prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))
+            rows.append(-prior.whitenedError(self.values))
+        if len(terms.sensor):
+            u_meas = terms.p_sensor / np.linalg.norm(terms.p_sensor, axis=1, keepdims=True)
+            x = np.sum(self.u_pred * u_meas, axis=1)
+            # theta / sin(theta) (1 where the directions agree, as GTSAM takes it)
+            y = np.where(x > 1.0 - 1e-9, 1.0,
+                         np.arccos(np.clip(x, -1.0, 1.0)) / np.sqrt(np.maximum(1.0 - x * x, 1e-300)))
+            v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
+            err = np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
+                                   self.range_pred - terms.range_m])
+            rows.append((-err / terms.sigmas(self.prob.recipe)).ravel())
+        return np.concatenate(rows) if rows else np.zeros(0)
 
 
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,

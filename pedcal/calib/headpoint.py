@@ -25,6 +25,7 @@ tracker per sensor, each with its own shift, is left to the model check.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sps
 
 from pedcal.calib.profile import Nuisance, ProfileStep
 from pedcal.errors import PedcalInputError
@@ -137,7 +138,8 @@ def _reduced(step: ProfileStep, T: np.ndarray, b: np.ndarray) -> ProfileStep:
     g = -H @ step.dtheta + H @ b
     Hr = T.T @ H @ T
     return ProfileStep(dtheta=-np.linalg.solve(Hr, T.T @ g), hessian=Hr, z0=step.z0 + step.Z @ b, Z=step.Z @ T,
-                       cols=step.cols, M=None if step.M is None else step.M @ T, order=step.order)
+                       cols=step.cols, order=step.order, A=step.A,
+                       B=None if step.B is None else sps.csc_matrix(step.B @ sps.csc_matrix(T)))
 
 
 def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance]) -> tuple[ProfileStep, list[Nuisance], dict]:

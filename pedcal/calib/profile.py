@@ -104,6 +104,9 @@ def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.nda
     return cols.index(keys + missing)
 
 
+SOLVE_BLOCK = 32     # right-hand sides solved at once by the triangular factors
+
+
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
     pivoting: the matrix is positive definite, the graph's priors hold every variable), in the
@@ -121,11 +124,25 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
     lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                    options={"SymmetricMode": True})
+    n = len(order)
+    unpermuted = np.array_equal(lu.perm_r, np.arange(n)) and np.array_equal(lu.perm_c, np.arange(n))
+    factors = []
 
     def solve(y):
         y = np.asarray(y, float)
         x = np.empty_like(y)
-        x[order] = lu.solve(y[order])
+        if y.ndim == 2 and y.shape[1] > 1 and unpermuted:
+            # many right-hand sides: the triangular factors' own solves, several times faster
+            # than SuperLU's (which takes the columns in turn)
+            if not factors:
+                factors.extend([lu.L, lu.U])         # (CSC: the solves take them as they are)
+            # in blocks of columns, so that the solves' temporaries stay a few blocks' size
+            for c in range(0, y.shape[1], SOLVE_BLOCK):
+                block = slice(c, c + SOLVE_BLOCK)
+                w = spla.spsolve_triangular(factors[0], y[order, block], lower=True, unit_diagonal=True)
+                x[order, block] = spla.spsolve_triangular(factors[1], w, lower=False)
+        else:
+            x[order] = lu.solve(y[order])
         return x
     return solve
 
@@ -142,12 +159,26 @@ class ProfileStep:
     z0: np.ndarray
     Z: np.ndarray
     cols: Columns
-    M: np.ndarray | None = None    # the profile residual's change with theta (rows of the system, k)
     order: np.ndarray | None = None   # the fill-reducing column order its factorization used
+    # the system's A (fixed, observation, plain rows) and the right-hand side's change with
+    # theta B (same rows, k columns, sparse): the profile residual's change M = A Z - B
+    A: sps.csr_matrix | None = None
+    B: sps.csc_matrix | None = None
+
+    def select(self, keep: np.ndarray) -> ProfileStep:
+        """The step restricted to the nuisances ``keep`` (their Hessian's rows and columns, Z's
+        and B's columns; dtheta as it was: the caller takes its own)."""
+        return ProfileStep(dtheta=self.dtheta[keep], hessian=self.hessian[np.ix_(keep, keep)], z0=self.z0,
+                           Z=self.Z[:, keep], cols=self.cols, order=self.order, A=self.A,
+                           B=None if self.B is None else self.B[:, keep])
 
     @property
     def covariance(self) -> np.ndarray:
-        return np.linalg.inv(self.hessian)
+        """theta's covariance, the Hessian's inverse (kept: read once per nuisance and step)."""
+        cached = self.__dict__.get("_covariance")
+        if cached is None or cached[0] is not self.hessian:
+            cached = self.__dict__["_covariance"] = (self.hessian, np.linalg.inv(self.hessian))
+        return cached[1]
 
 
 def _factor_rows(graph: gtsam.NonlinearFactorGraph) -> np.ndarray:
@@ -175,7 +206,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
                  plain=None, plain0=None, previous: ProfileStep | None = None,
-                 order: np.ndarray | None = None) -> ProfileStep:
+                 order: np.ndarray | None = None, residuals=None, footprint: dict | None = None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -190,17 +221,33 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     ``plain``: optionally ``(build(theta), indices)``, factors without a robust kernel that only
     the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
     for those nuisances alone, the observations for the others; ``plain0``: those factors at
-    ``theta`` when already built.
+    ``theta`` when already built. A third element ``residuals(theta)``, their linearization's
+    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds.
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
-    its Hessian, sensitivity Z and M are kept and only the variables' step z0 and the
-    gradient are taken here (a chord step of Newton's method: one solve instead of k + 1).
+    its Hessian, sensitivity Z and residual change M are kept and only the variables' step z0
+    and the gradient are taken here (a chord step of Newton's method: one solve instead of k + 1).
 
     ``order``: the fill-reducing column order of an earlier step on the same graph (its
-    ``order``), so that the ordering is computed once per graph, not once per step."""
+    ``order``), so that the ordering is computed once per graph, not once per step.
+
+    ``residuals(theta, sigma_scale)``: optionally, the right-hand side b of the observation
+    factors' linearization at ``values`` (b = -whitened error, sigmas scaled, no kernel) computed
+    without building them (:class:`pedcal.calib.graph.ObservationRhs`): B's columns are then
+    its differences at theta + h and theta under the same weights, and ``observations`` is
+    called for nothing but ``obs0`` when that is not given. ``footprint``: optionally, per
+    nuisance index, the observation factors (indices in the block) it alone enters, such as a
+    sensor's clock offset its own observations: nuisances whose footprints do not overlap are
+    moved together in one ``residuals`` call, each taking the difference on its own factors'
+    rows (a column grouping of the finite differences; the rows outside every footprint of a
+    group are checked to stay put, else its nuisances are taken one by one).
+
+    M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
+    M^T r = Z^T A^T r - B^T r."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
-    plain_build, plain_idx = plain if plain is not None else (None, ())
+    plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
+    plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
     if plain_build is not None:
         g_plain0 = (plain0 if plain0 is not None else plain_build(theta)).linearize(values)
         A_p, b_p0 = sparse_system(g_plain0, cols)
@@ -220,42 +267,124 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         for g in (g_fixed, g_obs0) + ((g_plain0,) if plain_build is not None else ()):
             lin.push_back(g)
         order = fill_reducing_order(lin, cols)
-    solve = _normal_solver(sps.vstack([A_f, A_o, A_p], format="csr"), order)
+    A = sps.vstack([A_f, A_o, A_p], format="csr")
+    solve = _normal_solver(A, order)
     z0 = solve(A_f.T @ b_f + A_o.T @ b_o0 + A_p.T @ b_p0)
-    if previous is not None and previous.M is not None:
-        rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
-        grad = previous.M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
+    rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
+    if previous is not None and previous.A is not None:
+        grad = _residual_change_t(previous, rho0) + info @ (np.asarray(theta, float) - mean)
         return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
-                           Z=previous.Z, cols=cols, M=previous.M, order=order)
+                           Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     rows = _factor_rows(obs0)
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
     sqrt_w = sqrt_weights(n_rob, *kernel)
     if sqrt_w is None:
-        _, b_plain0 = sparse_system(observations(theta, np.ones(obs0.size())).linearize(values), cols)
+        b_plain0 = (residuals(theta, np.ones(obs0.size())) if residuals is not None else
+                    sparse_system(observations(theta, np.ones(obs0.size())).linearize(values), cols)[1])
         n_plain = np.sqrt(np.add.reduceat(b_plain0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
         sqrt_w = np.where(n_plain > 1e-12, n_rob / np.maximum(n_plain, 1e-300), 1.0)
     sqrt_w[:plain_leading] = 1.0
-    # quantized to 0.1 % so that factors of equal range and weight share a noise model
-    scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
-    B_o = np.zeros((len(b_o0), k))
-    B_p = np.zeros((len(b_p0), k))
-    for j, nu in enumerate(nuisances):
-        # the factors at theta + h with the weights frozen (sigmas / sqrt(w), no kernel): their
-        # linearization has A's rows and the right-hand side b0 + h B_j
+    if residuals is not None:
+        # no factors are built: the weights exact, and b at theta under them the reference
+        scale = 1.0 / np.maximum(sqrt_w, 1e-12)
+        b_ref = residuals(theta, scale)
+    else:
+        # quantized to 0.1 % so that factors of equal range and weight share a noise model
+        scale = np.exp(np.round(np.log(1.0 / np.maximum(sqrt_w, 1e-12)) / 1e-3) * 1e-3)
+        b_ref = b_o0
+    # B's columns as (rows, values) of the observation and plain blocks: the factors at theta + h
+    # with the weights frozen (sigmas / sqrt(w), no kernel) have A's rows and the right-hand side
+    # b0 + h B_j
+    columns: list = [None] * k
+    moved = [j for j in range(k) if j not in plain_idx]
+    b_p_ref = plain_residuals(theta) if plain_residuals is not None and len(plain_idx) else b_p0
+    for j in plain_idx:
         th = np.array(theta, float)
-        th[j] += nu.step
-        if j in plain_idx:
-            B_p[:, j] = (sparse_system(plain_build(th).linearize(values), cols)[1] - b_p0) / nu.step
+        th[j] += nuisances[j].step
+        b_p = (plain_residuals(th) if plain_residuals is not None
+               else sparse_system(plain_build(th).linearize(values), cols)[1])
+        d = (b_p - b_p_ref) / nuisances[j].step
+        columns[j] = (np.flatnonzero(d) + len(b_o0), d[d != 0.0])
+    if residuals is not None:
+        for group in _disjoint_groups(moved, footprint or {}):
+            th = np.array(theta, float)
+            for j in group:
+                th[j] += nuisances[j].step
+            d = residuals(th, scale) - b_ref
+            if len(group) > 1:
+                own = [_rows_of(footprint[j], rows) for j in group]
+                outside = np.ones(len(d), bool)
+                for r in own:
+                    outside[r] = False
+                if np.any(d[outside] != 0.0):        # a footprint was wrong: one by one
+                    for j in group:
+                        th = np.array(theta, float)
+                        th[j] += nuisances[j].step
+                        dj = (residuals(th, scale) - b_ref) / nuisances[j].step
+                        columns[j] = (np.flatnonzero(dj), dj[dj != 0.0])
+                    continue
+            else:
+                own = [np.arange(len(d))]
+            for j, r in zip(group, own, strict=True):
+                dj = d[r] / nuisances[j].step
+                columns[j] = (r[dj != 0.0], dj[dj != 0.0])
+    else:
+        for j in moved:
+            th = np.array(theta, float)
+            th[j] += nuisances[j].step
+            d = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_ref) / nuisances[j].step
+            columns[j] = (np.flatnonzero(d), d[d != 0.0])
+    n_f = A_f.shape[0]
+    lengths = [len(c[0]) for c in columns]
+    B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
+                        (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
+                         np.repeat(np.arange(k), lengths))), shape=(A.shape[0], k))
+    AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k)
+    Z = solve(AtB).reshape(cols.n, k)
+    # the profile residual r_p = rho0 + M dtheta, M = A Z - B, by its products with N Z = A^T B
+    BtB = np.asarray((B.T @ B).todense()).reshape(k, k)
+    MtM = BtB - AtB.T @ Z
+    step = ProfileStep(dtheta=np.zeros(k), hessian=0.5 * (MtM + MtM.T) + info, z0=z0, Z=Z, cols=cols, order=order,
+                       A=A, B=B)
+    grad = _residual_change_t(step, rho0) + info @ (np.asarray(theta, float) - mean)
+    step.dtheta = -np.linalg.solve(step.hessian, grad)
+    return step
+
+
+def _residual_change_t(step: ProfileStep, r: np.ndarray) -> np.ndarray:
+    """M^T r for the step's M = A Z - B (never formed): Z^T (A^T r) - B^T r."""
+    return step.Z.T @ (step.A.T @ r) - step.B.T @ r
+
+
+def _rows_of(factors: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The system rows of the block's ``factors`` (``rows``: each factor's first row, and the end)."""
+    factors = np.asarray(factors, np.int64)
+    starts, ends = rows[factors], rows[factors + 1]
+    lengths = ends - starts
+    first = np.cumsum(lengths) - lengths
+    return np.repeat(starts - first, lengths) + np.arange(int(lengths.sum()))
+
+
+def _disjoint_groups(indices: list[int], footprint: dict) -> list[list[int]]:
+    """``indices`` in groups whose footprints do not overlap (greedy, in order); an index without
+    a footprint is a group of its own."""
+    groups, used = [], []
+    for j in indices:
+        if j not in footprint:
+            groups.append([j])
+            used.append(None)
+            continue
+        mine = set(np.asarray(footprint[j]).tolist())
+        for g, u in zip(groups, used, strict=True):
+            if u is not None and not (u & mine):
+                g.append(j)
+                u |= mine
+                break
         else:
-            B_o[:, j] = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_o0) / nu.step
-    Z = solve(A_o.T @ B_o + A_p.T @ B_p).reshape(cols.n, k)
-    # profile residual r_p = rho0 + M dtheta over the fixed, observation and plain rows
-    rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
-    M = np.vstack([A_f @ Z, A_o @ Z - B_o, A_p @ Z - B_p])
-    grad = M.T @ rho0 + info @ (np.asarray(theta, float) - mean)
-    hess = M.T @ M + info
-    return ProfileStep(dtheta=-np.linalg.solve(hess, grad), hessian=hess, z0=z0, Z=Z, cols=cols, M=M, order=order)
+            groups.append([j])
+            used.append(mine)
+    return groups
 
 
 def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
