@@ -236,6 +236,8 @@ class RecoveryConfig:
     reacquire_close_m: float = 1.0         # without a trained classifier, only this close to the estimate
     reacquire_max_error: float = 0.5       # the target's appearance classifier error e (eq. 3) at most
     veto_min_error: float = 0.8            # the paper tracker's re-take is undone above this e
+    ruled_out_ratio: float = 1.0           # no fast re-take of a filter the readings since the loss put below this
+                                           # likelihood ratio against "lost" (eqs. 9-10 summed since the loss)
     reacquire_p_target: float = 0.7        # P(T = i) given to the re-taken filter (the paper's threshold)
     lost_sigma0_m: float = 0.5             # grid belief around the last estimate at the loss
     sharpen_floor: float = 0.05            # the grid keeps this much outside the smoother's Gaussian
@@ -272,7 +274,11 @@ class FactorGraphTracker:
     LIDAR still detected it: then the filter followed was not the target, the classifier learned the
     wrong person, and it is dropped (the paper tracker's antenna-driven re-take decides alone). A
     coasting filter disowned by the antenna (the target turned out of view) keeps it. The fast
-    re-take also needs the filter's target probability not below the lost threshold.
+    re-take also needs the antenna's readings since the loss not to rule the filter out: the product of
+    their likelihood ratios P(Z | A_i) / P(Z | lost) (eqs. 9-10) at least ``ruled_out_ratio`` (1: the
+    readings must not favour "lost" over it), as in a sequential probability-ratio test. The filter's
+    probability at the loss says nothing here: the lost target's filter held nearly all of it, so every
+    other filter, the target's new one included, sat near the floor.
     """
 
     name = "factorgraph"
@@ -291,7 +297,7 @@ class FactorGraphTracker:
         self._t_prev_s: float | None = None
         self._estimate: tuple[np.ndarray, np.ndarray] | None = None
         self._t_last_reading_s: float | None = None
-        self._ids_at_loss: set[int] = set()
+        self._log_lr: dict[int, float] = {}  # each filter's summed log P(Z | A_i) / P(Z | lost) since the loss
 
     # the paper tracker forgets the target's classifier when it loses the target; keep it
     def _remember_target(self) -> None:
@@ -309,7 +315,7 @@ class FactorGraphTracker:
         self.grid = GridBelief(self.occupancy, xy0, self.grid_config, self.paper.config.espar)
         self.grid.reset_gaussian(xy0, cov_world=cov0)
         self.smoother = TargetSmoother(self.smoother_config)
-        self._ids_at_loss = set(self.paper.core.tracks)
+        self._log_lr = {}
         self._seed = (np.asarray(xy0, dtype=float), float(np.sqrt(np.linalg.eigvalsh(cov0).max())), cov0)
 
     def _recover(self, frame: FollowFrame) -> None:
@@ -363,12 +369,10 @@ class FactorGraphTracker:
         d = np.sqrt(np.einsum("ni,nij,nj->n", diff, np.linalg.inv(S), diff))
         dist = np.linalg.norm(diff, axis=1)
         ok = (d < self.recovery.reacquire_gate) & (dist < self.recovery.reacquire_radius_m)
-        # nor a filter the antenna ruled out while the target was lost (eq. 9: probability below the lost
-        # threshold). Filters born after the loss are exempt: they enter with a share of P_lost, which
-        # the lost target's filter had drained, so their probability says nothing yet
-        p_min = self.paper.config.lost_threshold
-        ok &= np.array([tr.track_id not in self._ids_at_loss or self.paper.prob.p.get(tr.track_id, p_min) >= p_min
-                        for tr in cand])
+        # nor a filter the antenna ruled out while the target was lost: the product of the likelihood ratios
+        # of its readings since the loss below ``ruled_out_ratio`` (a filter without readings yet: 1)
+        min_log_lr = math.log(self.recovery.ruled_out_ratio)
+        ok &= np.array([self._log_lr.get(tr.track_id, 0.0) >= min_log_lr for tr in cand])
         if not ok.any() or self._appearance is None:
             return None          # classifier dropped (it learned somebody else): the antenna decides (eq. 9)
         if self._appearance.ready:
@@ -445,6 +449,8 @@ class FactorGraphTracker:
         # lost: the paper tracker would wait and then stop; we keep moving
         if self.grid is None:
             self._start_recovery(frame)
+        for tid, ratio in self.paper.likelihood_ratios.items():
+            self._log_lr[tid] = self._log_lr.get(tid, 0.0) + math.log(max(ratio, 1e-300))
         take = self._reacquire(frame)
         if take is not None:
             self._take(take)

@@ -318,6 +318,7 @@ class PaperTracker:
         self.goal_xy: np.ndarray | None = None
         self.goal_since_s: float | None = None
         self.bearings_world_rad: list[float] = []  # the latest readings' bearings from the robot (world)
+        self.likelihood_ratios: dict[int, float] = {}  # this frame's P(Z | A_i) / P(Z | lost); empty without readings
 
     @property
     def target_id(self) -> int | None:
@@ -350,6 +351,7 @@ class PaperTracker:
 
     def _probability_update(self, frame: FollowFrame) -> None:
         """Eqs. 9-14 with this frame's readings (eq. 10: their product)."""
+        self.likelihood_ratios = {}
         if not frame.espar:
             return
         ids = list(self.prob.p)
@@ -359,8 +361,11 @@ class PaperTracker:
             p_z = dict(zip(ids, lik.tolist(), strict=True))
         else:
             p_z = {}
-        self.prob.update(p_z, self.config.espar.p_lost ** len(frame.espar))
+        p_z_lost = self.config.espar.p_lost ** len(frame.espar)
+        self.prob.update(p_z, p_z_lost)
         self.n_readings += len(frame.espar)
+        # this frame's likelihood ratios P(Z | A_i) / P(Z | lost) (eqs. 9-10), before any floor
+        self.likelihood_ratios = {i: v / p_z_lost for i, v in p_z.items()}
 
     def step(self, frame: FollowFrame) -> TrackerOutput:
         c = self.config
