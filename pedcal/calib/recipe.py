@@ -124,6 +124,10 @@ class GraphRecipe:
     # (pedcal.calib.clocks), prior 0 +- clock_offset_sigma_s (s)
     clock_offsets: bool = True
     clock_offset_sigma_s: float = 0.15
+    # above this many offsets, each is profiled on its own given the robot's path and the other
+    # nuisances (a 6 x 6 solve per sensor, not one right-hand side through the whole graph per
+    # sensor and a dense Hessian); their coupling through the path is left out
+    clock_offsets_joint_max: int = 200
     # people association for shared observations (at most one shared point per period)
     people_sample_s: float = 0.5
     people_misfit_sigma: float = 5.0   # a shared sighting whose views the first solve puts this far apart is dropped
