@@ -55,10 +55,33 @@ def test_local_sigma_is_the_conditional_one_given_the_path(exact_and_local):
     # holding the path leaves out its share: never wider than the marginal, and positive (on
     # this scene, one sensor per pose, measured 0.2-0.3 of it)
     assert np.all(ratio > 0.05) and np.all(ratio <= 1.0 + 1e-6)
-    # the sensors' covariance still carries each offset's share: at least the graph's alone
+    # the sensors' position sigma, which carries each offset's share through its own sensor
+    # alone, stays within 20 % of the exact marginal's (measured 1-2 % on sparse)
     for s in exact.network:
-        cov_l = local.diagnostics.position_covariance_m2[s.id]
-        assert np.all(np.linalg.eigvalsh(cov_l) > 0.0)
+        sd_e = np.sqrt(np.diag(exact.diagnostics.position_covariance_m2[s.id]))
+        sd_l = np.sqrt(np.diag(local.diagnostics.position_covariance_m2[s.id]))
+        assert np.all((sd_l > 0.8 * sd_e) & (sd_l < 1.05 * sd_e)), (s.id, sd_l / sd_e)
+
+
+def test_local_offsets_are_logged_as_fitted_given_the_path(caplog):
+    from types import SimpleNamespace
+
+    from pedcal.calib.clocks import PREFIX, record_clocks
+    from pedcal.model import SensorNetwork
+
+    prob = SimpleNamespace(latency_s=0.1, recipe=SimpleNamespace(clock_offsets_joint_max=1),
+                           **{PREFIX + "a": 0.01, PREFIX + "b": -0.03})
+    names = ["ray_shift_m", PREFIX + "a", PREFIX + "b"]
+    cov = np.diag([1e-6, 0.002 ** 2, 0.004 ** 2])
+    for local, logged in ((None, False), ((np.array([0, 1]), np.zeros((2, 6))), True)):
+        caplog.clear()
+        net = SensorNetwork([])
+        with caplog.at_level("WARNING"):
+            record_clocks(net, prob, SimpleNamespace(names=names, cov=cov, local=local))
+        assert any("lower bounds" in r.getMessage() for r in caplog.records) == logged
+        # written the same either way: about their mean (-10 ms), the latency taking the mean
+        assert net.extra[CLOCK_OFFSET_KEY] == {"a": 0.02, "b": -0.02}
+        assert net.extra[LATENCY_KEY] == pytest.approx(0.09)
 
 
 def test_local_profile_equals_the_dense_profile_of_each_variable():
