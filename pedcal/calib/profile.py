@@ -445,7 +445,9 @@ def _local_profile(A: sps.csr_matrix, B: sps.csc_matrix, columns: np.ndarray,
     and the variables reduced to one). All m at once: batched d x d solves. (``dtheta`` is left
     at 0 for the caller.)"""
     m, d = columns.shape
-    A_l = A.tocsc()[:, columns.ravel()]                    # rows x m d
+    # A's columns of the m variables (rows x m d), by a selection matrix: no copy of all of A
+    select = sps.csr_matrix((np.ones(m * d), (columns.ravel(), np.arange(m * d))), shape=(A.shape[1], m * d))
+    A_l = (A @ select).tocsc()
     G = (A_l.T @ A_l).tocoo()
     own = G.row // d == G.col // d
     N = np.zeros((m, d, d))
