@@ -116,3 +116,21 @@ def test_local_columns_sit_just_before_their_variable_in_the_order():
     out = _with_local_columns(order, np.array([[2, 3], [0, 1]]), 6)
     assert out.tolist() == [4, 5, 7, 0, 1, 6, 2, 3]
     assert sorted(out.tolist()) == list(range(8))
+
+
+def test_local_offsets_survive_the_head_models_selections():
+    """With the head profile (bic) and the curvature (auto) chosen inside the profile's first
+    step, the offsets fitted with the path still end at the exact profile's."""
+    sim = simulate_logs("paper", seed=0, clock_offset_s=0.15)
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for joint_max in (200, 0):
+            rec = GraphRecipe.load("default")
+            rec.clock_offsets_joint_max, rec.head_profile, rec.head_curvature = joint_max, "bic", "auto"
+            out[joint_max] = calibrate(sim.calib, method="factorgraph", graph=rec)
+    ex, lo = out[200].network.extra[CLOCK_OFFSET_KEY], out[0].network.extra[CLOCK_OFFSET_KEY]
+    assert set(ex) == set(lo)
+    assert max(abs(ex[s] - lo[s]) for s in ex) < 0.002          # measured 0.3 ms
+    for s in out[200].network:
+        assert np.linalg.norm(out[0].network[s.id].position_m - s.position_m) < 1e-3   # measured 0.16 mm

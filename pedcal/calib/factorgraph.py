@@ -432,7 +432,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             full_step = step
         if select_profile and not chord:
             select_profile = False
+            local = step.local
             step, nuis, compared = select_head_profile(prob, step, nuis)
+            # (the offsets fitted with the path keep the joint step taken before the head profile's
+            # choice; the next step's joint solve settles them under it)
+            step.local = local
             _log(progress, f"head point shift against distance: {compared}")
             names, full_step = [n.name for n in nuis], step
             theta = np.array([getattr(prob, n) for n in names], float)
@@ -446,6 +450,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         delta = step.z0 + step.Z @ step.dtheta
         converged = np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance)))
         if step.local is not None:
+            # (their step is the joint optimum's at the exact nuisances' step before a selection
+            # dropped one, the curvature or the head profile's knots: the next step's joint solve
+            # settles them without it, and the loop ends only on steps small against their sigma)
             loc = step.local
             theta_local = theta_local + loc.dtheta
             for name, v in zip(local_names, theta_local, strict=True):
