@@ -386,7 +386,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         local_cols = np.asarray(local, np.int64)
         sigma = np.array([nu.prior_sigma for nu in nuisances[k_exact:]])
         mean_l = np.array([nu.prior_mean for nu in nuisances[k_exact:]])
-        n, m_rows = cols.n, A.shape[0]
+        n = cols.n
         prior = sps.csr_matrix((1.0 / sigma, (np.arange(m_local), n + np.arange(m_local))),
                                shape=(m_local, n + m_local))
         A_joint = sps.vstack([sps.hstack([A, -B_local], format="csr"), prior], format="csr")
@@ -539,5 +539,5 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
     return values.retract(graph.linearize(values).optimize())
 
 
-__all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step", "retract_flat",
-           "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
+__all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
