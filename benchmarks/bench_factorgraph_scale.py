@@ -4,7 +4,9 @@ simulator): sensors on a 1.5 m grid 2.6 m up, pitched 50 deg, looking along +-x 
 driving a lawnmower of lanes 0.5 m apart at 1 m/s; AMCL at 5 Hz with an OU error (5 cm, 20 s);
 exact odometry at 20 Hz; each sensor reporting the head at 40 Hz within 1.2 m of its look-at point
 (1 cm noise); installed extrinsics off by 0.2 m / 3 deg. The robot's observations are given
-(no association); the closed form initializes; latency, people and the head dome are off.
+(no association); the closed form initializes; latency, people and the head dome are off. Every
+sensor's clock offset is estimated (the default recipe): above its ``clock_offsets_joint_max``
+(200) sensors as variables of the linear system, each one's sigma given the robot's path.
 
     .venv/bin/python benchmarks/bench_factorgraph_scale.py [--sizes 10,40,160,500,1000]
 

@@ -17,6 +17,8 @@ motion tells an offset: a sensor that sees the robot only standing, or only cros
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from pedcal.calib.profile import Nuisance
@@ -142,13 +144,20 @@ def record_clocks(network, prob, shifts) -> None:
     the association's plus the offsets' mean, with that mean's sigma, and each sensor's offset
     is taken about it, with the sigma of its departure from the mean
     (:func:`centered_offsets`, from the profile's covariance; ``shifts``: the profile's
-    result)."""
+    result). Offsets whose sigma was fitted per sensor given the robot's path (above the recipe's
+    ``clock_offsets_joint_max``) are logged as such: that sigma leaves out the path's share."""
     if shifts is None:
         return
     idx = [j for j, n in enumerate(shifts.names) if is_clock_nuisance(n)]
     if not idx:
         return
     ids = [shifts.names[j][len(PREFIX):] for j in idx]
+    if getattr(shifts, "local", None) is not None:
+        logging.getLogger(__name__).warning(
+            f"{len(ids)} sensors' clock offsets (more than clock_offsets_joint_max = "
+            f"{prob.recipe.clock_offsets_joint_max}): each offset's sigma (and its share of its sensor's "
+            "covariance) is its own profile's given the robot's path; their coupling through the path is "
+            "left out, so those sigmas are lower bounds")
     delta = np.array([getattr(prob, shifts.names[j]) for j in idx])
     mean, sigma_mean, centred, sigma = centered_offsets(delta, np.asarray(shifts.cov)[np.ix_(idx, idx)])
     network.extra[LATENCY_KEY] = round(prob.latency_s + mean, 4)

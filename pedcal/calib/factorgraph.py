@@ -298,6 +298,10 @@ class _Nuisances:
     sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(nuisance), per unit
     solves: int
     names: list = field(default_factory=list)
+    # nuisances profiled each on its own variable (pedcal.calib.profile.LocalProfile), the last of
+    # ``names``: cov holds their variances on its diagonal, ``sensitivity`` has no columns for
+    # them; (their sensor indices (m,), their sensors' sensitivity (m, 6))
+    local: tuple | None = None
     # a curvature the data show but the recipe does not estimate: (would-be value m, the
     # sensors' (and h(0)'s) sensitivity to it, chi^2)
     unmodelled: tuple | None = None
@@ -337,7 +341,15 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     profile's inverse Hessian and the variables' sensitivity to them carries it into the
     sensors' covariance: the marginal over the nuisances, not the conditional. ``parts`` gets
     the observation and motion blocks at the final values; ``curvature=False`` leaves the
-    curvature out (a first, rough pass)."""
+    curvature out (a first, rough pass).
+
+    Above ``clock_offsets_joint_max`` per-sensor clock offsets, they join the linear system as
+    variables (their step the joint Gauss-Newton step's, as exact as the profile's), and each
+    one's sigma comes from its own profile with every other variable held
+    (:func:`pedcal.calib.profile._local_profile`): its sensor's pose free, the robot's path
+    fixed, which many sensors pin down; their coupling through the path is left out of their
+    sigma and of the sensors' covariance, and the cost stays linear in the sensors (one d x d
+    solve each, not a right-hand side through the whole graph)."""
     rec = prob.recipe
     if not _profiled(rec):
         return None
@@ -351,7 +363,13 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         nuis += [Nuisance("odometry_scale_correction", 0.0, rec.odometry_scale_sigma, 1e-3),
                  Nuisance("odometry_drift_rad_per_m", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_m), 1e-4),
                  Nuisance("odometry_drift_rad_per_s", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_s), 1e-5)]
-    nuis += clock_nuisances(prob, result)  # each sensor's clock offset (pedcal.calib.clocks)
+    clocks = clock_nuisances(prob, result)  # each sensor's clock offset (pedcal.calib.clocks)
+    local_nuis = clocks if len(clocks) > rec.clock_offsets_joint_max else []
+    if local_nuis:
+        _log(progress, f"{len(clocks)} sensors' clock offsets (more than {rec.clock_offsets_joint_max}): each "
+                       "fitted with the path, its sigma on its own given the path (their coupling through it left out)")
+    else:
+        nuis += clocks
     nuis += head_profile_nuisances(prob)   # the horizontal shift against distance (pedcal.calib.headpoint)
     select_profile = any(is_head_profile(n.name) for n in nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
@@ -366,31 +384,37 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     kernel = (rec.robust_kernel, rec.robust_k)
     prior_factors = int(result.exists(H(0)) and rec.amcl)      # the head offset's prior leads the block
     step, full_step = None, None
+    local_names = [n.name for n in local_nuis]
+    index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    local_sensors = np.array([index[n[len(CLOCK_PREFIX):]] for n in local_names], np.int64)
+    local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)
+        theta_local = np.array([getattr(prob, n) for n in local_names], float)
+        every = tuple(names + local_names)          # the exact nuisances first, then the local ones
         plain = None
         if odo:
             motion_rhs = MotionRhs(log, prob, result)
-            plain = (lambda th, nm=tuple(names): motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
+            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
                      [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
-                     lambda th, f=motion_rhs, nm=tuple(names): f(dict(zip(nm, th, strict=True))))
+                     lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
         # the shifts enter the measurements linearly, so after a step of a few sigma the
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
         rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
         # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
-        index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-        footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(names)
+        footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(every)
                      if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
-        step = profile_step(fixed, lambda th, scale, r=result, nm=tuple(names): observation_block(
-            log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result, theta, nuis, cols,
+        step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
+            log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
+            np.r_[theta, theta_local], nuis + local_nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
             order=None if step is None else step.order,
-            residuals=lambda th, scale, f=rhs, nm=tuple(names): f(dict(zip(nm, th, strict=True)), scale),
-            footprint=footprint)
+            residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
+            footprint=footprint, local=local_cols)
         if not chord:
             full_step = step
         if select and "curvature_m" in names:
@@ -408,7 +432,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             full_step = step
         if select_profile and not chord:
             select_profile = False
+            local = step.local
             step, nuis, compared = select_head_profile(prob, step, nuis)
+            # (the offsets fitted with the path keep the joint step taken before the head profile's
+            # choice; the next step's joint solve settles them under it)
+            step.local = local
             _log(progress, f"head point shift against distance: {compared}")
             names, full_step = [n.name for n in nuis], step
             theta = np.array([getattr(prob, n) for n in names], float)
@@ -419,18 +447,40 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         for name, v in zip(names, theta, strict=True):
             setattr(prob, name, float(v))
         # the variables at the linearized optimum for the new shifts: z0 + Z dtheta
-        result = retract_flat(result, step.z0 + step.Z @ step.dtheta, cols)
+        delta = step.z0 + step.Z @ step.dtheta
+        converged = np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance)))
+        if step.local is not None:
+            # (their step is the joint optimum's at the exact nuisances' step before a selection
+            # dropped one, the curvature or the head profile's knots: the next step's joint solve
+            # settles them without it, and the loop ends only on steps small against their sigma)
+            loc = step.local
+            theta_local = theta_local + loc.dtheta
+            for name, v in zip(local_names, theta_local, strict=True):
+                setattr(prob, name, float(v))
+            ratio = np.abs(loc.dtheta) / np.sqrt(loc.variance)
+            converged = converged and bool(np.all(ratio <= tolerance))
+            _log(progress, f"  {len(loc.dtheta)} clock offsets (sigma per sensor given the path): median "
+                           f"{1000 * np.median(np.abs(theta_local)):.1f} ms, median sigma "
+                           f"{1000 * np.median(np.sqrt(loc.variance)):.1f} ms, largest step {ratio.max():.2f} sigma")
+        result = retract_flat(result, delta, cols)
         parts.blocks["observations"] = observation_block(log, prob, result)
         if odo:
             parts.blocks["motion"] = motion_block(log, prob)
-        if np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance))):
+        if converged:
             break
     if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
         warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
                       "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
     keys = [S(i) for i in range(len(prob.sensor_ids))] + ([H(0)] if result.exists(H(0)) else [])
     sens = step.Z[cols.index(keys)]
-    return _Nuisances(parts.graph(), result, step.covariance, sens, n_step, names=names,
+    cov, local = step.covariance, None
+    if step.local is not None:
+        k = len(names)
+        cov = np.zeros((k + len(local_names),) * 2)
+        cov[:k, :k] = step.covariance
+        cov[np.arange(k, len(cov)), np.arange(k, len(cov))] = step.local.variance
+        local = (local_sensors, step.local.Z)
+    return _Nuisances(parts.graph(), result, cov, sens, n_step, names=names + local_names, local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]))
 
@@ -542,7 +592,17 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         blocks = [marginals.marginalCovariance(k) for k in keys]
     extra = []                                 # (sensitivity (6 len(keys),), k x k covariance) terms
     if shifts is not None:
-        extra.append((shifts.sensitivity, shifts.cov))
+        k = shifts.sensitivity.shape[1]
+        extra.append((shifts.sensitivity, shifts.cov[:k, :k]))
+        if shifts.local is not None:
+            # each locally fitted offset's share of its own sensor alone: Z_i sigma_i^2 Z_i^T
+            sensor, Z_local = shifts.local
+            var = np.diag(shifts.cov)[k:]
+            share = var[:, None, None] * Z_local[:, :, None] * Z_local[:, None, :]
+            for i, s in zip(sensor, share, strict=True):
+                blocks[i] = blocks[i] + s
+                if joint:
+                    C[6 * i:6 * i + 6, 6 * i:6 * i + 6] += s
         if shifts.unmodelled is not None:
             # the model does not fit: the sensors widened by the move the misfit's own fix would make
             dc, sens_c, _ = shifts.unmodelled

@@ -148,6 +148,22 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
 
 
 @dataclass
+class LocalProfile:
+    """Nuisances each entering the rows of one variable alone (a sensor's clock offset, its own
+    robot observations): nuisance i's step ``dtheta[i]`` (the joint Gauss-Newton step's, exact),
+    and from its own profile with everything but its variable held its variance ``variance[i]``
+    (the local Hessian's inverse), its variable's ``columns[i]`` and sensitivity ``Z[i]``
+    (tangent per unit of the nuisance, that variable alone): their coupling through the other
+    variables (a sensor's offset through the robot's path it shares with others) is left out of
+    the sigma."""
+
+    dtheta: np.ndarray
+    variance: np.ndarray
+    Z: np.ndarray
+    columns: np.ndarray
+
+
+@dataclass
 class ProfileStep:
     """One profile of the nuisances at a linearization point: the Newton step ``dtheta`` of the
     (quadratic) profile, its Hessian (chi^2 / 2 units: theta's information), the Gauss-Newton step
@@ -164,13 +180,14 @@ class ProfileStep:
     # theta B (same rows, k columns, sparse): the profile residual's change M = A Z - B
     A: sps.csr_matrix | None = None
     B: sps.csc_matrix | None = None
+    local: LocalProfile | None = None   # the nuisances profiled locally (``profile_step``'s ``local``)
 
     def select(self, keep: np.ndarray) -> ProfileStep:
         """The step restricted to the nuisances ``keep`` (their Hessian's rows and columns, Z's
         and B's columns; dtheta as it was: the caller takes its own)."""
         return ProfileStep(dtheta=self.dtheta[keep], hessian=self.hessian[np.ix_(keep, keep)], z0=self.z0,
                            Z=self.Z[:, keep], cols=self.cols, order=self.order, A=self.A,
-                           B=None if self.B is None else self.B[:, keep])
+                           B=None if self.B is None else self.B[:, keep], local=self.local)
 
     @property
     def covariance(self) -> np.ndarray:
@@ -206,7 +223,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
                  plain=None, plain0=None, previous: ProfileStep | None = None,
-                 order: np.ndarray | None = None, residuals=None, footprint: dict | None = None) -> ProfileStep:
+                 order: np.ndarray | None = None, residuals=None, footprint: dict | None = None,
+                 local: np.ndarray | None = None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -242,10 +260,24 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     rows (a column grouping of the finite differences; the rows outside every footprint of a
     group are checked to stay put, else its nuisances are taken one by one).
 
+    ``local``: optionally (m, d) column indices, one row per each of the last m ``nuisances``:
+    nuisances that enter the rows of that one variable alone (a sensor's clock offset, its own
+    robot observations; their ``footprint`` given). The others are profiled exactly, these held;
+    they join the variables as m more columns of the sparse system (one factorization, their
+    step the joint Gauss-Newton step's: the profile's optimum), the others are profiled over
+    them, and each one's sigma comes from its own profile with every other variable held
+    (:class:`LocalProfile`, :func:`_local_profile`): d x d solves instead of m more right-hand
+    sides through the whole graph and an m x m Hessian. The step's ``dtheta``, ``hessian`` and
+    ``Z`` are the others'; ``local`` carries these.
+
     M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
     M^T r = Z^T A^T r - B^T r."""
     cols = cols or Columns.of(values)
     k = len(nuisances)
+    m_local = 0 if local is None else len(local)
+    k_exact = k - m_local                 # the nuisances profiled exactly lead
+    # (with local nuisances every step is a full one: the system they join changes with their B)
+    chord = previous is not None and previous.A is not None and not m_local
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
     if plain_build is not None:
@@ -258,8 +290,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     g_obs0 = obs0.linearize(values)
     A_f, b_f = sparse_system(g_fixed, cols)
     A_o, b_o0 = sparse_system(g_obs0, cols)
-    mean = np.array([nu.prior_mean for nu in nuisances])
-    info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
+    mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
+    info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances[:k_exact]])
     # the k + 1 solves share the normal matrix N = A^T A (the systems differ in right-hand sides
     # only): one sparse factorization, then z0 = N^-1 A^T b and Z = N^-1 A^T B
     if order is None or len(order) != cols.n:
@@ -268,11 +300,14 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
             lin.push_back(g)
         order = fill_reducing_order(lin, cols)
     A = sps.vstack([A_f, A_o, A_p], format="csr")
-    solve = _normal_solver(A, order)
-    z0 = solve(A_f.T @ b_f + A_o.T @ b_o0 + A_p.T @ b_p0)
-    rho0 = np.r_[A_f @ z0 - b_f, A_o @ z0 - b_o0, A_p @ z0 - b_p0]
-    if previous is not None and previous.A is not None:
-        grad = _residual_change_t(previous, rho0) + info @ (np.asarray(theta, float) - mean)
+    b = np.r_[b_f, b_o0, b_p0]
+    if not m_local:
+        solve = _normal_solver(A, order)
+        z0 = solve(A.T @ b)
+        rho0 = A @ z0 - b
+    theta = np.asarray(theta, float)
+    if chord:
+        grad = _residual_change_t(previous, rho0) + info @ (theta[:k_exact] - mean)
         return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
                            Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
@@ -296,8 +331,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     # B's columns as (rows, values) of the observation and plain blocks: the factors at theta + h
     # with the weights frozen (sigmas / sqrt(w), no kernel) have A's rows and the right-hand side
     # b0 + h B_j
-    columns: list = [None] * k
-    moved = [j for j in range(k) if j not in plain_idx]
+    # (a chord step keeps the exact nuisances' columns: only the local ones' are taken)
+    columns: list = [(np.zeros(0, np.int64), np.zeros(0))] * k
+    moved = [j for j in range(k) if j not in plain_idx and not (chord and j < k_exact)]
+    plain_idx = () if chord else plain_idx
     b_p_ref = plain_residuals(theta) if plain_residuals is not None and len(plain_idx) else b_p0
     for j in plain_idx:
         th = np.array(theta, float)
@@ -340,16 +377,89 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
                         (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
                          np.repeat(np.arange(k), lengths))), shape=(A.shape[0], k))
-    AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k)
-    Z = solve(AtB).reshape(cols.n, k)
-    # the profile residual r_p = rho0 + M dtheta, M = A Z - B, by its products with N Z = A^T B
-    BtB = np.asarray((B.T @ B).todense()).reshape(k, k)
-    MtM = BtB - AtB.T @ Z
-    step = ProfileStep(dtheta=np.zeros(k), hessian=0.5 * (MtM + MtM.T) + info, z0=z0, Z=Z, cols=cols, order=order,
-                       A=A, B=B)
-    grad = _residual_change_t(step, rho0) + info @ (np.asarray(theta, float) - mean)
+    B, B_local = B[:, :k_exact], B[:, k_exact:]
+    local_cols = None
+    if m_local:
+        # the local nuisances join the variables: columns -B_local (r = A dx - b - B dtheta) and
+        # their priors' rows; the joint Gauss-Newton step moves them with the variables (the
+        # profile's optimum, exactly), and the exact nuisances are profiled over them too
+        local_cols = np.asarray(local, np.int64)
+        sigma = np.array([nu.prior_sigma for nu in nuisances[k_exact:]])
+        mean_l = np.array([nu.prior_mean for nu in nuisances[k_exact:]])
+        n = cols.n
+        prior = sps.csr_matrix((1.0 / sigma, (np.arange(m_local), n + np.arange(m_local))),
+                               shape=(m_local, n + m_local))
+        A_joint = sps.vstack([sps.hstack([A, -B_local], format="csr"), prior], format="csr")
+        b_joint = np.r_[b, -(theta[k_exact:] - mean_l) / sigma]
+        B_joint = sps.vstack([B, sps.csc_matrix((m_local, k_exact))], format="csc")
+        solve = _normal_solver(A_joint, _with_local_columns(order, local_cols, n))
+        z_joint = solve(A_joint.T @ b_joint)
+        rho0 = A_joint @ z_joint - b_joint
+        AtB = np.asarray((A_joint.T @ B_joint).todense()).reshape(n + m_local, k_exact)
+        Z_joint = solve(AtB).reshape(n + m_local, k_exact)
+        BtB = np.asarray((B.T @ B).todense()).reshape(k_exact, k_exact)
+        MtM = BtB - AtB.T @ Z_joint
+        step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z_joint, Z=Z_joint,
+                           cols=cols, order=order, A=A_joint, B=B_joint)
+    elif chord:
+        step = ProfileStep(dtheta=np.zeros(k_exact), hessian=previous.hessian, z0=z0, Z=previous.Z, cols=cols,
+                           order=order, A=previous.A, B=previous.B)
+    else:
+        AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k_exact)
+        Z = solve(AtB).reshape(cols.n, k_exact)
+        # the profile residual r_p = rho0 + M dtheta, M = A Z - B, by its products with N Z = A^T B
+        BtB = np.asarray((B.T @ B).todense()).reshape(k_exact, k_exact)
+        MtM = BtB - AtB.T @ Z
+        step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z0, Z=Z, cols=cols,
+                           order=order, A=A, B=B)
+    grad = _residual_change_t(step, rho0) + info @ (theta[:k_exact] - mean)
     step.dtheta = -np.linalg.solve(step.hessian, grad)
+    if m_local:
+        # the local nuisances' step: the joint optimum's at the exact ones' step; their sigma and
+        # their sensors' sensitivity from their own profiles (the path held)
+        n = cols.n
+        local_step = step.z0[n:] + step.Z[n:] @ step.dtheta
+        step.local = _local_profile(A, B_local, local_cols, nuisances[k_exact:])
+        step.local.dtheta = local_step
+        step.z0, step.Z = step.z0[:n], step.Z[:n]
     return step
+
+
+def _with_local_columns(order: np.ndarray, local_cols: np.ndarray, n: int) -> np.ndarray:
+    """The fill-reducing ``order`` of n columns with column n + i (local nuisance i) placed just
+    before the first of its variable's ``local_cols[i]``: it touches that variable's rows alone, so
+    it adds one column to that variable's clique and no fill elsewhere."""
+    position = np.empty(n, np.int64)
+    position[order] = np.arange(n)
+    key = np.r_[2 * np.arange(n), 2 * position[local_cols].min(axis=1) - 1]
+    return np.r_[order, n + np.arange(len(local_cols))][np.argsort(key, kind="stable")]
+
+
+def _local_profile(A: sps.csr_matrix, B: sps.csc_matrix, columns: np.ndarray,
+                   nuisances: list[Nuisance]) -> LocalProfile:
+    """Each nuisance i's (B's column i, nonzero on its own rows) variance and sensitivity in its
+    own profile, with only its own variable (``columns[i]``, d wide) free and every other held:
+    with A_i = A's columns of that variable and N_i = A_i^T A_i (all its rows: its priors too),
+    Z_i = N_i^-1 A_i^T B_i, M_i = A_i Z_i - B_i and the Hessian M_i^T M_i = B_i^T B_i - (A_i^T
+    B_i) . Z_i plus the prior's information (:func:`profile_step`'s module docstring with k = 1
+    and the variables reduced to one). All m at once: batched d x d solves. (``dtheta`` is left
+    at 0 for the caller.)"""
+    m, d = columns.shape
+    # A's columns of the m variables (rows x m d), by a selection matrix: no copy of all of A
+    select = sps.csr_matrix((np.ones(m * d), (columns.ravel(), np.arange(m * d))), shape=(A.shape[1], m * d))
+    A_l = (A @ select).tocsc()
+    G = (A_l.T @ A_l).tocoo()
+    own = G.row // d == G.col // d
+    N = np.zeros((m, d, d))
+    N[G.row[own] // d, G.row[own] % d, G.col[own] % d] = G.data[own]
+    C = (A_l.T @ B).tocoo()                                # A_i^T B_i: column i's own variable's rows
+    own = C.row // d == C.col
+    AtB = np.zeros((m, d))
+    AtB[C.col[own], C.row[own] % d] = C.data[own]
+    Z = np.linalg.solve(N, AtB[:, :, None])[:, :, 0]
+    prior_info = np.array([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
+    hessian = np.asarray(B.multiply(B).sum(axis=0)).ravel() - np.einsum("id,id->i", AtB, Z) + prior_info
+    return LocalProfile(dtheta=np.zeros(m), variance=1.0 / hessian, Z=Z, columns=columns)
 
 
 def _residual_change_t(step: ProfileStep, r: np.ndarray) -> np.ndarray:
@@ -429,5 +539,5 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
     return values.retract(graph.linearize(values).optimize())
 
 
-__all__ = ["Nuisance", "Columns", "ProfileStep", "profile_step", "sparse_system", "gauss_newton_step", "retract_flat",
-           "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
+__all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]

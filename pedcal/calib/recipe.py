@@ -124,6 +124,13 @@ class GraphRecipe:
     # (pedcal.calib.clocks), prior 0 +- clock_offset_sigma_s (s)
     clock_offsets: bool = True
     clock_offset_sigma_s: float = 0.15
+    # above this many offsets, they join the linear system as variables (the same estimates as
+    # the exact profile's, one sparse factorization instead of a right-hand side through the whole
+    # graph per sensor and a dense Hessian) and each one's sigma is its own profile's given the
+    # robot's path (a 6 x 6 solve per sensor): their coupling through the path is left out, so
+    # that sigma is a lower bound (0.4-0.6 of the exact one at 160 synthetic sensors, 0.15-0.3
+    # on the paper and sparse scenes, where one sensor sees each pose)
+    clock_offsets_joint_max: int = 200
     # people association for shared observations (at most one shared point per period)
     people_sample_s: float = 0.5
     people_misfit_sigma: float = 5.0   # a shared sighting whose views the first solve puts this far apart is dropped
