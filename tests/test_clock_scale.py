@@ -20,14 +20,23 @@ def exact_and_local():
     """Paper seed 2, each sensor's clock off by up to +-0.15 s, calibrated with the exact profile
     of the offsets and with each offset's sigma fitted locally (threshold 0)."""
     sim = simulate_logs("paper", seed=2, clock_offset_s=0.15)
+    exact, local = _exact_and_local(sim)
+    return sim, exact, local
+
+
+def _exact_and_local(sim, **recipe):
+    """The calibrations of ``sim`` with the offsets' exact profile and fitted locally (threshold
+    0), the recipe's other fields set from ``recipe``."""
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for joint_max in (200, 0):
             rec = GraphRecipe.load("default")
             rec.clock_offsets_joint_max = joint_max
+            for name, value in recipe.items():
+                setattr(rec, name, value)
             out[joint_max] = calibrate(sim.calib, method="factorgraph", graph=rec)
-    return sim, out[200], out[0]
+    return out[200], out[0]
 
 
 def test_local_offsets_and_sensors_equal_the_exact_profiles(exact_and_local):
@@ -122,15 +131,9 @@ def test_local_offsets_survive_the_head_models_selections():
     """With the head profile (bic) and the curvature (auto) chosen inside the profile's first
     step, the offsets fitted with the path still end at the exact profile's."""
     sim = simulate_logs("paper", seed=0, clock_offset_s=0.15)
-    out = {}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for joint_max in (200, 0):
-            rec = GraphRecipe.load("default")
-            rec.clock_offsets_joint_max, rec.head_profile, rec.head_curvature = joint_max, "bic", "auto"
-            out[joint_max] = calibrate(sim.calib, method="factorgraph", graph=rec)
-    ex, lo = out[200].network.extra[CLOCK_OFFSET_KEY], out[0].network.extra[CLOCK_OFFSET_KEY]
+    exact, local = _exact_and_local(sim, head_profile="bic", head_curvature="auto")
+    ex, lo = exact.network.extra[CLOCK_OFFSET_KEY], local.network.extra[CLOCK_OFFSET_KEY]
     assert set(ex) == set(lo)
     assert max(abs(ex[s] - lo[s]) for s in ex) < 0.002          # measured 0.3 ms
-    for s in out[200].network:
-        assert np.linalg.norm(out[0].network[s.id].position_m - s.position_m) < 1e-3   # measured 0.16 mm
+    for s in exact.network:
+        assert np.linalg.norm(local.network[s.id].position_m - s.position_m) < 1e-3   # measured 0.16 mm
