@@ -6,8 +6,8 @@ import warnings
 from types import SimpleNamespace
 
 import numpy as np
-import scipy.sparse as sps
 import pytest
+import scipy.sparse as sps
 import yaml
 
 from pedcal.calib import calibrate

@@ -16,7 +16,7 @@ cases, tables, _ = bench_cases(Path("../shared/data"), list(RECORDINGS), ["paper
 done = set()
 if os.path.exists(out):
     d = pd.read_csv(out, dtype={"target": str})
-    done = set(zip(d.recording, d.target, d.tracker))
+    done = set(zip(d.recording, d.target, d.tracker, strict=True))
 cases = [replace(c, sensing=sensing, lidar=None) for c in cases
          if c.seed == 1 and (c.recording, str(c.target), c.tracker) not in done]
 t0, c0 = time.perf_counter(), time.process_time()
@@ -29,4 +29,5 @@ with open(out, "a", newline="") as f:
         w.writerow([c.recording, c.target, c.tracker, c.seed, r.to_dict()["with_target_fraction"]])
         f.flush()
         print(k, len(cases), c.recording, c.target, c.tracker, f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
-print(f"{len(cases)} episodes, {time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU", file=sys.stderr)
+print(f"{len(cases)} episodes, {time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU",
+      file=sys.stderr)
