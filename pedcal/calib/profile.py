@@ -331,10 +331,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     # B's columns as (rows, values) of the observation and plain blocks: the factors at theta + h
     # with the weights frozen (sigmas / sqrt(w), no kernel) have A's rows and the right-hand side
     # b0 + h B_j
-    # (a chord step keeps the exact nuisances' columns: only the local ones' are taken)
     columns: list = [(np.zeros(0, np.int64), np.zeros(0))] * k
-    moved = [j for j in range(k) if j not in plain_idx and not (chord and j < k_exact)]
-    plain_idx = () if chord else plain_idx
+    moved = [j for j in range(k) if j not in plain_idx]
     b_p_ref = plain_residuals(theta) if plain_residuals is not None and len(plain_idx) else b_p0
     for j in plain_idx:
         th = np.array(theta, float)
@@ -401,9 +399,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         MtM = BtB - AtB.T @ Z_joint
         step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z_joint, Z=Z_joint,
                            cols=cols, order=order, A=A_joint, B=B_joint)
-    elif chord:
-        step = ProfileStep(dtheta=np.zeros(k_exact), hessian=previous.hessian, z0=z0, Z=previous.Z, cols=cols,
-                           order=order, A=previous.A, B=previous.B)
     else:
         AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k_exact)
         Z = solve(AtB).reshape(cols.n, k_exact)
