@@ -34,6 +34,7 @@ import io
 import json
 import logging
 import zipfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -215,23 +216,35 @@ class RealAdaBoost:
 
     @classmethod
     def load(cls, path: str | Path) -> RealAdaBoost:
-        path = Path(path)
-        if not path.is_file():
-            raise PedcalInputError("no such model file", path=path)
-        try:
-            with np.load(path, allow_pickle=False) as d:
-                m = cls(n_rounds=int(d["n_rounds"]), n_bins=int(d["n_bins"]), seed=int(d["seed"]),
-                        tree_depth=int(d["tree_depth"]) if "tree_depth" in d.files else 0)
-                m.feature_ = d["feature"].astype(np.int64)
-                m.edges_ = d["edges"].astype(float)
-                m.h_ = d["h"].astype(float)
-                m.n_features_ = int(d["n_features"])
-                m.bias_ = float(d["bias"]) if "bias" in d.files else 0.0  # files before the offset
-                m.metadata_ = read_metadata(d)
-        except (OSError, ValueError, KeyError) as e:
-            raise PedcalInputError(f"not a RealAdaBoost model .npz (feature, edges, h, n_features, "
-                                   f"n_bins, n_rounds, seed): {e}", path=path) from None
+        with open_model_npz(path, "a RealAdaBoost model .npz (feature, edges, h, n_features, n_bins, "
+                                  "n_rounds, seed)") as d:
+            m = cls(n_rounds=int(d["n_rounds"]), n_bins=int(d["n_bins"]), seed=int(d["seed"]),
+                    tree_depth=int(d["tree_depth"]) if "tree_depth" in d.files else 0)
+            m.feature_ = d["feature"].astype(np.int64)
+            m.edges_ = d["edges"].astype(float)
+            m.h_ = d["h"].astype(float)
+            m.n_features_ = int(d["n_features"])
+            m.bias_ = float(d["bias"]) if "bias" in d.files else 0.0  # files before the offset
+            m.metadata_ = read_metadata(d)
         return m
+
+
+@contextmanager
+def open_model_npz(path: str | Path, what: str, errors: tuple = ()):
+    """The model file ``path`` opened as an .npz (no pickles) for the ``with`` body to read; a
+    missing file, or a read that fails in the body (OSError, ValueError, KeyError,
+    UnicodeDecodeError or one of ``errors``), is a PedcalInputError naming the file and ``what``
+    it should be; a PedcalInputError of the body's own is passed on."""
+    path = Path(path)
+    if not path.is_file():
+        raise PedcalInputError("no such model file", path=path)
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            yield d
+    except PedcalInputError:
+        raise
+    except (OSError, ValueError, KeyError, UnicodeDecodeError, *errors) as e:
+        raise PedcalInputError(f"not {what}: {e}", path=path) from None
 
 
 def write_npz(path: str | Path, arrays: dict, metadata: dict | None = None) -> None:

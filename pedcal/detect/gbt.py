@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pedcal.detect.adaboost import read_metadata, write_npz
+from pedcal.detect.adaboost import open_model_npz, read_metadata, write_npz
 from pedcal.errors import PedcalInputError
 
 
@@ -102,25 +102,17 @@ class GradientBoostedTrees:
 
         from pedcal.detect.model_check import lightgbm_text_problem
 
-        path = Path(path)
-        if not path.is_file():
-            raise PedcalInputError("no such model file", path=path)
-        try:
-            with np.load(path, allow_pickle=False) as d:
-                n_est, leaves, min_child, seed = (int(v) for v in d["hyper"])
-                lr, sub, col = (float(v) for v in d["hyper_float"])
-                m = cls(n_est, leaves, lr, min_child, sub, col, seed)
-                text = d["lightgbm_model"].tobytes().decode()
-                problem = lightgbm_text_problem(text)    # LightGBM aborts the process on a damaged text
-                if problem is not None:
-                    raise PedcalInputError(f"not a usable detector model: {problem}", path=path)
-                m.booster_ = lightgbm.Booster(model_str=text)
-                m.n_features_ = int(d["n_features"])
-                m.bias_ = float(d["bias"])
-                m.metadata_ = read_metadata(d)
-        except PedcalInputError:
-            raise
-        except (OSError, ValueError, KeyError, UnicodeDecodeError, lightgbm.basic.LightGBMError) as e:
-            raise PedcalInputError(f"not a gradient-boosted-trees model .npz (lightgbm_model, n_features, bias, "
-                                   f"hyper): {e}", path=path) from None
+        with open_model_npz(path, "a gradient-boosted-trees model .npz (lightgbm_model, n_features, bias, hyper)",
+                            (lightgbm.basic.LightGBMError,)) as d:
+            n_est, leaves, min_child, seed = (int(v) for v in d["hyper"])
+            lr, sub, col = (float(v) for v in d["hyper_float"])
+            m = cls(n_est, leaves, lr, min_child, sub, col, seed)
+            text = d["lightgbm_model"].tobytes().decode()
+            problem = lightgbm_text_problem(text)    # LightGBM aborts the process on a damaged text
+            if problem is not None:
+                raise PedcalInputError(f"not a usable detector model: {problem}", path=path)
+            m.booster_ = lightgbm.Booster(model_str=text)
+            m.n_features_ = int(d["n_features"])
+            m.bias_ = float(d["bias"])
+            m.metadata_ = read_metadata(d)
         return m
