@@ -166,6 +166,21 @@ def _residuals(R, t, p, q):
     return np.sqrt(np.einsum("hni,hni->hn", d, d))
 
 
+def _squared_residuals(R, t, p, q):
+    """|R p + t - q|^2 for hypotheses R (H, 3, 3), t (H, 3) and points (N, 3): (H, N), expanded
+    into products that are matrix products over the points (|p|^2 + |q|^2 + |t|^2 + 2 (R^T t).p
+    - 2 t.q - 2 <R, q p^T>, the last the hypotheses' R (H, 9) times the pairs' q p^T (9, N)):
+    ~4x the direct difference's speed. ``q`` and ``t`` are taken about q's mean, so that the
+    terms stay the size of the scene around the points (their rounding ~1e-15 m^2 here, against
+    inlier gates of 0.01-1 m^2)."""
+    c = q.mean(axis=0) if len(q) else np.zeros(3)
+    q, t = q - c, t - c
+    qp = (q[:, :, None] * p[:, None, :]).reshape(len(p), 9)
+    d2 = (np.einsum("ni,ni->n", p, p) + np.einsum("ni,ni->n", q, q))[None] + np.einsum("hi,hi->h", t, t)[:, None]
+    d2 += 2.0 * (np.einsum("hij,hi->hj", R, t) @ p.T - t @ q.T - R.reshape(len(R), 9) @ qp.T)
+    return np.maximum(d2, 0.0)
+
+
 def _prior_ok(R, t, sensor: SensorExtrinsics, params):
     """(within the gates, squared Mahalanobis distance to the installed pose under the prior)."""
     R0 = sensor.R_world_sensor
@@ -203,13 +218,15 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
     seed_onehot = np.zeros((int(seed_point_mask.sum()), k))
     seed_onehot[np.arange(len(seed_onehot)), seed_col[seed_point_mask]] = 1.0
     best = None
+    w = sd.in_range.astype(float)
+    seg_w = sd.seg_sum(w)[seeds]
+    hw, hp = M @ seg_w, M @ sd.seg_sum(w[:, None] * sd.p)[seeds]
+    wp = w[:, None] * sd.p
+    inlier_m2 = params["inlier_m"] ** 2
     for li, q in enumerate(heads_by_latency):
-        w = sd.in_range.astype(float)
-        seg_w = sd.seg_sum(w)[seeds]
-        seg_p = sd.seg_sum(w[:, None] * sd.p)[seeds]
         seg_q = sd.seg_sum(w[:, None] * q)[seeds]
-        seg_pq = sd.seg_sum(w[:, None, None] * sd.p[:, :, None] * q[:, None, :])[seeds]
-        hw, hp, hq, hpq = M @ seg_w, M @ seg_p, M @ seg_q, np.einsum("hk,kij->hij", M, seg_pq)
+        seg_pq = sd.seg_sum((wp[:, :, None] * q[:, None, :]).reshape(len(q), 9))[seeds].reshape(-1, 3, 3)
+        hq, hpq = M @ seg_q, (M @ seg_pq.reshape(len(seeds), 9)).reshape(-1, 3, 3)
         # a weak pull toward the installed pose fixes the rotation about a straight seed segment
         anchors = _anchor_moments(hp / hw[:, None], sensor, params["prior_weight"] * hw)
         R, t = rigid_from_moments(*(x + y for x, y in zip((hw, hp, hq, hpq), anchors, strict=True)))
@@ -217,8 +234,7 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
         if not ok.any():
             continue
         R, t, prior_d2, hyp = R[ok], t[ok], prior_d2[ok], np.flatnonzero(ok)
-        r = _residuals(R, t, sd.p, q)
-        inlier = r < params["inlier_m"]
+        inlier = _squared_residuals(R, t, sd.p, q) < inlier_m2
         # a seed must itself follow the robot: most of its points explained
         seed_inlier = inlier[:, seed_point_mask].astype(float) @ seed_onehot
         seed_frac = seed_inlier / np.maximum(seg_w, 1.0)
@@ -307,15 +323,20 @@ def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0
     sum_p = np.add.reduceat(p, starts, axis=0)
     head_at = head_interpolator(log)
 
+    def sse_of(q):
+        """The pooled residual at head points ``q`` (..., N, 3), one per leading index."""
+        sum_pq = np.add.reduceat((p[:, :, None] * q[..., :, None, :]).reshape(*q.shape[:-1], 9), starts,
+                                 axis=-2).reshape(*q.shape[:-2], len(starts), 3, 3)
+        R, tr = rigid_from_moments(w, sum_p, np.add.reduceat(q, starts, axis=-2), sum_pq)
+        pred = np.einsum("...nij,nj->...ni", R[..., group, :, :], p) + tr[..., group, :]
+        return np.sum((pred - q) ** 2, axis=(-2, -1))
+
     def sse(latency_s):
-        q = head_at(t - latency_s)
-        sum_pq = np.add.reduceat(p[:, :, None] * q[:, None, :], starts, axis=0)
-        R, tr = rigid_from_moments(w, sum_p, np.add.reduceat(q, starts, axis=0), sum_pq)
-        pred = np.einsum("nij,nj->ni", R[group], p) + tr[group]
-        return float(np.sum((pred - q) ** 2))
+        return float(sse_of(head_at(t - latency_s)))
 
     grid = np.arange(-max_latency_s, max_latency_s + 1e-9, 0.02)
-    values = [sse(x) for x in grid]
+    # the grid in one pass (the head spline evaluated at every latency's times at once)
+    values = sse_of(head_at((t[None, :] - grid[:, None]).ravel()).reshape(len(grid), len(t), 3)).tolist()
     i = int(np.argmin(values))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     if hi <= lo:
