@@ -115,6 +115,17 @@ from pedcal.frames import toward_sensor_horizontal, wrap_angle_rad
 from pedcal.model import Log
 
 
+def head_frames(pose2: np.ndarray, head_m: np.ndarray) -> list:
+    """:func:`~pedcal.calib.motion.head_frame` of every base pose (N, 3) [x, y, yaw]: the head
+    offsets turned into the world in one pass, a Pose3 made per row (GTSAM's Rot3.Yaw, as there)."""
+    pose2 = np.asarray(pose2, float).reshape(-1, 3)
+    c, s_ = np.cos(pose2[:, 2]), np.sin(pose2[:, 2])
+    t = np.column_stack([pose2[:, 0] + c * head_m[0] - s_ * head_m[1], pose2[:, 1] + s_ * head_m[0] + c * head_m[1],
+                         np.full(len(pose2), float(head_m[2]))])
+    yaw_of, pose3 = gtsam.Rot3.Yaw, gtsam.Pose3
+    return [pose3(yaw_of(yaw), row) for yaw, row in zip(pose2[:, 2].tolist(), t, strict=True)]
+
+
 def _robust(recipe: GraphRecipe, base):
     k = recipe.robust_kernel.lower()
     if k == "none":
@@ -259,8 +270,7 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     # own factor holds them when it is in the graph).
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
-    for k in range(n_pose):
-        P = head_frame(*init[k], head_m)
+    for k, P in enumerate(head_frames(init, head_m)):
         values.insert(X(k), P)
         if not rec.amcl:
             blocks["amcl"].add(gtsam.PriorFactorPose3(X(k), P, planar))
@@ -347,10 +357,10 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     drift_var = sig_c ** 2 * (1.0 - np.exp(-2.0 * np.abs(amcl_t[use] - nodes[node_of]) / tau))
     Cb[:, 3:5, 3:5] += (model.white_sigma_m ** 2 + drift_var)[:, None, None] * np.eye(2)
     Cb[:, 5, 5] = 1e-6
-    for n, j in enumerate(use):
-        Z = head_frame(x_a[n], y_a[n], yaw_a[n], head_m)
-        graph.add(gtsam.BetweenFactorPose3(A(int(node_of[n])), X(int(k_of[j])), Z,
-                                           gtsam.noiseModel.Gaussian.Covariance(Cb[n])))
+    between, covariance = gtsam.BetweenFactorPose3, gtsam.noiseModel.Gaussian.Covariance
+    for a_node, x_k, Z, C in zip(node_of.tolist(), k_of[use].tolist(),
+                                 head_frames(np.column_stack([x_a, y_a, yaw_a]), head_m), Cb, strict=True):
+        graph.add(between(A(a_node), X(x_k), Z, covariance(C)))
     # The error process on its nodes: the exact AR(1) of an OU process sampled every dn,
     # a = exp(-dn / tau), written as increments and per-node priors (module docstring).
     a = float(np.exp(-dn / tau))
@@ -403,7 +413,9 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     dt = np.diff(times)
     if rec.odometry and prob.odometry is not None:
         turn, tx, ty, sy, st = _odometry_steps(log, prob, times, theta)
-        steps = [gtsam.Pose3(gtsam.Rot3.Yaw(turn[k]), np.array([tx[k], ty[k], 0.0])) for k in range(n_pose - 1)]
+        yaw_of, pose3 = gtsam.Rot3.Yaw, gtsam.Pose3
+        steps = [pose3(yaw_of(a), t) for a, t in zip(turn.tolist(), np.column_stack([tx, ty, np.zeros(len(tx))]),
+                                                       strict=True)]
     elif rec.smoothness:
         amcl = log.robot.sort_values("t")
         src = interpolate_pose2(amcl if prob.smoothed_amcl is None else prob.smoothed_amcl, times)
@@ -418,16 +430,16 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
                           * np.maximum(2.0 * rec.amcl_smooth_s / dt, 1.0))
         st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + jitter_var) + 1e-3
         sy = np.radians(2.0) * dt + 1e-4
-        P = [head_frame(*src[k], head_m) for k in range(n_pose)]
+        P = head_frames(src, head_m)
         steps = [P[k].between(P[k + 1]) for k in range(n_pose - 1)]
     else:
         return graph
     # one noise model per distinct (turn, translation) sigma, rounded to 0.1 %
     uniq, inverse = np.unique(_motion_sigma_keys(sy, st), axis=0, return_inverse=True)
     models = [gtsam.noiseModel.Diagonal.Sigmas(_motion_sigmas(row[None, :])[0]) for row in uniq]
-    inverse = np.asarray(inverse).ravel()
-    for k in range(n_pose - 1):
-        graph.add(gtsam.BetweenFactorPose3(X(k), X(k + 1), steps[k], models[inverse[k]]))
+    between = gtsam.BetweenFactorPose3
+    for k, (step, i) in enumerate(zip(steps, np.asarray(inverse).ravel().tolist(), strict=True)):
+        graph.add(between(X(k), X(k + 1), step, models[i]))
     return graph
 
 
