@@ -41,6 +41,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     ODOMETRY_NUISANCES,
     A,
     FactorGraphProblem,
+    GraphParts,
     GraphRecipe,
     H,
     L,
@@ -63,6 +64,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     observation_sigmas,
     optimize_graph,
     prepare,
+    rebuild_parts,
     rotation_sigma_deg,
     sensor_sigma_world,
     set_amcl_model,
@@ -133,7 +135,7 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
         # head model again under it
         if shifts is not None:
             result = shifts.result
-        parts, result, more = _reestimate_amcl(log, prob, result, progress, gauss_newton_step=not profiled)
+        parts, result, more = _reestimate_amcl(log, prob, parts, result, progress, gauss_newton_step=not profiled)
         iterations += more
         shifts = _estimate_nuisances(log, prob, parts, result, progress, odometry=True)
     if shifts is not None:
@@ -205,10 +207,11 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     return t, res, per_sensor
 
 
-def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, progress: bool,
+def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, result: gtsam.Values, progress: bool,
                      gauss_newton_step: bool = True):
     """AMCL's error model estimated from the first solve's residuals (pedcal.calib.amcl_model),
-    the graph rebuilt with it and solved again from the first solution. Returns (parts, result,
+    the graph rebuilt with it and solved again from the first solution (``parts``: the first
+    graph's, whose sensors' priors and unchanged motion block are kept). Returns (parts, result,
     iterations)."""
     rec = prob.recipe
     t, res, per_sensor = amcl_residuals(log, prob, result)
@@ -234,15 +237,10 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, result: gtsam.Values, p
         _log(progress, f"{int(bad.sum())} of {len(bad)} shared person sightings contradict the solution "
                        f"(beyond {rec.people_misfit_sigma:.0f} sigma); left out")
         prob.people = [p for p, b in zip(prob.people, bad, strict=True) if not b]
-    parts = build_parts(log, prob)
+    # the variables at the first solution, but the AMCL error's nodes (new with the model: below);
+    # the sensors' priors and an unchanged motion block kept from the first graph
+    parts = rebuild_parts(log, prob, parts, result)
     values = parts.values
-    for key in values.keys():
-        c = chr(gtsam.Symbol(key).chr())
-        if c != "a" and result.exists(key):
-            if c == "l":
-                values.update(key, result.atPoint3(key))
-            else:
-                values.update(key, result.atPose3(key))
     # the error process's nodes start at its share of AMCL's mean residual near them (the node
     # F = X Z^-1 is minus the residual): c^2 / (c^2 + w^2 / n) of it for n estimates; its height at
     # the head model's

@@ -214,6 +214,8 @@ class GraphParts:
 
     blocks: dict
     values: gtsam.Values
+    # what the motion block was built from (:func:`_motion_inputs`), for :func:`rebuild_parts`
+    motion_inputs: tuple | None = None
 
     def graph(self, **replace) -> gtsam.NonlinearFactorGraph:
         """The whole graph; ``replace`` swaps blocks by name (e.g. ``observations=...``)."""
@@ -279,7 +281,62 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     if n_pose > 1:
         blocks["motion"] = motion_block(log, prob, t_max=t_max)
     blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True)
-    return GraphParts(blocks=blocks, values=values)
+    return GraphParts(blocks=blocks, values=values, motion_inputs=_motion_inputs(prob, t_max))
+
+
+def _motion_inputs(prob: FactorGraphProblem, t_max: float | None) -> tuple:
+    """What :func:`motion_block` reads of the problem: its tables and times (compared as objects:
+    :func:`pedcal.calib.problem.set_amcl_model` replaces them, never changes them in place) and
+    the odometry's corrections (by value)."""
+    return (prob.odometry, prob.smoothed_amcl, prob.pose_times, prob.recipe, t_max,
+            tuple(float(getattr(prob, k)) for k in ODOMETRY_NUISANCES))
+
+
+def _same_inputs(a: tuple | None, b: tuple) -> bool:
+    return a is not None and len(a) == len(b) and all(x is y or (isinstance(x, tuple) and x == y)
+                                                      for x, y in zip(a, b, strict=True))
+
+
+def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result: gtsam.Values) -> GraphParts:
+    """The graph once AMCL's error model (:func:`set_amcl_model`) or the shared people changed,
+    with its variables at ``result``: what :func:`build_parts` makes, its values then taken from
+    ``result`` where it has them, except the AMCL error nodes (at zero, for the caller to set).
+    The sensors' priors, and the motion block when its inputs are the ones it was built from,
+    are kept from ``parts`` (the same factors, in the same order); the AMCL and observation
+    blocks are built anew. The robot poses are not initialized from the track, since ``result``
+    holds every one of them (else the whole graph is built again)."""
+    n_pose = len(prob.pose_times)
+    rec = prob.recipe
+    if not rec.amcl or not all(result.exists(S(i)) for i in range(len(prob.sensor_ids))) or not all(
+            result.exists(X(k)) for k in range(n_pose)):
+        # (without AMCL the planarity priors sit at the initial track, which the model's jumps change)
+        new = build_parts(log, prob)
+        for key in new.values.keys():
+            c = chr(gtsam.Symbol(key).chr())
+            if c != "a" and result.exists(key):
+                new.values.update(key, result.atPoint3(key) if c == "l" else result.atPose3(key))
+        return new
+    values = gtsam.Values()
+    for i in range(len(prob.sensor_ids)):
+        values.insert(S(i), result.atPose3(S(i)))
+    for k in range(n_pose):
+        values.insert(X(k), result.atPose3(X(k)))
+    blocks = {"sensors": parts.blocks["sensors"], "amcl": gtsam.NonlinearFactorGraph()}
+    if n_pose:
+        _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
+        if values.exists(H(0)) and result.exists(H(0)):
+            values.update(H(0), result.atPose3(H(0)))
+    inputs = _motion_inputs(prob, None)
+    if n_pose > 1:
+        blocks["motion"] = (parts.blocks["motion"] if _same_inputs(parts.motion_inputs, inputs)
+                            else motion_block(log, prob))
+    else:
+        blocks["motion"] = gtsam.NonlinearFactorGraph()
+    blocks["observations"] = observation_block(log, prob, values, insert_values=True)
+    for m in range(len(prob.people)):
+        if values.exists(L(m)) and result.exists(L(m)):
+            values.update(L(m), result.atPoint3(L(m)))
+    return GraphParts(blocks=blocks, values=values, motion_inputs=inputs)
 
 
 def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_s: float = 5.0) -> np.ndarray:
