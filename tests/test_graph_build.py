@@ -1,0 +1,137 @@
+"""The graph build's batched pieces against the per-row code they replace: the robot's head frames
+made in one pass, the graph rebuilt under a new AMCL model from the first graph's blocks, and the
+association's expanded squared residuals."""
+
+import dataclasses
+
+import gtsam
+import numpy as np
+import pytest
+from test_factorgraph import _exact_recipe, make_exact_log
+
+from pedcal.calib.amcl_model import AmclErrorModel
+from pedcal.calib.association import _residuals, _squared_residuals, rigid_from_moments
+from pedcal.calib.graph import (
+    BLOCKS,
+    S,
+    build_parts,
+    head_frame,
+    head_frames,
+    optimize_graph,
+    prepare,
+    rebuild_parts,
+    set_amcl_model,
+)
+
+
+def test_head_frames_are_head_frame_row_by_row():
+    rng = np.random.default_rng(0)
+    pose2 = np.column_stack([rng.uniform(-50, 50, (40, 2)), rng.uniform(-4.0, 4.0, 40)])
+    head_m = np.array([0.12, -0.03, 1.31])
+    batch = head_frames(pose2, head_m)
+    assert len(batch) == len(pose2)
+    for row, P in zip(pose2, batch, strict=True):
+        Q = head_frame(*row, head_m)
+        assert np.array_equal(P.matrix(), Q.matrix())
+    assert head_frames(np.zeros((0, 3)), head_m) == []
+
+
+@pytest.fixture()
+def first_solve():
+    log = make_exact_log(seed=4, duration=40.0)
+    # no odometry: the robot's motion from AMCL smoothed (which AMCL's jumps, left out, change)
+    rec = _exact_recipe(odometry=False, smoothness=True, amcl_smooth_above_m=-1.0)
+    prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
+    assert prob.smoothed_amcl is not None
+    parts = build_parts(log, prob)
+    result, _ = optimize_graph(parts.graph(), parts.values, rec, max_iterations=3)
+    return log, rec, prob, parts, result
+
+
+def _full_rebuild(log, prob, result):
+    """What the re-solve did before rebuild_parts: build everything, then the variables from
+    ``result`` key by key (the AMCL error's nodes left at zero)."""
+    new = build_parts(log, prob)
+    for key in new.values.keys():
+        c = chr(gtsam.Symbol(key).chr())
+        if c != "a" and result.exists(key):
+            new.values.update(key, result.atPoint3(key) if c == "l" else result.atPose3(key))
+    return new
+
+
+def _model(prob, **kw):
+    """An estimated AMCL model unlike the assumed one (node spacing, sigmas; ``kw`` overrides)."""
+    fields = dict(white_sigma_m=0.012, correlated_sigma_m=0.03, correlation_s=15.0, source="estimated")
+    fields.update(kw)
+    return dataclasses.replace(prob.amcl_model, **fields)
+
+
+@pytest.mark.parametrize("excluded", [False, True])
+def test_rebuild_under_a_new_amcl_model_equals_a_full_build(first_solve, excluded):
+    log, rec, prob, parts, result = first_solve
+    assert isinstance(prob.amcl_model, AmclErrorModel)
+    mask = None
+    if excluded:         # AMCL's jumps left out: with AMCL standing in for odometry, the motion changes
+        mask = np.zeros(len(log.robot), bool)
+        mask[10:25] = True
+    set_amcl_model(log, prob, _model(prob, excluded=mask),
+                   rotations={sid: result.atPose3(S(i)).rotation().matrix() for i, sid in enumerate(prob.sensor_ids)})
+    full = _full_rebuild(log, prob, result)
+    fast = rebuild_parts(log, prob, parts, result)
+    for name in BLOCKS:
+        assert fast.blocks[name].size() == full.blocks[name].size(), name
+    fg_full, fg_fast = full.graph(), fast.graph()
+    assert sorted(fast.values.keys()) == sorted(full.values.keys())
+    for key in full.values.keys():
+        c = chr(gtsam.Symbol(key).chr())
+        if c == "l":
+            assert np.array_equal(fast.values.atPoint3(key), full.values.atPoint3(key))
+        else:
+            assert np.array_equal(fast.values.atPose3(key).matrix(), full.values.atPose3(key).matrix()), c
+    # the same factors: the same error at both sets of values, and at a moved one
+    assert fg_fast.error(fast.values) == pytest.approx(fg_full.error(full.values), rel=1e-12)
+    moved = gtsam.Values(full.values)
+    for i in range(len(prob.sensor_ids)):
+        moved.update(S(i), full.values.atPose3(S(i)).retract(np.full(6, 1e-3)))
+    assert fg_fast.error(moved) == pytest.approx(fg_full.error(moved), rel=1e-12)
+    # the motion block is the first graph's own when its inputs stayed, else built anew
+    assert (fast.blocks["motion"] is parts.blocks["motion"]) == (not excluded)
+    assert fast.blocks["sensors"] is parts.blocks["sensors"]
+
+
+def test_rebuild_rebuilds_the_motion_block_when_the_odometry_corrections_change():
+    log = make_exact_log(seed=5, duration=30.0)
+    rng = np.random.default_rng(5)
+    # wheel odometry: the true path in an odometry frame of its own
+    t = log.robot["t"].to_numpy(float)
+    odo = log.robot[["t", "x", "y", "yaw"]].copy()
+    odo["x"] += 0.5 + 0.001 * rng.normal(size=len(t)).cumsum()
+    log.odometry = odo
+    rec = _exact_recipe(odometry=True)
+    prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
+    if prob.odometry is None:
+        pytest.skip("the log's odometry was not taken")
+    parts = build_parts(log, prob)
+    result, _ = optimize_graph(parts.graph(), parts.values, rec, max_iterations=2)
+    same = rebuild_parts(log, prob, parts, result)
+    assert same.blocks["motion"] is parts.blocks["motion"]
+    prob.odometry_scale_correction = 0.01
+    changed = rebuild_parts(log, prob, parts, result)
+    assert changed.blocks["motion"] is not parts.blocks["motion"]
+    assert changed.graph().error(changed.values) != pytest.approx(same.graph().error(same.values), rel=1e-9)
+
+
+def test_squared_residuals_are_the_direct_ones_squared():
+    rng = np.random.default_rng(1)
+    for offset in (0.0, 1000.0):       # a scene about the origin, and one a kilometre away
+        p = rng.normal(0.0, 2.0, (300, 3))
+        q = rng.normal(0.0, 3.0, (300, 3)) + offset
+        w = np.ones(5)
+        R, t = rigid_from_moments(w, rng.normal(size=(5, 3)), rng.normal(size=(5, 3)) + offset,
+                                  rng.normal(size=(5, 3, 3)))
+        direct = _residuals(R, t, p, q) ** 2
+        assert _squared_residuals(R, t, p, q) == pytest.approx(direct, abs=1e-9)
+        # a hypothesis that explains every point exactly: zero, not a negative rounding
+        exact = _squared_residuals(R[:1], t[:1], p, p @ R[0].T + t[0])
+        assert np.all(exact >= 0.0) and np.max(exact) < 1e-12
+    assert _squared_residuals(R, t, np.zeros((0, 3)), np.zeros((0, 3))).shape == (5, 0)
