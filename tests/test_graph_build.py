@@ -14,10 +14,12 @@ from pedcal.calib.association import _residuals, _squared_residuals, rigid_from_
 from pedcal.calib.graph import (
     BLOCKS,
     S,
+    X,
     build_parts,
     head_frame,
     head_frames,
     optimize_graph,
+    pose_arrays,
     prepare,
     rebuild_parts,
     set_amcl_model,
@@ -135,3 +137,21 @@ def test_squared_residuals_are_the_direct_ones_squared():
         exact = _squared_residuals(R[:1], t[:1], p, p @ R[0].T + t[0])
         assert np.all(exact >= 0.0) and np.max(exact) < 1e-12
     assert _squared_residuals(R, t, np.zeros((0, 3)), np.zeros((0, 3))).shape == (5, 0)
+
+
+def test_pose_arrays_read_the_poses_as_one_lookup_per_key_does(first_solve):
+    _, _, prob, _, result = first_solve
+    keys = [X(k) for k in range(len(prob.pose_times))][::-3] + [S(i) for i in range(len(prob.sensor_ids))]
+    R, t = pose_arrays(result, keys)
+    R0 = np.stack([result.atPose3(k).rotation().matrix() for k in keys])
+    t0 = np.stack([result.atPose3(k).translation() for k in keys])
+    assert np.array_equal(R, R0) and np.array_equal(t, t0)
+    # laid out alike, products of them are the same to the last digit (the profile's right-hand
+    # sides are taken from them, and its steps amplify a last-digit change)
+    assert np.array_equal(np.einsum("nji,njk->nik", R[:-1], R[1:]), np.einsum("nji,njk->nik", R0[:-1], R0[1:]))
+    assert np.array_equal(np.einsum("nji,nj->ni", R[:-1], t[1:] - t[:-1]),
+                          np.einsum("nji,nj->ni", R0[:-1], t0[1:] - t0[:-1]))
+    R_empty, t_empty = pose_arrays(result, [])
+    assert R_empty.shape == (0, 3, 3) and t_empty.shape == (0, 3)
+    with pytest.raises(KeyError, match="x999999"):
+        pose_arrays(result, [X(1), X(999999)])

@@ -126,6 +126,26 @@ def head_frames(pose2: np.ndarray, head_m: np.ndarray) -> list:
     return [pose3(yaw_of(yaw), row) for yaw, row in zip(pose2[:, 2].tolist(), t, strict=True)]
 
 
+def pose_arrays(values: gtsam.Values, keys) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations (n, 3, 3) and translations (n, 3) of the Pose3 variables ``keys`` of
+    ``values``, read in one pass (GTSAM's extractPose3: every Pose3 in key order) instead of one
+    lookup per key. A key that is not a Pose3 of ``values`` raises KeyError."""
+    keys = np.asarray(keys, np.uint64).ravel()
+    if not len(keys):
+        return np.zeros((0, 3, 3)), np.zeros((0, 3))
+    rows = np.asarray(gtsam.utilities.extractPose3(values), float).reshape(-1, 12)
+    have = np.asarray(gtsam.utilities.allPose3s(values).keys(), np.uint64)   # the same key order
+    at = np.searchsorted(have, keys)
+    if np.any(at >= len(have)) or np.any(have[np.minimum(at, len(have) - 1)] != keys):
+        missing = keys[(at >= len(have)) | (have[np.minimum(at, len(have) - 1)] != keys)][0]
+        raise KeyError(f"no Pose3 {gtsam.Symbol(int(missing)).string()} in the values")
+    picked = rows[at]
+    # laid out as stacked Rot3.matrix() (column-major blocks) and translations are, so that the
+    # products taken of them (einsum, matmul) sum in the same order, to the last digit
+    R = np.ascontiguousarray(picked[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1)).transpose(0, 2, 1)
+    return R, np.ascontiguousarray(picked[:, 9:])
+
+
 def _robust(recipe: GraphRecipe, base):
     k = recipe.robust_kernel.lower()
     if k == "none":
@@ -674,10 +694,7 @@ class MotionRhs:
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
         self.log, self.prob = log, prob
         self.times = _pose_times(prob, t_max)
-        n = len(self.times)
-        poses = [values.atPose3(X(k)) for k in range(n)]
-        R = np.stack([p.rotation().matrix() for p in poses]) if n else np.zeros((0, 3, 3))
-        t = np.stack([p.translation() for p in poses]) if n else np.zeros((0, 3))
+        R, t = pose_arrays(values, [X(k) for k in range(len(self.times))])
         # X_k^-1 X_k+1
         self.R_h = np.einsum("nji,njk->nik", R[:-1], R[1:])
         self.t_h = np.einsum("nji,nj->ni", R[:-1], t[1:] - t[:-1])
@@ -760,17 +777,18 @@ class ObservationRhs:
         self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
         terms = observation_terms(log, prob, values, t_max=t_max)
         n_s = len(prob.sensor_ids)
-        Rs = np.stack([values.atPose3(S(i)).rotation().matrix() for i in range(n_s)]) if n_s else np.zeros((0, 3, 3))
-        ts = np.stack([values.atPose3(S(i)).translation() for i in range(n_s)]) if n_s else np.zeros((0, 3))
+        robot = np.flatnonzero(terms.is_pose)
+        u, inv = np.unique(terms.target[robot], return_inverse=True)
+        # the sensors' and the observed robot poses in one read
+        R, t = pose_arrays(values, [S(i) for i in range(n_s)] + [X(int(k)) for k in u])
+        Rs, ts = R[:n_s], t[:n_s]
         target = np.zeros((len(terms.sensor), 3))
-        for pose, at in ((True, values.atPose3), (False, values.atPoint3)):
-            rows = np.flatnonzero(terms.is_pose == pose)
-            if len(rows):
-                u, inv = np.unique(terms.target[rows], return_inverse=True)
-                key = X if pose else L
-                got = [at(key(int(k))) for k in u]
-                target[rows] = np.array([g.translation() if pose else g for g in got], float).reshape(len(u), 3)[
-                    np.asarray(inv).ravel()]
+        target[robot] = t[n_s:][np.asarray(inv).ravel()]
+        people = np.flatnonzero(~terms.is_pose)
+        if len(people):
+            u, inv = np.unique(terms.target[people], return_inverse=True)
+            got = np.array([values.atPoint3(L(int(k))) for k in u], float).reshape(len(u), 3)
+            target[people] = got[np.asarray(inv).ravel()]
         d = np.einsum("nji,nj->ni", Rs[terms.sensor], target - ts[terms.sensor])
         self.range_pred = np.linalg.norm(d, axis=1)
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
