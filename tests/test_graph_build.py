@@ -147,3 +147,64 @@ def test_pose_arrays_read_the_poses_as_one_lookup_per_key_does(first_solve):
     assert R_empty.shape == (0, 3, 3) and t_empty.shape == (0, 3)
     with pytest.raises(KeyError, match="x999999"):
         pose_arrays(result, [X(1), X(999999)])
+
+
+def test_people_renumbered_after_sightings_are_left_out():
+    # a sighting left out in the middle: the later people's variables move down one index, each
+    # keeping its own solved point (not the one its new index held before)
+    from pedcal.calib.factorgraph import people_renumbered
+    from pedcal.calib.graph import L
+
+    values = gtsam.Values()
+    values.insert(S(0), gtsam.Pose3(gtsam.Rot3.Yaw(0.3), np.array([1.0, 2.0, 3.0])))
+    values.insert(X(0), gtsam.Pose3())
+    for m in range(4):
+        values.insert(L(m), np.array([float(m), 10.0 + m, 1.7]))
+    out = people_renumbered(values, np.array([0, 2, 3]))
+    assert [np.asarray(out.atPoint3(L(m))).tolist() for m in range(3)] == [
+        [0.0, 10.0, 1.7], [2.0, 12.0, 1.7], [3.0, 13.0, 1.7]]
+    assert not out.exists(L(3))
+    assert out.atPose3(S(0)).equals(values.atPose3(S(0)), 0.0)
+    assert out.exists(X(0)) and out.size() == 5
+
+
+def test_reestimate_starts_each_kept_person_at_its_own_solution(monkeypatch):
+    # the re-solve after contradicted sightings are dropped starts every remaining person where
+    # the first solve put that person
+    import warnings
+
+    import pedcal.calib.factorgraph as fg
+    from pedcal.calib.graph import L
+    from pedcal.calib.recipe import GraphRecipe
+    from pedcal.errors import DegenerateDataWarning
+    from pedcal.sim import simulate_logs
+
+    sim = simulate_logs("paper", seed=0)
+    rec = GraphRecipe.load("default")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        # every track taken for a person: the robot's, seen by two sensors at once, are shared sightings
+        prob = prepare(sim.calib, rec, is_robot=np.zeros(len(sim.calib.observations), bool))
+        parts = build_parts(sim.calib, prob)
+    n = len(prob.people)
+    assert n > 10
+    # an AMCL model unlike the assumed one, so that the re-solve goes on to the people
+    monkeypatch.setattr(fg, "estimate_model", lambda *a, **kw: _model(prob))
+    result = parts.values
+    bad = np.zeros(n, bool)
+    bad[[1, 4]] = True                      # two sightings the solution "contradicts"
+    monkeypatch.setattr(fg, "people_misfit", lambda prob, result: np.where(bad, np.inf, 0.0))
+    seen = {}
+
+    def capture(graph, values, rec, **kw):
+        seen["values"] = values
+        return values, 0
+
+    monkeypatch.setattr(fg, "optimize_graph", capture)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        fg._reestimate_amcl(sim.calib, prob, parts, result, progress=False)
+    assert len(prob.people) == n - 2
+    kept = np.flatnonzero(~bad)
+    for m in (0, 1, 3, n - 3):
+        assert np.array_equal(np.asarray(seen["values"].atPoint3(L(m))), np.asarray(result.atPoint3(L(int(kept[m])))))

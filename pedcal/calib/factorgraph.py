@@ -237,6 +237,7 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
         _log(progress, f"{int(bad.sum())} of {len(bad)} shared person sightings contradict the solution "
                        f"(beyond {rec.people_misfit_sigma:.0f} sigma); left out")
         prob.people = [p for p, b in zip(prob.people, bad, strict=True) if not b]
+        result = people_renumbered(result, np.flatnonzero(~bad))
     # the variables at the first solution, but the AMCL error's nodes (new with the model: below);
     # the sensors' priors and an unchanged motion block kept from the first graph
     parts = rebuild_parts(log, prob, parts, result)
@@ -264,6 +265,20 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
     result, iterations = optimize_graph(parts.graph(), values, rec, gauss_newton_step=gauss_newton_step,
                                         relative_error_tol=None if gauss_newton_step else 1e-3)
     return parts, result, iterations
+
+
+def people_renumbered(values: gtsam.Values, kept: np.ndarray) -> gtsam.Values:
+    """``values`` with the people's variables renumbered after some sightings were left out:
+    ``L(m)`` holds what ``L(kept[m])`` held (the others' variables are dropped; every other
+    variable is copied as it is)."""
+    out = gtsam.Values()
+    for key in values.keys():
+        if chr(gtsam.Symbol(key).chr()) != "l":
+            out.insert(key, values.atPose3(key))
+    for m, j in enumerate(kept):
+        if values.exists(L(int(j))):
+            out.insert(L(m), values.atPoint3(L(int(j))))
+    return out
 
 
 def people_misfit(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
