@@ -26,7 +26,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.linalg import solve_triangular
 
-from pedcal.calib.profile import Columns, fill_reducing_order, sparse_system
+from pedcal.calib.profile import Columns, fill_reducing_order, ordered_normal_lu, sparse_system
 
 
 def ldl_factor(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
@@ -34,14 +34,7 @@ def ldl_factor(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.n
     (:func:`pedcal.calib.profile.fill_reducing_order`): (L unit lower triangular, CSC, sorted rows,
     its diagonal stored; D's diagonal; each column of A's position in L). SuperLU without
     pivoting (N is positive definite), whose U is D L^T."""
-    order = np.asarray(order, np.int64)
-    n = len(order)
-    position = np.empty(n, np.int64)
-    position[order] = np.arange(n)
-    A = sps.csr_matrix(A)
-    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
-    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
-                   options={"SymmetricMode": True})
+    lu, position = ordered_normal_lu(A, order)
     if not np.array_equal(lu.perm_r, lu.perm_c):
         raise np.linalg.LinAlgError("the normal matrix's LU factorization pivoted: it is not positive definite")
     L = lu.L.tocsc()

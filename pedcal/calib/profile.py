@@ -104,46 +104,36 @@ def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.nda
     return cols.index(keys + missing)
 
 
-SOLVE_BLOCK = 32     # right-hand sides solved at once by the triangular factors
+def ordered_normal_lu(A: sps.spmatrix, order: np.ndarray):
+    """SuperLU's factorization (no pivoting: the normal matrix is positive definite, the graph's
+    priors hold every variable) of the normal matrix A^T A with its columns in the fill-reducing
+    ``order`` (:func:`fill_reducing_order`): A's columns are renumbered into the order (its
+    values shared, not copied), so that the normal matrix is formed permuted, no permuted copies
+    of it. Returns (the factorization, each column of A's position in it)."""
+    order = np.asarray(order, np.int64)
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    A = sps.csr_matrix(A)
+    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
+    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                   options={"SymmetricMode": True})
+    return lu, position
 
 
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
-    pivoting: the matrix is positive definite, the graph's priors hold every variable), in the
-    fill-reducing column ``order`` (:func:`fill_reducing_order`) or, without one, SuperLU's
-    minimum-degree ordering of the symmetric matrix."""
+    pivoting), in the fill-reducing column ``order`` (:func:`ordered_normal_lu`) or, without one,
+    SuperLU's minimum-degree ordering of the symmetric matrix. Many right-hand sides go to
+    SuperLU's solve at once (its supernodal kernels take them together)."""
     if order is None:
         N = (A.T @ A).tocsc()
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         return lambda y: lu.solve(np.asarray(y, float))
-    # A's columns renumbered into the order (its values shared, not copied), so that the normal
-    # matrix is formed permuted: no permuted copies of it
-    position = np.empty_like(order)
-    position[order] = np.arange(len(order))
-    A = A.tocsr()
-    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
-    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
-                   options={"SymmetricMode": True})
-    n = len(order)
-    unpermuted = np.array_equal(lu.perm_r, np.arange(n)) and np.array_equal(lu.perm_c, np.arange(n))
-    factors = []
+    lu, position = ordered_normal_lu(A, order)
 
     def solve(y):
         y = np.asarray(y, float)
-        x = np.empty_like(y)
-        if y.ndim == 2 and y.shape[1] > 1 and unpermuted:
-            # many right-hand sides: the triangular factors' own solves, several times faster
-            # than SuperLU's (which takes the columns in turn)
-            if not factors:
-                factors.extend([lu.L, lu.U])         # (CSC: the solves take them as they are)
-            # in blocks of columns, so that the solves' temporaries stay a few blocks' size
-            for c in range(0, y.shape[1], SOLVE_BLOCK):
-                block = slice(c, c + SOLVE_BLOCK)
-                w = spla.spsolve_triangular(factors[0], y[order, block], lower=True, unit_diagonal=True)
-                x[order, block] = spla.spsolve_triangular(factors[1], w, lower=False)
-        else:
-            x[order] = lu.solve(y[order])
-        return x
+        return lu.solve(y[order])[position]
     return solve
 
 
@@ -535,4 +525,4 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
 
 
 __all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order", "ordered_normal_lu"]
