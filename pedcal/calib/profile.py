@@ -289,7 +289,12 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         for g in (g_fixed, g_obs0) + ((g_plain0,) if plain_build is not None else ()):
             lin.push_back(g)
         order = fill_reducing_order(lin, cols)
+        del lin
+    # (the linearized graphs are in A and b now: dropped, as each block once stacked)
+    g_fixed = g_obs0 = g_plain0 = None
+    n_f = A_f.shape[0]
     A = sps.vstack([A_f, A_o, A_p], format="csr")
+    A_f = A_o = A_p = None
     b = np.r_[b_f, b_o0, b_p0]
     if not m_local:
         solve = _normal_solver(A, order)
@@ -360,7 +365,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
             th[j] += nuisances[j].step
             d = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_ref) / nuisances[j].step
             columns[j] = (np.flatnonzero(d), d[d != 0.0])
-    n_f = A_f.shape[0]
     lengths = [len(c[0]) for c in columns]
     B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
                         (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
@@ -377,7 +381,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         n = cols.n
         prior = sps.csr_matrix((1.0 / sigma, (np.arange(m_local), n + np.arange(m_local))),
                                shape=(m_local, n + m_local))
-        A_joint = sps.vstack([sps.hstack([A, -B_local], format="csr"), prior], format="csr")
+        A_joint = _joint_system(A, -B_local, prior)
         b_joint = np.r_[b, -(theta[k_exact:] - mean_l) / sigma]
         B_joint = sps.vstack([B, sps.csc_matrix((m_local, k_exact))], format="csc")
         solve = _normal_solver(A_joint, _with_local_columns(order, local_cols, n))
@@ -389,6 +393,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         MtM = BtB - AtB.T @ Z_joint
         step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z_joint, Z=Z_joint,
                            cols=cols, order=order, A=A_joint, B=B_joint)
+        A = None                  # (A_joint holds it: its first n columns, its prior rows zero there)
     else:
         AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k_exact)
         Z = solve(AtB).reshape(cols.n, k_exact)
@@ -404,10 +409,38 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         # their sensors' sensitivity from their own profiles (the path held)
         n = cols.n
         local_step = step.z0[n:] + step.Z[n:] @ step.dtheta
-        step.local = _local_profile(A, B_local, local_cols, nuisances[k_exact:])
+        step.local = _local_profile(step.A, sps.vstack([B_local, sps.csc_matrix((m_local, m_local))], format="csc"),
+                                    local_cols, nuisances[k_exact:])
         step.local.dtheta = local_step
         step.z0, step.Z = step.z0[:n], step.Z[:n]
+        # (no chord step follows one with local nuisances: its system, the largest memory it holds, goes)
+        step.A = step.B = None
     return step
+
+
+def _joint_system(A: sps.csr_matrix, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:
+    """[[A, C], [prior]] in CSR, assembled row by row from A's and C's CSR arrays (no COO round
+    trip: A has millions of entries): each row's A entries, then its C entries (columns n + j)."""
+    A = sps.csr_matrix(A)
+    C = sps.csr_matrix(C)
+    n = A.shape[1]
+    count_a, count_c = np.diff(A.indptr), np.diff(C.indptr)
+    indptr = np.r_[0, np.cumsum(count_a + count_c)]
+    rows_start = indptr[:-1]
+    # destination of each of A's entries: its row's start plus its rank in the row
+    rank_a = np.arange(A.nnz) - np.repeat(A.indptr[:-1], count_a)
+    at_a = np.repeat(rows_start, count_a) + rank_a
+    rank_c = np.arange(C.nnz) - np.repeat(C.indptr[:-1], count_c)
+    at_c = np.repeat(rows_start + count_a, count_c) + rank_c
+    nnz = int(indptr[-1])
+    indices = np.empty(nnz + prior.nnz, np.int64)
+    data = np.empty(nnz + prior.nnz)
+    indices[at_a], data[at_a] = A.indices, A.data
+    indices[at_c], data[at_c] = C.indices + n, C.data
+    prior = sps.csr_matrix(prior)
+    indices[nnz:], data[nnz:] = prior.indices, prior.data
+    indptr = np.r_[indptr, nnz + prior.indptr[1:]]
+    return sps.csr_matrix((data, indices, indptr), shape=(A.shape[0] + prior.shape[0], n + C.shape[1]))
 
 
 def _with_local_columns(order: np.ndarray, local_cols: np.ndarray, n: int) -> np.ndarray:
