@@ -37,12 +37,14 @@ def ldl_factor(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.n
     lu, position = ordered_normal_lu(A, order)
     if not np.array_equal(lu.perm_r, lu.perm_c):
         raise np.linalg.LinAlgError("the normal matrix's LU factorization pivoted: it is not positive definite")
+    d = lu.U.diagonal()                 # (U's copy dropped at once: the peak memory is here)
     L = lu.L.tocsc()
+    position = lu.perm_c[position]
+    del lu
     L.sort_indices()
-    d = lu.U.diagonal()
     if not np.all(d > 0.0):
         raise np.linalg.LinAlgError("the normal matrix is not positive definite (a variable no factor holds)")
-    return L, d, lu.perm_c[position]
+    return L, d, position
 
 
 def _supernodes(L: sps.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +149,10 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     gfg = graph.linearize(values)
     cols = Columns.of(values)
     A, _ = sparse_system(gfg, cols)
-    L, d, position = ldl_factor(A, fill_reducing_order(gfg, cols))
+    order = fill_reducing_order(gfg, cols)
+    del gfg
+    L, d, position = ldl_factor(A, order)
+    del A
     blocks = [position[cols.index([k])] for k in keys]
     # (a block's columns sorted in L's order; back to the key's own tangent order)
     out = selected_inverse_blocks(L, d, blocks)

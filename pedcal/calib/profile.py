@@ -382,6 +382,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         prior = sps.csr_matrix((1.0 / sigma, (np.arange(m_local), n + np.arange(m_local))),
                                shape=(m_local, n + m_local))
         A_joint = _joint_system(A, -B_local, prior)
+        A = None                  # (A_joint holds it: its first n columns, its prior rows zero there)
         b_joint = np.r_[b, -(theta[k_exact:] - mean_l) / sigma]
         B_joint = sps.vstack([B, sps.csc_matrix((m_local, k_exact))], format="csc")
         solve = _normal_solver(A_joint, _with_local_columns(order, local_cols, n))
@@ -393,7 +394,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         MtM = BtB - AtB.T @ Z_joint
         step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z_joint, Z=Z_joint,
                            cols=cols, order=order, A=A_joint, B=B_joint)
-        A = None                  # (A_joint holds it: its first n columns, its prior rows zero there)
     else:
         AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k_exact)
         Z = solve(AtB).reshape(cols.n, k_exact)
