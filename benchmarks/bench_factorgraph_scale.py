@@ -12,14 +12,11 @@ sensor's clock offset is estimated (the default recipe): above its ``clock_offse
 
 Each size runs in its own process, so its peak resident memory (ru_maxrss) is its own, with BLAS
 on ``--blas-threads`` threads (1 by default: a multi-threaded OpenBLAS's idle threads spin while
-they wait, and on a busy shared machine that spinning counts as CPU time, several times the
-work of the small dense blocks here). Prints sensors, observations, robot poses, calibrate() wall
-and CPU time (s; time.process_time, which a busy neighbour on a shared machine does not inflate),
-the CPU time by stage (the problem's preparation and the graph's building; Levenberg-Marquardt;
-the nuisances' profile steps, each a sparse factorization of the whole linear system; the
-posterior, the sensors' marginal covariances; the rest: the nuisances' blocks rebuilt, the
-residual checks, the network written), peak RSS (MB), and the growth exponents of time and
-memory against the number of observations (least-squares slope in log-log).
+they wait, and on a busy shared machine that spinning counts as CPU time, several times the work
+of the small dense blocks here; ``bench_factorgraph_stages.py`` splits the time by stage). Prints
+sensors, observations, robot poses, calibrate() wall and CPU time (s; time.process_time, which a
+busy neighbour on a shared machine does not inflate), peak RSS (MB), and the growth exponents of
+time and memory against the number of observations (least-squares slope in log-log).
 """
 
 from __future__ import annotations
@@ -96,46 +93,20 @@ def synthetic_log(n_sensors: int, seed: int = 0) -> Log:
                truth=truth, truth_robot=truth_robot)
 
 
-STAGES = {"build": ("prepare", "build_parts"), "LM": ("optimize_graph",), "profile": ("profile_step",),
-          "posterior": ("_posterior",)}
-
-
-def _timed_stages(module) -> dict:
-    """The CPU seconds spent in each of STAGES' functions of ``module`` (the factor graph's, as it
-    calls them), by wrapping them there; returns the running totals."""
-    spent = dict.fromkeys(STAGES, 0.0)
-
-    def timed(f, stage):
-        def wrapper(*args, **kwargs):
-            c0 = time.process_time()
-            try:
-                return f(*args, **kwargs)
-            finally:
-                spent[stage] += time.process_time() - c0
-        return wrapper
-
-    for stage, names in STAGES.items():
-        for name in names:
-            setattr(module, name, timed(getattr(module, name), stage))
-    return spent
-
-
 def run_one(n_sensors: int) -> dict:
-    import pedcal.calib.factorgraph as factorgraph
+    from pedcal.calib.factorgraph import calibrate_factorgraph
 
     log = synthetic_log(n_sensors)
     warnings.simplefilter("ignore")
-    spent = _timed_stages(factorgraph)
     t0, c0 = time.perf_counter(), time.process_time()
-    res = factorgraph.calibrate_factorgraph(log, is_robot=np.ones(len(log.observations), bool),
-                                            estimate_latency=False, people=False, head_radius_m=0.0)
+    res = calibrate_factorgraph(log, is_robot=np.ones(len(log.observations), bool), estimate_latency=False,
+                                people=False, head_radius_m=0.0)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     err = [np.linalg.norm(s.position_m - log.truth[s.id].position_m) for s in res.network]
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return dict(sensors=n_sensors, observations=len(log.observations), poses=int(len(log.robot)),
                 time_s=elapsed, cpu_s=cpu, peak_rss_mb=rss_mb, build_s=res.diagnostics.build_s,
-                optimize_s=res.diagnostics.optimize_s, rms_mm=float(1000 * np.sqrt(np.mean(np.square(err)))),
-                stages_cpu_s={**spent, "rest": cpu - sum(spent.values())})
+                optimize_s=res.diagnostics.optimize_s, rms_mm=float(1000 * np.sqrt(np.mean(np.square(err)))))
 
 
 def main() -> None:
@@ -147,21 +118,20 @@ def main() -> None:
     if args.one is not None:
         print(json.dumps(run_one(args.one)))
         return
-    out = []
     env = dict(os.environ)
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = str(args.blas_threads)
-    stages = [*STAGES, "rest"]
-    print(f"BLAS threads {args.blas_threads}; CPU by stage (s): " + ", ".join(stages))
-    print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} "
-          + " ".join(f"{s:>9s}" for s in stages) + f" {'peak RSS (MB)':>14s} {'RMS (mm)':>9s}")
+    out = []
+    print(f"BLAS threads: {args.blas_threads}")
+    print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} {'build':>7s} "
+          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'RMS (mm)':>9s}")
     for n in (int(v) for v in args.sizes.split(",")):
         r = json.loads(subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True,
                                       check=True, env=env).stdout.strip().splitlines()[-1])
         out.append(r)
         print(f"{r['sensors']:8d} {r['observations']:13d} {r['poses']:11d} {r['time_s']:9.2f} {r['cpu_s']:8.2f} "
-              + " ".join(f"{r['stages_cpu_s'][s]:9.2f}" for s in stages)
-              + f" {r['peak_rss_mb']:14.0f} {r['rms_mm']:9.1f}", flush=True)
+              f"{r['build_s']:7.2f} "
+              f"{r['optimize_s']:9.2f} {r['peak_rss_mb']:14.0f} {r['rms_mm']:9.1f}", flush=True)
     if len(out) >= 2:
         n_obs = np.log([r["observations"] for r in out])
         slope_t = np.polyfit(n_obs, np.log([r["time_s"] for r in out]), 1)[0]

@@ -130,3 +130,26 @@ def test_a_variable_no_factor_holds_is_an_error():
     values.insert(S(9), gtsam.Pose3())       # no factor touches it: the normal matrix is singular
     with pytest.raises((np.linalg.LinAlgError, RuntimeError)):
         marginal_covariances(graph, values, [S(0)])
+
+
+def test_posterior_per_sensor_marginals_equal_the_joint_ones(monkeypatch):
+    # above the joint covariance's limit each sensor's block comes from the selected inversion:
+    # the same as the joint marginal's diagonal blocks (paper scenario, seed 1; AMCL's model as
+    # assumed, for speed)
+    import warnings
+
+    from pedcal.calib import readback
+    from pedcal.calib.factorgraph import calibrate_factorgraph
+    from pedcal.sim import simulate_logs
+
+    log = simulate_logs("paper", seed=1).calib
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        joint = calibrate_factorgraph(log, estimate_amcl_model=False)
+        monkeypatch.setattr(readback, "JOINT_COV_MAX_SENSORS", 0)
+        alone = calibrate_factorgraph(log, estimate_amcl_model=False)
+    assert joint.position_covariance_m2 is not None and alone.position_covariance_m2 is None
+    a, b = joint.diagnostics.position_covariance_m2, alone.diagnostics.position_covariance_m2
+    assert sorted(a) == sorted(b) and len(a) == len(log.sensors)
+    for sid in a:
+        assert np.abs(a[sid] - b[sid]).max() <= 1e-7 * np.abs(a[sid]).max()
