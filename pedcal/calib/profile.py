@@ -88,10 +88,15 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     n_local = len(local)
     rhs = j == n_local
     m = int(i.max()) + 1
-    b = np.zeros(m)
-    np.add.at(b, i[rhs], v[rhs])
-    A = sps.csr_matrix((v[~rhs], (i[~rhs], local[j[~rhs]])), shape=(m, cols.n))
-    return A, b
+    b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
+    keep = ~rhs
+    i, j, v = i[keep], local[j[keep]], v[keep]
+    if np.all(i[1:] >= i[:-1]):
+        # GTSAM lists a factor's entries row by row, columns in key order, factor after factor:
+        # A's CSR arrays as they come (no COO sort; ``local`` keeps the columns' order)
+        indptr = np.r_[0, np.cumsum(np.bincount(i, minlength=m))]
+        return sps.csr_matrix((v, j, indptr), shape=(m, cols.n)), b
+    return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
 
 
 def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.ndarray:
