@@ -26,7 +26,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.linalg import solve_triangular
 
-from pedcal.calib.profile import Columns, fill_reducing_order, ordered_normal_lu, sparse_system
+from pedcal.calib.profile import Columns, fill_reducing_order, normal_lu, ordered_normal_matrix, sparse_system
 
 
 def ldl_factor(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
@@ -34,7 +34,13 @@ def ldl_factor(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.n
     (:func:`pedcal.calib.profile.fill_reducing_order`): (L unit lower triangular, CSC, sorted rows,
     its diagonal stored; D's diagonal; each column of A's position in L). SuperLU without
     pivoting (N is positive definite), whose U is D L^T."""
-    lu, position = ordered_normal_lu(A, order)
+    return normal_ldl(*ordered_normal_matrix(A, order))
+
+
+def normal_ldl(N: sps.csc_matrix, position: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
+    """:func:`ldl_factor` of the normal matrix N formed in its order, ``position`` each of the
+    system's columns' in it."""
+    lu = normal_lu(N)
     if not np.array_equal(lu.perm_r, lu.perm_c):
         raise np.linalg.LinAlgError("the normal matrix's LU factorization pivoted: it is not positive definite")
     d = lu.U.diagonal()                 # (U's copy dropped at once: the peak memory is here)
@@ -151,8 +157,9 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     A, _ = sparse_system(gfg, cols)
     order = fill_reducing_order(gfg, cols)
     del gfg
-    L, d, position = ldl_factor(A, order)
-    del A
+    N, position = ordered_normal_matrix(A, order)
+    del A                     # (A's memory freed before the factorization's, the peak)
+    L, d, position = normal_ldl(N, position)
     blocks = [position[cols.index([k])] for k in keys]
     # (a block's columns sorted in L's order; back to the key's own tangent order)
     out = selected_inverse_blocks(L, d, blocks)
@@ -166,4 +173,4 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return result
 
 
-__all__ = ["ldl_factor", "selected_inverse_blocks", "inverse_columns", "marginal_covariances"]
+__all__ = ["ldl_factor", "normal_ldl", "selected_inverse_blocks", "inverse_columns", "marginal_covariances"]

@@ -78,10 +78,15 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     """(A, b) of a linearized graph with the columns of ``cols`` (its own keys may be a subset)."""
     if gfg.size() == 0:
         return sps.csr_matrix((0, cols.n)), np.zeros(0)
-    ijs = gfg.sparseJacobian_()
-    i = ijs[0].astype(np.int64) - 1
-    j = ijs[1].astype(np.int64) - 1
-    v = ijs[2]
+    ijs = gfg.sparseJacobian_()          # 3 x entries, (row, column, value), 1-based, b as a last column
+    # (compact copies, the 3 x entries array dropped at once: it and its int64 copies were the
+    # peak memory of a large graph's linearization)
+    i = ijs[0].astype(np.int32 if ijs.shape[1] and ijs[0].max() < 2 ** 31 else np.int64)
+    j = ijs[1].astype(np.int32)
+    v = ijs[2].copy()
+    del ijs
+    i -= 1
+    j -= 1
     own = sorted(int(k) for k in gfg.keyVector())
     # the graph's own columns (its keys in order) -> the system's
     local = cols.index(own)
@@ -90,11 +95,12 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     m = int(i.max()) + 1
     b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
     keep = ~rhs
-    i, j, v = i[keep], local[j[keep]], v[keep]
+    index_dtype = np.int32 if max(len(v), cols.n) < 2 ** 31 else np.int64      # (scipy's own choice)
+    i, j, v = i[keep], local.astype(index_dtype)[j[keep]], v[keep]
     if np.all(i[1:] >= i[:-1]):
         # GTSAM lists a factor's entries row by row, columns in key order, factor after factor:
         # A's CSR arrays as they come (no COO sort; ``local`` keeps the columns' order)
-        indptr = np.r_[0, np.cumsum(np.bincount(i, minlength=m))]
+        indptr = np.r_[0, np.cumsum(np.bincount(i, minlength=m))].astype(index_dtype)
         return sps.csr_matrix((v, j, indptr), shape=(m, cols.n)), b
     return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
 
@@ -109,20 +115,30 @@ def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.nda
     return cols.index(keys + missing)
 
 
-def ordered_normal_lu(A: sps.spmatrix, order: np.ndarray):
-    """SuperLU's factorization (no pivoting: the normal matrix is positive definite, the graph's
-    priors hold every variable) of the normal matrix A^T A with its columns in the fill-reducing
-    ``order`` (:func:`fill_reducing_order`): A's columns are renumbered into the order (its
-    values shared, not copied), so that the normal matrix is formed permuted, no permuted copies
-    of it. Returns (the factorization, each column of A's position in it)."""
+def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray]:
+    """The normal matrix A^T A with its columns in the fill-reducing ``order``
+    (:func:`fill_reducing_order`), CSC: A's columns are renumbered into the order (its values
+    shared, not copied), so that the normal matrix is formed permuted, no permuted copies of it.
+    Returns (it, each column of A's position in it)."""
     order = np.asarray(order, np.int64)
     position = np.empty_like(order)
     position[order] = np.arange(len(order))
     A = sps.csr_matrix(A)
-    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
-    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
-                   options={"SymmetricMode": True})
-    return lu, position
+    A_ordered = sps.csr_matrix((A.data, position.astype(A.indices.dtype)[A.indices], A.indptr), shape=A.shape)
+    return (A_ordered.T @ A_ordered).tocsc(), position
+
+
+def normal_lu(N: sps.csc_matrix):
+    """SuperLU's factorization of a normal matrix in its own order, without pivoting (it is
+    positive definite: the graph's priors hold every variable)."""
+    return spla.splu(N, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+
+
+def ordered_normal_lu(A: sps.spmatrix, order: np.ndarray):
+    """SuperLU's factorization of A^T A in the fill-reducing ``order``
+    (:func:`ordered_normal_matrix`, :func:`normal_lu`): (it, each column of A's position in it)."""
+    N, position = ordered_normal_matrix(A, order)
+    return normal_lu(N), position
 
 
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
@@ -275,28 +291,31 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     chord = previous is not None and previous.A is not None and not m_local
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
+    # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
+    # Jacobian blocks are a few times A's size), but for the first step's fill-reducing order
+    need_order = order is None or len(order) != cols.n
+    lin = gtsam.GaussianFactorGraph() if need_order else None
+
+    def linear(graph):
+        g = graph.linearize(values)
+        if lin is not None:
+            lin.push_back(g)
+        return sparse_system(g, cols)
+
+    A_f, b_f = linear(fixed)
+    obs0 = obs0 if obs0 is not None else observations(theta, None)
+    A_o, b_o0 = linear(obs0)
     if plain_build is not None:
-        g_plain0 = (plain0 if plain0 is not None else plain_build(theta)).linearize(values)
-        A_p, b_p0 = sparse_system(g_plain0, cols)
+        A_p, b_p0 = linear(plain0 if plain0 is not None else plain_build(theta))
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
-    g_fixed = fixed.linearize(values)
-    obs0 = obs0 if obs0 is not None else observations(theta, None)
-    g_obs0 = obs0.linearize(values)
-    A_f, b_f = sparse_system(g_fixed, cols)
-    A_o, b_o0 = sparse_system(g_obs0, cols)
     mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances[:k_exact]])
     # the k + 1 solves share the normal matrix N = A^T A (the systems differ in right-hand sides
     # only): one sparse factorization, then z0 = N^-1 A^T b and Z = N^-1 A^T B
-    if order is None or len(order) != cols.n:
-        lin = gtsam.GaussianFactorGraph()
-        for g in (g_fixed, g_obs0) + ((g_plain0,) if plain_build is not None else ()):
-            lin.push_back(g)
+    if need_order:
         order = fill_reducing_order(lin, cols)
-        del lin
-    # (the linearized graphs are in A and b now: dropped, as each block once stacked)
-    g_fixed = g_obs0 = g_plain0 = None
+        lin = None
     n_f = A_f.shape[0]
     A = sps.vstack([A_f, A_o, A_p], format="csr")
     A_f = A_o = A_p = None
@@ -438,7 +457,7 @@ def _joint_system(A: sps.csr_matrix, C: sps.spmatrix, prior: sps.csr_matrix) -> 
     rank_c = np.arange(C.nnz) - np.repeat(C.indptr[:-1], count_c)
     at_c = np.repeat(rows_start + count_a, count_c) + rank_c
     nnz = int(indptr[-1])
-    indices = np.empty(nnz + prior.nnz, np.int64)
+    indices = np.empty(nnz + prior.nnz, np.int32 if max(nnz + prior.nnz, n + C.shape[1]) < 2 ** 31 else np.int64)
     data = np.empty(nnz + prior.nnz)
     indices[at_a], data[at_a] = A.indices, A.data
     indices[at_c], data[at_c] = C.indices + n, C.data
@@ -563,4 +582,5 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
 
 
 __all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order", "ordered_normal_lu"]
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order", "ordered_normal_lu",
+           "ordered_normal_matrix", "normal_lu"]
