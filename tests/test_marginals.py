@@ -153,3 +153,36 @@ def test_posterior_per_sensor_marginals_equal_the_joint_ones(monkeypatch):
     assert sorted(a) == sorted(b) and len(a) == len(log.sensors)
     for sid in a:
         assert np.abs(a[sid] - b[sid]).max() <= 1e-7 * np.abs(a[sid]).max()
+
+
+def test_single_column_supernodes_give_the_same_blocks(monkeypatch):
+    # the recurrences hold for any partition into supernodes of nested structure: one column
+    # each (every parent's clique a single column and its structure) gives the same blocks
+    import pedcal.calib.marginals as marginals
+
+    graph, values = path_graph(6)
+    keys = [S(i) for i in range(8)] + [P(1)]
+    fundamental = marginal_covariances(graph, values, keys)
+
+    def one_column_each(L):
+        n = L.shape[1]
+        return np.arange(n + 1), np.arange(n)
+
+    monkeypatch.setattr(marginals, "_supernodes", one_column_each)
+    single = marginal_covariances(graph, values, keys)
+    for a, b in zip(fundamental, single, strict=True):
+        assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
+
+
+def test_a_pattern_that_is_no_filled_graph_falls_back_to_gtsam(monkeypatch):
+    import pedcal.calib.marginals as marginals
+
+    def not_closed(*_):
+        raise ValueError("L's pattern is not a filled graph's")
+
+    graph, values = path_graph(7, n_pose=20, n_sensor=3, points=0)
+    monkeypatch.setattr(marginals, "selected_inverse_blocks", not_closed)
+    got = marginal_covariances(graph, values, [S(1), X(4)])
+    ref = gtsam.Marginals(graph, values)
+    for key, g in zip([S(1), X(4)], got, strict=True):
+        assert np.abs(g - ref.marginalCovariance(key)).max() <= 1e-12 * np.abs(g).max()

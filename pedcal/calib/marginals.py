@@ -151,7 +151,8 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     """Each variable of ``keys``' marginal covariance (its tangent's, as
     ``gtsam.Marginals(graph, values).marginalCovariance(key)``) at ``values``: the graph
     linearized, its normal matrix factorized once in GTSAM's COLAMD order and the keys' blocks
-    of its inverse taken by selected inversion (:func:`selected_inverse_blocks`)."""
+    of its inverse taken by selected inversion (:func:`selected_inverse_blocks`); GTSAM's
+    Marginals should the factor's pattern not be a filled graph's (an entry SuperLU dropped)."""
     gfg = graph.linearize(values)
     cols = Columns.of(values)
     A, _ = sparse_system(gfg, cols)
@@ -162,7 +163,11 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     L, d, position = normal_ldl(N, position)
     blocks = [position[cols.index([k])] for k in keys]
     # (a block's columns sorted in L's order; back to the key's own tangent order)
-    out = selected_inverse_blocks(L, d, blocks)
+    try:
+        out = selected_inverse_blocks(L, d, blocks)
+    except ValueError:
+        marginals = gtsam.Marginals(graph, values)
+        return [marginals.marginalCovariance(k) for k in keys]
     result = []
     for b, Y in zip(blocks, out, strict=True):
         if Y is None:
