@@ -34,23 +34,21 @@ def ldl_factor(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.n
     (:func:`pedcal.calib.profile.fill_reducing_order`): (L unit lower triangular, CSC, sorted rows,
     its diagonal stored; D's diagonal; each column of A's position in L). SuperLU without
     pivoting (N is positive definite), whose U is D L^T."""
-    return normal_ldl(*ordered_normal_matrix(A, order))
+    N, position = ordered_normal_matrix(A, order)
+    return ldl_of_lu(normal_lu(N), position)
 
 
-def normal_ldl(N: sps.csc_matrix, position: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
-    """:func:`ldl_factor` of the normal matrix N formed in its order, ``position`` each of the
-    system's columns' in it."""
-    lu = normal_lu(N)
+def ldl_of_lu(lu, position: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
+    """:func:`ldl_factor` from SuperLU's factorization of the normal matrix formed in its order
+    (:func:`pedcal.calib.profile.normal_lu`), ``position`` each of the system's columns' in it."""
     if not np.array_equal(lu.perm_r, lu.perm_c):
         raise np.linalg.LinAlgError("the normal matrix's LU factorization pivoted: it is not positive definite")
     d = lu.U.diagonal()                 # (U's copy dropped at once: the peak memory is here)
     L = lu.L.tocsc()
-    position = lu.perm_c[position]
-    del lu
     L.sort_indices()
     if not np.all(d > 0.0):
         raise np.linalg.LinAlgError("the normal matrix is not positive definite (a variable no factor holds)")
-    return L, d, position
+    return L, d, lu.perm_c[position]
 
 
 def _supernodes(L: sps.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -159,8 +157,11 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     order = fill_reducing_order(gfg, cols)
     del gfg
     N, position = ordered_normal_matrix(A, order)
-    del A                     # (A's memory freed before the factorization's, the peak)
-    L, d, position = normal_ldl(N, position)
+    del A                     # (A's and N's memory freed before the factor's copies, the peak)
+    lu = normal_lu(N)
+    del N
+    L, d, position = ldl_of_lu(lu, position)
+    del lu
     blocks = [position[cols.index([k])] for k in keys]
     # (a block's columns sorted in L's order; back to the key's own tangent order)
     try:
@@ -178,4 +179,4 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return result
 
 
-__all__ = ["ldl_factor", "normal_ldl", "selected_inverse_blocks", "inverse_columns", "marginal_covariances"]
+__all__ = ["ldl_factor", "ldl_of_lu", "selected_inverse_blocks", "inverse_columns", "marginal_covariances"]
