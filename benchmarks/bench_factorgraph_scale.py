@@ -8,9 +8,12 @@ exact odometry at 20 Hz; each sensor reporting the head at 40 Hz within 1.2 m of
 sensor's clock offset is estimated (the default recipe): above its ``clock_offsets_joint_max``
 (200) sensors as variables of the linear system, each one's sigma given the robot's path.
 
-    .venv/bin/python benchmarks/bench_factorgraph_scale.py [--sizes 10,40,160,500,1000]
+    nice -n 5 .venv/bin/python benchmarks/bench_factorgraph_scale.py [--sizes 10,40,160,500,1000] [--blas-threads 1]
 
-Each size runs in its own process, so its peak resident memory (ru_maxrss) is its own. Prints
+Each size runs in its own process, so its peak resident memory (ru_maxrss) is its own, with BLAS
+on ``--blas-threads`` threads (1 by default: a multi-threaded OpenBLAS's idle threads spin while
+they wait, and on a busy shared machine that spinning counts as CPU time, several times the work
+of the small dense blocks here; ``bench_factorgraph_stages.py`` splits the time by stage). Prints
 sensors, observations, robot poses, calibrate() wall and CPU time (s; time.process_time, which a
 busy neighbour on a shared machine does not inflate), peak RSS (MB), and the growth exponents of
 time and memory against the number of observations (least-squares slope in log-log).
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -108,17 +112,22 @@ def run_one(n_sensors: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="10,40,160,500,1000")
+    ap.add_argument("--blas-threads", type=int, default=1, help="BLAS threads of each size's process")
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one is not None:
         print(json.dumps(run_one(args.one)))
         return
+    env = dict(os.environ)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = str(args.blas_threads)
     out = []
+    print(f"BLAS threads: {args.blas_threads}")
     print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} {'build':>7s} "
           f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'RMS (mm)':>9s}")
     for n in (int(v) for v in args.sizes.split(",")):
         r = json.loads(subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True,
-                                      check=True).stdout.strip().splitlines()[-1])
+                                      check=True, env=env).stdout.strip().splitlines()[-1])
         out.append(r)
         print(f"{r['sensors']:8d} {r['observations']:13d} {r['poses']:11d} {r['time_s']:9.2f} {r['cpu_s']:8.2f} "
               f"{r['build_s']:7.2f} "

@@ -363,17 +363,33 @@ def test_motion_rhs_equals_gtsams_linearization(dome_paper):
         assert np.abs(ours - b).max() < 1e-7
 
 
-def test_normal_solve_of_many_right_hand_sides_in_blocks():
-    # more columns than one block of the triangular solves, in a scrambled column order: each
-    # column solves N x = y
+def test_normal_solve_of_many_right_hand_sides():
+    # many columns at once, in a scrambled column order: each column solves N x = y
     import scipy.sparse as sps
-
-    from pedcal.calib.profile import SOLVE_BLOCK
 
     rng = np.random.default_rng(0)
     n = 120
     A = (sps.random(400, n, density=0.05, random_state=1, format="csr")
          + sps.vstack([sps.eye(n), sps.csr_matrix((400 - n, n))])).tocsr()
-    Y = rng.normal(size=(n, 2 * SOLVE_BLOCK + 6))
+    Y = rng.normal(size=(n, 70))
     X = _normal_solver(A, rng.permutation(n))(Y)
     assert np.abs((A.T @ A) @ X - Y).max() < 1e-10
+
+
+def test_joint_system_is_the_stacked_blocks():
+    # [[A, C], [prior]] assembled from the CSR arrays equals scipy's stacking, with empty rows
+    # in A and in C, and unsorted C
+    import scipy.sparse as sps
+
+    from pedcal.calib.profile import _joint_system
+
+    rs = np.random.RandomState(3)
+    A = sps.random(50, 30, density=0.1, random_state=rs, format="csr")
+    A[7] = 0.0
+    A.eliminate_zeros()
+    C = sps.random(50, 4, density=0.2, random_state=rs, format="csc")
+    prior = sps.csr_matrix((np.r_[2.0, 3.0], (np.r_[0, 1], np.r_[31, 33])), shape=(2, 34))
+    got = _joint_system(A, C, prior)
+    want = sps.vstack([sps.hstack([A, C]), prior]).tocsr()
+    assert got.shape == want.shape == (52, 34) and got.nnz == want.nnz
+    assert abs(got - want).max() == 0.0

@@ -70,6 +70,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     set_amcl_model,
 )
 from pedcal.calib.headpoint import head_profile_nuisances, is_head_profile, record_head_profile, select_head_profile
+from pedcal.calib.marginals import marginal_covariances
 from pedcal.calib.profile import (
     Columns,
     Nuisance,
@@ -600,9 +601,10 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         C = joint_marginal_covariance(fg, result, keys)
         blocks = [C[6 * i:6 * i + 6, 6 * i:6 * i + 6] for i in range(len(keys))]
     else:
-        # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes)
-        marginals = gtsam.Marginals(fg, result)
-        blocks = [marginals.marginalCovariance(k) for k in keys]
+        # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes), by
+        # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
+        # key's whole clique for each key: quadratic in the sensors)
+        blocks = marginal_covariances(fg, result, keys)
     extra = []                                 # (sensitivity (6 len(keys),), k x k covariance) terms
     if shifts is not None:
         k = shifts.sensitivity.shape[1]

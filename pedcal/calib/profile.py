@@ -78,20 +78,31 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     """(A, b) of a linearized graph with the columns of ``cols`` (its own keys may be a subset)."""
     if gfg.size() == 0:
         return sps.csr_matrix((0, cols.n)), np.zeros(0)
-    ijs = gfg.sparseJacobian_()
-    i = ijs[0].astype(np.int64) - 1
-    j = ijs[1].astype(np.int64) - 1
-    v = ijs[2]
+    ijs = gfg.sparseJacobian_()          # 3 x entries, (row, column, value), 1-based, b as a last column
+    # (compact copies, the 3 x entries array dropped at once: it and its int64 copies were the
+    # peak memory of a large graph's linearization)
+    i = ijs[0].astype(np.int32 if ijs.shape[1] and ijs[0].max() < 2 ** 31 else np.int64)
+    j = ijs[1].astype(np.int32)
+    v = ijs[2].copy()
+    del ijs
+    i -= 1
+    j -= 1
     own = sorted(int(k) for k in gfg.keyVector())
     # the graph's own columns (its keys in order) -> the system's
     local = cols.index(own)
     n_local = len(local)
     rhs = j == n_local
     m = int(i.max()) + 1
-    b = np.zeros(m)
-    np.add.at(b, i[rhs], v[rhs])
-    A = sps.csr_matrix((v[~rhs], (i[~rhs], local[j[~rhs]])), shape=(m, cols.n))
-    return A, b
+    b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
+    keep = ~rhs
+    index_dtype = np.int32 if max(len(v), cols.n) < 2 ** 31 else np.int64      # (scipy's own choice)
+    i, j, v = i[keep], local.astype(index_dtype)[j[keep]], v[keep]
+    if np.all(i[1:] >= i[:-1]):
+        # GTSAM lists a factor's entries row by row, columns in key order, factor after factor:
+        # A's CSR arrays as they come (no COO sort; ``local`` keeps the columns' order)
+        indptr = np.r_[0, np.cumsum(np.bincount(i, minlength=m))].astype(index_dtype)
+        return sps.csr_matrix((v, j, indptr), shape=(m, cols.n)), b
+    return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
 
 
 def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.ndarray:
@@ -104,46 +115,46 @@ def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.nda
     return cols.index(keys + missing)
 
 
-SOLVE_BLOCK = 32     # right-hand sides solved at once by the triangular factors
+def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray]:
+    """The normal matrix A^T A with its columns in the fill-reducing ``order``
+    (:func:`fill_reducing_order`), CSC: A's columns are renumbered into the order (its values
+    shared, not copied), so that the normal matrix is formed permuted, no permuted copies of it.
+    Returns (it, each column of A's position in it)."""
+    order = np.asarray(order, np.int64)
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    A = sps.csr_matrix(A)
+    A_ordered = sps.csr_matrix((A.data, position.astype(A.indices.dtype)[A.indices], A.indptr), shape=A.shape)
+    return (A_ordered.T @ A_ordered).tocsc(), position
+
+
+def normal_lu(N: sps.csc_matrix):
+    """SuperLU's factorization of a normal matrix in its own order, without pivoting (it is
+    positive definite: the graph's priors hold every variable)."""
+    return spla.splu(N, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+
+
+def ordered_normal_lu(A: sps.spmatrix, order: np.ndarray):
+    """SuperLU's factorization of A^T A in the fill-reducing ``order``
+    (:func:`ordered_normal_matrix`, :func:`normal_lu`): (it, each column of A's position in it)."""
+    N, position = ordered_normal_matrix(A, order)
+    return normal_lu(N), position
 
 
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
-    pivoting: the matrix is positive definite, the graph's priors hold every variable), in the
-    fill-reducing column ``order`` (:func:`fill_reducing_order`) or, without one, SuperLU's
-    minimum-degree ordering of the symmetric matrix."""
+    pivoting), in the fill-reducing column ``order`` (:func:`ordered_normal_lu`) or, without one,
+    SuperLU's minimum-degree ordering of the symmetric matrix. Many right-hand sides go to
+    SuperLU's solve at once (its supernodal kernels take them together)."""
     if order is None:
         N = (A.T @ A).tocsc()
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         return lambda y: lu.solve(np.asarray(y, float))
-    # A's columns renumbered into the order (its values shared, not copied), so that the normal
-    # matrix is formed permuted: no permuted copies of it
-    position = np.empty_like(order)
-    position[order] = np.arange(len(order))
-    A = A.tocsr()
-    A_ordered = sps.csr_matrix((A.data, position[A.indices], A.indptr), shape=A.shape)
-    lu = spla.splu((A_ordered.T @ A_ordered).tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
-                   options={"SymmetricMode": True})
-    n = len(order)
-    unpermuted = np.array_equal(lu.perm_r, np.arange(n)) and np.array_equal(lu.perm_c, np.arange(n))
-    factors = []
+    lu, position = ordered_normal_lu(A, order)
 
     def solve(y):
         y = np.asarray(y, float)
-        x = np.empty_like(y)
-        if y.ndim == 2 and y.shape[1] > 1 and unpermuted:
-            # many right-hand sides: the triangular factors' own solves, several times faster
-            # than SuperLU's (which takes the columns in turn)
-            if not factors:
-                factors.extend([lu.L, lu.U])         # (CSC: the solves take them as they are)
-            # in blocks of columns, so that the solves' temporaries stay a few blocks' size
-            for c in range(0, y.shape[1], SOLVE_BLOCK):
-                block = slice(c, c + SOLVE_BLOCK)
-                w = spla.spsolve_triangular(factors[0], y[order, block], lower=True, unit_diagonal=True)
-                x[order, block] = spla.spsolve_triangular(factors[1], w, lower=False)
-        else:
-            x[order] = lu.solve(y[order])
-        return x
+        return lu.solve(y[order])[position]
     return solve
 
 
@@ -280,26 +291,34 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     chord = previous is not None and previous.A is not None and not m_local
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
+    # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
+    # Jacobian blocks are a few times A's size), but for the first step's fill-reducing order
+    need_order = order is None or len(order) != cols.n
+    lin = gtsam.GaussianFactorGraph() if need_order else None
+
+    def linear(graph):
+        g = graph.linearize(values)
+        if lin is not None:
+            lin.push_back(g)
+        return sparse_system(g, cols)
+
+    A_f, b_f = linear(fixed)
+    obs0 = obs0 if obs0 is not None else observations(theta, None)
+    A_o, b_o0 = linear(obs0)
     if plain_build is not None:
-        g_plain0 = (plain0 if plain0 is not None else plain_build(theta)).linearize(values)
-        A_p, b_p0 = sparse_system(g_plain0, cols)
+        A_p, b_p0 = linear(plain0 if plain0 is not None else plain_build(theta))
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
-    g_fixed = fixed.linearize(values)
-    obs0 = obs0 if obs0 is not None else observations(theta, None)
-    g_obs0 = obs0.linearize(values)
-    A_f, b_f = sparse_system(g_fixed, cols)
-    A_o, b_o0 = sparse_system(g_obs0, cols)
     mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
     info = np.diag([1.0 / nu.prior_sigma ** 2 for nu in nuisances[:k_exact]])
     # the k + 1 solves share the normal matrix N = A^T A (the systems differ in right-hand sides
     # only): one sparse factorization, then z0 = N^-1 A^T b and Z = N^-1 A^T B
-    if order is None or len(order) != cols.n:
-        lin = gtsam.GaussianFactorGraph()
-        for g in (g_fixed, g_obs0) + ((g_plain0,) if plain_build is not None else ()):
-            lin.push_back(g)
+    if need_order:
         order = fill_reducing_order(lin, cols)
+        lin = None
+    n_f = A_f.shape[0]
     A = sps.vstack([A_f, A_o, A_p], format="csr")
+    A_f = A_o = A_p = None
     b = np.r_[b_f, b_o0, b_p0]
     if not m_local:
         solve = _normal_solver(A, order)
@@ -370,7 +389,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
             th[j] += nuisances[j].step
             d = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_ref) / nuisances[j].step
             columns[j] = (np.flatnonzero(d), d[d != 0.0])
-    n_f = A_f.shape[0]
     lengths = [len(c[0]) for c in columns]
     B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
                         (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
@@ -387,7 +405,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         n = cols.n
         prior = sps.csr_matrix((1.0 / sigma, (np.arange(m_local), n + np.arange(m_local))),
                                shape=(m_local, n + m_local))
-        A_joint = sps.vstack([sps.hstack([A, -B_local], format="csr"), prior], format="csr")
+        A_joint = _joint_system(A, -B_local, prior)
+        A = None                  # (A_joint holds it: its first n columns, its prior rows zero there)
         b_joint = np.r_[b, -(theta[k_exact:] - mean_l) / sigma]
         B_joint = sps.vstack([B, sps.csc_matrix((m_local, k_exact))], format="csc")
         solve = _normal_solver(A_joint, _with_local_columns(order, local_cols, n))
@@ -414,10 +433,38 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         # their sensors' sensitivity from their own profiles (the path held)
         n = cols.n
         local_step = step.z0[n:] + step.Z[n:] @ step.dtheta
-        step.local = _local_profile(A, B_local, local_cols, nuisances[k_exact:])
+        step.local = _local_profile(step.A, sps.vstack([B_local, sps.csc_matrix((m_local, m_local))], format="csc"),
+                                    local_cols, nuisances[k_exact:])
         step.local.dtheta = local_step
         step.z0, step.Z = step.z0[:n], step.Z[:n]
+        # (no chord step follows one with local nuisances: its system, the largest memory it holds, goes)
+        step.A = step.B = None
     return step
+
+
+def _joint_system(A: sps.csr_matrix, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:
+    """[[A, C], [prior]] in CSR, assembled row by row from A's and C's CSR arrays (no COO round
+    trip: A has millions of entries): each row's A entries, then its C entries (columns n + j)."""
+    A = sps.csr_matrix(A)
+    C = sps.csr_matrix(C)
+    n = A.shape[1]
+    count_a, count_c = np.diff(A.indptr), np.diff(C.indptr)
+    indptr = np.r_[0, np.cumsum(count_a + count_c)]
+    rows_start = indptr[:-1]
+    # destination of each of A's entries: its row's start plus its rank in the row
+    rank_a = np.arange(A.nnz) - np.repeat(A.indptr[:-1], count_a)
+    at_a = np.repeat(rows_start, count_a) + rank_a
+    rank_c = np.arange(C.nnz) - np.repeat(C.indptr[:-1], count_c)
+    at_c = np.repeat(rows_start + count_a, count_c) + rank_c
+    nnz = int(indptr[-1])
+    indices = np.empty(nnz + prior.nnz, np.int32 if max(nnz + prior.nnz, n + C.shape[1]) < 2 ** 31 else np.int64)
+    data = np.empty(nnz + prior.nnz)
+    indices[at_a], data[at_a] = A.indices, A.data
+    indices[at_c], data[at_c] = C.indices + n, C.data
+    prior = sps.csr_matrix(prior)
+    indices[nnz:], data[nnz:] = prior.indices, prior.data
+    indptr = np.r_[indptr, nnz + prior.indptr[1:]]
+    return sps.csr_matrix((data, indices, indptr), shape=(A.shape[0] + prior.shape[0], n + C.shape[1]))
 
 
 def _with_local_columns(order: np.ndarray, local_cols: np.ndarray, n: int) -> np.ndarray:
@@ -535,4 +582,5 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
 
 
 __all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order", "ordered_normal_lu",
+           "ordered_normal_matrix", "normal_lu"]
