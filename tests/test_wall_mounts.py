@@ -11,10 +11,11 @@ from pedcal.calib.common import head_world
 from pedcal.errors import PedcalInputError
 from pedcal.metrics import evaluate
 from pedcal.sim import networks, robot, simulate_logs
-from pedcal.sim.ceiling import WALL_MARGIN_M, coverage, mount_draw, wall_mount
+from pedcal.sim.ceiling import WALL_MARGIN_M, coverage, mount_draw, reaimed_pitch_deg, wall_mount
 from pedcal.sim.scenario import Scenario, load_scenario
 
-WALLS = dict(wall_mounted_fraction=1.0 / 3.0, sensor_height_range_m=[2.6, 4.5])   # the zoo's wall family
+MIXED = dict(sensor_height_range_m=[2.6, 4.5])                     # the zoo's mixed-heights family
+WALLS = dict(wall_mounted_fraction=1.0 / 3.0, **MIXED)              # ... and its wall family
 
 
 def test_wall_mount_height_follows_the_aim_and_a_grid_sensor_moves_back_into_the_room():
@@ -50,18 +51,29 @@ def test_wall_mount_in_a_corridor_turns_along_it_and_away_from_its_end():
     assert yaw == pytest.approx(90.0 + turn)
 
 
+def test_a_raised_ceiling_sensor_is_reaimed_at_the_floor_point_of_its_slot():
+    sc = Scenario(person_height_m=[1.5, 1.9])
+    # at 2.6 m pitched 45 deg the axis meets head height (1.7 m) 0.9 m ahead; at 4.5 m the same
+    # point is atan(2.8 / 0.9) down
+    assert reaimed_pitch_deg(sc, 2.6, 45.0, 4.5) == pytest.approx(np.degrees(np.arctan2(2.8, 0.9)), abs=1e-9)
+    assert reaimed_pitch_deg(sc, 2.6, 45.0, 2.6) == pytest.approx(45.0, abs=1e-9)
+    assert reaimed_pitch_deg(sc, 2.6, 45.0, 1.75) == 45.0          # not above head height: left as it is
+
+
 @pytest.mark.parametrize("scenario", ["paper", "sparse", "corridor", "cross", "lhall"])
-def test_every_wall_mounted_sensor_sees_the_robots_route(scenario):
-    # a wall mount hung at ceiling height and pitched 10-25 deg looks over every head: the robot
-    # never enters its view and no calibration can place it
+@pytest.mark.parametrize("family", ["mixed", "wall"])
+def test_every_sensor_of_mixed_heights_and_wall_mounts_sees_the_robots_route(scenario, family):
+    # a wall mount hung at ceiling height and pitched 10-25 deg looks over every head, a ceiling
+    # sensor raised without re-aiming looks beyond the wall: the robot never enters their view
+    # and no calibration can place them
     for seed in range(4):
-        sc = load_scenario(scenario).resolve(seed=seed, **WALLS)
+        sc = load_scenario(scenario).resolve(seed=seed, **(WALLS if family == "wall" else MIXED))
         net, _ = networks(sc)
-        wall = mount_draw(sc, len(net))[1]
-        assert wall.sum() >= 1
+        if family == "wall":
+            assert mount_draw(sc, len(net))[1].sum() >= 1
         heads = head_world(robot.drive_route(sc), sc.head_offset_m)
         seen = coverage(net, sc, heads).sum(axis=1)
-        assert np.all(seen[wall] >= 100), (scenario, seed, seen[wall])
+        assert np.all(seen >= 100), (scenario, seed, seen)
 
 
 def test_wall_pitch_and_aim_ranges_are_checked():

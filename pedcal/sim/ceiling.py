@@ -155,8 +155,22 @@ def wall_mount(sc: Scenario, xy_m: np.ndarray, yaw_deg: float, pitch_deg: float,
     return xy, float(z), float(yaw)
 
 
+def reaimed_pitch_deg(sc: Scenario, z_layout_m: float, pitch_deg: float, z_m: float) -> float:
+    """The pitch (deg) of a ceiling sensor hung at ``z_m`` instead of its layout height
+    ``z_layout_m`` (pitched ``pitch_deg`` there), re-aimed so that its optical axis still meets
+    head height h (the middle of person_height_m) at the same floor point: atan((z - h) / d),
+    d = (z_layout - h) / tan(pitch). Unchanged when either height is not above h + 0.1 m."""
+    h_aim = float(np.mean(sc.person_height_m))
+    if min(z_layout_m, z_m) <= h_aim + 0.1:
+        return float(pitch_deg)
+    reach_m = (z_layout_m - h_aim) / np.tan(np.radians(pitch_deg))
+    return float(np.degrees(np.arctan2(z_m - h_aim, reach_m)))
+
+
 def _mounts(net: SensorNetwork, sc: Scenario) -> SensorNetwork:
-    """``net`` with the heights and wall mounts of :func:`mount_draw` (:func:`wall_mount`)."""
+    """``net`` with the heights and wall mounts of :func:`mount_draw` (:func:`wall_mount`); a
+    ceiling sensor hung at a mixed height is re-aimed at the floor point its layout slot watched
+    (:func:`reaimed_pitch_deg`: raised without it, its view would land beyond the room's wall)."""
     if sc.sensor_height_range_m is None and sc.wall_mounted_fraction <= 0.0:
         return net
     z, wall, wall_pitch, aim, turn_sign = mount_draw(sc, len(net))
@@ -168,6 +182,8 @@ def _mounts(net: SensorNetwork, sc: Scenario) -> SensorNetwork:
             xy, p[2], yaw = wall_mount(sc, s.position_m[:2], ypr[0], wall_pitch[k], aim[k], turn_sign[k])
             p[:2] = xy
             ypr = np.array([frames.wrap_angle_rad(np.radians(yaw)) * 180 / np.pi, wall_pitch[k], ypr[2]])
+        elif z is not None:
+            ypr[1] = reaimed_pitch_deg(sc, s.position_m[2], ypr[1], z[k])
         out.append(SensorExtrinsics(s.id, p, ypr))
     return SensorNetwork(out)
 
