@@ -98,29 +98,93 @@ def layout_network(sc: Scenario, rng: np.random.Generator) -> SensorNetwork:
     return _keep(SensorNetwork(sensors), sc)
 
 
-def mount_draw(sc: Scenario, n: int) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+def mount_draw(sc: Scenario, n: int) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mixed mounting heights (sensor_height_range_m; None when off) and which of the ``n``
-    sensors are wall-mounted (wall_mounted_fraction) at which pitch (wall_pitch_deg, deg), drawn
-    from a stream of their own so that the layout's other draws stay those of the seed."""
+    sensors are wall-mounted (wall_mounted_fraction) at which pitch (wall_pitch_deg, deg), aimed
+    how far (wall_aim_m, m) and, in a corridor, turned which way along it (+-1), drawn from a
+    stream of their own so that the layout's other draws stay those of the seed."""
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x4D0]))
     z = rng.uniform(*sc.sensor_height_range_m, n) if sc.sensor_height_range_m is not None else None
     wall = np.zeros(n, dtype=bool)
     wall[rng.permutation(n)[:int(round(sc.wall_mounted_fraction * n))]] = True
-    return z, wall, rng.uniform(*sc.wall_pitch_deg, n)
+    pitch = rng.uniform(*sc.wall_pitch_deg, n)
+    return z, wall, pitch, rng.uniform(*sc.wall_aim_m, n), rng.choice([-1.0, 1.0], n)
+
+
+WALL_MARGIN_M = 0.1     # a wall-mounted sensor's distance from the wall it hangs on (m)
+
+
+def wall_mount(sc: Scenario, xy_m: np.ndarray, yaw_deg: float, pitch_deg: float, aim_m: float,
+               turn_sign: float) -> tuple[np.ndarray, float, float]:
+    """Where a wall-mounted sensor hangs, (xy (m), height (m), yaw (deg)), when its layout slot is
+    ``xy_m`` looking along ``yaw_deg`` and it is pitched ``pitch_deg`` down: aimed so that its
+    optical axis meets head height h (the middle of person_height_m) ``aim_m`` away horizontally,
+    at height h + aim tan(pitch), and so that the aimed-at point lies on the covered floor.
+
+    ``grid``: the sensor moves back along its view, never past the wall behind it, until that
+    point is at least 0.5 m inside the area. Corridor layouts (their sensors are on the walls,
+    looking across): the view turns along the corridor (toward ``turn_sign`` x its left) until
+    that point is on the corridor's centre line, as wall sensors in corridors look along them."""
+    h_aim = float(np.mean(sc.person_height_m))
+    z = h_aim + aim_m * np.tan(np.radians(pitch_deg))
+    xy = np.asarray(xy_m, float).copy()
+    look = np.array([np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))])
+    if sc.layout == "grid":
+        hi = np.asarray(sc.area_m, float)
+        target = np.clip(xy + aim_m * look, 0.5, hi - 0.5)
+        # back along -look: the largest move s >= 0 needed on either axis, then no farther than the wall
+        need = max([(xy[a] + aim_m * look[a] - target[a]) / look[a] for a in (0, 1) if abs(look[a]) > 1e-9] + [0.0])
+        room = min([((hi[a] - WALL_MARGIN_M - xy[a]) if look[a] < 0 else (xy[a] - WALL_MARGIN_M)) / abs(look[a])
+                    for a in (0, 1) if abs(look[a]) > 1e-9])
+        return xy - min(max(need, 0.0), max(room, 0.0)) * look, float(z), float(yaw_deg)
+    # the corridor whose wall the sensor is on: its centre line is half a width (less the margin) away
+    def off_wall(c):
+        start, end, width = c
+        along = (end - start) / np.linalg.norm(end - start)
+        rel = xy - start
+        return abs(abs(along[0] * rel[1] - along[1] * rel[0]) - (width / 2 - WALL_MARGIN_M))
+    start, end, width_m = min(corridor_axes(sc), key=off_wall)
+    length = float(np.linalg.norm(end - start))
+    along = (end - start) / length
+    turn = np.degrees(np.arccos(np.clip((width_m / 2 - WALL_MARGIN_M) / aim_m, -1.0, 1.0)))
+    for sign in (turn_sign, -turn_sign):      # the drawn way, unless it aims past the corridor's end
+        yaw = yaw_deg + sign * turn
+        aimed = xy + aim_m * np.array([np.cos(np.radians(yaw)), np.sin(np.radians(yaw))])
+        if 0.5 <= float(along @ (aimed - start)) <= length - 0.5:
+            break
+    return xy, float(z), float(yaw)
+
+
+def reaimed_pitch_deg(sc: Scenario, z_layout_m: float, pitch_deg: float, z_m: float) -> float:
+    """The pitch (deg) of a ceiling sensor hung at ``z_m`` instead of its layout height
+    ``z_layout_m`` (pitched ``pitch_deg`` there), re-aimed so that its optical axis still meets
+    head height h (the middle of person_height_m) at the same floor point: atan((z - h) / d),
+    d = (z_layout - h) / tan(pitch). Unchanged when either height is not above h + 0.1 m."""
+    h_aim = float(np.mean(sc.person_height_m))
+    if min(z_layout_m, z_m) <= h_aim + 0.1:
+        return float(pitch_deg)
+    reach_m = (z_layout_m - h_aim) / np.tan(np.radians(pitch_deg))
+    return float(np.degrees(np.arctan2(z_m - h_aim, reach_m)))
 
 
 def _mounts(net: SensorNetwork, sc: Scenario) -> SensorNetwork:
-    """``net`` with the heights and wall mounts of :func:`mount_draw`."""
+    """``net`` with the heights and wall mounts of :func:`mount_draw` (:func:`wall_mount`); a
+    ceiling sensor hung at a mixed height is re-aimed at the floor point its layout slot watched
+    (:func:`reaimed_pitch_deg`: raised without it, its view would land beyond the room's wall)."""
     if sc.sensor_height_range_m is None and sc.wall_mounted_fraction <= 0.0:
         return net
-    z, wall, wall_pitch = mount_draw(sc, len(net))
+    z, wall, wall_pitch, aim, turn_sign = mount_draw(sc, len(net))
     out = []
     for k, s in enumerate(net):
         ypr = frames.ypr_deg_from_rot(s.R_world_sensor)
+        p = np.array([s.position_m[0], s.position_m[1], s.position_m[2] if z is None else z[k]])
         if wall[k]:
-            ypr[1] = wall_pitch[k]
-        out.append(SensorExtrinsics(s.id, [s.position_m[0], s.position_m[1], s.position_m[2] if z is None else z[k]],
-                                    ypr))
+            xy, p[2], yaw = wall_mount(sc, s.position_m[:2], ypr[0], wall_pitch[k], aim[k], turn_sign[k])
+            p[:2] = xy
+            ypr = np.array([frames.wrap_angle_rad(np.radians(yaw)) * 180 / np.pi, wall_pitch[k], ypr[2]])
+        elif z is not None:
+            ypr[1] = reaimed_pitch_deg(sc, s.position_m[2], ypr[1], z[k])
+        out.append(SensorExtrinsics(s.id, p, ypr))
     return SensorNetwork(out)
 
 

@@ -84,9 +84,17 @@ class Scenario:
     mezzanine). None: sensor_height_m."""
     wall_mounted_fraction: float = 0.0
     """Share of the sensors (chosen from the seed) mounted on a wall and pitched only
-    wall_pitch_deg down, looking far across the floor instead of down at it."""
+    wall_pitch_deg down, looking far across the floor instead of down at it. A wall mount is
+    aimed the way an installer aims one: its optical axis meets head height (the middle of
+    person_height_m) wall_aim_m away, horizontally, inside the covered floor; its height follows
+    from that and its pitch (:func:`pedcal.sim.ceiling.wall_mount`)."""
     wall_pitch_deg: list = field(default_factory=lambda: [10.0, 25.0])
     """Range [min, max] of a wall-mounted sensor's downward pitch (deg), drawn uniformly."""
+    wall_aim_m: list = field(default_factory=lambda: [2.0, 3.5])
+    """Range [min, max] of the horizontal distance (m), drawn uniformly, at which a wall-mounted
+    sensor's optical axis meets head height: within the reliable range, so that the sensor
+    watches the floor in front of it (a shallow sensor hung as high as a ceiling one looks over
+    every head)."""
 
     # ---- depth sensor (ASUS Xtion Pro Live) -----------------------------------------------------
     hfov_deg: float = 58.0
@@ -371,6 +379,10 @@ def _typed(values: dict, source) -> Scenario:
             raise PedcalInputError(f"expected 0 < min <= max, got [{lo}, {hi}]", path=source,
                                    column="sensor_height_range_m")
         out["sensor_height_range_m"] = [lo, hi]
+    for key in ("wall_pitch_deg", "wall_aim_m"):
+        lo, hi = out[key]
+        if not 0.0 < lo <= hi:
+            raise PedcalInputError(f"expected 0 < min <= max, got [{lo}, {hi}]", path=source, column=key)
     if not 0.0 <= out["wall_mounted_fraction"] <= 1.0:
         raise PedcalInputError(f"expected a share in [0, 1], got {out['wall_mounted_fraction']}", path=source,
                                column="wall_mounted_fraction")
