@@ -133,3 +133,35 @@ def test_offsets_are_split_into_their_mean_and_departures_with_each_ones_sigma()
     assert sigma_mean > 3 * sigma_mean_own
     # one offset: its departure from the mean is 0, sure
     assert centered_offsets(np.array([0.05]), np.array([[1e-4]]))[3] == pytest.approx([0.0])
+
+
+def test_a_clock_offset_moves_a_point_by_the_heads_motion_over_it_to_second_order():
+    # the head on a circle of 1 m at 0.5 rad/s, seen by a sensor turned 30 deg about z and
+    # 0.15 s late: the shift is the motion over the offset, R^T (h(t) - h(t - delta)), to a
+    # tenth of a millimetre (the velocity taken at the middle of the offset), where the velocity
+    # at its end would be off by delta^2 / 2 x 0.25 m/s^2 (2.8 mm)
+    from types import SimpleNamespace
+
+    import gtsam
+
+    from pedcal.calib.clocks import PREFIX, clock_shift_sensor
+
+    w, delta = 0.5, 0.15
+    t = np.arange(0.0, 20.0, 0.2)
+    h = lambda s: np.column_stack([np.cos(w * s), np.sin(w * s), np.zeros_like(s)])  # noqa: E731
+    v = w * np.column_stack([-np.sin(w * t), np.cos(w * t), np.zeros_like(t)])
+    R = gtsam.Rot3.Rz(np.radians(30.0))
+    prob = SimpleNamespace(sensor_ids=["a"], init_sensors={"a": gtsam.Pose3(R, np.zeros(3))}, pose_times=t,
+                           fac_key_index=np.arange(5, 95), fac_sensor_index=np.zeros(90, int),
+                           _pose_velocity_world=v, motion=None)
+    use = np.arange(90)
+    shift = clock_shift_sensor(prob, {PREFIX + "a": delta}, use)
+    tk = t[prob.fac_key_index]
+    exact = (h(tk) - h(tk - delta)) @ R.matrix()
+    assert np.max(np.abs(shift - exact)) < 1e-4
+    at_end = delta * v[prob.fac_key_index] @ R.matrix()
+    assert np.max(np.abs(at_end - exact)) > 2.5e-3
+    # pinned: delta R^T v(t - delta / 2), v linear between the poses
+    mid = np.column_stack([np.interp(tk - delta / 2, t, v[:, c]) for c in range(3)])
+    np.testing.assert_allclose(shift, delta * mid @ R.matrix(), atol=1e-15)
+    assert clock_shift_sensor(prob, {PREFIX + "a": 0.0}, use) == 0.0

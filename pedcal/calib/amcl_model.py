@@ -39,7 +39,9 @@ class AmclErrorModel:
     ``reported_white_fraction`` of AMCL's reported covariance) plus a Gauss-Markov process of std
     ``correlated_sigma_m`` and correlation time ``correlation_s``; ``excluded`` (over robot.csv's
     rows in time order) marks estimates left out as jumps. ``source``: ``assumed`` (before any
-    solve) or ``estimated`` (from a solve's residuals, with the variogram it was fitted to)."""
+    solve) or ``estimated`` (from a solve's residuals, with the variogram it was fitted to).
+    ``track_jumps``: the part of ``excluded`` found as steps in AMCL's own track
+    (:func:`detect_steps`), kept by every later estimate."""
 
     white_sigma_m: float
     correlated_sigma_m: float
@@ -47,6 +49,7 @@ class AmclErrorModel:
     reported_white_fraction: float = 0.0
     source: str = "assumed"
     excluded: np.ndarray | None = field(default=None, repr=False)
+    track_jumps: np.ndarray | None = field(default=None, repr=False)   # those found in AMCL's own track
     jumps: int = 0
     excluded_s: float = 0.0
     variogram_lags_s: list = field(default_factory=list)
@@ -85,11 +88,29 @@ def reported_sigma_m(amcl) -> float:
 def assumed_model(amcl, recipe) -> AmclErrorModel:
     """The model before any solve: the recipe's share of the reported covariance plus what AMCL's
     own jitter shows beyond it as the white error, the reported std as the wandering one with the
-    recipe's correlation time."""
+    recipe's correlation time; the relocalization jumps that AMCL's track shows as steps out and
+    back (:func:`detect_steps`, at the recipe's ``amcl_jump_threshold`` and ``amcl_min_jump_m``)
+    left out, wherever the robot was."""
     sig = reported_sigma_m(amcl)
     excess = max(amcl_white_sigma(amcl) ** 2 - recipe.amcl_white_fraction ** 2 * sig ** 2, 0.0)
+    ordered = amcl.sort_values("t", kind="stable")
+    t = ordered["t"].to_numpy(float)
+    steps = detect_steps(t, ordered[["x", "y"]].to_numpy(float), threshold=recipe.amcl_jump_threshold,
+                         min_jump_m=recipe.amcl_min_jump_m)
     return AmclErrorModel(white_sigma_m=float(np.sqrt(excess)), correlated_sigma_m=sig,
-                          correlation_s=recipe.amcl_correlation_s, reported_white_fraction=recipe.amcl_white_fraction)
+                          correlation_s=recipe.amcl_correlation_s, reported_white_fraction=recipe.amcl_white_fraction,
+                          **_exclusion(steps, steps, t))
+
+
+def _exclusion(excluded: np.ndarray, track_jumps: np.ndarray, t: np.ndarray) -> dict:
+    """The model's fields for the estimates ``excluded`` (those of them ``track_jumps`` found in
+    AMCL's track), over AMCL's rows at times ``t`` (sorted): the masks (None when empty), the
+    number of runs left out and their time at AMCL's median period."""
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    starts = np.flatnonzero(np.diff(np.r_[0, excluded.astype(int)]) == 1)
+    return dict(excluded=excluded if excluded.any() else None,
+                track_jumps=track_jumps if track_jumps.any() else None,
+                jumps=len(starts), excluded_s=float(excluded.sum() * period))
 
 
 def robust_variogram(t: np.ndarray, series: list[tuple[np.ndarray, np.ndarray]],
@@ -178,6 +199,86 @@ def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold
     return dev > max(threshold * scale, min_jump_m)
 
 
+def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """(n, k) the least-squares line through the samples ``lo[j]:hi[j]`` of (``t``, ``p``),
+    evaluated at ``at[j]``; NaN where fewer than two samples (or one time) are in the window.
+    From cumulative sums, so a long log costs O(n)."""
+    t0 = float(t[0]) if len(t) else 0.0
+    tt = t - t0
+    z = lambda a: np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])  # noqa: E731
+    c1, ct, ctt, cp, ctp = z(np.ones_like(tt)), z(tt), z(tt * tt), z(p), z(tt[:, None] * p)
+    n = c1[hi] - c1[lo]
+    s_t, s_tt = ct[hi] - ct[lo], ctt[hi] - ctt[lo]
+    s_p, s_tp = cp[hi] - cp[lo], ctp[hi] - ctp[lo]
+    u0 = at - t0
+    # about u0: sum u = s_t - n u0, sum u^2 = s_tt - 2 u0 s_t + n u0^2, sum u p = s_tp - u0 s_p
+    su = s_t - n * u0
+    suu = s_tt - 2.0 * u0 * s_t + n * u0 ** 2
+    sup = s_tp - u0[:, None] * s_p
+    det = n * suu - su ** 2
+    ok = (n >= 2) & (det > 1e-12 * np.maximum(n * suu, 1e-300))
+    out = np.full(p[lo].shape, np.nan)
+    out[ok] = (suu[ok, None] * s_p[ok] - su[ok, None] * sup[ok]) / det[ok, None]
+    return out
+
+
+def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, threshold: float = 5.0,
+                 min_jump_m: float = 0.1, max_jump_s: float = 60.0) -> np.ndarray:
+    """Mask of AMCL's estimates ``p`` (n, 2) at times ``t`` (sorted) that sit inside a
+    relocalization jump, found from AMCL's own track, wherever the sensors see the robot or not.
+    A jump is a step: at each gap between estimates, the line through the estimates of the
+    ``half_window_s`` after it minus the line through those of the ``half_window_s`` before,
+    both taken at the gap, is the step there (the robot's motion, smooth over a second, cancels;
+    a step spreads over the gaps within the window, so only a window's largest counts). Steps
+    beyond ``threshold`` robust sigmas of that statistic and ``min_jump_m`` move an offset that
+    starts at 0; the estimates while it is more than ``min_jump_m`` off are the jump, when a later
+    step brings it back within ``max_jump_s`` (an offset that never returns is not told from a
+    relocalization that was right, and nothing is left out for it)."""
+    t = np.asarray(t, float)
+    p = np.asarray(p, float)
+    n = len(t)
+    out = np.zeros(n, bool)
+    if n < 10:
+        return out
+    tu, inv = np.unique(t, return_inverse=True)
+    pu = np.zeros((len(tu), p.shape[1]))
+    np.add.at(pu, inv, p)
+    pu /= np.bincount(inv, minlength=len(tu))[:, None]
+    m = len(tu)
+    k = np.arange(1, m)                                  # gap between estimates k - 1 and k
+    at = 0.5 * (tu[k - 1] + tu[k])
+    before = _edge_values(tu, pu, np.searchsorted(tu, tu[k] - half_window_s), k, at)
+    after = _edge_values(tu, pu, k, np.searchsorted(tu, tu[k] + half_window_s), at)
+    step = after - before
+    size = np.linalg.norm(step, axis=1)
+    size[~np.isfinite(size)] = 0.0
+    if not np.any(size > 0.0):
+        return out
+    scale = 1.4826 * np.median(size[size > 0.0]) / np.sqrt(np.log(4.0))    # Rayleigh, as detect_jumps
+    # a window's largest step only (the steps of the gaps near a jump see part of it)
+    lo = np.searchsorted(at, at - half_window_s)
+    hi = np.searchsorted(at, at + half_window_s, side="right")
+    peak = np.array([size[j] >= size[lo[j]:hi[j]].max() for j in range(len(size))])
+    big = np.flatnonzero(peak & (size > max(threshold * scale, min_jump_m)))
+    jump_u = np.zeros(m, bool)
+    offset, start = np.zeros(p.shape[1]), None
+    for j in big:
+        offset = offset + step[j]
+        if start is None:
+            if np.linalg.norm(offset) > min_jump_m:
+                start = k[j]
+            else:
+                offset[:] = 0.0
+        elif np.linalg.norm(offset) <= min_jump_m:
+            if tu[k[j] - 1] - tu[start] <= max_jump_s:
+                jump_u[start:k[j]] = True
+            offset[:], start = 0.0, None
+        elif tu[k[j]] - tu[start] > max_jump_s:          # never came back: start again from here
+            offset, start = step[j].copy(), k[j]
+    out[:] = jump_u[inv]
+    return out
+
+
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,
                    *, jump_threshold: float = 5.0, min_jump_m: float = 0.1,
                    min_covered: int = 100, min_white_m: float = 0.002,
@@ -190,7 +291,8 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     absorb AMCL's local average, would make a wandering error look smaller than it is). The
     white std is at least ``min_white_m``; the wandering std, when the data show one, at least
     ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`). Jumps are found
-    in the residuals averaged over the sensors. Returns ``assumed`` unchanged when fewer than
+    in the residuals averaged over the sensors, besides those ``assumed`` found in AMCL's own
+    track (``track_jumps``, kept). Returns ``assumed`` unchanged when fewer than
     ``min_covered`` estimates are covered."""
     n = len(t_amcl)
     total, count = np.zeros((n, 2)), np.zeros(n)
@@ -202,7 +304,7 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
         return assumed
     t = t_amcl[covered]
     jumps_c = detect_jumps(t, total[covered] / count[covered, None], threshold=jump_threshold, min_jump_m=min_jump_m)
-    jump = np.zeros(n, bool)
+    jump = np.zeros(n, bool) if assumed.track_jumps is None else assumed.track_jumps.copy()
     jump[np.flatnonzero(covered)[jumps_c]] = True
     series = [(rows[~jump[rows]], e[~jump[rows]]) for rows, e in per_sensor if len(rows)]
     gamma, pairs = robust_variogram(t_amcl, series)
@@ -219,11 +321,9 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
         return assumed
     white, corr, tau = fit
     white = max(white, min_white_m)
-    excluded = jump
-    starts = np.flatnonzero(np.diff(np.r_[0, excluded.astype(int)]) == 1)
+    track = np.zeros(n, bool) if assumed.track_jumps is None else assumed.track_jumps
     return AmclErrorModel(white_sigma_m=white, correlated_sigma_m=corr, correlation_s=tau, source="estimated",
-                          excluded=excluded if excluded.any() else None, jumps=len(starts),
-                          excluded_s=float(excluded.sum() * period),
+                          **_exclusion(jump, track, t_amcl),
                           variogram_lags_s=VARIOGRAM_LAGS_S.tolist(),
                           variogram_sigma_m=[float(np.sqrt(v)) if np.isfinite(v) else float("nan") for v in gamma])
 
@@ -264,4 +364,4 @@ def amcl_white_sigma(amcl: pd.DataFrame) -> float:
 
 __all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
            "robust_variogram", "fit_variogram",
-           "detect_jumps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]
+           "detect_jumps", "detect_steps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]

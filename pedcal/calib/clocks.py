@@ -8,9 +8,10 @@ and the offsets are written about it.
 
 An observation stamped t belongs to the instant t - latency - delta_i. Carried to its pose
 variable at t_k (FactorGraphProblem.carry_observations) the head's motion from that instant is
-added, so an offset delta_i moves the carried point by R_i^T v delta_i to first order, v the
-head's velocity: the offset enters the observations linearly, like the head point's horizontal
-shift (``fac_p_sensor + delta_i R_i^T v`` in :func:`clock_shift_sensor`). Only the robot's
+added, so an offset delta_i moves the carried point by R_i^T (h(t) - h(t - delta_i)), to second
+order delta_i R_i^T v(t - delta_i / 2), v the head's velocity: the offset enters the
+observations nearly linearly, like the head point's horizontal shift
+(``fac_p_sensor + delta_i R_i^T v`` in :func:`clock_shift_sensor`). Only the robot's
 motion tells an offset: a sensor that sees the robot only standing, or only crossing one way
 (where the offset is a shift its translation takes), keeps its prior, and its sigma says so.
 """
@@ -85,31 +86,40 @@ def solved_velocity_world(prob, result) -> np.ndarray | None:
     return v
 
 
-def _velocity_sensor(prob) -> np.ndarray:
-    """(n_factors, 3) the head's velocity at each robot-observation factor's pose time (a central
-    difference over +-VELOCITY_HALF_WINDOW_S), in its sensor's frame (the sensors' initial
-    rotations: a degree off changes a millimetre-sized term by a few per cent); cached on the
-    problem until its factors change."""
+def _velocity_world_at(prob, t: np.ndarray) -> np.ndarray:
+    """(n, 3) the head's world velocity at times ``t``: the solved poses' central difference
+    (:func:`solved_velocity_world`) taken linearly between the poses, or, before any solve, the
+    robot's motion's over +-VELOCITY_HALF_WINDOW_S."""
     pose_v = getattr(prob, "_pose_velocity_world", None)
-    # the cache holds the arrays it was made from, so an identity test cannot meet a new array
+    if pose_v is None or len(pose_v) < 2:
+        return prob.motion.velocity(t, h=VELOCITY_HALF_WINDOW_S)
+    tp = prob.pose_times[:len(pose_v)]
+    return np.column_stack([np.interp(t, tp, pose_v[:, c]) for c in range(3)])
+
+
+def _sensor_rotations(prob) -> np.ndarray:
+    """(n_factors, 3, 3) each robot-observation factor's sensor rotation R_world_sensor (the
+    sensors' initial ones: a degree off changes a millimetre-sized term by a few per cent);
+    cached on the problem until its factors change."""
+    cached = getattr(prob, "_clock_rotations", None)
+    # the cache holds the array it was made from, so an identity test cannot meet a new array
     # that took a freed one's id (ids are reused once an object is gone)
-    cached = getattr(prob, "_clock_velocity", None)
-    if cached is not None and cached[0] is prob.fac_key_index and cached[1] is pose_v:
-        return cached[2]
-    if pose_v is not None and len(pose_v) > int(prob.fac_key_index.max(initial=0)):
-        v_world = pose_v[prob.fac_key_index]
-    else:
-        v_world = prob.motion.velocity(prob.pose_times[prob.fac_key_index], h=VELOCITY_HALF_WINDOW_S)
+    if cached is not None and cached[0] is prob.fac_sensor_index:
+        return cached[1]
     R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[prob.fac_sensor_index]
-    v = np.einsum("nji,nj->ni", R, v_world)
-    prob._clock_velocity = (prob.fac_key_index, pose_v, v)
-    return v
+    prob._clock_rotations = (prob.fac_sensor_index, R)
+    return R
 
 
 def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
     """What the sensors' clock offsets add to the robot-observation factors ``use`` (sensor
-    frame, m): delta_i R_i^T v (module docstring); ``theta`` overrides the problem's offsets by
-    name. 0 when no offset is estimated."""
+    frame, m): the head's motion over the offset, R_i^T (h(t) - h(t - delta_i)), t the factor's
+    pose time (its observations carried there with the shared latency; module docstring), to
+    second order delta_i R_i^T v(t - delta_i / 2): the velocity at the middle of the interval,
+    not at its end (at its end the shift is off by a delta^2 / 2, a few millimetres for a tenth
+    of a second on a turn, which the offsets of the sensors that see the turns absorb: a bias
+    of several of their sigma). ``theta`` overrides the problem's offsets by name. 0 when no
+    offset is estimated."""
     offsets = np.zeros(len(prob.sensor_ids))
     any_set = False
     for i, sid in enumerate(prob.sensor_ids):
@@ -120,7 +130,9 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
             any_set = True
     if not any_set:
         return 0.0
-    return offsets[prob.fac_sensor_index[use], None] * _velocity_sensor(prob)[use]
+    delta = offsets[prob.fac_sensor_index[use]]
+    v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[use]] - 0.5 * delta)
+    return delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[use], v_world)
 
 
 def centered_offsets(delta_s: np.ndarray, cov_s2: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
