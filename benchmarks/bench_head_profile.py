@@ -3,15 +3,18 @@ the factor graph's horizontal sensor RMS with the constant shift (``head_profile
 with the profile chosen by each criterion, per head family, over seeds.
 
     nice -n 5 .venv/bin/python benchmarks/bench_head_profile.py [--seeds 20] [--scenarios paper sparse]
-        [--families shift ramp saturate zoo] [--modes off cv bic] [--duration 200]
+        [--families shift ramp saturate zoo per-sensor] [--modes off cv bic cv+sensors] [--duration 200]
 
-Families: ``shift`` a constant shift toward the sensor, ``ramp`` one fading to nothing with
-horizontal distance, ``saturate`` one growing to its size and staying, each of 2-6 cm over 1-3 m
-drawn per seed; ``zoo`` the simulator's nuisance zoo (``vary_nuisances="zoo"``: any head model,
-per sensor half the time, with the other families' nuisances). Per family: mean and median xy
-RMS (mm) per mode, the mean difference to ``off`` with its standard error, the worst log's
-difference, the mean xy RMS less each log's mean horizontal error (what the sensors share, such as
-AMCL's mean error: the network's shape) and the models chosen. CPU seconds of the calibrations at the end.
+Modes: a ``head_profile`` value, ``+sensors`` adding each sensor's own departure
+(``head_profile_per_sensor``). Families: ``shift`` a constant shift toward the sensor, ``ramp``
+one fading to nothing with horizontal distance, ``saturate`` one growing to its size and
+staying, each of 2-6 cm over 1-3 m drawn per seed; ``zoo`` the simulator's nuisance zoo
+(``vary_nuisances="zoo"``: any head model, per sensor half the time, with the other families'
+nuisances); ``per-sensor`` the zoo's draw with a head model drawn for every sensor. Per family:
+mean and median xy RMS (mm) per mode, the mean difference to ``off`` with its standard error, the
+worst log's difference, the mean xy RMS less each log's mean horizontal error (what the sensors
+share, such as AMCL's mean error: the network's shape) and the models chosen. CPU seconds of the
+calibrations at the end.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ import numpy as np
 
 from pedcal.calib import calibrate
 from pedcal.sim import simulate_logs
+from pedcal.sim.nuisances import vary
+from pedcal.sim.scenario import load_scenario
 
 
 class _Chosen(logging.Handler):
@@ -39,6 +44,13 @@ class _Chosen(logging.Handler):
         msg = record.getMessage()
         if "against distance:" in msg and "'chosen': '" in msg:
             self.chosen.append(msg.split("'chosen': '")[1].split("'")[0].split("@")[0])
+
+
+def _simulate(scenario: str, family: str, seed: int, duration_s: float):
+    if family == "per-sensor":      # the zoo's draw with a head model drawn for each sensor
+        sc = vary(load_scenario(scenario).resolve(seed=seed, duration_s=duration_s), zoo=True)
+        return simulate_logs(sc.resolve(per_sensor_head=True), seed=seed)
+    return simulate_logs(scenario, seed=seed, duration_s=duration_s, **_overrides(family, seed))
 
 
 def _overrides(family: str, seed: int) -> dict:
@@ -69,13 +81,14 @@ def main() -> None:
             xy, xy_shape = defaultdict(list), defaultdict(list)
             chosen = defaultdict(Counter)
             for seed in range(args.first_seed, args.first_seed + args.seeds):
-                sim = simulate_logs(scenario, seed=seed, duration_s=args.duration, **_overrides(family, seed))
+                sim = _simulate(scenario, family, seed, args.duration)
                 for mode in args.modes:
                     handler.chosen.clear()
                     t = time.process_time()
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        res = calibrate(sim.calib, method="factorgraph", head_profile=mode, progress=True)
+                        res = calibrate(sim.calib, method="factorgraph", head_profile=mode.split("+")[0],
+                                        head_profile_per_sensor=mode.endswith("+sensors"), progress=True)
                     cpu[mode] += time.process_time() - t
                     E = np.array([res.network[s].position_m - sim.calib.truth[s].position_m
                                   for s in sim.calib.sensors.ids])

@@ -14,6 +14,7 @@ from pedcal.calib import calibrate
 from pedcal.calib.headpoint import (
     PER_SENSOR_HEIGHT_NOTE,
     PREFIX,
+    SENSOR_PREFIX,
     SLOPE,
     hats,
     held_out_gain,
@@ -125,7 +126,8 @@ def ramp_log():
     sim = simulate_logs("paper", seed=1, duration_s=200.0, head_point="ramp", head_shift_m=0.05, head_ramp_m=2.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return sim, {mode: calibrate(sim.calib, method="factorgraph", head_profile=mode) for mode in ("off", "cv", "knots")}
+        return sim, {mode: calibrate(sim.calib, method="factorgraph", head_profile=mode)
+                     for mode in ("off", "cv", "knots")}
 
 
 def _xy_rms_mm(sim, network) -> float:
@@ -241,12 +243,14 @@ def test_the_shapes_rise_by_one_to_their_knot_and_stay_or_start_there():
 SENSORS = 8
 
 
-def _linear_profile(shape_mm: np.ndarray, seed: int, per_row: int = 400, noise: float = 1.0):
+def _linear_profile(shape_mm: np.ndarray, seed: int, per_row: int = 400, noise: float = 1.0,
+                    own_mm: np.ndarray | None = None):
     """A linear model of the head profile's system, profiled exactly: SENSORS sensors, each a
     2-d offset variable seen by per_row observations at horizontal distances 0.3-5 m, whose
     residual is A x - b - B theta; theta = [horizontal shift, c_1..c_3] on KNOTS, the truth a
-    constant 20 mm plus knot values ``shape_mm`` (mm at d_1..d_3). Returns (prob, step, nuis,
-    folds by sensor, the truth's knot values in m)."""
+    constant 20 mm plus knot values ``shape_mm`` (mm at d_1..d_3); with ``own_mm`` (one per
+    sensor), each sensor's own departure too, in 10 time blocks. Returns (prob, step, nuis,
+    folds by sensor, the truth's knot values in m; with own_mm, the time blocks too)."""
     rng = np.random.default_rng(seed)
     n = SENSORS * per_row
     sensor = np.repeat(np.arange(SENSORS), per_row)
@@ -258,12 +262,17 @@ def _linear_profile(shape_mm: np.ndarray, seed: int, per_row: int = 400, noise: 
     A = sps.csr_matrix((np.ones(rows) / 0.005, (np.arange(rows), 2 * np.repeat(sensor, 2) + np.tile([0, 1], n))),
                        shape=(rows, 2 * SENSORS))
     basis = np.column_stack([np.ones(n), hats(d, KNOTS)[:, 1:]])          # [shift, c_1..c_3] per observation
-    Bd = (np.repeat(basis, 2, axis=0) * u.reshape(-1)[:, None]) / 0.005
     theta_true = np.r_[0.02, np.asarray(shape_mm, float) / 1000.0]
-    x_true = rng.normal(size=2 * SENSORS) * 0.1
-    b = A @ x_true - Bd @ theta_true + rng.normal(size=rows) * noise
     nuis = [Nuisance("horizontal_shift_m", 0.0, 0.05, 0.01)] + [Nuisance(PREFIX + str(j), 0.0, 0.03, 0.01)
                                                                 for j in (1, 2, 3)]
+    ids = [f"s{i}" for i in range(SENSORS)]
+    if own_mm is not None:
+        basis = np.column_stack([basis, np.eye(SENSORS)[sensor]])
+        theta_true = np.r_[theta_true, np.asarray(own_mm, float) / 1000.0]
+        nuis += [Nuisance(SENSOR_PREFIX + sid, 0.0, 0.03, 0.01) for sid in ids]
+    Bd = (np.repeat(basis, 2, axis=0) * u.reshape(-1)[:, None]) / 0.005
+    x_true = rng.normal(size=2 * SENSORS) * 0.1
+    b = A @ x_true - Bd @ theta_true + rng.normal(size=rows) * noise
     N = (A.T @ A).toarray()
     B = sps.csc_matrix(Bd)
     z0 = np.linalg.solve(N, A.T @ b)
@@ -276,10 +285,13 @@ def _linear_profile(shape_mm: np.ndarray, seed: int, per_row: int = 400, noise: 
                        cols=Columns(keys=[], offset={}, dim={}, n=2 * SENSORS), A=A, B=B, rho0=rho0)
     rec = SimpleNamespace(head_profile="cv", head_profile_sigma_m=0.03)
     prob = SimpleNamespace(recipe=rec, _head_knots=KNOTS, fac_key_index=np.zeros(n, int), pose_times=np.arange(10.0),
-                           horizontal_shift_m=0.0, head_profile_slope_m=0.0)
-    for j in (1, 2, 3):
-        setattr(prob, PREFIX + str(j), 0.0)
-    return prob, step, nuis, np.repeat(sensor, 2), theta_true[1:]
+                           horizontal_shift_m=0.0, head_profile_slope_m=0.0, sensor_ids=ids)
+    for nu in nuis[1:]:
+        setattr(prob, nu.name, 0.0)
+    if own_mm is not None:
+        blocks = np.repeat(np.tile(np.repeat(np.arange(10), per_row // 10), SENSORS), 2)
+        return prob, step, nuis, np.repeat(sensor, 2), theta_true[1:4], blocks
+    return prob, step, nuis, np.repeat(sensor, 2), theta_true[1:4]
 
 
 def _chosen_knots(prob, step, kept) -> np.ndarray:
@@ -320,3 +332,31 @@ def test_cv_without_three_sensors_falls_back_to_bic():
     prob, step, nuis, folds, _ = _linear_profile(np.zeros(3), 0)
     _, _, compared = select_head_profile(prob, step, nuis, folds=np.minimum(folds, 1))
     assert compared["constant"] == (0.0, 0.0) and compared["linear"][1] == pytest.approx(np.log(len(folds) // 2))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_cv_keeps_a_sensors_own_shift_where_its_held_out_time_blocks_support_it(seed):
+    # sensors s2 and s5 run trackers of their own, 25 mm and -15 mm off the shared shift
+    own = np.zeros(SENSORS)
+    own[2], own[5] = 25.0, -15.0
+    prob, step, nuis, folds, _, blocks = _linear_profile(np.zeros(3), seed, own_mm=own)
+    out, kept, compared = select_head_profile(prob, step, nuis, folds=folds, clusters=blocks)
+    assert compared["chosen"] == "constant"
+    kept_ids = sorted(n.name[len(SENSOR_PREFIX):] for n in kept if n.name.startswith(SENSOR_PREFIX))
+    assert kept_ids == ["s2", "s5"], compared["sensors"]
+    theta = dict(zip([n.name for n in kept], out.dtheta, strict=True))
+    # each kept departure within 2 mm (the shared shift takes the mean of all sensors': the
+    # departures are relative to it, their prior holding the split)
+    shared = theta["horizontal_shift_m"]
+    assert shared + theta[SENSOR_PREFIX + "s2"] == pytest.approx(0.045, abs=0.002)
+    assert shared + theta[SENSOR_PREFIX + "s5"] == pytest.approx(0.005, abs=0.002)
+    assert shared == pytest.approx(0.02, abs=0.002)
+
+
+def test_without_time_blocks_a_sensors_own_shift_is_judged_by_bic():
+    own = np.zeros(SENSORS)
+    own[2] = 25.0
+    prob, step, nuis, folds, _, _ = _linear_profile(np.zeros(3), 0, own_mm=own)
+    _, kept, compared = select_head_profile(prob, step, nuis, folds=folds, clusters=None)
+    assert [n.name for n in kept if n.name.startswith(SENSOR_PREFIX)] == [SENSOR_PREFIX + "s2"]
+    assert compared["sensors"]["s3"][1] == pytest.approx(np.log(SENSORS * 400))

@@ -33,22 +33,26 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import scipy.sparse as sps
+from scipy.stats import norm
 
 from pedcal.calib.profile import Nuisance, ProfileStep
 from pedcal.errors import PedcalInputError
 
 PREFIX = "head_profile_m:"            # nuisance names: PREFIX + knot index (1..m)
+SENSOR_PREFIX = "head_shift_sensor_m:"  # a sensor's own departure from the shared shift: + sensor id
 SLOPE = "head_profile_slope_m"        # a one-parameter shape's amplitude (m; the line's rise from d_0 to d_m)
 MODES = ("off", "cv", "bic", "linear", "knots")
 STEP_M = 0.01                         # finite-difference step of the profile (they enter linearly)
 MIN_FACTORS = 100                     # fewer robot-observation factors: the constant shift only
 CLUSTER_S = 20.0                      # the residuals' clusters for the overdispersion: this long each
+MIN_SENSOR_FACTORS = 30              # fewer robot observations of a sensor: it keeps the shared shift
+FAMILY_ALPHA = 0.05                  # a sensor's own departure: its false-keep rate over all sensors
 MIN_CLUSTERS = 8                      # fewer clusters: no overdispersion estimate (taken as 1)
 KNOT_QUANTILES_END = 0.05             # the end knots at these quantiles of d (the ends are sparse)
 
 
 def is_head_profile(name: str) -> bool:
-    return name.startswith(PREFIX) or name == SLOPE
+    return name.startswith(PREFIX) or name.startswith(SENSOR_PREFIX) or name == SLOPE
 
 
 def horizontal_distance(p_sensor: np.ndarray, toward_sensor: np.ndarray) -> np.ndarray:
@@ -120,7 +124,23 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     for j in range(1, len(knots)):
         setattr(prob, PREFIX + str(j), float(c[j - 1]))
         out.append(Nuisance(PREFIX + str(j), 0.0, rec.head_profile_sigma_m, STEP_M))
+    if rec.head_profile_per_sensor:
+        # each sensor's own tracker: a departure from the shared shift, where it sees the robot enough
+        n_pose = len(prob.pose_times)
+        counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
+        for i, sid in enumerate(prob.sensor_ids):
+            if counts[i] >= MIN_SENSOR_FACTORS:
+                setattr(prob, SENSOR_PREFIX + sid, float(getattr(prob, SENSOR_PREFIX + sid, 0.0)))
+                out.append(Nuisance(SENSOR_PREFIX + sid, 0.0, rec.head_profile_sigma_m, STEP_M))
     return out
+
+
+def sensor_departures(prob, theta: dict | None = None) -> np.ndarray:
+    """(n_sensors,) each sensor's departure from the shared horizontal shift (m; 0 for one without
+    its own), ``theta`` overriding by name."""
+    theta = theta or {}
+    return np.array([float(theta.get(SENSOR_PREFIX + sid, getattr(prob, SENSOR_PREFIX + sid, 0.0)))
+                     for sid in prob.sensor_ids])
 
 
 def knot_values(prob, theta: dict | None = None) -> np.ndarray | None:
@@ -136,13 +156,17 @@ def knot_values(prob, theta: dict | None = None) -> np.ndarray | None:
 
 def head_profile_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
     """What the profile moves the robot-observation factors ``use`` by (sensor frame, m): the
-    point taken back toward the head top, -sum_j c_j phi_j(d) u (module docstring). 0 when no
-    profile is set."""
+    point taken back toward the head top, -(sum_j c_j phi_j(d) + delta_s) u (module docstring;
+    delta_s the observing sensor's own departure). 0 when no profile is set."""
     c = knot_values(prob, theta)
-    if c is None or not np.any(c):
+    if c is None:
+        return 0.0
+    own = sensor_departures(prob, theta)
+    if not np.any(c) and not np.any(own):
         return 0.0
     d = horizontal_distance(prob.fac_p_sensor[use], prob.fac_toward_sensor[use])
-    return -(hats(d, prob._head_knots)[:, 1:] @ c)[:, None] * prob.fac_toward_sensor[use]
+    shift = hats(d, prob._head_knots)[:, 1:] @ c + own[prob.fac_sensor_index[use]]
+    return -shift[:, None] * prob.fac_toward_sensor[use]
 
 
 def _row_labels(graphs, n_rows: int, label_of) -> np.ndarray:
@@ -194,15 +218,18 @@ def row_sensors(graphs, n_rows: int) -> np.ndarray:
     return _row_labels(graphs, n_rows, label_of)
 
 
-def _efficient_rows(step: ProfileStep, nuis: list[Nuisance], extra: list[int]) -> np.ndarray:
+def _efficient_rows(step: ProfileStep, nuis: list[Nuisance], extra: list[int],
+                    others: list[int] | None = None) -> np.ndarray:
     """(rows, len(extra)) each row's residual change with the ``extra`` nuisances, the variables
     and the other nuisances profiled out: M = A Z - B (the variables profiled), then the other
     nuisances' columns projected out with the data's Hessian, m_i = M_i,e - M_i,o H_oo^-1 H_oe,
     so that sum_i m_i m_i^T is the extra nuisances' information given the others (their priors
-    left out) and sum_i m_i rho_i their efficient score."""
+    left out) and sum_i m_i rho_i their efficient score. ``others``: the nuisances profiled out
+    (default every one not extra; the rest are held)."""
     M = np.asarray(step.A @ step.Z) - step.B.toarray()
     H = step.hessian - np.diag([1.0 / n.prior_sigma ** 2 for n in nuis])
-    others = [j for j in range(len(nuis)) if j not in extra]
+    if others is None:
+        others = [j for j in range(len(nuis)) if j not in extra]
     if not others:
         return M[:, extra]
     W = np.linalg.solve(H[np.ix_(others, others)], H[np.ix_(others, extra)])
@@ -276,31 +303,80 @@ def _reduced(step: ProfileStep, T: np.ndarray, b: np.ndarray) -> ProfileStep:
 def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np.ndarray | None = None,
                         clusters: np.ndarray | None = None) -> tuple[ProfileStep, list[Nuisance], dict]:
     """The profile step and nuisances with the head profile the data support, from a step that
-    holds the knots' departures. Recipe ``head_profile``: ``cv`` compares the constant shift,
-    the one-parameter shapes (:func:`shapes`) and the free knots by how well each, fitted
-    without one sensor's rows (``folds``, :func:`row_sensors`), predicts that sensor's
+    holds the knots' departures (and, with ``head_profile_per_sensor``, each sensor's own
+    departure delta_s). Recipe ``head_profile``: ``cv`` compares the constant shift, the
+    one-parameter shapes (:func:`shapes`) and the free knots by how well each, fitted without
+    one sensor's rows (``folds``, :func:`row_sensors`), predicts that sensor's
     (:func:`held_out_gain`, summed over the sensors, with its standard error from their
     spread), and keeps the simplest model within one standard error of the best, a model other
-    than the constant only when its gain exceeds its own standard error; ``bic`` compares the
-    chi^2 each gains against k ln(n) for k parameters and n robot-observation factors (the
-    constant wins a tie); ``linear`` keeps the line; ``knots`` keeps the knots. The chi^2 are
-    the profile's decrease from the knots at 0 (the constant shift): a likelihood ratio, the
-    quadratic profile being exact for nuisances that enter linearly. Returns (step, nuisances,
-    what was compared: model -> (chi^2, penalty) for bic or (held-out gain, its standard
-    error) for cv, the model chosen, and the residuals' overdispersion over time ``clusters``
-    (:func:`overdispersion`) when given)."""
+    than the constant only when its gain exceeds its own standard error. A sensor's own
+    departure is kept when, fitted without one time block (``clusters``, :func:`row_clusters`),
+    it predicts that block's rows, summed over the blocks, by more than z standard errors (z at
+    a one-sided FAMILY_ALPHA family-wise level over the sensors): one sensor at a time, the best
+    first, the others judged again with it free. ``bic`` compares the chi^2 each model gains
+    against k ln(n) for k parameters and n robot-observation factors (the constant wins a tie; a
+    sensor's departure against ln(n)); ``linear`` keeps the line, ``knots`` the knots (and both
+    every sensor's departure). The chi^2 are the profile's decrease from the profile at 0 (the
+    constant shift): a likelihood ratio, the quadratic profile being exact for nuisances that
+    enter linearly. Returns (step, nuisances, what was compared: model -> (chi^2, penalty) for
+    bic or (held-out gain, its standard error) for cv, "sensors" -> sensor id -> (gain, the bar
+    it had to pass) at its last judgement, the model chosen, and the residuals'
+    overdispersion over the time ``clusters`` (:func:`overdispersion`))."""
     idx = [j for j, n in enumerate(nuis) if n.name.startswith(PREFIX)]
+    own = [j for j, n in enumerate(nuis) if n.name.startswith(SENSOR_PREFIX)]
     if not idx:
         return step, nuis, {}
     knots = prob._head_knots
     k_all = len(nuis)
-    others = [j for j in range(k_all) if j not in idx]
+    rest = [j for j in range(k_all) if j not in idx and j not in own]      # the other nuisances
     H = step.hessian
-    # the knots moved back to 0 (b), then each model's best step from there
+    # the profile moved back to 0 (b), then each model's best step from there
     b = np.zeros(k_all)
-    b[idx] = -np.array([getattr(prob, nuis[j].name) for j in idx])
+    b[idx + own] = -np.array([getattr(prob, nuis[j].name) for j in idx + own])
     g = -H @ step.dtheta + H @ b
+    M = (np.asarray(step.A @ step.Z) - step.B.toarray()
+         if step.rho0 is not None and step.A is not None and step.B is not None else None)
 
+    def best(cols):          # the nuisances' move to the best of ``cols`` (the rest of the profile at 0)
+        T = np.eye(k_all)[:, cols]
+        return b - T @ np.linalg.solve(T.T @ H @ T, T.T @ g)
+
+    def chi2(T):
+        return float((T.T @ g) @ np.linalg.solve(T.T @ H @ T, T.T @ g))
+
+    mode = prob.recipe.head_profile
+    compared: dict = {}
+    n = max(int(np.sum(prob.fac_key_index < len(prob.pose_times))), 2)
+    info = 1.0 / prob.recipe.head_profile_sigma_m ** 2
+    time_folds = clusters is not None and M is not None and len(clusters) == len(step.rho0)
+    # each sensor's own departure against the shared profile, forward: the best supported one
+    # joins, then the others are judged again with it free (the knots free, the shift shared by
+    # the sensors without one of their own; the departures not yet kept held at 0: with every
+    # one free, a sensor's and the shared shift would be one direction)
+    kept_own = [] if own and mode in ("cv", "bic") else list(own)
+    if own and mode in ("cv", "bic"):
+        compared["sensors"] = {}
+        # the held-out gain's bar: z standard errors, z the one-sided 5 % family-wise level over
+        # the sensors (Bonferroni), so that sensors without a tracker of their own rarely get one
+        z_bar = float(norm.ppf(1.0 - FAMILY_ALPHA / len(own)))
+        while True:
+            others = rest + idx + kept_own
+            T = np.eye(k_all)[:, others]
+            verdicts = {}
+            for j in (j for j in own if j not in kept_own):
+                if mode == "cv" and time_folds:
+                    m = _efficient_rows(step, nuis, [j], others)
+                    gains = held_out_gain(m, step.rho0 + M @ best(others), clusters, np.array([[info]]))
+                    verdicts[j] = (float(gains.sum()), z_bar * float(np.sqrt(len(gains)) * np.std(gains, ddof=1)))
+                else:
+                    verdicts[j] = (chi2(np.eye(k_all)[:, sorted(others + [j])]) - chi2(T), float(np.log(n)))
+                compared["sensors"][nuis[j].name[len(SENSOR_PREFIX):]] = verdicts[j]
+            passing = [j for j, (gain, bar) in verdicts.items() if gain > bar]
+            if not passing:
+                break
+            kept_own.append(max(passing, key=lambda j: verdicts[j][0] - verdicts[j][1]))
+        kept_own.sort()
+    others = sorted(rest + kept_own)
     at = sum(j < idx[0] for j in others)      # the shape's columns go where the knots were
 
     def with_shape(L):
@@ -309,79 +385,70 @@ def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np
         T[idx, at:at + L.shape[1]] = L
         return T
 
-    def chi2(T):
-        return float((T.T @ g) @ np.linalg.solve(T.T @ H @ T, T.T @ g))
-
     models = {"constant": np.zeros((len(idx), 0)), **{n: v[:, None] for n, v in shapes(knots).items()},
               "knots": np.eye(len(idx))}
     T0 = with_shape(models["constant"])
-    compared: dict = {}
     rho = None
-    if step.rho0 is not None and step.A is not None and step.B is not None:
-        m_rows = _efficient_rows(step, nuis, idx)
-        # the residuals with the knots at 0 and the others at their best there
-        M = np.asarray(step.A @ step.Z) - step.B.toarray()
-        rho = step.rho0 + M @ (b - T0 @ np.linalg.solve(T0.T @ H @ T0, T0.T @ g))
-        if clusters is not None and len(clusters) == len(rho):
+    if M is not None:
+        m_rows = _efficient_rows(step, nuis, idx, others)
+        rho = step.rho0 + M @ best(others)      # the knots at 0, the others at their best there
+        if time_folds:
             compared["overdispersion"] = overdispersion(m_rows, rho, clusters)
-    mode = prob.recipe.head_profile
     cv = (mode == "cv" and rho is not None and folds is not None and len(folds) == len(rho)
           and len(np.unique(folds[folds >= 0])) >= 3)
     if cv:
-        info = 1.0 / prob.recipe.head_profile_sigma_m ** 2
         for name, L in models.items():
             gains = held_out_gain(m_rows @ L, rho, folds, info * L.T @ L) if L.shape[1] else np.zeros(3)
             compared[name] = (float(gains.sum()), float(np.sqrt(len(gains)) * np.std(gains, ddof=1)))
-        best = max(models, key=lambda name: compared[name][0])
+        top = max(models, key=lambda name: compared[name][0])
         # the simplest within one standard error of the best (the line before the bent shapes,
         # the knots last), the constant unless a model's gain exceeds its own standard error
-        floor = compared[best][0] - compared[best][1]
+        floor = compared[top][0] - compared[top][1]
         fits = [name for name in models if compared[name][0] >= floor
                 and (name == "constant" or compared[name][0] > compared[name][1])]
         mode = fits[0] if fits else "constant"
     elif mode in ("bic", "cv"):
         # (cv without its folds: fewer than three sensors' rows, or no residuals)
-        n = max(int(np.sum(prob.fac_key_index < len(prob.pose_times))), 2)
         base = chi2(T0)
         for name, L in models.items():
             compared[name] = (chi2(with_shape(L)) - base, float(L.shape[1] * np.log(n)))
         mode = max(models, key=lambda name: compared[name][0] - compared[name][1])
-    elif mode == "linear":
-        compared["linear"] = (chi2(with_shape(models["linear"])) - chi2(T0), 0.0)
     compared["chosen"] = mode
-    if mode == "knots":
-        return step, nuis, compared
-    for j in idx:            # the knots start again from nothing (their move is in b)
+    for j in idx + own:      # the profile starts again from nothing (its move is in b)
         setattr(prob, nuis[j].name, 0.0)
     prob.head_profile_slope_m = 0.0
+    prob._head_shape = None
     L = models[mode]
     reduced = _reduced(step, with_shape(L), b)
-    if mode == "constant":
-        return reduced, [nuis[j] for j in others], compared
+    kept = [nuis[j] for j in others]
+    if mode in ("constant", "knots"):
+        return reduced, kept[:at] + [nuis[j] for j in idx if mode == "knots"] + kept[at:], compared
     # the shape's amplitude a, each knot a L_j of prior sigma s: its prior sigma s / |L|, the
     # one the restricted Hessian T^T H T carries
     prob._head_shape = (mode, L[:, 0])
     sigma = prob.recipe.head_profile_sigma_m / max(float(np.linalg.norm(L)), 1e-9)
-    kept = [nuis[j] for j in others]
     return reduced, kept[:at] + [Nuisance(SLOPE, 0.0, sigma, STEP_M)] + kept[at:], compared
 
 
 def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: float) -> dict | None:
     """The estimated horizontal shift at the knots, for the calibrated YAML's head model:
     {model, distance_m, shift_m, sigma_shift_m}, the shift at d_j being the constant shift plus
-    c_j, its sigma from the profile's covariance ``cov`` (in ``names`` order). None when the
-    data kept the constant shift."""
+    c_j, its sigma from the profile's covariance ``cov`` (in ``names`` order), and with sensors'
+    own departures kept, per_sensor_shift_m and sigma_per_sensor_shift_m (sensor id -> the
+    shared shift plus the sensor's departure, at d_0). None when the data kept the constant
+    shift for every sensor."""
     knots = getattr(prob, "_head_knots", None)
     c = knot_values(prob)
     if knots is None or c is None:
         return None
     names = list(names)
+    own = [n for n in names if n.startswith(SENSOR_PREFIX)]
     if not any(is_head_profile(n) for n in names) or "horizontal_shift_m" not in names:
         return None
     # each knot's shift as a linear map of the nuisances: e_hs + (e_{c_j} or L_j e_slope)
     J = np.zeros((len(knots), len(names)))
     J[:, names.index("horizontal_shift_m")] = 1.0
-    name, line = _shape(prob, knots)
+    model, line = _shape(prob, knots)
     for j in range(1, len(knots)):
         if PREFIX + str(j) in names:
             J[j, names.index(PREFIX + str(j))] = 1.0
@@ -389,8 +456,19 @@ def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: 
             J[j, names.index(SLOPE)] = line[j - 1]
     sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
     shift = horizontal_shift_m + np.r_[0.0, c]
-    return {"model": name if SLOPE in names else "knots", "distance_m": [round(float(v), 4) for v in knots],
-            "shift_m": [round(float(v), 5) for v in shift], "sigma_shift_m": [round(float(v), 5) for v in sigma]}
+    model = model if SLOPE in names else "knots" if any(n.startswith(PREFIX) for n in names) else "constant"
+    out = {"model": model, "distance_m": [round(float(v), 4) for v in knots],
+           "shift_m": [round(float(v), 5) for v in shift], "sigma_shift_m": [round(float(v), 5) for v in sigma]}
+    if own:
+        J = np.zeros((len(own), len(names)))
+        J[:, names.index("horizontal_shift_m")] = 1.0
+        J[np.arange(len(own)), [names.index(n) for n in own]] = 1.0
+        sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
+        ids = [n[len(SENSOR_PREFIX):] for n in own]
+        out["per_sensor_shift_m"] = {sid: round(float(horizontal_shift_m + getattr(prob, n)), 5)
+                                     for sid, n in zip(ids, own, strict=True)}
+        out["sigma_per_sensor_shift_m"] = {sid: round(float(v), 5) for sid, v in zip(ids, sigma, strict=True)}
+    return out
 
 
 PER_SENSOR_HEIGHT_NOTE = ("A tracker whose head point sits higher or lower for one sensor than for the others "
@@ -422,5 +500,5 @@ def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
 
 __all__ = ["record_head_profile", "head_profile_nuisances", "head_profile_shift_sensor", "select_head_profile",
            "profile_record", "is_head_profile", "hats", "horizontal_distance", "shift_at", "line_of_knots", "shapes",
-           "held_out_gain", "overdispersion", "row_clusters", "row_sensors",
+           "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
            "knot_values"]

@@ -71,6 +71,10 @@ class GraphRecipe:
     head_profile: str = "off"
     head_profile_knots: int = 4
     head_profile_sigma_m: float = 0.03
+    # with head_profile on, each sensor's own departure from the shared horizontal shift (a
+    # tracker per sensor), prior sigma head_profile_sigma_m, kept for the sensors whose held-out
+    # time blocks it predicts (cv; bic: chi^2 against ln(n)); the others keep the shared shift
+    head_profile_per_sensor: bool = False
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
     # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the
