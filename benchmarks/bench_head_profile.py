@@ -8,7 +8,7 @@ with the profile chosen by each criterion, per head family, over seeds.
 Modes: a ``head_profile`` value, ``+sensors`` adding each sensor's own departure
 (``head_profile_per_sensor``). Families: ``shift`` a constant shift toward the sensor, ``ramp``
 one fading to nothing with horizontal distance, ``saturate`` one growing to its size and
-staying, each of 2-6 cm over 1-3 m drawn per seed; ``zoo`` the simulator's nuisance zoo
+staying, each of 2-6 cm over 1-3 m, linear, exponential or smooth, drawn per seed; ``zoo`` the simulator's nuisance zoo
 (``vary_nuisances="zoo"``: any head model, per sensor half the time, with the other families'
 nuisances); ``per-sensor`` the zoo's draw with a head model drawn for every sensor. Per family:
 mean and median xy RMS (mm) per mode, the mean difference to ``off`` with its standard error, the
@@ -29,7 +29,7 @@ import numpy as np
 
 from pedcal.calib import calibrate
 from pedcal.sim import simulate_logs
-from pedcal.sim.nuisances import vary
+from pedcal.sim.nuisances import RAMP_SHAPES, vary
 from pedcal.sim.scenario import load_scenario
 
 
@@ -58,7 +58,7 @@ def _overrides(family: str, seed: int) -> dict:
         return {"vary_nuisances": "zoo"}
     rng = np.random.default_rng([seed, 0x4EAD])
     return {"head_point": family, "head_shift_m": float(rng.uniform(0.02, 0.06)),
-            "head_ramp_m": float(rng.uniform(1.0, 3.0))}
+            "head_ramp_m": float(rng.uniform(1.0, 3.0)), "head_ramp_shape": str(rng.choice(RAMP_SHAPES))}
 
 
 def main() -> None:
