@@ -22,6 +22,7 @@ from pedcal.calib.headpoint import (
     knot_values,
     line_of_knots,
     overdispersion,
+    profile_record,
     select_head_profile,
     shapes,
     shift_at,
@@ -360,3 +361,23 @@ def test_without_time_blocks_a_sensors_own_shift_is_judged_by_bic():
     _, kept, compared = select_head_profile(prob, step, nuis, folds=folds, clusters=None)
     assert [n.name for n in kept if n.name.startswith(SENSOR_PREFIX)] == [SENSOR_PREFIX + "s2"]
     assert compared["sensors"]["s3"][1] == pytest.approx(np.log(SENSORS * 400))
+
+
+def test_the_record_holds_each_kept_sensors_shift_with_its_sigma_and_goes_through_the_yaml(tmp_path):
+    prob = SimpleNamespace(_head_knots=KNOTS, head_profile_slope_m=0.0, _head_shape=None,
+                           **{PREFIX + str(j): 0.0 for j in (1, 2, 3)}, **{SENSOR_PREFIX + "s2": 0.012})
+    names = ["ray_shift_m", "horizontal_shift_m", SENSOR_PREFIX + "s2"]
+    cov = np.array([[4.0, 0.0, 0.0], [0.0, 1.0, -0.5], [0.0, -0.5, 2.0]]) * 1e-6
+    rec = profile_record(prob, names, cov, 0.02)
+    assert rec["model"] == "constant" and rec["shift_m"] == [0.02] * 4
+    assert rec["per_sensor_shift_m"] == {"s2": 0.032}
+    # var(shift + departure) = 1 + 2 - 2 x 0.5 (mm^2)
+    assert rec["sigma_per_sensor_shift_m"]["s2"] == pytest.approx(np.sqrt(2.0) * 1e-3, abs=1e-5)
+    # without a kept departure or profile: no record
+    assert profile_record(prob, names[:2], cov[:2, :2], 0.02) is None
+    sim = simulate_logs("paper", seed=0, duration_s=10.0)
+    net = sim.calib.truth.copy()
+    net.extra[HEAD_MODEL_KEY] = {"vertical_offset_m": 0.0, "ray_shift_m": 0.0, "horizontal_shift_m": 0.02,
+                                 "horizontal_profile": rec}
+    back = read_sensors_yaml(write_sensors_yaml(net, tmp_path / "cal.yaml"))
+    assert back.extra[HEAD_MODEL_KEY]["horizontal_profile"]["per_sensor_shift_m"] == {"s2": 0.032}
