@@ -334,8 +334,11 @@ def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np
     b = np.zeros(k_all)
     b[idx + own] = -np.array([getattr(prob, nuis[j].name) for j in idx + own])
     g = -H @ step.dtheta + H @ b
+    # each row's residual change M = A Z - B (none when some nuisances joined the variables:
+    # their Z rows are gone, and the criteria fall back to the chi^2's)
     M = (np.asarray(step.A @ step.Z) - step.B.toarray()
-         if step.rho0 is not None and step.A is not None and step.B is not None else None)
+         if step.rho0 is not None and step.A is not None and step.B is not None
+         and step.A.shape[1] == step.Z.shape[0] else None)
 
     def best(cols):          # the nuisances' move to the best of ``cols`` (the rest of the profile at 0)
         T = np.eye(k_all)[:, cols]
