@@ -6,7 +6,16 @@ import pytest
 from pedcal import frames
 from pedcal.calib.common import interpolate_pose2
 from pedcal.sim import simulate_logs
-from pedcal.sim.nuisances import HEAD_KINDS, draw_nuisances, head_point, sensor_head_models, vary, zoo_families
+from pedcal.sim.nuisances import (
+    HEAD_KINDS,
+    RAMP_SHAPES,
+    draw_nuisances,
+    head_point,
+    ramp_share,
+    sensor_head_models,
+    vary,
+    zoo_families,
+)
 from pedcal.sim.robot import amcl_table
 from pedcal.sim.scenario import Scenario, load_scenario
 
@@ -120,6 +129,37 @@ def test_ramp_and_saturate_head_points_follow_horizontal_distance():
     # toward the sensor whatever its bearing
     d = head_point(TOP, np.array([[0.0, -0.5, 2.6]]), sc)[0] - TOP[0]
     np.testing.assert_allclose(d, [0.0, -0.03, 0.0], atol=1e-12)
+
+
+def test_a_ramps_shape_sets_how_its_change_spreads_over_the_distance():
+    x = np.array([0.0, 0.25, 0.5, 1.0, 2.0])
+    np.testing.assert_allclose(ramp_share(x, "linear"), [0.0, 0.25, 0.5, 1.0, 1.0])
+    np.testing.assert_allclose(ramp_share(x, "exp"), 1.0 - np.exp(-3.0 * x))
+    np.testing.assert_allclose(ramp_share(x, "smooth"), [0.0, 0.15625, 0.5, 1.0, 1.0])
+    # a saturating exp shift of 40 mm over 2 m: 95 % of it at 2 m, nearly all at 4 m
+    sat = Scenario().resolve(head_point="saturate", head_shift_m=0.04, head_ramp_m=2.0, head_ramp_shape="exp")
+    for d_h, mm in ((2.0, 40.0 * (1 - np.exp(-3.0))), (4.0, 40.0 * (1 - np.exp(-6.0)))):
+        got = head_point(TOP, np.array([[d_h, 0.0, 2.6]]), sat)[0] - TOP[0]
+        np.testing.assert_allclose(got, [mm / 1000, 0, 0], atol=1e-12)
+
+
+def test_the_zoo_draws_ramp_shapes_from_a_stream_of_their_own():
+    # the draws made before the shapes existed (paper, seeds 0-3) are unchanged
+    before = [("top", 0.031, 2.394, False, ["centroid", "ramp", "top", "dome"]),
+              ("ramp", 0.0361, 1.176, True, ["saturate", "top", "ramp", "ramp"]),
+              ("shift", 0.0515, 2.808, False, ["centroid", "ramp", "shift", "shift"]),
+              ("top", 0.0475, 1.351, False, ["ramp", "shift", "shift", "top"])]
+    for seed, (kind, shift, ramp, per_sensor, kinds) in enumerate(before):
+        sc = vary(load_scenario("paper").resolve(seed=seed), zoo=True)
+        assert (sc.head_point, round(sc.head_shift_m, 4), round(sc.head_ramp_m, 3), sc.per_sensor_head) == (
+            kind, shift, ramp, per_sensor)
+        assert [m.head_point for m in sensor_head_models(sc.resolve(per_sensor_head=True), 4)] == kinds
+    shapes = {vary(load_scenario("paper").resolve(seed=s), zoo=True).head_ramp_shape for s in range(30)}
+    assert shapes == set(RAMP_SHAPES)
+    per_sensor = sensor_head_models(vary(load_scenario("paper").resolve(seed=1), zoo=True), 10)
+    assert len({m.head_ramp_shape for m in per_sensor}) > 1
+    # without the zoo, the scenario's shape
+    assert vary(load_scenario("paper").resolve(seed=1)).head_ramp_shape == "linear"
 
 
 def test_zoo_leaves_the_classic_draw_alone_and_draws_every_alternative():

@@ -69,7 +69,14 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
-from pedcal.calib.headpoint import head_profile_nuisances, is_head_profile, record_head_profile, select_head_profile
+from pedcal.calib.headpoint import (
+    head_profile_nuisances,
+    is_head_profile,
+    record_head_profile,
+    row_clusters,
+    row_sensors,
+    select_head_profile,
+)
 from pedcal.calib.marginals import marginal_covariances
 from pedcal.calib.profile import (
     Columns,
@@ -447,7 +454,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         if select_profile and not chord:
             select_profile = False
             local = step.local
-            step, nuis, compared = select_head_profile(prob, step, nuis)
+            # the rows of the profile's system: the fixed blocks', the observations', the motion's
+            graphs = [fixed, parts.blocks["observations"]] + ([parts.blocks["motion"]] if odo else [])
+            n_rows = 0 if step.rho0 is None else len(step.rho0)
+            step, nuis, compared = select_head_profile(prob, step, nuis, folds=row_sensors(graphs, n_rows),
+                                                       clusters=row_clusters(graphs, prob.pose_times, n_rows))
             # (the offsets fitted with the path keep the joint step taken before the head profile's
             # choice; the next step's joint solve settles them under it)
             step.local = local

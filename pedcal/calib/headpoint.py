@@ -14,32 +14,45 @@ toward the sensor, :func:`head_profile_shift_sensor`), so they are nuisances of 
 graph's profile (:mod:`pedcal.calib.profile`) with the others, their covariance carried into
 the sensors'.
 
-How flexible the function is, the data decide (:func:`select_head_profile`): from the profile's
-first step (a quadratic in the nuisances) the chi^2 each model gains over the constant one -- a
-straight line in d (one parameter, c_j = a (d_j - d_0) / (d_m - d_0)) or the m hats -- against
-the Bayesian information criterion's penalty, k ln(n) for k parameters and n robot-observation
-factors; the constant wins a tie. The function is shared by every sensor (one tracker); a
-tracker per sensor, each with its own shift, is left to the model check.
+How flexible the function is, the data decide (:func:`select_head_profile`), among the constant,
+one-parameter shapes (:func:`shapes`: a line; a shift rising or fading from d_0 to an interior
+knot and flat beyond, which is how a tracker's pull saturates; flat to a knot and rising after)
+and the m free knots. Recipe ``cv``: each model is fitted on every sensor's observations but
+one's and judged by the chi^2 it takes off that one's (:func:`held_out_gain`, from the profile's
+rows: no re-solve), summed over the sensors; the simplest model within one standard error of the
+best is kept, a non-constant one only when its gain exceeds its own standard error. Recipe
+``bic``: the chi^2 each model gains over the constant (a likelihood ratio: the profile is
+quadratic for nuisances that enter linearly) against k ln(n), for k parameters and n
+robot-observation factors. Both report the score's overdispersion over 20 s blocks
+(:func:`overdispersion`), the check of the chi^2's noise scale. The function is shared by every
+sensor (one tracker).
 """
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 import scipy.sparse as sps
+from scipy.stats import norm
 
 from pedcal.calib.profile import Nuisance, ProfileStep
 from pedcal.errors import PedcalInputError
 
 PREFIX = "head_profile_m:"            # nuisance names: PREFIX + knot index (1..m)
-SLOPE = "head_profile_slope_m"        # the straight line's rise from d_0 to d_m (m)
-MODES = ("off", "bic", "linear", "knots")
+SENSOR_PREFIX = "head_shift_sensor_m:"  # a sensor's own departure from the shared shift: + sensor id
+SLOPE = "head_profile_slope_m"        # a one-parameter shape's amplitude (m; the line's rise from d_0 to d_m)
+MODES = ("off", "cv", "bic", "linear", "knots")
 STEP_M = 0.01                         # finite-difference step of the profile (they enter linearly)
 MIN_FACTORS = 100                     # fewer robot-observation factors: the constant shift only
+CLUSTER_S = 20.0                      # the residuals' clusters for the overdispersion: this long each
+MIN_SENSOR_FACTORS = 30              # fewer robot observations of a sensor: it keeps the shared shift
+FAMILY_ALPHA = 0.05                  # a sensor's own departure: its false-keep rate over all sensors
+MIN_CLUSTERS = 8                      # fewer clusters: no overdispersion estimate (taken as 1)
 KNOT_QUANTILES_END = 0.05             # the end knots at these quantiles of d (the ends are sparse)
 
 
 def is_head_profile(name: str) -> bool:
-    return name.startswith(PREFIX) or name == SLOPE
+    return name.startswith(PREFIX) or name.startswith(SENSOR_PREFIX) or name == SLOPE
 
 
 def horizontal_distance(p_sensor: np.ndarray, toward_sensor: np.ndarray) -> np.ndarray:
@@ -60,6 +73,12 @@ def hats(d_m: np.ndarray, knots_m: np.ndarray) -> np.ndarray:
 def line_of_knots(knots_m: np.ndarray) -> np.ndarray:
     """(m,) the knots' values c_1..c_m of a straight line rising by 1 from d_0 to d_m."""
     return (knots_m[1:] - knots_m[0]) / max(float(knots_m[-1] - knots_m[0]), 1e-9)
+
+
+def _shape(prob, knots_m: np.ndarray) -> tuple[str, np.ndarray]:
+    """The one-parameter shape the selection kept (name, (m,) knot values per unit of SLOPE;
+    :func:`shapes`), the line unless another was kept."""
+    return getattr(prob, "_head_shape", None) or ("linear", line_of_knots(knots_m))
 
 
 def _knots(prob) -> np.ndarray | None:
@@ -99,13 +118,29 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     if knots is None:
         return []
     c = np.array([getattr(prob, PREFIX + str(j), 0.0) for j in range(1, len(knots))])
-    c = c + getattr(prob, SLOPE, 0.0) * line_of_knots(knots)
+    c = c + getattr(prob, SLOPE, 0.0) * _shape(prob, knots)[1]
     prob.head_profile_slope_m = 0.0
     out = []
     for j in range(1, len(knots)):
         setattr(prob, PREFIX + str(j), float(c[j - 1]))
         out.append(Nuisance(PREFIX + str(j), 0.0, rec.head_profile_sigma_m, STEP_M))
+    if rec.head_profile_per_sensor:
+        # each sensor's own tracker: a departure from the shared shift, where it sees the robot enough
+        n_pose = len(prob.pose_times)
+        counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
+        for i, sid in enumerate(prob.sensor_ids):
+            if counts[i] >= MIN_SENSOR_FACTORS:
+                setattr(prob, SENSOR_PREFIX + sid, float(getattr(prob, SENSOR_PREFIX + sid, 0.0)))
+                out.append(Nuisance(SENSOR_PREFIX + sid, 0.0, rec.head_profile_sigma_m, STEP_M))
     return out
+
+
+def sensor_departures(prob, theta: dict | None = None) -> np.ndarray:
+    """(n_sensors,) each sensor's departure from the shared horizontal shift (m; 0 for one without
+    its own), ``theta`` overriding by name."""
+    theta = theta or {}
+    return np.array([float(theta.get(SENSOR_PREFIX + sid, getattr(prob, SENSOR_PREFIX + sid, 0.0)))
+                     for sid in prob.sensor_ids])
 
 
 def knot_values(prob, theta: dict | None = None) -> np.ndarray | None:
@@ -116,18 +151,141 @@ def knot_values(prob, theta: dict | None = None) -> np.ndarray | None:
         return None
     theta = theta or {}
     c = np.array([theta.get(PREFIX + str(j), getattr(prob, PREFIX + str(j), 0.0)) for j in range(1, len(knots))])
-    return c + float(theta.get(SLOPE, getattr(prob, SLOPE, 0.0))) * line_of_knots(knots)
+    return c + float(theta.get(SLOPE, getattr(prob, SLOPE, 0.0))) * _shape(prob, knots)[1]
 
 
 def head_profile_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
     """What the profile moves the robot-observation factors ``use`` by (sensor frame, m): the
-    point taken back toward the head top, -sum_j c_j phi_j(d) u (module docstring). 0 when no
-    profile is set."""
+    point taken back toward the head top, -(sum_j c_j phi_j(d) + delta_s) u (module docstring;
+    delta_s the observing sensor's own departure). 0 when no profile is set."""
     c = knot_values(prob, theta)
-    if c is None or not np.any(c):
+    if c is None:
+        return 0.0
+    own = sensor_departures(prob, theta)
+    if not np.any(c) and not np.any(own):
         return 0.0
     d = horizontal_distance(prob.fac_p_sensor[use], prob.fac_toward_sensor[use])
-    return -(hats(d, prob._head_knots)[:, 1:] @ c)[:, None] * prob.fac_toward_sensor[use]
+    shift = hats(d, prob._head_knots)[:, 1:] @ c + own[prob.fac_sensor_index[use]]
+    return -shift[:, None] * prob.fac_toward_sensor[use]
+
+
+def _row_labels(graphs, n_rows: int, label_of) -> np.ndarray:
+    """(n_rows,) a label for every row of the profile's linear system, whose rows are
+    ``graphs``' factors in order, each its dim() rows: ``label_of(symbols, previous)`` of the
+    factor's keys (as (char, index) pairs) and the label of the factor before it in its graph
+    (None for the first); rows beyond the graphs' (the local nuisances' priors) get -1."""
+    labels = np.full(n_rows, -1, np.int64)
+    row = 0
+    for graph in graphs:
+        previous = None
+        for i in range(graph.size()):
+            factor = graph.at(i)
+            symbols = [(chr(gtsam.Symbol(key).chr()), gtsam.Symbol(key).index()) for key in factor.keys()]
+            label = label_of(symbols, previous)
+            dim = int(factor.dim())
+            labels[row:row + dim] = label
+            row += dim
+            previous = label
+    return labels
+
+
+def row_clusters(graphs, pose_times: np.ndarray, n_rows: int, cluster_s: float = CLUSTER_S,
+                 people: bool = True) -> np.ndarray:
+    """(n_rows,) the time cluster of every row of the profile's system (:func:`_row_labels`): a
+    factor on a robot pose X(k) falls in the block of ``cluster_s`` seconds holding pose k, a
+    factor on a person L(m) in that person's cluster, any other in the cluster of the factor
+    before it in its graph (AMCL's error nodes between poses, in time order), else -1 (the
+    priors)."""
+    n_blocks = int(np.floor(float(pose_times[-1]) / cluster_s)) + 1 if len(pose_times) else 1
+
+    def label_of(symbols, previous):
+        for c, k in symbols:
+            if c == "x" and k < len(pose_times):
+                return int(np.floor(float(pose_times[k]) / cluster_s))
+        for c, k in symbols:
+            if c == "l":
+                return n_blocks + int(k) if people else -1
+        return -1 if previous is None else previous
+    return _row_labels(graphs, n_rows, label_of)
+
+
+def row_sensors(graphs, n_rows: int) -> np.ndarray:
+    """(n_rows,) the sensor index i of every row of the profile's system whose factor holds a
+    sensor's pose S(i) (its prior, its observations of the robot and of people), -1 for the
+    others (AMCL, motion, the head point's prior)."""
+    def label_of(symbols, previous):
+        return next((int(k) for c, k in symbols if c == "s"), -1)
+    return _row_labels(graphs, n_rows, label_of)
+
+
+def _efficient_rows(step: ProfileStep, nuis: list[Nuisance], extra: list[int],
+                    others: list[int] | None = None) -> np.ndarray:
+    """(rows, len(extra)) each row's residual change with the ``extra`` nuisances, the variables
+    and the other nuisances profiled out: M = A Z - B (the variables profiled), then the other
+    nuisances' columns projected out with the data's Hessian, m_i = M_i,e - M_i,o H_oo^-1 H_oe,
+    so that sum_i m_i m_i^T is the extra nuisances' information given the others (their priors
+    left out) and sum_i m_i rho_i their efficient score. ``others``: the nuisances profiled out
+    (default every one not extra; the rest are held)."""
+    M = np.asarray(step.A @ step.Z) - step.B.toarray()
+    H = step.hessian - np.diag([1.0 / n.prior_sigma ** 2 for n in nuis])
+    if others is None:
+        others = [j for j in range(len(nuis)) if j not in extra]
+    if not others:
+        return M[:, extra]
+    W = np.linalg.solve(H[np.ix_(others, others)], H[np.ix_(others, extra)])
+    return M[:, extra] - M[:, others] @ W
+
+
+def overdispersion(m: np.ndarray, rho: np.ndarray, clusters: np.ndarray) -> float:
+    """How much the residuals scatter the efficient score of rows ``m`` (:func:`_efficient_rows`)
+    beyond what the noise model says: phi = tr(S^-1 V) / k, S = sum_i m_i m_i^T the model's
+    information, V the score's empirical covariance over the residuals' ``clusters`` (errors
+    correlated within a time block, such as AMCL's wander, scatter the score as whole blocks):
+    each row's share m_i rho_i summed per cluster, centred, times C / (C - 1). 1 when the noise
+    model holds; nan with fewer than MIN_CLUSTERS clusters (rows labelled -1 left out). A
+    diagnostic of the chi^2's noise scale, reported beside the selection."""
+    keep = clusters >= 0
+    labels, cl = np.unique(clusters[keep], return_inverse=True)
+    if len(labels) < MIN_CLUSTERS:
+        return float("nan")
+    U = np.zeros((len(labels), m.shape[1]))
+    np.add.at(U, cl, m[keep] * rho[keep, None])
+    U -= U.mean(axis=0)
+    V = U.T @ U * len(labels) / (len(labels) - 1)
+    return float(np.trace(np.linalg.solve(m.T @ m, V)) / m.shape[1])
+
+
+def held_out_gain(m: np.ndarray, rho: np.ndarray, folds: np.ndarray, prior_info: np.ndarray) -> np.ndarray:
+    """Per fold f (each label >= 0 of ``folds``, in order), the chi^2 its rows lose when the
+    extra parameters (rows ``m``, (n, k); residuals ``rho`` with the parameters at 0) take the
+    step the other rows fit, under prior information ``prior_info`` (k, k): with
+    g_f = sum_f m_i rho_i, H_f = sum_f m_i m_i^T and g, H the sums over every row, the step
+    Delta = -(H - H_f + P)^-1 (g - g_f) and the held-out gain
+    -(2 Delta^T g_f + Delta^T H_f Delta) = |rho_f|^2 - |rho_f + m_f Delta|^2. Rows labelled -1
+    always fit. Positive: the shape fitted elsewhere predicts the held-out rows."""
+    g_all = m.T @ rho
+    H_all = m.T @ m
+    out = []
+    for f in np.unique(folds[folds >= 0]):
+        r = folds == f
+        g_f = m[r].T @ rho[r]
+        H_f = m[r].T @ m[r]
+        delta = -np.linalg.solve(H_all - H_f + prior_info, g_all - g_f)
+        out.append(-(2.0 * delta @ g_f + delta @ H_f @ delta))
+    return np.array(out)
+
+
+def shapes(knots_m: np.ndarray) -> dict[str, np.ndarray]:
+    """The one-parameter shapes of the shift against distance, as (m,) knot values c_1..c_m per
+    unit of amplitude: ``linear`` (from d_0 to d_m), ``saturating@D`` (from d_0 to the interior
+    knot D, flat beyond: a shift that grows, or fades, with distance and then stays) and
+    ``onset@D`` (flat to D, then linear to d_m)."""
+    d = np.asarray(knots_m, float)
+    out = {"linear": line_of_knots(d)}
+    for h in range(1, len(d) - 1):
+        out[f"saturating@{d[h]:.2f}"] = (np.minimum(d[1:], d[h]) - d[0]) / (d[h] - d[0])
+        out[f"onset@{d[h]:.2f}"] = np.maximum(d[1:] - d[h], 0.0) / (d[-1] - d[h])
+    return out
 
 
 def _reduced(step: ProfileStep, T: np.ndarray, b: np.ndarray) -> ProfileStep:
@@ -142,71 +300,158 @@ def _reduced(step: ProfileStep, T: np.ndarray, b: np.ndarray) -> ProfileStep:
                        B=None if step.B is None else sps.csc_matrix(step.B @ sps.csc_matrix(T)))
 
 
-def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance]) -> tuple[ProfileStep, list[Nuisance], dict]:
-    """The profile step and nuisances with the head profile the data support (recipe
-    ``head_profile``: bic compares the constant shift, a line and the knots by chi^2 - k ln(n);
-    linear keeps the line; knots keeps the knots), from a step that holds the knots' departures.
-    The chi^2 are the profile's decrease from the knots at 0 (the constant shift): a likelihood
-    ratio, the quadratic profile being exact for nuisances that enter linearly. Returns (step,
-    nuisances, what was compared: model -> (chi^2, penalty), and the model chosen)."""
+def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np.ndarray | None = None,
+                        clusters: np.ndarray | None = None) -> tuple[ProfileStep, list[Nuisance], dict]:
+    """The profile step and nuisances with the head profile the data support, from a step that
+    holds the knots' departures (and, with ``head_profile_per_sensor``, each sensor's own
+    departure delta_s). Recipe ``head_profile``: ``cv`` compares the constant shift, the
+    one-parameter shapes (:func:`shapes`) and the free knots by how well each, fitted without
+    one sensor's rows (``folds``, :func:`row_sensors`), predicts that sensor's
+    (:func:`held_out_gain`, summed over the sensors, with its standard error from their
+    spread), and keeps the simplest model within one standard error of the best, a model other
+    than the constant only when its gain exceeds its own standard error. A sensor's own
+    departure is kept when, fitted without one time block (``clusters``, :func:`row_clusters`),
+    it predicts that block's rows, summed over the blocks, by more than z standard errors (z at
+    a one-sided FAMILY_ALPHA family-wise level over the sensors): one sensor at a time, the best
+    first, the others judged again with it free. ``bic`` compares the chi^2 each model gains
+    against k ln(n) for k parameters and n robot-observation factors (the constant wins a tie; a
+    sensor's departure against ln(n)); ``linear`` keeps the line, ``knots`` the knots (and both
+    every sensor's departure). The chi^2 are the profile's decrease from the profile at 0 (the
+    constant shift): a likelihood ratio, the quadratic profile being exact for nuisances that
+    enter linearly. Returns (step, nuisances, what was compared: model -> (chi^2, penalty) for
+    bic or (held-out gain, its standard error) for cv, "sensors" -> sensor id -> (gain, the bar
+    it had to pass) at its last judgement, the model chosen, and the residuals'
+    overdispersion over the time ``clusters`` (:func:`overdispersion`))."""
     idx = [j for j, n in enumerate(nuis) if n.name.startswith(PREFIX)]
+    own = [j for j, n in enumerate(nuis) if n.name.startswith(SENSOR_PREFIX)]
     if not idx:
         return step, nuis, {}
     knots = prob._head_knots
     k_all = len(nuis)
-    others = [j for j in range(k_all) if j not in idx]
+    rest = [j for j in range(k_all) if j not in idx and j not in own]      # the other nuisances
     H = step.hessian
-    # the knots moved back to 0 (b), then each model's best step from there
+    # the profile moved back to 0 (b), then each model's best step from there
     b = np.zeros(k_all)
-    b[idx] = -np.array([getattr(prob, nuis[j].name) for j in idx])
+    b[idx + own] = -np.array([getattr(prob, nuis[j].name) for j in idx + own])
     g = -H @ step.dtheta + H @ b
+    # each row's residual change M = A Z - B (none when some nuisances joined the variables:
+    # their Z rows are gone, and the criteria fall back to the chi^2's)
+    M = (np.asarray(step.A @ step.Z) - step.B.toarray()
+         if step.rho0 is not None and step.A is not None and step.B is not None
+         and step.A.shape[1] == step.Z.shape[0] else None)
+
+    def best(cols):          # the nuisances' move to the best of ``cols`` (the rest of the profile at 0)
+        T = np.eye(k_all)[:, cols]
+        return b - T @ np.linalg.solve(T.T @ H @ T, T.T @ g)
 
     def chi2(T):
         return float((T.T @ g) @ np.linalg.solve(T.T @ H @ T, T.T @ g))
 
-    T0 = np.eye(k_all)[:, others]
-    line = np.zeros((k_all, 1))
-    line[idx, 0] = line_of_knots(knots)
-    T1 = np.column_stack([T0[:, :idx[0]], line, T0[:, idx[0]:]])      # the line where the knots were
-    base = chi2(T0)
-    n = max(int(np.sum(prob.fac_key_index < len(prob.pose_times))), 2)
-    compared = {"constant": (0.0, 0.0), "linear": (chi2(T1) - base, float(np.log(n))),
-                "knots": (chi2(np.eye(k_all)) - base, float(len(idx) * np.log(n)))}
     mode = prob.recipe.head_profile
-    if mode == "bic":
-        mode = max(("constant", "linear", "knots"), key=lambda m: compared[m][0] - compared[m][1])
+    compared: dict = {}
+    n = max(int(np.sum(prob.fac_key_index < len(prob.pose_times))), 2)
+    info = 1.0 / prob.recipe.head_profile_sigma_m ** 2
+    time_folds = clusters is not None and M is not None and len(clusters) == len(step.rho0)
+    # each sensor's own departure against the shared profile, forward: the best supported one
+    # joins, then the others are judged again with it free (the knots free, the shift shared by
+    # the sensors without one of their own; the departures not yet kept held at 0: with every
+    # one free, a sensor's and the shared shift would be one direction)
+    kept_own = [] if own and mode in ("cv", "bic") else list(own)
+    if own and mode in ("cv", "bic"):
+        compared["sensors"] = {}
+        # the held-out gain's bar: z standard errors, z the one-sided 5 % family-wise level over
+        # the sensors (Bonferroni), so that sensors without a tracker of their own rarely get one
+        z_bar = float(norm.ppf(1.0 - FAMILY_ALPHA / len(own)))
+        while True:
+            others = rest + idx + kept_own
+            T = np.eye(k_all)[:, others]
+            verdicts = {}
+            for j in (j for j in own if j not in kept_own):
+                if mode == "cv" and time_folds:
+                    m = _efficient_rows(step, nuis, [j], others)
+                    gains = held_out_gain(m, step.rho0 + M @ best(others), clusters, np.array([[info]]))
+                    verdicts[j] = (float(gains.sum()), z_bar * float(np.sqrt(len(gains)) * np.std(gains, ddof=1)))
+                else:
+                    verdicts[j] = (chi2(np.eye(k_all)[:, sorted(others + [j])]) - chi2(T), float(np.log(n)))
+                compared["sensors"][nuis[j].name[len(SENSOR_PREFIX):]] = verdicts[j]
+            passing = [j for j, (gain, bar) in verdicts.items() if gain > bar]
+            if not passing:
+                break
+            kept_own.append(max(passing, key=lambda j: verdicts[j][0] - verdicts[j][1]))
+        kept_own.sort()
+    others = sorted(rest + kept_own)
+    at = sum(j < idx[0] for j in others)      # the shape's columns go where the knots were
+
+    def with_shape(L):
+        T = np.zeros((k_all, len(others) + L.shape[1]))
+        T[others, :] = np.delete(np.eye(len(others) + L.shape[1]), range(at, at + L.shape[1]), axis=0)
+        T[idx, at:at + L.shape[1]] = L
+        return T
+
+    models = {"constant": np.zeros((len(idx), 0)), **{n: v[:, None] for n, v in shapes(knots).items()},
+              "knots": np.eye(len(idx))}
+    T0 = with_shape(models["constant"])
+    rho = None
+    if M is not None:
+        m_rows = _efficient_rows(step, nuis, idx, others)
+        rho = step.rho0 + M @ best(others)      # the knots at 0, the others at their best there
+        if time_folds:
+            compared["overdispersion"] = overdispersion(m_rows, rho, clusters)
+    cv = (mode == "cv" and rho is not None and folds is not None and len(folds) == len(rho)
+          and len(np.unique(folds[folds >= 0])) >= 3)
+    if cv:
+        for name, L in models.items():
+            gains = held_out_gain(m_rows @ L, rho, folds, info * L.T @ L) if L.shape[1] else np.zeros(3)
+            compared[name] = (float(gains.sum()), float(np.sqrt(len(gains)) * np.std(gains, ddof=1)))
+        top = max(models, key=lambda name: compared[name][0])
+        # the simplest within one standard error of the best (the line before the bent shapes,
+        # the knots last), the constant unless a model's gain exceeds its own standard error
+        floor = compared[top][0] - compared[top][1]
+        fits = [name for name in models if compared[name][0] >= floor
+                and (name == "constant" or compared[name][0] > compared[name][1])]
+        mode = fits[0] if fits else "constant"
+    elif mode in ("bic", "cv"):
+        # (cv without its folds: fewer than three sensors' rows, or no residuals)
+        base = chi2(T0)
+        for name, L in models.items():
+            compared[name] = (chi2(with_shape(L)) - base, float(L.shape[1] * np.log(n)))
+        mode = max(models, key=lambda name: compared[name][0] - compared[name][1])
     compared["chosen"] = mode
-    if mode == "knots":
-        return step, nuis, compared
-    for j in idx:            # the knots start again from nothing (their move is in b)
+    for j in idx + own:      # the profile starts again from nothing (its move is in b)
         setattr(prob, nuis[j].name, 0.0)
     prob.head_profile_slope_m = 0.0
-    if mode == "constant":
-        return _reduced(step, T0, b), [nuis[j] for j in others], compared
-    # the line's rise a, each knot a L_j of prior sigma s: its prior sigma s / |L|, the one the
-    # restricted Hessian T^T H T carries
-    sigma = prob.recipe.head_profile_sigma_m / max(float(np.linalg.norm(line)), 1e-9)
-    slope = Nuisance(SLOPE, 0.0, sigma, STEP_M)
-    return _reduced(step, T1, b), [nuis[j] for j in others if j < idx[0]] + [slope] + [
-        nuis[j] for j in others if j > idx[0]], compared
+    prob._head_shape = None
+    L = models[mode]
+    reduced = _reduced(step, with_shape(L), b)
+    kept = [nuis[j] for j in others]
+    if mode in ("constant", "knots"):
+        return reduced, kept[:at] + [nuis[j] for j in idx if mode == "knots"] + kept[at:], compared
+    # the shape's amplitude a, each knot a L_j of prior sigma s: its prior sigma s / |L|, the
+    # one the restricted Hessian T^T H T carries
+    prob._head_shape = (mode, L[:, 0])
+    sigma = prob.recipe.head_profile_sigma_m / max(float(np.linalg.norm(L)), 1e-9)
+    return reduced, kept[:at] + [Nuisance(SLOPE, 0.0, sigma, STEP_M)] + kept[at:], compared
 
 
 def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: float) -> dict | None:
     """The estimated horizontal shift at the knots, for the calibrated YAML's head model:
     {model, distance_m, shift_m, sigma_shift_m}, the shift at d_j being the constant shift plus
-    c_j, its sigma from the profile's covariance ``cov`` (in ``names`` order). None when the
-    data kept the constant shift."""
+    c_j, its sigma from the profile's covariance ``cov`` (in ``names`` order), and with sensors'
+    own departures kept, per_sensor_shift_m and sigma_per_sensor_shift_m (sensor id -> the
+    shared shift plus the sensor's departure, at d_0). None when the data kept the constant
+    shift for every sensor."""
     knots = getattr(prob, "_head_knots", None)
     c = knot_values(prob)
     if knots is None or c is None:
         return None
     names = list(names)
+    own = [n for n in names if n.startswith(SENSOR_PREFIX)]
     if not any(is_head_profile(n) for n in names) or "horizontal_shift_m" not in names:
         return None
     # each knot's shift as a linear map of the nuisances: e_hs + (e_{c_j} or L_j e_slope)
     J = np.zeros((len(knots), len(names)))
     J[:, names.index("horizontal_shift_m")] = 1.0
-    line = line_of_knots(knots)
+    model, line = _shape(prob, knots)
     for j in range(1, len(knots)):
         if PREFIX + str(j) in names:
             J[j, names.index(PREFIX + str(j))] = 1.0
@@ -214,8 +459,19 @@ def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: 
             J[j, names.index(SLOPE)] = line[j - 1]
     sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
     shift = horizontal_shift_m + np.r_[0.0, c]
-    return {"model": "linear" if SLOPE in names else "knots", "distance_m": [round(float(v), 4) for v in knots],
-            "shift_m": [round(float(v), 5) for v in shift], "sigma_shift_m": [round(float(v), 5) for v in sigma]}
+    model = model if SLOPE in names else "knots" if any(n.startswith(PREFIX) for n in names) else "constant"
+    out = {"model": model, "distance_m": [round(float(v), 4) for v in knots],
+           "shift_m": [round(float(v), 5) for v in shift], "sigma_shift_m": [round(float(v), 5) for v in sigma]}
+    if own:
+        J = np.zeros((len(own), len(names)))
+        J[:, names.index("horizontal_shift_m")] = 1.0
+        J[np.arange(len(own)), [names.index(n) for n in own]] = 1.0
+        sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
+        ids = [n[len(SENSOR_PREFIX):] for n in own]
+        out["per_sensor_shift_m"] = {sid: round(float(horizontal_shift_m + getattr(prob, n)), 5)
+                                     for sid, n in zip(ids, own, strict=True)}
+        out["sigma_per_sensor_shift_m"] = {sid: round(float(v), 5) for sid, v in zip(ids, sigma, strict=True)}
+    return out
 
 
 PER_SENSOR_HEIGHT_NOTE = ("A tracker whose head point sits higher or lower for one sensor than for the others "
@@ -246,5 +502,6 @@ def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["record_head_profile", "head_profile_nuisances", "head_profile_shift_sensor", "select_head_profile",
-           "profile_record", "is_head_profile", "hats", "horizontal_distance", "shift_at", "line_of_knots",
+           "profile_record", "is_head_profile", "hats", "horizontal_distance", "shift_at", "line_of_knots", "shapes",
+           "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
            "knot_values"]

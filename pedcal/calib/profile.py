@@ -192,13 +192,14 @@ class ProfileStep:
     A: sps.csr_matrix | None = None
     B: sps.csc_matrix | None = None
     local: LocalProfile | None = None   # the nuisances profiled locally (``profile_step``'s ``local``)
+    rho0: np.ndarray | None = None      # the profile residual at theta (A's rows), of a full step
 
     def select(self, keep: np.ndarray) -> ProfileStep:
         """The step restricted to the nuisances ``keep`` (their Hessian's rows and columns, Z's
         and B's columns; dtheta as it was: the caller takes its own)."""
         return ProfileStep(dtheta=self.dtheta[keep], hessian=self.hessian[np.ix_(keep, keep)], z0=self.z0,
                            Z=self.Z[:, keep], cols=self.cols, order=self.order, A=self.A,
-                           B=None if self.B is None else self.B[:, keep], local=self.local)
+                           B=None if self.B is None else self.B[:, keep], local=self.local, rho0=self.rho0)
 
     @property
     def covariance(self) -> np.ndarray:
@@ -428,6 +429,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                            order=order, A=A, B=B)
     grad = _residual_change_t(step, rho0) + info @ (theta[:k_exact] - mean)
     step.dtheta = -np.linalg.solve(step.hessian, grad)
+    step.rho0 = rho0
     if m_local:
         # the local nuisances' step: the joint optimum's at the exact ones' step; their sigma and
         # their sensors' sensitivity from their own profiles (the path held)

@@ -8,9 +8,10 @@ scale or drifting in heading; a latency of 0-0.3 s; depth noise linear or quadra
 
 ``--vary-nuisances zoo`` draws, besides, from a stream of its own (so the classic draw of a seed
 is unchanged): head points whose shift toward the sensor ramps down or saturates with horizontal
-distance, a head model per sensor (each sensor running its own tracker), per-sensor clock
-offsets (+-0.15 s) and skews, mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched
-10-25 deg and AMCL relocalizations (0.4 m held for 10 s).
+distance (linearly, exponentially or smoothly: the shape from a stream of its own), a head model
+per sensor (each sensor running its own tracker), per-sensor clock offsets (+-0.15 s) and skews,
+mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched 10-25 deg and AMCL
+relocalizations (0.4 m held for 10 s).
 """
 
 from __future__ import annotations
@@ -57,6 +58,26 @@ def dome_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, head_radius_m: f
     return centre + head_radius_m * u / np.linalg.norm(u, axis=1, keepdims=True)
 
 
+RAMP_SHAPES = ("linear", "exp", "smooth")
+
+
+def ramp_share(x: np.ndarray, shape: str) -> np.ndarray:
+    """The share of a ``ramp`` or ``saturate`` head point's change done at x = d / head_ramp_m
+    (Scenario.head_ramp_shape): linear min(x, 1), exp 1 - exp(-3 x), smooth 3 x^2 - 2 x^3 on
+    min(x, 1)."""
+    x = np.maximum(np.asarray(x, float), 0.0)
+    if shape == "exp":
+        return 1.0 - np.exp(-3.0 * x)
+    c = np.minimum(x, 1.0)
+    return c * c * (3.0 - 2.0 * c) if shape == "smooth" else c
+
+
+def _ramp_shape(seed: int, i: int) -> str:
+    """A ramp's shape drawn from a stream of its own (seed, i: the sensor, -1 the shared model),
+    so that adding it left every other draw of the zoo as it was."""
+    return str(np.random.default_rng(np.random.SeedSequence([seed, 0x5A9E, i + 1])).choice(RAMP_SHAPES))
+
+
 def head_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, sc: Scenario) -> np.ndarray:
     """The point a tracker reports for heads whose tops are at ``p_top_world`` (N, 3), seen from
     sensors at ``sensor_pos`` (N, 3), under the scenario's ``head_point`` model plus its
@@ -73,7 +94,7 @@ def head_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, sc: Scenario) ->
     elif kind in ("shift", "ramp", "saturate"):
         # the shift toward the sensor against horizontal distance: constant, ramping down to
         # nothing at head_ramp_m, or growing to head_shift_m there and saturating
-        frac = np.clip(d_h / sc.head_ramp_m, 0.0, 1.0) if kind != "shift" else np.ones_like(d_h)
+        frac = ramp_share(d_h / sc.head_ramp_m, sc.head_ramp_shape) if kind != "shift" else np.ones_like(d_h)
         shift = sc.head_shift_m * (1.0 - frac if kind == "ramp" else frac)
         out = p + np.column_stack([shift * u_h, np.zeros(len(p))])
     elif kind == "centroid":
@@ -104,7 +125,7 @@ def sensor_head_models(sc: Scenario, n: int) -> list[Scenario]:
     if not sc.per_sensor_head:
         return [sc] * n
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x4EAD]))
-    return [sc.resolve(**_draw_head(rng)) for _ in range(n)]
+    return [sc.resolve(**_draw_head(rng), head_ramp_shape=_ramp_shape(sc.seed, i)) for i in range(n)]
 
 
 def sensor_clocks(sc: Scenario, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -169,13 +190,14 @@ def vary(sc: Scenario, zoo: bool = False) -> Scenario:
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED]))
     out = sc.resolve(**draw_nuisances(rng))
     if zoo:
-        out = out.resolve(**draw_zoo(np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED, 2]))))
+        out = out.resolve(**draw_zoo(np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED, 2]))),
+                          head_ramp_shape=_ramp_shape(sc.seed, -1))
     return out
 
 
 def head_model_truth(sc: Scenario) -> str:
     """A one-line description of the scenario's head-point model."""
-    ramp = f"{1000 * sc.head_shift_m:.0f} mm over {sc.head_ramp_m:.1f} m"
+    ramp = f"{1000 * sc.head_shift_m:.0f} mm over {sc.head_ramp_m:.1f} m ({sc.head_ramp_shape})"
     detail = {"dome": f"radius {1000 * sc.head_radius_m:.0f} mm", "shift": f"{1000 * sc.head_shift_m:.0f} mm",
               "ramp": ramp, "saturate": ramp,
               "centroid": f"top {1000 * CENTROID_CAP_M:.0f} mm of a {1000 * HEAD_SPHERE_M:.0f} mm head",
@@ -197,4 +219,4 @@ def sensor_truth(sc: Scenario, ids: list[str]) -> dict:
 
 
 __all__ = ["head_point", "dome_point", "draw_nuisances", "draw_zoo", "vary", "head_model_truth", "sensor_clocks",
-           "sensor_head_models", "sensor_truth", "zoo_families", "HEAD_KINDS"]
+           "sensor_head_models", "sensor_truth", "zoo_families", "HEAD_KINDS", "RAMP_SHAPES", "ramp_share"]

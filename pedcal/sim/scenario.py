@@ -24,6 +24,7 @@ DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
 CHOICES = {"layout": ("grid", "corridor", "cross", "lhall"),
            "head_point": ("top", "dome", "shift", "centroid", "ramp", "saturate"),
+           "head_ramp_shape": ("linear", "exp", "smooth"),
            "amcl_error": ("white", "correlated", "jumps"), "depth_noise_model": ("quadratic", "linear")}
 
 
@@ -145,6 +146,11 @@ class Scenario:
     up."""
     head_ramp_m: float = 2.0
     """Horizontal distance (m) over which the ``ramp`` and ``saturate`` head points change."""
+    head_ramp_shape: str = "linear"
+    """How the ``ramp`` and ``saturate`` head points change over head_ramp_m, as the share f(x)
+    of the change at x = d / head_ramp_m: ``linear`` (f = x, clipped to 1), ``exp`` (f = 1 -
+    exp(-3 x): 95 % at head_ramp_m, approaching all of it beyond) or ``smooth`` (f = 3 x^2 - 2
+    x^3, clipped: flat at both ends)."""
     per_sensor_head: bool = False
     """Each sensor runs its own tracker: its head point model (any of head_point's kinds) and
     its horizontal parameters (radius, shift, ramp) are drawn per sensor from the seed; the
