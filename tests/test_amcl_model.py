@@ -141,6 +141,21 @@ def test_track_jumps_stay_left_out_where_no_sensor_saw_the_robot():
     assert np.array_equal(model.excluded, on) and model.jumps == 1
 
 
+@pytest.mark.parametrize("assumed_tau_s", [5.0, 40.0])
+def test_a_white_error_keeps_the_assumed_correlation_time(assumed_tau_s):
+    # residuals with no wandering part say nothing of a correlation time (the fit's is any point
+    # of a flat cost), which weighs AMCL's heading: the assumed one is kept, not the fit's
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 300.0, 0.2)
+    e = rng.normal(0.0, 0.03, (len(t), 2))
+    seen = [np.flatnonzero((t > a) & (t < a + 20.0)) for a in range(0, 300, 30)]
+    assumed = AmclErrorModel(white_sigma_m=0.01, correlated_sigma_m=0.05, correlation_s=assumed_tau_s)
+    model = estimate_model(t, [(rows, e[rows]) for rows in seen], assumed, min_covered=10)
+    assert model.source == "estimated" and model.correlated_sigma_m == 0.0
+    assert model.white_sigma_m == pytest.approx(0.03, rel=0.1)
+    assert model.correlation_s == assumed_tau_s
+
+
 @pytest.mark.parametrize("kind", ["white", "correlated"])
 def test_the_graph_estimates_the_kind_of_amcl_error_it_was_given(kind):
     sim = simulate_logs("paper", seed=2, amcl_error=kind)

@@ -321,6 +321,11 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
         return assumed
     white, corr, tau = fit
     white = max(white, min_white_m)
+    if corr <= 0.0:
+        # no wandering part in the data: its correlation time is not told by them (the fit's is
+        # any point of a flat cost, moved by rounding), and the heading's weight depends on it
+        # (graph._amcl_block); the assumed one is kept
+        tau = assumed.correlation_s
     track = np.zeros(n, bool) if assumed.track_jumps is None else assumed.track_jumps
     return AmclErrorModel(white_sigma_m=white, correlated_sigma_m=corr, correlation_s=tau, source="estimated",
                           **_exclusion(jump, track, t_amcl),
