@@ -1378,8 +1378,11 @@ def test_ctrl_c_at_start_up_is_one_line_and_130(case, delay_s):
 
     out = case.parent / "out" / "c.yaml"
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    # started with Ctrl-C's default disposition, as from a terminal, whatever this test run's is (a
+    # run in the background inherits SIGINT ignored, which the command rightly keeps ignoring)
     proc = subprocess.Popen([sys.executable, "-m", "pedcal.cli", "calibrate", str(case / "log"), "-o", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(delay_s)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
