@@ -123,8 +123,9 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
                                         gauss_newton_step=not profiled,
                                         relative_error_tol=1e-3 if resolve else None)
-    _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
-                   f"{fg.error(result):.1f}")
+    if progress:        # (the errors cost two passes over the graph: not when nobody reads them)
+        _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
+                       f"{fg.error(result):.1f}")
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
