@@ -129,8 +129,10 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
+    # (the AMCL model's re-solve rebuilds the graph: this pass's graph at its result is not built)
     shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
-                                   tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve)
+                                 tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve,
+                                 final_graph=not resolve)
     if resolve:
         # AMCL's error model from the residuals of a solution with the head model estimated (a
         # wrong head model leaves per-sensor offsets that look like a wandering AMCL), then the
@@ -307,7 +309,7 @@ def people_misfit(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
 
 @dataclass
 class _Nuisances:
-    graph: gtsam.NonlinearFactorGraph
+    graph: gtsam.NonlinearFactorGraph | None     # (None when not asked for: ``final_graph``)
     result: gtsam.Values
     cov: np.ndarray               # (k, k) covariance of the nuisances (in ``names`` order, their units squared)
     sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(nuisance), per unit
@@ -340,7 +342,7 @@ def _profiled(rec: GraphRecipe) -> bool:
 
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
                         max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
-                        odometry: bool = False) -> _Nuisances | None:
+                        odometry: bool = False, final_graph: bool = True) -> _Nuisances | None:
     """The nuisances that enter the measurements, by their profile likelihood on the linearized
     graph (pedcal.calib.profile): the head point's shift toward the sensor along the ray (a range
     offset of every observation; a dome's radius), horizontally (a point pulled toward the sensor
@@ -355,7 +357,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
     profile's inverse Hessian and the variables' sensitivity to them carries it into the
     sensors' covariance: the marginal over the nuisances, not the conditional. ``parts`` gets
-    the observation and motion blocks at the final values; ``curvature=False`` leaves the
+    the observation and motion blocks at the final values, and the result its graph, unless
+    ``final_graph`` is False (a pass whose graph the caller rebuilds: the blocks are left at the
+    last step's linearization point, the result's graph None); ``curvature=False`` leaves the
     curvature out (a first, rough pass).
 
     Above ``clock_offsets_joint_max`` per-sensor clock offsets, they join the linear system as
@@ -478,9 +482,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                            f"{1000 * np.median(np.abs(theta_local)):.1f} ms, median sigma "
                            f"{1000 * np.median(np.sqrt(loc.variance)):.1f} ms, largest step {ratio.max():.2f} sigma")
         result = retract_flat(result, delta, cols)
-        parts.blocks["observations"] = observation_block(log, prob, result)
-        if odo:
-            parts.blocks["motion"] = motion_block(log, prob)
+        if final_graph or not (converged or n_step == max_steps):
+            parts.blocks["observations"] = observation_block(log, prob, result)
+            if odo:
+                parts.blocks["motion"] = motion_block(log, prob)
         if converged:
             break
     if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
@@ -495,7 +500,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         cov[:k, :k] = step.covariance
         cov[np.arange(k, len(cov)), np.arange(k, len(cov))] = step.local.variance
         local = (local_sensors, step.local.Z)
-    return _Nuisances(parts.graph(), result, cov, sens, n_step, names=names + local_names, local=local,
+    return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names, local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]))
 
