@@ -225,19 +225,29 @@ def test_unit3_basis_is_gtsams():
     assert np.allclose(np.stack([b1, b2], axis=-1), theirs, atol=1e-12)
 
 
-def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
-    # B from the numpy right-hand side (exact weights) against B from rebuilt GTSAM factors
-    # (weights quantized to 0.1 %): the same step to a small fraction of its sigma
-    from pedcal.calib.graph import ObservationRhs, S
-    from pedcal.calib.profile import Nuisance, profile_step
+def _shift_profile(prob, parts):
+    """The factors the head point's shifts do not enter (all blocks but the observations) and the
+    two shifts as nuisances of the recipe's priors."""
+    from pedcal.calib.profile import Nuisance
 
-    sim, prob, parts, result = dome_paper
     rec = prob.recipe
     fixed = gtsam.NonlinearFactorGraph()
     for name in ("sensors", "amcl", "motion"):
         fixed.push_back(parts.blocks[name])
-    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
-            Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m)]
+    return fixed, [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
+                   Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m,
+                            rec.head_ray_shift_step_m)]
+
+
+def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
+    # B from the numpy right-hand side (exact weights) against B from rebuilt GTSAM factors
+    # (weights quantized to 0.1 %): the same step to a small fraction of its sigma
+    from pedcal.calib.graph import ObservationRhs, S
+    from pedcal.calib.profile import profile_step
+
+    sim, prob, parts, result = dome_paper
+    rec = prob.recipe
+    fixed, nuis = _shift_profile(prob, parts)
     names = [n.name for n in nuis]
     theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m])
     rhs = ObservationRhs(sim.calib, prob, result)
@@ -444,15 +454,11 @@ def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper):
     # a chord step solves z0 by conjugate gradients preconditioned with the full step's
     # factorization: the same step as with a factorization of its own
     from pedcal.calib.graph import ObservationRhs
-    from pedcal.calib.profile import Nuisance, profile_step, retract_flat
+    from pedcal.calib.profile import profile_step, retract_flat
 
     sim, prob, parts, result = dome_paper
     rec = prob.recipe
-    fixed = gtsam.NonlinearFactorGraph()
-    for name in ("sensors", "amcl", "motion"):
-        fixed.push_back(parts.blocks[name])
-    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
-            Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m)]
+    fixed, nuis = _shift_profile(prob, parts)
     names = [n.name for n in nuis]
     cols = Columns.of(result)
     p = copy.copy(prob)
@@ -460,7 +466,8 @@ def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper):
 
     def step_at(values, th, previous=None, order=None):
         rhs = ObservationRhs(sim.calib, p, values)
-        return profile_step(fixed, lambda t, s: observation_block(sim.calib, p, values, theta=dict(zip(names, t))),
+        return profile_step(fixed, lambda t, s: observation_block(sim.calib, p, values,
+                                                                  theta=dict(zip(names, t, strict=True))),
                             values, th, nuis, cols, obs0=observation_block(sim.calib, p, values),
                             kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1, previous=previous,
                             order=order, residuals=lambda t, s: rhs(dict(zip(names, t, strict=True)), s))

@@ -500,7 +500,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         cov[:k, :k] = step.covariance
         cov[np.arange(k, len(cov)), np.arange(k, len(cov))] = step.local.variance
         local = (local_sensors, step.local.Z)
-    return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names, local=local,
+    return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names,
+                       local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]))
 
