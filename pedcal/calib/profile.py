@@ -159,7 +159,7 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     pivoting), in the fill-reducing column ``order`` (:func:`ordered_normal_lu`) or, without one,
     SuperLU's minimum-degree ordering of the symmetric matrix. Many right-hand sides go to
     SuperLU's solve at once (its supernodal kernels take them together). Its ``factor_entries``:
-    the factors' stored entries (L's and U's), what holding it costs."""
+    the entries stored in the factors (SuperLU's ``nnz``), what holding it costs."""
     if order is None:
         N = (A.T @ A).tocsc()
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
@@ -172,13 +172,14 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
         def solve(y):
             y = np.asarray(y, float)
             return lu.solve(y[order])[position]
-    solve.factor_entries = int(lu.L.nnz + lu.U.nnz)
+    solve.factor_entries = int(lu.nnz)     # (L and U themselves would be copies of the factors)
     return solve
 
 
 # A full profile step keeps its factorization for the chord steps that follow it up to this many
-# stored entries of L and U (~12 bytes each: 60 MB); a larger one is dropped with the step's
-# solves, and a chord step takes a fresh one (the peak memory of a large graph is not raised)
+# entries stored in L and U (SuperLU's ``nnz``, the supernodes' padding included; ~12 bytes
+# each: 60 MB); a larger one is dropped with the step's solves, and a chord step takes a fresh
+# one (the peak memory of a large graph is not raised)
 KEEP_FACTOR_ENTRIES = 5_000_000
 
 
