@@ -412,27 +412,34 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         theta = np.array([getattr(prob, n) for n in names], float)
         theta_local = np.array([getattr(prob, n) for n in local_names], float)
         every = tuple(names + local_names)          # the exact nuisances first, then the local ones
-        plain = None
-        if odo:
-            motion_rhs = MotionRhs(log, prob, result)
-            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
-                     lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
         # the shifts enter the measurements linearly, so after a step of a few sigma the
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
-        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
-        # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
-        footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(every)
-                     if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
+        # (a chord step, which profile_step takes when the full step kept its system, takes no
+        # finite differences: their inputs are not made for it)
+        differences = not (chord and full_step.A is not None and local_cols is None)
+        plain = None
+        if odo:
+            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
+                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
+            if differences:
+                motion_rhs = MotionRhs(log, prob, result)
+                plain += (lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))),)
+        rhs, footprint = None, None
+        if differences:
+            rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
+            # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
+            footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(every)
+                         if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
             order=None if step is None else step.order,
-            residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
+            residuals=None if rhs is None else lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)),
+                                                                                     scale),
             footprint=footprint, local=local_cols)
         if not chord:
             full_step = step
