@@ -7,12 +7,15 @@
 Each stage's wall and CPU time (time.process_time: the machine may be shared, and CPU time is
 what a busy neighbour does not inflate) inside one ``pedcal.calib.calibrate`` call, measured by
 wrapping the stage's functions (each stage's own time: the graph build inside a profile step counts
-to the graph build): the first import of what ``pedcal calibrate`` loads (in a fresh process), association
-(the robot's observations picked out, latency), the initializer (closed form or grid search),
-the rest of the preparation (carrying and merging observations, the noise estimate, shared
-people), the graph build, Levenberg-Marquardt, the head point's profile steps, the sensors'
-covariance (the joint marginal, or each sensor's, and the model check), the network read back
-and the rest (AMCL's error model, residuals). The grid search's whole solve is timed beside
+to the graph build): the first import of what ``pedcal calibrate`` loads (in a fresh process), the
+pre-flight (the log validated, the memory estimate), association (the robot's observations
+picked out, latency), the initializer (closed form or grid search), the rest of the preparation
+(carrying and merging observations, the noise estimate, shared people), the graph build,
+Levenberg-Marquardt, the head point's profile steps, the sensors' covariance (the joint
+marginal, or each sensor's, and the model check), the network read back, AMCL's error model
+(its residuals, the fit, the shared sightings checked), the profile's set-up (the clock offsets,
+the right-hand sides' inputs, the retraction after each step), the results (the network
+finished, clock offsets and head model recorded, the keys) and the rest. The grid search's whole solve is timed beside
 the paper scenario's, with its association (the same function as the factor graph's), the two
 methods run in turns. Then, as a new user meets it, the whole ``pedcal calibrate LOG -o OUT
 --method M -q`` command of each method on the scenario written to a temporary directory (a fresh
@@ -37,6 +40,7 @@ import numpy as np
 # stage -> (module, function name) wrapped where the solver looks it up; a stage's time excludes
 # the other stages it calls (the graph build inside a profile step counts to the graph build)
 STAGES = {
+    "pre-flight (validation)": [("pedcal.io.preflight", "check_calibration")],
     "association": [("pedcal.calib.association", "associate_robot"), ("pedcal.calib.association", "estimate_latency")],
     "initializer": [("pedcal.calib.problem", "_initial_sensors"), ("pedcal.calib.graph", "_initial_sensors")],
     "preparation (rest)": [("pedcal.calib.factorgraph", "prepare")],
@@ -46,6 +50,12 @@ STAGES = {
     "profile steps": [("pedcal.calib.factorgraph", "profile_step")],
     "sensor covariance": [("pedcal.calib.factorgraph", "_posterior")],
     "network read back": [("pedcal.calib.factorgraph", "_network_from_result")],
+    "AMCL error model": [("pedcal.calib.factorgraph", "amcl_residuals"), ("pedcal.calib.factorgraph", "estimate_model"),
+                         ("pedcal.calib.factorgraph", "people_misfit")],
+    "profile set-up": [("pedcal.calib.factorgraph", "clock_nuisances"), ("pedcal.calib.factorgraph", "ObservationRhs"),
+                       ("pedcal.calib.factorgraph", "MotionRhs"), ("pedcal.calib.factorgraph", "retract_flat")],
+    "results": [("pedcal.calib.factorgraph", "finish_network"), ("pedcal.calib.factorgraph", "record_clocks"),
+                ("pedcal.calib.factorgraph", "record_head_profile"), ("pedcal.calib.factorgraph", "graph_keys")],
 }
 
 

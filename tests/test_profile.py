@@ -225,19 +225,29 @@ def test_unit3_basis_is_gtsams():
     assert np.allclose(np.stack([b1, b2], axis=-1), theirs, atol=1e-12)
 
 
-def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
-    # B from the numpy right-hand side (exact weights) against B from rebuilt GTSAM factors
-    # (weights quantized to 0.1 %): the same step to a small fraction of its sigma
-    from pedcal.calib.graph import ObservationRhs, S
-    from pedcal.calib.profile import Nuisance, profile_step
+def _shift_profile(prob, parts):
+    """The factors the head point's shifts do not enter (all blocks but the observations) and the
+    two shifts as nuisances of the recipe's priors."""
+    from pedcal.calib.profile import Nuisance
 
-    sim, prob, parts, result = dome_paper
     rec = prob.recipe
     fixed = gtsam.NonlinearFactorGraph()
     for name in ("sensors", "amcl", "motion"):
         fixed.push_back(parts.blocks[name])
-    nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
-            Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m)]
+    return fixed, [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m),
+                   Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m,
+                            rec.head_ray_shift_step_m)]
+
+
+def test_profile_step_with_residuals_equals_the_rebuilt_factors(dome_paper):
+    # B from the numpy right-hand side (exact weights) against B from rebuilt GTSAM factors
+    # (weights quantized to 0.1 %): the same step to a small fraction of its sigma
+    from pedcal.calib.graph import ObservationRhs, S
+    from pedcal.calib.profile import profile_step
+
+    sim, prob, parts, result = dome_paper
+    rec = prob.recipe
+    fixed, nuis = _shift_profile(prob, parts)
     names = [n.name for n in nuis]
     theta = np.array([prob.ray_shift_m, prob.horizontal_shift_m])
     rhs = ObservationRhs(sim.calib, prob, result)
@@ -393,3 +403,86 @@ def test_joint_system_is_the_stacked_blocks():
     want = sps.vstack([sps.hstack([A, C]), prior]).tocsr()
     assert got.shape == want.shape == (52, 34) and got.nnz == want.nnz
     assert abs(got - want).max() == 0.0
+
+
+def test_near_solve_is_the_direct_solve_of_the_moved_system():
+    # conjugate gradients preconditioned with a nearby system's factorization reach the moved
+    # system's own solution; without that factorization, or out of iterations, None
+    import scipy.sparse as sps
+
+    from pedcal.calib.profile import _near_solve
+
+    rng = np.random.default_rng(4)
+    n = 90
+    A0 = (sps.random(300, n, density=0.05, random_state=2, format="csr")
+          + sps.vstack([sps.eye(n), sps.csr_matrix((300 - n, n))])).tocsr()
+    A1 = A0.copy()
+    A1.data = A1.data * (1.0 + 0.05 * rng.standard_normal(A1.nnz))        # the Jacobians moved by 5 %
+    y = rng.normal(size=n)
+    order = rng.permutation(n)
+    exact = _normal_solver(A1, order)(y)
+    near = _normal_solver(A0, order)
+    x = _near_solve(A1, y, near, rtol=1e-12)
+    assert x is not None
+    assert np.abs(x - exact).max() < 1e-9 * np.abs(exact).max()
+    assert np.abs(near(y) - exact).max() > 1e-3 * np.abs(exact).max()     # (the factorization alone is off)
+    assert _near_solve(A1, y, None) is None
+    assert _near_solve(A1, y, near, rtol=1e-12, max_iterations=0) is None
+    assert np.array_equal(_near_solve(A1, np.zeros(n), near), np.zeros(n))
+
+
+def test_columns_index_of_many_keys_equals_key_by_key():
+    values = gtsam.Values()
+    for i in range(30):
+        values.insert(gtsam.symbol("x", i), gtsam.Pose3())
+        values.insert(gtsam.symbol("l", i), gtsam.Point3(0.0, 0.0, float(i)))
+    cols = Columns.of(values)
+    keys = [gtsam.symbol("l", i) for i in range(29, -1, -2)] + [gtsam.symbol("x", i) for i in range(0, 30, 3)]
+    assert len(keys) > 16                       # (the sorted-array lookup)
+    expected = np.concatenate([cols.offset[k] + np.arange(cols.dim[k]) for k in keys])
+    assert np.array_equal(cols.index(keys), expected)
+    assert np.array_equal(cols.index(np.asarray(keys, np.uint64)), expected)
+    assert np.array_equal(cols.index(keys[:3]), expected[:9])
+    with pytest.raises(KeyError):
+        cols.index(keys + [gtsam.symbol("a", 0)])
+    with pytest.raises(KeyError):
+        cols.index([gtsam.symbol("a", 0)])
+    assert len(cols.index([])) == 0
+
+
+def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper):
+    # a chord step solves z0 by conjugate gradients preconditioned with the full step's
+    # factorization: the same step as with a factorization of its own
+    from pedcal.calib.graph import ObservationRhs
+    from pedcal.calib.profile import profile_step, retract_flat
+
+    sim, prob, parts, result = dome_paper
+    rec = prob.recipe
+    fixed, nuis = _shift_profile(prob, parts)
+    names = [n.name for n in nuis]
+    cols = Columns.of(result)
+    p = copy.copy(prob)
+    theta = np.array([p.ray_shift_m, p.horizontal_shift_m])
+
+    def step_at(values, th, previous=None, order=None):
+        rhs = ObservationRhs(sim.calib, p, values)
+        return profile_step(fixed, lambda t, s: observation_block(sim.calib, p, values,
+                                                                  theta=dict(zip(names, t, strict=True))),
+                            values, th, nuis, cols, obs0=observation_block(sim.calib, p, values),
+                            kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1, previous=previous,
+                            order=order, residuals=lambda t, s: rhs(dict(zip(names, t, strict=True)), s))
+
+    full = step_at(result, theta)
+    assert "_normal_solve" in full.__dict__
+    theta = theta + full.dtheta
+    p.ray_shift_m, p.horizontal_shift_m = theta
+    moved = retract_flat(result, full.z0 + full.Z @ full.dtheta, cols)
+    kept = step_at(moved, theta, previous=full, order=full.order)
+    bare = copy.copy(full)
+    bare.__dict__.pop("_normal_solve")
+    fresh = step_at(moved, theta, previous=bare, order=full.order)
+    assert np.abs(kept.z0).max() > 0.0
+    assert np.abs(kept.z0 - fresh.z0).max() < 1e-9 * max(np.abs(fresh.z0).max(), 1e-6)
+    assert np.allclose(kept.dtheta, fresh.dtheta, rtol=1e-9, atol=1e-9 * np.sqrt(np.diag(full.covariance)).max())
+    # a selection keeps the factorization (the same system)
+    assert full.select(np.array([0])).__dict__["_normal_solve"] is full.__dict__["_normal_solve"]

@@ -130,13 +130,16 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
                                         gauss_newton_step=not profiled,
                                         relative_error_tol=1e-3 if resolve else None)
-    _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
-                   f"{fg.error(result):.1f}")
+    if progress:        # (the errors cost two passes over the graph: not when nobody reads them)
+        _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
+                       f"{fg.error(result):.1f}")
     # (before AMCL's model is estimated, a rough head model is enough: it keeps a wrong one from
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
+    # (the AMCL model's re-solve rebuilds the graph: this pass's graph at its result is not built)
     shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
-                                   tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve)
+                                 tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve,
+                                 final_graph=not resolve)
     if resolve:
         # AMCL's error model from the residuals of a solution with the head model estimated (a
         # wrong head model leaves per-sensor offsets that look like a wandering AMCL), then the
@@ -313,7 +316,7 @@ def people_misfit(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarray:
 
 @dataclass
 class _Nuisances:
-    graph: gtsam.NonlinearFactorGraph
+    graph: gtsam.NonlinearFactorGraph | None     # (None when not asked for: ``final_graph``)
     result: gtsam.Values
     cov: np.ndarray               # (k, k) covariance of the nuisances (in ``names`` order, their units squared)
     sensitivity: np.ndarray       # (6 n_sensors + 6, k) d(sensor pose tangents, h(0) tangent)/d(nuisance), per unit
@@ -346,7 +349,7 @@ def _profiled(rec: GraphRecipe) -> bool:
 
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
                         max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
-                        odometry: bool = False) -> _Nuisances | None:
+                        odometry: bool = False, final_graph: bool = True) -> _Nuisances | None:
     """The nuisances that enter the measurements, by their profile likelihood on the linearized
     graph (pedcal.calib.profile): the head point's shift toward the sensor along the ray (a range
     offset of every observation; a dome's radius), horizontally (a point pulled toward the sensor
@@ -361,7 +364,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     ``tolerance`` times their sigma (at most ``max_steps`` steps). Their covariance is the
     profile's inverse Hessian and the variables' sensitivity to them carries it into the
     sensors' covariance: the marginal over the nuisances, not the conditional. ``parts`` gets
-    the observation and motion blocks at the final values; ``curvature=False`` leaves the
+    the observation and motion blocks at the final values, and the result its graph, unless
+    ``final_graph`` is False (a pass whose graph the caller rebuilds: the blocks are left at the
+    last step's linearization point, the result's graph None); ``curvature=False`` leaves the
     curvature out (a first, rough pass).
 
     Above ``clock_offsets_joint_max`` per-sensor clock offsets, they join the linear system as
@@ -414,27 +419,34 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         theta = np.array([getattr(prob, n) for n in names], float)
         theta_local = np.array([getattr(prob, n) for n in local_names], float)
         every = tuple(names + local_names)          # the exact nuisances first, then the local ones
-        plain = None
-        if odo:
-            motion_rhs = MotionRhs(log, prob, result)
-            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
-                     lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
         # the shifts enter the measurements linearly, so after a step of a few sigma the
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
-        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
-        # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
-        footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(every)
-                     if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
+        # (a chord step, which profile_step takes when the full step kept its system, takes no
+        # finite differences: their inputs are not made for it)
+        differences = not (chord and full_step.A is not None and local_cols is None)
+        plain = None
+        if odo:
+            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
+                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
+            if differences:
+                motion_rhs = MotionRhs(log, prob, result)
+                plain += (lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))),)
+        rhs, footprint = None, None
+        if differences:
+            rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
+            # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
+            footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(every)
+                         if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
             order=None if step is None else step.order,
-            residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
+            residuals=None if rhs is None else lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)),
+                                                                                     scale),
             footprint=footprint, local=local_cols)
         if not chord:
             full_step = step
@@ -488,9 +500,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                            f"{1000 * np.median(np.abs(theta_local)):.1f} ms, median sigma "
                            f"{1000 * np.median(np.sqrt(loc.variance)):.1f} ms, largest step {ratio.max():.2f} sigma")
         result = retract_flat(result, delta, cols)
-        parts.blocks["observations"] = observation_block(log, prob, result)
-        if odo:
-            parts.blocks["motion"] = motion_block(log, prob)
+        if final_graph or not (converged or n_step == max_steps):
+            parts.blocks["observations"] = observation_block(log, prob, result)
+            if odo:
+                parts.blocks["motion"] = motion_block(log, prob)
         if converged:
             break
     if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
@@ -505,7 +518,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         cov[:k, :k] = step.covariance
         cov[np.arange(k, len(cov)), np.arange(k, len(cov))] = step.local.variance
         local = (local_sensors, step.local.Z)
-    return _Nuisances(parts.graph(), result, cov, sens, n_step, names=names + local_names, local=local,
+    return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names,
+                       local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]))
 

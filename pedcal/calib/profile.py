@@ -65,8 +65,21 @@ class Columns:
 
     def index(self, keys) -> np.ndarray:
         """Column indices of ``keys``' variables, concatenated."""
-        starts = np.array([self.offset[k] for k in keys], np.int64)
-        dims = np.array([self.dim[k] for k in keys], np.int64)
+        keys = np.asarray(keys, np.uint64).reshape(-1)
+        if len(keys) > 16:
+            # many keys (a linearized graph's): looked up in the sorted key array, not one by one
+            table = self.__dict__.get("_table")
+            if table is None:
+                table = self.__dict__["_table"] = (np.array(self.keys, np.uint64),
+                                                   np.array([self.offset[k] for k in self.keys], np.int64),
+                                                   np.array([self.dim[k] for k in self.keys], np.int64))
+            at = np.minimum(np.searchsorted(table[0], keys), len(table[0]) - 1)
+            if len(table[0]) == 0 or np.any(table[0][at] != keys):
+                raise KeyError(int(keys[np.flatnonzero(table[0][at] != keys)[0]]) if len(table[0]) else int(keys[0]))
+            starts, dims = table[1][at], table[2][at]
+        else:
+            starts = np.array([self.offset[int(k)] for k in keys], np.int64)
+            dims = np.array([self.dim[int(k)] for k in keys], np.int64)
         if not len(starts):
             return np.zeros(0, np.int64)
         # arange per key in one pass: each key's run starts at its offset
@@ -87,7 +100,7 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     del ijs
     i -= 1
     j -= 1
-    own = sorted(int(k) for k in gfg.keyVector())
+    own = np.sort(np.asarray(gfg.keyVector(), np.uint64))
     # the graph's own columns (its keys in order) -> the system's
     local = cols.index(own)
     n_local = len(local)
@@ -145,17 +158,60 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
     pivoting), in the fill-reducing column ``order`` (:func:`ordered_normal_lu`) or, without one,
     SuperLU's minimum-degree ordering of the symmetric matrix. Many right-hand sides go to
-    SuperLU's solve at once (its supernodal kernels take them together)."""
+    SuperLU's solve at once (its supernodal kernels take them together). Its ``factor_entries``:
+    the entries stored in the factors (SuperLU's ``nnz``), what holding it costs."""
     if order is None:
         N = (A.T @ A).tocsc()
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-        return lambda y: lu.solve(np.asarray(y, float))
-    lu, position = ordered_normal_lu(A, order)
 
-    def solve(y):
-        y = np.asarray(y, float)
-        return lu.solve(y[order])[position]
+        def solve(y):
+            return lu.solve(np.asarray(y, float))
+    else:
+        lu, position = ordered_normal_lu(A, order)
+
+        def solve(y):
+            y = np.asarray(y, float)
+            return lu.solve(y[order])[position]
+    solve.factor_entries = int(lu.nnz)     # (L and U themselves would be copies of the factors)
     return solve
+
+
+# A full profile step keeps its factorization for the chord steps that follow it up to this many
+# entries stored in L and U (SuperLU's ``nnz``, the supernodes' padding included; ~12 bytes
+# each: 60 MB); a larger one is dropped with the step's solves, and a chord step takes a fresh
+# one (the peak memory of a large graph is not raised)
+KEEP_FACTOR_ENTRIES = 5_000_000
+
+
+def _near_solve(A: sps.csr_matrix, y: np.ndarray, solve_near, rtol: float = 1e-10,
+                max_iterations: int = 30) -> np.ndarray | None:
+    """x with A^T A x = y by conjugate gradients on the normal equations preconditioned with
+    ``solve_near`` (:func:`_normal_solver` of a nearby point's system, the same graph: its
+    normal matrix differs by the Jacobians' change over a small step, so a few iterations
+    converge), to a residual |y - A^T A x| <= ``rtol`` |y|; None without ``solve_near`` or
+    when ``max_iterations`` do not reach it."""
+    if solve_near is None:
+        return None
+    y = np.asarray(y, float)
+    target = rtol * np.linalg.norm(y)
+    x = solve_near(y)
+    r = y - A.T @ (A @ x)
+    z = solve_near(r)
+    p, rz = z, float(r @ z)
+    for _ in range(max_iterations + 1):
+        if np.linalg.norm(r) <= target:
+            return x
+        Ap = A @ p
+        pq = float(Ap @ Ap)
+        if not pq > 0.0:
+            return None
+        alpha = rz / pq
+        x = x + alpha * p
+        r = r - alpha * (A.T @ Ap)
+        z = solve_near(r)
+        rz_next = float(r @ z)
+        p, rz = z + (rz_next / rz) * p, rz_next
+    return None
 
 
 @dataclass
@@ -197,9 +253,12 @@ class ProfileStep:
     def select(self, keep: np.ndarray) -> ProfileStep:
         """The step restricted to the nuisances ``keep`` (their Hessian's rows and columns, Z's
         and B's columns; dtheta as it was: the caller takes its own)."""
-        return ProfileStep(dtheta=self.dtheta[keep], hessian=self.hessian[np.ix_(keep, keep)], z0=self.z0,
-                           Z=self.Z[:, keep], cols=self.cols, order=self.order, A=self.A,
-                           B=None if self.B is None else self.B[:, keep], local=self.local, rho0=self.rho0)
+        out = ProfileStep(dtheta=self.dtheta[keep], hessian=self.hessian[np.ix_(keep, keep)], z0=self.z0,
+                          Z=self.Z[:, keep], cols=self.cols, order=self.order, A=self.A,
+                          B=None if self.B is None else self.B[:, keep], local=self.local, rho0=self.rho0)
+        if "_normal_solve" in self.__dict__:      # (the same system: its factorization serves both)
+            out.__dict__["_normal_solve"] = self.__dict__["_normal_solve"]
+        return out
 
     @property
     def covariance(self) -> np.ndarray:
@@ -321,10 +380,16 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     A = sps.vstack([A_f, A_o, A_p], format="csr")
     A_f = A_o = A_p = None
     b = np.r_[b_f, b_o0, b_p0]
-    if not m_local:
-        solve = _normal_solver(A, order)
-        z0 = solve(A.T @ b)
+    if chord:
+        # z0 alone: by conjugate gradients preconditioned with the full step's factorization (a
+        # nearby point's normal matrix), a fresh factorization only should they not converge
+        y = A.T @ b
+        z0 = _near_solve(A, y, previous.__dict__.get("_normal_solve"))
+        if z0 is None:
+            z0 = _normal_solver(A, order)(y)
         rho0 = A @ z0 - b
+    elif not m_local:
+        solve = _normal_solver(A, order)
     theta = np.asarray(theta, float)
     if chord:
         grad = _residual_change_t(previous, rho0) + info @ (theta[:k_exact] - mean)
@@ -421,12 +486,19 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                            cols=cols, order=order, A=A_joint, B=B_joint)
     else:
         AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k_exact)
-        Z = solve(AtB).reshape(cols.n, k_exact)
+        # z0 and Z in one solve (k + 1 right-hand sides)
+        z0_Z = solve(np.column_stack([A.T @ b, AtB]))
+        z0, Z = z0_Z[:, 0].copy(), np.ascontiguousarray(z0_Z[:, 1:])
+        z0_Z = None
+        rho0 = A @ z0 - b
         # the profile residual r_p = rho0 + M dtheta, M = A Z - B, by its products with N Z = A^T B
         BtB = np.asarray((B.T @ B).todense()).reshape(k_exact, k_exact)
         MtM = BtB - AtB.T @ Z
         step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z0, Z=Z, cols=cols,
                            order=order, A=A, B=B)
+        if solve.factor_entries <= KEEP_FACTOR_ENTRIES:
+            # (kept for a chord step's solve: below this size the factor's memory is small)
+            step.__dict__["_normal_solve"] = solve
     grad = _residual_change_t(step, rho0) + info @ (theta[:k_exact] - mean)
     step.dtheta = -np.linalg.solve(step.hessian, grad)
     step.rho0 = rho0
