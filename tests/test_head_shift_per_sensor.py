@@ -77,7 +77,7 @@ def _shifted_log(seed: int, **overrides):
     return sim, delta
 
 
-def _calibrate(log, sigma, monkeypatch):
+def _calibrate(log, sigma, monkeypatch, **overrides):
     """calibrate() with the posterior's inputs captured (prob, graph, solution, nuisances)."""
     seen = {}
     original = fgmod._posterior
@@ -88,7 +88,7 @@ def _calibrate(log, sigma, monkeypatch):
     monkeypatch.setattr(fgmod, "_posterior", spy)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = calibrate(log, method="factorgraph", head_shift_per_sensor_sigma_m=sigma)
+        res = calibrate(log, method="factorgraph", head_shift_per_sensor_sigma_m=sigma, **overrides)
     return res, seen
 
 
@@ -147,13 +147,22 @@ def test_the_sigma_is_the_graph_marginal_plus_the_departures_share_and_covers_th
     assert covered and np.mean(covered) >= 0.75, covered
 
 
-def test_a_sensor_seeing_the_robot_all_around_has_its_departure_estimated(monkeypatch):
+@pytest.fixture(scope="module")
+def nadir():
     # every sensor looking straight down: the robot seen on every side of it, the departure a
     # radial contraction of the view that no pose can take up
-    sim, delta = _shifted_log(0, pitch_deg=[89.0])
-    _, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch)
-    prob = seen["prob"]
+    return _shifted_log(0, pitch_deg=[89.0])
+
+
+@pytest.mark.parametrize("joint_max", [200, 0])
+def test_a_sensor_seeing_the_robot_all_around_has_its_departure_estimated(nadir, joint_max, monkeypatch):
+    # (joint_max 0: many sensors' way, the departures fitted with the path beside the clock offsets)
+    sim, delta = nadir
+    _, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch, clock_offsets_joint_max=joint_max)
+    prob, shifts = seen["prob"], seen["shifts"]
     ids = list(prob.sensor_ids)
+    assert sum(name.startswith(SENSOR_PREFIX) for name in shifts.names) == len(ids)
+    assert (shifts.local is not None) == (joint_max == 0)
     steep = ids
     est = np.array([prob.horizontal_shift_m + getattr(prob, SENSOR_PREFIX + sid) for sid in ids])
     true = np.array([delta[sid] for sid in ids])

@@ -422,6 +422,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     local_names = [n.name for n in local_nuis]
     index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
+    own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
     local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
@@ -499,9 +500,12 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                 setattr(prob, name, float(v))
             ratio = np.abs(loc.dtheta) / np.sqrt(loc.variance)
             converged = converged and bool(np.all(ratio <= tolerance))
-            _log(progress, f"  {len(loc.dtheta)} clock offsets (sigma per sensor given the path): median "
-                           f"{1000 * np.median(np.abs(theta_local)):.1f} ms, median sigma "
-                           f"{1000 * np.median(np.sqrt(loc.variance)):.1f} ms, largest step {ratio.max():.2f} sigma")
+            for kind, unit, mine in (("clock offsets", "ms", ~own_shift), ("head shift departures", "mm", own_shift)):
+                if mine.any():
+                    _log(progress, f"  {int(mine.sum())} {kind} (sigma per sensor given the path): median "
+                                   f"{1000 * np.median(np.abs(theta_local[mine])):.1f} {unit}, median sigma "
+                                   f"{1000 * np.median(np.sqrt(loc.variance[mine])):.1f} {unit}, largest step "
+                                   f"{ratio[mine].max():.2f} sigma")
         result = retract_flat(result, delta, cols)
         parts.blocks["observations"] = observation_block(log, prob, result)
         if odo:
