@@ -7,6 +7,7 @@ one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalization
 
     nice -n 10 .venv/bin/python benchmarks/bench_factorgraph_nuisances.py \
         [--scenarios paper sparse corridor cross lhall] [--seeds 20] [--first-seed 0] [--jobs 1] [--zoo]
+        [--recipe KEY=VALUE ...]     # graph recipe fields, e.g. head_shift_per_sensor_sigma_m=0
 
 Per scenario (means over seeds): sensor position RMS of the factor graph and of the grid search
 (3-D and horizontal, mm; evaluated on the evaluation log, pedcal.metrics.evaluate), their ratio;
@@ -148,7 +149,7 @@ def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tu
     return z_shared, z_rest
 
 
-def run_one(scenario: str, seed: int, zoo: bool = False) -> dict:
+def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = None) -> dict:
     warnings.simplefilter("ignore")
     sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo" if zoo else True)
     out = dict(scenario=scenario, seed=seed, nuisances=head_model_truth(sim.scenario),
@@ -158,7 +159,7 @@ def run_one(scenario: str, seed: int, zoo: bool = False) -> dict:
                amcl_mean_xy_mm=float(1000 * np.linalg.norm(amcl_run_mean_error_m(sim.calib))))
     for method in ("factorgraph", "gridsearch"):
         w0, c0 = time.perf_counter(), time.process_time()
-        res = calibrate(sim.calib, method=method)
+        res = calibrate(sim.calib, method=method, **((recipe or {}) if method == "factorgraph" else {}))
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         ev = evaluate(sim.eval, res.network)
         E = np.array([s.position_error_mm for s in ev.sensors if np.all(np.isfinite(s.position_error_mm))])
@@ -191,8 +192,15 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--verbose", action="store_true", help="one line per seed")
     ap.add_argument("--zoo", action="store_true", help="--vary-nuisances zoo, figures split by family")
+    ap.add_argument("--recipe", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="graph recipe fields for the factor graph (a number, true or false)")
     args = ap.parse_args()
-    tasks = [(sc, s, args.zoo) for sc in args.scenarios for s in range(args.first_seed, args.first_seed + args.seeds)]
+    recipe = {}
+    for item in args.recipe:
+        key, _, value = item.partition("=")
+        recipe[key] = value == "true" if value in ("true", "false") else float(value)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    tasks = [(sc, s, args.zoo, recipe) for sc in args.scenarios for s in seeds]
     with ProcessPoolExecutor(args.jobs) as ex:
         results = list(ex.map(run_one, *zip(*tasks, strict=True)))
     print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), "

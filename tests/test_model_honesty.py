@@ -121,6 +121,7 @@ def shifted_paper():
     rec.estimate_amcl_model = False
     rec.head_ray_shift_sigma_m = rec.head_horizontal_shift_sigma_m = 0.004
     rec.clock_offsets = False                     # the head point's shifts alone
+    rec.head_shift_per_sensor_sigma_m = 0.0       # (no sensor's own departure either)
     return (sim, *solved_graph(sim.calib, rec))
 
 

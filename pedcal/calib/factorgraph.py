@@ -69,13 +69,16 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
+from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     head_profile_nuisances,
     is_head_profile,
+    is_sensor_shift,
     record_head_profile,
     row_clusters,
     row_sensors,
     select_head_profile,
+    sensor_shift_nuisances,
 )
 from pedcal.calib.marginals import marginal_covariances
 from pedcal.calib.profile import (
@@ -347,6 +350,11 @@ def _profiled(rec: GraphRecipe) -> bool:
     return bool(rec.estimate_head_model and rec.head_ray_shift_sigma_m > 0.0 and rec.robot)
 
 
+def _sensor_of(name: str) -> str:
+    """The sensor id of a per-sensor nuisance's name (a clock offset, a head shift departure)."""
+    return name[len(SHIFT_PREFIX):] if is_sensor_shift(name) else name[len(CLOCK_PREFIX):]
+
+
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
                         max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
                         odometry: bool = False, final_graph: bool = True) -> _Nuisances | None:
@@ -397,6 +405,12 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     else:
         nuis += clocks
     nuis += head_profile_nuisances(prob)   # the horizontal shift against distance (pedcal.calib.headpoint)
+    # each sensor's own departure of the horizontal shift (a random effect; with many sensors
+    # fitted with the path like the clock offsets)
+    if local_nuis:
+        local_nuis = local_nuis + sensor_shift_nuisances(prob)
+    else:
+        nuis += sensor_shift_nuisances(prob)
     select_profile = any(is_head_profile(n.name) for n in nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
     unmodelled = None
@@ -412,7 +426,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     step, full_step = None, None
     local_names = [n.name for n in local_nuis]
     index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-    local_sensors = np.array([index[n[len(CLOCK_PREFIX):]] for n in local_names], np.int64)
+    local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
+    own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
     local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
@@ -436,9 +451,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         rhs, footprint = None, None
         if differences:
             rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
-            # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks)
-            footprint = {j: rhs.robot_factors(index[n[len(CLOCK_PREFIX):]]) for j, n in enumerate(every)
-                         if is_clock_nuisance(n) and n[len(CLOCK_PREFIX):] in index}
+            # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
+            # and so does its own departure of the horizontal shift
+            footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
+                         if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
@@ -496,9 +512,12 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                 setattr(prob, name, float(v))
             ratio = np.abs(loc.dtheta) / np.sqrt(loc.variance)
             converged = converged and bool(np.all(ratio <= tolerance))
-            _log(progress, f"  {len(loc.dtheta)} clock offsets (sigma per sensor given the path): median "
-                           f"{1000 * np.median(np.abs(theta_local)):.1f} ms, median sigma "
-                           f"{1000 * np.median(np.sqrt(loc.variance)):.1f} ms, largest step {ratio.max():.2f} sigma")
+            for kind, unit, mine in (("clock offsets", "ms", ~own_shift), ("head shift departures", "mm", own_shift)):
+                if mine.any():
+                    _log(progress, f"  {int(mine.sum())} {kind} (sigma per sensor given the path): median "
+                                   f"{1000 * np.median(np.abs(theta_local[mine])):.1f} {unit}, median sigma "
+                                   f"{1000 * np.median(np.sqrt(loc.variance[mine])):.1f} {unit}, largest step "
+                                   f"{ratio[mine].max():.2f} sigma")
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
             parts.blocks["observations"] = observation_block(log, prob, result)

@@ -124,7 +124,7 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     for j in range(1, len(knots)):
         setattr(prob, PREFIX + str(j), float(c[j - 1]))
         out.append(Nuisance(PREFIX + str(j), 0.0, rec.head_profile_sigma_m, STEP_M))
-    if rec.head_profile_per_sensor:
+    if rec.head_profile_per_sensor and rec.head_shift_per_sensor_sigma_m <= 0.0:
         # each sensor's own tracker: a departure from the shared shift, where it sees the robot enough
         n_pose = len(prob.pose_times)
         counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
@@ -133,6 +133,41 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
                 setattr(prob, SENSOR_PREFIX + sid, float(getattr(prob, SENSOR_PREFIX + sid, 0.0)))
                 out.append(Nuisance(SENSOR_PREFIX + sid, 0.0, rec.head_profile_sigma_m, STEP_M))
     return out
+
+
+def sensor_shift_nuisances(prob) -> list[Nuisance]:
+    """Each sensor's own constant departure delta_s of the horizontal shift toward the sensor
+    from the shared one, a random effect (recipe ``head_shift_per_sensor_sigma_m`` > 0): every
+    sensor that saw the robot gets one, always in the model (no selection), prior 0 +- that
+    sigma, the spread of the head point between trackers. Where a sensor sees people all around
+    it, the departure is a radial contraction of its view, which the data estimate; where it
+    sees them from one side (a wall mount, a corridor's end), it moves the sensor's position
+    along its view axis alike, and it stays near its prior: its covariance, carried into the
+    sensor's by the profile (:mod:`pedcal.calib.profile`), widens that sensor's sigma along
+    that axis alone. Each starts at 0 on ``prob`` the first time; [] when off, without the
+    horizontal shift, or without robot observations."""
+    rec = prob.recipe
+    sigma = rec.head_shift_per_sensor_sigma_m
+    if sigma < 0.0:
+        raise PedcalInputError(f"head_shift_per_sensor_sigma_m must be 0 (off) or positive, got {sigma}",
+                               column="head_shift_per_sensor_sigma_m")
+    if (sigma == 0.0 or not rec.robot or not rec.estimate_head_horizontal_shift
+            or rec.head_horizontal_shift_sigma_m <= 0.0 or prob.fac_sensor_index is None):
+        return []
+    n_pose = len(prob.pose_times)
+    counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
+    out = []
+    for i, sid in enumerate(prob.sensor_ids):
+        if counts[i] > 0:
+            name = SENSOR_PREFIX + sid
+            setattr(prob, name, float(getattr(prob, name, 0.0)))
+            out.append(Nuisance(name, 0.0, sigma, STEP_M))
+    return out
+
+
+def is_sensor_shift(name: str) -> bool:
+    """Whether ``name`` is a sensor's own departure of the horizontal shift."""
+    return name.startswith(SENSOR_PREFIX)
 
 
 def sensor_departures(prob, theta: dict | None = None) -> np.ndarray:
@@ -159,13 +194,13 @@ def head_profile_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray 
     point taken back toward the head top, -(sum_j c_j phi_j(d) + delta_s) u (module docstring;
     delta_s the observing sensor's own departure). 0 when no profile is set."""
     c = knot_values(prob, theta)
-    if c is None:
-        return 0.0
     own = sensor_departures(prob, theta)
-    if not np.any(c) and not np.any(own):
+    if (c is None or not np.any(c)) and not np.any(own):
         return 0.0
-    d = horizontal_distance(prob.fac_p_sensor[use], prob.fac_toward_sensor[use])
-    shift = hats(d, prob._head_knots)[:, 1:] @ c + own[prob.fac_sensor_index[use]]
+    shift = own[prob.fac_sensor_index[use]]
+    if c is not None and np.any(c):
+        d = horizontal_distance(prob.fac_p_sensor[use], prob.fac_toward_sensor[use])
+        shift = shift + hats(d, prob._head_knots)[:, 1:] @ c
     return -shift[:, None] * prob.fac_toward_sensor[use]
 
 
@@ -323,7 +358,10 @@ def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np
     it had to pass) at its last judgement, the model chosen, and the residuals'
     overdispersion over the time ``clusters`` (:func:`overdispersion`))."""
     idx = [j for j, n in enumerate(nuis) if n.name.startswith(PREFIX)]
-    own = [j for j, n in enumerate(nuis) if n.name.startswith(SENSOR_PREFIX)]
+    # (the departures of a random effect, head_shift_per_sensor_sigma_m, are no candidates: they
+    # stay, with the other nuisances)
+    own = ([] if getattr(prob.recipe, "head_shift_per_sensor_sigma_m", 0.0) > 0.0 else
+           [j for j, n in enumerate(nuis) if n.name.startswith(SENSOR_PREFIX)])
     if not idx:
         return step, nuis, {}
     knots = prob._head_knots
@@ -504,4 +542,4 @@ def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
 __all__ = ["record_head_profile", "head_profile_nuisances", "head_profile_shift_sensor", "select_head_profile",
            "profile_record", "is_head_profile", "hats", "horizontal_distance", "shift_at", "line_of_knots", "shapes",
            "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
-           "knot_values"]
+           "knot_values", "sensor_shift_nuisances", "is_sensor_shift"]

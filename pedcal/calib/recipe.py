@@ -75,6 +75,15 @@ class GraphRecipe:
     # tracker per sensor), prior sigma head_profile_sigma_m, kept for the sensors whose held-out
     # time blocks it predicts (cv; bic: chi^2 against ln(n)); the others keep the shared shift
     head_profile_per_sensor: bool = False
+    # each sensor's own constant departure of the horizontal shift from the shared one, a random
+    # effect always in the model (pedcal.calib.headpoint.sensor_shift_nuisances), prior 0 +- this
+    # (m; 0: off): the spread of the head point between trackers (the nearest point of a blob, a
+    # centroid of the visible head, a skeleton's head joint differ by ~1-3 cm horizontally).
+    # Estimated where a sensor sees people all around, at its prior where it sees them from one
+    # side, its covariance carried into the sensor's (widening it along the view axis there). On
+    # by default: on the zoo (20 seeds, five scenes) it takes the horizontal RMS down 1-5 mm and
+    # the within-1-sigma shares up (README)
+    head_shift_per_sensor_sigma_m: float = 0.02
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
     # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the

@@ -1,0 +1,189 @@
+"""Each sensor's own departure of the head point's horizontal shift, a random effect
+(pedcal.calib.headpoint.sensor_shift_nuisances, recipe head_shift_per_sensor_sigma_m): always
+in the model, estimated where a sensor sees the robot all around, near its prior where the
+view is one-sided, its covariance carried into the sensors' sigma."""
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import pedcal.calib.factorgraph as fgmod
+from pedcal.calib import calibrate
+from pedcal.calib.headpoint import SENSOR_PREFIX, head_profile_shift_sensor, sensor_shift_nuisances
+from pedcal.calib.keys import S
+from pedcal.calib.profile import joint_marginal_covariance
+from pedcal.errors import PedcalInputError
+from pedcal.frames import toward_sensor_horizontal
+from pedcal.metrics import evaluate, robot_rows
+from pedcal.sim import simulate_logs
+
+SIGMA_M = 0.02
+
+
+def _prob(sigma: float, counts=(5, 0, 3)):
+    rec = SimpleNamespace(head_shift_per_sensor_sigma_m=sigma, robot=True, estimate_head_horizontal_shift=True,
+                          head_horizontal_shift_sigma_m=0.05)
+    sensor = np.repeat(np.arange(len(counts)), counts)
+    return SimpleNamespace(recipe=rec, sensor_ids=[f"s{i}" for i in range(len(counts))], pose_times=np.arange(10.0),
+                           fac_sensor_index=sensor, fac_key_index=np.zeros(len(sensor), int))
+
+
+def test_every_sensor_that_saw_the_robot_gets_a_departure_with_the_prior_sigma():
+    prob = _prob(SIGMA_M)
+    nuis = sensor_shift_nuisances(prob)
+    assert [n.name for n in nuis] == [SENSOR_PREFIX + "s0", SENSOR_PREFIX + "s2"]     # s1 saw nothing
+    assert all(n.prior_mean == 0.0 and n.prior_sigma == SIGMA_M for n in nuis)
+    assert getattr(prob, SENSOR_PREFIX + "s0") == 0.0
+    assert sensor_shift_nuisances(_prob(0.0)) == []
+
+
+def test_a_negative_sigma_is_refused_naming_the_key():
+    with pytest.raises(PedcalInputError, match="head_shift_per_sensor_sigma_m"):
+        sensor_shift_nuisances(_prob(-0.01))
+
+
+def test_a_departure_moves_its_own_sensors_points_toward_the_sensor_alone():
+    prob = _prob(SIGMA_M, counts=(2, 2))
+    prob.fac_p_sensor = np.array([[1.0, 0.0, 2.0], [0.0, 1.0, 2.0], [1.0, 1.0, 2.0], [2.0, 0.0, 2.0]])
+    prob.fac_toward_sensor = -prob.fac_p_sensor * np.array([1.0, 1.0, 0.0])
+    prob.fac_toward_sensor /= np.linalg.norm(prob.fac_toward_sensor, axis=1, keepdims=True)
+    out = head_profile_shift_sensor(prob, {SENSOR_PREFIX + "s1": 0.03}, np.arange(4))
+    # -delta_s u: the point taken back toward the head top, away from the sensor
+    np.testing.assert_allclose(out[:2], 0.0)
+    np.testing.assert_allclose(out[2:], -0.03 * prob.fac_toward_sensor[2:])
+
+
+def _shifted_log(seed: int, **overrides):
+    """The paper's room (with a third of the sensors on walls, a one-sided view, unless
+    ``overrides`` say otherwise) and every sensor's tracker shifting the robot's head point
+    toward it by its own 3 cm, either way."""
+    sim = simulate_logs("paper", seed=seed, **(overrides or dict(wall_mounted_fraction=0.3,
+                                                                  sensor_height_range_m=[2.6, 4.5])))
+    log = sim.calib
+    ids = list(log.truth.ids)
+    delta = dict(zip(ids, np.random.default_rng(seed).choice([-1.0, 1.0], len(ids)) * 0.03, strict=True))
+    obs = log.observations
+    P = obs[["x", "y", "z"]].to_numpy(float).copy()
+    robot = robot_rows(log)[0]
+    sensor = obs["sensor"].astype(str).to_numpy()
+    for sid in ids:
+        m = (sensor == sid) & robot
+        # (the log's points are in the world of the installed extrinsics: to the sensor's frame and back)
+        p = log.sensors[sid].to_sensor(P[m])
+        P[m] = log.sensors[sid].to_world(p + delta[sid] * toward_sensor_horizontal(p, log.truth[sid].R_world_sensor))
+    obs[["x", "y", "z"]] = P
+    return sim, delta
+
+
+def _calibrate(log, sigma, monkeypatch, **overrides):
+    """calibrate() with the posterior's inputs captured (prob, graph, solution, nuisances)."""
+    seen = {}
+    original = fgmod._posterior
+
+    def spy(log_, prob, fg, result, shifts):
+        seen.update(prob=prob, fg=fg, result=result, shifts=shifts)
+        return original(log_, prob, fg, result, shifts)
+    monkeypatch.setattr(fgmod, "_posterior", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(log, method="factorgraph", head_shift_per_sensor_sigma_m=sigma, **overrides)
+    return res, seen
+
+
+@pytest.fixture(scope="module")
+def shifted():
+    return _shifted_log(0)
+
+
+def _view_axis(R):
+    """The horizontal unit of a sensor's optical axis (its x axis, world)."""
+    a = R[:, 0].copy()
+    a[2] = 0.0
+    return a / np.linalg.norm(a)
+
+
+def test_the_sigma_is_the_graph_marginal_plus_the_departures_share_and_covers_the_wall_sensors(shifted,
+                                                                                                monkeypatch):
+    sim, delta = shifted
+    res0, _ = _calibrate(sim.calib, 0.0, monkeypatch)
+    res, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch)
+    prob, shifts = seen["prob"], seen["shifts"]
+    ids = list(prob.sensor_ids)
+    n = len(ids)
+    # the formula, pinned: C = the graph's joint marginal + S Sigma S^T (S the sensors'
+    # sensitivity to the nuisances, Sigma their profile covariance: the departures marginalized),
+    # each sensor's block widened by its residuals' variance ratio, rotated to the world axes
+    keys = [S(i) for i in range(n)] + [fgmod.H(0)]
+    C = joint_marginal_covariance(seen["fg"], seen["result"], keys)
+    k = shifts.sensitivity.shape[1]
+    sens = shifts.sensitivity[:6 * len(keys)]
+    C = C + sens @ shifts.cov[:k, :k] @ sens.T
+    if shifts.unmodelled is not None:         # a curvature the data show, widening (head_curvature widen)
+        dc, sens_c, _ = shifts.unmodelled
+        C = C + dc ** 2 * np.outer(sens_c[:6 * len(keys)], sens_c[:6 * len(keys)])
+    assert shifts.local is None
+    ratio = res.diagnostics.model_mismatch.variance_ratio
+    own = [j for j, name in enumerate(shifts.names[:k]) if name.startswith(SENSOR_PREFIX)]
+    assert len(own) == n
+    E = {s.id: np.asarray(s.position_error_mm) / 1000 for s in evaluate(sim.eval, res.network).sensors}
+    covered = []
+    for i, sid in enumerate(ids):
+        R = seen["result"].atPose3(S(i)).rotation().matrix()
+        scale2 = max(1.0, ratio.get(sid, 1.0))
+        world = R @ C[6 * i + 3:6 * i + 6, 6 * i + 3:6 * i + 6] @ R.T * scale2
+        np.testing.assert_allclose(res.position_covariance_m2[3 * i:3 * i + 3, 3 * i:3 * i + 3], world,
+                                   rtol=1e-6, atol=1e-12)
+        if sim.calib.truth[sid].R_world_sensor[2, 0] > -0.5:       # pitched < 30 deg: a wall mount
+            # the departures' own share, S_d Sigma_dd S_d^T: along the view axis (the robot seen
+            # in front, a shift toward the sensor moves it along there), more than across it
+            a = _view_axis(sim.calib.truth[sid].R_world_sensor)
+            b = np.array([-a[1], a[0], 0.0])
+            Sd = sens[6 * i + 3:6 * i + 6, own]
+            share = R @ Sd @ shifts.cov[np.ix_(own, own)] @ Sd.T @ R.T
+            assert a @ share @ a > b @ share @ b > 0.0
+            covered.append(abs(a @ E[sid]) <= 2.0 * np.sqrt(a @ world @ a))
+    assert covered and np.mean(covered) >= 0.75, covered
+
+
+@pytest.fixture(scope="module")
+def nadir():
+    # every sensor looking straight down: the robot seen on every side of it, the departure a
+    # radial contraction of the view that no pose can take up
+    return _shifted_log(0, pitch_deg=[89.0])
+
+
+@pytest.mark.parametrize("joint_max", [200, 0])
+def test_a_sensor_seeing_the_robot_all_around_has_its_departure_estimated(nadir, joint_max, monkeypatch):
+    # (joint_max 0: many sensors' way, the departures fitted with the path beside the clock offsets)
+    sim, delta = nadir
+    _, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch, clock_offsets_joint_max=joint_max)
+    prob, shifts = seen["prob"], seen["shifts"]
+    ids = list(prob.sensor_ids)
+    assert sum(name.startswith(SENSOR_PREFIX) for name in shifts.names) == len(ids)
+    assert (shifts.local is not None) == (joint_max == 0)
+    steep = ids
+    est = np.array([prob.horizontal_shift_m + getattr(prob, SENSOR_PREFIX + sid) for sid in ids])
+    true = np.array([delta[sid] for sid in ids])
+    # the shared part (the simulator's own head point, shared by all) is not the departures':
+    # each sensor's departure from the sensors' mean
+    d_est, d_true = est - est.mean(), true - true.mean()
+    # within 8 mm (the departures' sigma here: ~6.5 mm; their prior, 20 mm, shrinks a 30 mm one by ~3 mm)
+    for sid in steep:
+        assert d_est[ids.index(sid)] == pytest.approx(d_true[ids.index(sid)], abs=0.008), sid
+
+
+def test_without_per_sensor_shifts_the_sigma_and_positions_barely_change(monkeypatch):
+    sim = simulate_logs("paper", seed=1, wall_mounted_fraction=0.3, sensor_height_range_m=[2.6, 4.5])
+    res0, _ = _calibrate(sim.calib, 0.0, monkeypatch)
+    res, _ = _calibrate(sim.calib, SIGMA_M, monkeypatch)
+    s0 = np.sqrt(np.diag(res0.position_covariance_m2))
+    s1 = np.sqrt(np.diag(res.position_covariance_m2))
+    p0 = np.array([res0.network[sid].position_m for sid in res0.network.ids])
+    p1 = np.array([res.network[sid].position_m for sid in res.network.ids])
+    # the sigma up by at most 10 % (here 4 %), the positions moved by at most half their sigma
+    # (here 6 mm of ~20: the departures take up the simulated dome's per-sensor share)
+    assert np.all(s1 >= s0 * 0.99)
+    assert np.max(s1 / s0) <= 1.10
+    assert np.all(np.abs(p1 - p0).ravel() <= 0.5 * s0)
