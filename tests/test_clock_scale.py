@@ -91,6 +91,14 @@ def test_local_offsets_are_logged_as_fitted_given_the_path(caplog):
         # written the same either way: about their mean (-10 ms), the latency taking the mean
         assert net.extra[CLOCK_OFFSET_KEY] == {"a": 0.02, "b": -0.02}
         assert net.extra[LATENCY_KEY] == pytest.approx(0.09)
+    # the sensors' own head shift departures, fitted alike above the limit, are named with them
+    for sigma_m, named in ((0.0, False), (0.02, True)):
+        prob.recipe.head_shift_per_sensor_sigma_m = sigma_m
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            record_clocks(SensorNetwork([]), prob, SimpleNamespace(names=names, cov=cov,
+                                                                   local=(np.array([0, 1]), np.zeros((2, 6)))))
+        assert any("head shift departures" in r.getMessage() for r in caplog.records) == named
 
 
 def test_local_profile_equals_the_dense_profile_of_each_variable():

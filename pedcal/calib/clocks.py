@@ -169,7 +169,9 @@ def record_clocks(network, prob, shifts) -> None:
             f"{len(ids)} sensors' clock offsets (more than clock_offsets_joint_max = "
             f"{prob.recipe.clock_offsets_joint_max}): each offset's sigma (and its share of its sensor's "
             "covariance) is its own profile's given the robot's path; their coupling through the path is "
-            "left out, so those sigmas are lower bounds")
+            "left out, so those sigmas are lower bounds"
+            + (" (so are those of the sensors' own head shift departures, fitted alike)"
+               if getattr(prob.recipe, "head_shift_per_sensor_sigma_m", 0.0) > 0.0 else ""))
     delta = np.array([getattr(prob, shifts.names[j]) for j in idx])
     mean, sigma_mean, centred, sigma = centered_offsets(delta, np.asarray(shifts.cov)[np.ix_(idx, idx)])
     network.extra[LATENCY_KEY] = round(prob.latency_s + mean, 4)
