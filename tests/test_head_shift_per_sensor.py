@@ -187,3 +187,17 @@ def test_without_per_sensor_shifts_the_sigma_and_positions_barely_change(monkeyp
     assert np.all(s1 >= s0 * 0.99)
     assert np.max(s1 / s0) <= 1.10
     assert np.all(np.abs(p1 - p0).ravel() <= 0.5 * s0)
+
+
+def test_without_a_distance_profile_no_shape_is_chosen(monkeypatch):
+    # the departures alone (head_profile off, the default) leave the profile's shape choice out:
+    # its row labelling walks every factor, and there is nothing to choose among
+    def refuse(*args, **kwargs):
+        raise AssertionError("the head profile's shapes were compared with no profile on")
+
+    monkeypatch.setattr(fgmod, "select_head_profile", refuse)
+    monkeypatch.setattr(fgmod, "row_sensors", refuse)
+    sim = simulate_logs("paper", seed=0)
+    res, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch)
+    assert sum(name.startswith(SENSOR_PREFIX) for name in seen["shifts"].names) == len(seen["prob"].sensor_ids)
+    assert all(s.status == "ok" for s in res.network)

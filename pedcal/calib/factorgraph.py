@@ -404,14 +404,17 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        "fitted with the path, its sigma on its own given the path (their coupling through it left out)")
     else:
         nuis += clocks
-    nuis += head_profile_nuisances(prob)   # the horizontal shift against distance (pedcal.calib.headpoint)
+    profile_nuis = head_profile_nuisances(prob)   # the horizontal shift against distance (pedcal.calib.headpoint)
+    nuis += profile_nuis
     # each sensor's own departure of the horizontal shift (a random effect; with many sensors
     # fitted with the path like the clock offsets)
     if local_nuis:
         local_nuis = local_nuis + sensor_shift_nuisances(prob)
     else:
         nuis += sensor_shift_nuisances(prob)
-    select_profile = any(is_head_profile(n.name) for n in nuis)
+    # (the shift against distance is chosen among its shapes; the random effect's departures are
+    # no candidates, and without a profile there is nothing to choose: no rows labelled for it)
+    select_profile = bool(profile_nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
     unmodelled = None
     if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
