@@ -173,19 +173,13 @@ def test_reestimate_starts_each_kept_person_at_its_own_solution(monkeypatch):
     # the first solve put that person
     import warnings
 
+    from test_profile import shared_people_problem
+
     import pedcal.calib.factorgraph as fg
     from pedcal.calib.graph import L
-    from pedcal.calib.recipe import GraphRecipe
     from pedcal.errors import DegenerateDataWarning
-    from pedcal.sim import simulate_logs
 
-    sim = simulate_logs("paper", seed=0)
-    rec = GraphRecipe.load("default")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DegenerateDataWarning)
-        # every track taken for a person: the robot's, seen by two sensors at once, are shared sightings
-        prob = prepare(sim.calib, rec, is_robot=np.zeros(len(sim.calib.observations), bool))
-        parts = build_parts(sim.calib, prob)
+    sim, prob, parts = shared_people_problem()
     n = len(prob.people)
     assert n > 10
     # an AMCL model unlike the assumed one, so that the re-solve goes on to the people

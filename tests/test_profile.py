@@ -189,14 +189,20 @@ def test_observation_rhs_equals_gtsams_linearization(dome_paper):
     assert worst < 1e-8
 
 
-def test_observation_rhs_equals_gtsams_for_shared_people():
-    # the people's bearing-range factors to their Point3 variables (the robot counted as a person)
+def shared_people_problem():
+    """Paper seed 0 with every track taken for a person: the robot's, seen by two sensors at
+    once, are the shared person sightings. Returns (sim, prob, parts)."""
     sim = simulate_logs("paper", seed=0)
-    rec = GraphRecipe.load("default")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
-        prob = prepare(sim.calib, rec, is_robot=np.zeros(len(sim.calib.observations), bool))
+        prob = prepare(sim.calib, GraphRecipe.load("default"), is_robot=np.zeros(len(sim.calib.observations), bool))
         parts = build_parts(sim.calib, prob)
+    return sim, prob, parts
+
+
+def test_observation_rhs_equals_gtsams_for_shared_people():
+    # the people's bearing-range factors to their Point3 variables (the robot counted as a person)
+    sim, prob, parts = shared_people_problem()
     assert len(prob.people) > 100
     # away from the initial values, so that predictions and measurements differ
     values = parts.values.retract(_random_delta(parts.values, 0.01, seed=1))
