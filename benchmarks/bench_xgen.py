@@ -66,14 +66,15 @@ def read_network(path: Path) -> dict:
     return out
 
 
-def score(truth: dict, est: dict) -> dict:
-    """Per-sensor errors of est against truth (every sensor of the truth)."""
+def score(truth: dict, est: dict, installed: dict | None = None) -> dict:
+    """Per-sensor errors of est against truth (every sensor of the truth). A sensor est lacks is
+    scored at its installed pose (``installed``), status "missing" and no sigma: a method that
+    gives a sensor up is scored on what the user is left with, never dropped."""
     rows = []
     for sid, t in truth.items():
         e = est.get(sid)
         if e is None:
-            rows.append({"id": sid, "missing": True})
-            continue
+            e = {**installed[sid], "sigma_p": None, "sigma_rot_deg": None, "status": "missing"}
         d = e["p"] - t["p"]
         yaw_err = Rotation.from_matrix(e["R"] @ t["R"].T).as_rotvec()[2]
         rot_s = Rotation.from_matrix(t["R"].T @ e["R"]).as_rotvec()
@@ -118,22 +119,26 @@ def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal
         r = run_calibrate_rusage(log, m, y)
         row = {**base, "method": m, **{k: r[k] for k in ("rc", "cpu_s", "wall_s")}}
         if r["rc"] == 0 and y.exists():
-            row.update(score(truth, read_network(y)))
+            row.update(score(truth, read_network(y), installed))
         else:
-            row["stderr"] = r["stderr"]
+            # a calibration that failed leaves the installed poses: scored on them
+            row.update(score(truth, {}, installed), failed=True, stderr=r["stderr"])
         results.append(row)
     return results
 
 
 def _errs(rows):
     """Every sensor's errors of a list of result rows."""
-    return [x for r in rows for x in r.get("sensors", []) if not x.get("missing")]
+    return [x for r in rows for x in r.get("sensors", [])]
 
 
 def summarize(rows, method):
-    rr = [r for r in rows if r["method"] == method and (r["rc"] != 0 or r.get("sensors"))]
-    failed = sum(1 for r in rr if r["rc"] != 0)
-    s = _errs([r for r in rr if r["rc"] == 0])
+    """A method's figures over every log it was run on: a failed log counts at its installed
+    poses (:func:`score`), and the sigma's coverage counts a sensor the method did not calibrate
+    (status other than ok, or no sigma) as outside."""
+    rr = [r for r in rows if r["method"] == method and r.get("sensors")]
+    failed = sum(1 for r in rr if r["rc"] != 0 or r.get("failed"))
+    s = _errs(rr)
     if not s:
         return None
     dx, dy, dz = (np.array([x[k] for x in s]) for k in ("dx", "dy", "dz"))
@@ -142,19 +147,19 @@ def summarize(rows, method):
            "xy_rel_mm": 1000 * math.sqrt(np.mean([x["dx_rel"] ** 2 + x["dy_rel"] ** 2 for x in s])),
            "yaw_deg": math.sqrt(np.mean([x["yaw_deg"] ** 2 for x in s])),
            "worst_log_xy_mm": max(1000 * math.sqrt(np.mean([x["dx"] ** 2 + x["dy"] ** 2 for x in r["sensors"]]))
-                                  for r in rr if r["rc"] == 0),
+                                  for r in rr),
            "not_ok": sum(1 for x in s if x["status"] != "ok"),
            "cpu_s": float(np.mean([r["cpu_s"] for r in rr])), "wall_s": float(np.mean([r["wall_s"] for r in rr]))}
-    with_sigma = [x for x in s if x["sigma_p"] is not None]
-    if with_sigma:
-        e = np.abs(np.array([[x["dx"], x["dy"], x["dz"]] for x in with_sigma]))
-        sg = np.array([x["sigma_p"] for x in with_sigma])
+    if any(x["sigma_p"] is not None for x in s):
+        # (a sensor left at its prior has a sigma wide enough to hold any error: not evidence)
+        e = np.abs(np.array([[x["dx"], x["dy"], x["dz"]] for x in s]))
+        sg = np.array([x["sigma_p"] if x["sigma_p"] is not None and x["status"] == "ok" else [-1.0] * 3 for x in s])
         out["cov1"] = (100 * np.mean(e <= sg, axis=0)).tolist()
         out["cov2"] = (100 * np.mean(e <= 2 * sg, axis=0)).tolist()
-    with_rot = [x for x in s if x["sigma_rot_deg"] is not None]
-    if with_rot:
-        e = np.abs(np.array([x["rot_deg"] for x in with_rot]))
-        sg = np.array([x["sigma_rot_deg"] for x in with_rot])
+    if any(x["sigma_rot_deg"] is not None for x in s):
+        e = np.abs(np.array([x["rot_deg"] for x in s]))
+        sg = np.array([x["sigma_rot_deg"] if x["sigma_rot_deg"] is not None and x["status"] == "ok"
+                       else [-1.0] * 3 for x in s])
         out["rot1"] = float(100 * np.mean(e <= sg))
         out["rot2"] = float(100 * np.mean(e <= 2 * sg))
     return out
@@ -183,6 +188,16 @@ def by_sensor(rows, field_name):
                                    for r in rows]) for v in values]
 
 
+def shared_shift_removed(row) -> None:
+    """Each scored sensor of ``row`` gets its error less the log's shared horizontal shift (what
+    anchoring to AMCL's run mean moves all sensors by): dx_rel, dy_rel."""
+    scored = row.get("sensors", [])
+    if scored:
+        mean_xy = np.mean([[x["dx"], x["dy"]] for x in scored], axis=0)
+        for x in scored:
+            x["dx_rel"], x["dy_rel"] = x["dx"] - mean_xy[0], x["dy"] - mean_xy[1]
+
+
 def attach_sensor_info(rows, out: Path):
     """Each scored sensor gets its mount and head profile (from the log's xgen.json), each row
     its AMCL jumps."""
@@ -194,12 +209,7 @@ def attach_sensor_info(rows, out: Path):
         info = cache[key]
         per = {s["id"]: s for s in info["sensors"]}
         r["amcl_jumps"] = len(info["amcl"]["jumps"])
-        scored = [x for x in r.get("sensors", []) if not x.get("missing")]
-        if scored:
-            # the log's shared horizontal shift (what anchoring to AMCL's run mean moves all sensors by)
-            mean_xy = np.mean([[x["dx"], x["dy"]] for x in scored], axis=0)
-            for x in scored:
-                x["dx_rel"], x["dy_rel"] = x["dx"] - mean_xy[0], x["dy"] - mean_xy[1]
+        shared_shift_removed(r)
         for x in r.get("sensors", []):
             x["mount"] = per[x["id"]]["mount"]
             x["profile"] = per[x["id"]]["profile"]["kind"]

@@ -173,3 +173,30 @@ def test_shared_head_profiles_give_every_sensor_one_profile(tmp_path):
     assert (tmp_path / "s" / "truth.yaml").read_bytes() == (tmp_path / "p" / "truth.yaml").read_bytes()
     with pytest.raises(ValueError, match="unknown head_profiles"):
         generate(tmp_path / "x", seed=0, family="rooms", head_profiles="random")
+
+
+def test_the_exam_scores_a_failed_calibration_on_the_installed_poses_and_a_prior_sigma_as_a_miss():
+    # a method that gives up (no YAML, or a sensor left out, or a sensor at its prior) must not
+    # leave the figures: it is scored on what the user is left with, its sigma's coverage a miss
+    from bench_xgen import score, shared_shift_removed, summarize
+
+    eye = np.eye(3)
+    truth = {s: {"p": np.zeros(3), "R": eye} for s in ("a", "b")}
+    installed = {s: {"p": np.array([0.3, 0.4, 0.0]), "R": eye, "sigma_p": None, "sigma_rot_deg": None,
+                     "status": "ok"} for s in ("a", "b")}
+    good = {"p": np.array([0.01, 0.0, 0.0]), "R": eye, "sigma_p": np.array([0.02] * 3),
+            "sigma_rot_deg": np.array([1.0] * 3), "status": "ok"}
+    prior = {**good, "p": np.array([0.2, 0.0, 0.0]), "sigma_p": np.array([0.5] * 3), "status": "no-data"}
+    t = {"cpu_s": 1.0, "wall_s": 1.0}
+    rows = [{"method": "m", "rc": 0, **t, **score(truth, {"a": good, "b": prior}, installed)},
+            {"method": "m", "rc": 0, **t, **score(truth, {"a": good}, installed)},       # b left out
+            {"method": "m", "rc": 1, "failed": True, **t, **score(truth, {}, installed)}]
+    for r in rows:
+        shared_shift_removed(r)
+    out = summarize(rows, "m")
+    assert out["logs"] == 3 and out["failed"] == 1 and out["n"] == 6
+    # xy over all six: two at 10 mm, one at 200 mm, three at the installed 500 mm
+    assert out["xy_mm"] == pytest.approx(1000 * math.sqrt((2 * 0.01 ** 2 + 0.2 ** 2 + 3 * 0.5 ** 2) / 6))
+    assert out["worst_log_xy_mm"] == pytest.approx(500.0)
+    assert out["cov1"][0] == pytest.approx(100 * 2 / 6)      # the two calibrated sensors only
+    assert out["not_ok"] == 4
