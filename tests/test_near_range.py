@@ -80,19 +80,22 @@ def test_a_person_sized_column_filling_the_view_is_cut():
     assert fov_cut(pts, np.arange(len(pts)), w, d, np.pi / 2, (v,))
 
 
-@pytest.mark.parametrize("case", ["pole", "board", "wall", "far", "low", "top_corner_only"])
+@pytest.mark.parametrize("case", ["pole", "board", "wall", "far", "low", "top_corner_only", "hanging"])
 def test_what_is_not_a_cut_column(case):
     """Too narrow (a pole), too flat (a board face-on), too wide (a wall), too far, not reaching the
-    top edge (a chair, a box), or reaching it over less than half its width."""
+    top edge (a chair, a box), reaching it over less than half its width, or not reaching the
+    bottom edge (a sign or a lamp hanging from above)."""
     (v,) = sensor_views(FX8, (Mount(0.0, 0.0, 1.0),))
     pts = {"pole": column(0.5, 0.06, 0.06, v), "board": column(0.5, 0.5, 0.02, v), "wall": column(0.5, 1.0, 0.3, v),
            "far": column(TRUNCATED_MAX_RANGE_M + 0.1, 0.45, 0.25, v), "low": column(0.5, 0.45, 0.25, v),
-           "top_corner_only": column(0.5, 0.45, 0.25, v)}[case]
+           "top_corner_only": column(0.5, 0.45, 0.25, v), "hanging": column(0.5, 0.45, 0.25, v)}[case]
     if case == "low":  # a box 0.9 m high: below the top edge at that range (1 + 0.5 tan 25 deg = 1.23 m)
         pts = pts[pts[:, 2] <= 0.9]
     if case == "top_corner_only":  # its top is a slope: only the left quarter reaches the top edge
         keep = (pts[:, 2] < 1.15) | (pts[:, 1] > 0.45 / 4)
         pts = pts[keep]
+    if case == "hanging":  # from 1.1 m up: the top edge, never the bottom one
+        pts = pts[pts[:, 2] >= 1.1]
     w, d = box_dims(pts)
     assert not fov_cut(pts, np.arange(len(pts)), w, d, np.pi / 2, (v,))
 
