@@ -231,11 +231,19 @@ def test_mixed_heights_and_wall_mounts():
     assert np.all((z[~wall] >= 2.6) & (z[~wall] <= 4.5)) and np.ptp(z[~wall]) > 0.8
     assert np.all((z[wall] > 1.7 + 2.0 * np.tan(np.radians(10.0)) - 1e-9)
                   & (z[wall] < 1.7 + 3.5 * np.tan(np.radians(25.0)) + 1e-9))
-    # the layout's other draws are the seed's: the ceiling sensors' x, y as without the mounts,
-    # the wall mounts' y (they move back along their view, which is along x here)
+    # the layout's other draws are the seed's: the ceiling sensors' x, y as without the mounts;
+    # a wall mount moved straight back along its view (never forward, never sideways)
     plain = simulate_logs("paper", seed=4, duration_s=30.0).calib.truth
+    moved = 0
     for a, b, w in zip(plain, sim.calib.truth, wall, strict=True):
-        np.testing.assert_allclose(a.position_m[1 if w else 0:2], b.position_m[1 if w else 0:2], atol=0.1 if w else 0)
+        if not w:
+            np.testing.assert_array_equal(a.position_m[:2], b.position_m[:2])
+            continue
+        yaw = np.radians(frames.ypr_deg_from_rot(a.R_world_sensor)[0])
+        look, d = np.array([np.cos(yaw), np.sin(yaw)]), b.position_m[:2] - a.position_m[:2]
+        assert abs(look[0] * d[1] - look[1] * d[0]) < 1e-9 and d @ look <= 1e-9
+        moved += np.linalg.norm(d) > 0.1
+    assert moved >= 1                                         # the check is not only of unmoved mounts
     with pytest.raises(Exception, match="0 < min <= max"):
         Scenario().resolve(sensor_height_range_m=[3.0, 2.0])
 
