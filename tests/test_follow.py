@@ -225,6 +225,7 @@ def outcomes():
            for sc in ("passing", "crossing", "corner") for tr in ("paper", "lidar-only")}
     for sc in ("passing", "corner"):
         out[sc, "lidar-only", "seeds 0-5"] = [run_follow(sc, tracker="lidar-only", seed=s).to_dict() for s in range(6)]
+    out["passing", "paper", "seeds 0-5"] = [run_follow("passing", tracker="paper", seed=s).to_dict() for s in range(6)]
     return out
 
 
@@ -232,12 +233,16 @@ def test_passing_paper_keeps_target_lidar_only_switches(outcomes):
     paper, lidar = outcomes["passing", "paper"], outcomes["passing", "lidar-only"]
     assert paper["id_switches"] == 0 and paper["followed_to_end"]
     assert paper["with_target_fraction"] >= 0.9 and (paper["max_reacquire_s"] or 0.0) <= 3.0
-    assert lidar["with_target_fraction"] <= paper["with_target_fraction"]
     # the robot follows 1.2 m behind (the follow law adds the target's speed), so the passer crosses
     # 0.6 m in front of it and hides the target a frame or two: the LIDAR-only tracker switches to
-    # the passer in some runs only (it switched in every run while the robot trailed at 2 m)
+    # the passer in some runs only (it switched in every run while the robot trailed at 2 m); the
+    # paper tracker keeps the target in those same runs
     runs = outcomes["passing", "lidar-only", "seeds 0-5"]
-    assert any(m["id_switches"] >= 1 and not m["followed_to_end"] and m["with_target_fraction"] < 0.7 for m in runs)
+    switched = [m["id_switches"] >= 1 and not m["followed_to_end"] and m["with_target_fraction"] < 0.7 for m in runs]
+    assert any(switched)
+    for m, lost in zip(outcomes["passing", "paper", "seeds 0-5"], switched, strict=True):
+        if lost:
+            assert m["id_switches"] == 0 and m["followed_to_end"] and m["with_target_fraction"] >= 0.9
 
 
 def test_crossing_paper_keeps_target_lidar_only_switches(outcomes):
