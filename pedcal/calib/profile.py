@@ -109,12 +109,8 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
     keep = ~rhs
     index_dtype = np.int32 if max(len(v), cols.n) < 2 ** 31 else np.int64      # (scipy's own choice)
+    # (GTSAM lists a factor's entries variable by variable, so its rows are not in order: COO)
     i, j, v = i[keep], local.astype(index_dtype)[j[keep]], v[keep]
-    if np.all(i[1:] >= i[:-1]):
-        # GTSAM lists a factor's entries row by row, columns in key order, factor after factor:
-        # A's CSR arrays as they come (no COO sort; ``local`` keeps the columns' order)
-        indptr = np.r_[0, np.cumsum(np.bincount(i, minlength=m))].astype(index_dtype)
-        return sps.csr_matrix((v, j, indptr), shape=(m, cols.n)), b
     return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
 
 
