@@ -795,10 +795,18 @@ class ObservationRhs:
         self.basis = _unit3_basis(self.u_pred)
         self.sensor, self.is_pose = terms.sensor, terms.is_pose
         self.first = int(terms.prior is not None)        # the prior leads the block
+        # the robot observations grouped by sensor once (each per-sensor nuisance asks for its own)
+        robot = np.flatnonzero(self.is_pose)
+        by_sensor = robot[np.argsort(self.sensor[robot], kind="stable")]
+        self._robot_by_sensor = by_sensor
+        self._robot_cuts = np.searchsorted(self.sensor[by_sensor], np.arange(int(self.sensor.max(initial=-1)) + 2))
 
     def robot_factors(self, sensor_index: int) -> np.ndarray:
-        """Indices in the block of the robot observations of sensor ``sensor_index``."""
-        return self.first + np.flatnonzero(self.is_pose & (self.sensor == sensor_index))
+        """Indices in the block of the robot observations of sensor ``sensor_index`` (in order)."""
+        if not 0 <= sensor_index < len(self._robot_cuts) - 1:
+            return np.zeros(0, np.int64)
+        lo, hi = self._robot_cuts[sensor_index], self._robot_cuts[sensor_index + 1]
+        return self.first + self._robot_by_sensor[lo:hi]
 
     def __call__(self, theta: dict | None, sigma_scale: np.ndarray | None = None) -> np.ndarray:
         terms = observation_terms(self.log, self.prob, self.values, t_max=self.t_max, theta=theta,
