@@ -133,6 +133,13 @@ def test_offsets_are_split_into_their_mean_and_departures_with_each_ones_sigma()
     assert sigma_mean > 3 * sigma_mean_own
     # one offset: its departure from the mean is 0, sure
     assert centered_offsets(np.array([0.05]), np.array([[1e-4]]))[3] == pytest.approx([0.0])
+    # unequal, uncorrelated offsets (the cross term -2 (C 1)_i / n is not a constant here):
+    # c_i^T C c_i = (1 - 1/n)^2 C_ii + sum_{j != i} C_jj / n^2
+    var = np.array([1.0, 4.0, 9.0]) * 1e-4
+    _, sm, _, s = centered_offsets(delta, np.diag(var))
+    expected = [(2 / 3) ** 2 * var[i] + (var.sum() - var[i]) / 9 for i in range(3)]
+    np.testing.assert_allclose(s, np.sqrt(expected), rtol=1e-12)
+    assert sm == pytest.approx(np.sqrt(var.sum()) / 3, rel=1e-12)
 
 
 def test_a_clock_offset_moves_a_point_by_the_heads_motion_over_it_to_second_order():

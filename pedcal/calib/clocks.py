@@ -143,11 +143,12 @@ def centered_offsets(delta_s: np.ndarray, cov_s2: np.ndarray) -> tuple[float, fl
     c_i^T C c_i, and var(mean) = 1^T C 1 / n^2: offsets that move together (a latency error they
     share) leave the centred ones sure and the mean unsure, not each offset unsure."""
     delta_s = np.asarray(delta_s, float)
-    n = len(delta_s)
-    centre = np.eye(n) - 1.0 / n
+    cov_s2 = np.asarray(cov_s2, float)
     mean = float(delta_s.mean())
-    sigma_mean = float(np.sqrt(max(np.sum(cov_s2) / n ** 2, 0.0)))
-    sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", centre, cov_s2, centre), 0.0))
+    total = float(cov_s2.mean())                     # 1^T C 1 / n^2
+    sigma_mean = float(np.sqrt(max(total, 0.0)))
+    # c_i^T C c_i = C_ii - 2 (C 1)_i / n + 1^T C 1 / n^2, in O(n^2)
+    sigma = np.sqrt(np.maximum(np.diag(cov_s2) - 2.0 * cov_s2.mean(axis=1) + total, 0.0))
     return mean, sigma_mean, delta_s - mean, sigma
 
 
