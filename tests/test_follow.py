@@ -230,7 +230,7 @@ def outcomes():
 
 
 def test_passing_paper_keeps_target_lidar_only_switches(outcomes):
-    paper, lidar = outcomes["passing", "paper"], outcomes["passing", "lidar-only"]
+    paper = outcomes["passing", "paper"]
     assert paper["id_switches"] == 0 and paper["followed_to_end"]
     assert paper["with_target_fraction"] >= 0.9 and (paper["max_reacquire_s"] or 0.0) <= 3.0
     # the robot follows 1.2 m behind (the follow law adds the target's speed), so the passer crosses
