@@ -140,7 +140,7 @@ def robust_variogram(t: np.ndarray, series: list[tuple[np.ndarray, np.ndarray]],
 
 
 def fit_variogram(lags_s: np.ndarray, gamma: np.ndarray, n_eff: np.ndarray, max_correlation_s: float = 1e4,
-                  floor_sigma_m: float | None = None):
+                  floor_sigma_m: float | None = None, default_correlation_s: float = float("nan")):
     """(white std, correlated std, correlation time) fitted to a semivariogram by weighted least
     squares: each lag's relative error is about sqrt(2.7 / n_eff) (a MAD-based variance of
     ``n_eff`` independent differences, two axes). The wandering part is kept only when it lowers
@@ -148,8 +148,9 @@ def fit_variogram(lags_s: np.ndarray, gamma: np.ndarray, n_eff: np.ndarray, max_
     the error is white. A wandering error's short lags (its rate of wander, correlated^2 /
     correlation time) are what residuals show reliably; its full size is not (each sensor's pose
     absorbs AMCL's local average), so it is at least ``floor_sigma_m`` (AMCL's reported std) at the
-    same rate of wander. The correlation time is at most ``max_correlation_s``; None with fewer
-    than three lags."""
+    same rate of wander. The correlation time is at most ``max_correlation_s``; for a white error
+    the data do not tell it (the fit's is any point of a flat cost, moved by rounding), and
+    ``default_correlation_s`` (the assumed one; NaN if not given) is returned. None with fewer than three lags."""
     from scipy.optimize import least_squares
 
     ok = np.isfinite(gamma) & (gamma > 0) & (n_eff > 0)
@@ -172,7 +173,7 @@ def fit_variogram(lags_s: np.ndarray, gamma: np.ndarray, n_eff: np.ndarray, max_
     white2 = float(np.sum(w ** 2 / g) / np.sum(w ** 2 / g ** 2))
     cost_white = 0.5 * float(np.sum((w * (white2 - g) / g) ** 2))
     if cost_white - best.cost < 2.0:          # Akaike: 2 x (cost difference) < 2 x 2 parameters
-        return float(np.sqrt(white2)), 0.0, float(np.exp(best.x[2]))
+        return float(np.sqrt(white2)), 0.0, float(default_correlation_s)
     w2, c2, log_tau = best.x
     tau = float(np.exp(log_tau))
     if floor_sigma_m is not None and floor_sigma_m ** 2 > c2:
@@ -316,16 +317,11 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     # a correlation time beyond half the run cannot be told from a longer one: the run's mean error
     # is then about the wandering std either way
     fit = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=0.5 * float(t_amcl[-1] - t_amcl[0]),
-                        floor_sigma_m=prior_sigma_m)
+                        floor_sigma_m=prior_sigma_m, default_correlation_s=assumed.correlation_s)
     if fit is None:
         return assumed
     white, corr, tau = fit
     white = max(white, min_white_m)
-    if corr <= 0.0:
-        # no wandering part in the data: its correlation time is not told by them (the fit's is
-        # any point of a flat cost, moved by rounding), and the heading's weight depends on it
-        # (graph._amcl_block); the assumed one is kept
-        tau = assumed.correlation_s
     track = np.zeros(n, bool) if assumed.track_jumps is None else assumed.track_jumps
     return AmclErrorModel(white_sigma_m=white, correlated_sigma_m=corr, correlation_s=tau, source="estimated",
                           **_exclusion(jump, track, t_amcl),
