@@ -211,7 +211,9 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             # the shifts, then up by minus the offset: the top
             if profile is not None:        # the shift against horizontal distance (pedcal.calib.headpoint)
                 toward = frames.toward_sensor_horizontal(p, s.R_world_sensor)
-                p = p - shift_at(profile, horizontal_distance(p, toward))[:, None] * toward
+                # and this sensor's own departure from it, where one was kept (the shared shift at d_0 is shift_m[0])
+                own = profile.get("per_sensor_shift_m", {}).get(s.id, profile["shift_m"][0]) - profile["shift_m"][0]
+                p = p - (shift_at(profile, horizontal_distance(p, toward)) + own)[:, None] * toward
             elif horizontal_m:
                 p = p - horizontal_m * frames.toward_sensor_horizontal(p, s.R_world_sensor)
             if curvature_m:

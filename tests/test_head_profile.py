@@ -180,6 +180,22 @@ def test_the_profile_goes_through_the_yaml_and_into_evaluate(ramp_log, tmp_path)
     assert evaluate(clean.calib, constant).head_tracking_rms_mm > 5.0
     np.testing.assert_allclose(shift_at({"distance_m": [1.0, 2.0], "shift_m": [0.02, 0.0]}, [0.0, 1.5, 3.0]),
                                [0.02, 0.01, 0.0])
+    # a sensor's own departure the YAML records moves that sensor's points alone, by it, toward the sensor
+    from pedcal.metrics import reproject_observations
+
+    sid = clean.calib.truth.sensors[0].id
+    own = with_profile.copy()
+    own.extra[HEAD_MODEL_KEY] = {**with_profile.extra[HEAD_MODEL_KEY], "horizontal_profile": {
+        **true_profile, "per_sensor_shift_m": {sid: true_profile["shift_m"][0] + 0.03}}}
+    a, b = reproject_observations(clean.calib, with_profile), reproject_observations(clean.calib, own)
+    mine = (clean.calib.observations["sensor"].astype(str) == sid).to_numpy() & np.isfinite(a[:, 0])
+    assert mine.any() and np.array_equal(a[~mine], b[~mine], equal_nan=True)
+    moved = a[mine] - b[mine]
+    np.testing.assert_allclose(np.linalg.norm(moved, axis=1), 0.03, atol=1e-9)
+    np.testing.assert_allclose(moved[:, 2], 0.0, atol=1e-9)
+    # a larger shift toward the sensor means the head top was farther from it: b lies farther away
+    to_sensor = np.asarray(clean.calib.truth[sid].position_m)[:2] - a[mine][:, :2]
+    assert np.all(np.einsum("ij,ij->i", moved[:, :2], to_sensor) > 0.0)
 
 
 @pytest.mark.parametrize("bad, match", [({"distance_m": [1.0], "shift_m": [0.0]}, "same length, 2 or more"),
