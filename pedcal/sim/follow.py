@@ -245,7 +245,8 @@ class ReactiveCrowd:
             away = (cur - r) / max(d_now, 1e-9)
             cand.append((cur + away * min(self.keep_m - d_now, 1.5 * self.dt_s))[None])
         cand = np.concatenate([*cand, cur[None]])  # waiting last
-        d_cand = np.minimum(np.linalg.norm(cand - r, axis=1), np.linalg.norm(cand - r_next, axis=1))
+        d_r, d_next = np.linalg.norm(cand - r, axis=1), np.linalg.norm(cand - r_next, axis=1)
+        d_cand = np.minimum(d_r, d_next)
         walled = self._walled(cur, cand)
         # at the keep-out distance or beyond, now and a frame on (a walker already inside it walks
         # on if a step restores the gap, else steps away); failing that, never nearer the robot
@@ -253,18 +254,17 @@ class ReactiveCrowd:
         comfortable = (d_cand >= self.keep_m - 1e-9) & ~walled
         near_now = min(self.keep_m, d_now) - 1e-9
         near_next = min(self.keep_m, float(np.linalg.norm(cur - r_next))) - 1e-9
-        clear = ((np.linalg.norm(cand - r, axis=1) >= near_now)
-                 & (np.linalg.norm(cand - r_next, axis=1) >= near_next) & ~walled)
-        clear[-1] = True
+        clear = (d_r >= near_now) & (d_next >= near_next) & ~walled
+        clear[-1] = True                 # waiting (the last) is always a way out
         free = np.ones(len(cand), bool)
         if len(others):  # nor onto another walker (an overlap not begun nor deepened)
             d_cur = np.linalg.norm(cur - others, axis=1)
             d = np.linalg.norm(cand[:, None] - others[None], axis=2)
             free = (d >= np.minimum(2 * PERSON_RADIUS_M, d_cur)[None] - 1e-9).all(axis=1)
-        for ok in (comfortable & free, clear & free, clear):
+        for ok in (comfortable & free, clear & free):
             if ok.any():
                 return cand[int(np.argmax(ok))]
-        return cur
+        return cand[int(np.argmax(clear))]
 
     def _walled(self, cur: np.ndarray, cand: np.ndarray) -> np.ndarray:
         if self.occupancy is None:
