@@ -155,20 +155,19 @@ def near(distances: list[float], frames: int, lidar: str) -> None:
 NEAR_M = 1.1  # losses: nearer than this (robot to target centre) the FX8 pair sees a slab of torso
 
 
-def loss_causes(log: pd.DataFrame, target_id: str) -> dict:
+def lidar_loss_causes(log: pd.DataFrame, target_id: str) -> dict:
     """Why the frames of a LIDAR run's follow log lack the target (``with_target_frames`` false,
     from the tracker's first choice on): the target out of sight (``target_visible`` false), in
     sight but missed by the detector nearer than ``NEAR_M`` or farther, or detected (the tracker's
     doing); and the detector's hits in sight, near and far, its false detections per frame and the
     frames the robot spent nearer than ``NEAR_M``."""
-    from pedcal.track.follow import with_target_frames
+    from pedcal.track.follow import lost_frames, with_target_frames
 
     held = with_target_frames(log, target_id)
-    scored = np.cumsum(~pd.isna(log["target_track_id"].to_numpy())) > 0
+    scored, lost = lost_frames(log, target_id)
     vis = log["target_visible"].to_numpy(bool)
     near = log["lidar_target_range_m"].to_numpy(float) < NEAR_M
     det = log["lidar_target_detected"].to_numpy(bool)
-    lost = scored & ~held
     return dict(frames=int(scored.sum()), with_target=float(held[scored].mean()), near_frames=int((vis & near).sum()),
                 found_near=int((vis & near & det).sum()), far_frames=int((vis & ~near).sum()),
                 found_far=int((vis & ~near & det).sum()), lost=int(lost.sum()), lost_hidden=int((lost & ~vis).sum()),
@@ -179,7 +178,7 @@ def loss_causes(log: pd.DataFrame, target_id: str) -> dict:
 
 
 def losses(people: Path, targets: list[str], tracker: str, seed: int, lidar: str) -> None:
-    """``loss_causes`` of each target's episode with the LIDAR, beside its with-target with the
+    """``lidar_loss_causes`` of each target's episode with the LIDAR, beside its with-target with the
     abstract model (same episode, tracker and seed)."""
     from pedcal.sim.follow import people_episode
     from pedcal.track.follow import read_people
@@ -189,7 +188,7 @@ def losses(people: Path, targets: list[str], tracker: str, seed: int, lidar: str
     for t in targets:
         ideal = run_episode(people_episode(table, t, people), tracker, seed).metrics.with_target_fraction
         r = run_episode(people_episode(table, t, people), tracker, seed, sensing="lidar", lidar=lidar)
-        rows.append(dict(target=t, ideal=ideal, **loss_causes(r.log, t)))
+        rows.append(dict(target=t, ideal=ideal, **lidar_loss_causes(r.log, t)))
         print(pd.DataFrame(rows[-1:]).round(3).to_string(index=False, header=len(rows) == 1), flush=True)
     d = pd.DataFrame(rows)
     tot = d.drop(columns=["target", "ideal", "with_target", "false_per_frame"]).sum()

@@ -143,6 +143,13 @@ HELD_BACK_SPEED_MPS = 0.1  # the robot "stands" below this speed over a frame
 HELD_BACK_S = (5.0, 2.0)  # held back: standing at least 2 s of the last 5 s, farther than it follows from
 
 
+def lost_frames(log: pd.DataFrame, target_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """(scored, lost) masks of a follow log's frames: scored from the tracker's first choice of a
+    target to the end, lost where scored and not with the target (``with_target_frames``)."""
+    scored = np.cumsum(log["target_track_id"].notna().to_numpy()) > 0
+    return scored, scored & ~with_target_frames(log, target_id)
+
+
 def loss_causes(log: pd.DataFrame, target_id: str) -> dict[str, int]:
     """Why the scored frames of a follow log that are not with the target (``with_target_frames``)
     are not: ``in_view``, the target in the robot's view and the tracker claiming somebody else or
@@ -150,8 +157,7 @@ def loss_causes(log: pd.DataFrame, target_id: str) -> dict[str, int]:
     ``HELD_BACK_SPEED_MPS``) for at least ``HELD_BACK_S[1]`` s of the last ``HELD_BACK_S[0]`` s while
     farther from the target than ``FOLLOW_DISTANCE_M`` + 0.4 m (people in its way); ``out_of_view``,
     the rest (hidden behind people or walls, out of the field of view). Frame counts."""
-    held = with_target_frames(log, target_id)
-    scored = np.cumsum(log["target_track_id"].notna().to_numpy()) > 0
+    _, lost = lost_frames(log, target_id)
     robot = log[["robot_x", "robot_y"]].to_numpy(float)
     speed = np.r_[0.0, np.linalg.norm(np.diff(robot, axis=0), axis=1) * FRAME_HZ]
     dist = np.linalg.norm(robot - log[["target_x", "target_y"]].to_numpy(float), axis=1)
@@ -162,7 +168,6 @@ def loss_causes(log: pd.DataFrame, target_id: str) -> dict[str, int]:
     k = np.arange(len(log))
     held_back = c[k + 1] - c[np.maximum(k + 1 - window, 0)] >= least
     visible = log["target_visible"].to_numpy(bool)
-    lost = scored & ~held
     return {"in_view": int((lost & visible).sum()), "held_back": int((lost & ~visible & held_back).sum()),
             "out_of_view": int((lost & ~visible & ~held_back).sum())}
 
@@ -466,6 +471,6 @@ def run_follow(scenario: str | None = "passing", tracker: str = "factorgraph", s
 
 
 __all__ = ["METRIC_KEYS", "MATCH_DISTANCE_M", "HIDDEN_HOLD_M", "NEAR_M", "FollowMetrics", "FollowResult",
-           "follow_metrics", "with_target_frames", "loss_causes", "robot_contact_frames", "contact_metrics",
-           "perceived_people", "match_people", "MotAccumulator",
+           "follow_metrics", "with_target_frames", "lost_frames", "loss_causes", "robot_contact_frames",
+           "contact_metrics", "perceived_people", "match_people", "MotAccumulator",
            "run_episode", "run_follow", "read_people"]
