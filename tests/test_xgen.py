@@ -80,10 +80,10 @@ def test_rotation_convention_pitch_looks_down():
     assert np.allclose(ypr_from_rot(rot_world_sensor(*ypr)), ypr)
 
 
-def test_robot_observations_are_the_head_seen_with_installed_extrinsics(lhall_log):
-    # undo the installed extrinsics, apply the true ones: the robot's observations land on its true
-    # head top at the capture time (stamp - latency - clock offset), within the tracker's bias and noise
-    d, info = lhall_log
+def mapped_back(d: Path, info: dict) -> dict:
+    """Per sensor, its robot observations mapped back through the installed extrinsics and out
+    through the true ones, against the robot's true head top at the capture time (stamp - latency
+    - the sensor's clock offset): (errors (m), the errors of the observations as the file holds them)."""
     obs = pd.read_csv(d / "observations.csv")
     who = pd.read_csv(d / "truth_observations.csv")
     truth_robot = pd.read_csv(d / "truth_robot.csv")
@@ -94,9 +94,8 @@ def test_robot_observations_are_the_head_seen_with_installed_extrinsics(lhall_lo
 
     installed, truth = network(d / "sensors.yaml"), network(d / "truth.yaml")
     head = np.asarray(info["head_offset_m"])
-    robot = obs[who["who"].to_numpy() == "robot"]
-    errors, errors_installed = [], []
-    for sid, g in robot.groupby("sensor"):
+    out = {}
+    for sid, g in obs[who["who"].to_numpy() == "robot"].groupby("sensor"):
         p_inst, r_inst = installed[sid]
         p_true, r_true = truth[sid]
         p_world = ((g[["x", "y", "z"]].to_numpy() - p_inst) @ r_inst) @ r_true.T + p_true
@@ -106,13 +105,32 @@ def test_robot_observations_are_the_head_seen_with_installed_extrinsics(lhall_lo
         y = np.interp(t_cap, truth_robot["t"], truth_robot["y"])
         yaw = np.interp(t_cap, truth_robot["t"], np.unwrap(truth_robot["yaw"]))
         top = np.column_stack([x + np.cos(yaw) * head[0], y + np.sin(yaw) * head[0], np.full_like(x, head[2])])
-        errors.append(np.linalg.norm(p_world - top, axis=1))
-        errors_installed.append(np.linalg.norm(g[["x", "y", "z"]].to_numpy() - top, axis=1))
-    errors, errors_installed = np.concatenate(errors), np.concatenate(errors_installed)
+        out[sid] = (np.linalg.norm(p_world - top, axis=1), np.linalg.norm(g[["x", "y", "z"]].to_numpy() - top, axis=1))
+    return out
+
+
+def test_robot_observations_are_the_head_seen_with_installed_extrinsics(lhall_log):
+    # undo the installed extrinsics, apply the true ones: the robot's observations land on its true
+    # head top at the capture time (stamp - latency - clock offset), within the tracker's bias and noise
+    d, info = lhall_log
+    per = mapped_back(d, info)
+    errors = np.concatenate([e for e, _ in per.values()])
+    errors_installed = np.concatenate([e for _, e in per.values()])
     assert errors.size > 50
     assert np.median(errors) < 0.12
     # as the file holds them (installed extrinsics) they are off by the installation error
     assert np.median(errors_installed) > 2 * np.median(errors)
+
+
+def test_each_sensors_clock_offset_is_in_its_stamps(tmp_path):
+    # the head model and the noise off, per-sensor clocks on: mapped back at stamp - latency - that
+    # sensor's offset, the observations are the head top to a few mm (a flipped or dropped offset
+    # leaves 11-22 mm)
+    d = tmp_path / "clocks"
+    info = generate(d, seed=0, family="lhall", max_time_s=SHORT_S, ideal=("head", "noise"))
+    assert info["clock_offsets"] and any(abs(s["clock_offset_s"]) > 0.02 for s in info["sensors"])
+    errors = np.concatenate([e for e, _ in mapped_back(d, info).values()])
+    assert errors.size > 50 and np.median(errors) < 0.005
 
 
 def test_head_profiles_shift_toward_the_sensor():
