@@ -99,73 +99,59 @@ def timed_stages(totals: dict, stages: dict | None = None):
             setattr(mod, name, f)
 
 
-def import_time(method: str = "factorgraph", repeats: int = 1) -> tuple[float, float]:
+def import_time(method: str = "factorgraph") -> tuple[float, float]:
     """(wall, CPU) of importing what ``pedcal calibrate --method METHOD`` loads before it reads the
-    log, in a fresh process (the fastest of ``repeats``)."""
+    log, in a fresh process (one run: the caller keeps the fastest of its repeats)."""
     code = ("import time; w, c = time.perf_counter(), time.process_time(); import pedcal.cli; "
             "from pedcal.calib import calibrate; from pedcal.io import read_log, write_sensors_yaml; "
             f"import pedcal.calib.{method}; print(time.perf_counter() - w, time.process_time() - c)")
-    runs = []
-    for _ in range(repeats):
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-        runs.append((float(out[0]), float(out[1])))
-    return min(runs, key=lambda r: r[1])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    return float(out[0]), float(out[1])
 
 
-def command_time(log_dir: Path, method: str, repeats: int) -> tuple[float, float]:
+def command_time(log_dir: Path, method: str) -> tuple[float, float]:
     """(wall, CPU) of the whole ``pedcal calibrate LOG -o OUT --method METHOD -q`` as a new user runs
-    it (a fresh process: imports, reading the log, the solve, writing the YAML), the fastest of
-    ``repeats`` by CPU (the process's and its children's user + system time)."""
+    it (a fresh process: imports, reading the log, the solve, writing the YAML; CPU the child's
+    user + system time), one run."""
     import resource
     import tempfile
 
-    runs = []
     with tempfile.TemporaryDirectory() as tmp:
-        for _ in range(repeats):
-            before = resource.getrusage(resource.RUSAGE_CHILDREN)
-            w0 = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "pedcal.cli", "calibrate", str(log_dir), "-o",
-                            str(Path(tmp) / f"{method}.yaml"), "--method", method, "-q"],
-                           check=True, capture_output=True)
-            wall = time.perf_counter() - w0
-            after = resource.getrusage(resource.RUSAGE_CHILDREN)
-            runs.append((wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)))
-    return min(runs, key=lambda r: r[1])
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        w0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "pedcal.cli", "calibrate", str(log_dir), "-o",
+                        str(Path(tmp) / f"{method}.yaml"), "--method", method, "-q"],
+                       check=True, capture_output=True)
+        wall = time.perf_counter() - w0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def stages_of(log, repeats: int, **options) -> dict:
-    """Per stage the (wall, CPU) of the fastest of ``repeats`` calibrations, plus the total."""
+def _timed_solve(log, method: str, stages: dict | None, **options) -> dict:
+    """One ``calibrate`` of ``log`` by ``method`` with the (wall, CPU) of ``stages`` (all of
+    STAGES when None) and of the whole solve ("total")."""
     from pedcal.calib import calibrate
 
-    best = None
-    for _ in range(repeats):
-        totals: dict = {}
-        with timed_stages(totals):
-            w0, c0 = time.perf_counter(), time.process_time()
-            calibrate(log, method="factorgraph", **options)
-            totals["total"] = (time.perf_counter() - w0, time.process_time() - c0)
-        if best is None or totals["total"][0] < best["total"][0]:
-            best = totals
-    staged = [v for k, v in best.items() if k != "total"]
-    best["rest"] = (best["total"][0] - sum(w for w, _ in staged), best["total"][1] - sum(c for _, c in staged))
-    return best
+    totals: dict = {}
+    with timed_stages(totals, stages):
+        w0, c0 = time.perf_counter(), time.process_time()
+        calibrate(log, method=method, **options)
+        totals["total"] = (time.perf_counter() - w0, time.process_time() - c0)
+    return totals
 
 
-def solve_time(log, method: str, repeats: int, **options) -> dict:
+def stages_of(log, **options) -> dict:
+    """Per stage the (wall, CPU) of one factor-graph calibration, the total, and the rest."""
+    out = _timed_solve(log, "factorgraph", None, **options)
+    staged = [v for k, v in out.items() if k != "total"]
+    out["rest"] = (out["total"][0] - sum(w for w, _ in staged), out["total"][1] - sum(c for _, c in staged))
+    return out
+
+
+def solve_time(log, method: str, **options) -> dict:
     """``method``'s whole solve and, within it, the association's: {"total": (wall, CPU),
-    "association": (wall, CPU)} of the fastest of ``repeats``."""
-    from pedcal.calib import calibrate
-
-    best = None
-    for _ in range(repeats):
-        totals: dict = {}
-        with timed_stages(totals, {"association": STAGES["association"]}):
-            w0, c0 = time.perf_counter(), time.process_time()
-            calibrate(log, method=method, **options)
-            totals["total"] = (time.perf_counter() - w0, time.process_time() - c0)
-        if best is None or totals["total"][0] < best["total"][0]:
-            best = totals
-    return best
+    "association": (wall, CPU)}, one run."""
+    return _timed_solve(log, method, {"association": STAGES["association"]}, **options)
 
 
 def main() -> None:
@@ -184,8 +170,8 @@ def main() -> None:
     # the two methods in turns, so that a change of the machine's load falls on both
     fg, grid = [], []
     for _ in range(args.repeats):
-        fg.append(stages_of(sim.calib, 1))
-        grid.append(solve_time(sim.calib, "gridsearch", 1))
+        fg.append(stages_of(sim.calib))
+        grid.append(solve_time(sim.calib, "gridsearch"))
     columns = {f"{args.scenario} seed {args.seed}": min(fg, key=lambda t: t["total"][1])}
     grid_best = min(grid, key=lambda t: t["total"][1])
     imports = {m: [] for m in ("factorgraph", "gridsearch")}
@@ -198,13 +184,13 @@ def main() -> None:
             for _ in range(args.repeats):
                 for m in imports:
                     imports[m].append(import_time(m))
-                    commands[m].append(command_time(Path(tmp) / "run" / "calib", m, 1))
+                    commands[m].append(command_time(Path(tmp) / "run" / "calib", m))
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_factorgraph_scale import synthetic_log
 
     for n in [int(v) for v in args.sizes.split(",") if v]:
         log = synthetic_log(n)
-        columns[f"{n} sensors"] = stages_of(log, 1, is_robot=np.ones(len(log.observations), bool),
+        columns[f"{n} sensors"] = stages_of(log, is_robot=np.ones(len(log.observations), bool),
                                             estimate_latency=False, people=False, head_radius_m=0.0)
     iw, ic = min(imports["factorgraph"], key=lambda r: r[1]) if imports["factorgraph"] else import_time()
     names = ["import (fresh process)"] + list(STAGES) + ["rest", "total"]
