@@ -287,7 +287,9 @@ def test_disjoint_groups_share_no_factor():
     assert _disjoint_groups([], footprint) == []
 
 
-def _clock_profile(dome_paper, footprint_of):
+def _clock_profile(dome_paper, footprint_of, calls: list | None = None):
+    """One profile step with the ray shift and every sensor's clock offset; ``calls`` (if given)
+    collects one entry per evaluation of the observations' right-hand side."""
     from pedcal.calib.clocks import clock_nuisances
     from pedcal.calib.graph import ObservationRhs
     from pedcal.calib.profile import Nuisance, profile_step
@@ -303,9 +305,15 @@ def _clock_profile(dome_paper, footprint_of):
     for name in ("sensors", "amcl", "motion"):
         fixed.push_back(parts.blocks[name])
     rhs = ObservationRhs(sim.calib, prob, result)
+
+    def counted(th, s):
+        if calls is not None:
+            calls.append(1)
+        return rhs(dict(zip(names, th, strict=True)), s)
+
     step = profile_step(fixed, None, result, theta, nuis, obs0=observation_block(sim.calib, prob, result),
                         kernel=(rec.robust_kernel, rec.robust_k), plain_leading=1,
-                        residuals=lambda th, s: rhs(dict(zip(names, th, strict=True)), s),
+                        residuals=counted,
                         footprint=footprint_of(prob, rhs, names))
     return step, nuis
 
@@ -318,9 +326,12 @@ def _clock_footprints(prob, rhs, names):
 def test_grouped_clock_columns_equal_one_by_one(dome_paper):
     # the clock offsets moved together (each its own sensor's factors) give the columns moved
     # one at a time: the same step, Hessian and sensitivities
-    together, nuis = _clock_profile(dome_paper, _clock_footprints)
-    alone, _ = _clock_profile(dome_paper, lambda prob, rhs, names: None)
+    grouped_calls, one_by_one_calls = [], []
+    together, nuis = _clock_profile(dome_paper, _clock_footprints, grouped_calls)
+    alone, _ = _clock_profile(dome_paper, lambda prob, rhs, names: None, one_by_one_calls)
     assert len(nuis) >= 5                          # the ray shift and the sensors' clocks
+    # and the grouping took place: the clocks' columns in one evaluation, not one each
+    assert len(one_by_one_calls) - len(grouped_calls) == len(nuis) - 2
     assert np.allclose(together.hessian, alone.hessian, rtol=1e-9, atol=1e-9 * np.abs(alone.hessian).max())
     assert np.allclose(together.dtheta, alone.dtheta, rtol=1e-7, atol=1e-12)
     assert np.allclose(together.Z, alone.Z, rtol=1e-7, atol=1e-9 * np.abs(alone.Z).max())
