@@ -128,7 +128,7 @@ def test_supernodes_hold_columns_of_one_structure():
 def test_a_variable_no_factor_holds_is_an_error():
     graph, values = path_graph(5, n_pose=10, n_sensor=2, points=0)
     values.insert(S(9), gtsam.Pose3())       # no factor touches it: the normal matrix is singular
-    with pytest.raises((np.linalg.LinAlgError, RuntimeError)):
+    with pytest.raises(np.linalg.LinAlgError, match="no factor holds"):
         marginal_covariances(graph, values, [S(0)])
 
 

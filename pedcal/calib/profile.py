@@ -139,8 +139,12 @@ def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_m
 
 def normal_lu(N: sps.csc_matrix):
     """SuperLU's factorization of a normal matrix in its own order, without pivoting (it is
-    positive definite: the graph's priors hold every variable)."""
-    return spla.splu(N, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    positive definite: the graph's priors hold every variable). A singular one (a variable no
+    factor holds) is a LinAlgError, as the factor's own checks name it."""
+    try:
+        return spla.splu(N, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
+        raise np.linalg.LinAlgError(f"the normal matrix is singular (a variable no factor holds): {e}") from e
 
 
 def ordered_normal_lu(A: sps.spmatrix, order: np.ndarray):
