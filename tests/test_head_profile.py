@@ -219,6 +219,14 @@ def test_an_unknown_profile_mode_is_refused():
         calibrate(sim.calib, method="factorgraph", head_profile="spline")
 
 
+def test_selected_per_sensor_departures_beside_the_random_effect_are_refused():
+    # both would hold each sensor's own departure: one must be chosen, not one silently dropped
+    sim = simulate_logs("paper", seed=0, duration_s=30.0)
+    with warnings.catch_warnings(), pytest.raises(PedcalInputError, match="head_shift_per_sensor_sigma_m"):
+        warnings.simplefilter("ignore")
+        calibrate(sim.calib, method="factorgraph", head_profile="cv", head_profile_per_sensor=True)
+
+
 # ---------------------------------------------------------------- selection by held-out sensors
 def test_held_out_gain_is_the_held_out_rows_chi2_loss_under_the_step_the_other_rows_fit():
     rng = np.random.default_rng(11)

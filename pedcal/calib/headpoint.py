@@ -108,6 +108,10 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     if rec.head_profile not in MODES:
         raise PedcalInputError(f"head_profile must be one of {', '.join(MODES)}, got {rec.head_profile!r}",
                                column="head_profile")
+    if rec.head_profile_per_sensor and rec.head_shift_per_sensor_sigma_m > 0.0:
+        raise PedcalInputError("head_profile_per_sensor selects each sensor's own departure, which "
+                               "head_shift_per_sensor_sigma_m > 0 already holds as a random effect: set that to 0 "
+                               "to select them instead", column="head_profile_per_sensor")
     if (rec.head_profile == "off" or not rec.robot or not rec.estimate_head_horizontal_shift
             or rec.head_horizontal_shift_sigma_m <= 0.0 or rec.head_profile_sigma_m <= 0.0):
         return []
@@ -124,7 +128,7 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     for j in range(1, len(knots)):
         setattr(prob, PREFIX + str(j), float(c[j - 1]))
         out.append(Nuisance(PREFIX + str(j), 0.0, rec.head_profile_sigma_m, STEP_M))
-    if rec.head_profile_per_sensor and rec.head_shift_per_sensor_sigma_m <= 0.0:
+    if rec.head_profile_per_sensor:
         # each sensor's own tracker: a departure from the shared shift, where it sees the robot enough
         n_pose = len(prob.pose_times)
         counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
