@@ -31,6 +31,7 @@ from pedcal.sim.espar import EsparSimulator
 
 FRAME_HZ = 4.0
 PERSON_RADIUS_M = 0.25
+TARGET_PERSON_M = 0.5  # the person the target estimate stands for: the nearest within this (as a track's match)
 ROBOT_RADIUS_M = 0.3  # the robot's disc: the planner keeps walls this far, contacts use it
 FOV_RAD = np.radians(120.0)
 MIN_RANGE_M, MAX_RANGE_M = 0.3, 5.0
@@ -642,13 +643,13 @@ class RobotController:
             # the target's own speed away from the robot added (feed-forward): the proportional law
             # alone trails a walking target by its speed / k_v beyond the follow distance
             d_t = np.linalg.norm(np.asarray(people_xy_world_m) - out.target_xy_world_m, axis=1)
-            if d_t.min() <= 0.5:
+            if d_t.min() <= TARGET_PERSON_M:
                 ahead = np.asarray(out.target_xy_world_m, float) - pose_est[:2]
                 ahead /= max(float(np.linalg.norm(ahead)), 1e-9)
                 v_away = float(np.asarray(people_v_world_mps)[int(np.argmin(d_t))] @ ahead)
-                if v_away > 0 and float(np.linalg.norm(u)) > 1e-9:
-                    speed = min(float(np.linalg.norm(u)) + v_away, self.v_max_mps)
-                    u = u / float(np.linalg.norm(u)) * speed
+                u_norm = float(np.linalg.norm(u))
+                if v_away > 0 and u_norm > 1e-9:
+                    u = u / u_norm * min(u_norm + v_away, self.v_max_mps)
         if people:
             people_v = (np.zeros_like(people_xy_world_m) if people_v_world_mps is None
                         else people_v_world_mps)
