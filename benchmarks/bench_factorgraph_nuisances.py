@@ -107,7 +107,8 @@ def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
     ids = [sid for sid in est if sid in index]
     truth = np.array([offset[index[sid]] for sid in ids])
     err = np.array([est[sid] for sid in ids]) - (truth - truth.mean())
-    return err / np.maximum([sigma.get(sid, np.inf) for sid in ids], 1e-9), err
+    # (an offset without its sigma is a miss: NaN, never within any sigma)
+    return err / np.maximum([sigma.get(sid, np.nan) for sid in ids], 1e-9), err
 
 
 def wing_z(sim, network, joint_cov_m2: np.ndarray | None) -> dict:
@@ -170,11 +171,14 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
                            rms_xy_mm=float(np.sqrt(np.mean(np.sum(E[:, :2] ** 2, axis=1)))),
                            rms_rel_mm=float(np.sqrt(np.mean(np.sum(rel ** 2, axis=1)))), wall_s=wall, cpu_s=cpu)
         if method == "factorgraph":
+            # error over sigma per axis; a sensor not calibrated (status not ok: its sigma the prior's,
+            # wide enough to hold any error) or without a sigma is a miss, not a padding
             ratios = []
             for s in ev.sensors:
                 ext = res.network[s.id]
-                if ext.sigma_position_m is not None:
-                    ratios.append(np.abs(np.asarray(s.position_error_mm) / 1000.0) / np.asarray(ext.sigma_position_m))
+                ok = ext.sigma_position_m is not None and (ext.status or "ok") == "ok"
+                ratios.append(np.abs(np.asarray(s.position_error_mm) / 1000.0) / np.asarray(ext.sigma_position_m)
+                              if ok else np.full(3, np.inf))
             out["ratios"] = np.array(ratios)
             out["z_shared"], out["z_rest"] = shared_and_rest_z(E[:, :2] / 1000.0, res.position_covariance_m2)
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
