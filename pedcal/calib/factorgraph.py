@@ -87,6 +87,7 @@ from pedcal.calib.profile import (
     joint_marginal_covariance,
     profile_step,
     retract_flat,
+    takes_chord,
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
@@ -443,7 +444,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
         # (a chord step, which profile_step takes when the full step kept its system, takes no
         # finite differences: their inputs are not made for it)
-        differences = not (chord and full_step.A is not None and local_cols is None)
+        differences = not takes_chord(full_step if chord else None, local_cols)
         plain = None
         if odo:
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),

@@ -290,6 +290,14 @@ def sqrt_weights(reweighted_norm: np.ndarray, kernel: str, k: float) -> np.ndarr
     return None
 
 
+def takes_chord(previous: ProfileStep | None, local) -> bool:
+    """Whether :func:`profile_step` given ``previous`` and ``local`` takes a chord step (the
+    previous full step's system and sensitivities, no finite differences): with a previous step
+    that kept its system, and no local nuisances (with them every step is a full one: the system
+    they join changes with their B)."""
+    return previous is not None and previous.A is not None and (local is None or len(local) == 0)
+
+
 def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.Values, theta: np.ndarray,
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
@@ -347,8 +355,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     k = len(nuisances)
     m_local = 0 if local is None else len(local)
     k_exact = k - m_local                 # the nuisances profiled exactly lead
-    # (with local nuisances every step is a full one: the system they join changes with their B)
-    chord = previous is not None and previous.A is not None and not m_local
+    chord = takes_chord(previous, local)
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
     # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
