@@ -252,3 +252,23 @@ def test_optimize_graph_hands_a_rising_step_to_levenberg_marquardt():
     assert iterations == n_lm
     assert fg.error(result) == pytest.approx(fg.error(lm), abs=1e-9)
     assert np.allclose(result.atPoint3(L(0)), [1.0, 0.0, 0.0], atol=1e-3)
+
+
+def test_kept_values_keeps_the_named_variables_alone():
+    from gtsam.symbol_shorthand import A, L
+
+    from pedcal.calib.graph import _kept_values
+
+    values = gtsam.Values()
+    for i in range(3):
+        values.insert(S(i), gtsam.Pose3(gtsam.Rot3.Yaw(0.1 * i), np.array([i, 1.0, 3.0])))
+    for k in range(5):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3.Yaw(-0.2 * k), np.array([0.5 * k, 2.0, 1.2])))
+    values.insert(A(0), gtsam.Pose3())
+    values.insert(L(1), np.array([1.0, 2.0, 1.7]))
+    kept = _kept_values(values, {"s": 2, "x": 5})
+    assert sorted(kept.keys()) == sorted([S(0), S(1)] + [X(k) for k in range(5)])
+    for key in kept.keys():
+        assert np.array_equal(kept.atPose3(key).matrix(), values.atPose3(key).matrix())
+    assert values.size() == 10                       # the original untouched
+    assert _kept_values(values, {}).size() == 0

@@ -336,11 +336,7 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
             if c != "a" and result.exists(key):
                 new.values.update(key, result.atPoint3(key) if c == "l" else result.atPose3(key))
         return new
-    values = gtsam.Values()
-    for i in range(len(prob.sensor_ids)):
-        values.insert(S(i), result.atPose3(S(i)))
-    for k in range(n_pose):
-        values.insert(X(k), result.atPose3(X(k)))
+    values = _kept_values(result, {"s": len(prob.sensor_ids), "x": n_pose})
     blocks = {"sensors": parts.blocks["sensors"], "amcl": gtsam.NonlinearFactorGraph()}
     if n_pose:
         _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
@@ -357,6 +353,22 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
         if values.exists(L(m)) and result.exists(L(m)):
             values.update(L(m), result.atPoint3(L(m)))
     return GraphParts(blocks=blocks, values=values, motion_inputs=inputs)
+
+
+def _kept_values(values: gtsam.Values, kept: dict[str, int]) -> gtsam.Values:
+    """A copy of ``values`` with only the variables ``c(j)``, ``j < kept[c]`` (by symbol character
+    c): one copy and a few erasures, where inserting every pose anew costs GTSAM's Python
+    binding ~7 us a key (its overloads tried one by one)."""
+    out = gtsam.Values(values)
+    keys = np.asarray(values.keys(), np.uint64)
+    # a Symbol's character in the key's top byte, its index below
+    chars, index = keys >> np.uint64(56), keys & np.uint64((1 << 56) - 1)
+    keep = np.zeros(len(keys), bool)
+    for c, n in kept.items():
+        keep |= (chars == np.uint64(ord(c))) & (index < np.uint64(n))
+    for key in keys[~keep].tolist():
+        out.erase(key)
+    return out
 
 
 def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_s: float = 5.0) -> np.ndarray:
@@ -514,9 +526,10 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     # one noise model per distinct (turn, translation) sigma, rounded to 0.1 %
     uniq, inverse = np.unique(_motion_sigma_keys(sy, st), axis=0, return_inverse=True)
     models = [gtsam.noiseModel.Diagonal.Sigmas(_motion_sigmas(row[None, :])[0]) for row in uniq]
-    between = gtsam.BetweenFactorPose3
-    for k, (step, i) in enumerate(zip(steps, np.asarray(inverse).ravel().tolist(), strict=True)):
-        graph.add(between(X(k), X(k + 1), step, models[i]))
+    between, add = gtsam.BetweenFactorPose3, graph.add
+    keys = [X(k) for k in range(n_pose)]
+    for k0, k1, step, i in zip(keys[:-1], keys[1:], steps, np.asarray(inverse).ravel().tolist(), strict=True):
+        add(between(k0, k1, step, models[i]))
     return graph
 
 
@@ -737,17 +750,17 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     pairs, inverse = np.unique(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]), axis=0,
                                return_inverse=True)
     models = cache.models(pairs[:, 0], pairs[:, 1])
-    inverse = np.asarray(inverse).ravel()
+    # (one pass over plain Python lists: a numpy scalar read per factor and field costs as much
+    # as the factor)
+    model_of = [models[i] for i in np.asarray(inverse).ravel().tolist()]
+    is_pose = terms.is_pose.tolist()
     s_keys = [S(i) for i in terms.sensor.tolist()]
-    t_keys = [X(k) if pose else L(k) for k, pose in zip(terms.target.tolist(), terms.is_pose.tolist(), strict=True)]
-    range_m = terms.range_m.tolist()
-    for j in range(n):
-        if terms.is_pose[j]:
-            graph.add(gtsam.BearingRangeFactorPose3(s_keys[j], t_keys[j], gtsam.Unit3(terms.p_sensor[j]),
-                                                   range_m[j], models[inverse[j]]))
-        else:
-            graph.add(gtsam.BearingRangeFactor3D(s_keys[j], t_keys[j], gtsam.Unit3(terms.p_sensor[j]),
-                                                 range_m[j], models[inverse[j]]))
+    t_keys = [X(k) if pose else L(k) for k, pose in zip(terms.target.tolist(), is_pose, strict=True)]
+    add, unit3 = graph.add, gtsam.Unit3
+    to_pose, to_point = gtsam.BearingRangeFactorPose3, gtsam.BearingRangeFactor3D
+    for s_key, t_key, p, r, pose, model in zip(s_keys, t_keys, terms.p_sensor, terms.range_m.tolist(), is_pose,
+                                               model_of, strict=True):
+        add((to_pose if pose else to_point)(s_key, t_key, unit3(p), r, model))
     return graph
 
 
