@@ -256,3 +256,33 @@ def test_companion_replacing_the_robot_is_not_taken_for_it():
     score = score_association(sim.calib, res.is_robot)
     assert score["precision"] > 0.99 and score["recall"] > 0.98
     assert not (res.is_robot & (who == "companion")).any()
+
+
+def test_pooled_rigid_sse_is_the_fits_residuals():
+    # per group the optimal rigid fit's squared residuals, summed: against the fit made and its
+    # residuals formed, for rotated and shifted noisy copies, a mirrored group (the determinant's
+    # sign) and a leading axis of head-point sets
+    from pedcal.calib.association import moments, pooled_rigid_sse, rigid_from_moments
+
+    rng = np.random.default_rng(3)
+    sizes = [3, 7, 40]
+    p = rng.normal(size=(sum(sizes), 3)) * [2.0, 1.0, 0.3]
+    bounds = np.r_[0, np.cumsum(sizes)].tolist()
+    q = np.zeros((4, len(p), 3))
+    for L in range(4):
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            R *= np.sign(np.linalg.det(R))
+            if L == 3 and b - a == 40:
+                R = R @ np.diag([1.0, 1.0, -1.0])          # a mirror no rotation reaches
+            q[L, a:b] = p[a:b] @ R.T + rng.normal(size=3) * 5.0 + rng.normal(scale=0.05, size=(b - a, 3))
+    got = pooled_rigid_sse(p, bounds, q)
+    assert got.shape == (4,)
+    for L in range(4):
+        want = 0.0
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            R, t = rigid_from_moments(*moments(p[a:b], q[L, a:b]))
+            want += float(np.sum((p[a:b] @ R.T + t - q[L, a:b]) ** 2))
+        assert got[L] == pytest.approx(want, rel=1e-9, abs=1e-12)
+    assert got[3] > 10 * got[0]                           # the mirrored group does not fit
+    assert pooled_rigid_sse(p, bounds, q[0]).shape == ()

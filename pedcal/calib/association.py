@@ -300,6 +300,29 @@ def _refine(sd: _SensorRows, sensor, R, t, q, params):
 # --------------------------------------------------------------------------- latency
 
 
+def pooled_rigid_sse(p: np.ndarray, bounds: list[int], q: np.ndarray) -> np.ndarray:
+    """Sum over groups (rows ``bounds[g]:bounds[g + 1]`` of the pairs) of each group's optimal
+    rigid fit's squared residual sum |R p + t - q|^2, for each leading index of ``q`` (..., N, 3)
+    (``p`` (N, 3) shared): per group |p~|^2 + |q~|^2 - 2 tr(R H), p~ and q~ about their means and
+    H = sum p~ q~^T, where tr(R H) is the sum of H's singular values, the least one signed by the
+    rotation's determinant (Umeyama 1991, eqs. 34-42, the fit :func:`rigid_from_moments`
+    makes): no residuals formed, one 3 x n by n x 3 product per group and leading index."""
+    lead = q.shape[:-2]
+    q = q.reshape(-1, q.shape[-2], 3)
+    total = np.zeros(len(q))
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        pg = p[a:b] - p[a:b].mean(axis=0)
+        qg = q[:, a:b, :]
+        qg = qg - qg.mean(axis=1, keepdims=True)
+        H = pg.T @ qg                                      # (L, 3, 3)
+        U, sv, Vt = np.linalg.svd(H)
+        d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+        d = np.where(d == 0, 1.0, d)
+        total += (float(np.sum(pg * pg)) + np.einsum("lni,lni->l", qg, qg)
+                  - 2.0 * (sv[:, 0] + sv[:, 1] + d * sv[:, 2]))
+    return total.reshape(lead)
+
+
 def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0.4,
                      p_sensor: np.ndarray | None = None) -> float:
     """Tracker latency (observation stamp minus the time the robot was there, s) minimising the
@@ -318,18 +341,11 @@ def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0
     if len(codes) == 0:
         return 0.0
     starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
-    group = np.cumsum(np.r_[False, codes[1:] != codes[:-1]])
-    w = np.diff(np.r_[starts, len(codes)]).astype(float)
-    sum_p = np.add.reduceat(p, starts, axis=0)
+    bounds = np.r_[starts, len(codes)].tolist()
     head_at = head_interpolator(log)
 
     def sse_of(q):
-        """The pooled residual at head points ``q`` (..., N, 3), one per leading index."""
-        sum_pq = np.add.reduceat((p[:, :, None] * q[..., :, None, :]).reshape(*q.shape[:-1], 9), starts,
-                                 axis=-2).reshape(*q.shape[:-2], len(starts), 3, 3)
-        R, tr = rigid_from_moments(w, sum_p, np.add.reduceat(q, starts, axis=-2), sum_pq)
-        pred = np.einsum("...nij,nj->...ni", R[..., group, :, :], p) + tr[..., group, :]
-        return np.sum((pred - q) ** 2, axis=(-2, -1))
+        return pooled_rigid_sse(p, bounds, q)
 
     def sse(latency_s):
         return float(sse_of(head_at(t - latency_s)))
