@@ -167,17 +167,20 @@ def _residuals(R, t, p, q):
 
 
 def _squared_residuals(R, t, p, q):
-    """|R p + t - q|^2 for hypotheses R (H, 3, 3), t (H, 3) and points (N, 3): (H, N), expanded
+    """|R p + t - q|^2 for hypotheses R (..., H, 3, 3), t (..., H, 3) and points p (N, 3), q
+    (..., N, 3): (..., H, N), the leading axes (latencies, say) each with its own q. Expanded
     into products that are matrix products over the points (|p|^2 + |q|^2 + |t|^2 + 2 (R^T t).p
     - 2 t.q - 2 <R, q p^T>, the last the hypotheses' R (H, 9) times the pairs' q p^T (9, N)):
     ~4x the direct difference's speed. ``q`` and ``t`` are taken about q's mean, so that the
     terms stay the size of the scene around the points (their rounding ~1e-15 m^2 here, against
     inlier gates of 0.01-1 m^2)."""
-    c = q.mean(axis=0) if len(q) else np.zeros(3)
+    c = q.mean(axis=-2, keepdims=True) if q.shape[-2] else np.zeros(q.shape[:-2] + (1, 3))
     q, t = q - c, t - c
-    qp = (q[:, :, None] * p[:, None, :]).reshape(len(p), 9)
-    d2 = (np.einsum("ni,ni->n", p, p) + np.einsum("ni,ni->n", q, q))[None] + np.einsum("hi,hi->h", t, t)[:, None]
-    d2 += 2.0 * (np.einsum("hij,hi->hj", R, t) @ p.T - t @ q.T - R.reshape(len(R), 9) @ qp.T)
+    qp = (q[..., :, :, None] * p[:, None, :]).reshape(q.shape[:-2] + (len(p), 9))
+    d2 = ((np.einsum("ni,ni->n", p, p) + np.einsum("...ni,...ni->...n", q, q))[..., None, :]
+          + np.einsum("...hi,...hi->...h", t, t)[..., :, None])
+    d2 += 2.0 * (np.einsum("...hij,...hi->...hj", R, t) @ p.T - t @ np.swapaxes(q, -1, -2)
+                 - R.reshape(R.shape[:-2] + (9,)) @ np.swapaxes(qp, -1, -2))
     return np.maximum(d2, 0.0)
 
 
@@ -195,7 +198,9 @@ def _prior_ok(R, t, sensor: SensorExtrinsics, params):
 
 
 def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
-    """RANSAC over segments: best (R, t, latency index, explained seconds) or None."""
+    """RANSAC over segments: best (R, t, latency index, explained seconds) or None. Every
+    latency's hypotheses are fitted and scored at once (arrays over latency x hypothesis), the
+    first latency with the best score kept."""
     q0 = heads_by_latency[len(heads_by_latency) // 2]
     gated = sd.in_range & (np.linalg.norm(sd.p_installed - q0, axis=1) <= params["gate_m"])
     gated_s = sd.seg_sum(sd.w_time * gated)
@@ -217,35 +222,43 @@ def _consensus(sd: _SensorRows, sensor, heads_by_latency, params):
     # one-hot (point, seed) of the seeds' points: a hypothesis' inliers per seed are one product
     seed_onehot = np.zeros((int(seed_point_mask.sum()), k))
     seed_onehot[np.arange(len(seed_onehot)), seed_col[seed_point_mask]] = 1.0
-    best = None
     w = sd.in_range.astype(float)
     seg_w = sd.seg_sum(w)[seeds]
     hw, hp = M @ seg_w, M @ sd.seg_sum(w[:, None] * sd.p)[seeds]
-    wp = w[:, None] * sd.p
-    inlier_m2 = params["inlier_m"] ** 2
-    for li, q in enumerate(heads_by_latency):
-        seg_q = sd.seg_sum(w[:, None] * q)[seeds]
-        seg_pq = sd.seg_sum((wp[:, :, None] * q[:, None, :]).reshape(len(q), 9))[seeds].reshape(-1, 3, 3)
-        hq, hpq = M @ seg_q, (M @ seg_pq.reshape(len(seeds), 9)).reshape(-1, 3, 3)
-        # a weak pull toward the installed pose fixes the rotation about a straight seed segment
-        anchors = _anchor_moments(hp / hw[:, None], sensor, params["prior_weight"] * hw)
-        R, t = rigid_from_moments(*(x + y for x, y in zip((hw, hp, hq, hpq), anchors, strict=True)))
-        ok, prior_d2 = _prior_ok(R, t, sensor, params)
-        if not ok.any():
-            continue
-        R, t, prior_d2, hyp = R[ok], t[ok], prior_d2[ok], np.flatnonzero(ok)
-        inlier = _squared_residuals(R, t, sd.p, q) < inlier_m2
-        # a seed must itself follow the robot: most of its points explained
-        seed_inlier = inlier[:, seed_point_mask].astype(float) @ seed_onehot
-        seed_frac = seed_inlier / np.maximum(seg_w, 1.0)
-        seeds_follow = ((seed_frac >= 0.5) | (M[hyp] == 0)).all(axis=1)
-        support_s = (inlier * sd.w_time).sum(axis=1)
-        # explained seconds weighted by the installed prior (a Gaussian likelihood ratio)
-        score = support_s * np.exp(-0.5 * prior_d2)
-        score[~seeds_follow] = -np.inf
-        h = int(np.argmax(score))
-        if np.isfinite(score[h]) and (best is None or score[h] > best[3]):
-            best = (R[h], t[h], li, score[h], support_s[h])
+    # a weak pull toward the installed pose fixes the rotation about a straight seed segment
+    # (the same at every latency: it depends on the sensor-frame points alone)
+    anchors = _anchor_moments(hp / hw[:, None], sensor, params["prior_weight"] * hw)
+    # the seeds' points alone (each seed's rows in seed order) give the seeds' moments
+    seed_rows = np.concatenate([np.arange(sd.seg_start[s], sd.seg_end[s]) for s in seeds])
+    seed_starts = np.r_[0, np.cumsum(sd.seg_n[seeds])[:-1]]
+    q_all = np.asarray(heads_by_latency, float)                  # (L, N, 3)
+    n_lat = len(q_all)
+    q_seed = q_all[:, seed_rows]
+    w_seed, wp_seed = w[seed_rows, None], (w[:, None] * sd.p)[seed_rows]
+    seg_q = np.add.reduceat(w_seed * q_seed, seed_starts, axis=1)                      # (L, k, 3)
+    seg_pq = np.add.reduceat((wp_seed[:, :, None] * q_seed[:, :, None, :]).reshape(n_lat, len(seed_rows), 9),
+                             seed_starts, axis=1)                                        # (L, k, 9)
+    hq, hpq = M @ seg_q, (M @ seg_pq).reshape(n_lat, len(M), 3, 3)
+    R, t = rigid_from_moments(*(x + y for x, y in zip((hw, hp, hq, hpq), anchors, strict=True)))
+    ok, prior_d2 = _prior_ok(R.reshape(-1, 3, 3), t.reshape(-1, 3), sensor, params)
+    ok, prior_d2 = ok.reshape(n_lat, len(M)), prior_d2.reshape(n_lat, len(M))
+    lat = np.flatnonzero(ok.any(axis=1))                   # latencies with a hypothesis in the gates
+    if not len(lat):
+        return None
+    inlier = _squared_residuals(R[lat], t[lat], sd.p, q_all[lat]) < params["inlier_m"] ** 2   # (l, H, N)
+    # a seed must itself follow the robot: most of its points explained
+    seed_inlier = inlier[:, :, seed_point_mask].astype(float) @ seed_onehot
+    seed_frac = seed_inlier / np.maximum(seg_w, 1.0)
+    seeds_follow = ((seed_frac >= 0.5) | (M == 0)).all(axis=2)
+    support_s = (inlier * sd.w_time).sum(axis=2)
+    # explained seconds weighted by the installed prior (a Gaussian likelihood ratio)
+    score = support_s * np.exp(-0.5 * prior_d2[lat])
+    score[~(seeds_follow & ok[lat])] = -np.inf
+    best = None
+    for j, li in enumerate(lat.tolist()):
+        h = int(np.argmax(score[j]))
+        if np.isfinite(score[j, h]) and (best is None or score[j, h] > best[3]):
+            best = (R[li, h], t[li, h], li, score[j, h], support_s[j, h])
     if best is None or best[4] < params["min_support_s"]:
         return None
     return best[:4]
