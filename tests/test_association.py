@@ -286,3 +286,22 @@ def test_pooled_rigid_sse_is_the_fits_residuals():
         assert got[L] == pytest.approx(want, rel=1e-9, abs=1e-12)
     assert got[3] > 10 * got[0]                           # the mirrored group does not fit
     assert pooled_rigid_sse(p, bounds, q[0]).shape == ()
+
+
+def test_segment_table_medians_are_each_segments():
+    # segments of odd and even length, in scrambled order, an unexplained (infinite) residual
+    from pedcal.calib.association import DEFAULT_PARAMS, _segment_columns, _segment_table, _SensorRows
+
+    rng = np.random.default_rng(5)
+    codes = np.repeat([2, 0, 1, 3], [5, 4, 1, 2])
+    n = len(codes)
+    sd = _SensorRows("s1", np.arange(n), rng.uniform(0, 10, n), codes, np.array([f"k{c}" for c in codes]),
+                     rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), np.ones(n, bool))
+    r = rng.uniform(0.0, 1.0, n)
+    r[3] = np.inf
+    cols = _segment_columns(sd, r, r < 0.5, np.full(len(sd.seg_start), "no", dtype=object), DEFAULT_PARAMS)
+    want = [np.median(r[a:b]) for a, b in zip(sd.seg_start, sd.seg_end, strict=True)]
+    assert np.array_equal(cols["median_residual_m"], want)
+    table = _segment_table([cols, cols])
+    assert len(table) == 2 * len(sd.seg_start) and list(table["sensor"].unique()) == ["s1"]
+    assert len(_segment_table([])) == 0

@@ -472,7 +472,7 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
                     r = np.full(len(sd), np.inf)
                     sel = np.zeros(len(sd), bool)
                     kind = np.full(len(sd.seg_start), "no", dtype=object)
-                seg_rows.append(_segment_table(sd, r, sel, kind, params))
+                seg_rows.append(_segment_columns(sd, r, sel, kind, params))
             if R is None or n_used < 3:
                 sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n_used,
                                                     status="no-data"))
@@ -484,8 +484,7 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
             if status == "degenerate":
                 ext.unobservable = ["rotation about the robot's line of travel"]
             sensors_out.append(ext)
-        segments = pd.concat(seg_rows, ignore_index=True) if seg_rows else _segment_table(None, None, None, None,
-                                                                                            params)
+        segments = _segment_table(seg_rows)
     if progress:
         logging.getLogger(__name__).info(f"association: {int(is_robot.sum())} of {n_obs} observations are the robot "
                                          f"({timer.elapsed_s:.2f} s)")
@@ -493,19 +492,31 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
                              timer.elapsed_s, params)
 
 
-def _segment_table(sd, r, sel, kind, params) -> pd.DataFrame:
-    cols = ["sensor", "track", "n", "t_start", "t_end", "duration_s", "explained_fraction",
-            "median_residual_m", "robot", "robot_points"]
-    if sd is None:
-        return pd.DataFrame(columns=cols)
+SEGMENT_COLUMNS = ["sensor", "track", "n", "t_start", "t_end", "duration_s", "explained_fraction",
+                   "median_residual_m", "robot", "robot_points"]
+
+
+def _segment_columns(sd, r, sel, kind, params) -> dict:
+    """One sensor's rows of the segment table (:data:`SEGMENT_COLUMNS`), as arrays."""
     inl = (r < params["inlier_m"]).astype(int)
-    r_sorted_med = [float(np.median(r[a:b])) for a, b in zip(sd.seg_start, sd.seg_end, strict=True)]
-    return pd.DataFrame({
-        "sensor": sd.sensor, "track": sd.seg_track, "n": sd.seg_n,
+    # each segment's median residual: the segment's residuals sorted (segments in order), its
+    # middle one or the mean of its middle two
+    r_sorted = r[np.lexsort((r, sd.seg_of_point))]
+    lo, hi = sd.seg_start + (sd.seg_n - 1) // 2, sd.seg_start + sd.seg_n // 2
+    median = np.where(lo == hi, r_sorted[lo], (r_sorted[lo] + r_sorted[hi]) / 2.0)
+    return {
+        "sensor": np.full(len(sd.seg_start), sd.sensor, dtype=object), "track": sd.seg_track, "n": sd.seg_n,
         "t_start": sd.t[sd.seg_start], "t_end": sd.t[sd.seg_end - 1], "duration_s": sd.seg_duration,
-        "explained_fraction": sd.seg_sum(inl) / sd.seg_n, "median_residual_m": r_sorted_med,
+        "explained_fraction": sd.seg_sum(inl) / sd.seg_n, "median_residual_m": median,
         "robot": kind, "robot_points": sd.seg_sum(sel.astype(int)),
-    }, columns=cols)
+    }
+
+
+def _segment_table(parts: list[dict]) -> pd.DataFrame:
+    """The segment table of every sensor's :func:`_segment_columns`, in order."""
+    if not parts:
+        return pd.DataFrame(columns=SEGMENT_COLUMNS)
+    return pd.DataFrame({c: np.concatenate([p[c] for p in parts]) for c in SEGMENT_COLUMNS}, columns=SEGMENT_COLUMNS)
 
 
 def score_association(log: Log, is_robot) -> dict:
