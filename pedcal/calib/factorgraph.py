@@ -63,6 +63,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     observation_block,
     observation_sigmas,
     optimize_graph,
+    pose_arrays,
     prepare,
     rebuild_parts,
     rotation_sigma_deg,
@@ -196,7 +197,7 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     c, s_ = np.cos(amcl["yaw"].to_numpy(float)), np.sin(amcl["yaw"].to_numpy(float))
     z_xy = np.column_stack([amcl["x"].to_numpy(float) + c * head_m[0] - s_ * head_m[1],
                             amcl["y"].to_numpy(float) + s_ * head_m[0] + c * head_m[1]])
-    x_xy = np.array([result.atPose3(X(int(i))).translation()[:2] for i in range(len(times))])
+    x_xy = pose_arrays(result, [X(i) for i in range(len(times))])[1][:, :2].reshape(len(times), 2)
     res = np.full((len(t), 2), np.nan)
     res[has] = z_xy[has] - x_xy[k[has]]
     # pose index -> AMCL row (where the pose sits on an AMCL stamp)
@@ -286,10 +287,10 @@ def people_renumbered(values: gtsam.Values, kept: np.ndarray) -> gtsam.Values:
     """``values`` with the people's variables renumbered after some sightings were left out:
     ``L(m)`` holds what ``L(kept[m])`` held (the others' variables are dropped; every other
     variable is copied as it is)."""
-    out = gtsam.Values()
-    for key in values.keys():
-        if chr(gtsam.Symbol(key).chr()) != "l":
-            out.insert(key, values.atPose3(key))
+    out = gtsam.Values(values)
+    keys = np.asarray(values.keys(), np.uint64)
+    for key in keys[(keys >> np.uint64(56)) == np.uint64(ord("l"))].tolist():    # (a Symbol's character: top byte)
+        out.erase(key)
     for m, j in enumerate(kept):
         if values.exists(L(int(j))):
             out.insert(L(m), values.atPoint3(L(int(j))))
@@ -584,7 +585,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     use = prob.fac_key_index < n_pose
     if not (rec.robot and use.any()):
         return np.zeros((0, 3))
-    xk = np.array([result.atPose3(X(k)).translation() for k in range(n_pose)])
+    xk = pose_arrays(result, [X(k) for k in range(n_pose)])[1]
     idx = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     si = np.array([idx[s] for s in prob.fac_sensor[use]])
     R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]

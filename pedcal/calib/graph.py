@@ -873,7 +873,8 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
         new_error = gn.error()
         if not new_error <= error:
             break                             # (a rise, or not a number: LM takes over below)
-        result, iterations = gn.values(), iterations + 1
+        # (a copy: the optimizer's values are replaced, not kept, by its next iteration)
+        result, iterations = gtsam.Values(gn.values()), iterations + 1
         decrease, error = error - new_error, new_error
         if decrease <= relative_error_tol * (error + decrease) or decrease <= absolute_tol:
             break                             # (LM's convergence test, gtsam.checkConvergence)
