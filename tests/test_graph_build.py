@@ -272,3 +272,33 @@ def test_kept_values_keeps_the_named_variables_alone():
         assert np.array_equal(kept.atPose3(key).matrix(), values.atPose3(key).matrix())
     assert values.size() == 10                       # the original untouched
     assert _kept_values(values, {}).size() == 0
+
+
+def test_optimize_graph_goes_on_with_levenberg_marquardt_after_an_accepted_step():
+    # a point seen by three robust (Cauchy) bearing-range views that disagree: the first undamped
+    # step lowers the error, the second raises it (checked here); LM goes on from the first step's
+    # values, as if started there
+    from gtsam.symbol_shorthand import L
+
+    rng = np.random.default_rng(42)
+    fg = gtsam.NonlinearFactorGraph()
+    fg.add(gtsam.PriorFactorPose3(S(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+    fg.add(gtsam.PriorFactorPoint3(L(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 10.0)))
+    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
+                                            gtsam.noiseModel.Isotropic.Sigma(3, 0.05))
+    for d in rng.normal(size=(3, 3)):
+        fg.add(gtsam.BearingRangeFactor3D(S(0), L(0), gtsam.Unit3(d), float(rng.uniform(0.5, 2)), robust))
+    values = gtsam.Values()
+    values.insert(S(0), gtsam.Pose3())
+    values.insert(L(0), rng.normal(size=3))
+    gn = gtsam.GaussNewtonOptimizer(fg, values, gtsam.GaussNewtonParams())
+    gn.iterate()
+    first = gtsam.Values(gn.values())
+    gn.iterate()
+    assert fg.error(first) < fg.error(values) and gn.error() > fg.error(first)
+    rec = GraphRecipe()
+    result, iterations = optimize_graph(fg, values, rec, gauss_newton_step=False)
+    lm, n_lm = _lm(fg, first, rec.max_iterations - 1, rec.relative_error_tol)
+    assert iterations == 1 + n_lm
+    assert fg.error(result) == pytest.approx(fg.error(lm), abs=1e-9) and fg.error(result) < fg.error(first)
+    assert np.allclose(result.atPoint3(L(0)), lm.atPoint3(L(0)), atol=1e-9)
