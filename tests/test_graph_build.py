@@ -12,8 +12,8 @@ from test_factorgraph import _exact_recipe, make_exact_log
 from pedcal.calib.amcl_model import AmclErrorModel
 from pedcal.calib.association import _residuals, _squared_residuals, rigid_from_moments
 from pedcal.calib.graph import (
-    GraphRecipe,
     BLOCKS,
+    GraphRecipe,
     S,
     X,
     build_parts,
