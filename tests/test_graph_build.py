@@ -302,3 +302,24 @@ def test_optimize_graph_goes_on_with_levenberg_marquardt_after_an_accepted_step(
     assert iterations == 1 + n_lm
     assert fg.error(result) == pytest.approx(fg.error(lm), abs=1e-9) and fg.error(result) < fg.error(first)
     assert np.allclose(result.atPoint3(L(0)), lm.atPoint3(L(0)), atol=1e-9)
+
+
+def test_optimize_graph_hands_an_indeterminate_system_to_levenberg_marquardt():
+    # two poses tied to each other alone: the undamped system has a free direction (GTSAM refuses
+    # it, checked here), LM's damping holds it and meets the measurement
+    fg = gtsam.NonlinearFactorGraph()
+    Z = gtsam.Pose3(gtsam.Rot3.Yaw(0.3), np.array([1.0, 0.0, 0.0]))
+    fg.add(gtsam.BetweenFactorPose3(X(0), X(1), Z, gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose3())
+    values.insert(X(1), gtsam.Pose3(gtsam.Rot3.Yaw(0.1), np.array([0.5, 0.2, 0.0])))
+    params = gtsam.GaussNewtonParams()
+    params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
+    with pytest.raises(RuntimeError, match="Indeterminate"):
+        gtsam.GaussNewtonOptimizer(fg, values, params).iterate()
+    rec = GraphRecipe()
+    result, iterations = optimize_graph(fg, values, rec, gauss_newton_step=False)
+    lm, n_lm = _lm(fg, values, rec.max_iterations, rec.relative_error_tol)
+    assert iterations == n_lm > 0
+    assert fg.error(result) < 1e-12
+    assert result.atPose3(X(0)).between(result.atPose3(X(1))).equals(Z, 1e-9)

@@ -856,7 +856,8 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     the undamped one on these graphs, whose information is at least a weak prior's): so the
     iterations are Gauss-Newton's, without the damped system LM forms (~15 % of an iteration),
     with LM's stopping rule, and the first step that would raise the error is not taken: LM
-    goes on from the last point for the iterations left."""
+    goes on from the last point for the iterations left (and from an undamped system GTSAM cannot
+    solve: a direction nothing holds, which LM's damping does)."""
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
     # the robot's chain of poses eliminates faster sequentially, in one COLAMD ordering computed
@@ -869,8 +870,11 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     result, error, iterations = values, fg.error(values), 0
     absolute_tol = gn_params.getAbsoluteErrorTol()
     while iterations < max_iterations:
-        gn.iterate()
-        new_error = gn.error()
+        try:
+            gn.iterate()
+            new_error = gn.error()
+        except RuntimeError:                  # an indeterminate system (a free direction): LM's damping holds it
+            new_error = np.inf
         if not new_error <= error:
             break                             # (a rise, or not a number: LM takes over below)
         # (a copy: the optimizer's values are replaced, not kept, by its next iteration)
