@@ -12,7 +12,9 @@ one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalization
 Per scenario (means over seeds): sensor position RMS of the factor graph and of the grid search
 (3-D and horizontal, mm; evaluated on the evaluation log, pedcal.metrics.evaluate), their ratio;
 the norm of AMCL's error averaged over the calibration run (the error every calibration anchored
-to AMCL shares, from the simulator's truth) and each method's horizontal RMS with it taken out;
+to AMCL shares, from the simulator's truth) and each method's horizontal RMS with it taken out,
+and with the best common 2-D rigid transform of the whole network taken out (Kabsch: the
+network's internal geometry apart from its anchoring to AMCL, which that transform holds);
 the fraction of per-axis errors (x, y, z world axes, every sensor of every seed) within 1 and 2
 reported sigma; the RMS of the horizontal errors over their sigma, split into what the sensors
 share (their mean, whose sigma the joint covariance gives) and the rest (1 when the sigma is
@@ -133,6 +135,21 @@ def wing_z(sim, network, joint_cov_m2: np.ndarray | None) -> dict:
     return out
 
 
+def rigid_residual_rms_mm(est_xy: np.ndarray, true_xy: np.ndarray) -> float:
+    """RMS (mm) of the horizontal errors left after the best common 2-D rigid transform (a turn
+    and a shift, least squares) of the estimated network onto the truth: the network's internal
+    geometry apart from its anchoring to the map (which the transform takes up). The Kabsch
+    solution: the turn from the SVD of the centred cross-covariance, a reflection excluded."""
+    est, true = np.asarray(est_xy, float), np.asarray(true_xy, float)
+    if len(est) < 2:
+        return float("nan")
+    a, b = est - est.mean(axis=0), true - true.mean(axis=0)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    R = Vt.T @ np.diag([1.0, d]) @ U.T             # R a ~ b
+    return float(1000 * np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
+
+
 def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The horizontal errors split into what the sensors share (their mean, x and y) and the rest
     (each sensor's departure from it), each over its sigma from the joint position covariance:
@@ -163,13 +180,18 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
         res = calibrate(sim.calib, method=method, **((recipe or {}) if method == "factorgraph" else {}))
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         ev = evaluate(sim.eval, res.network)
+        finite = [s.id for s in ev.sensors if np.all(np.isfinite(s.position_error_mm))]
         E = np.array([s.position_error_mm for s in ev.sensors if np.all(np.isfinite(s.position_error_mm))])
         # the horizontal error less what every sensor shares with AMCL's run average (which no
         # calibration anchored to AMCL can remove): what the method itself controls
         rel = E[:, :2] - 1000 * amcl_run_mean_error_m(sim.calib)
         out[method] = dict(rms_mm=float(np.sqrt(np.mean(np.sum(E ** 2, axis=1)))),
                            rms_xy_mm=float(np.sqrt(np.mean(np.sum(E[:, :2] ** 2, axis=1)))),
-                           rms_rel_mm=float(np.sqrt(np.mean(np.sum(rel ** 2, axis=1)))), wall_s=wall, cpu_s=cpu)
+                           rms_rel_mm=float(np.sqrt(np.mean(np.sum(rel ** 2, axis=1)))),
+                           rms_rigid_mm=rigid_residual_rms_mm(
+                               np.array([res.network[sid].position_m[:2] for sid in finite]),
+                               np.array([sim.eval.truth[sid].position_m[:2] for sid in finite])),
+                           wall_s=wall, cpu_s=cpu)
         if method == "factorgraph":
             # error over sigma per axis; a sensor not calibrated (status not ok: its sigma the prior's,
             # wide enough to hold any error) or without a sigma is a miss, not a padding
@@ -210,10 +232,11 @@ def main() -> None:
     print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), "
           f"--vary-nuisances{' zoo' if args.zoo else ''}")
     print("| scenario | graph RMS 3-D / xy (mm) | grid search 3-D / xy (mm) | graph / grid (xy) | "
-          "AMCL run-mean error xy (mm) | graph / grid xy less AMCL's run mean (mm) | within 1 sigma x,y,z (%) | "
+          "AMCL run-mean error xy (mm) | graph / grid xy less AMCL's run mean (mm) | "
+          "graph / grid xy less the best common rigid 2-D transform (mm) | within 1 sigma x,y,z (%) | "
           "within 2 sigma x,y,z (%) | error / sigma RMS, shared / rest (xy) | head model shape RMS / worst, "
           "mean dz (mm) | graph solve wall / CPU (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for sc in args.scenarios:
         rs = [r for r in results if r["scenario"] == sc]
         if args.verbose:
@@ -238,11 +261,13 @@ def main() -> None:
         floor = np.mean([r["amcl_mean_xy_mm"] for r in rs])
         grel = np.mean([r["factorgraph"]["rms_rel_mm"] for r in rs])
         brel = np.mean([r["gridsearch"]["rms_rel_mm"] for r in rs])
+        grig = np.mean([r["factorgraph"]["rms_rigid_mm"] for r in rs])
+        brig = np.mean([r["gridsearch"]["rms_rigid_mm"] for r in rs])
         dz = np.sqrt(np.mean([r["head_dz_mm"] ** 2 for r in rs]))
         wall = np.mean([r["factorgraph"]["wall_s"] for r in rs])
         cpu = np.mean([r["factorgraph"]["cpu_s"] for r in rs])
         print(f"| {sc} | {g:.1f} / {gxy:.1f} | {b:.1f} / {bxy:.1f} | {g / b:.2f} ({gxy / bxy:.2f}) | {floor:.1f} | "
-              f"{grel:.1f} / {brel:.1f} | "
+              f"{grel:.1f} / {brel:.1f} | {grig:.1f} / {brig:.1f} | "
               f"{w1[0]:.0f}, {w1[1]:.0f}, {w1[2]:.0f} | {w2[0]:.0f}, {w2[1]:.0f}, {w2[2]:.0f} | {z_text} | "
               f"{shape:.1f} / {worst:.1f}, {dz:.1f} | {wall:.2f} / {cpu:.2f} |")
     print_targets(results)

@@ -72,9 +72,11 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
 )
 from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
+    considered_nuisances,
     head_profile_nuisances,
     is_head_profile,
     is_sensor_shift,
+    leave_out,
     record_head_profile,
     row_clusters,
     row_sensors,
@@ -334,6 +336,9 @@ class _Nuisances:
     # a curvature the data show but the recipe does not estimate: (would-be value m, the
     # sensors' (and h(0)'s) sensitivity to it, chi^2)
     unmodelled: tuple | None = None
+    # the shift against distance held at 0 but not known (pedcal.calib.headpoint.considered_nuisances):
+    # (its prior sigma m, the sensors' (and h(0)'s) error per unit of it)
+    considered: tuple | None = None
 
 
 def _shown(name: str, value: float) -> str:
@@ -419,6 +424,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     select_profile = bool(profile_nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
     unmodelled = None
+    considered = considered_nuisances(prob)    # (before the curvature, which stays last)
+    nuis += considered
+    consider_s = None
     if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
         nuis.append(Nuisance("curvature_m", 0.0, rec.head_curvature_sigma_m, rec.head_ray_shift_step_m))
     fixed = gtsam.NonlinearFactorGraph()
@@ -471,6 +479,15 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             footprint=footprint, local=local_cols)
         if not chord:
             full_step = step
+        if considered and not chord:
+            # the shift against distance, held at 0: out of the estimate, its sensitivity kept
+            with_line, line_j = step, names.index(considered[0].name)
+            step, consider_s = leave_out(step, line_j)
+            nuis = [n for n in nuis if n.name != considered[0].name]
+            considered = []
+            names = [n.name for n in nuis]
+            theta = np.array([getattr(prob, n) for n in names], float)
+            full_step = step
         if select and "curvature_m" in names:
             select = False
             full = step
@@ -479,6 +496,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             kept = len(nuis) == len(names)
             if not kept and chi2 >= rec.head_curvature_widen_chi2:
                 unmodelled = _unmodelled_curvature(full, chi2)
+            if not kept and consider_s is not None:
+                # (the curvature held at 0 as well takes up none of the line's move)
+                consider_s = leave_out(with_line, line_j, held=(len(with_line.hessian) - 1,))[1]
             _log(progress, f"head point curvature: chi^2 {chi2:.1f} -> "
                            + ("estimated" if kept else "its share widens the sigma" if unmodelled else "left out"))
             names = [n.name for n in nuis]
@@ -545,7 +565,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names,
                        local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
-                                                                    unmodelled[2]))
+                                                                    unmodelled[2]),
+                       considered=None if consider_s is None else (rec.head_profile_sigma_m,
+                                                                   consider_s[cols.index(keys)]))
 
 
 def _unmodelled_curvature(step, chi2: float):
@@ -671,6 +693,11 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
             # the model does not fit: the sensors widened by the move the misfit's own fix would make
             dc, sens_c, _ = shifts.unmodelled
             extra.append((sens_c[:, None], np.array([[dc ** 2]])))
+        if shifts.considered is not None:
+            # the shift against distance held at 0, its prior carried (a consider parameter): under
+            # a wandering AMCL the path's scale follows the views' radial scale, which it sets
+            sd, sens_s = shifts.considered
+            extra.append((sens_s[:, None], np.array([[sd ** 2]])))
     for sens, cov in extra:
         sens = sens[:6 * len(keys)]
         if joint:

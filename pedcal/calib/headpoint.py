@@ -139,6 +139,38 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     return out
 
 
+def considered_nuisances(prob) -> list[Nuisance]:
+    """The shift against distance as a consider parameter (recipe ``head_profile`` off and
+    ``head_profile_consider``): the line (SLOPE, rising by it from d_0 to d_m) at 0, prior
+    ``head_profile_sigma_m``, whose sensitivity the first profile step takes and
+    :func:`leave_out` removes from the estimate, its prior carried into the sensors' covariance.
+    [] when a profile is estimated, without the horizontal shift or with too few observations."""
+    rec = prob.recipe
+    if (rec.head_profile != "off" or not rec.head_profile_consider or not rec.robot
+            or not rec.estimate_head_horizontal_shift or rec.head_horizontal_shift_sigma_m <= 0.0
+            or rec.head_profile_sigma_m <= 0.0 or _knots(prob) is None):
+        return []
+    prob.head_profile_slope_m = 0.0
+    return [Nuisance(SLOPE, 0.0, rec.head_profile_sigma_m, STEP_M)]
+
+
+def leave_out(step: ProfileStep, j: int, held: tuple = ()) -> tuple[ProfileStep, np.ndarray]:
+    """The profile step without nuisance ``j`` (held at its value, the others' Newton step
+    re-solved) and the variables' error per unit of its true departure from that value:
+    S = Z_j - Z_o H_oo^-1 H_oj (n,), the others o re-optimized (they absorb what they can of it,
+    H the profile's information), but for those in ``held``, which stay at their values as well
+    (a nuisance a later selection drops takes up nothing). Its prior sigma^2 S S^T is the
+    consider covariance."""
+    H = step.hessian
+    g = -H @ step.dtheta
+    keep = np.flatnonzero(np.arange(len(H)) != j)
+    o = np.array([i for i in keep if i not in held], int)
+    S = step.Z[:, j] - step.Z[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, j])
+    reduced = step.select(keep)
+    reduced.dtheta = -np.linalg.solve(H[np.ix_(keep, keep)], g[keep])
+    return reduced, S
+
+
 def sensor_shift_nuisances(prob) -> list[Nuisance]:
     """Each sensor's own constant departure delta_s of the horizontal shift toward the sensor
     from the shared one, a random effect (recipe ``head_shift_per_sensor_sigma_m`` > 0): every

@@ -1,0 +1,133 @@
+"""The head point's shift against distance as a consider parameter
+(pedcal.calib.headpoint.considered_nuisances, leave_out; recipe head_profile_consider): with no
+profile estimated, a line rising 0 +- head_profile_sigma_m across the robot's distances is held
+at 0 and its prior carried into the sensors' covariance. Under a wandering AMCL the robot's path
+takes its scale from the sensors' views, whose radial scale such a line sets: a corridor's
+sensors then spread along it by what the line moves them, which the sigma must carry."""
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import pedcal.calib.factorgraph as fgmod
+from pedcal.calib import calibrate
+from pedcal.calib.headpoint import SLOPE, considered_nuisances, leave_out
+from pedcal.calib.profile import ProfileStep
+from pedcal.sim import simulate_logs
+
+
+def _linear_problem(seed: int = 0, n: int = 6, k: int = 3, m: int = 40):
+    """A linear least-squares problem y = A x + B theta with a prior 0 +- sigma on each theta: the
+    variables' conditional sensitivity Z = -(A^T A)^-1 A^T B, the profile's information H (the
+    data's, the variables profiled out, plus the priors)."""
+    rng = np.random.default_rng(seed)
+    A, B = rng.normal(size=(m, n)), rng.normal(size=(m, k))
+    sigma = np.array([0.5, 1.0, 2.0])[:k]
+    AtA_inv = np.linalg.inv(A.T @ A)
+    Z = -AtA_inv @ A.T @ B
+    P = np.eye(m) - A @ AtA_inv @ A.T
+    H = B.T @ P @ B + np.diag(1.0 / sigma ** 2)
+    return A, B, sigma, Z, H
+
+
+def _solve(A, B, sigma, y, fixed: dict):
+    """The joint least-squares solution (x, theta) with the thetas in ``fixed`` held at their
+    values and the others under their priors."""
+    n, k = A.shape[1], B.shape[1]
+    free = [j for j in range(k) if j not in fixed]
+    r = y - sum(B[:, j] * v for j, v in fixed.items())
+    M = np.block([[A, B[:, free]], [np.zeros((len(free), n)), np.diag(1.0 / sigma[free])]])
+    sol = np.linalg.lstsq(M, np.r_[r, np.zeros(len(free))], rcond=None)[0]
+    return sol[:n], sol[n:]
+
+
+def test_leave_out_is_the_exact_error_of_holding_a_nuisance_and_the_others_newton_step():
+    A, B, sigma, Z, H = _linear_problem()
+    rng = np.random.default_rng(1)
+    x_true, theta_true = rng.normal(size=A.shape[1]), np.array([0.3, -0.7, 1.1])
+    y = A @ x_true + B @ theta_true
+    # the profile at theta = 0: its gradient and Newton step
+    x0 = np.linalg.lstsq(A, y, rcond=None)[0]
+    g = -(B.T @ (y - A @ x0))                 # d(chi^2 / 2)/d theta at 0, the variables profiled out
+    step = ProfileStep(dtheta=-np.linalg.solve(H, g), hessian=H, z0=x0, Z=Z, cols=None)
+    j = 1
+    reduced, S = leave_out(step, j)
+    # the others' step: the joint solution with theta_j held at 0
+    x_held, theta_held = _solve(A, B, sigma, y, {j: 0.0})
+    np.testing.assert_allclose(reduced.dtheta, theta_held, rtol=1e-9, atol=1e-12)
+    # holding theta_j at 0 instead of c moves the variables by -S c, the others re-optimized
+    c = 0.8
+    x_at_c, _ = _solve(A, B, sigma, y, {j: c})
+    np.testing.assert_allclose(x_held - x_at_c, -S * c, rtol=1e-9, atol=1e-12)
+    # and S is not the conditional sensitivity: the others take up part of it
+    assert not np.allclose(S, Z[:, j])
+
+
+def _prob(mode="off", consider=True, n_obs=400):
+    rng = np.random.default_rng(0)
+    p = np.column_stack([rng.uniform(0.3, 3.0, n_obs), rng.uniform(-1.0, 1.0, n_obs), np.full(n_obs, 1.5)])
+    toward = -p * np.array([1.0, 1.0, 0.0])
+    toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+    rec = SimpleNamespace(head_profile=mode, head_profile_consider=consider, robot=True,
+                          estimate_head_horizontal_shift=True, head_horizontal_shift_sigma_m=0.05,
+                          head_profile_sigma_m=0.03, head_profile_knots=4)
+    return SimpleNamespace(recipe=rec, fac_p_sensor=p, fac_toward_sensor=toward)
+
+
+def test_the_line_is_considered_only_when_no_profile_is_estimated():
+    nuis = considered_nuisances(_prob())
+    assert [(n.name, n.prior_mean, n.prior_sigma) for n in nuis] == [(SLOPE, 0.0, 0.03)]
+    assert considered_nuisances(_prob(mode="linear")) == []       # estimated: its covariance is carried anyway
+    assert considered_nuisances(_prob(consider=False)) == []
+    assert considered_nuisances(_prob(n_obs=20)) == []            # too few observations for knots
+
+
+def _corridor(seed: int):
+    # a 12 m corridor whose tracker shifts the head point 5 cm toward the sensor right under it,
+    # fading to nothing 2 m away (outside the graph's constant-shift family), AMCL wandering
+    return simulate_logs("corridor", seed=seed, head_point="ramp", head_shift_m=0.05, head_ramp_m=2.0,
+                         head_ramp_shape="linear", amcl_error="correlated", walkers="none",
+                         area_m=[12.0, 2.4], corridor_sensors=10)
+
+
+def _stretch(sim, res):
+    """The sensors' position error along the corridor per metre along it (least-squares slope,
+    m/m) and its sigma from the joint covariance."""
+    ids = list(res.network.ids)
+    E = np.array([res.network[i].position_m - sim.calib.truth[i].position_m for i in ids])
+    x = np.array([sim.calib.truth[i].position_m[0] for i in ids])
+    w = np.zeros(3 * len(ids))
+    w[3 * np.arange(len(ids))] = (x - x.mean()) / np.sum((x - x.mean()) ** 2)
+    return float(w @ E.ravel()), float(np.sqrt(w @ res.position_covariance_m2 @ w))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_corridor_stretched_by_a_fading_head_shift_is_within_its_sigma(seed, monkeypatch):
+    sim = _corridor(seed)
+    seen = {}
+    original = fgmod._posterior
+
+    def spy(log_, prob, fg, result, shifts):
+        seen["shifts"] = shifts
+        return original(log_, prob, fg, result, shifts)
+
+    monkeypatch.setattr(fgmod, "_posterior", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        held = calibrate(sim.calib, method="factorgraph", head_profile_consider=False)
+        res = calibrate(sim.calib, method="factorgraph")
+    slope0, sigma0 = _stretch(sim, held)
+    slope, sigma = _stretch(sim, res)
+    # the estimate is the same (the line is held at 0 either way); the stretch, 12-15 mm/m here,
+    # was 8-10 sigma of the old covariance and is within 2 of the new
+    np.testing.assert_allclose([res.network[i].position_m for i in res.network.ids],
+                               [held.network[i].position_m for i in held.network.ids], atol=1e-9)
+    assert slope == pytest.approx(slope0, abs=1e-9)
+    assert abs(slope) > 0.008
+    assert abs(slope0) > 5.0 * sigma0
+    assert abs(slope) < 2.0 * sigma
+    # the covariance's added share is the line's prior times its sensitivity, nothing else
+    sd, sens = seen["shifts"].considered
+    assert sd == 0.03 and sens.shape == (6 * len(res.network.ids) + 6,)
