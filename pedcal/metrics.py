@@ -192,12 +192,14 @@ def robot_truth_xy(log: Log, t: np.ndarray) -> np.ndarray:
 
 def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray | None = None) -> np.ndarray:
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
-    extrinsics do not name), with the head-dome correction the extrinsics file carries."""
+    extrinsics do not name), with the head-point model the extrinsics file carries (each
+    sensor's own horizontal shift, ``per_sensor_shift_m``, where it names one)."""
     from pedcal.calib.headpoint import horizontal_distance, shift_at
 
     vertical_m, ray_m, horizontal_m, curvature_m = head_model_of(extrinsics)
     hm = extrinsics.extra.get(HEAD_MODEL_KEY)
     profile = hm.get("horizontal_profile") if isinstance(hm, dict) else None
+    own_shifts = (hm.get("per_sensor_shift_m") if isinstance(hm, dict) else None) or {}
     p_sensor = log.observation_points_sensor()
     sensor_col = log.observations["sensor"].astype(str).to_numpy()
     out = np.full_like(p_sensor, np.nan)
@@ -214,8 +216,11 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
                 # and this sensor's own departure from it, where one was kept (the shared shift at d_0 is shift_m[0])
                 own = profile.get("per_sensor_shift_m", {}).get(s.id, profile["shift_m"][0]) - profile["shift_m"][0]
                 p = p - (shift_at(profile, horizontal_distance(p, toward)) + own)[:, None] * toward
-            elif horizontal_m:
-                p = p - horizontal_m * frames.toward_sensor_horizontal(p, s.R_world_sensor)
+            else:
+                # the shared shift, or this sensor's own where the calibration estimated one
+                own_m = float(own_shifts.get(s.id, horizontal_m))
+                if own_m:
+                    p = p - own_m * frames.toward_sensor_horizontal(p, s.R_world_sensor)
             if curvature_m:
                 p = p - curvature_m * frames.up_by_cos2_elevation(p, s.R_world_sensor)
             p = p + ray_m * p / np.linalg.norm(p, axis=1, keepdims=True)

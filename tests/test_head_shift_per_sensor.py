@@ -8,15 +8,22 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import yaml
 
 import pedcal.calib.factorgraph as fgmod
 from pedcal.calib import calibrate
-from pedcal.calib.headpoint import SENSOR_PREFIX, head_profile_shift_sensor, sensor_shift_nuisances
+from pedcal.calib.headpoint import (
+    SENSOR_PREFIX,
+    departures_record,
+    head_profile_shift_sensor,
+    sensor_shift_nuisances,
+)
 from pedcal.calib.keys import S
 from pedcal.calib.profile import joint_marginal_covariance
 from pedcal.errors import PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
-from pedcal.metrics import evaluate, robot_rows
+from pedcal.io import read_sensors_yaml, write_sensors_yaml
+from pedcal.metrics import HEAD_MODEL_KEY, evaluate, reproject_observations, robot_rows
 from pedcal.sim import simulate_logs
 
 SIGMA_M = 0.02
@@ -206,3 +213,84 @@ def test_without_a_distance_profile_no_shape_is_chosen(monkeypatch):
     res, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch)
     assert sum(name.startswith(SENSOR_PREFIX) for name in seen["shifts"].names) == len(seen["prob"].sensor_ids)
     assert all(s.status == "ok" for s in res.network)
+
+
+def test_the_departures_record_is_the_shared_shift_plus_each_departure_with_its_sigma():
+    prob = SimpleNamespace(**{SENSOR_PREFIX + "s1": 0.012, SENSOR_PREFIX + "s2": -0.004})
+    names = ["ray_shift_m", "horizontal_shift_m", SENSOR_PREFIX + "s1", SENSOR_PREFIX + "s2"]
+    cov = np.array([[4.0, 0.0, 0.0, 0.0], [0.0, 1.0, -0.5, 0.25], [0.0, -0.5, 2.0, 0.0],
+                    [0.0, 0.25, 0.0, 3.0]]) * 1e-6
+    rec = departures_record(prob, names, cov, 0.02)
+    assert rec["per_sensor_shift_m"] == {"s1": 0.032, "s2": 0.016}
+    # var(shared + departure) = var(shared) + var(departure) + 2 cov: 1 + 2 - 1 and 1 + 3 + 0.5 (mm^2),
+    # written to 10 micrometres
+    assert rec["sigma_per_sensor_shift_m"] == {"s1": round(np.sqrt(2.0) * 1e-3, 5), "s2": round(np.sqrt(4.5) * 1e-3, 5)}
+    # no departures, or no shared shift to depart from: nothing
+    assert departures_record(prob, names[:2], cov[:2, :2], 0.02) == {}
+    assert departures_record(prob, [names[0], names[2]], cov[np.ix_([0, 2], [0, 2])], 0.02) == {}
+
+
+def test_evaluate_takes_each_sensors_own_shift_toward_it_in_place_of_the_shared_one():
+    # a noise-free log whose tracker shifts the head point 3 cm toward every sensor
+    clean = simulate_logs("paper", seed=1, duration_s=60.0, noise_free=True, head_point="shift", head_shift_m=0.03)
+    ids = list(clean.calib.truth.ids)
+    base = {"vertical_offset_m": 0.0, "ray_shift_m": 0.0, "horizontal_shift_m": -0.03}
+    right, flipped = clean.calib.truth.copy(), clean.calib.truth.copy()
+    right.extra[HEAD_MODEL_KEY] = {**base, "per_sensor_shift_m": {sid: 0.03 for sid in ids}}
+    flipped.extra[HEAD_MODEL_KEY] = {**base, "per_sensor_shift_m": {sid: -0.03 for sid in ids}}
+    # each sensor's own 3 cm, not the shared -3 cm: the head where it was; with the sign flipped, 6 cm off
+    assert evaluate(clean.calib, right).head_tracking_rms_mm < 1.0
+    assert evaluate(clean.calib, flipped).head_tracking_rms_mm > 50.0
+    # one sensor named: its points alone move, by its shift less the shared one, away from the sensor
+    shared, own = clean.calib.truth.copy(), clean.calib.truth.copy()
+    shared.extra[HEAD_MODEL_KEY] = {**base, "horizontal_shift_m": 0.03}
+    own.extra[HEAD_MODEL_KEY] = {**base, "horizontal_shift_m": 0.03, "per_sensor_shift_m": {ids[0]: 0.05}}
+    a, b = reproject_observations(clean.calib, shared), reproject_observations(clean.calib, own)
+    mine = (clean.calib.observations["sensor"].astype(str) == ids[0]).to_numpy() & np.isfinite(a[:, 0])
+    assert mine.any() and np.array_equal(a[~mine], b[~mine], equal_nan=True)
+    moved = b[mine] - a[mine]
+    np.testing.assert_allclose(np.linalg.norm(moved, axis=1), 0.02, atol=1e-9)
+    to_sensor = np.asarray(clean.calib.truth[ids[0]].position_m)[:2] - a[mine][:, :2]
+    assert np.all(np.einsum("ij,ij->i", moved[:, :2], to_sensor) < 0.0)
+
+
+def test_the_calibrated_yaml_carries_the_departures_and_evaluate_applies_them(nadir, monkeypatch, tmp_path):
+    sim, delta = nadir
+    res, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch)
+    prob, shifts = seen["prob"], seen["shifts"]
+    hm = res.network.extra[HEAD_MODEL_KEY]
+    assert "horizontal_profile" not in hm          # (the default: no profile against distance)
+    want = departures_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
+    assert hm["per_sensor_shift_m"] == want["per_sensor_shift_m"]
+    assert hm["sigma_per_sensor_shift_m"] == want["sigma_per_sensor_shift_m"]
+    assert sorted(hm["per_sensor_shift_m"]) == sorted(prob.sensor_ids)
+    assert all(0.0 < s < 0.05 for s in hm["sigma_per_sensor_shift_m"].values())
+    back = read_sensors_yaml(write_sensors_yaml(res.network, tmp_path / "cal.yaml"))
+    assert back.extra[HEAD_MODEL_KEY]["per_sensor_shift_m"] == hm["per_sensor_shift_m"]
+    assert back.extra[HEAD_MODEL_KEY]["sigma_per_sensor_shift_m"] == hm["sigma_per_sensor_shift_m"]
+    # the estimated shifts follow the log's +-3 cm ones (each about the sensors' mean, within 8 mm as above)
+    est = np.array([hm["per_sensor_shift_m"][sid] for sid in prob.sensor_ids])
+    true = np.array([delta[sid] for sid in prob.sensor_ids])
+    np.testing.assert_allclose(est - est.mean(), true - true.mean(), atol=0.008)
+    # evaluate on the log they were estimated from: with them, the head tracked better than with
+    # the shared shift alone, and worse with each departure's sign flipped
+    shared_only, flipped = res.network.copy(), res.network.copy()
+    shared_only.extra[HEAD_MODEL_KEY] = {k: v for k, v in hm.items() if "per_sensor" not in k}
+    flipped.extra[HEAD_MODEL_KEY] = {**hm, "per_sensor_shift_m": {
+        sid: 2.0 * hm["horizontal_shift_m"] - v for sid, v in hm["per_sensor_shift_m"].items()}}
+    # (the log's own noise, AMCL's and the depth's, is most of the RMS)
+    rms = [evaluate(sim.calib, net).head_tracking_rms_mm for net in (back, shared_only, flipped)]
+    assert rms[0] < 0.9 * rms[1] < 0.9 ** 2 * rms[2], rms
+
+
+@pytest.mark.parametrize("key, bad, match", [("per_sensor_shift_m", 0.03, "mapping of sensor id"),
+                                             ("per_sensor_shift_m", {"s1": "x"}, r"per_sensor_shift_m\.s1"),
+                                             ("sigma_per_sensor_shift_m", {"s1": -0.01}, "implausible")])
+def test_a_bad_per_sensor_shift_in_a_yaml_is_refused_naming_it(tmp_path, key, bad, match):
+    sim = simulate_logs("paper", seed=0, duration_s=10.0)
+    path = write_sensors_yaml(sim.calib.truth.copy(), tmp_path / "ok.yaml")
+    data = yaml.safe_load(path.read_text())
+    data[HEAD_MODEL_KEY] = {"vertical_offset_m": 0.0, "ray_shift_m": 0.0, key: bad}
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(PedcalInputError, match=match):
+        read_sensors_yaml(path)

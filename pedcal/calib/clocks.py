@@ -14,6 +14,18 @@ observations nearly linearly, like the head point's horizontal shift
 (``fac_p_sensor + delta_i R_i^T v`` in :func:`clock_shift_sensor`). Only the robot's
 motion tells an offset: a sensor that sees the robot only standing, or only crossing one way
 (where the offset is a shift its translation takes), keeps its prior, and its sigma says so.
+
+The profile's sigma assumes the residuals are the noise model's, white. An offset is seen through
+the velocity times the time shift, which errors that last a pass of the robot share (AMCL's
+wander, a head point the model does not follow), so each offset's sigma is widened by its
+overdispersion (:func:`offset_overdispersion`, a cluster-robust, sandwich, estimate over 20 s
+blocks of the residuals against the same statistic under the noise model) where that exceeds 1
+(:func:`widened_covariance`), in the covariance the sensors' sigma takes its share from. Errors
+that move every pass alike (an offset shared by a group of sensors trading with where the group
+sits along the robot's path, which only AMCL holds) do not scatter the score and are not caught;
+nor are offsets fitted per sensor given the path (above ``clock_offsets_joint_max``), nor, with
+a head profile against distance kept (recipe ``head_profile``), the offsets of that reduced
+profile, which keeps no residuals.
 """
 
 from __future__ import annotations
@@ -21,7 +33,9 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import scipy.sparse as sps
 
+from pedcal.calib.headpoint import MIN_CLUSTERS
 from pedcal.calib.profile import Nuisance
 from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, SIGMA_LATENCY_KEY
 
@@ -37,6 +51,11 @@ STEP_S = 0.01           # finite-difference step of the profile (the offset ente
 # graph's solved poses (solved_velocity_world), 73 % within 1 sigma there; on the L-shaped hall the
 # offsets shared by a wing still trade with the wing's place along its axis (README).
 VELOCITY_HALF_WINDOW_S = 0.5
+# the residuals' time blocks (s) whose scatter of each offset's score widens its sigma
+# (:func:`offset_overdispersion`): about one pass of the robot under a sensor at its 0.3 m/s, and
+# AMCL's wander's correlation time, so that errors shared within a pass count as one
+CLUSTER_S = 20.0
+NULL_DRAWS = 32     # white-error draws whose mean scatter is the model's (offset_overdispersion): ~10 % noise
 
 
 def is_clock_nuisance(name: str) -> bool:
@@ -135,6 +154,124 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
     return delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[use], v_world)
 
 
+def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters: np.ndarray,
+                          draws: int = NULL_DRAWS, seed: int = 0) -> np.ndarray:
+    """(k,) each clock offset's overdispersion phi_j (NaN for the other nuisances, and where there
+    are too few time blocks): how much the residuals ``rho`` (the profile's, at the estimate)
+    scatter the offset's score over the residuals' time blocks ``clusters``
+    (:func:`row_blocks`, -1: left out) against how much they would if
+    the noise model held. The offset's efficient rows m = M_j - M_o H_oo^-1 H_oj (M = A Z - B the
+    profile residual's change with the nuisances, H the profile Hessian with the priors, o the
+    other nuisances: they are profiled out too); the scatter V(rho) = C / (C - 1) sum_c
+    (U_c - mean U)^2, U_c = sum over block c of m_i rho_i (the cluster-robust, sandwich, variance
+    of the score; :func:`pedcal.calib.headpoint.overdispersion` is V / sum m_i^2). Under the model
+    the residuals are r = (I - A N^-1 A^T) e, e white with unit variance, N = A^T A: the variables
+    (each block's robot poses, AMCL's error nodes) take up part of each block's errors, so V(r)
+    is below sum m_i^2, and the ratio is taken against the mean of V over ``draws`` such r
+    (seeded by ``seed``; a fresh factorization of N when the step kept none):
+
+        phi_j = V(rho) / mean_d V(r_d).
+
+    1 when the model holds; more when errors that last a block move the offset more than white
+    residuals would (AMCL's wander, a head point whose shift toward the sensor changes with
+    distance where the model keeps it constant: an offset is seen through the robot's velocity
+    times the time shift, which such errors share within a pass)."""
+    H = np.asarray(step.hessian, float)
+    out = np.full(len(nuis), np.nan)
+    idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
+    keep = np.flatnonzero(clusters >= 0)
+    labels, block = np.unique(clusters[keep], return_inverse=True)
+    if not idx or len(labels) < MIN_CLUSTERS:
+        return out
+    # the efficient rows of every offset at once: m = M W, W's column c = e_j - (0; H_oo^-1 H_oj)
+    W = np.zeros((len(nuis), len(idx)))
+    for c, j in enumerate(idx):
+        others = [o for o in range(len(nuis)) if o != j]
+        W[j, c] = 1.0
+        if others:
+            W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
+    m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
+    solve = step.__dict__.get("_normal_solve")
+    if solve is None:
+        from pedcal.calib.profile import _normal_solver
+        solve = _normal_solver(step.A, step.order)
+    e = np.random.default_rng(seed).standard_normal((len(rho), draws))
+    X = np.column_stack([rho, e - np.asarray(step.A @ solve(np.asarray(step.A.T @ e)))])
+    # U[c, b, d] = sum over block b of m_ic X_id: one sparse product, a row per (offset, block)
+    C = len(labels)
+    K = sps.csr_matrix((m[keep].T.ravel(), ((np.arange(len(idx))[:, None] * C + block[None, :]).ravel(),
+                                            np.tile(keep, len(idx)))), shape=(len(idx) * C, len(rho)))
+    U = np.asarray(K @ X).reshape(len(idx), C, draws + 1)
+    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
+    out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
+    return out
+
+
+def widened_covariance(cov: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """The nuisances' covariance ``cov`` with each clock offset's rows and columns scaled by
+    sqrt(max(1, phi_j)) (:func:`offset_overdispersion`; NaN: 1): D cov D, so each offset's
+    variance is the model's times its overdispersion where that exceeds 1, never narrowed, and its
+    correlations kept (its share of the sensors' covariance, through their sensitivity, widened
+    alike)."""
+    d = np.sqrt(np.maximum(1.0, np.nan_to_num(np.asarray(phi, float), nan=1.0)))
+    return np.asarray(cov, float) * np.outer(d, d)
+
+
+def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, cluster_s: float = CLUSTER_S,
+               ) -> np.ndarray:
+    """(rows,) the time block of every row of the profile step's system, from the variables the
+    row holds (A's sparsity, no walk over the factors): a robot pose x(k) is in block
+    floor(t_k / ``cluster_s``), an AMCL error node a(j) in its time's, a person l(m) in a block of
+    its own after them; a row takes the latest block among its variables', -1 when it holds none
+    of these (the sensors' priors, the head offset's)."""
+    import gtsam
+
+    t_nodes = np.zeros(0) if node_times is None else np.asarray(node_times, float)
+    n_blocks = int(np.floor(max(float(np.max(pose_times, initial=0.0)), float(np.max(t_nodes, initial=0.0)))
+                            / cluster_s)) + 1
+    cols = step.cols
+    label = np.full(cols.n, -1, np.int64)
+    for key in cols.keys:
+        sym = gtsam.Symbol(key)
+        c, k = chr(sym.chr()), int(sym.index())
+        block = -1
+        if c == "x" and k < len(pose_times):
+            block = int(np.floor(float(pose_times[k]) / cluster_s))
+        elif c == "a" and k < len(t_nodes):
+            block = int(np.floor(float(t_nodes[k]) / cluster_s))
+        elif c == "l":
+            block = n_blocks + k
+        label[cols.offset[key]:cols.offset[key] + cols.dim[key]] = block
+    A = sps.csr_matrix(step.A)
+    entries = label[A.indices]
+    out = np.full(A.shape[0], -1, np.int64)
+    filled = np.diff(A.indptr) > 0
+    if entries.size:
+        out[filled] = np.maximum.reduceat(entries, A.indptr[:-1][filled])
+    return out
+
+
+def widen_for_overdispersion(reference, nuis: list[Nuisance], theta: np.ndarray, cov: np.ndarray,
+                             pose_times: np.ndarray, node_times: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The profile's covariance ``cov`` of ``nuis`` (now at ``theta``) with the clock offsets
+    widened by their overdispersion (:func:`widened_covariance`), and the phi_j. ``reference``:
+    (the last full profile step, which kept its system, the nuisances' values it was taken at);
+    the residuals at ``theta`` are its rho0 + M (theta - those values), exact for the linearized
+    profile; their time blocks (:func:`row_blocks`) from the robot poses' times ``pose_times``
+    and AMCL's error nodes' ``node_times``. Unchanged (phi NaN) without a reference, its system,
+    or clock offsets."""
+    phi = np.full(len(nuis), np.nan)
+    if reference is None or not any(is_clock_nuisance(nu.name) for nu in nuis):
+        return cov, phi
+    step, theta_ref = reference
+    if step.rho0 is None or step.A is None or step.B is None or step.B.shape[1] != len(nuis):
+        return cov, phi
+    d_theta = np.asarray(theta, float) - np.asarray(theta_ref, float)
+    rho = step.rho0 + np.asarray(step.A @ (step.Z @ d_theta)) - step.B @ d_theta
+    phi = offset_overdispersion(step, nuis, rho, row_blocks(step, pose_times, node_times))
+    return widened_covariance(cov, phi), phi
+
+
 def centered_offsets(delta_s: np.ndarray, cov_s2: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
     """The offsets ``delta_s`` (n,) with covariance ``cov_s2`` (n, n) split into their mean, the
     shared latency's correction, and each offset about it, so that the latency and the offsets
@@ -156,9 +293,10 @@ def record_clocks(network, prob, shifts) -> None:
     """Write the estimated clock offsets to the calibrated network: the shared latency becomes
     the association's plus the offsets' mean, with that mean's sigma, and each sensor's offset
     is taken about it, with the sigma of its departure from the mean
-    (:func:`centered_offsets`, from the profile's covariance; ``shifts``: the profile's
-    result). Offsets whose sigma was fitted per sensor given the robot's path (above the recipe's
-    ``clock_offsets_joint_max``) are logged as such: that sigma leaves out the path's share."""
+    (:func:`centered_offsets`, from the profile's covariance, each offset's widened by its
+    overdispersion; ``shifts``: the profile's result). Offsets whose sigma was fitted per
+    sensor given the robot's path (above the recipe's ``clock_offsets_joint_max``) are logged as
+    such: that sigma leaves out the path's share."""
     if shifts is None:
         return
     idx = [j for j, n in enumerate(shifts.names) if is_clock_nuisance(n)]
@@ -181,4 +319,5 @@ def record_clocks(network, prob, shifts) -> None:
     network.extra[SIGMA_CLOCK_OFFSET_KEY] = {sid: round(float(s), 4) for sid, s in zip(ids, sigma, strict=True)}
 
 
-__all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets"]
+__all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
+           "offset_overdispersion", "widened_covariance", "widen_for_overdispersion", "row_blocks"]

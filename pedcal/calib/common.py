@@ -90,11 +90,17 @@ class HeadModel:
     # the horizontal shift against the horizontal distance from the sensor, where the data show
     # one (pedcal.calib.headpoint.profile_record): it replaces horizontal_shift_m
     horizontal_profile: dict | None = None
+    # without a profile, each sensor's own horizontal shift where its departure from the shared
+    # one was estimated (sensor id -> m; pedcal.calib.headpoint.departures_record) and its sigma:
+    # they replace horizontal_shift_m for those sensors
+    per_sensor_shift_m: dict | None = None
+    sigma_per_sensor_shift_m: dict | None = None
 
     def to_dict(self) -> dict:
         out = plain(asdict(self))
-        if out.get("horizontal_profile") is None:
-            out.pop("horizontal_profile", None)
+        for key in ("horizontal_profile", "per_sensor_shift_m", "sigma_per_sensor_shift_m"):
+            if out.get(key) is None:
+                out.pop(key, None)
         return out
 
 

@@ -32,8 +32,9 @@ import numpy as np
 
 from pedcal.calib import readback
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
+from pedcal.calib.clocks import CLUSTER_S as CLOCK_CLUSTER_S
 from pedcal.calib.clocks import PREFIX as CLOCK_PREFIX
-from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks
+from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks, widen_for_overdispersion
 from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
     BLOCKS,
@@ -436,7 +437,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     cols = Columns.of(result)
     kernel = (rec.robust_kernel, rec.robust_k)
     prior_factors = int(result.exists(H(0)) and rec.amcl)      # the head offset's prior leads the block
-    step, full_step = None, None
+    step, full_step, reference = None, None, None
     local_names = [n.name for n in local_nuis]
     index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
@@ -518,6 +519,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             _log(progress, f"head point shift against distance: {compared}")
             names, full_step = [n.name for n in nuis], step
             theta = np.array([getattr(prob, n) for n in names], float)
+        if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
+            reference = (step, theta.copy()) if step.rho0 is not None else None
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -556,6 +559,14 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     keys = [S(i) for i in range(len(prob.sensor_ids))] + ([H(0)] if result.exists(H(0)) else [])
     sens = step.Z[cols.index(keys)]
     cov, local = step.covariance, None
+    if step.local is None and final_graph:
+        # each clock offset's sigma widened by its residuals' scatter over time blocks (pedcal.calib.clocks;
+        # not on a rough pass whose covariance the caller drops)
+        cov, phi = widen_for_overdispersion(reference, nuis, np.array([getattr(prob, n) for n in names]), cov,
+                                            prob.pose_times, prob.amcl_node_times)
+        if np.isfinite(phi).any():
+            _log(progress, f"clock offsets' overdispersion over {CLOCK_CLUSTER_S:.0f} s blocks: median "
+                           f"{np.nanmedian(phi):.2f}, largest {np.nanmax(phi):.2f} (their sigma widened by its root)")
     if step.local is not None:
         k = len(names)
         cov = np.zeros((k + len(local_names),) * 2)

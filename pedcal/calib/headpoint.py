@@ -519,7 +519,6 @@ def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: 
     if knots is None or c is None:
         return None
     names = list(names)
-    own = [n for n in names if n.startswith(SENSOR_PREFIX)]
     if not any(is_head_profile(n) for n in names) or "horizontal_shift_m" not in names:
         return None
     # each knot's shift as a linear map of the nuisances: e_hs + (e_{c_j} or L_j e_slope)
@@ -536,16 +535,28 @@ def profile_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: 
     model = model if SLOPE in names else "knots" if any(n.startswith(PREFIX) for n in names) else "constant"
     out = {"model": model, "distance_m": [round(float(v), 4) for v in knots],
            "shift_m": [round(float(v), 5) for v in shift], "sigma_shift_m": [round(float(v), 5) for v in sigma]}
-    if own:
-        J = np.zeros((len(own), len(names)))
-        J[:, names.index("horizontal_shift_m")] = 1.0
-        J[np.arange(len(own)), [names.index(n) for n in own]] = 1.0
-        sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, cov, J), 0.0))
-        ids = [n[len(SENSOR_PREFIX):] for n in own]
-        out["per_sensor_shift_m"] = {sid: round(float(horizontal_shift_m + getattr(prob, n)), 5)
-                                     for sid, n in zip(ids, own, strict=True)}
-        out["sigma_per_sensor_shift_m"] = {sid: round(float(v), 5) for sid, v in zip(ids, sigma, strict=True)}
+    out.update(departures_record(prob, names, cov, horizontal_shift_m))
     return out
+
+
+def departures_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_m: float) -> dict:
+    """Each sensor's own horizontal shift toward the sensor where ``names`` hold its departure
+    delta_s (selected, or the random effect of ``head_shift_per_sensor_sigma_m``): per_sensor_shift_m
+    (sensor id -> the shared shift plus delta_s, m) and sigma_per_sensor_shift_m (its sigma,
+    sqrt(var(shared) + var(delta_s) + 2 cov(shared, delta_s)) from the profile's covariance ``cov``,
+    in ``names`` order). Empty without departures or without the shared shift."""
+    names = list(names)
+    own = [n for n in names if n.startswith(SENSOR_PREFIX)]
+    if not own or "horizontal_shift_m" not in names:
+        return {}
+    J = np.zeros((len(own), len(names)))
+    J[:, names.index("horizontal_shift_m")] = 1.0
+    J[np.arange(len(own)), [names.index(n) for n in own]] = 1.0
+    sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, np.asarray(cov, float), J), 0.0))
+    ids = [n[len(SENSOR_PREFIX):] for n in own]
+    return {"per_sensor_shift_m": {sid: round(float(horizontal_shift_m + getattr(prob, n)), 5)
+                                   for sid, n in zip(ids, own, strict=True)},
+            "sigma_per_sensor_shift_m": {sid: round(float(v), 5) for sid, v in zip(ids, sigma, strict=True)}}
 
 
 PER_SENSOR_HEIGHT_NOTE = ("A tracker whose head point sits higher or lower for one sensor than for the others "
@@ -556,7 +567,9 @@ PER_SENSOR_HEIGHT_NOTE = ("A tracker whose head point sits higher or lower for o
 
 def record_head_profile(head_model, prob, shifts) -> None:
     """Put the profile the solve kept (if any) into ``head_model`` (its ``horizontal_profile``),
-    from the nuisances' result ``shifts`` (None: nothing estimated); without a height reference
+    or without one each sensor's own shift where its departure was estimated (its
+    ``per_sensor_shift_m`` and sigma, :func:`departures_record`), from the nuisances' result
+    ``shifts`` (None: nothing estimated); without a height reference
     its note also says that a per-sensor vertical offset is a height error
     (PER_SENSOR_HEIGHT_NOTE)."""
     if head_model is None:
@@ -566,6 +579,11 @@ def record_head_profile(head_model, prob, shifts) -> None:
     if shifts is None:
         return
     head_model.horizontal_profile = profile_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
+    if head_model.horizontal_profile is None:
+        # no profile kept: each sensor's own shift (the random effect's departures) beside the shared one
+        own = departures_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
+        head_model.per_sensor_shift_m = own.get("per_sensor_shift_m")
+        head_model.sigma_per_sensor_shift_m = own.get("sigma_per_sensor_shift_m")
 
 
 def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
@@ -576,6 +594,7 @@ def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["record_head_profile", "head_profile_nuisances", "head_profile_shift_sensor", "select_head_profile",
-           "profile_record", "is_head_profile", "hats", "horizontal_distance", "shift_at", "line_of_knots", "shapes",
+           "profile_record", "departures_record", "is_head_profile", "hats", "horizontal_distance", "shift_at",
+           "line_of_knots", "shapes",
            "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
            "knot_values", "sensor_shift_nuisances", "is_sensor_shift"]

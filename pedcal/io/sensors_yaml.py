@@ -234,8 +234,23 @@ def _check_calibration_keys(extra: dict, path: Path) -> None:
         if hm.get(key) is not None:
             lo = 0.0 if key.startswith("sigma_") else -plausible.MAX_HEAD_RADIUS_M
             _check_number(f"head_model.{key}", hm[key], lo, plausible.MAX_HEAD_RADIUS_M, "m", path)
+    _check_per_sensor_shifts(hm, "head_model", path)
     if hm.get("horizontal_profile") is not None:
         _check_head_profile(hm["horizontal_profile"], path)
+
+
+def _check_per_sensor_shifts(mapping: dict, where: str, path: Path) -> None:
+    """``per_sensor_shift_m`` and ``sigma_per_sensor_shift_m`` of a head model (or of its
+    profile): mappings of sensor id to metres within the head's size (sigmas not negative)."""
+    for key, lo in (("per_sensor_shift_m", -plausible.MAX_HEAD_RADIUS_M), ("sigma_per_sensor_shift_m", 0.0)):
+        per_sensor = mapping.get(key)
+        if per_sensor is None:
+            continue
+        if not isinstance(per_sensor, dict):
+            raise PedcalInputError(f"'{where}.{key}' must be a mapping of sensor id to metres, got {show(per_sensor)}",
+                                   path=path)
+        for sid, v in per_sensor.items():
+            _check_number(f"{where}.{key}.{sid}", v, lo, plausible.MAX_HEAD_RADIUS_M, "m", path)
 
 
 def _check_head_profile(prof, path: Path) -> None:
@@ -255,6 +270,7 @@ def _check_head_profile(prof, path: Path) -> None:
         _check_number(f"{where}.shift_m[{j}]", sj, -plausible.MAX_HEAD_RADIUS_M, plausible.MAX_HEAD_RADIUS_M, "m", path)
     if any(b <= a for a, b in zip(d[:-1], d[1:], strict=True)):
         raise PedcalInputError(f"'{where}.distance_m' must increase, got {show(d)}", path=path)
+    _check_per_sensor_shifts(prof, where, path)
 
 
 def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:

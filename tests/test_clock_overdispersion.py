@@ -1,0 +1,151 @@
+"""The clock offsets' sigma widened by their overdispersion: how much the residuals scatter each
+offset's score over time blocks beyond what the noise model says (pedcal.calib.clocks)."""
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import scipy.sparse as sps
+
+import pedcal.calib.factorgraph as fgmod
+from pedcal.calib import calibrate
+from pedcal.calib.clocks import (
+    PREFIX,
+    centered_offsets,
+    offset_overdispersion,
+    row_blocks,
+    widen_for_overdispersion,
+    widened_covariance,
+)
+from pedcal.calib.keys import A, L, S, X
+from pedcal.calib.profile import Columns, Nuisance
+from pedcal.metrics import SIGMA_CLOCK_OFFSET_KEY
+from pedcal.sim import simulate_logs
+
+
+def _nuisances():
+    return [Nuisance("ray_shift_m", 0.0, 0.05, 0.01), Nuisance(PREFIX + "s1", 0.0, 0.15, 0.01),
+            Nuisance(PREFIX + "s2", 0.0, 0.15, 0.01)]
+
+
+def _step(rng, rows=240, n=4):
+    """A profile step of 3 nuisances over ``n`` variables: A, Z, B and the Hessian M^T M plus the priors."""
+    A = sps.csr_matrix(rng.normal(size=(rows, n)) * (rng.random((rows, n)) < 0.5))
+    Z = rng.normal(size=(n, 3))
+    B = sps.csc_matrix(rng.normal(size=(rows, 3)) * (rng.random((rows, 3)) < 0.6))
+    M = A @ Z - B.toarray()
+    H = M.T @ M + np.diag([1 / 0.05 ** 2, 1 / 0.15 ** 2, 1 / 0.15 ** 2])
+    return SimpleNamespace(A=A, Z=Z, B=B, hessian=H, order=None), M
+
+
+def _scatter(x, clusters, C):
+    U = np.array([np.sum(x[clusters == c]) for c in range(C)])
+    return C / (C - 1) * np.sum((U - U.mean()) ** 2)
+
+
+def test_the_overdispersion_is_the_scores_block_scatter_over_its_scatter_under_the_noise_model():
+    rng = np.random.default_rng(7)
+    step, M = _step(rng)
+    rho = rng.normal(size=M.shape[0]) * 1.5
+    clusters = np.repeat(np.arange(12), 20)
+    clusters[:8] = -1                          # (the priors' rows: left out of the blocks)
+    phi = offset_overdispersion(step, _nuisances(), rho, clusters, draws=16, seed=3)
+    assert np.isnan(phi[0])                    # not a clock offset
+    H = step.hessian
+    A = step.A.toarray()
+    # the residuals of white unit errors under the model, the variables fitted: (I - A N^-1 A^T) e
+    e = np.random.default_rng(3).standard_normal((M.shape[0], 16))
+    r = e - A @ np.linalg.solve(A.T @ A, A.T @ e)
+    for j in (1, 2):
+        o = [i for i in range(3) if i != j]
+        m = M[:, j] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, j])
+        null = np.mean([_scatter(m * r[:, d], clusters, 12) for d in range(16)])
+        assert phi[j] == pytest.approx(_scatter(m * rho, clusters, 12) / null, rel=1e-9)
+    # too few blocks (fewer than 8): no estimate, no widening
+    assert np.all(np.isnan(offset_overdispersion(step, _nuisances(), rho, np.repeat(np.arange(6), 40))))
+
+
+@pytest.mark.parametrize("shared, want", [(0.0, 1.0), (1.0, 11.0)])
+def test_the_overdispersion_is_1_on_white_residuals_and_1_plus_n_s2_on_errors_a_block_shares(shared, want):
+    # one offset alone (M its column), blocks of 10 rows each m = 1, one variable that takes up
+    # a mean: residuals white with unit variance give phi ~ 1; an error of variance s^2 shared by
+    # each block adds n s^2 = 10
+    rng = np.random.default_rng(3)
+    blocks, per = 400, 10
+    rows = blocks * per
+    A = sps.csr_matrix(np.ones((rows, 1)))
+    step = SimpleNamespace(A=A, Z=np.zeros((1, 1)), B=sps.csc_matrix(-np.ones((rows, 1))),
+                           hessian=np.array([[rows + 1.0]]), order=None)
+    clusters = np.repeat(np.arange(blocks), per)
+    rho = rng.normal(size=rows) + shared * rng.normal(size=blocks)[clusters]
+    phi = offset_overdispersion(step, [Nuisance(PREFIX + "s1", 0.0, 1.0, 0.01)], rho, clusters)[0]
+    # (the estimate's relative sd: sqrt(2 / blocks) ~ 7 %, the null's over 32 draws ~ 1 %)
+    assert phi == pytest.approx(want, rel=0.2)
+
+
+def test_the_widened_covariance_scales_each_offset_by_the_root_of_its_overdispersion_and_never_narrows():
+    cov = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 2.0], [0.5, 2.0, 16.0]])
+    out = widened_covariance(cov, np.array([np.nan, 4.0, 0.25]))
+    d = np.array([1.0, 2.0, 1.0])              # NaN: 1; 4: its root; 0.25 < 1: not narrowed
+    np.testing.assert_array_equal(out, cov * np.outer(d, d))
+    assert out[1, 1] == 4.0 * cov[1, 1] and out[1, 2] / np.sqrt(out[1, 1] * out[2, 2]) == pytest.approx(
+        cov[1, 2] / np.sqrt(cov[1, 1] * cov[2, 2]))
+    # nothing to widen without the reference step or without offsets
+    same, phi = widen_for_overdispersion(None, _nuisances(), np.zeros(3), cov, np.zeros(0), None)
+    assert same is cov and np.all(np.isnan(phi))
+
+
+@pytest.fixture(scope="module")
+def overdispersed():
+    """A log whose offsets' scores scatter over the time blocks beyond the model's (paper seed 9,
+    the zoo's draw: no odometry, relocalizations, per-sensor head points and clock skews),
+    calibrated with the nuisances' covariance captured before and after the widening."""
+    sim = simulate_logs("paper", seed=9, vary_nuisances="zoo")
+    seen = {}
+    original = fgmod.widen_for_overdispersion
+
+    def spy(reference, nuis, theta, cov, pose_times, node_times):
+        out, phi = original(reference, nuis, theta, cov, pose_times, node_times)
+        seen.update(names=[n.name for n in nuis], cov=cov, widened=out, phi=phi)
+        return out, phi
+    mp = pytest.MonkeyPatch()
+    mp.setattr(fgmod, "widen_for_overdispersion", spy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(sim.calib, method="factorgraph")
+    mp.undo()
+    return sim, res, seen
+
+
+def test_the_written_sigma_is_the_centred_one_of_the_widened_covariance(overdispersed):
+    sim, res, seen = overdispersed
+    idx = [j for j, n in enumerate(seen["names"]) if n.startswith(PREFIX)]
+    phi = seen["phi"][idx]
+    assert np.all(np.isfinite(phi)) and np.any(phi > 1.5)      # (here 1.8-3: the widening acts)
+    delta = np.zeros(len(idx))
+    *_, sigma_widened = centered_offsets(delta, seen["widened"][np.ix_(idx, idx)])
+    *_, sigma_model = centered_offsets(delta, seen["cov"][np.ix_(idx, idx)])
+    ids = [seen["names"][j][len(PREFIX):] for j in idx]
+    written = res.network.extra[SIGMA_CLOCK_OFFSET_KEY]
+    assert written == {sid: round(float(s), 4) for sid, s in zip(ids, sigma_widened, strict=True)}
+    # each offset's own variance is the model's times max(1, phi)
+    np.testing.assert_allclose(np.diag(seen["widened"])[idx], np.diag(seen["cov"])[idx] * np.maximum(1.0, phi))
+    assert np.all(sigma_widened >= sigma_model - 1e-12) and np.any(sigma_widened > 1.2 * sigma_model)
+
+
+def test_each_row_falls_in_the_time_block_of_the_latest_pose_or_amcl_node_it_holds():
+    # variables: s0 (6), x0 x1 x2 (6 each, at 5, 25, 41 s), a0 a1 (6 each, at 0 and 40 s), l0 (3)
+    keys = [S(0), X(0), X(1), X(2), A(0), A(1), L(0)]
+    dims = [6, 6, 6, 6, 6, 6, 3]
+    offset = dict(zip(keys, np.cumsum([0] + dims[:-1]).tolist(), strict=True))
+    cols = Columns(keys=keys, offset=offset, dim=dict(zip(keys, dims, strict=True)), n=sum(dims))
+    rows = [[S(0)], [S(0), X(0)], [X(0), X(1)], [A(0), X(2)], [A(0)], [A(0), A(1)], [S(0), L(0)], []]
+    A_ = np.zeros((len(rows), cols.n))
+    for i, held in enumerate(rows):
+        for key in held:
+            A_[i, offset[key]] = 1.0
+    step = SimpleNamespace(cols=cols, A=sps.csr_matrix(A_))
+    blocks = row_blocks(step, np.array([5.0, 25.0, 41.0]), np.array([0.0, 40.0]), cluster_s=20.0)
+    # 3 blocks of 20 s (0-60 s): a person's rows come after them, as block 3 + its index
+    np.testing.assert_array_equal(blocks, [-1, 0, 1, 2, 0, 2, 3, -1])
