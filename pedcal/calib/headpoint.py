@@ -578,7 +578,9 @@ def record_head_profile(head_model, prob, shifts) -> None:
         head_model.note = f"{head_model.note} {PER_SENSOR_HEIGHT_NOTE}"
     if shifts is None:
         return
-    head_model.horizontal_profile = profile_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
+    # (with the profile off, knots set by a line only considered at 0 are no profile)
+    if prob.recipe.head_profile != "off":
+        head_model.horizontal_profile = profile_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
     if head_model.horizontal_profile is None:
         # no profile kept: each sensor's own shift (the random effect's departures) beside the shared one
         own = departures_record(prob, shifts.names, shifts.cov, prob.horizontal_shift_m)
