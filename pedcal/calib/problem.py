@@ -31,8 +31,9 @@ def per_row(names: np.ndarray, value_of, shape: tuple = ()) -> np.ndarray:
     shape, for no rows."""
     if not len(names):
         return np.zeros((0,) + tuple(shape))
-    uniq, inverse = np.unique(names, return_inverse=True)
-    return np.stack([np.asarray(value_of(n)) for n in uniq])[np.asarray(inverse).ravel()]
+    # (hashed, not sorted: sorting 400 000 id strings took longer than the rest)
+    inverse, uniq = pd.factorize(np.asarray(names).ravel(), use_na_sentinel=False)
+    return np.stack([np.asarray(value_of(n)) for n in uniq])[inverse]
 
 
 @dataclass
@@ -128,8 +129,10 @@ class FactorGraphProblem:
         self.fac_key_index = self.obs_key_index[idx]
         self.fac_p_sensor = np.vstack([mean[merged], self.obs_p_sensor[solo]])
         self.fac_count = np.r_[count[merged], np.ones(len(solo), int)]
-        self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, self._R_obs[idx])
-        self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, self._R_obs[idx])
+        # (each factor's sensor's rotation, looked up per factor: not kept per observation)
+        R = per_row(self.fac_sensor, self._rotations.get, (3, 3))
+        self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, R)
+        self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, R)
 
     def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
@@ -149,7 +152,8 @@ class FactorGraphProblem:
         R = per_row(self.obs_sensor, rotations.get, (3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
-        self._R_obs = R
+        del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
+        self._rotations = dict(rotations)
         self.merge_observations()
 
 

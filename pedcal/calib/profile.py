@@ -137,10 +137,36 @@ def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_m
     return (A_ordered.T @ A_ordered).tocsc(), position
 
 
+def release_free_memory() -> None:
+    """The C heap's free pages handed back to the system (glibc's ``malloc_trim``), before a
+    large factorization: the linearizations and the solve before it free hundreds of MB in blocks
+    that the allocator otherwise keeps resident, and the process's peak memory would be those on
+    top of the factor's. Nothing where the C library has no ``malloc_trim``."""
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+def _malloc_trim():
+    """glibc's ``malloc_trim`` (looked up once), or None."""
+    if "trim" not in _MALLOC:
+        try:
+            import ctypes
+
+            _MALLOC["trim"] = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _MALLOC["trim"] = None
+    return _MALLOC["trim"]
+
+
+_MALLOC: dict = {}
+
+
 def normal_lu(N: sps.csc_matrix):
     """SuperLU's factorization of a normal matrix in its own order, without pivoting (it is
     positive definite: the graph's priors hold every variable). A singular one (a variable no
     factor holds) is a LinAlgError, as the factor's own checks name it."""
+    release_free_memory()
     try:
         return spla.splu(N, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
@@ -162,6 +188,7 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     the entries stored in the factors (SuperLU's ``nnz``), what holding it costs."""
     if order is None:
         N = (A.T @ A).tocsc()
+        release_free_memory()
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
         def solve(y):
@@ -531,12 +558,10 @@ def _joint_system(A: sps.csr_matrix, C: sps.spmatrix, prior: sps.csr_matrix) -> 
     n = A.shape[1]
     count_a, count_c = np.diff(A.indptr), np.diff(C.indptr)
     indptr = np.r_[0, np.cumsum(count_a + count_c)]
-    rows_start = indptr[:-1]
-    # destination of each of A's entries: its row's start plus its rank in the row
-    rank_a = np.arange(A.nnz) - np.repeat(A.indptr[:-1], count_a)
-    at_a = np.repeat(rows_start, count_a) + rank_a
-    rank_c = np.arange(C.nnz) - np.repeat(C.indptr[:-1], count_c)
-    at_c = np.repeat(rows_start + count_a, count_c) + rank_c
+    # destination of each of A's entries: its own index shifted by the C entries of the rows
+    # before its row (C's: by the A entries of the rows up to and including its row)
+    at_a = np.arange(A.nnz, dtype=indptr.dtype) + np.repeat(C.indptr[:-1].astype(indptr.dtype), count_a)
+    at_c = np.arange(C.nnz, dtype=indptr.dtype) + np.repeat(A.indptr[1:].astype(indptr.dtype), count_c)
     nnz = int(indptr[-1])
     indices = np.empty(nnz + prior.nnz, np.int32 if max(nnz + prior.nnz, n + C.shape[1]) < 2 ** 31 else np.int64)
     data = np.empty(nnz + prior.nnz)
