@@ -62,7 +62,6 @@ class FactorGraphProblem:
     obs_t: np.ndarray | None = None
     obs_key_index: np.ndarray | None = None
     obs_p_sensor: np.ndarray | None = None
-    obs_toward_sensor: np.ndarray | None = None   # horizontal unit toward the sensor, sensor frame
     # the graph's robot-observation factors (merge_observations): a sensor's observations carried
     # to one pose are one factor, their mean point with its sigma over sqrt(count)
     fac_sensor: np.ndarray | None = None
@@ -151,7 +150,6 @@ class FactorGraphProblem:
         disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
         R = per_row(self.obs_sensor, rotations.get, (3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
-        self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
         self._rotations = dict(rotations)
         self.merge_observations()
