@@ -202,3 +202,17 @@ def test_reestimate_starts_each_kept_person_at_its_own_solution(monkeypatch):
     kept = np.flatnonzero(~bad)
     for m in (0, 1, 3, n - 3):
         assert np.array_equal(np.asarray(seen["values"].atPoint3(L(m))), np.asarray(result.atPoint3(L(int(kept[m])))))
+
+
+def test_per_row_takes_each_names_value_once():
+    # one value per row, each distinct name's computed once, in any order of first appearance;
+    # no rows: an empty stack of the value's shape
+    from pedcal.calib.problem import per_row
+
+    calls = []
+    values = {"s2": 2.0, "s1": 1.0, "s3": 3.0}
+    names = np.array(["s2", "s1", "s2", "s3", "s1"], dtype=object)
+    out = per_row(names, lambda n: (calls.append(n), values[n])[1])
+    assert out.tolist() == [2.0, 1.0, 2.0, 3.0, 1.0]
+    assert sorted(calls) == ["s1", "s2", "s3"]
+    assert per_row(np.array([], dtype=object), values.get, (3, 3)).shape == (0, 3, 3)

@@ -526,3 +526,26 @@ def test_factor_rows_follow_the_graph_they_were_kept_for():
     gc.collect()
     assert key not in _FACTOR_ROWS
     assert _factor_rows(gtsam.NonlinearFactorGraph()).tolist() == [0]
+
+
+def test_free_memory_is_handed_back_before_large_factorizations_only(monkeypatch):
+    # below RELEASE_BEFORE_ENTRIES the factorization starts at once; at or above, after handing
+    # the free memory back; the factors are the same either way
+    import scipy.sparse as sps
+
+    import pedcal.calib.profile as profile
+
+    calls = []
+    monkeypatch.setattr(profile, "release_free_memory", lambda: calls.append(1))
+    rng = np.random.default_rng(5)
+    A = (sps.random(60, 20, density=0.2, random_state=3, format="csr") + sps.vstack(
+        [sps.eye(20), sps.csr_matrix((40, 20))])).tocsr()
+    N = (A.T @ A).tocsc()
+    y = rng.normal(size=20)
+    small = profile.normal_lu(N).solve(y)
+    assert calls == []
+    monkeypatch.setattr(profile, "RELEASE_BEFORE_ENTRIES", N.nnz)
+    large = profile.normal_lu(N).solve(y)
+    assert calls == [1]
+    assert np.array_equal(small, large)
+    assert np.abs(N @ large - y).max() < 1e-10
