@@ -537,6 +537,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         rho0 = A_joint @ z_joint - b_joint
         AtB = np.asarray((A_joint.T @ B_joint).todense()).reshape(n + m_local, k_exact)
         Z_joint = solve(AtB).reshape(n + m_local, k_exact)
+        solve = None              # (its factors, the step's largest memory, freed before the local profiles)
         BtB = np.asarray((B.T @ B).todense()).reshape(k_exact, k_exact)
         MtM = BtB - AtB.T @ Z_joint
         step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z_joint, Z=Z_joint,
