@@ -164,7 +164,9 @@ _MALLOC: dict = {}
 
 # the free memory is handed back before factorizing a normal matrix of at least this many entries
 # (~25 MB: its factor is several times that); below, the pages taken back cost more than the
-# peak they would spare (paper scene: 1.7 ms a factorization of 23 ms)
+# peak they would spare (paper scene: 1.7 ms a factorization of 23 ms). Above, they cost too: the
+# allocations after it fault the pages in again (1000 synthetic sensors: 1.0 s of 21 s of CPU
+# over five factorizations, for 140 MB off the peak); a larger value trades the memory back
 RELEASE_BEFORE_ENTRIES = 2_000_000
 
 
