@@ -16,7 +16,8 @@ they wait, and on a busy shared machine that spinning counts as CPU time, severa
 of the small dense blocks here; ``bench_factorgraph_stages.py`` splits the time by stage). Prints
 sensors, observations, robot poses, calibrate() wall and CPU time (s; time.process_time, which a
 busy neighbour on a shared machine does not inflate), peak RSS (MB), and the growth exponents of
-time and memory against the number of observations (least-squares slope in log-log).
+time and memory against the number of observations (least-squares slope in log-log), with the
+machine's load average at the start and the end.
 """
 
 from __future__ import annotations
@@ -122,7 +123,7 @@ def main() -> None:
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = str(args.blas_threads)
     out = []
-    print(f"BLAS threads: {args.blas_threads}")
+    print(f"BLAS threads: {args.blas_threads}; load average at the start {os.getloadavg()[0]:.1f}")
     print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} {'build':>7s} "
           f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'RMS (mm)':>9s}")
     for n in (int(v) for v in args.sizes.split(",")):
@@ -138,6 +139,7 @@ def main() -> None:
         slope_c = np.polyfit(n_obs, np.log([r["cpu_s"] for r in out]), 1)[0]
         slope_m = np.polyfit(n_obs, np.log([r["peak_rss_mb"] for r in out]), 1)[0]
         print(f"growth exponent vs observations: time {slope_t:.2f} (CPU {slope_c:.2f}), peak RSS {slope_m:.2f}")
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -211,7 +211,8 @@ class Log:
         out = np.empty((len(self.observations), 3))
         xyz = self.observations[["x", "y", "z"]].to_numpy(dtype=float)
         sensor_col = self.observations["sensor"].astype(str).to_numpy()
+        by_id = {s.id: s for s in self.sensors}     # (the network's own look-up scans its list)
         for sid, rows in pd.Series(sensor_col).groupby(sensor_col, sort=False).indices.items():
-            if sid in self.sensors:     # one pass over the rows, not one per sensor
-                out[rows] = self.sensors[sid].to_sensor(xyz[rows])
+            if sid in by_id:     # one pass over the rows, not one per sensor
+                out[rows] = by_id[sid].to_sensor(xyz[rows])
         return out

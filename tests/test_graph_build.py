@@ -323,3 +323,17 @@ def test_optimize_graph_hands_an_indeterminate_system_to_levenberg_marquardt():
     assert iterations == n_lm > 0
     assert fg.error(result) < 1e-12
     assert result.atPose3(X(0)).between(result.atPose3(X(1))).equals(Z, 1e-9)
+
+
+def test_per_row_takes_each_names_value_once():
+    # one value per row, each distinct name's computed once, in any order of first appearance;
+    # no rows: an empty stack of the value's shape
+    from pedcal.calib.problem import per_row
+
+    calls = []
+    values = {"s2": 2.0, "s1": 1.0, "s3": 3.0}
+    names = np.array(["s2", "s1", "s2", "s3", "s1"], dtype=object)
+    out = per_row(names, lambda n: (calls.append(n), values[n])[1])
+    assert out.tolist() == [2.0, 1.0, 2.0, 3.0, 1.0]
+    assert sorted(calls) == ["s1", "s2", "s3"]
+    assert per_row(np.array([], dtype=object), values.get, (3, 3)).shape == (0, 3, 3)

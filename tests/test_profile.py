@@ -504,3 +504,48 @@ def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper):
     assert np.allclose(kept.dtheta, fresh.dtheta, rtol=1e-9, atol=1e-9 * np.sqrt(np.diag(full.covariance)).max())
     # a selection keeps the factorization (the same system)
     assert full.select(np.array([0])).__dict__["_normal_solve"] is full.__dict__["_normal_solve"]
+
+
+def test_factor_rows_follow_the_graph_they_were_kept_for():
+    # each factor's first row and the end; kept for the same graph, taken anew once it grows,
+    # and forgotten with the graph
+    import gc
+
+    from pedcal.calib.profile import _FACTOR_ROWS, _factor_rows
+
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.PriorFactorPose3(1, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1.0)))
+    g.add(gtsam.PriorFactorPoint3(2, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    first = _factor_rows(g)
+    assert first.tolist() == [0, 6, 9]
+    assert _factor_rows(g) is first
+    g.add(gtsam.PriorFactorPoint2(3, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)))
+    assert _factor_rows(g).tolist() == [0, 6, 9, 11]
+    key = id(g)
+    del g
+    gc.collect()
+    assert key not in _FACTOR_ROWS
+    assert _factor_rows(gtsam.NonlinearFactorGraph()).tolist() == [0]
+
+
+def test_free_memory_is_handed_back_before_large_factorizations_only(monkeypatch):
+    # below RELEASE_BEFORE_ENTRIES the factorization starts at once; at or above, after handing
+    # the free memory back; the factors are the same either way
+    import scipy.sparse as sps
+
+    import pedcal.calib.profile as profile
+
+    calls = []
+    monkeypatch.setattr(profile, "release_free_memory", lambda: calls.append(1))
+    rng = np.random.default_rng(5)
+    A = (sps.random(60, 20, density=0.2, random_state=3, format="csr") + sps.vstack(
+        [sps.eye(20), sps.csr_matrix((40, 20))])).tocsr()
+    N = (A.T @ A).tocsc()
+    y = rng.normal(size=20)
+    small = profile.normal_lu(N).solve(y)
+    assert calls == []
+    monkeypatch.setattr(profile, "RELEASE_BEFORE_ENTRIES", N.nnz)
+    large = profile.normal_lu(N).solve(y)
+    assert calls == [1]
+    assert np.array_equal(small, large)
+    assert np.abs(N @ large - y).max() < 1e-10

@@ -31,8 +31,9 @@ def per_row(names: np.ndarray, value_of, shape: tuple = ()) -> np.ndarray:
     shape, for no rows."""
     if not len(names):
         return np.zeros((0,) + tuple(shape))
-    uniq, inverse = np.unique(names, return_inverse=True)
-    return np.stack([np.asarray(value_of(n)) for n in uniq])[np.asarray(inverse).ravel()]
+    # (hashed, not sorted: sorting 400 000 id strings took longer than the rest)
+    inverse, uniq = pd.factorize(np.asarray(names).ravel(), use_na_sentinel=False)
+    return np.stack([np.asarray(value_of(n)) for n in uniq])[inverse]
 
 
 @dataclass
@@ -61,7 +62,6 @@ class FactorGraphProblem:
     obs_t: np.ndarray | None = None
     obs_key_index: np.ndarray | None = None
     obs_p_sensor: np.ndarray | None = None
-    obs_toward_sensor: np.ndarray | None = None   # horizontal unit toward the sensor, sensor frame
     # the graph's robot-observation factors (merge_observations): a sensor's observations carried
     # to one pose are one factor, their mean point with its sigma over sqrt(count)
     fac_sensor: np.ndarray | None = None
@@ -128,8 +128,10 @@ class FactorGraphProblem:
         self.fac_key_index = self.obs_key_index[idx]
         self.fac_p_sensor = np.vstack([mean[merged], self.obs_p_sensor[solo]])
         self.fac_count = np.r_[count[merged], np.ones(len(solo), int)]
-        self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, self._R_obs[idx])
-        self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, self._R_obs[idx])
+        # (each factor's sensor's rotation, looked up per factor: not kept per observation)
+        R = per_row(self.fac_sensor, self._rotations.get, (3, 3))
+        self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, R)
+        self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, R)
 
     def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
@@ -148,8 +150,8 @@ class FactorGraphProblem:
         disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
         R = per_row(self.obs_sensor, rotations.get, (3, 3))
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
-        self.obs_toward_sensor = toward_sensor_horizontal(self.obs_p_sensor, R)
-        self._R_obs = R
+        del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
+        self._rotations = dict(rotations)
         self.merge_observations()
 
 
