@@ -103,11 +103,16 @@ def run_one(n_sensors: int) -> dict:
     res = calibrate_factorgraph(log, is_robot=np.ones(len(log.observations), bool), estimate_latency=False,
                                 people=False, head_radius_m=0.0)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
-    err = [np.linalg.norm(s.position_m - log.truth[s.id].position_m) for s in res.network]
+    err = np.array([s.position_m - log.truth[s.id].position_m for s in res.network])
+    sigma = np.array([s.sigma_position_m for s in res.network])
+    # (an error or a sigma alone rewards failure: the share of sensors within their sigma, per axis)
+    within = 100.0 * np.mean(np.abs(err[:, :2]) <= sigma[:, :2], axis=0)
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return dict(sensors=n_sensors, observations=len(log.observations), poses=int(len(log.robot)),
                 time_s=elapsed, cpu_s=cpu, peak_rss_mb=rss_mb, build_s=res.diagnostics.build_s,
-                optimize_s=res.diagnostics.optimize_s, rms_mm=float(1000 * np.sqrt(np.mean(np.square(err)))))
+                optimize_s=res.diagnostics.optimize_s, rms_mm=float(1000 * np.sqrt(np.mean(np.sum(err ** 2, axis=1)))),
+                sigma_xy_mm=[float(v) for v in 1000 * np.median(sigma[:, :2], axis=0)],
+                within_xy_pct=[float(v) for v in within])
 
 
 def main() -> None:
@@ -125,14 +130,17 @@ def main() -> None:
     out = []
     print(f"BLAS threads: {args.blas_threads}; load average at the start {os.getloadavg()[0]:.1f}")
     print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} {'build':>7s} "
-          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'RMS (mm)':>9s}")
+          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'RMS (mm)':>9s} {'median sigma x, y (mm)':>23s} "
+          f"{'within 1 sigma x, y (%)':>24s}")
     for n in (int(v) for v in args.sizes.split(",")):
         r = json.loads(subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True,
                                       check=True, env=env).stdout.strip().splitlines()[-1])
         out.append(r)
         print(f"{r['sensors']:8d} {r['observations']:13d} {r['poses']:11d} {r['time_s']:9.2f} {r['cpu_s']:8.2f} "
               f"{r['build_s']:7.2f} "
-              f"{r['optimize_s']:9.2f} {r['peak_rss_mb']:14.0f} {r['rms_mm']:9.1f}", flush=True)
+              f"{r['optimize_s']:9.2f} {r['peak_rss_mb']:14.0f} {r['rms_mm']:9.1f} "
+              f"{r['sigma_xy_mm'][0]:15.1f}, {r['sigma_xy_mm'][1]:6.1f} "
+              f"{r['within_xy_pct'][0]:16.0f}, {r['within_xy_pct'][1]:6.0f}", flush=True)
     if len(out) >= 2:
         n_obs = np.log([r["observations"] for r in out])
         slope_t = np.polyfit(n_obs, np.log([r["time_s"] for r in out]), 1)[0]

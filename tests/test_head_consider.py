@@ -131,3 +131,34 @@ def test_a_corridor_stretched_by_a_fading_head_shift_is_within_its_sigma(seed, m
     # the covariance's added share is the line's prior times its sensitivity, nothing else
     sd, sens = seen["shifts"].considered
     assert sd == 0.03 and sens.shape == (6 * len(res.network.ids) + 6,)
+
+
+def test_a_sensors_sigma_widened_by_nuisances_keeps_its_estimate(monkeypatch):
+    # a nuisance's prior carried into the sensors' covariance (the consider line's, which on a
+    # large site reaches the installed prior's size) widens the sigma; it is no lack of data,
+    # so the estimate is not replaced by the installed pose. The graph's own marginal given the
+    # nuisances decides what the data constrain: widened as well, the sensors are degenerate.
+    sim = simulate_logs("paper", seed=0, duration_s=60.0)
+    warnings.simplefilter("ignore")
+    base = calibrate(sim.calib, method="factorgraph")
+    original = fgmod._posterior
+    wide = np.diag([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])       # 1 m sigma on each axis, m^2
+
+    def widened(*args, given_too: bool = False, **kwargs):
+        cov_body, cov_given, *rest = original(*args, **kwargs)
+        cov_body = {sid: c + wide for sid, c in cov_body.items()}
+        if given_too:
+            cov_given = {sid: c + wide for sid, c in cov_given.items()}
+        return (cov_body, cov_given, *rest)
+
+    monkeypatch.setattr(fgmod, "_posterior", widened)
+    seen = [s.id for s in base.network if s.status == "ok"]
+    assert len(seen) >= 4
+    res = calibrate(sim.calib, method="factorgraph")
+    for sid in seen:
+        assert res.network[sid].status == "ok"
+        np.testing.assert_allclose(res.network[sid].position_m, base.network[sid].position_m, atol=1e-9)
+        assert np.all(res.network[sid].sigma_position_m > 0.99)
+    monkeypatch.setattr(fgmod, "_posterior", lambda *a, **k: widened(*a, given_too=True, **k))
+    res = calibrate(sim.calib, method="factorgraph")
+    assert all(res.network[sid].status == "degenerate" for sid in seen)

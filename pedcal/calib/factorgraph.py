@@ -169,10 +169,11 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
     else:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
-    cov_body, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
+    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
     record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
-    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body)
+    network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body,
+                                   cov_given=cov_given)
     mask = finish_network(log, prob, network, head_model=head_model, joint_position_cov=joint_pos,
                           mismatch=mismatch)
     record_clocks(network, prob, shifts)
@@ -675,8 +676,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
-    where that exceeds 1. Returns (per-sensor body covariance, the joint world-axes position
-    covariance, the head model, the model check)."""
+    where that exceeds 1. Returns (per-sensor body covariance, the graph's own per-sensor marginal
+    given the nuisances (what the data constrain), the joint world-axes position covariance, the
+    head model, the model check)."""
     rec = prob.recipe
     n = len(prob.sensor_ids)
     keys = [S(i) for i in range(n)] + ([H(0)] if result.exists(H(0)) else [])
@@ -690,6 +692,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
         blocks = marginal_covariances(fg, result, keys)
+    # (what the data constrain is read from the graph's own marginal, given the nuisances: their
+    # shares below widen a sensor's sigma, they do not make a direction unconstrained)
+    cov_given = {sid: blocks[i] for i, sid in enumerate(prob.sensor_ids)}
     extra = []                                 # (sensitivity (6 len(keys),), k x k covariance) terms
     if shifts is not None:
         k = shifts.sensitivity.shape[1]
@@ -757,7 +762,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
                       "the robot alone: the sensors' vertical sigma carries its prior "
                       f"({1000 * rec.head_vertical_sigma_m:.0f} mm); give a height reference "
                       "(--sensor-height-sigma or --ceiling-height)", DegenerateDataWarning, stacklevel=3)
-    return cov_body, joint_pos, head, check
+    return cov_body, cov_given, joint_pos, head, check
 
 
 def _record_odometry_correction(est: dict, name: str, value: float, sigma: float) -> None:

@@ -124,10 +124,14 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
 
 def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progress: bool,
                          marginals: gtsam.Marginals | None = None,
-                         cov_out: dict | None = None, cov_body: dict | None = None) -> SensorNetwork:
+                         cov_out: dict | None = None, cov_body: dict | None = None,
+                         cov_given: dict | None = None) -> SensorNetwork:
     """The calibrated network from the graph's solution; ``cov_out`` (optional) receives each
     sensor's world-axes position covariance (m^2). ``cov_body``: each sensor's Pose3 covariance
-    (body frame, rotation first) when the caller has it, else the graph's marginals."""
+    (body frame, rotation first) when the caller has it, else the graph's marginals.
+    ``cov_given``: the graph's own marginal given the nuisances, when ``cov_body`` adds their
+    shares, from which the directions the data leave unconstrained are found (a nuisance's
+    prior carried into a sensor's sigma, a consider parameter's, is no lack of data)."""
     rec = prob.recipe
     if marginals is None and cov_body is None:
         marginals = gtsam.Marginals(fg, result)
@@ -152,7 +156,7 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
                                         sigma_ypr_deg=sy, sigma_rotation_deg=rotation_sigma_deg(cov),
                                         observations=0, status="no-data"))
             continue
-        names, bad = observability(T, cov, rec)
+        names, bad = observability(T, cov if cov_given is None else cov_given[sid], rec)
         status = "ok"
         if names:
             status = "degenerate"
