@@ -179,10 +179,13 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     H = np.asarray(step.hessian, float)
     out = np.full(len(nuis), np.nan)
     idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
-    keep = np.flatnonzero(clusters >= 0)
-    labels, block = np.unique(clusters[keep], return_inverse=True)
-    if not idx or len(labels) < MIN_CLUSTERS:
+    kept = clusters >= 0
+    # the blocks present, numbered 0..C-1 in their labels' order (a count, not a sort)
+    present = np.bincount(clusters[kept]) > 0 if kept.any() else np.zeros(0, bool)
+    C = int(present.sum())
+    if not idx or C < MIN_CLUSTERS:
         return out
+    block = (np.cumsum(present) - 1)[clusters[kept]]
     # the efficient rows of every offset at once: m = M W, W's column c = e_j - (0; H_oo^-1 H_oj)
     W = np.zeros((len(nuis), len(idx)))
     for c, j in enumerate(idx):
@@ -195,13 +198,19 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     if solve is None:
         from pedcal.calib.profile import _normal_solver
         solve = _normal_solver(step.A, step.order)
+    # X = [rho, r_1 .. r_draws], r_d = e_d - A N^-1 A^T e_d, written in place
     e = np.random.default_rng(seed).standard_normal((len(rho), draws))
-    X = np.column_stack([rho, e - np.asarray(step.A @ solve(np.asarray(step.A.T @ e)))])
-    # U[c, b, d] = sum over block b of m_ic X_id: one sparse product, a row per (offset, block)
-    C = len(labels)
-    K = sps.csr_matrix((m[keep].T.ravel(), ((np.arange(len(idx))[:, None] * C + block[None, :]).ravel(),
-                                            np.tile(keep, len(idx)))), shape=(len(idx) * C, len(rho)))
-    U = np.asarray(K @ X).reshape(len(idx), C, draws + 1)
+    X = np.empty((len(rho), draws + 1))
+    X[:, 0] = rho
+    np.subtract(e, step.A @ solve(np.asarray(step.A.T @ e)), out=X[:, 1:])
+    e = None
+    # U[c, b, d] = sum over block b of m_ic X_id: one sparse product with K (a row per (offset,
+    # block)), assembled as its transpose, a row per residual row holding its k entries m_ic at
+    # columns c C + b (no sort of the rows into blocks); U = K X
+    k = len(idx)
+    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[:, None]).ravel(),
+                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(rho), k * C))
+    U = np.asarray(KT.T @ X).reshape(k, C, draws + 1)
     V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
     out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
     return out
@@ -224,24 +233,26 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
     floor(t_k / ``cluster_s``), an AMCL error node a(j) in its time's, a person l(m) in a block of
     its own after them; a row takes the latest block among its variables', -1 when it holds none
     of these (the sensors' priors, the head offset's)."""
-    import gtsam
-
     t_nodes = np.zeros(0) if node_times is None else np.asarray(node_times, float)
+    pose_times = np.asarray(pose_times, float)
     n_blocks = int(np.floor(max(float(np.max(pose_times, initial=0.0)), float(np.max(t_nodes, initial=0.0)))
                             / cluster_s)) + 1
     cols = step.cols
+    # each variable's block from its key (GTSAM's Symbol: its character in the top 8 bits, its index below)
+    keys = np.fromiter(cols.keys, np.uint64, len(cols.keys))
+    char = (keys >> np.uint64(56)).astype(np.int64)
+    index = (keys & np.uint64((1 << 56) - 1)).astype(np.int64)
+    block = np.full(len(keys), -1, np.int64)
+    for c, times in (("x", pose_times), ("a", t_nodes)):
+        mine = (char == ord(c)) & (index < len(times))
+        block[mine] = np.floor(times[index[mine]] / cluster_s).astype(np.int64)
+    person = char == ord("l")
+    block[person] = n_blocks + index[person]
+    # spread over each variable's columns
+    starts = np.fromiter(map(cols.offset.__getitem__, cols.keys), np.int64, len(cols.keys))
+    dims = np.fromiter(map(cols.dim.__getitem__, cols.keys), np.int64, len(cols.keys))
     label = np.full(cols.n, -1, np.int64)
-    for key in cols.keys:
-        sym = gtsam.Symbol(key)
-        c, k = chr(sym.chr()), int(sym.index())
-        block = -1
-        if c == "x" and k < len(pose_times):
-            block = int(np.floor(float(pose_times[k]) / cluster_s))
-        elif c == "a" and k < len(t_nodes):
-            block = int(np.floor(float(t_nodes[k]) / cluster_s))
-        elif c == "l":
-            block = n_blocks + k
-        label[cols.offset[key]:cols.offset[key] + cols.dim[key]] = block
+    label[np.repeat(starts - (np.cumsum(dims) - dims), dims) + np.arange(int(dims.sum()))] = np.repeat(block, dims)
     A = sps.csr_matrix(step.A)
     entries = label[A.indices]
     out = np.full(A.shape[0], -1, np.int64)
