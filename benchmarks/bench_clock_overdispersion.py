@@ -1,0 +1,136 @@
+"""The clock offsets' overdispersion (pedcal.calib.clocks.offset_overdispersion): its cost inside
+the factor graph's solve and the precision of its Monte-Carlo null, on the simulator's zoo logs
+(``simulate_logs(..., vary_nuisances="zoo")``, as bench_factorgraph_nuisances.py --zoo).
+
+    nice -n 10 .venv/bin/python benchmarks/bench_clock_overdispersion.py \
+        [--scenarios paper sparse corridor cross lhall] [--seeds 4] [--draws 32] [--no-exact]
+
+Per log: the offsets (k) and time blocks (C); the CPU time of widen_for_overdispersion inside
+``calibrate`` (time.process_time, one run); the largest move of an offset's widening factor
+sqrt(max(1, phi)) (its sigma's) when the null's draws are seeded 1, 2, 3 instead of 0 (the Monte
+Carlo's own noise), and, unless ``--no-exact``, when the null is the exact expectation
+
+    E V(r) = C / (C - 1) tr(G K P K^T G),  P = I - A N^-1 A^T,  G = I - 1 1^T / C,
+
+(K: each block's row sums weighted by the offset's efficient rows m; tr(G K K^T G) from the block
+sums of m^2, and tr(G K A N^-1 A^T K^T G) by k C solves through the step's factorization, whose
+CPU time is shown).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+import warnings
+
+import numpy as np
+import scipy.sparse as sps
+
+import pedcal.calib.factorgraph as fgmod
+from pedcal.calib import calibrate, clocks
+from pedcal.sim import simulate_logs
+
+
+def captured_widening(scenario: str, seed: int) -> tuple[tuple, float]:
+    """(the arguments widen_for_overdispersion got in one calibration of the zoo log, its CPU s)."""
+    seen: dict = {}
+    original = fgmod.widen_for_overdispersion
+
+    def spy(*args):
+        c0 = time.process_time()
+        out = original(*args)
+        seen.update(args=args, cpu=time.process_time() - c0)
+        return out
+    fgmod.widen_for_overdispersion = spy
+    try:
+        calibrate(simulate_logs(scenario, seed=seed, vary_nuisances="zoo").calib, method="factorgraph")
+    finally:
+        fgmod.widen_for_overdispersion = original
+    return seen.get("args"), seen.get("cpu", 0.0)
+
+
+def exact_overdispersion(step, nuis, rho: np.ndarray, clusters: np.ndarray) -> tuple[np.ndarray, float]:
+    """(phi_j with the null's exact expectation (module docstring), the CPU s of its k C solves)."""
+    H = np.asarray(step.hessian, float)
+    out = np.full(len(nuis), np.nan)
+    idx = [j for j, nu in enumerate(nuis) if clocks.is_clock_nuisance(nu.name)]
+    kept = clusters >= 0
+    present = np.bincount(clusters[kept]) > 0
+    C, k = int(present.sum()), len(idx)
+    block = (np.cumsum(present) - 1)[clusters[kept]]
+    W = np.zeros((len(nuis), k))
+    for c, j in enumerate(idx):
+        others = [o for o in range(len(nuis)) if o != j]
+        W[j, c] = 1.0
+        W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
+    m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
+    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[:, None]).ravel(),
+                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(rho), k * C))
+    U = np.asarray(KT.T @ rho).reshape(k, C)
+    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
+    tr_gkkg = np.asarray(KT.multiply(KT).sum(axis=0)).reshape(k, C).sum(axis=1) * (1.0 - 1.0 / C)
+    Y = np.asarray((step.A.T @ KT).todense()).reshape(-1, k, C)
+    Y -= Y.mean(axis=2, keepdims=True)                      # A^T K^T G, per offset
+    solve = step.__dict__.get("_normal_solve")
+    c0 = time.process_time()
+    if solve is None:
+        from pedcal.calib.profile import _normal_solver
+        solve = _normal_solver(step.A, step.order)
+    NY = solve(Y.reshape(-1, k * C)).reshape(Y.shape)
+    cpu = time.process_time() - c0
+    out[idx] = V / (C / (C - 1) * (tr_gkkg - np.einsum("nkc,nkc->k", Y, NY)))
+    return out, cpu
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenarios", nargs="+", default=["paper", "sparse", "corridor", "cross", "lhall"])
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--draws", type=int, default=clocks.NULL_DRAWS)
+    ap.add_argument("--no-exact", action="store_true")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    load0 = os.getloadavg()
+    print(f"| log | k | C | widening CPU (ms) | sigma move, draws seeded 1-3 (%) | sigma move, exact null (%) "
+          f"| exact's solves CPU (ms) |\n|---|---|---|---|---|---|---|")
+    moves_seed, moves_exact = [], []
+    for scenario in args.scenarios:
+        for seed in range(args.seeds):
+            captured, cpu = captured_widening(scenario, seed)
+            if captured is None or captured[0] is None:
+                print(f"| {scenario} {seed} | no widening |")
+                continue
+            reference, nuis, theta, _cov, pose_times, node_times = captured
+            step, theta_ref = reference
+            d = np.asarray(theta, float) - np.asarray(theta_ref, float)
+            rho = step.rho0 + np.asarray(step.A @ (step.Z @ d)) - step.B @ d
+            blocks = clocks.row_blocks(step, pose_times, node_times)
+            phi = clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws)
+            on = np.isfinite(phi)
+            if not on.any():
+                print(f"| {scenario} {seed} | no offsets or too few blocks |")
+                continue
+
+            def move(other, ref=phi, on=on):
+                return float(np.max(np.abs(np.sqrt(np.maximum(1.0, other[on]) / np.maximum(1.0, ref[on])) - 1.0)))
+            by_seed = max(move(clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws, seed=s))
+                          for s in (1, 2, 3))
+            moves_seed.append(by_seed)
+            cells = ["-", "-"]
+            if not args.no_exact:
+                exact, exact_cpu = exact_overdispersion(step, nuis, rho, blocks)
+                moves_exact.append(move(exact))
+                cells = [f"{100 * moves_exact[-1]:.1f}", f"{1000 * exact_cpu:.0f}"]
+            C = int((np.bincount(blocks[blocks >= 0]) > 0).sum())
+            print(f"| {scenario} {seed} | {int(on.sum())} | {C} | {1000 * cpu:.0f} | {100 * by_seed:.1f} | "
+                  + " | ".join(cells) + " |", flush=True)
+    if moves_seed:
+        print(f"\nlargest move of a sigma over {len(moves_seed)} logs: draws reseeded {100 * max(moves_seed):.1f} %"
+              + (f", exact null {100 * max(moves_exact):.1f} %" if moves_exact else "")
+              + f" ({args.draws} draws)")
+    print(f"load average (1 min) {load0[0]:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2 cores)")
+
+
+if __name__ == "__main__":
+    main()
