@@ -12,6 +12,7 @@ import pedcal.calib.factorgraph as fgmod
 from pedcal.calib import calibrate
 from pedcal.calib.clocks import (
     PREFIX,
+    block_score_operator,
     centered_offsets,
     offset_overdispersion,
     row_blocks,
@@ -189,3 +190,21 @@ def test_nothing_is_computed_without_clock_offsets():
     phi = offset_overdispersion(step, [Nuisance("ray_shift_m", 0.0, 0.05, 0.01)], np.zeros(200),
                                 np.repeat(np.arange(10), 20))
     assert phi.shape == (1,) and np.isnan(phi[0])
+
+
+def test_the_block_operator_sums_each_offsets_efficient_rows_times_the_residuals_over_each_block():
+    rng = np.random.default_rng(5)
+    step, M = _step(rng)
+    H = step.hessian
+    clusters = np.repeat(np.array([4, 9, 2, 7, 11, 3, 8, 5, 6, 10, 12, 13]), 20)
+    clusters[[3, 50]] = -1
+    idx, KT = block_score_operator(step, _nuisances(), clusters)
+    assert idx == [1, 2] and KT.shape == (len(clusters), 2 * 12)
+    x = rng.normal(size=len(clusters))
+    Kx = KT.T @ x
+    for c, j in enumerate(idx):
+        o = [i for i in range(3) if i != j]
+        m = M[:, j] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, j])
+        for b, label in enumerate(range(2, 14)):            # the blocks in their labels' order
+            assert Kx[c * 12 + b] == pytest.approx(np.sum((m * x)[clusters == label]), rel=1e-12, abs=1e-12)
+    assert block_score_operator(step, _nuisances(), np.repeat(np.arange(7), 40)) is None    # < 8 blocks

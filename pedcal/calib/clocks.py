@@ -179,24 +179,13 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     residuals would (AMCL's wander, a head point whose shift toward the sensor changes with
     distance where the model keeps it constant: an offset is seen through the robot's velocity
     times the time shift, which such errors share within a pass)."""
-    H = np.asarray(step.hessian, float)
     out = np.full(len(nuis), np.nan)
-    idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
-    kept = clusters >= 0
-    # the blocks present, numbered 0..C-1 in their labels' order (a count, not a sort)
-    present = np.bincount(clusters[kept]) > 0 if kept.any() else np.zeros(0, bool)
-    C = int(present.sum())
-    if not idx or C < MIN_CLUSTERS:
+    blocked = block_score_operator(step, nuis, clusters)
+    if blocked is None:
         return out
-    block = (np.cumsum(present) - 1)[clusters[kept]]
-    # the efficient rows of every offset at once: m = M W, W's column c = e_j - (0; H_oo^-1 H_oj)
-    W = np.zeros((len(nuis), len(idx)))
-    for c, j in enumerate(idx):
-        others = [o for o in range(len(nuis)) if o != j]
-        W[j, c] = 1.0
-        if others:
-            W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
-    m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
+    idx, KT = blocked
+    k = len(idx)
+    C = KT.shape[1] // k
     solve = step.__dict__.get("_normal_solve")
     if solve is None:
         from pedcal.calib.profile import _normal_solver
@@ -207,16 +196,40 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     X[:, 0] = rho
     np.subtract(e, step.A @ solve(np.asarray(step.A.T @ e)), out=X[:, 1:])
     e = None
-    # U[c, b, d] = sum over block b of m_ic X_id: one sparse product with K (a row per (offset,
-    # block)), assembled as its transpose, a row per residual row holding its k entries m_ic at
-    # columns c C + b (no sort of the rows into blocks); U = K X
-    k = len(idx)
-    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[:, None]).ravel(),
-                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(rho), k * C))
-    U = np.asarray(KT.T @ X).reshape(k, C, draws + 1)
+    U = np.asarray(KT.T @ X).reshape(k, C, draws + 1)          # U[c, b, d] = (K X)[c C + b, d]
     V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
     out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
     return out
+
+
+def block_score_operator(step, nuis: list[Nuisance], clusters: np.ndarray) -> tuple[list[int], sps.csr_matrix] | None:
+    """(the clock offsets' indices j among ``nuis``, K^T): K (k C x rows) takes residuals to each
+    offset's score summed over each time block, (K x)[c C + b] = sum over block b of m_ic x_i, m_c
+    offset c's efficient rows m = M W (M = A Z - B; W's column c = e_j - (0; H_oo^-1 H_oj), the
+    other nuisances profiled out with the step's Hessian), the blocks those of ``clusters``
+    present, numbered 0..C-1 in their labels' order (a count, not a sort; -1: left out). K^T is
+    assembled directly, a row per residual row holding its k entries m_ic at columns c C + b (no
+    sort of the rows into blocks). None without clock offsets or with fewer than MIN_CLUSTERS
+    blocks."""
+    H = np.asarray(step.hessian, float)
+    idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
+    kept = clusters >= 0
+    present = np.bincount(clusters[kept]) > 0 if kept.any() else np.zeros(0, bool)
+    C = int(present.sum())
+    if not idx or C < MIN_CLUSTERS:
+        return None
+    block = (np.cumsum(present) - 1)[clusters[kept]]
+    W = np.zeros((len(nuis), len(idx)))
+    for c, j in enumerate(idx):
+        others = [o for o in range(len(nuis)) if o != j]
+        W[j, c] = 1.0
+        if others:
+            W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
+    m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
+    k = len(idx)
+    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[:, None]).ravel(),
+                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(clusters), k * C))
+    return idx, KT
 
 
 def widened_covariance(cov: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -334,4 +347,5 @@ def record_clocks(network, prob, shifts) -> None:
 
 
 __all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
-           "offset_overdispersion", "widened_covariance", "widen_for_overdispersion", "row_blocks"]
+           "offset_overdispersion", "block_score_operator", "widened_covariance", "widen_for_overdispersion",
+           "row_blocks"]
