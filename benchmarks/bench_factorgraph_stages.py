@@ -11,7 +11,9 @@ to the graph build): the first import of what ``pedcal calibrate`` loads (in a f
 pre-flight (the log validated, the memory estimate), association (the robot's observations
 picked out, latency), the initializer (closed form or grid search), the rest of the preparation
 (carrying and merging observations, the noise estimate, shared people), the graph build,
-Levenberg-Marquardt, the head point's profile steps, the sensors' covariance (the joint
+Levenberg-Marquardt, the head point's profile steps, the consider parameter (the head shift's
+line against distance left out of the estimate, its sensitivity kept), the clock offsets'
+overdispersion (their sigma widened by their residuals' scatter over time blocks), the sensors' covariance (the joint
 marginal, or each sensor's, and the model check), the network read back, AMCL's error model
 (its residuals, the fit, the shared sightings checked), the profile's set-up (the clock offsets,
 the right-hand sides' inputs, the retraction after each step), the results (the network
@@ -48,6 +50,9 @@ STAGES = {
                     ("pedcal.calib.factorgraph", "observation_block"), ("pedcal.calib.factorgraph", "motion_block")],
     "Levenberg-Marquardt": [("pedcal.calib.factorgraph", "optimize_graph")],
     "profile steps": [("pedcal.calib.factorgraph", "profile_step")],
+    "consider parameter": [("pedcal.calib.factorgraph", "considered_nuisances"),
+                           ("pedcal.calib.factorgraph", "leave_out")],
+    "clock overdispersion": [("pedcal.calib.factorgraph", "widen_for_overdispersion")],
     "sensor covariance": [("pedcal.calib.factorgraph", "_posterior")],
     "network read back": [("pedcal.calib.factorgraph", "_network_from_result")],
     "AMCL error model": [("pedcal.calib.factorgraph", "amcl_residuals"), ("pedcal.calib.factorgraph", "estimate_model"),

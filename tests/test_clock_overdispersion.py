@@ -12,6 +12,7 @@ import pedcal.calib.factorgraph as fgmod
 from pedcal.calib import calibrate
 from pedcal.calib.clocks import (
     PREFIX,
+    block_score_operator,
     centered_offsets,
     offset_overdispersion,
     row_blocks,
@@ -149,3 +150,61 @@ def test_each_row_falls_in_the_time_block_of_the_latest_pose_or_amcl_node_it_hol
     blocks = row_blocks(step, np.array([5.0, 25.0, 41.0]), np.array([0.0, 40.0]), cluster_s=20.0)
     # 3 blocks of 20 s (0-60 s): a person's rows come after them, as block 3 + its index
     np.testing.assert_array_equal(blocks, [-1, 0, 1, 2, 0, 2, 3, -1])
+
+
+def test_the_row_blocks_follow_the_columns_offsets_not_the_keys_order_and_skip_poses_without_a_time():
+    # the columns laid out in an order of their own: l2 (3) first, then x1, s0, x0, x5 (6 each);
+    # x5 has no time (only 2 pose times), l2 is person 2: block n_blocks + 2
+    keys = [S(0), X(0), X(1), X(5), L(2)]
+    offset = {L(2): 0, X(1): 3, S(0): 9, X(0): 15, X(5): 21}
+    dims = {S(0): 6, X(0): 6, X(1): 6, X(5): 6, L(2): 3}
+    cols = Columns(keys=keys, offset=offset, dim=dims, n=27)
+    rows = [[X(1)], [S(0), X(0)], [X(5)], [S(0), L(2)], [X(0), X(1)], [S(0)]]
+    A_ = np.zeros((len(rows), cols.n))
+    for i, held in enumerate(rows):
+        for key in held:
+            A_[i, offset[key] + dims[key] - 1] = 1.0        # (each variable's last column)
+    step = SimpleNamespace(cols=cols, A=sps.csr_matrix(A_))
+    blocks = row_blocks(step, np.array([3.0, 47.0]), None, cluster_s=10.0)
+    # 5 blocks of 10 s (0-50 s): x0 in 0, x1 in 4, x5 none, l2 in 5 + 2
+    np.testing.assert_array_equal(blocks, [4, 0, -1, 7, 4, -1])
+
+
+def test_the_blocks_are_numbered_by_their_labels_whatever_the_gaps_between_them():
+    # the same rows in blocks labelled 0..11 or with gaps (a person's label far above the poses'):
+    # the same overdispersion, bit for bit
+    rng = np.random.default_rng(11)
+    step, M = _step(rng)
+    rho = rng.normal(size=M.shape[0])
+    clusters = np.repeat(np.arange(12), 20)
+    clusters[[0, 5, 100]] = -1
+    gapped = np.where(clusters >= 0, 3 * clusters + 7 + 1000 * (clusters == 11), -1)
+    phi = offset_overdispersion(step, _nuisances(), rho, clusters, draws=8, seed=2)
+    np.testing.assert_array_equal(offset_overdispersion(step, _nuisances(), rho, gapped, draws=8, seed=2), phi)
+    assert np.isfinite(phi[1:]).all()
+
+
+def test_nothing_is_computed_without_clock_offsets():
+    # no offset among the nuisances: NaN, the step's system never touched (it has none here)
+    step = SimpleNamespace(A=None, B=None, Z=None, hessian=np.eye(1), order=None)
+    phi = offset_overdispersion(step, [Nuisance("ray_shift_m", 0.0, 0.05, 0.01)], np.zeros(200),
+                                np.repeat(np.arange(10), 20))
+    assert phi.shape == (1,) and np.isnan(phi[0])
+
+
+def test_the_block_operator_sums_each_offsets_efficient_rows_times_the_residuals_over_each_block():
+    rng = np.random.default_rng(5)
+    step, M = _step(rng)
+    H = step.hessian
+    clusters = np.repeat(np.array([4, 9, 2, 7, 11, 3, 8, 5, 6, 10, 12, 13]), 20)
+    clusters[[3, 50]] = -1
+    idx, KT = block_score_operator(step, _nuisances(), clusters)
+    assert idx == [1, 2] and KT.shape == (len(clusters), 2 * 12)
+    x = rng.normal(size=len(clusters))
+    Kx = KT.T @ x
+    for c, j in enumerate(idx):
+        o = [i for i in range(3) if i != j]
+        m = M[:, j] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, j])
+        for b, label in enumerate(range(2, 14)):            # the blocks in their labels' order
+            assert Kx[c * 12 + b] == pytest.approx(np.sum((m * x)[clusters == label]), rel=1e-12, abs=1e-12)
+    assert block_score_operator(step, _nuisances(), np.repeat(np.arange(7), 40)) is None    # < 8 blocks

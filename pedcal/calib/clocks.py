@@ -55,7 +55,10 @@ VELOCITY_HALF_WINDOW_S = 0.5
 # (:func:`offset_overdispersion`): about one pass of the robot under a sensor at its 0.3 m/s, and
 # AMCL's wander's correlation time, so that errors shared within a pass count as one
 CLUSTER_S = 20.0
-NULL_DRAWS = 32     # white-error draws whose mean scatter is the model's (offset_overdispersion): ~10 % noise
+# white-error draws whose mean scatter is the model's (offset_overdispersion). Their mean is noisy where
+# few blocks carry an offset's score (its scatter then a chi^2 of few degrees of freedom): reseeded,
+# a widened sigma moves by up to 39 % on the zoo's logs (benchmarks/bench_clock_overdispersion.py)
+NULL_DRAWS = 32
 
 
 def is_clock_nuisance(name: str) -> bool:
@@ -176,14 +179,46 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     residuals would (AMCL's wander, a head point whose shift toward the sensor changes with
     distance where the model keeps it constant: an offset is seen through the robot's velocity
     times the time shift, which such errors share within a pass)."""
-    H = np.asarray(step.hessian, float)
     out = np.full(len(nuis), np.nan)
-    idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
-    keep = np.flatnonzero(clusters >= 0)
-    labels, block = np.unique(clusters[keep], return_inverse=True)
-    if not idx or len(labels) < MIN_CLUSTERS:
+    blocked = block_score_operator(step, nuis, clusters)
+    if blocked is None:
         return out
-    # the efficient rows of every offset at once: m = M W, W's column c = e_j - (0; H_oo^-1 H_oj)
+    idx, KT = blocked
+    k = len(idx)
+    C = KT.shape[1] // k
+    solve = step.__dict__.get("_normal_solve")
+    if solve is None:
+        from pedcal.calib.profile import _normal_solver
+        solve = _normal_solver(step.A, step.order)
+    # X = [rho, r_1 .. r_draws], r_d = e_d - A N^-1 A^T e_d, written in place
+    e = np.random.default_rng(seed).standard_normal((len(rho), draws))
+    X = np.empty((len(rho), draws + 1))
+    X[:, 0] = rho
+    np.subtract(e, step.A @ solve(np.asarray(step.A.T @ e)), out=X[:, 1:])
+    e = None
+    U = np.asarray(KT.T @ X).reshape(k, C, draws + 1)          # U[c, b, d] = (K X)[c C + b, d]
+    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
+    out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
+    return out
+
+
+def block_score_operator(step, nuis: list[Nuisance], clusters: np.ndarray) -> tuple[list[int], sps.csr_matrix] | None:
+    """(the clock offsets' indices j among ``nuis``, K^T): K (k C x rows) takes residuals to each
+    offset's score summed over each time block, (K x)[c C + b] = sum over block b of m_ic x_i, m_c
+    offset c's efficient rows m = M W (M = A Z - B; W's column c = e_j - (0; H_oo^-1 H_oj), the
+    other nuisances profiled out with the step's Hessian), the blocks those of ``clusters``
+    present, numbered 0..C-1 in their labels' order (a count, not a sort; -1: left out). K^T is
+    assembled directly, a row per residual row holding its k entries m_ic at columns c C + b (no
+    sort of the rows into blocks). None without clock offsets or with fewer than MIN_CLUSTERS
+    blocks."""
+    H = np.asarray(step.hessian, float)
+    idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
+    kept = clusters >= 0
+    present = np.bincount(clusters[kept]) > 0 if kept.any() else np.zeros(0, bool)
+    C = int(present.sum())
+    if not idx or C < MIN_CLUSTERS:
+        return None
+    block = (np.cumsum(present) - 1)[clusters[kept]]
     W = np.zeros((len(nuis), len(idx)))
     for c, j in enumerate(idx):
         others = [o for o in range(len(nuis)) if o != j]
@@ -191,20 +226,10 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
         if others:
             W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
     m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
-    solve = step.__dict__.get("_normal_solve")
-    if solve is None:
-        from pedcal.calib.profile import _normal_solver
-        solve = _normal_solver(step.A, step.order)
-    e = np.random.default_rng(seed).standard_normal((len(rho), draws))
-    X = np.column_stack([rho, e - np.asarray(step.A @ solve(np.asarray(step.A.T @ e)))])
-    # U[c, b, d] = sum over block b of m_ic X_id: one sparse product, a row per (offset, block)
-    C = len(labels)
-    K = sps.csr_matrix((m[keep].T.ravel(), ((np.arange(len(idx))[:, None] * C + block[None, :]).ravel(),
-                                            np.tile(keep, len(idx)))), shape=(len(idx) * C, len(rho)))
-    U = np.asarray(K @ X).reshape(len(idx), C, draws + 1)
-    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
-    out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
-    return out
+    k = len(idx)
+    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[:, None]).ravel(),
+                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(clusters), k * C))
+    return idx, KT
 
 
 def widened_covariance(cov: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -224,24 +249,26 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
     floor(t_k / ``cluster_s``), an AMCL error node a(j) in its time's, a person l(m) in a block of
     its own after them; a row takes the latest block among its variables', -1 when it holds none
     of these (the sensors' priors, the head offset's)."""
-    import gtsam
-
     t_nodes = np.zeros(0) if node_times is None else np.asarray(node_times, float)
+    pose_times = np.asarray(pose_times, float)
     n_blocks = int(np.floor(max(float(np.max(pose_times, initial=0.0)), float(np.max(t_nodes, initial=0.0)))
                             / cluster_s)) + 1
     cols = step.cols
+    # each variable's block from its key (GTSAM's Symbol: its character in the top 8 bits, its index below)
+    keys = np.fromiter(cols.keys, np.uint64, len(cols.keys))
+    char = (keys >> np.uint64(56)).astype(np.int64)
+    index = (keys & np.uint64((1 << 56) - 1)).astype(np.int64)
+    block = np.full(len(keys), -1, np.int64)
+    for c, times in (("x", pose_times), ("a", t_nodes)):
+        mine = (char == ord(c)) & (index < len(times))
+        block[mine] = np.floor(times[index[mine]] / cluster_s).astype(np.int64)
+    person = char == ord("l")
+    block[person] = n_blocks + index[person]
+    # spread over each variable's columns
+    starts = np.fromiter(map(cols.offset.__getitem__, cols.keys), np.int64, len(cols.keys))
+    dims = np.fromiter(map(cols.dim.__getitem__, cols.keys), np.int64, len(cols.keys))
     label = np.full(cols.n, -1, np.int64)
-    for key in cols.keys:
-        sym = gtsam.Symbol(key)
-        c, k = chr(sym.chr()), int(sym.index())
-        block = -1
-        if c == "x" and k < len(pose_times):
-            block = int(np.floor(float(pose_times[k]) / cluster_s))
-        elif c == "a" and k < len(t_nodes):
-            block = int(np.floor(float(t_nodes[k]) / cluster_s))
-        elif c == "l":
-            block = n_blocks + k
-        label[cols.offset[key]:cols.offset[key] + cols.dim[key]] = block
+    label[np.repeat(starts - (np.cumsum(dims) - dims), dims) + np.arange(int(dims.sum()))] = np.repeat(block, dims)
     A = sps.csr_matrix(step.A)
     entries = label[A.indices]
     out = np.full(A.shape[0], -1, np.int64)
@@ -320,4 +347,5 @@ def record_clocks(network, prob, shifts) -> None:
 
 
 __all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
-           "offset_overdispersion", "widened_covariance", "widen_for_overdispersion", "row_blocks"]
+           "offset_overdispersion", "block_score_operator", "widened_covariance", "widen_for_overdispersion",
+           "row_blocks"]

@@ -1,0 +1,148 @@
+"""The clock offsets' overdispersion (pedcal.calib.clocks.offset_overdispersion): its cost inside
+the factor graph's solve and the precision of its Monte-Carlo null, on the simulator's zoo logs
+(``simulate_logs(..., vary_nuisances="zoo")``, as bench_factorgraph_nuisances.py --zoo).
+
+    nice -n 10 .venv/bin/python benchmarks/bench_clock_overdispersion.py \
+        [--scenarios paper sparse corridor cross lhall] [--seeds 4] [--draws 32] [--no-exact]
+
+Per log: the offsets (k) and time blocks (C); the CPU time of widen_for_overdispersion inside
+``calibrate`` (time.process_time, one run); the largest move of an offset's widening factor
+sqrt(max(1, phi)) (its sigma's) when the null's draws are seeded 1, 2, 3 instead of 0 (the Monte
+Carlo's own noise), and, unless ``--no-exact``, when the null is the exact expectation
+
+    E V(r) = C / (C - 1) tr(G K P K^T G),  P = I - A N^-1 A^T,  G = I - 1 1^T / C,
+
+(K: each block's row sums weighted by the offset's efficient rows m; tr(G K K^T G) from the block
+sums of m^2, and tr(G K A N^-1 A^T K^T G) by k C solves through the step's factorization, whose
+CPU time is shown); and how far the null E V(e) - E V(H e) (the first term exact, the second, the
+projection's share, by the same draws: a control variate at the plain mean's cost) leaves the exact
+one's sigma, over four seeds of its draws.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+import warnings
+
+import numpy as np
+
+import pedcal.calib.factorgraph as fgmod
+from pedcal.calib import calibrate, clocks
+from pedcal.sim import simulate_logs
+
+
+def captured_widening(scenario: str, seed: int) -> tuple[tuple, float]:
+    """(the arguments widen_for_overdispersion got in one calibration of the zoo log, its CPU s)."""
+    seen: dict = {}
+    original = fgmod.widen_for_overdispersion
+
+    def spy(*args):
+        c0 = time.process_time()
+        out = original(*args)
+        seen.update(args=args, cpu=time.process_time() - c0)
+        return out
+    fgmod.widen_for_overdispersion = spy
+    try:
+        calibrate(simulate_logs(scenario, seed=seed, vary_nuisances="zoo").calib, method="factorgraph")
+    finally:
+        fgmod.widen_for_overdispersion = original
+    return seen.get("args"), seen.get("cpu", 0.0)
+
+
+def exact_overdispersion(step, nuis, rho: np.ndarray, clusters: np.ndarray) -> tuple[np.ndarray, float]:
+    """(phi_j with the null's exact expectation (module docstring), the CPU s of its k C solves)."""
+    out = np.full(len(nuis), np.nan)
+    idx, KT = clocks.block_score_operator(step, nuis, clusters)
+    k = len(idx)
+    C = KT.shape[1] // k
+    U = np.asarray(KT.T @ rho).reshape(k, C)
+    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
+    tr_gkkg = np.asarray(KT.multiply(KT).sum(axis=0)).reshape(k, C).sum(axis=1) * (1.0 - 1.0 / C)
+    Y = np.asarray((step.A.T @ KT).todense()).reshape(-1, k, C)
+    Y -= Y.mean(axis=2, keepdims=True)                      # A^T K^T G, per offset
+    solve = step.__dict__.get("_normal_solve")
+    c0 = time.process_time()
+    if solve is None:
+        from pedcal.calib.profile import _normal_solver
+        solve = _normal_solver(step.A, step.order)
+    NY = solve(Y.reshape(-1, k * C)).reshape(Y.shape)
+    cpu = time.process_time() - c0
+    out[idx] = V / (C / (C - 1) * (tr_gkkg - np.einsum("nkc,nkc->k", Y, NY)))
+    return out, cpu
+
+
+def control_variate_overdispersion(step, nuis, rho: np.ndarray, clusters: np.ndarray, draws: int,
+                                   seed: int = 0) -> np.ndarray:
+    """phi_j against E V(r) = E V(e) - E V(H e) (H = A N^-1 A^T, a projection, so that
+    E[(K e)^T G K H e] = E[(K H e)^T G K H e]): E V(e) = C / (C - 1) tr(G K K^T G) exactly, the
+    projection's share alone by ``draws`` seeded draws (the same solves as the plain mean's)."""
+    out = np.full(len(nuis), np.nan)
+    idx, KT = clocks.block_score_operator(step, nuis, clusters)
+    k = len(idx)
+    C = KT.shape[1] // k
+    e = np.random.default_rng(seed).standard_normal((len(rho), draws))
+    X = np.column_stack([rho, step.A @ step.__dict__["_normal_solve"](np.asarray(step.A.T @ e))])
+    U = np.asarray(KT.T @ X).reshape(k, C, draws + 1)
+    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
+    ev_e = np.asarray(KT.multiply(KT).sum(axis=0)).reshape(k, C).sum(axis=1)      # C/(C-1) tr(G K K^T G)
+    out[idx] = V[:, 0] / (ev_e - V[:, 1:].mean(axis=1))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenarios", nargs="+", default=["paper", "sparse", "corridor", "cross", "lhall"])
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--draws", type=int, default=clocks.NULL_DRAWS)
+    ap.add_argument("--no-exact", action="store_true")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    load0 = os.getloadavg()
+    print("| log | k | C | widening CPU (ms) | sigma move, draws seeded 1-3 (%) | sigma move, exact null (%) "
+          "| exact's solves CPU (ms) | control variate against exact, draws seeded 0-3 (%) |"
+          "\n|---|---|---|---|---|---|---|---|")
+    moves_seed, moves_exact, moves_cv = [], [], []
+    for scenario in args.scenarios:
+        for seed in range(args.seeds):
+            captured, cpu = captured_widening(scenario, seed)
+            if captured is None or captured[0] is None:
+                print(f"| {scenario} {seed} | no widening |")
+                continue
+            reference, nuis, theta, _cov, pose_times, node_times = captured
+            step, theta_ref = reference
+            d = np.asarray(theta, float) - np.asarray(theta_ref, float)
+            rho = step.rho0 + np.asarray(step.A @ (step.Z @ d)) - step.B @ d
+            blocks = clocks.row_blocks(step, pose_times, node_times)
+            phi = clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws)
+            on = np.isfinite(phi)
+            if not on.any():
+                print(f"| {scenario} {seed} | no offsets or too few blocks |")
+                continue
+
+            def move(other, ref=phi, on=on):
+                return float(np.max(np.abs(np.sqrt(np.maximum(1.0, other[on]) / np.maximum(1.0, ref[on])) - 1.0)))
+            by_seed = max(move(clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws, seed=s))
+                          for s in (1, 2, 3))
+            moves_seed.append(by_seed)
+            cells = ["-", "-", "-"]
+            if not args.no_exact:
+                exact, exact_cpu = exact_overdispersion(step, nuis, rho, blocks)
+                moves_exact.append(move(exact))
+                moves_cv.append(max(move(control_variate_overdispersion(step, nuis, rho, blocks, args.draws, s),
+                                         ref=exact) for s in range(4)))
+                cells = [f"{100 * moves_exact[-1]:.1f}", f"{1000 * exact_cpu:.0f}", f"{100 * moves_cv[-1]:.1f}"]
+            C = int((np.bincount(blocks[blocks >= 0]) > 0).sum())
+            print(f"| {scenario} {seed} | {int(on.sum())} | {C} | {1000 * cpu:.0f} | {100 * by_seed:.1f} | "
+                  + " | ".join(cells) + " |", flush=True)
+    if moves_seed:
+        print(f"\nlargest move of a sigma over {len(moves_seed)} logs: draws reseeded {100 * max(moves_seed):.1f} %"
+              + (f", exact null {100 * max(moves_exact):.1f} %, the control variate's from the exact "
+                 f"{100 * max(moves_cv):.1f} %" if moves_exact else "")
+              + f" ({args.draws} draws)")
+    print(f"load average (1 min) {load0[0]:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2 cores)")
+
+
+if __name__ == "__main__":
+    main()
