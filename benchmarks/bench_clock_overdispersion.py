@@ -27,6 +27,7 @@ import time
 import warnings
 
 import numpy as np
+import scipy.sparse as sps
 
 import pedcal.calib.factorgraph as fgmod
 from pedcal.calib import calibrate, clocks
@@ -51,10 +52,23 @@ def captured_widening(scenario: str, seed: int) -> tuple[tuple, float]:
     return seen.get("args"), seen.get("cpu", 0.0)
 
 
+def block_operator(step, nuis, clusters: np.ndarray):
+    """(the offsets' indices, K^T (rows x k C)): (K x)[c C + b] = sum over block b of m_ic x_i,
+    the whole rows x offsets matrix of efficient rows m at once (the solve's path,
+    clocks.block_scores, takes a block at a time)."""
+    idx, W, block, C = clocks.efficient_weights(step, nuis, clusters)
+    m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
+    kept = block >= 0
+    k = len(idx)
+    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[kept][:, None]).ravel(),
+                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(clusters), k * C))
+    return idx, KT
+
+
 def exact_overdispersion(step, nuis, rho: np.ndarray, clusters: np.ndarray) -> tuple[np.ndarray, float]:
     """(phi_j with the null's exact expectation (module docstring), the CPU s of its k C solves)."""
     out = np.full(len(nuis), np.nan)
-    idx, KT = clocks.block_score_operator(step, nuis, clusters)
+    idx, KT = block_operator(step, nuis, clusters)
     k = len(idx)
     C = KT.shape[1] // k
     U = np.asarray(KT.T @ rho).reshape(k, C)
@@ -79,7 +93,7 @@ def control_variate_overdispersion(step, nuis, rho: np.ndarray, clusters: np.nda
     E[(K e)^T G K H e] = E[(K H e)^T G K H e]): E V(e) = C / (C - 1) tr(G K K^T G) exactly, the
     projection's share alone by ``draws`` seeded draws (the same solves as the plain mean's)."""
     out = np.full(len(nuis), np.nan)
-    idx, KT = clocks.block_score_operator(step, nuis, clusters)
+    idx, KT = block_operator(step, nuis, clusters)
     k = len(idx)
     C = KT.shape[1] // k
     e = np.random.default_rng(seed).standard_normal((len(rho), draws))

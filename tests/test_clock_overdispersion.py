@@ -12,8 +12,9 @@ import pedcal.calib.factorgraph as fgmod
 from pedcal.calib import calibrate
 from pedcal.calib.clocks import (
     PREFIX,
-    block_score_operator,
+    block_scores,
     centered_offsets,
+    efficient_weights,
     offset_overdispersion,
     row_blocks,
     widen_for_overdispersion,
@@ -192,19 +193,21 @@ def test_nothing_is_computed_without_clock_offsets():
     assert phi.shape == (1,) and np.isnan(phi[0])
 
 
-def test_the_block_operator_sums_each_offsets_efficient_rows_times_the_residuals_over_each_block():
+def test_the_block_scores_sum_each_offsets_efficient_rows_times_the_residuals_over_each_block():
     rng = np.random.default_rng(5)
     step, M = _step(rng)
     H = step.hessian
     clusters = np.repeat(np.array([4, 9, 2, 7, 11, 3, 8, 5, 6, 10, 12, 13]), 20)
     clusters[[3, 50]] = -1
-    idx, KT = block_score_operator(step, _nuisances(), clusters)
-    assert idx == [1, 2] and KT.shape == (len(clusters), 2 * 12)
-    x = rng.normal(size=len(clusters))
-    Kx = KT.T @ x
-    for c, j in enumerate(idx):
+    weights = efficient_weights(step, _nuisances(), clusters)
+    assert weights[0] == [1, 2] and weights[3] == 12
+    x = rng.normal(size=(len(clusters), 2))
+    U = block_scores(step, weights, x)
+    assert U.shape == (2, 12, 2)
+    for c, j in enumerate(weights[0]):
         o = [i for i in range(3) if i != j]
         m = M[:, j] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, j])
         for b, label in enumerate(range(2, 14)):            # the blocks in their labels' order
-            assert Kx[c * 12 + b] == pytest.approx(np.sum((m * x)[clusters == label]), rel=1e-12, abs=1e-12)
-    assert block_score_operator(step, _nuisances(), np.repeat(np.arange(7), 40)) is None    # < 8 blocks
+            want = ((m[:, None] * x)[clusters == label]).sum(axis=0)
+            np.testing.assert_allclose(U[c, b], want, rtol=1e-12, atol=1e-12)
+    assert efficient_weights(step, _nuisances(), np.repeat(np.arange(7), 40)) is None    # < 8 blocks

@@ -180,12 +180,9 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     distance where the model keeps it constant: an offset is seen through the robot's velocity
     times the time shift, which such errors share within a pass)."""
     out = np.full(len(nuis), np.nan)
-    blocked = block_score_operator(step, nuis, clusters)
-    if blocked is None:
+    weights = efficient_weights(step, nuis, clusters)
+    if weights is None:
         return out
-    idx, KT = blocked
-    k = len(idx)
-    C = KT.shape[1] // k
     solve = step.__dict__.get("_normal_solve")
     if solve is None:
         from pedcal.calib.profile import _normal_solver
@@ -196,21 +193,19 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     X[:, 0] = rho
     np.subtract(e, step.A @ solve(np.asarray(step.A.T @ e)), out=X[:, 1:])
     e = None
-    U = np.asarray(KT.T @ X).reshape(k, C, draws + 1)          # U[c, b, d] = (K X)[c C + b, d]
+    U = block_scores(step, weights, X)
+    idx, C = weights[0], weights[3]
     V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
     out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
     return out
 
 
-def block_score_operator(step, nuis: list[Nuisance], clusters: np.ndarray) -> tuple[list[int], sps.csr_matrix] | None:
-    """(the clock offsets' indices j among ``nuis``, K^T): K (k C x rows) takes residuals to each
-    offset's score summed over each time block, (K x)[c C + b] = sum over block b of m_ic x_i, m_c
-    offset c's efficient rows m = M W (M = A Z - B; W's column c = e_j - (0; H_oo^-1 H_oj), the
-    other nuisances profiled out with the step's Hessian), the blocks those of ``clusters``
-    present, numbered 0..C-1 in their labels' order (a count, not a sort; -1: left out). K^T is
-    assembled directly, a row per residual row holding its k entries m_ic at columns c C + b (no
-    sort of the rows into blocks). None without clock offsets or with fewer than MIN_CLUSTERS
-    blocks."""
+def efficient_weights(step, nuis: list[Nuisance], clusters: np.ndarray):
+    """(the clock offsets' indices j among ``nuis``, W, each row's block 0..C-1 (-1: left out), C): W's
+    column c = e_j - (0; H_oo^-1 H_oj), offset c's efficient rows m = M W (M = A Z - B; the other
+    nuisances profiled out with the step's Hessian); the blocks those of ``clusters`` present,
+    numbered in their labels' order (a count, not a sort; -1: left out). None without clock
+    offsets or with fewer than MIN_CLUSTERS blocks."""
     H = np.asarray(step.hessian, float)
     idx = [j for j, nu in enumerate(nuis) if is_clock_nuisance(nu.name)]
     kept = clusters >= 0
@@ -218,18 +213,35 @@ def block_score_operator(step, nuis: list[Nuisance], clusters: np.ndarray) -> tu
     C = int(present.sum())
     if not idx or C < MIN_CLUSTERS:
         return None
-    block = (np.cumsum(present) - 1)[clusters[kept]]
+    block = np.full(len(clusters), -1)
+    block[kept] = (np.cumsum(present) - 1)[clusters[kept]]
     W = np.zeros((len(nuis), len(idx)))
     for c, j in enumerate(idx):
         others = [o for o in range(len(nuis)) if o != j]
         W[j, c] = 1.0
         if others:
             W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
-    m = np.asarray(step.A @ (step.Z @ W)) - np.asarray(step.B @ W)
-    k = len(idx)
-    KT = sps.csr_matrix((m[kept].ravel(), (np.arange(k) * C + block[:, None]).ravel(),
-                         np.r_[0, np.cumsum(np.where(kept, k, 0))]), shape=(len(clusters), k * C))
-    return idx, KT
+    return idx, W, block, C
+
+
+def block_scores(step, weights, X: np.ndarray) -> np.ndarray:
+    """U (k, C, d): U[c, b, :] = sum over block b of m_ic X_i, each clock offset's score of the
+    residual columns ``X`` (rows, d) summed over each time block, ``weights`` those of
+    :func:`efficient_weights`. One block's efficient rows at a time (m_b = A_b Z W - B_b W): the
+    rows x offsets matrix m whole would be the widening's largest memory, hundreds of MB at 200
+    sensors."""
+    idx, W, block, C = weights
+    A, B = sps.csr_matrix(step.A), sps.csr_matrix(step.B)
+    ZW = step.Z @ W
+    order = np.argsort(block, kind="stable")
+    bounds = np.searchsorted(block[order], np.arange(-1, C) + 0.5)   # (block -1 first, left out)
+    X = np.asarray(X, float).reshape(len(block), -1)
+    U = np.empty((len(idx), C, X.shape[1]))
+    for b in range(C):
+        rows = order[bounds[b]:bounds[b + 1]]
+        m_b = np.asarray(A[rows] @ ZW) - np.asarray(B[rows] @ W)
+        U[:, b, :] = m_b.T @ X[rows]
+    return U
 
 
 def widened_covariance(cov: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -347,5 +359,5 @@ def record_clocks(network, prob, shifts) -> None:
 
 
 __all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
-           "offset_overdispersion", "block_score_operator", "widened_covariance", "widen_for_overdispersion",
-           "row_blocks"]
+           "offset_overdispersion", "efficient_weights", "block_scores", "widened_covariance",
+           "widen_for_overdispersion", "row_blocks"]
