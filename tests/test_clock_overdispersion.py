@@ -56,13 +56,17 @@ def test_the_overdispersion_is_the_scores_block_scatter_over_its_scatter_under_t
     assert np.isnan(phi[0])                    # not a clock offset
     H = step.hessian
     A = step.A.toarray()
-    # the residuals of white unit errors under the model, the variables fitted: (I - A N^-1 A^T) e
+    # the null: white unit errors e under the model, the variables fitted, leave (I - H) e,
+    # H = A N^-1 A^T; E V((I - H) e) = sum of m^2 over the blocks' rows - E V(H e), the second
+    # term over the draws
     e = np.random.default_rng(3).standard_normal((M.shape[0], 16))
-    r = e - A @ np.linalg.solve(A.T @ A, A.T @ e)
+    he = A @ np.linalg.solve(A.T @ A, A.T @ e)
+    kept = clusters >= 0
     for j in (1, 2):
         o = [i for i in range(3) if i != j]
         m = M[:, j] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, j])
-        null = np.mean([_scatter(m * r[:, d], clusters, 12) for d in range(16)])
+        null = np.sum(m[kept] ** 2) - np.mean([_scatter(m * he[:, d], clusters, 12) for d in range(16)])
+        assert null > 0.0
         assert phi[j] == pytest.approx(_scatter(m * rho, clusters, 12) / null, rel=1e-9)
     # too few blocks (fewer than 8): no estimate, no widening
     assert np.all(np.isnan(offset_overdispersion(step, _nuisances(), rho, np.repeat(np.arange(6), 40))))
@@ -202,7 +206,7 @@ def test_the_block_scores_sum_each_offsets_efficient_rows_times_the_residuals_ov
     weights = efficient_weights(step, _nuisances(), clusters)
     assert weights[0] == [1, 2] and weights[3] == 12
     x = rng.normal(size=(len(clusters), 2))
-    U = block_scores(step, weights, x)
+    U, m2 = block_scores(step, weights, x)
     assert U.shape == (2, 12, 2)
     for c, j in enumerate(weights[0]):
         o = [i for i in range(3) if i != j]
@@ -210,4 +214,5 @@ def test_the_block_scores_sum_each_offsets_efficient_rows_times_the_residuals_ov
         for b, label in enumerate(range(2, 14)):            # the blocks in their labels' order
             want = ((m[:, None] * x)[clusters == label]).sum(axis=0)
             np.testing.assert_allclose(U[c, b], want, rtol=1e-12, atol=1e-12)
+        assert m2[c] == pytest.approx(np.sum(m[clusters >= 0] ** 2), rel=1e-12)
     assert efficient_weights(step, _nuisances(), np.repeat(np.arange(7), 40)) is None    # < 8 blocks

@@ -170,10 +170,16 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     of the score; :func:`pedcal.calib.headpoint.overdispersion` is V / sum m_i^2). Under the model
     the residuals are r = (I - A N^-1 A^T) e, e white with unit variance, N = A^T A: the variables
     (each block's robot poses, AMCL's error nodes) take up part of each block's errors, so V(r)
-    is below sum m_i^2, and the ratio is taken against the mean of V over ``draws`` such r
-    (seeded by ``seed``; a fresh factorization of N when the step kept none):
+    is below sum m_i^2: its expectation tr(Q P) (V(x) = x^T Q x, P = I - H, H = A N^-1 A^T a
+    projection) is tr(Q) - tr(Q H), where tr(Q) = sum over the blocks' rows of m_i^2 exactly and
+    only the projection's share E V(H e) is taken over ``draws`` seeded draws (``seed``; a fresh
+    factorization of N when the step kept none), a control variate at the plain mean's cost whose
+    Monte-Carlo noise is the share's alone:
 
-        phi_j = V(rho) / mean_d V(r_d).
+        phi_j = V(rho) / (sum_i m_i^2 - mean_d V(H e_d)),
+
+    or, where the draws put that share at or above the whole (the variables take up nearly all of
+    each block's errors), against the plain mean of V(e_d - H e_d) over the same draws.
 
     1 when the model holds; more when errors that last a block move the offset more than white
     residuals would (AMCL's wander, a head point whose shift toward the sensor changes with
@@ -187,16 +193,21 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     if solve is None:
         from pedcal.calib.profile import _normal_solver
         solve = _normal_solver(step.A, step.order)
-    # X = [rho, r_1 .. r_draws], r_d = e_d - A N^-1 A^T e_d, written in place
-    e = np.random.default_rng(seed).standard_normal((len(rho), draws))
-    X = np.empty((len(rho), draws + 1))
+    # X = [rho, e_1 .. e_draws, H e_1 .. H e_draws], H e_d = A N^-1 A^T e_d
+    X = np.empty((len(rho), 2 * draws + 1))
     X[:, 0] = rho
-    np.subtract(e, step.A @ solve(np.asarray(step.A.T @ e)), out=X[:, 1:])
-    e = None
-    U = block_scores(step, weights, X)
+    X[:, 1:draws + 1] = np.random.default_rng(seed).standard_normal((len(rho), draws))
+    X[:, draws + 1:] = step.A @ solve(np.asarray(step.A.T @ X[:, 1:draws + 1]))
+    U, m2 = block_scores(step, weights, X)
     idx, C = weights[0], weights[3]
-    V = np.sum((U - U.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
-    out[idx] = V[:, 0] / V[:, 1:].mean(axis=1)
+    U_e, U_he = U[:, :, 1:draws + 1], U[:, :, draws + 1:]
+
+    def scatter(u):        # V per offset and column: C / (C - 1) sum_b (U_b - mean U)^2
+        return np.sum((u - u.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
+
+    null = m2 - scatter(U_he).mean(axis=1)
+    plain = scatter(U_e - U_he).mean(axis=1)
+    out[idx] = scatter(U[:, :, :1])[:, 0] / np.where(null > 0.0, null, plain)
     return out
 
 
@@ -224,12 +235,12 @@ def efficient_weights(step, nuis: list[Nuisance], clusters: np.ndarray):
     return idx, W, block, C
 
 
-def block_scores(step, weights, X: np.ndarray) -> np.ndarray:
-    """U (k, C, d): U[c, b, :] = sum over block b of m_ic X_i, each clock offset's score of the
-    residual columns ``X`` (rows, d) summed over each time block, ``weights`` those of
-    :func:`efficient_weights`. One block's efficient rows at a time (m_b = A_b Z W - B_b W): the
-    rows x offsets matrix m whole would be the widening's largest memory, hundreds of MB at 200
-    sensors."""
+def block_scores(step, weights, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(U (k, C, d), m2 (k,)): U[c, b, :] = sum over block b of m_ic X_i, each clock offset's
+    score of the residual columns ``X`` (rows, d) summed over each time block, ``weights`` those
+    of :func:`efficient_weights`, and m2[c] = sum over the blocks' rows of m_ic^2. One block's
+    efficient rows at a time (m_b = A_b Z W - B_b W): the rows x offsets matrix m whole would be
+    the widening's largest memory, hundreds of MB at 200 sensors."""
     idx, W, block, C = weights
     A, B = sps.csr_matrix(step.A), sps.csr_matrix(step.B)
     ZW = step.Z @ W
@@ -237,11 +248,13 @@ def block_scores(step, weights, X: np.ndarray) -> np.ndarray:
     bounds = np.searchsorted(block[order], np.arange(-1, C) + 0.5)   # (block -1 first, left out)
     X = np.asarray(X, float).reshape(len(block), -1)
     U = np.empty((len(idx), C, X.shape[1]))
+    m2 = np.zeros(len(idx))
     for b in range(C):
         rows = order[bounds[b]:bounds[b + 1]]
         m_b = np.asarray(A[rows] @ ZW) - np.asarray(B[rows] @ W)
         U[:, b, :] = m_b.T @ X[rows]
-    return U
+        m2 += np.einsum("ic,ic->c", m_b, m_b)
+    return U, m2
 
 
 def widened_covariance(cov: np.ndarray, phi: np.ndarray) -> np.ndarray:
