@@ -72,6 +72,34 @@ def test_the_overdispersion_is_the_scores_block_scatter_over_its_scatter_under_t
     assert np.all(np.isnan(offset_overdispersion(step, _nuisances(), rho, np.repeat(np.arange(6), 40))))
 
 
+def test_where_the_draws_put_the_projections_share_above_the_whole_the_plain_mean_is_the_null():
+    # nearly as many variables as rows: they take up nearly all of each block's errors, and
+    # the draws' estimate of the projection's share can exceed the exact whole
+    rng = np.random.default_rng(11)
+    rows, n = 240, 228
+    A = sps.csr_matrix(rng.normal(size=(rows, n)))
+    Z = rng.normal(size=(n, 3)) * 0.1
+    B = sps.csc_matrix(rng.normal(size=(rows, 3)))
+    M = A @ Z - B.toarray()
+    H = M.T @ M + np.diag([1 / 0.05 ** 2, 1 / 0.15 ** 2, 1 / 0.15 ** 2])
+    step = SimpleNamespace(A=A, Z=Z, B=B, hessian=H, order=None)
+    clusters = np.repeat(np.arange(12), 20)
+    rho = rng.normal(size=rows)
+    Ad = A.toarray()
+    o = [0, 2]
+    m = M[:, 1] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, 1])
+    for seed in range(50):
+        e = np.random.default_rng(seed).standard_normal((rows, 8))
+        he = Ad @ np.linalg.solve(Ad.T @ Ad, Ad.T @ e)
+        if np.sum(m ** 2) - np.mean([_scatter(m * he[:, d], clusters, 12) for d in range(8)]) <= 0.0:
+            break
+    else:
+        pytest.fail("no draw put the projection's share above the whole")
+    plain = np.mean([_scatter(m * (e[:, d] - he[:, d]), clusters, 12) for d in range(8)])
+    phi = offset_overdispersion(step, _nuisances(), rho, clusters, draws=8, seed=seed)
+    assert phi[1] == pytest.approx(_scatter(m * rho, clusters, 12) / plain, rel=1e-9)
+
+
 @pytest.mark.parametrize("shared, want", [(0.0, 1.0), (1.0, 11.0)])
 def test_the_overdispersion_is_1_on_white_residuals_and_1_plus_n_s2_on_errors_a_block_shares(shared, want):
     # one offset alone (M its column), blocks of 10 rows each m = 1, one variable that takes up
