@@ -35,7 +35,7 @@ import logging
 import numpy as np
 import scipy.sparse as sps
 
-from pedcal.calib.headpoint import MIN_CLUSTERS
+from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS
 from pedcal.calib.profile import Nuisance
 from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, SIGMA_LATENCY_KEY
 
@@ -51,13 +51,13 @@ STEP_S = 0.01           # finite-difference step of the profile (the offset ente
 # graph's solved poses (solved_velocity_world), 73 % within 1 sigma there; on the L-shaped hall the
 # offsets shared by a wing still trade with the wing's place along its axis (README).
 VELOCITY_HALF_WINDOW_S = 0.5
-# the residuals' time blocks (s) whose scatter of each offset's score widens its sigma
-# (:func:`offset_overdispersion`): about one pass of the robot under a sensor at its 0.3 m/s, and
-# AMCL's wander's correlation time, so that errors shared within a pass count as one
-CLUSTER_S = 20.0
-# white-error draws whose mean scatter is the model's (offset_overdispersion). Their mean is noisy where
-# few blocks carry an offset's score (its scatter then a chi^2 of few degrees of freedom): reseeded,
-# a widened sigma moves by up to 39 % on the zoo's logs (benchmarks/bench_clock_overdispersion.py)
+# the residuals' time blocks whose scatter of each offset's score widens its sigma
+# (:func:`offset_overdispersion`) are headpoint's CLUSTER_S: about one pass of the robot under a
+# sensor at its 0.3 m/s, and AMCL's wander's correlation time, so that errors shared within a pass
+# count as one.
+# The null's white-error draws: they estimate the projection's share of the scatter (the rest is
+# exact, a control variate); reseeded, a widened sigma moves by up to 7.6 % on the zoo's seeds 0-1
+# of five scenarios (18 % with the draws' plain mean; benchmarks/bench_clock_overdispersion.py)
 NULL_DRAWS = 32
 
 
@@ -92,13 +92,15 @@ def solved_velocity_world(prob, result) -> np.ndarray | None:
     (or AMCL's motion) with what every sensor saw. Without odometry the raw motion is AMCL's
     own, whose wandering error's increments (a few cm/s over a second) the regressor would
     carry; the solved path is the better measure of it. None without poses."""
+    from pedcal.calib.graph import pose_arrays  # (the graph module imports this one)
     from pedcal.calib.keys import X
 
     t = prob.pose_times
-    n = sum(1 for k in range(len(t)) if result.exists(X(k)))
+    keys = np.asarray(result.keys(), np.uint64)
+    n = int(np.count_nonzero((keys >> np.uint64(56)) == np.uint64(ord("x"))))   # (a Symbol's character: top byte)
     if n < 2:
         return None
-    x = np.array([result.atPose3(X(k)).translation() for k in range(n)])
+    x = pose_arrays(result, [X(k) for k in range(n)])[1]
     t = t[:n]
     lo = np.clip(np.searchsorted(t, t - VELOCITY_HALF_WINDOW_S), 0, n - 1)
     hi = np.clip(np.searchsorted(t, t + VELOCITY_HALF_WINDOW_S), 0, n - 1)
@@ -226,12 +228,10 @@ def efficient_weights(step, nuis: list[Nuisance], clusters: np.ndarray):
         return None
     block = np.full(len(clusters), -1)
     block[kept] = (np.cumsum(present) - 1)[clusters[kept]]
-    W = np.zeros((len(nuis), len(idx)))
-    for c, j in enumerate(idx):
-        others = [o for o in range(len(nuis)) if o != j]
-        W[j, c] = 1.0
-        if others:
-            W[others, c] = -np.linalg.solve(H[np.ix_(others, others)], H[others, j])
+    # e_j - (0; H_oo^-1 H_oj) is H^-1's column j over its diagonal entry (the Schur complement's
+    # identity): one inverse for every offset, not a solve each
+    H_inv = np.linalg.inv(H)
+    W = H_inv[:, idx] / np.diag(H_inv)[idx]
     return idx, W, block, C
 
 

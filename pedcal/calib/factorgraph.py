@@ -694,7 +694,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         blocks = marginal_covariances(fg, result, keys)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)
-    cov_given = {sid: blocks[i] for i, sid in enumerate(prob.sensor_ids)}
+    cov_given = {sid: blocks[i].copy() for i, sid in enumerate(prob.sensor_ids)}   # (views of C: copied)
     extra = []                                 # (sensitivity (6 len(keys),), k x k covariance) terms
     if shifts is not None:
         k = shifts.sensitivity.shape[1]
