@@ -124,14 +124,26 @@ class SensorNetwork:
     def ids(self) -> list[str]:
         return [s.id for s in self.sensors]
 
+    def _find(self, sensor_id) -> SensorExtrinsics | None:
+        """The sensor of that id, or None: by an id -> position index, checked on every use and
+        rebuilt when the list changed under it (a sensor replaced, added or removed), instead of
+        a scan of the list per look-up (quadratic over a network's sensors)."""
+        sid = str(sensor_id)
+        index = self.__dict__.get("_index")
+        i = None if index is None else index.get(sid)
+        if i is None or i >= len(self.sensors) or self.sensors[i].id != sid:
+            index = self.__dict__["_index"] = {s.id: k for k, s in enumerate(self.sensors)}
+            i = index.get(sid)
+        return None if i is None else self.sensors[i]
+
     def __getitem__(self, sensor_id: str) -> SensorExtrinsics:
-        for s in self.sensors:
-            if s.id == str(sensor_id):
-                return s
-        raise KeyError(sensor_id)
+        s = self._find(sensor_id)
+        if s is None:
+            raise KeyError(sensor_id)
+        return s
 
     def __contains__(self, sensor_id) -> bool:
-        return any(s.id == str(sensor_id) for s in self.sensors)
+        return self._find(sensor_id) is not None
 
     def __len__(self) -> int:
         return len(self.sensors)
@@ -211,8 +223,7 @@ class Log:
         out = np.empty((len(self.observations), 3))
         xyz = self.observations[["x", "y", "z"]].to_numpy(dtype=float)
         sensor_col = self.observations["sensor"].astype(str).to_numpy()
-        by_id = {s.id: s for s in self.sensors}     # (the network's own look-up scans its list)
         for sid, rows in pd.Series(sensor_col).groupby(sensor_col, sort=False).indices.items():
-            if sid in by_id:     # one pass over the rows, not one per sensor
-                out[rows] = by_id[sid].to_sensor(xyz[rows])
+            if sid in self.sensors:     # one pass over the rows, not one per sensor
+                out[rows] = self.sensors[sid].to_sensor(xyz[rows])
         return out

@@ -468,7 +468,7 @@ def test_columns_index_of_many_keys_equals_key_by_key():
     assert len(cols.index([])) == 0
 
 
-def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper):
+def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper, monkeypatch):
     # a chord step solves z0 by conjugate gradients preconditioned with the full step's
     # factorization: the same step as with a factorization of its own
     from pedcal.calib.graph import ObservationRhs
@@ -495,7 +495,13 @@ def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper):
     theta = theta + full.dtheta
     p.ray_shift_m, p.horizontal_shift_m = theta
     moved = retract_flat(result, full.z0 + full.Z @ full.dtheta, cols)
+    import pedcal.calib.profile as profile_mod
+
+    factorized, real = [], profile_mod._normal_solver
+    monkeypatch.setattr(profile_mod, "_normal_solver", lambda *a, **k: factorized.append(1) or real(*a, **k))
     kept = step_at(moved, theta, previous=full, order=full.order)
+    assert factorized == []          # z0 from the kept factorization, none of its own
+    monkeypatch.undo()
     bare = copy.copy(full)
     bare.__dict__.pop("_normal_solve")
     fresh = step_at(moved, theta, previous=bare, order=full.order)

@@ -90,7 +90,7 @@ from pedcal.calib.amcl_model import AmclErrorModel, amcl_cov_body, amcl_white_si
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import interpolate_pose2
+from pedcal.calib.common import head_world, interpolate_pose2
 from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.keys import A, H, L, S, X  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
@@ -119,9 +119,7 @@ def head_frames(pose2: np.ndarray, head_m: np.ndarray) -> list:
     """:func:`~pedcal.calib.motion.head_frame` of every base pose (N, 3) [x, y, yaw]: the head
     offsets turned into the world in one pass, a Pose3 made per row (GTSAM's Rot3.Yaw, as there)."""
     pose2 = np.asarray(pose2, float).reshape(-1, 3)
-    c, s_ = np.cos(pose2[:, 2]), np.sin(pose2[:, 2])
-    t = np.column_stack([pose2[:, 0] + c * head_m[0] - s_ * head_m[1], pose2[:, 1] + s_ * head_m[0] + c * head_m[1],
-                         np.full(len(pose2), float(head_m[2]))])
+    t = head_world(pose2, head_m)
     yaw_of, pose3 = gtsam.Rot3.Yaw, gtsam.Pose3
     return [pose3(yaw_of(yaw), row) for yaw, row in zip(pose2[:, 2].tolist(), t, strict=True)]
 
