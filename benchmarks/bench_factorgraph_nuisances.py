@@ -210,6 +210,28 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
     return out
 
 
+def recipe_overrides(items: list[str], ap: argparse.ArgumentParser) -> dict:
+    """KEY=VALUE items as graph recipe fields, each value read as its field's default's type."""
+    from pedcal.calib.recipe import GraphRecipe
+
+    defaults, out = GraphRecipe(), {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if not hasattr(defaults, key):
+            ap.error(f"--recipe {item}: no graph recipe field '{key}'")
+        default = getattr(defaults, key)
+        try:
+            if isinstance(default, bool):
+                if value not in ("true", "false"):
+                    raise ValueError(value)
+                out[key] = value == "true"
+            else:
+                out[key] = type(default)(value)
+        except ValueError:
+            ap.error(f"--recipe {item}: '{key}' takes a {type(default).__name__}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenarios", nargs="+", default=["paper", "sparse", "corridor", "cross"])
@@ -219,12 +241,10 @@ def main() -> None:
     ap.add_argument("--verbose", action="store_true", help="one line per seed")
     ap.add_argument("--zoo", action="store_true", help="--vary-nuisances zoo, figures split by family")
     ap.add_argument("--recipe", nargs="+", default=[], metavar="KEY=VALUE",
-                    help="graph recipe fields for the factor graph (a number, true or false)")
+                    help="graph recipe fields for the factor graph, each of its field's type (a number, "
+                         "true or false, a word: head_profile=linear)")
     args = ap.parse_args()
-    recipe = {}
-    for item in args.recipe:
-        key, _, value = item.partition("=")
-        recipe[key] = value == "true" if value in ("true", "false") else float(value)
+    recipe = recipe_overrides(args.recipe, ap)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     tasks = [(sc, s, args.zoo, recipe) for sc in args.scenarios for s in seeds]
     with ProcessPoolExecutor(args.jobs) as ex:

@@ -141,6 +141,10 @@ def test_a_ramps_shape_sets_how_its_change_spreads_over_the_distance():
     for d_h, mm in ((2.0, 40.0 * (1 - np.exp(-3.0))), (4.0, 40.0 * (1 - np.exp(-6.0)))):
         got = head_point(TOP, np.array([[d_h, 0.0, 2.6]]), sat)[0] - TOP[0]
         np.testing.assert_allclose(got, [mm / 1000, 0, 0], atol=1e-12)
+    # a smooth ramp fading a 40 mm shift over 2 m: at 0.5 m (a quarter of it) 40 (1 - 0.15625) mm
+    ramp = Scenario().resolve(head_point="ramp", head_shift_m=0.04, head_ramp_m=2.0, head_ramp_shape="smooth")
+    got = head_point(TOP, np.array([[0.5, 0.0, 2.6]]), ramp)[0] - TOP[0]
+    np.testing.assert_allclose(got, [0.03375, 0, 0], atol=1e-12)
 
 
 def test_the_zoo_draws_ramp_shapes_from_a_stream_of_their_own():
