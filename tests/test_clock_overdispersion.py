@@ -100,6 +100,27 @@ def test_where_the_draws_put_the_projections_share_above_the_whole_the_plain_mea
     assert phi[1] == pytest.approx(_scatter(m * rho, clusters, 12) / plain, rel=1e-9)
 
 
+def test_the_overdispersion_is_1_on_white_residuals_when_the_variables_take_up_part_of_each_block():
+    # one variable per pair of blocks (a mean each pair's rows share) and an offset seen through a
+    # ramp in time: the variables take up part of each block's score, which the null must remove
+    # (with the projection's share left out of the null, phi reads ~0.7)
+    rng = np.random.default_rng(3)
+    blocks, per = 400, 10
+    rows = blocks * per
+    clusters = np.repeat(np.arange(blocks), per)
+    t = np.arange(rows) / per
+    A = sps.csr_matrix((np.ones(rows), (np.arange(rows), clusters // 2)), shape=(rows, blocks // 2))
+    N = (A.T @ A).toarray()
+    B = -t[:, None]
+    Z = np.linalg.solve(N, A.T @ B)
+    M = A @ Z - B
+    step = SimpleNamespace(A=A, Z=Z, B=sps.csc_matrix(B), hessian=M.T @ M + 1.0, order=None)
+    e = rng.normal(size=rows)
+    rho = e - A @ np.linalg.solve(N, A.T @ e)          # white errors, the variables fitted
+    phi = offset_overdispersion(step, [Nuisance(PREFIX + "s1", 0.0, 1.0, 0.01)], rho, clusters)[0]
+    assert phi == pytest.approx(1.0, rel=0.2)
+
+
 @pytest.mark.parametrize("shared, want", [(0.0, 1.0), (1.0, 11.0)])
 def test_the_overdispersion_is_1_on_white_residuals_and_1_plus_n_s2_on_errors_a_block_shares(shared, want):
     # one offset alone (M its column), blocks of 10 rows each m = 1, one variable that takes up

@@ -257,6 +257,20 @@ def test_overdispersion_is_one_for_independent_rows_and_grows_with_errors_shared
     assert np.isnan(overdispersion(m, rng.normal(size=n), np.repeat(np.arange(4), n // 4)))
 
 
+def test_overdispersion_pinned_cluster_by_cluster():
+    # tr(S^-1 V) / k: V the clusters' score sums centred, times C / (C - 1); S over every row.
+    # Residuals with a mean (the centring matters) and two rows left out (-1)
+    rng = np.random.default_rng(8)
+    m = rng.normal(size=(90, 2))
+    rho = rng.normal(size=90) + 0.7
+    clusters = np.repeat(np.arange(9), 10)
+    clusters[[4, 33]] = -1
+    U = np.array([(m[clusters == c] * rho[clusters == c, None]).sum(axis=0) for c in range(9)])
+    U = U - U.mean(axis=0)
+    want = np.trace(np.linalg.solve(m.T @ m, U.T @ U * 9 / 8)) / 2
+    assert overdispersion(m, rho, clusters) == pytest.approx(want, rel=1e-12)
+
+
 def test_the_shapes_rise_by_one_to_their_knot_and_stay_or_start_there():
     got = shapes(KNOTS)
     assert sorted(got) == sorted(["linear", "saturating@1.00", "onset@1.00", "saturating@2.00", "onset@2.00"])
