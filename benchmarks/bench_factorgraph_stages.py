@@ -89,14 +89,19 @@ def timed_stages(totals: dict, stages: dict | None = None):
         return inner
 
     for stage, targets in (STAGES if stages is None else stages).items():
+        found = False
         for module, name in targets:
             try:
                 mod = importlib.import_module(module)
             except ImportError:          # an older layout of the package (a before/after comparison)
                 continue
-            if hasattr(mod, name):
+            if hasattr(mod, name):       # (a stage may name where a function lived in either layout)
+                found = True
                 saved.append((mod, name, getattr(mod, name)))
                 setattr(mod, name, wrap(stage, getattr(mod, name)))
+        if not found:                    # a misspelt or moved name would read 0 s: said, not hidden
+            print(f"warning: stage '{stage}' times nothing ({', '.join(f'{m}.{n}' for m, n in targets)} "
+                  "not found)", file=sys.stderr)
     try:
         yield totals
     finally:
