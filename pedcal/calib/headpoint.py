@@ -290,14 +290,15 @@ def row_sensors(graphs, n_rows: int) -> np.ndarray:
 
 
 def _efficient_rows(step: ProfileStep, nuis: list[Nuisance], extra: list[int],
-                    others: list[int] | None = None) -> np.ndarray:
+                    others: list[int] | None = None, M: np.ndarray | None = None) -> np.ndarray:
     """(rows, len(extra)) each row's residual change with the ``extra`` nuisances, the variables
     and the other nuisances profiled out: M = A Z - B (the variables profiled), then the other
     nuisances' columns projected out with the data's Hessian, m_i = M_i,e - M_i,o H_oo^-1 H_oe,
     so that sum_i m_i m_i^T is the extra nuisances' information given the others (their priors
     left out) and sum_i m_i rho_i their efficient score. ``others``: the nuisances profiled out
-    (default every one not extra; the rest are held)."""
-    M = np.asarray(step.A @ step.Z) - step.B.toarray()
+    (default every one not extra; the rest are held). ``M``: A Z - B when the caller has it."""
+    if M is None:
+        M = np.asarray(step.A @ step.Z) - step.B.toarray()
     H = step.hessian - np.diag([1.0 / n.prior_sigma ** 2 for n in nuis])
     if others is None:
         others = [j for j in range(len(nuis)) if j not in extra]
@@ -440,10 +441,11 @@ def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np
             others = rest + idx + kept_own
             T = np.eye(k_all)[:, others]
             verdicts = {}
+            rho_others = step.rho0 + M @ best(others) if mode == "cv" and time_folds else None   # (per round)
             for j in (j for j in own if j not in kept_own):
                 if mode == "cv" and time_folds:
-                    m = _efficient_rows(step, nuis, [j], others)
-                    gains = held_out_gain(m, step.rho0 + M @ best(others), clusters, np.array([[info]]))
+                    m = _efficient_rows(step, nuis, [j], others, M=M)
+                    gains = held_out_gain(m, rho_others, clusters, np.array([[info]]))
                     verdicts[j] = (float(gains.sum()), z_bar * float(np.sqrt(len(gains)) * np.std(gains, ddof=1)))
                 else:
                     verdicts[j] = (chi2(np.eye(k_all)[:, sorted(others + [j])]) - chi2(T), float(np.log(n)))
@@ -467,7 +469,7 @@ def select_head_profile(prob, step: ProfileStep, nuis: list[Nuisance], folds: np
     T0 = with_shape(models["constant"])
     rho = None
     if M is not None:
-        m_rows = _efficient_rows(step, nuis, idx, others)
+        m_rows = _efficient_rows(step, nuis, idx, others, M=M)
         rho = step.rho0 + M @ best(others)      # the knots at 0, the others at their best there
         if time_folds:
             compared["overdispersion"] = overdispersion(m_rows, rho, clusters)
