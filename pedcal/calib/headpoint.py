@@ -130,12 +130,22 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
         out.append(Nuisance(PREFIX + str(j), 0.0, rec.head_profile_sigma_m, STEP_M))
     if rec.head_profile_per_sensor:
         # each sensor's own tracker: a departure from the shared shift, where it sees the robot enough
-        n_pose = len(prob.pose_times)
-        counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
-        for i, sid in enumerate(prob.sensor_ids):
-            if counts[i] >= MIN_SENSOR_FACTORS:
-                setattr(prob, SENSOR_PREFIX + sid, float(getattr(prob, SENSOR_PREFIX + sid, 0.0)))
-                out.append(Nuisance(SENSOR_PREFIX + sid, 0.0, rec.head_profile_sigma_m, STEP_M))
+        out += _departures(prob, MIN_SENSOR_FACTORS, rec.head_profile_sigma_m)
+    return out
+
+
+def _departures(prob, min_factors: int, sigma: float) -> list[Nuisance]:
+    """Each sensor's own departure delta_s from the shared horizontal shift, prior 0 +- ``sigma``,
+    for the sensors with at least ``min_factors`` robot-observation factors (each starts at 0 on
+    ``prob`` the first time)."""
+    n_pose = len(prob.pose_times)
+    counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
+    out = []
+    for i, sid in enumerate(prob.sensor_ids):
+        if counts[i] >= min_factors:
+            name = SENSOR_PREFIX + sid
+            setattr(prob, name, float(getattr(prob, name, 0.0)))
+            out.append(Nuisance(name, 0.0, sigma, STEP_M))
     return out
 
 
@@ -190,15 +200,7 @@ def sensor_shift_nuisances(prob) -> list[Nuisance]:
     if (sigma == 0.0 or not rec.robot or not rec.estimate_head_horizontal_shift
             or rec.head_horizontal_shift_sigma_m <= 0.0 or prob.fac_sensor_index is None):
         return []
-    n_pose = len(prob.pose_times)
-    counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
-    out = []
-    for i, sid in enumerate(prob.sensor_ids):
-        if counts[i] > 0:
-            name = SENSOR_PREFIX + sid
-            setattr(prob, name, float(getattr(prob, name, 0.0)))
-            out.append(Nuisance(name, 0.0, sigma, STEP_M))
-    return out
+    return _departures(prob, 1, sigma)
 
 
 def is_sensor_shift(name: str) -> bool:

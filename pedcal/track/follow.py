@@ -24,6 +24,7 @@ from pedcal.sim.follow import (
     FRAME_HZ,
     PERSON_RADIUS_M,
     ROBOT_RADIUS_M,
+    TARGET_PERSON_M,
     Episode,
     Planner,
     RobotController,
@@ -34,7 +35,7 @@ from pedcal.sim.follow import (
     to_world,
 )
 
-MATCH_DISTANCE_M = 0.5
+MATCH_DISTANCE_M = TARGET_PERSON_M   # a track matches a person this close (the simulator's target pick alike)
 HIDDEN_HOLD_M = 1.0  # a hidden target counts as held while the tracker's estimate is this close to it
 NEAR_M = 3.0  # the robot is "near" the target within this distance
 
