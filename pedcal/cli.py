@@ -607,8 +607,10 @@ def _run(args) -> int:
     except KeyboardInterrupt:       # raised by a library that installed its own SIGINT handling
         print("interrupted", file=sys.stderr)
         return interrupts.EXIT_INTERRUPTED
-    except ImportError as e:        # Ctrl-C while a compiled module initialized (GTSAM): its SystemExit is
-        if interrupts.caused_by_interrupt(e):       # re-raised as "initialization failed"
+    except Exception as e:      # Ctrl-C's SystemExit re-raised as another error by the code it interrupted:
+        # ImportError("initialization failed") from a compiled module (GTSAM), RuntimeError("Error calling
+        # __set_name__") from a class body being created (a dataclass field) while a module loads
+        if interrupts.caused_by_interrupt(e):
             return interrupts.EXIT_INTERRUPTED
         raise
 

@@ -176,6 +176,35 @@ def test_an_import_failed_by_ctrl_c_is_an_interrupt_not_an_error():
     assert not caused_by_interrupt(ImportError("no module named gtsam"))
 
 
+def test_a_class_creation_failed_by_ctrl_c_is_an_interrupt_not_an_error(capsys):
+    """A Ctrl-C while a dataclass is created at import reaches the command as RuntimeError('Error
+    calling __set_name__') whose cause is the handler's SystemExit(130): exit 130, no traceback; any
+    other RuntimeError still propagates."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from pedcal.cli import _run
+    from pedcal.interrupts import EXIT_INTERRUPTED
+
+    class _Interrupting:
+        def __set_name__(self, owner, name):
+            raise SystemExit(EXIT_INTERRUPTED)
+
+    def loads_a_module(args):
+        @dataclasses.dataclass
+        class Network:
+            extra: object = _Interrupting()
+
+    assert _run(SimpleNamespace(command="calibrate", func=loads_a_module)) == EXIT_INTERRUPTED
+    assert "Traceback" not in capsys.readouterr().err
+
+    def fails(args):
+        raise RuntimeError("a bug")
+
+    with pytest.raises(RuntimeError, match="a bug"):
+        _run(SimpleNamespace(command="calibrate", func=fails))
+
+
 def test_json_output_is_strict_json_without_nan():
     """--json output is RFC 8259 JSON: a figure with no value (a recall over no person) is null, not
     a bare NaN that jq and JavaScript refuse; NumPy values and paths are plain."""
