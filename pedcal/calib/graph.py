@@ -865,7 +865,7 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     gn_params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
     gn_params.setOrdering(ordering)
     gn = gtsam.GaussNewtonOptimizer(fg, values, gn_params)
-    result, error, iterations = values, fg.error(values), 0
+    result, error, iterations = values, gn.error(), 0      # (the optimizer's own error at values: not again)
     absolute_tol = gn_params.getAbsoluteErrorTol()
     while iterations < max_iterations:
         try:
