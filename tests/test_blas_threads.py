@@ -41,3 +41,43 @@ def test_a_count_already_at_or_below_the_limit_is_left_as_it_is(two_threads):
     with blas_threads.limited(3):
         assert all(n == 2 for n in blas_threads.current())
     assert all(n == 2 for n in blas_threads.current())
+
+
+def test_nested_blocks_restore_the_count_when_the_outer_one_ends(two_threads):
+    with blas_threads.limited(1):
+        with blas_threads.limited(1):
+            assert all(n == 1 for n in blas_threads.current())
+        assert all(n == 1 for n in blas_threads.current())     # (the outer block still runs)
+    assert all(n == 2 for n in blas_threads.current())
+
+
+def test_blocks_in_two_threads_restore_the_count_when_the_last_one_ends(two_threads):
+    import threading
+
+    inside, release = threading.Event(), threading.Event()
+
+    def other():
+        with blas_threads.limited(1):
+            inside.set()
+            release.wait(10.0)
+
+    worker = threading.Thread(target=other)
+    worker.start()
+    assert inside.wait(10.0)
+    with blas_threads.limited(1):
+        assert all(n == 1 for n in blas_threads.current())
+    assert all(n == 1 for n in blas_threads.current())         # (the other thread's block still runs)
+    release.set()
+    worker.join(10.0)
+    assert all(n == 2 for n in blas_threads.current())
+
+
+def test_the_factor_graph_calibrates_on_one_blas_thread(two_threads, monkeypatch):
+    import pedcal.calib.factorgraph as fgmod
+
+    seen = []
+    monkeypatch.setattr(fgmod, "_calibrate_factorgraph",
+                        lambda log, **kw: seen.append(blas_threads.current()) or "done")
+    assert fgmod.calibrate_factorgraph(None) == "done"
+    assert seen and all(n == 1 for n in seen[0])
+    assert all(n == 2 for n in blas_threads.current())

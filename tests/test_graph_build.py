@@ -17,6 +17,7 @@ from pedcal.calib.graph import (
     GraphRecipe,
     S,
     X,
+    _odometry_at,
     build_parts,
     head_frame,
     head_frames,
@@ -27,7 +28,6 @@ from pedcal.calib.graph import (
     set_amcl_model,
     unique_rows,
 )
-from pedcal.calib.graph import _odometry_at
 
 
 def test_head_frames_are_head_frame_row_by_row():

@@ -16,6 +16,7 @@ nothing is changed.
 from __future__ import annotations
 
 import ctypes
+import threading
 from contextlib import contextmanager
 
 # (set, get) symbol pairs of OpenBLAS builds: plain, 64-bit integer, and the scipy-openblas wheels'
@@ -25,13 +26,19 @@ _SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
             ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"))
 
 _FOUND: dict = {}
+# (the blocks open now, and the counts saved by the first of them: calibrations run side by side
+# in threads, or one inside another, restore the counts when the last of them ends, not the first)
+_LOCK = threading.Lock()
+_OPEN = {"depth": 0, "saved": []}
 
 
 def _controls() -> list:
     """(set, get) functions of every OpenBLAS mapped into the process, looked up once per library."""
     try:
         with open("/proc/self/maps") as f:
-            paths = sorted({line.split()[-1] for line in f if "openblas" in line.lower() and ".so" in line})
+            # (address, permissions, offset, device, inode, then the path, which may hold spaces)
+            paths = sorted({parts[5].strip() for parts in (line.split(maxsplit=5) for line in f)
+                            if len(parts) == 6 and "openblas" in parts[5].lower() and ".so" in parts[5]})
     except OSError:
         return []
     out = []
@@ -56,18 +63,26 @@ def _controls() -> list:
 @contextmanager
 def limited(threads: int = 1):
     """Inside the block, every loaded OpenBLAS runs at most ``threads`` threads; each one's
-    count before it is restored after (also on an exception)."""
-    saved = []
-    for set_threads, get_threads in _controls():
-        before = int(get_threads())
-        if before > threads:
-            set_threads(threads)
-            saved.append((set_threads, before))
+    count before it is restored after (also on an exception). Blocks open at once (one inside
+    another, or in several threads) share the limit of the first: the counts come back when the
+    last one ends."""
+    with _LOCK:
+        if _OPEN["depth"] == 0:
+            for set_threads, get_threads in _controls():
+                before = int(get_threads())
+                if before > threads:
+                    set_threads(threads)
+                    _OPEN["saved"].append((set_threads, before))
+        _OPEN["depth"] += 1
     try:
         yield
     finally:
-        for set_threads, before in saved:
-            set_threads(before)
+        with _LOCK:
+            _OPEN["depth"] -= 1
+            if _OPEN["depth"] == 0:
+                for set_threads, before in _OPEN["saved"]:
+                    set_threads(before)
+                _OPEN["saved"] = []
 
 
 def current() -> list[int]:
