@@ -287,6 +287,12 @@ class ProfileStep:
     local: LocalProfile | None = None   # the nuisances profiled locally (``profile_step``'s ``local``)
     rho0: np.ndarray | None = None      # the profile residual at theta (A's rows), of a full step
 
+    def local_step(self) -> np.ndarray:
+        """The local nuisances' step at this step's ``dtheta`` (of a step with ``local``): the
+        joint Gauss-Newton optimum's rows of z0 + Z dtheta beyond the variables' (``cols.n``)."""
+        n = self.cols.n
+        return self.z0[n:] + self.Z[n:] @ self.dtheta
+
     def select(self, keep: np.ndarray) -> ProfileStep:
         """The step restricted to the nuisances ``keep`` (their Hessian's rows and columns, Z's
         and B's columns; dtheta as it was: the caller takes its own)."""
@@ -399,7 +405,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     them, and each one's sigma comes from its own profile with every other variable held
     (:class:`LocalProfile`, :func:`_local_profile`): d x d solves instead of m more right-hand
     sides through the whole graph and an m x m Hessian. The step's ``dtheta``, ``hessian`` and
-    ``Z`` are the others'; ``local`` carries these.
+    ``Z`` are the others' (z0 and Z with m rows more, the local nuisances' joint step and
+    sensitivity after the variables': :meth:`ProfileStep.local_step`); ``local`` carries these.
 
     M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
     M^T r = Z^T A^T r - B^T r."""
@@ -560,12 +567,12 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     if m_local:
         # the local nuisances' step: the joint optimum's at the exact ones' step; their sigma and
         # their sensors' sensitivity from their own profiles (the path held)
-        n = cols.n
-        local_step = step.z0[n:] + step.Z[n:] @ step.dtheta
         step.local = _local_profile(step.A, sps.vstack([B_local, sps.csc_matrix((m_local, m_local))], format="csc"),
                                     local_cols, nuisances[k_exact:])
-        step.local.dtheta = local_step
-        step.z0, step.Z = step.z0[:n], step.Z[:n]
+        # (z0 and Z keep their rows beyond the variables', the local nuisances': a selection that
+        # drops or maps exact nuisances after this step, the curvature or the head profile's
+        # shape, maps them alike, and the local step is the joint optimum's at the kept ones')
+        step.local.dtheta = step.local_step()
         # (no chord step follows one with local nuisances: its system, the largest memory it holds, goes)
         step.A = step.B = None
     return step
