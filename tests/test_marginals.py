@@ -5,7 +5,6 @@ graph's shape: a robot's path of poses tied by odometry, sensors seeing it from 
 import gtsam
 import numpy as np
 import pytest
-import scipy.sparse as sps
 
 from pedcal.calib.marginals import marginal_covariances, tree_marginal_blocks
 from pedcal.calib.profile import Columns, sparse_system
