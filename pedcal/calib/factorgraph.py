@@ -543,10 +543,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         delta = step.z0 + step.Z @ step.dtheta
         converged = np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance)))
         if step.local is not None:
-            # (their step is the joint optimum's at the exact nuisances' step before a selection
-            # dropped one, the curvature or the head profile's knots: the next step's joint solve
-            # settles them without it, and the loop ends only on steps small against their sigma)
+            # (their step is the joint optimum's at the exact nuisances' step, after a selection
+            # that dropped one, the curvature or the head profile's knots, at the kept ones')
             loc = step.local
+            loc.dtheta = step.local_step()
             theta_local = theta_local + loc.dtheta
             for name, v in zip(local_names, theta_local, strict=True):
                 setattr(prob, name, float(v))
