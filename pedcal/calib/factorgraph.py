@@ -91,7 +91,6 @@ from pedcal.calib.profile import (
     joint_marginal_covariance,
     profile_step,
     retract_flat,
-    takes_chord,
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
@@ -153,7 +152,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
     # (the AMCL model's re-solve rebuilds the graph: this pass's graph at its result is not built)
-    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
+    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else MAX_PROFILE_STEPS,
                                  tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve,
                                  final_graph=not resolve)
     if resolve:
@@ -375,8 +374,15 @@ def _sensor_of(name: str) -> str:
     return name[len(SHIFT_PREFIX):] if is_sensor_shift(name) else name[len(CLOCK_PREFIX):]
 
 
+# at most this many profile steps: each one's gradient exact, they reach the profile's optimum,
+# within a few steps where the profile is nearly quadratic; where the robust kernel's frozen
+# weights overstate its curvature (an offset the data hardly hold, Huber's down-weighted factors
+# pulling it) the steps shrink slowly and more are taken, extrapolated
+MAX_PROFILE_STEPS = 20
+
+
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
-                        max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
+                        max_steps: int = MAX_PROFILE_STEPS, tolerance: float = 0.1, curvature: bool = True,
                         odometry: bool = False, final_graph: bool = True) -> _Nuisances | None:
     """The nuisances that enter the measurements, by their profile likelihood on the linearized
     graph (pedcal.calib.profile): the head point's shift toward the sensor along the ray (a range
@@ -455,6 +461,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
     own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
     local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
+    previous_u, previous_names, slow = None, None, False
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)
@@ -464,9 +471,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
-        # (a chord step, which profile_step takes when the full step kept its system, takes no
-        # finite differences: their inputs are not made for it)
-        differences = not takes_chord(full_step if chord else None, local_cols)
+        chord = chord and not slow      # (a slow one: the next step's Hessian taken afresh)
+        # (a chord step takes B's finite differences too: its gradient, -B^T rho0, is exact only with
+        # this point's B and robust weights; with the full step's, the chord settled elsewhere than
+        # the profile's optimum)
+        differences = True
         plain = None
         if odo:
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
@@ -533,6 +542,19 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             theta = np.array([getattr(prob, n) for n in names], float)
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
             reference = (step, theta.copy()) if step.rho0 is not None else None
+        # a step along the last one and not much shorter: linear convergence (a chord step's stale
+        # sensitivities and weights; the robust kernel's reweighting, whose frozen weights
+        # overstate the curvature of the factors it down-weights)
+        u = step.dtheta / np.sqrt(np.diag(step.covariance))
+        slow = False
+        if previous_u is not None and previous_names == names and step.local is None:
+            nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(previous_u))
+            if nu > 0.0 and npv > 0.0:
+                ratio = float(u @ previous_u) / npv ** 2
+                slow = float(u @ previous_u) / (nu * npv) > 0.9 and ratio > 0.3
+                if slow and ratio < 1.0:
+                    step.dtheta = step.dtheta * min(1.0 / (1.0 - ratio), 4.0)
+        previous_u, previous_names = step.dtheta / np.sqrt(np.diag(step.covariance)), names
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -565,6 +587,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                 parts.blocks["motion"] = motion_block(log, prob)
         if converged:
             break
+    else:
+        if max_steps > 1:
+            _log(progress, f"profile steps stopped at {max_steps} before converging (last step above "
+                           f"{tolerance} sigma)")
     if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
         warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
                       "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
