@@ -166,7 +166,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
         fg = shifts = None
         parts, result, more = _reestimate_amcl(log, prob, parts, result, progress, gauss_newton_step=not profiled)
         iterations += more
-        shifts = _estimate_nuisances(log, prob, parts, result, progress, odometry=True)
+        shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=MAX_PROFILE_STEPS, odometry=True)
     if shifts is not None:
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
@@ -461,7 +461,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
     own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
     local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
-    previous_u, previous_names, slow = None, None, False
+    previous_u, previous_names, slow, extrapolated = None, None, False, False
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)
@@ -542,19 +542,38 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             theta = np.array([getattr(prob, n) for n in names], float)
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
             reference = (step, theta.copy()) if step.rho0 is not None else None
-        # a step along the last one and not much shorter: linear convergence (a chord step's stale
-        # sensitivities and weights; the robust kernel's reweighting, whose frozen weights
-        # overstate the curvature of the factors it down-weights)
+        # converged when the steps still to come are below ``tolerance`` sigma: with this step's
+        # ratio theta to the last one (a contraction's rate), their geometric series,
+        # theta / (1 - theta) of this step (the stopping rule of simplified Newton iterations,
+        # Hairer & Wanner, Solving ODEs II, IV.8). A step along the last one and not much shorter
+        # is a slow, linear, convergence (the robust kernel's weights, frozen in each
+        # linearization, overstate the curvature of the factors it down-weights; a chord step's
+        # Hessian is older still): it is extrapolated by 1 / (1 - theta) (at most 4x), theta then
+        # its projection on the last step, and the next step's Hessian is taken afresh. Without a
+        # last step to compare with (the first, or the one after an extrapolation, which is no
+        # measure of the contraction) the step itself is the test, but not right after an
+        # extrapolation; so it is for steps that swap sides of the optimum (the reweighting's
+        # factors crossing the kernel's threshold and back), whose optimum lies within the step.
         u = step.dtheta / np.sqrt(np.diag(step.covariance))
-        slow = False
+        slow, rate, cos = False, None, 0.0
         if previous_u is not None and previous_names == names and step.local is None:
             nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(previous_u))
-            if nu > 0.0 and npv > 0.0:
-                ratio = float(u @ previous_u) / npv ** 2
-                slow = float(u @ previous_u) / (nu * npv) > 0.9 and ratio > 0.3
-                if slow and ratio < 1.0:
-                    step.dtheta = step.dtheta * min(1.0 / (1.0 - ratio), 4.0)
-        previous_u, previous_names = step.dtheta / np.sqrt(np.diag(step.covariance)), names
+            if npv > 0.0:
+                rate = nu / npv
+                cos = float(u @ previous_u) / (nu * npv) if nu > 0.0 else 0.0
+                slow = cos > 0.9 and cos * rate > 0.3
+                if slow:
+                    rate = cos * rate
+        if rate is not None and cos >= 0.0:
+            converged = rate < 1.0 and bool(np.all(rate / (1.0 - rate) * np.abs(u) <= tolerance))
+        elif rate is not None:      # (steps that swap sides of the optimum: it lies within this one)
+            converged = bool(np.all(np.abs(u) <= tolerance))
+        else:
+            converged = not (n_step > 1 and extrapolated) and bool(np.all(np.abs(u) <= tolerance))
+        extrapolated = slow and not converged and rate < 1.0
+        if extrapolated:
+            step.dtheta = step.dtheta * min(1.0 / (1.0 - rate), 4.0)
+        previous_u, previous_names = (None if extrapolated else u), names
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -563,7 +582,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             setattr(prob, name, float(v))
         # the variables at the linearized optimum for the new shifts: z0 + Z dtheta
         delta = step.z0 + step.Z @ step.dtheta
-        converged = np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance)))
         if step.local is not None:
             # (their step is the joint optimum's at the exact nuisances' step before a selection
             # dropped one, the curvature or the head profile's knots: the next step's joint solve
