@@ -91,7 +91,6 @@ from pedcal.calib.profile import (
     joint_marginal_covariance,
     profile_step,
     retract_flat,
-    takes_chord,
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
@@ -153,7 +152,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
     # (the AMCL model's re-solve rebuilds the graph: this pass's graph at its result is not built)
-    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else 5,
+    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else MAX_PROFILE_STEPS,
                                  tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve,
                                  final_graph=not resolve)
     if resolve:
@@ -167,7 +166,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
         fg = shifts = None
         parts, result, more = _reestimate_amcl(log, prob, parts, result, progress, gauss_newton_step=not profiled)
         iterations += more
-        shifts = _estimate_nuisances(log, prob, parts, result, progress, odometry=True)
+        shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=MAX_PROFILE_STEPS, odometry=True)
     if shifts is not None:
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
@@ -375,8 +374,15 @@ def _sensor_of(name: str) -> str:
     return name[len(SHIFT_PREFIX):] if is_sensor_shift(name) else name[len(CLOCK_PREFIX):]
 
 
+# at most this many profile steps: each one's gradient exact, they reach the profile's optimum,
+# within a few steps where the profile is nearly quadratic; where the robust kernel's frozen
+# weights overstate its curvature (an offset the data hardly hold, Huber's down-weighted factors
+# pulling it) the steps shrink slowly and more are taken, extrapolated
+MAX_PROFILE_STEPS = 20
+
+
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
-                        max_steps: int = 5, tolerance: float = 0.1, curvature: bool = True,
+                        max_steps: int = MAX_PROFILE_STEPS, tolerance: float = 0.1, curvature: bool = True,
                         odometry: bool = False, final_graph: bool = True) -> _Nuisances | None:
     """The nuisances that enter the measurements, by their profile likelihood on the linearized
     graph (pedcal.calib.profile): the head point's shift toward the sensor along the ray (a range
@@ -455,6 +461,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
     own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
     local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
+    previous_u, previous_names, slow, extrapolated = None, None, False, False
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)
@@ -464,9 +471,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # sensitivities barely change: a chord step (the last full step's Hessian and
         # sensitivities, this point's gradient) costs one solve, not k + 1
         chord = step is not None and np.all(np.abs(step.dtheta) <= 3.0 * np.sqrt(np.diag(step.covariance)))
-        # (a chord step, which profile_step takes when the full step kept its system, takes no
-        # finite differences: their inputs are not made for it)
-        differences = not takes_chord(full_step if chord else None, local_cols)
+        chord = chord and not slow      # (a slow one: the next step's Hessian taken afresh)
+        # (a chord step takes B's finite differences too: its gradient, -B^T rho0, is exact only with
+        # this point's B and robust weights; with the full step's, the chord settled elsewhere than
+        # the profile's optimum)
+        differences = True
         plain = None
         if odo:
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
@@ -533,6 +542,38 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             theta = np.array([getattr(prob, n) for n in names], float)
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
             reference = (step, theta.copy()) if step.rho0 is not None else None
+        # converged when the steps still to come are below ``tolerance`` sigma: with this step's
+        # ratio theta to the last one (a contraction's rate), their geometric series,
+        # theta / (1 - theta) of this step (the stopping rule of simplified Newton iterations,
+        # Hairer & Wanner, Solving ODEs II, IV.8). A step along the last one and not much shorter
+        # is a slow, linear, convergence (the robust kernel's weights, frozen in each
+        # linearization, overstate the curvature of the factors it down-weights; a chord step's
+        # Hessian is older still): it is extrapolated by 1 / (1 - theta) (at most 4x), theta then
+        # its projection on the last step, and the next step's Hessian is taken afresh. Without a
+        # last step to compare with (the first, or the one after an extrapolation, which is no
+        # measure of the contraction) the step itself is the test, but not right after an
+        # extrapolation; so it is for steps that swap sides of the optimum (the reweighting's
+        # factors crossing the kernel's threshold and back), whose optimum lies within the step.
+        u = step.dtheta / np.sqrt(np.diag(step.covariance))
+        slow, rate, cos = False, None, 0.0
+        if previous_u is not None and previous_names == names and step.local is None:
+            nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(previous_u))
+            if npv > 0.0:
+                rate = nu / npv
+                cos = float(u @ previous_u) / (nu * npv) if nu > 0.0 else 0.0
+                slow = cos > 0.9 and cos * rate > 0.3
+                if slow:
+                    rate = cos * rate
+        if rate is not None and cos >= 0.0:
+            converged = rate < 1.0 and bool(np.all(rate / (1.0 - rate) * np.abs(u) <= tolerance))
+        elif rate is not None:      # (steps that swap sides of the optimum: it lies within this one)
+            converged = bool(np.all(np.abs(u) <= tolerance))
+        else:
+            converged = not (n_step > 1 and extrapolated) and bool(np.all(np.abs(u) <= tolerance))
+        extrapolated = slow and not converged and rate < 1.0
+        if extrapolated:
+            step.dtheta = step.dtheta * min(1.0 / (1.0 - rate), 4.0)
+        previous_u, previous_names = (None if extrapolated else u), names
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -541,7 +582,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             setattr(prob, name, float(v))
         # the variables at the linearized optimum for the new shifts: z0 + Z dtheta
         delta = step.z0 + step.Z @ step.dtheta
-        converged = np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance)))
         if step.local is not None:
             # (their step is the joint optimum's at the exact nuisances' step, after a selection
             # that dropped one, the curvature or the head profile's knots, at the kept ones')
@@ -565,6 +605,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                 parts.blocks["motion"] = motion_block(log, prob)
         if converged:
             break
+    else:
+        if max_steps > 1:
+            _log(progress, f"profile steps stopped at {max_steps} before converging (last step above "
+                           f"{tolerance} sigma)")
     if not np.all(np.linalg.eigvalsh(step.hessian) > 0.0):
         warnings.warn("the head point's shifts toward the sensor are not determined by the data (flat "
                       "profile); their prior is kept", DegenerateDataWarning, stacklevel=3)
