@@ -181,6 +181,26 @@ def leave_out(step: ProfileStep, j: int, held: tuple = ()) -> tuple[ProfileStep,
     return reduced, S
 
 
+def considered_rms(step: ProfileStep, j: int, held: tuple = ()) -> float:
+    """How far nuisance ``j`` may be from its truth when held at the value the ``step`` was taken
+    at, by what the data say of it: the root of its posterior's second moment about that value,
+    sqrt(d^2 + v), d and v its posterior mean's distance from it and its variance, the profile's
+    (its prior included; the other nuisances free but those in ``held``, which stay at their
+    values): with the free ones' Newton step -H^-1 g, d its j-th entry and v = (H^-1)_jj.
+    Holding it moves the variables by S times its error (:func:`leave_out`), so their error's
+    expected square given the data is S S^T times this squared: the consider covariance with
+    the prior's sigma replaced by what is left of it once the data are seen. Where the data say
+    nothing, d = 0 and v the prior's variance (the prior's sigma again); where they measure the
+    nuisance near the held value, their sigma; where they find it away from it, that distance."""
+    H = step.hessian
+    g = -H @ step.dtheta
+    free = np.array([i for i in range(len(H)) if i == j or i not in held], int)
+    at = int(np.flatnonzero(free == j)[0])
+    cov = np.linalg.inv(H[np.ix_(free, free)])
+    d = float(-(cov @ g[free])[at])              # the posterior mean's distance from the held value
+    return float(np.sqrt(d ** 2 + cov[at, at]))
+
+
 def sensor_shift_nuisances(prob) -> list[Nuisance]:
     """Each sensor's own constant departure delta_s of the horizontal shift toward the sensor
     from the shared one, a random effect (recipe ``head_shift_per_sensor_sigma_m`` > 0): every
