@@ -5,7 +5,9 @@ at 0 and its prior carried into the sensors' covariance. Under a wandering AMCL 
 takes its scale from the sensors' views, whose radial scale such a line sets: a corridor's
 sensors then spread along it by what the line moves them, which the sigma must carry."""
 
+import sys
 import warnings
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -236,3 +238,34 @@ def test_a_sensors_sigma_widened_by_nuisances_keeps_its_estimate(monkeypatch):
     monkeypatch.setattr(fgmod, "_posterior", lambda *a, **k: widened(*a, given_too=True, **k))
     res = calibrate(sim.calib, method="factorgraph")
     assert all(res.network[sid].status == "degenerate" for sid in seen)
+
+
+def test_on_a_site_whose_head_point_is_the_models_the_line_widens_the_sigma_by_what_the_data_leave(monkeypatch):
+    # the scale benchmark's site (40 sensors, 12 x 8 m, the head point the model's: no line):
+    # the sensors' sensitivity to the line is a stretch of the whole network, which the 3 cm
+    # prior made 1.6x the sigma without the line; the data measure the line to a few mm, and
+    # the width is what they leave of the prior
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_factorgraph_scale import synthetic_log
+
+    log = synthetic_log(40, seed=1)
+    seen = {}
+    original = fgmod._posterior
+
+    def spy(log_, prob, fg, result, shifts):
+        seen["considered"] = shifts.considered
+        return original(log_, prob, fg, result, shifts)
+
+    monkeypatch.setattr(fgmod, "_posterior", spy)
+    kwargs = dict(is_robot=np.ones(len(log.observations), bool), estimate_latency=False, people=False,
+                  head_radius_m=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fgmod.calibrate_factorgraph(log, **kwargs)
+        sd = seen["considered"][0]
+        held = fgmod.calibrate_factorgraph(log, head_profile_consider=False, **kwargs)
+    assert 0.0 < sd < 0.3 * 0.03          # (1.8-7.3 mm on seeds 0-3)
+    sigma = np.median([s.sigma_position_m[:2] for s in res.network], axis=0)
+    sigma_held = np.median([s.sigma_position_m[:2] for s in held.network], axis=0)
+    assert np.all(sigma >= sigma_held - 1e-9)
+    assert np.all(sigma < 1.15 * sigma_held)
