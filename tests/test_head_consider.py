@@ -1,9 +1,11 @@
 """The head point's shift against distance as a consider parameter
 (pedcal.calib.headpoint.considered_nuisances, leave_out; recipe head_profile_consider): with no
 profile estimated, a line rising 0 +- head_profile_sigma_m across the robot's distances is held
-at 0 and its prior carried into the sensors' covariance. Under a wandering AMCL the robot's path
+at 0 and what the data leave of its prior (its posterior's root mean square about 0,
+considered_rms) carried into the sensors' covariance. Under a wandering AMCL the robot's path
 takes its scale from the sensors' views, whose radial scale such a line sets: a corridor's
-sensors then spread along it by what the line moves them, which the sigma must carry."""
+sensors then spread along it by what the line moves them, which the sigma must carry; where the
+data measure the line near 0, the sigma is not widened by the prior's."""
 
 import sys
 import warnings

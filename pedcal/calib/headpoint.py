@@ -153,8 +153,9 @@ def considered_nuisances(prob) -> list[Nuisance]:
     """The shift against distance as a consider parameter (recipe ``head_profile`` off and
     ``head_profile_consider``): the line (SLOPE, rising by it from d_0 to d_m) at 0, prior
     ``head_profile_sigma_m``, whose sensitivity the first profile step takes and
-    :func:`leave_out` removes from the estimate, its prior carried into the sensors' covariance.
-    [] when a profile is estimated, without the horizontal shift or with too few observations."""
+    :func:`leave_out` removes from the estimate, what the data leave of its prior
+    (:func:`considered_rms`) carried into the sensors' covariance. [] when a profile is
+    estimated, without the horizontal shift or with too few observations."""
     rec = prob.recipe
     if (rec.head_profile != "off" or not rec.head_profile_consider or not rec.robot
             or not rec.estimate_head_horizontal_shift or rec.head_horizontal_shift_sigma_m <= 0.0
