@@ -21,9 +21,11 @@ finished, clock offsets and head model recorded, the keys) and the rest. The gri
 the paper scenario's, with its association (the same function as the factor graph's), the two
 methods run in turns. Then, as a new user meets it, the whole ``pedcal calibrate LOG -o OUT
 --method M -q`` command of each method on the scenario written to a temporary directory (a fresh
-process: imports, reading the log, the solve, the YAML; CPU from the children's rusage), and the
-import of what it loads before reading the log. Repeats: the minimum over them (the machine's
-noise only adds); the load average is printed at the start and the end.
+process: imports, reading the log, the solve, the YAML; CPU from the children's rusage), also
+without the BLAS thread variables this process was given (``OPENBLAS_NUM_THREADS`` ...: as a
+shell that never set them runs it), and the import of what it loads before reading the log.
+Repeats: the minimum over them (the machine's noise only adds); the load average is printed at
+the start and the end.
 """
 
 from __future__ import annotations
@@ -119,19 +121,25 @@ def import_time(method: str = "factorgraph") -> tuple[float, float]:
     return float(out[0]), float(out[1])
 
 
-def command_time(log_dir: Path, method: str) -> tuple[float, float]:
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def command_time(log_dir: Path, method: str, default_blas: bool = False) -> tuple[float, float]:
     """(wall, CPU) of the whole ``pedcal calibrate LOG -o OUT --method METHOD -q`` as a new user runs
     it (a fresh process: imports, reading the log, the solve, writing the YAML; CPU the child's
-    user + system time), one run."""
+    user + system time), one run; ``default_blas``: without the BLAS thread variables
+    (``OPENBLAS_NUM_THREADS`` ...) of this process, at the library's own default, as a shell
+    that never set them runs it."""
     import resource
     import tempfile
 
+    env = {k: v for k, v in os.environ.items() if not (default_blas and k in BLAS_THREAD_VARIABLES)}
     with tempfile.TemporaryDirectory() as tmp:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         w0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "pedcal.cli", "calibrate", str(log_dir), "-o",
                         str(Path(tmp) / f"{method}.yaml"), "--method", method, "-q"],
-                       check=True, capture_output=True)
+                       check=True, capture_output=True, env=env)
         wall = time.perf_counter() - w0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -186,6 +194,7 @@ def main() -> None:
     grid_best = min(grid, key=lambda t: t["total"][1])
     imports = {m: [] for m in ("factorgraph", "gridsearch")}
     commands = {m: [] for m in ("factorgraph", "gridsearch")}
+    default_blas = {m: [] for m in ("factorgraph", "gridsearch")}
     if not args.no_command:
         import tempfile
 
@@ -195,6 +204,7 @@ def main() -> None:
                 for m in imports:
                     imports[m].append(import_time(m))
                     commands[m].append(command_time(Path(tmp) / "run" / "calib", m))
+                    default_blas[m].append(command_time(Path(tmp) / "run" / "calib", m, default_blas=True))
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_factorgraph_scale import synthetic_log
 
@@ -222,12 +232,15 @@ def main() -> None:
     if not args.no_command:
         print(f"\nthe whole `pedcal calibrate LOG -o OUT --method M -q` ({args.scenario} seed {args.seed} written "
               f"by `pedcal simulate`), fastest of {args.repeats} by CPU, wall / CPU (s):")
-        print("| method | import (fresh process) | whole command |")
-        print("|---|---|---|")
+        blas = ", ".join(f"{k}={os.environ[k]}" for k in BLAS_THREAD_VARIABLES if k in os.environ) or "none set"
+        print(f"| method | import (fresh process) | whole command (BLAS threads: {blas}) | whole command, "
+              "BLAS at its default threads |")
+        print("|---|---|---|---|")
         for m in commands:
             w, c = min(imports[m], key=lambda r: r[1])
             cw, cc = min(commands[m], key=lambda r: r[1])
-            print(f"| {m} | {w:.3f} / {c:.3f} | {cw:.3f} / {cc:.3f} |")
+            dw, dc = min(default_blas[m], key=lambda r: r[1])
+            print(f"| {m} | {w:.3f} / {c:.3f} | {cw:.3f} / {cc:.3f} | {dw:.3f} / {dc:.3f} |")
     load1 = os.getloadavg()
     print(f"\nload average (1 min) {load0[0]:.1f} at the start, {load1[0]:.1f} at the end (2 cores)")
 

@@ -143,3 +143,32 @@ def test_paper_scenario_with_default_nuisances():
     assert res.diagnostics.tracker_latency_s == pytest.approx(0.1, abs=0.03)   # the scenario's tracker latency
     # AMCL's correlated error is the floor of a per-sensor fit; the installed poses are ~370 mm off
     assert evaluate(log, res.network).sensor_position_rms_mm.combined < 80.0
+
+
+def test_every_sensor_fitted_at_once_equals_its_own_fit_and_ignores_unknown_sensors():
+    # the batched fits (grouped by one sort) against fit_rigid on each sensor's own pairs, with a
+    # sensor the network does not hold interleaved in the log and one sensor left without pairs
+    from pedcal.calib.closedform import _fits
+
+    rng = np.random.default_rng(3)
+    log, _ = make_log(noise=False, pedestrian=False, false_tracks=False, swap=False, walkers=0)
+    ids = [s.id for s in log.sensors]
+    n = 400
+    sensor = rng.choice(ids[:-1] + ["stranger"], size=n)
+    p_sensor, p_world = rng.normal(0, 2, (n, 3)), rng.normal(0, 2, (n, 3))
+    fits = _fits(log, sensor.astype(str), p_sensor, p_world)
+    assert len(fits) == len(ids)
+    for sid, (count, spread, direction, R, t, rms) in zip(ids, fits, strict=True):
+        mine = sensor == sid
+        assert count == mine.sum()
+        if not count:
+            assert sid == ids[-1] and np.all(np.isnan(R)) and rms == 0.0
+            continue
+        R_own, t_own = fit_rigid(p_sensor[mine], p_world[mine])
+        np.testing.assert_allclose(R, R_own, atol=1e-12)
+        np.testing.assert_allclose(t, t_own, atol=1e-12)
+        evals, evecs = np.linalg.eigh(np.cov(p_world[mine].T))
+        assert spread == pytest.approx(np.sqrt(evals[1]), rel=1e-12)
+        assert abs(direction @ evecs[:, 2]) == pytest.approx(1.0, abs=1e-12)
+        residual = np.linalg.norm(p_sensor[mine] @ R_own.T + t_own - p_world[mine], axis=1)
+        assert rms == pytest.approx(np.sqrt(np.mean(residual ** 2)), rel=1e-12)

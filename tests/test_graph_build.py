@@ -6,6 +6,7 @@ import dataclasses
 
 import gtsam
 import numpy as np
+import pandas as pd
 import pytest
 from test_factorgraph import _exact_recipe, make_exact_log
 
@@ -16,6 +17,7 @@ from pedcal.calib.graph import (
     GraphRecipe,
     S,
     X,
+    _odometry_at,
     build_parts,
     head_frame,
     head_frames,
@@ -24,6 +26,7 @@ from pedcal.calib.graph import (
     prepare,
     rebuild_parts,
     set_amcl_model,
+    unique_rows,
 )
 
 
@@ -337,3 +340,37 @@ def test_per_row_takes_each_names_value_once():
     assert out.tolist() == [2.0, 1.0, 2.0, 3.0, 1.0]
     assert sorted(calls) == ["s1", "s2", "s3"]
     assert per_row(np.array([], dtype=object), values.get, (3, 3)).shape == (0, 3, 3)
+
+
+def test_unique_rows_are_numpys_unique_over_rows():
+    rng = np.random.default_rng(3)
+    # repeated keys and scales, ties in the first column broken by the second, -0.0 and 0.0 alike
+    a = np.column_stack([rng.integers(0, 6, 400).astype(float), rng.choice([0.25, 0.5, -0.0, 0.0, 1.0], 400)])
+    uniq, inverse = unique_rows(a)
+    want, want_inverse = np.unique(a, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(uniq, want)
+    np.testing.assert_array_equal(inverse, np.asarray(want_inverse).ravel())
+    np.testing.assert_array_equal(uniq[inverse], a)
+    ints = rng.integers(-3, 3, (50, 2))
+    np.testing.assert_array_equal(unique_rows(ints)[0], np.unique(ints, axis=0))
+    empty_uniq, empty_inverse = unique_rows(np.zeros((0, 2)))
+    assert empty_uniq.shape == (0, 2) and empty_inverse.shape == (0,)
+
+
+def test_the_odometry_at_the_pose_times_is_interpolated_once_and_again_for_new_times_or_odometry():
+    from types import SimpleNamespace
+
+    from pedcal.calib.common import interpolate_pose2
+
+    t = np.linspace(0.0, 10.0, 21)
+    odo = pd.DataFrame({"t": t, "x": 0.1 * t, "y": np.sin(t), "yaw": 0.05 * t})
+    prob = SimpleNamespace(odometry=odo)
+    times = np.array([0.5, 2.25, 7.0])
+    first = _odometry_at(prob, times)
+    np.testing.assert_array_equal(first, interpolate_pose2(odo, times))
+    assert _odometry_at(prob, times.copy()) is first             # the same times: kept
+    assert not first.flags.writeable                            # (shared: nobody may change it)
+    other = _odometry_at(prob, times + 0.25)
+    np.testing.assert_array_equal(other, interpolate_pose2(odo, times + 0.25))
+    prob.odometry = odo.assign(x=odo["x"] + 1.0)                 # a new odometry: taken again
+    np.testing.assert_allclose(_odometry_at(prob, times + 0.25)[:, 0], other[:, 0] + 1.0, rtol=0, atol=1e-12)

@@ -1,14 +1,13 @@
-"""Marginal covariances by sparse selected inversion (pedcal.calib.marginals) against the dense
-inverse of the normal matrix and GTSAM's Marginals, on small graphs of the factor graph's shape:
-a robot's path of poses tied by odometry, sensors seeing it from a few poses each."""
+"""Marginal covariances by selected inversion of the Bayes tree (pedcal.calib.marginals) against
+the dense inverse of the normal matrix and GTSAM's Marginals, on small graphs of the factor
+graph's shape: a robot's path of poses tied by odometry, sensors seeing it from a few poses each."""
 
 import gtsam
 import numpy as np
 import pytest
-import scipy.sparse as sps
 
-from pedcal.calib.marginals import _supernodes, ldl_factor, marginal_covariances, selected_inverse_blocks
-from pedcal.calib.profile import Columns, fill_reducing_order, sparse_system
+from pedcal.calib.marginals import marginal_covariances, tree_marginal_blocks
+from pedcal.calib.profile import Columns, sparse_system
 
 S, X, P = (lambda i: gtsam.symbol("s", i)), (lambda i: gtsam.symbol("x", i)), (lambda i: gtsam.symbol("p", i))
 
@@ -88,43 +87,6 @@ def test_one_variable_graph_is_its_priors_inverse():
     assert np.allclose(cov, np.diag(sigmas ** 2), rtol=1e-12, atol=0.0)
 
 
-def test_selected_inverse_of_a_random_sparse_matrix_on_its_pattern():
-    # the recurrences alone, on an SPD matrix of banded and random structure: every diagonal
-    # element and a few cliques of columns against the dense inverse
-    rng = np.random.default_rng(7)
-    n = 120
-    M = sps.random(n, n, density=0.03, random_state=np.random.RandomState(7)) + sps.eye(n, k=1)
-    A = sps.vstack([M, sps.eye(n)]).tocsr()
-    L, d, position = ldl_factor(A, np.arange(n)[rng.permutation(n)])
-    Y = np.linalg.inv((A.T @ A).toarray())
-    blocks = [np.array([position[c]]) for c in range(n)]
-    diag = selected_inverse_blocks(L, d, blocks)
-    assert np.allclose([b[0, 0] for b in diag], [Y[c, c] for c in range(n)], rtol=1e-10, atol=0.0)
-    # a column with its parent in the elimination tree (a clique of L's pattern)
-    order = np.argsort(position)
-    for j in rng.choice(n - 1, size=10, replace=False):
-        rows = L.indices[L.indptr[j]:L.indptr[j + 1]]
-        pair = np.array([j, rows[rows > j][0]]) if np.any(rows > j) else np.array([j])
-        (got,) = selected_inverse_blocks(L, d, [pair])
-        want = Y[np.ix_(order[pair], order[pair])]
-        assert np.allclose(got, want, rtol=1e-10, atol=1e-14)
-
-
-def test_supernodes_hold_columns_of_one_structure():
-    graph, values = path_graph(4)
-    gfg = graph.linearize(values)
-    cols = Columns.of(values)
-    A, _ = sparse_system(gfg, cols)
-    L, _, _ = ldl_factor(A, fill_reducing_order(gfg, cols))
-    first, of = _supernodes(L)
-    assert first[0] == 0 and first[-1] == L.shape[1] and np.all(np.diff(first) > 0)
-    for s in range(len(first) - 1):
-        head = L.indices[L.indptr[first[s]]:L.indptr[first[s] + 1]]
-        for j in range(first[s], first[s + 1]):
-            assert np.array_equal(L.indices[L.indptr[j]:L.indptr[j + 1]], head[j - first[s]:])
-    assert np.array_equal(of[first[:-1]], np.arange(len(first) - 1))
-
-
 def test_a_variable_no_factor_holds_is_an_error():
     graph, values = path_graph(5, n_pose=10, n_sensor=2, points=0)
     values.insert(S(9), gtsam.Pose3())       # no factor touches it: the normal matrix is singular
@@ -155,34 +117,53 @@ def test_posterior_per_sensor_marginals_equal_the_joint_ones(monkeypatch):
         assert np.abs(a[sid] - b[sid]).max() <= 1e-7 * np.abs(a[sid]).max()
 
 
-def test_single_column_supernodes_give_the_same_blocks(monkeypatch):
-    # the recurrences hold for any partition into supernodes of nested structure: one column
-    # each (every parent's clique a single column and its structure) gives the same blocks
+def test_every_clique_on_the_way_to_the_root_of_a_forest():
+    # two graphs with nothing between them: two trees, a key in each and one deep in a path
+    g1, v1 = path_graph(8, n_pose=30, n_sensor=3, points=1)
+    g2, v2 = path_graph(9, n_pose=25, n_sensor=2, points=0)
+    shift = 1000
+    graph, values = gtsam.NonlinearFactorGraph(g1), gtsam.Values(v1)
+    for k in range(25):
+        values.insert(X(shift + k), v2.atPose3(X(k)))
+    for i in range(2):
+        values.insert(S(shift + i), v2.atPose3(S(i)))
+    rename = {X(k): X(shift + k) for k in range(25)} | {S(i): S(shift + i) for i in range(2)}
+    for j in range(g2.size()):
+        f = g2.at(j)
+        keys = [rename[k] for k in f.keys()]
+        if isinstance(f, gtsam.PriorFactorPose3):
+            graph.add(gtsam.PriorFactorPose3(keys[0], f.prior(), f.noiseModel()))
+        else:
+            graph.add(gtsam.BetweenFactorPose3(keys[0], keys[1], f.measured(), f.noiseModel()))
+    keys = [S(0), S(shift + 1), X(shift + 12), P(0)]
+    gfg = graph.linearize(values)
+    tree = gfg.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(gfg))
+    assert len(tree.roots()) == 2
+    got = tree_marginal_blocks(tree, {int(k): int(d) for k, d in values.dims().items()}, keys)
+    for g, d in zip(got, dense_marginals(graph, values, keys), strict=True):
+        assert np.abs(g - d).max() <= 1e-9 * np.abs(d).max()
+
+
+def test_a_conditional_with_a_noise_model_falls_back_to_gtsam(monkeypatch):
     import pedcal.calib.marginals as marginals
 
-    graph, values = path_graph(6)
-    keys = [S(i) for i in range(8)] + [P(1)]
-    fundamental = marginal_covariances(graph, values, keys)
-
-    def one_column_each(L):
-        n = L.shape[1]
-        return np.arange(n + 1), np.arange(n)
-
-    monkeypatch.setattr(marginals, "_supernodes", one_column_each)
-    single = marginal_covariances(graph, values, keys)
-    for a, b in zip(fundamental, single, strict=True):
-        assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
-
-
-def test_a_pattern_that_is_no_filled_graph_falls_back_to_gtsam(monkeypatch):
-    import pedcal.calib.marginals as marginals
-
-    def not_closed(*_):
-        raise ValueError("L's pattern is not a filled graph's")
+    def not_whitened(*_):
+        raise ValueError("a conditional carries a noise model")
 
     graph, values = path_graph(7, n_pose=20, n_sensor=3, points=0)
-    monkeypatch.setattr(marginals, "selected_inverse_blocks", not_closed)
+    monkeypatch.setattr(marginals, "tree_marginal_blocks", not_whitened)
     got = marginal_covariances(graph, values, [S(1), X(4)])
     ref = gtsam.Marginals(graph, values)
     for key, g in zip([S(1), X(4)], got, strict=True):
         assert np.abs(g - ref.marginalCovariance(key)).max() <= 1e-12 * np.abs(g).max()
+
+
+def test_a_constrained_conditional_is_refused():
+    # a hard constraint leaves its conditional a noise model of zero sigmas: R and S not whitened
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    values.insert(S(0), gtsam.Pose3())
+    graph.add(gtsam.PriorFactorPose3(S(0), gtsam.Pose3(), gtsam.noiseModel.Constrained.All(6)))
+    gfg = graph.linearize(values)
+    tree = gfg.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(gfg))
+    with pytest.raises(ValueError, match="noise model"):
+        tree_marginal_blocks(tree, {int(S(0)): 6}, [S(0)])

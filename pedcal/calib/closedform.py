@@ -38,10 +38,41 @@ def fit_rigid(p_sensor, p_world, weights=None) -> tuple[np.ndarray, np.ndarray]:
     return rigid_from_moments(*moments(p_sensor, p_world, weights))
 
 
-def _line_direction(points):
-    """(second principal spread in m, principal direction) of (N, 3) points."""
-    evals, evecs = np.linalg.eigh(np.cov(points.T))
-    return float(np.sqrt(max(evals[1], 0.0))), evecs[:, 2]
+def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarray) -> list[tuple]:
+    """Every sensor's fit at once (the pairs grouped by sensor by one sort, their sums by
+    reduceat, the 3 x 3 eigen- and singular-value problems batched): per sensor of the network,
+    (pairs n, the world points' second principal spread (m, the square root of their
+    covariance's middle eigenvalue) and principal direction, R, t of :func:`fit_rigid`, RMS
+    residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs."""
+    index = {s.id: i for i, s in enumerate(log.sensors)}
+    m = len(index)
+    code = pd.Series(sensor, dtype=object).map(index).to_numpy(float)
+    keep = np.flatnonzero(np.isfinite(code))            # (a sensor the network does not hold: none of its fits)
+    order = keep[np.argsort(code[keep], kind="stable")]
+    code, p_sensor, p_world = code[order].astype(np.int64), p_sensor[order], p_world[order]
+    n = np.bincount(code, minlength=m)
+    first = np.searchsorted(code, np.arange(m))
+    has = n > 0
+
+    def sums(x):                                  # per sensor, (m, ...) of x's rows
+        out = np.zeros((m,) + x.shape[1:])
+        if has.any():
+            out[has] = np.add.reduceat(x, first[has], axis=0)
+        return out
+
+    # the world points' covariance (centred first, as np.cov; unbiased): its second principal
+    # spread and principal direction
+    mean_w = sums(p_world) / np.maximum(n, 1)[:, None]
+    d = p_world - mean_w[code]
+    cov = sums(d[:, :, None] * d[:, None, :]) / np.maximum(n - 1, 1)[:, None, None]
+    evals, evecs = np.linalg.eigh(cov)
+    spread = np.where(n >= 2, np.sqrt(np.maximum(evals[:, 1], 0.0)), np.nan)
+    R, t = np.full((m, 3, 3), np.nan), np.full((m, 3), np.nan)
+    R[has], t[has] = rigid_from_moments(n[has].astype(float), sums(p_sensor)[has], sums(p_world)[has],
+                                        sums(p_sensor[:, :, None] * p_world[:, None, :])[has])
+    residual = np.linalg.norm(np.einsum("nij,nj->ni", R[code], p_sensor) + t[code] - p_world, axis=1)
+    rms = np.sqrt(np.bincount(code, residual ** 2, minlength=m) / np.maximum(n, 1))
+    return [(int(n[i]), float(spread[i]), evecs[i, :, 2], R[i], t[i], float(rms[i])) for i in range(m)]
 
 
 def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, latency_s: float | None = None,
@@ -81,12 +112,11 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         robot_t = log.robot["t"].to_numpy(float)
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
         diagnostics.unpaired_robot_observations = int((is_robot & ~covered).sum())
-        sensors_out = []
         use = np.flatnonzero(is_robot & covered)
-        rows_of = pd.Series(use).groupby(sensor_col[use], sort=False).indices     # positions in use
+        fits = _fits(log, sensor_col[use], p_sensor_all[use], head_at(t_all[use] - latency_s))
+        sensors_out = []
         for i, s in enumerate(log.sensors):
-            rows = use[rows_of.get(s.id, np.zeros(0, int))]
-            n = len(rows)
+            n, spread_m, direction, R, t, rms_m = fits[i]
             if progress:
                 logging.getLogger(__name__).info(f"closedform: sensor {s.id} ({i + 1}/{len(log.sensors)}), {n} pairs",
                                                  extra={"progress": (i + 1, len(log.sensors))})
@@ -94,9 +124,6 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                 sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n,
                                                     status="no-data"))
                 continue
-            p_sensor = p_sensor_all[rows]
-            p_world = head_at(t_all[rows] - latency_s)
-            spread_m, direction = _line_direction(p_world)
             if spread_m < collinear_spread_m:
                 axis = ", ".join(f"{v:.2f}" for v in direction * np.sign(direction[np.argmax(np.abs(direction))]))
                 what = f"rotation about the robot's line of travel (world direction [{axis}])"
@@ -106,9 +133,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                 sensors_out.append(SensorExtrinsics(s.id, s.position_m, s.ypr_deg, observations=n,
                                                     status="degenerate", unobservable=[what]))
                 continue
-            R, t = fit_rigid(p_sensor, p_world)
-            residual_m = np.linalg.norm(p_sensor @ R.T + t - p_world, axis=1)
-            diagnostics.rms_residual_m[s.id] = float(np.sqrt(np.mean(residual_m ** 2)))
+            diagnostics.rms_residual_m[s.id] = rms_m
             sensors_out.append(SensorExtrinsics.from_pose3(s.id, gtsam.Pose3(gtsam.Rot3(R), t),
                                                            observations=n, status="ok"))
     extra = {**log.sensors.extra, LATENCY_KEY: round(float(latency_s), 4)}

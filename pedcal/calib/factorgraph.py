@@ -30,7 +30,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pedcal.calib import readback
+from pedcal.calib import blas_threads, readback
 from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
 from pedcal.calib.clocks import CLUSTER_S as CLOCK_CLUSTER_S
 from pedcal.calib.clocks import PREFIX as CLOCK_PREFIX
@@ -104,7 +104,15 @@ def calibrate_factorgraph(log: Log, *, progress: bool = False, graph: str | Path
                           is_robot: np.ndarray | None = None, online: bool = False,
                           init_network: SensorNetwork | None = None, **recipe_overrides) -> CalibrationResult:
     """Calibrate with pedcal's factor graph. ``graph`` names a recipe in graphs/ or a TOML path;
-    keyword overrides set recipe fields by name."""
+    keyword overrides set recipe fields by name. (BLAS on one thread throughout: its products
+    here are too small for threads to pay, :mod:`pedcal.calib.blas_threads`.)"""
+    with blas_threads.limited(1):
+        return _calibrate_factorgraph(log, progress=progress, graph=graph, is_robot=is_robot, online=online,
+                                      init_network=init_network, **recipe_overrides)
+
+
+def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online: bool, init_network,
+                           **recipe_overrides) -> CalibrationResult:
     t0 = time.perf_counter()
     recipe = graph if isinstance(graph, GraphRecipe) else GraphRecipe.load(graph or "default")
     recipe = copy.copy(recipe)
@@ -539,10 +547,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         delta = step.z0 + step.Z @ step.dtheta
         converged = np.all(np.abs(step.dtheta) <= tolerance * np.sqrt(np.diag(step.covariance)))
         if step.local is not None:
-            # (their step is the joint optimum's at the exact nuisances' step before a selection
-            # dropped one, the curvature or the head profile's knots: the next step's joint solve
-            # settles them without it, and the loop ends only on steps small against their sigma)
+            # (their step is the joint optimum's at the exact nuisances' step, after a selection
+            # that dropped one, the curvature or the head profile's knots, at the kept ones')
             loc = step.local
+            loc.dtheta = step.local_step()
             theta_local = theta_local + loc.dtheta
             for name, v in zip(local_names, theta_local, strict=True):
                 setattr(prob, name, float(v))

@@ -574,10 +574,11 @@ def departures_record(prob, names: list[str], cov: np.ndarray, horizontal_shift_
     own = [n for n in names if n.startswith(SENSOR_PREFIX)]
     if not own or "horizontal_shift_m" not in names:
         return {}
-    J = np.zeros((len(own), len(names)))
-    J[:, names.index("horizontal_shift_m")] = 1.0
-    J[np.arange(len(own)), [names.index(n) for n in own]] = 1.0
-    sigma = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, np.asarray(cov, float), J), 0.0))
+    # (the entries read from cov: a per-sensor map J's quadratic form J cov J^T, diagonal only,
+    # is a triple loop over thousands of nuisances at a large site)
+    cov = np.asarray(cov, float)
+    h, d = names.index("horizontal_shift_m"), np.array([names.index(n) for n in own])
+    sigma = np.sqrt(np.maximum(cov[h, h] + cov[d, d] + cov[h, d] + cov[d, h], 0.0))
     ids = [n[len(SENSOR_PREFIX):] for n in own]
     return {"per_sensor_shift_m": {sid: round(float(horizontal_shift_m + getattr(prob, n)), 5)
                                    for sid, n in zip(ids, own, strict=True)},

@@ -287,6 +287,12 @@ class ProfileStep:
     local: LocalProfile | None = None   # the nuisances profiled locally (``profile_step``'s ``local``)
     rho0: np.ndarray | None = None      # the profile residual at theta (A's rows), of a full step
 
+    def local_step(self) -> np.ndarray:
+        """The local nuisances' step at this step's ``dtheta`` (of a step with ``local``): the
+        joint Gauss-Newton optimum's rows of z0 + Z dtheta beyond the variables' (``cols.n``)."""
+        n = self.cols.n
+        return self.z0[n:] + self.Z[n:] @ self.dtheta
+
     def select(self, keep: np.ndarray) -> ProfileStep:
         """The step restricted to the nuisances ``keep`` (their Hessian's rows and columns, Z's
         and B's columns; dtheta as it was: the caller takes its own)."""
@@ -399,7 +405,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     them, and each one's sigma comes from its own profile with every other variable held
     (:class:`LocalProfile`, :func:`_local_profile`): d x d solves instead of m more right-hand
     sides through the whole graph and an m x m Hessian. The step's ``dtheta``, ``hessian`` and
-    ``Z`` are the others'; ``local`` carries these.
+    ``Z`` are the others' (z0 and Z with m rows more, the local nuisances' joint step and
+    sensitivity after the variables': :meth:`ProfileStep.local_step`); ``local`` carries these.
 
     M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
     M^T r = Z^T A^T r - B^T r."""
@@ -536,21 +543,15 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         b_joint = np.r_[b, -(theta[k_exact:] - mean_l) / sigma]
         B_joint = sps.vstack([B, sps.csc_matrix((m_local, k_exact))], format="csc")
         solve = _normal_solver(A_joint, _with_local_columns(order, local_cols, n))
-        z_joint = solve(A_joint.T @ b_joint)
+        z_joint, Z_joint, AtB = _gauss_newton_and_sensitivity(solve, A_joint, b_joint, B_joint)
         rho0 = A_joint @ z_joint - b_joint
-        AtB = np.asarray((A_joint.T @ B_joint).todense()).reshape(n + m_local, k_exact)
-        Z_joint = solve(AtB).reshape(n + m_local, k_exact)
         solve = None              # (its factors, the step's largest memory, freed before the local profiles)
         BtB = np.asarray((B.T @ B).todense()).reshape(k_exact, k_exact)
         MtM = BtB - AtB.T @ Z_joint
         step = ProfileStep(dtheta=np.zeros(k_exact), hessian=0.5 * (MtM + MtM.T) + info, z0=z_joint, Z=Z_joint,
                            cols=cols, order=order, A=A_joint, B=B_joint)
     else:
-        AtB = np.asarray((A.T @ B).todense()).reshape(cols.n, k_exact)
-        # z0 and Z in one solve (k + 1 right-hand sides)
-        z0_Z = solve(np.column_stack([A.T @ b, AtB]))
-        z0, Z = z0_Z[:, 0].copy(), np.ascontiguousarray(z0_Z[:, 1:])
-        z0_Z = None
+        z0, Z, AtB = _gauss_newton_and_sensitivity(solve, A, b, B)
         rho0 = A @ z0 - b
         # the profile residual r_p = rho0 + M dtheta, M = A Z - B, by its products with N Z = A^T B
         BtB = np.asarray((B.T @ B).todense()).reshape(k_exact, k_exact)
@@ -566,15 +567,44 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     if m_local:
         # the local nuisances' step: the joint optimum's at the exact ones' step; their sigma and
         # their sensors' sensitivity from their own profiles (the path held)
-        n = cols.n
-        local_step = step.z0[n:] + step.Z[n:] @ step.dtheta
         step.local = _local_profile(step.A, sps.vstack([B_local, sps.csc_matrix((m_local, m_local))], format="csc"),
                                     local_cols, nuisances[k_exact:])
-        step.local.dtheta = local_step
-        step.z0, step.Z = step.z0[:n], step.Z[:n]
+        # (z0 and Z keep their rows beyond the variables', the local nuisances': a selection that
+        # drops or maps exact nuisances after this step, the curvature or the head profile's
+        # shape, maps them alike, and the local step is the joint optimum's at the kept ones')
+        step.local.dtheta = step.local_step()
         # (no chord step follows one with local nuisances: its system, the largest memory it holds, goes)
         step.A = step.B = None
     return step
+
+
+# the profile's right-hand sides are solved this many at a time: the solver's dense copies of
+# them (permuted in, solved, permuted back) stay a few MB rather than several n x k arrays (160
+# sensors' clock offsets and head shift departures profiled exactly: k ~ 330, 80 MB each, the
+# step's peak memory); SuperLU's supernodal solve is as fast per column from a few dozen on
+SOLVE_COLUMNS = 32
+
+
+def _gauss_newton_and_sensitivity(solve, A: sps.csr_matrix, b: np.ndarray,
+                                  B: sps.csc_matrix) -> tuple[np.ndarray, np.ndarray, sps.csc_matrix]:
+    """z0 = N^-1 A^T b and Z = N^-1 A^T B (n x k) with the normal matrix's ``solve``
+    (:func:`_normal_solver`), the k + 1 right-hand sides a chunk of SOLVE_COLUMNS at a time:
+    (z0, Z, A^T B sparse, each of its columns a nuisance's footprint on the variables)."""
+    AtB = sps.csc_matrix(A.T @ B)
+    n, k = AtB.shape
+    z0, Z = np.empty(n), np.empty((n, k))
+    for lo in range(0, k + 1, SOLVE_COLUMNS):          # (column 0: A^T b, column j: A^T B's j - 1)
+        hi = min(lo + SOLVE_COLUMNS, k + 1)
+        first = int(lo == 0)
+        rhs = np.empty((n, hi - lo))
+        if first:
+            rhs[:, 0] = A.T @ b
+        rhs[:, first:] = AtB[:, lo + first - 1:hi - 1].toarray()
+        out = np.asarray(solve(rhs)).reshape(n, hi - lo)
+        if first:
+            z0[:] = out[:, 0]
+        Z[:, lo + first - 1:hi - 1] = out[:, first:]
+    return z0, Z, AtB
 
 
 def _joint_system(A: sps.csr_matrix, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:

@@ -9,6 +9,7 @@ import warnings
 
 import gtsam
 import numpy as np
+import pandas as pd
 
 from pedcal import frames
 from pedcal.calib.common import HeadModel, ModelMismatch
@@ -140,8 +141,8 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
         for sid, _ in seen:
             people_count[sid] += 1
     # robot observations per sensor, counted once (not a comparison of every row per sensor)
-    ids, counts = np.unique(prob.obs_sensor, return_counts=True) if rec.robot else ([], [])
-    obs_count = dict(zip(ids, counts, strict=True))
+    # (hashed, not sorted: 400 000 id strings at a large site took 0.14 s to sort)
+    obs_count = pd.Series(prob.obs_sensor).value_counts().to_dict() if rec.robot else {}
     out = []
     for i, sid in enumerate(prob.sensor_ids):
         installed = log.sensors[sid]

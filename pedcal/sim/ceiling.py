@@ -30,8 +30,11 @@ def corridor_axes(sc: Scenario) -> list[tuple[np.ndarray, np.ndarray, float]]:
     return [(np.array([0.0, ay / 2]), np.array([ax, ay / 2]), w), (np.array([ax / 2, 0.0]), np.array([ax / 2, ay]), w)]
 
 
+WALL_MARGIN_M = 0.1     # a wall-mounted sensor's distance from the wall it hangs on (m)
+
+
 def _corridor_layout(sc: Scenario, rng: np.random.Generator) -> list[tuple[np.ndarray, float]]:
-    """(position, yaw deg) of sensors on alternating walls of each corridor, 0.1 m from the wall,
+    """(position, yaw deg) of sensors on alternating walls of each corridor, WALL_MARGIN_M from the wall,
     looking across; in a ``cross`` none over the crossing of the two corridors."""
     out = []
     corridors = corridor_axes(sc)
@@ -53,7 +56,7 @@ def _corridor_layout(sc: Scenario, rng: np.random.Generator) -> list[tuple[np.nd
             s_k = (np.arange(n) + 0.5) * length / n
         for k, s_along in enumerate(s_k):
             side = 1.0 if k % 2 == 0 else -1.0      # left wall looks right and vice versa
-            xy = start + s_along * along + side * (width / 2 - 0.1) * left
+            xy = start + s_along * along + side * (width / 2 - WALL_MARGIN_M) * left
             look = -side * left
             yaw = np.degrees(np.arctan2(look[1], look[0]))
             out.append((xy + rng.normal(0.0, sc.position_jitter_m, 2), yaw))
@@ -109,9 +112,6 @@ def mount_draw(sc: Scenario, n: int) -> tuple[np.ndarray | None, np.ndarray, np.
     wall[rng.permutation(n)[:int(round(sc.wall_mounted_fraction * n))]] = True
     pitch = rng.uniform(*sc.wall_pitch_deg, n)
     return z, wall, pitch, rng.uniform(*sc.wall_aim_m, n), rng.choice([-1.0, 1.0], n)
-
-
-WALL_MARGIN_M = 0.1     # a wall-mounted sensor's distance from the wall it hangs on (m)
 
 
 def wall_mount(sc: Scenario, xy_m: np.ndarray, yaw_deg: float, pitch_deg: float, aim_m: float,
