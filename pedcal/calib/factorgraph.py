@@ -74,6 +74,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
 from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     considered_nuisances,
+    considered_rms,
     head_profile_nuisances,
     is_head_profile,
     is_sensor_shift,
@@ -349,7 +350,8 @@ class _Nuisances:
     # sensors' (and h(0)'s) sensitivity to it, chi^2)
     unmodelled: tuple | None = None
     # the shift against distance held at 0 but not known (pedcal.calib.headpoint.considered_nuisances):
-    # (its prior sigma m, the sensors' (and h(0)'s) error per unit of it)
+    # (how far it may be from 0 given the data, m (pedcal.calib.headpoint.considered_rms), the
+    # sensors' (and h(0)'s) error per unit of it)
     considered: tuple | None = None
 
 
@@ -505,6 +507,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             # the shift against distance, held at 0: out of the estimate, its sensitivity kept
             with_line, line_j = step, names.index(considered[0].name)
             step, consider_s = leave_out(step, line_j)
+            consider_sd = considered_rms(with_line, line_j)    # its prior's sigma, as the data leave it
             nuis = [n for n in nuis if n.name != considered[0].name]
             considered = []
             names = [n.name for n in nuis]
@@ -521,6 +524,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             if not kept and consider_s is not None:
                 # (the curvature held at 0 as well takes up none of the line's move)
                 consider_s = leave_out(with_line, line_j, held=(len(with_line.hessian) - 1,))[1]
+                consider_sd = considered_rms(with_line, line_j, held=(len(with_line.hessian) - 1,))
             _log(progress, f"head point curvature: chi^2 {chi2:.1f} -> "
                            + ("estimated" if kept else "its share widens the sigma" if unmodelled else "left out"))
             names = [n.name for n in nuis]
@@ -633,8 +637,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]),
-                       considered=None if consider_s is None else (rec.head_profile_sigma_m,
-                                                                   consider_s[cols.index(keys)]))
+                       considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]))
 
 
 def _unmodelled_curvature(step, chi2: float):

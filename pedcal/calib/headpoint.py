@@ -153,8 +153,9 @@ def considered_nuisances(prob) -> list[Nuisance]:
     """The shift against distance as a consider parameter (recipe ``head_profile`` off and
     ``head_profile_consider``): the line (SLOPE, rising by it from d_0 to d_m) at 0, prior
     ``head_profile_sigma_m``, whose sensitivity the first profile step takes and
-    :func:`leave_out` removes from the estimate, its prior carried into the sensors' covariance.
-    [] when a profile is estimated, without the horizontal shift or with too few observations."""
+    :func:`leave_out` removes from the estimate, what the data leave of its prior
+    (:func:`considered_rms`) carried into the sensors' covariance. [] when a profile is
+    estimated, without the horizontal shift or with too few observations."""
     rec = prob.recipe
     if (rec.head_profile != "off" or not rec.head_profile_consider or not rec.robot
             or not rec.estimate_head_horizontal_shift or rec.head_horizontal_shift_sigma_m <= 0.0
@@ -179,6 +180,26 @@ def leave_out(step: ProfileStep, j: int, held: tuple = ()) -> tuple[ProfileStep,
     reduced = step.select(keep)
     reduced.dtheta = -np.linalg.solve(H[np.ix_(keep, keep)], g[keep])
     return reduced, S
+
+
+def considered_rms(step: ProfileStep, j: int, held: tuple = ()) -> float:
+    """How far nuisance ``j`` may be from its truth when held at the value the ``step`` was taken
+    at, by what the data say of it: the root of its posterior's second moment about that value,
+    sqrt(d^2 + v), d and v its posterior mean's distance from it and its variance, the profile's
+    (its prior included; the other nuisances free but those in ``held``, which stay at their
+    values): with the free ones' Newton step -H^-1 g, d its j-th entry and v = (H^-1)_jj.
+    Holding it moves the variables by S times its error (:func:`leave_out`), so their error's
+    expected square given the data is S S^T times this squared: the consider covariance with
+    the prior's sigma replaced by what is left of it once the data are seen. Where the data say
+    nothing, d = 0 and v the prior's variance (the prior's sigma again); where they measure the
+    nuisance near the held value, their sigma; where they find it away from it, that distance."""
+    H = step.hessian
+    g = -H @ step.dtheta
+    free = np.array([i for i in range(len(H)) if i == j or i not in held], int)
+    at = int(np.flatnonzero(free == j)[0])
+    cov = np.linalg.inv(H[np.ix_(free, free)])
+    d = float(-(cov @ g[free])[at])              # the posterior mean's distance from the held value
+    return float(np.sqrt(d ** 2 + cov[at, at]))
 
 
 def sensor_shift_nuisances(prob) -> list[Nuisance]:

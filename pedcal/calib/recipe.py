@@ -77,8 +77,9 @@ class GraphRecipe:
     head_profile_per_sensor: bool = False
     # with head_profile off, the shift is not thereby known to be constant: a line rising
     # 0 +- head_profile_sigma_m across the robot's distances from the sensors is left at 0 but
-    # its prior carried into the sensors' covariance (its sensitivity from the first profile
-    # step, the other nuisances re-optimized: a consider parameter). Under a wandering AMCL the
+    # what the data leave of its prior (its posterior's root mean square about 0) carried into the
+    # sensors' covariance (its sensitivity from the first profile step, the other nuisances
+    # re-optimized: a consider parameter). Under a wandering AMCL the
     # robot's path takes its scale from the sensors' views, whose radial scale such a line sets:
     # without it a corridor's sensors spread along it by 3.4 mm/m (sd over the zoo's 20 seeds)
     # where their sigma gave 0.9
