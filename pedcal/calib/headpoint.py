@@ -12,11 +12,11 @@ the constant shift and shift(d_j) = horizontal_shift_m + c_j. The c_j enter the 
 linearly, like the constant shift (``- c_j phi_j(d) u`` on the point, u the horizontal unit
 toward the sensor, :func:`head_profile_shift_sensor`), so they are nuisances of the factor
 graph's profile (:mod:`pedcal.calib.profile`) with the others, their covariance carried into
-the sensors'. d and u are read at the point the graph's variables predict (the robot's head
-seen from the sensor's pose: :class:`pedcal.calib.graph.Regressors`), not at the measured one,
-whose noise would move the regressor and the residual together (errors in variables: a line
-shrinking the network with the noise). The knots are placed at quantiles of the measured
-distances (a choice of basis, not a regressor).
+the sensors'. d is read at the point the graph's variables predict (the robot's head seen from
+the sensor's pose: :class:`pedcal.calib.graph.Regressors`), not at the measured one, whose noise
+would move the regressor and the residual together (errors in variables: a line shrinking the
+network with the noise); u at the measured one (the Regressors' note). The knots are placed at
+quantiles of the measured distances (a choice of basis, not a regressor).
 
 How flexible the function is, the data decide (:func:`select_head_profile`), among the constant,
 one-parameter shapes (:func:`shapes`: a line; a shift rising or fading from d_0 to an interior
