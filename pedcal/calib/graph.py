@@ -53,8 +53,9 @@ Factors (all GTSAM built-in C++ factors)
   mean with sigma / sqrt(n) (:meth:`FactorGraphProblem.merge_observations`). Depth noise is
   ``floor + k r^2`` (doubled past the reliable range) and the lateral noise constant, both
   estimated from consecutive observations (:func:`estimate_observation_noise`) and taken at the
-  range as observed; a robust kernel keeps mis-associations (a pedestrian beside the robot)
-  from dragging.
+  range the variables predict, not the noisy one observed (:class:`Regressors`, as is the
+  distance the shift's profile is read at); a robust kernel keeps mis-associations (a
+  pedestrian beside the robot) from dragging.
 - People seen by two sensors at once (matched by
   :func:`pedcal.calib.alternative.match_shared_observations`): ``BearingRangeFactor3D(s(i),
   l(m))`` for each sensor.
@@ -91,7 +92,7 @@ from pedcal.calib.amcl_model import AmclErrorModel, amcl_cov_body, amcl_white_si
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import head_world, interpolate_pose2
-from pedcal.calib.headpoint import head_profile_shift_sensor
+from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
     RobotMotion,
@@ -298,7 +299,8 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         _amcl_block(blocks["amcl"], values, log, prob, times)
     if n_pose > 1:
         blocks["motion"] = motion_block(log, prob, t_max=t_max)
-    blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True)
+    # (the regressors read at the measured points: the initial values are no solution)
+    blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True, predicted=False)
     return GraphParts(blocks=blocks, values=values, motion_inputs=_motion_inputs(prob, t_max))
 
 
@@ -536,8 +538,9 @@ class ObservationTerms:
     """The observation block's factors as arrays, in the block's order (the head offset's prior,
     then one bearing-range factor per robot observation and per person's sighting): what
     :func:`observation_block` makes GTSAM factors of and :func:`observation_rhs` evaluates in
-    numpy. ``noise_range_m`` and ``noise_scale``: the range the sigmas are taken at (as observed)
-    and the factor's scale of them (1 / sqrt of the merged count, times ``sigma_scale``)."""
+    numpy. ``noise_range_m`` and ``noise_scale``: the range the sigmas are taken at (predicted:
+    :class:`Regressors`) and the factor's scale of them (1 / sqrt of the merged count, times
+    ``sigma_scale``)."""
 
     prior: tuple | None          # (mean Pose3, sigmas (6,)) of h(0)'s prior, or None
     sensor: np.ndarray           # (n,) sensor index of each bearing-range factor
@@ -555,12 +558,96 @@ class ObservationTerms:
         return observation_sigmas(recipe, rounded) * self.noise_scale[:, None]
 
 
+@dataclass
+class Regressors:
+    """What the observation factors' nuisances are read against, per factor (sensor frame): the
+    horizontal unit toward the sensor (the horizontal shift's and each sensor's departure's
+    direction), the world's up times cos^2 of the sensor's elevation (the curvature's), the
+    horizontal distance (the shift's profile against distance, pedcal.calib.headpoint) and the
+    range the noise sigmas are taken at.
+
+    The distance and the noise's range are read at the predicted point, the target's value seen
+    from its sensor's (:func:`regressors`), not at the measured one: a regressor read from the
+    measurement carries its noise, which the residual carries too (errors in variables: the
+    corridor's line at -12.7 mm/m where its truth is 0, README), and a sigma read there weights
+    down the observations its noise pushed far (a bias toward short ranges of -2 sigma dsigma/dr,
+    millimetres past the reliable range where the sigma doubles). The direction and the
+    curvature's cos^2 stay read at the measured point: read at the predicted (or the true) one
+    they leave the line +3.8 mm/m off on the same log, a bias the measured direction's errors in
+    variables offset, and lose 5 mm on a ramping head point's log (README)."""
+
+    toward_sensor: np.ndarray    # (n, 3) horizontal unit from the point toward the sensor
+    up_cos2: np.ndarray          # (n, 3) up x cos^2(the sensor's elevation)
+    distance_m: np.ndarray       # (n,) horizontal distance from the sensor to the point
+    noise_range_m: np.ndarray    # (n,) the range of the reported point
+
+
+def measured_regressors(prob: FactorGraphProblem, use: np.ndarray) -> Regressors:
+    """The robot-observation factors ``use``'s :class:`Regressors` read at their measured points
+    (with the rotations they were carried with): a block's before any values predict them."""
+    toward = prob.fac_toward_sensor[use]
+    p = prob.fac_p_sensor[use]
+    return Regressors(toward_sensor=toward, up_cos2=prob.fac_up_cos2[use], distance_m=horizontal_distance(p, toward),
+                      noise_range_m=np.linalg.norm(p, axis=1))
+
+
+def predicted_points(prob: FactorGraphProblem, values: gtsam.Values | None, sensor: np.ndarray,
+                     target: np.ndarray, is_pose: bool) -> tuple[np.ndarray, np.ndarray] | None:
+    """The targets seen from their sensors in ``values``, R_s^T (t - t_s) (n, 3), with the sensors'
+    rotations R_s (n, 3, 3), for factors from sensors ``sensor`` (indices) to targets ``target``
+    (robot poses x(k) when ``is_pose``, else people l(m)); None without ``values`` or when they
+    do not hold every one (a block being built, its people's initial positions made from it)."""
+    if values is None or not len(sensor):
+        return None
+    uniq, inv = np.unique(target, return_inverse=True)
+    try:
+        Rs, ts = pose_arrays(values, [S(i) for i in range(len(prob.sensor_ids))])
+        if is_pose:
+            t_target = pose_arrays(values, [X(int(k)) for k in uniq])[1]
+        elif all(values.exists(L(int(m))) for m in uniq):
+            t_target = np.array([values.atPoint3(L(int(m))) for m in uniq], float).reshape(len(uniq), 3)
+        else:
+            return None
+    except KeyError:
+        return None
+    R = Rs[sensor]
+    return np.einsum("nji,nj->ni", R, t_target[np.asarray(inv).ravel()] - ts[sensor]), R
+
+
+def regressors(prob: FactorGraphProblem, values: gtsam.Values | None, sensor: np.ndarray, target: np.ndarray,
+               is_pose: bool, measured: Regressors) -> Regressors:
+    """The :class:`Regressors` of factors from sensors ``sensor`` to targets ``target``:
+    ``measured`` (read at the measured points) with the distance and the noise's range read at
+    the predicted points (:func:`predicted_points`; the noise's range the predicted point's less
+    the problem's ray shift, not a profile step's, so that the weights stay put while the
+    nuisances' profile moves them), where ``values`` hold them.
+
+    The factors' Jacobians (GTSAM's bearing-range factors, whose measurement is fixed when the
+    block is built) leave out the distance's own dependence on the variables: the block is
+    rebuilt at every new linearization point (each profile step, pedcal.calib.factorgraph), so
+    the solution is the fixed point of sum_i J_i^T W_i r_i = 0 with J_i, W_i and the distance
+    functions of the variables alone, an unbiased estimating equation (at the true values r_i is
+    the noise, of mean 0, whatever the weights), as the full likelihood's is. The left-out part
+    of the Jacobian is the profile's slope against distance (a few percent:
+    tests/test_observation_sigmas.py measures it by finite differences), so the covariance read
+    from GTSAM's Jacobians is off by as little."""
+    got = predicted_points(prob, values, sensor, target, is_pose)
+    if got is None:
+        return measured
+    p, R = got
+    return Regressors(toward_sensor=measured.toward_sensor, up_cos2=measured.up_cos2,
+                      distance_m=horizontal_distance(p, toward_sensor_horizontal(p, R)),
+                      noise_range_m=np.maximum(np.linalg.norm(p, axis=1) - float(prob.ray_shift_m), 0.0))
+
+
 def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
                       t_max: float | None = None, insert_values: bool = False,
                       theta: dict | None = None, robust: bool = True,
-                      sigma_scale: np.ndarray | None = None) -> ObservationTerms:
+                      sigma_scale: np.ndarray | None = None, predicted: bool = True,
+                      robot_regressors: Regressors | None = None) -> ObservationTerms:
     """The observation block's factors as arrays (:class:`ObservationTerms`; the arguments are
-    :func:`observation_block`'s)."""
+    :func:`observation_block`'s; ``robot_regressors``: the robot observations' :class:`Regressors`
+    when already read at ``values``)."""
     rec = prob.recipe
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
@@ -583,45 +670,61 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     sensor, target, is_pose, p_all, r_all, noise_r, noise_count = [], [], [], [], [], [], []
     if rec.robot:
         use = np.flatnonzero(prob.fac_key_index < n_pose)
-        p_obs = prob.fac_p_sensor[use] - hs * prob.fac_toward_sensor[use] - cv * prob.fac_up_cos2[use]
+        # the distance and the noise's range at the predicted point (Regressors), the same
+        # whatever theta: sigmas that moved with the shifts would reward
+        # shifts that shrink them (a least-squares fit is no likelihood when its weights depend on
+        # the parameters), a bias along the shifts' nearly degenerate combination
+        reg = robot_regressors if robot_regressors is not None else regressors(
+            prob, values if predicted else None, prob.fac_sensor_index[use], prob.fac_key_index[use], True,
+            measured_regressors(prob, use))
+        p_obs = prob.fac_p_sensor[use] - hs * reg.toward_sensor - cv * reg.up_cos2
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
-        p_obs = p_obs + head_profile_shift_sensor(prob, theta, use)   # shift vs distance (pedcal.calib.headpoint)
+        # shift vs distance (pedcal.calib.headpoint)
+        p_obs = p_obs + head_profile_shift_sensor(prob, theta, use, reg.toward_sensor, reg.distance_m)
         sensor.append(prob.fac_sensor_index[use])
         target.append(prob.fac_key_index[use])
         is_pose.append(np.ones(len(use), bool))
         p_all.append(p_obs)
         r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
-        # noise from the range as observed, not as shifted: sigmas that moved with the shifts would
-        # reward shifts that shrink them (a least-squares fit is no likelihood when its weights
-        # depend on the parameters), a bias along the shifts' nearly degenerate combination
-        noise_r.append(np.linalg.norm(prob.fac_p_sensor[use], axis=1))
+        noise_r.append(reg.noise_range_m)
         noise_count.append(np.asarray(prob.fac_count[use], int))
     if rec.people:
         sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-        seen_i, seen_p, seen_m, seen_r = [], [], [], []
+        seen_i, seen_p, seen_m = [], [], []
         for m, (t, seen) in enumerate(prob.people):
             if t_max is not None and t > t_max:
                 continue
-            pts = []
             for sid, p in seen:
-                R0 = prob.init_sensors[sid].rotation().matrix()
-                seen_r.append(float(np.linalg.norm(p)))
-                p = (p - hs * toward_sensor_horizontal(p[None, :], R0)[0]
-                     - cv * frames.up_by_cos2_elevation(p[None, :], R0)[0])
                 seen_i.append(sid_index[sid])
                 seen_p.append(p)
                 seen_m.append(m)
-                pts.append(prob.init_sensors[sid].transformFrom(p * (1.0 + rho / float(np.linalg.norm(p)))))
-            if insert_values:
-                values.insert(L(m), np.mean(pts, axis=0))
         if seen_p:
-            seen_p = np.asarray(seen_p)
+            seen_i, seen_p, seen_m = np.asarray(seen_i, int), np.asarray(seen_p, float), np.asarray(seen_m, int)
+            R0 = np.array([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[seen_i]
+            toward = toward_sensor_horizontal(seen_p, R0)
+            measured = Regressors(toward_sensor=toward, up_cos2=frames.up_by_cos2_elevation(seen_p, R0),
+                                  distance_m=horizontal_distance(seen_p, toward),
+                                  noise_range_m=np.linalg.norm(seen_p, axis=1))
+            reg = regressors(prob, values if predicted and not insert_values else None, seen_i, seen_m, False,
+                             measured)
+            noise_range = reg.noise_range_m
+            seen_p = seen_p - hs * reg.toward_sensor - cv * reg.up_cos2
+            if insert_values:
+                # each person's initial position: the mean of what the sensors saw, at the installed poses
+                pts = np.array([prob.init_sensors[prob.sensor_ids[i]].transformFrom(p * (1.0 + rho / np.linalg.norm(p)))
+                                for i, p in zip(seen_i.tolist(), seen_p, strict=True)]).reshape(-1, 3)
+                uniq, inv = np.unique(seen_m, return_inverse=True)
+                inv = np.asarray(inv).ravel()
+                mean = np.column_stack([np.bincount(inv, pts[:, c], minlength=len(uniq))
+                                        for c in range(3)]) / np.bincount(inv, minlength=len(uniq))[:, None]
+                for m, point in zip(uniq.tolist(), mean, strict=True):
+                    values.insert(L(m), point)
             sensor.append(np.asarray(seen_i, int))
             target.append(np.asarray(seen_m, int))
             is_pose.append(np.zeros(len(seen_m), bool))
             p_all.append(seen_p)
             r_all.append(np.linalg.norm(seen_p, axis=1) + rho)
-            noise_r.append(np.asarray(seen_r, float))
+            noise_r.append(noise_range)
             noise_count.append(np.ones(len(seen_m), int))
 
     def cat(parts, shape=(0,), dtype=float):
@@ -757,7 +860,7 @@ class MotionRhs:
 def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
                       t_max: float | None = None, insert_values: bool = False,
                       theta: dict | None = None, robust: bool = True,
-                      sigma_scale: np.ndarray | None = None) -> gtsam.NonlinearFactorGraph:
+                      sigma_scale: np.ndarray | None = None, predicted: bool = True) -> gtsam.NonlinearFactorGraph:
     """The factors the head point's shifts enter: the prior of the head point's vertical offset
     (a dome's: offset = -ray shift), the robot observations carried to their pose variables
     (FactorGraphProblem.carry_observations) and the people seen by two or more sensors at once,
@@ -765,9 +868,12 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     ``horizontal_shift_m``) without changing it; ``robust=False`` leaves the robust kernel out;
     ``sigma_scale`` (one per factor, in order) multiplies each factor's sigmas instead of a
     kernel (a robust weight w frozen: 1 / sqrt(w); models are shared between equal scales);
-    ``insert_values`` puts the people's initial positions into ``values``."""
+    ``insert_values`` puts the people's initial positions into ``values``. The nuisances'
+    regressors and the noise's range are read at the points ``values`` predict (:class:`Regressors`;
+    at the measured ones with ``predicted=False``: initial values, no solution yet, can predict a
+    point decimetres off)."""
     terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
-                              robust=robust, sigma_scale=sigma_scale)
+                              robust=robust, sigma_scale=sigma_scale, predicted=predicted)
     graph = gtsam.NonlinearFactorGraph()
     if terms.prior is not None:
         graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
@@ -815,7 +921,11 @@ class ObservationRhs:
 
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
         self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
-        terms = observation_terms(log, prob, values, t_max=t_max)
+        use = np.flatnonzero(prob.fac_key_index < len(_pose_times(prob, t_max))) if prob.recipe.robot else None
+        # the robot observations' regressors read once (they do not move with theta)
+        self.robot_regressors = None if use is None else regressors(
+            prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True, measured_regressors(prob, use))
+        terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors)
         n_s = len(prob.sensor_ids)
         robot = np.flatnonzero(terms.is_pose)
         u, inv = np.unique(terms.target[robot], return_inverse=True)
@@ -850,7 +960,7 @@ class ObservationRhs:
 
     def __call__(self, theta: dict | None, sigma_scale: np.ndarray | None = None) -> np.ndarray:
         terms = observation_terms(self.log, self.prob, self.values, t_max=self.t_max, theta=theta,
-                                  sigma_scale=sigma_scale)
+                                  sigma_scale=sigma_scale, robot_regressors=self.robot_regressors)
         rows = []
         if terms.prior is not None:
             prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))

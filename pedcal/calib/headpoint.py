@@ -12,7 +12,11 @@ the constant shift and shift(d_j) = horizontal_shift_m + c_j. The c_j enter the 
 linearly, like the constant shift (``- c_j phi_j(d) u`` on the point, u the horizontal unit
 toward the sensor, :func:`head_profile_shift_sensor`), so they are nuisances of the factor
 graph's profile (:mod:`pedcal.calib.profile`) with the others, their covariance carried into
-the sensors'.
+the sensors'. d is read at the point the graph's variables predict (the robot's head seen from
+the sensor's pose: :class:`pedcal.calib.graph.Regressors`), not at the measured one, whose noise
+would move the regressor and the residual together (errors in variables: a line shrinking the
+network with the noise); u at the measured one (the Regressors' note). The knots are placed at
+quantiles of the measured distances (a choice of basis, not a regressor).
 
 How flexible the function is, the data decide (:func:`select_head_profile`), among the constant,
 one-parameter shapes (:func:`shapes`: a line; a shift rising or fading from d_0 to an interior
@@ -248,19 +252,24 @@ def knot_values(prob, theta: dict | None = None) -> np.ndarray | None:
     return c + float(theta.get(SLOPE, getattr(prob, SLOPE, 0.0))) * _shape(prob, knots)[1]
 
 
-def head_profile_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
+def head_profile_shift_sensor(prob, theta: dict, use: np.ndarray, toward_sensor: np.ndarray | None = None,
+                              distance_m: np.ndarray | None = None) -> np.ndarray | float:
     """What the profile moves the robot-observation factors ``use`` by (sensor frame, m): the
     point taken back toward the head top, -(sum_j c_j phi_j(d) + delta_s) u (module docstring;
-    delta_s the observing sensor's own departure). 0 when no profile is set."""
+    delta_s the observing sensor's own departure), u and d the factors' ``toward_sensor`` and
+    ``distance_m`` (the observation block's, read at the predicted point:
+    :class:`pedcal.calib.graph.Regressors`), by default read at the measured points. 0 when no
+    profile is set."""
     c = knot_values(prob, theta)
     own = sensor_departures(prob, theta)
     if (c is None or not np.any(c)) and not np.any(own):
         return 0.0
+    u = prob.fac_toward_sensor[use] if toward_sensor is None else toward_sensor
     shift = own[prob.fac_sensor_index[use]]
     if c is not None and np.any(c):
-        d = horizontal_distance(prob.fac_p_sensor[use], prob.fac_toward_sensor[use])
+        d = horizontal_distance(prob.fac_p_sensor[use], u) if distance_m is None else distance_m
         shift = shift + hats(d, prob._head_knots)[:, 1:] @ c
-    return -shift[:, None] * prob.fac_toward_sensor[use]
+    return -shift[:, None] * u
 
 
 def _row_labels(graphs, n_rows: int, label_of) -> np.ndarray:
