@@ -10,11 +10,13 @@ import pytest
 from pedcal.calib.amcl_model import (
     VARIOGRAM_LAGS_S,
     AmclErrorModel,
+    ar1_factor_sigmas,
     assumed_model,
     detect_jumps,
     detect_steps,
     estimate_model,
     fit_variogram,
+    node_drift_variance,
     robust_variogram,
 )
 from pedcal.calib.factorgraph import calibrate_factorgraph
@@ -193,3 +195,72 @@ def test_amcl_jumps_seen_by_the_sensors_are_left_out():
     assert jump[model.excluded].mean() > 0.9                  # what is left out is a jump
     assert model.excluded[jump].mean() > 0.95                 # and the jumps are, seen or not
     assert res.network.extra["amcl_error_model"]["jumps"] == model.jumps
+
+
+def _ar1_precision(prior_sig, step_sig, n):
+    """The precision the graph's AR(1) factors add up to: priors on the diagonal, increments."""
+    Q = np.diag(1.0 / prior_sig ** 2)
+    for m in range(1, n):
+        Q[np.ix_([m - 1, m], [m - 1, m])] += np.array([[1.0, -1.0], [-1.0, 1.0]]) / step_sig ** 2
+    return Q
+
+
+def test_ar1_factor_sigmas_add_up_to_the_stationary_ar1():
+    sigma, a, n = 0.05, 0.7, 6
+    prior_sig, step_sig = ar1_factor_sigmas(sigma, a, n)
+    C = np.linalg.inv(_ar1_precision(prior_sig, step_sig, n))
+    lag = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    np.testing.assert_allclose(C, sigma ** 2 * a ** lag, rtol=1e-9)
+    # the ends' priors differ from the inner nodes' (sigma^2 (1 + a) against sigma^2 (1 + a) / (1 - a))
+    assert prior_sig[0] == pytest.approx(sigma * np.sqrt(1.0 + a))
+    assert prior_sig[2] == pytest.approx(sigma * np.sqrt((1.0 + a) / (1.0 - a)))
+    # one node: the process's own std
+    one, _ = ar1_factor_sigmas(sigma, a, 1)
+    np.testing.assert_allclose(one, [sigma])
+
+
+def test_node_drift_variance_formula_and_shared_span():
+    sigma, tau = 0.05, 20.0
+    t = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 12.0])    # nodes at 0, 5, 10 (the last past them)
+    node, var = node_drift_variance(t, 0.0, 5.0, 3, sigma, tau)
+    np.testing.assert_array_equal(node, [0, 0, 0, 1, 1, 1, 2])
+    change = sigma ** 2 * (1.0 - np.exp(-2.0 * np.abs(t - 5.0 * node) / tau))
+    # five estimates between nodes 0 and 5, two from 5 on (the one past the last node counts there)
+    np.testing.assert_allclose(var, change * np.array([5, 5, 5, 5, 5, 2, 2]), rtol=1e-12)
+    assert var[0] == 0.0                                   # on its node: no change
+
+
+def _model_covariance(t, node_t0, dn, n_nodes, sigma, tau, white):
+    """AMCL's error covariance at ``t`` as the graph models it: the nodes' AR(1) (its factors),
+    each estimate's change since its node (node_drift_variance) and the white error."""
+    prior_sig, step_sig = ar1_factor_sigmas(sigma, np.exp(-dn / tau), n_nodes)
+    C_nodes = np.linalg.inv(_ar1_precision(prior_sig, step_sig, n_nodes))
+    node, drift = node_drift_variance(t, node_t0, dn, n_nodes, sigma, tau)
+    return C_nodes[np.ix_(node, node)] + np.diag(drift + white ** 2)
+
+
+@pytest.mark.parametrize("tau, sweep_s", [(20.0, 12.5), (5.0, 12.5), (60.0, 30.0)])
+def test_common_shift_and_turn_sigma_match_a_monte_carlo_of_the_process(tau, sweep_s):
+    """The network's common shift and turn, as the graph reads them from AMCL (the weighted
+    least squares under its model of AMCL's error), on a robot sweeping back and forth: the sigma
+    the model claims against the spread of those estimates over 1500 draws of the process itself
+    (white plus Ornstein-Uhlenbeck), within 15 %. The turn rests on the error's short lags, which
+    estimates tied to their nearest node as independent draws would overstate 2-3 times."""
+    rng = np.random.default_rng(11)
+    sigma, white, dt, T = 0.05, 0.004, 0.2, 220.0
+    dn = tau / 4.0
+    t = np.arange(0.0, T, dt)
+    n_nodes = int(np.round(T / dn)) + 1
+    phase = (t / sweep_s) % 2.0
+    x_m = 12.5 * np.where(phase < 1.0, phase, 2.0 - phase)          # the robot's position across the site
+    A = np.column_stack([np.ones(len(t)), x_m - x_m.mean()])          # shift, turn (rad) x lever arm
+    Cm = _model_covariance(t, 0.0, dn, n_nodes, sigma, tau, white)
+    Cinv_A = np.linalg.solve(Cm, A)
+    claimed = np.linalg.inv(A.T @ Cinv_A)
+    W = claimed @ Cinv_A.T                                            # the estimator the graph is
+    draws = np.array([W @ (ou_process(rng, len(t), dt, sigma, tau) + rng.normal(0.0, white, len(t)))
+                      for _ in range(1500)])
+    ratio = draws.std(axis=0) / np.sqrt(np.diag(claimed))
+    assert np.all(np.abs(ratio - 1.0) < 0.15), ratio
+    # the shift is the run mean's: the OU mean's variance 2 sigma^2 tau / T (1 - tau / T (1 - e^-T/tau))
+    assert np.sqrt(claimed[0, 0]) == pytest.approx(AmclErrorModel(0.0, sigma, tau).floor_sigma_m(T), rel=0.08)

@@ -79,6 +79,45 @@ class AmclErrorModel:
                 "excluded_s": round(self.excluded_s, 2)}
 
 
+def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float, n_nodes: int,
+                        correlated_sigma_m: float, correlation_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(node of each estimate, variance per axis (m^2) of the wandering error's change since that
+    node) for estimates at ``t_s``, each tied to its nearest node of the error process (nodes
+    every ``node_spacing_s`` from ``node_t0_s``). The change over |dt| is the OU's exact
+    sigma^2 (1 - exp(-2 |dt| / tau)), times the number of estimates between the same two
+    nodes: those changes are one path, strongly correlated, not independent draws, so the
+    estimates between two nodes tell no more about the process than about one estimate's worth
+    of its change (the mean of n fully correlated changes keeps their variance: n copies of n
+    times it, averaged, give it back). Without that factor the graph reads the process's
+    short-term shape from n estimates as if they were n independent looks and grows overconfident
+    of whatever hangs on short lags (the network's common turn from the robot's sweeps: 2-3 times
+    too small a sigma); the run's mean (the long lags) is held by the nodes and keeps its variance."""
+    t = np.asarray(t_s, float)
+    dn = max(float(node_spacing_s), 1e-9)
+    u = (t - node_t0_s) / dn
+    node = np.clip(np.round(u).astype(int), 0, max(n_nodes - 1, 0))
+    tau = max(float(correlation_s), 1e-3)
+    change = correlated_sigma_m ** 2 * (1.0 - np.exp(-2.0 * np.abs(t - (node_t0_s + dn * node)) / tau))
+    segment = np.clip(np.floor(u).astype(int), 0, max(n_nodes - 2, 0))
+    shared = np.bincount(segment)[segment] if len(t) else np.zeros(0, int)
+    return node, change * shared
+
+
+def ar1_factor_sigmas(sigma: float, a: float, n_nodes: int) -> tuple[np.ndarray, float]:
+    """The stationary AR(1) x_(m+1) = a x_m + noise of std ``sigma`` on ``n_nodes`` nodes as
+    factors: (the zero priors' sigma per node, the increments' x_(m+1) - x_m sigma). The squares of
+    these factors sum to the AR(1)'s exact precision (1 / (sigma^2 (1 - a^2))) x tridiag(-a;
+    1, 1 + a^2, ..., 1 + a^2, 1; -a): the increments give a / (sigma^2 (1 - a^2)) off the diagonal,
+    so their variance is sigma^2 (1 - a^2) / a; the priors make up the diagonal, sigma^2 (1 + a) /
+    (1 - a) on the inner nodes and sigma^2 (1 + a) on the two ends. One node: sigma."""
+    if n_nodes <= 1:
+        return np.full(max(n_nodes, 0), float(sigma)), float("inf")
+    a = float(np.clip(a, 0.0, 1.0 - 1e-12))
+    priors = np.full(n_nodes, sigma * np.sqrt((1.0 + a) / (1.0 - a)))
+    priors[[0, -1]] = sigma * np.sqrt(1.0 + a)
+    return priors, float(sigma * np.sqrt((1.0 - a * a) / max(a, 1e-12)))
+
+
 def reported_sigma_m(amcl) -> float:
     """Median of AMCL's reported position std (m), at least 1 mm."""
     cov = amcl[["cov_xx", "cov_yy"]].to_numpy(float)
@@ -373,5 +412,5 @@ def amcl_white_sigma(amcl: pd.DataFrame) -> float:
 
 
 __all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
-           "robust_variogram", "fit_variogram",
+           "robust_variogram", "fit_variogram", "node_drift_variance", "ar1_factor_sigmas",
            "detect_jumps", "detect_steps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]

@@ -25,8 +25,9 @@ Factors (all GTSAM built-in C++ factors)
   :class:`~pedcal.calib.amcl_model.AmclErrorModel` (assumed before the first solve, estimated
   from its residuals after it; estimates it marks as jumps are left out). With ``F_j = E_j^{-1}``
   as the variable ``a(j)``, ``BetweenFactorPose3(a(j), x(k), Z_j)`` has residual
-  ``Log(Z_j^{-1} F_j^{-1} X)`` and the white error (plus the process's change since its node)
-  as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
+  ``Log(Z_j^{-1} F_j^{-1} X)`` and the white error (plus the process's change since its node,
+  its variance times the number of estimates between the same two nodes: those changes are one
+  path, not independent draws, :func:`~pedcal.calib.amcl_model.node_drift_variance`) as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
   nodes, a = exp(-dn / tau), written as factors: ``BetweenFactorPose3(a(j), a(j+1), I)`` of
   variance sigma^2 (1 - a^2) / a and zero priors of variance sigma^2 (1 + a) / (1 - a) on inner
   nodes and sigma^2 (1 + a) on the two ends (the sum of these squares is the AR(1)'s exact
@@ -87,7 +88,8 @@ import gtsam
 import numpy as np
 
 from pedcal import frames
-from pedcal.calib.amcl_model import AmclErrorModel, amcl_cov_body, amcl_white_sigma, assumed_model  # noqa: F401
+from pedcal.calib.amcl_model import (  # noqa: F401
+    AmclErrorModel, amcl_cov_body, amcl_white_sigma, assumed_model, ar1_factor_sigmas, node_drift_variance)
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
@@ -425,7 +427,11 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
     nodes = prob.amcl_node_times
     dn = float(nodes[1] - nodes[0]) if len(nodes) > 1 else 1.0
-    node_of = np.clip(np.round((amcl_t[use] - nodes[0]) / dn).astype(int), 0, len(nodes) - 1)
+    # white error (the model's share of the reported covariance and its own std) and the OU's
+    # change since the node, its variance times the estimates sharing the span between two nodes
+    # (node_drift_variance: one path, not independent draws)
+    node_of, drift_var = node_drift_variance(amcl_t[use], float(nodes[0]) if len(nodes) else 0.0, dn, len(nodes),
+                                             max(model.correlated_sigma_m, 1e-4), model.correlation_s)
     tiny = np.radians(0.05)
     tau = max(model.correlation_s, 1e-3)
     sig_c = max(model.correlated_sigma_m, 1e-4)
@@ -441,9 +447,6 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     scale = np.array([1.0, 1.0, np.sqrt(max(1.0, 2.0 * tau / dt_amcl)), f, f, 1.0])
     Cb = amcl_cov_body(C3, yaw_a) * np.outer(scale, scale)
     Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
-    # white error (the model's share of the reported covariance and its own std) and the OU's
-    # change since the node (exact: sigma^2 (1 - exp(-2 |dt| / tau)))
-    drift_var = sig_c ** 2 * (1.0 - np.exp(-2.0 * np.abs(amcl_t[use] - nodes[node_of]) / tau))
     Cb[:, 3:5, 3:5] += (model.white_sigma_m ** 2 + drift_var)[:, None, None] * np.eye(2)
     Cb[:, 5, 5] = 1e-6
     between, covariance = gtsam.BetweenFactorPose3, gtsam.noiseModel.Gaussian.Covariance
@@ -460,12 +463,10 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
         return gtsam.noiseModel.Diagonal.Sigmas(np.array([tiny, tiny, 1e-4, s_xy, s_xy, s_z]))
 
     n_nodes = int(node_of.max()) + 1 if len(use) else 0
-    if n_nodes == 1:
-        priors = [sig6(sig_c, z_sig)]
-    else:
-        inner = sig6(sig_c * np.sqrt((1.0 + a) / max(1.0 - a, 1e-12)), z_sig)
-        priors = [inner] * n_nodes
-    q = sig6(sig_c * np.sqrt((1.0 - a * a) / max(a, 1e-12)), 1e-3)
+    prior_sig, step_sig = ar1_factor_sigmas(sig_c, a, n_nodes)
+    by_sigma = {s: sig6(s, z_sig) for s in set(prior_sig.tolist())}      # (two values: ends, inner)
+    priors = [by_sigma[s] for s in prior_sig.tolist()]
+    q = sig6(min(step_sig, 1e6), 1e-3)
     if free_z and n_nodes:
         # The head point's vertical offset from its initial value (-head_radius_m) is the height
         # of the variable h (its prior is in the observation block: it depends on the ray shift):
