@@ -104,17 +104,22 @@ def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float
 
 
 def ar1_factor_sigmas(sigma: float, a: float, n_nodes: int) -> tuple[np.ndarray, float]:
-    """The stationary AR(1) x_(m+1) = a x_m + noise of std ``sigma`` on ``n_nodes`` nodes as
-    factors: (the zero priors' sigma per node, the increments' x_(m+1) - x_m sigma). The squares of
-    these factors sum to the AR(1)'s exact precision (1 / (sigma^2 (1 - a^2))) x tridiag(-a;
-    1, 1 + a^2, ..., 1 + a^2, 1; -a): the increments give a / (sigma^2 (1 - a^2)) off the diagonal,
-    so their variance is sigma^2 (1 - a^2) / a; the priors make up the diagonal, sigma^2 (1 + a) /
-    (1 - a) on the inner nodes and sigma^2 (1 + a) on the two ends. One node: sigma."""
+    """The AR(1) x_(m+1) = a x_m + noise of stationary std ``sigma`` on ``n_nodes`` nodes as
+    factors: (the zero priors' sigma per node, the increments' x_(m+1) - x_m sigma). The
+    increments give the AR(1)'s exact off-diagonal precision, -a / (sigma^2 (1 - a^2)), so their
+    variance is sigma^2 (1 - a^2) / a; every prior, the two ends' too, has the inner nodes'
+    variance sigma^2 (1 + a) / (1 - a), which makes up the inner diagonal (1 + a^2) / (sigma^2
+    (1 - a^2)) exactly. At the ends that leaves out a / (sigma^2 (1 + a)) of the stationary
+    precision: the process is free at the run's two ends. The exact ends would give the first and
+    the last estimates the weight of a correlation time of data each (the best linear estimate of
+    an OU mean), so that a misfit there (a robot not yet moving, a start-up transient) bends the
+    network's link to the map; free, the run's mean weighs the estimates alike and its variance
+    is sigma^2 (1 + a) / (n (1 - a)) (about 2 sigma^2 tau / T), a few percent above the exact
+    AR(1)'s. One node: sigma."""
     if n_nodes <= 1:
         return np.full(max(n_nodes, 0), float(sigma)), float("inf")
     a = float(np.clip(a, 0.0, 1.0 - 1e-12))
     priors = np.full(n_nodes, sigma * np.sqrt((1.0 + a) / (1.0 - a)))
-    priors[[0, -1]] = sigma * np.sqrt(1.0 + a)
     return priors, float(sigma * np.sqrt((1.0 - a * a) / max(a, 1e-12)))
 
 

@@ -29,9 +29,9 @@ Factors (all GTSAM built-in C++ factors)
   its variance times the number of estimates between the same two nodes: those changes are one
   path, not independent draws, :func:`~pedcal.calib.amcl_model.node_drift_variance`) as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
   nodes, a = exp(-dn / tau), written as factors: ``BetweenFactorPose3(a(j), a(j+1), I)`` of
-  variance sigma^2 (1 - a^2) / a and zero priors of variance sigma^2 (1 + a) / (1 - a) on inner
-  nodes and sigma^2 (1 + a) on the two ends (the sum of these squares is the AR(1)'s exact
-  precision). AMCL's heading error cannot be a world-frame rotation (that would swing the
+  variance sigma^2 (1 - a^2) / a and zero priors of variance sigma^2 (1 + a) / (1 - a) on every
+  node (the AR(1)'s exact precision but at the two ends, where the process is left free:
+  :func:`~pedcal.calib.amcl_model.ar1_factor_sigmas`). AMCL's heading error cannot be a world-frame rotation (that would swing the
   position about the map origin), so it is a white error per stamp inflated to 2 tau / dt times
   its variance: the information a process of correlation time tau holds about its mean. So the
   graph learns the run-average of AMCL, not its wander: sensors and trajectory are one rigid
@@ -464,7 +464,7 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
 
     n_nodes = int(node_of.max()) + 1 if len(use) else 0
     prior_sig, step_sig = ar1_factor_sigmas(sig_c, a, n_nodes)
-    by_sigma = {s: sig6(s, z_sig) for s in set(prior_sig.tolist())}      # (two values: ends, inner)
+    by_sigma = {s: sig6(s, z_sig) for s in set(prior_sig.tolist())}      # (one value)
     priors = [by_sigma[s] for s in prior_sig.tolist()]
     q = sig6(min(step_sig, 1e6), 1e-3)
     if free_z and n_nodes:
