@@ -232,6 +232,9 @@ def test_node_drift_variance_formula_and_shared_span():
     # five estimates between nodes 0 and 5, two from 5 on (the one past the last node counts there)
     np.testing.assert_allclose(var, change * np.array([5, 5, 5, 5, 5, 2, 2]), rtol=1e-12)
     assert var[0] == 0.0                                   # on its node: no change
+    # per estimate (the recipe's default): the change alone
+    _, alone = node_drift_variance(t, 0.0, 5.0, 3, sigma, tau, per_span=False)
+    np.testing.assert_allclose(alone, change, rtol=1e-12)
 
 
 def _model_covariance(t, node_t0, dn, n_nodes, sigma, tau, white):

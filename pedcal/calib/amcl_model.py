@@ -80,7 +80,8 @@ class AmclErrorModel:
 
 
 def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float, n_nodes: int,
-                        correlated_sigma_m: float, correlation_s: float) -> tuple[np.ndarray, np.ndarray]:
+                        correlated_sigma_m: float, correlation_s: float,
+                        per_span: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(node of each estimate, variance per axis (m^2) of the wandering error's change since that
     node) for estimates at ``t_s``, each tied to its nearest node of the error process (nodes
     every ``node_spacing_s`` from ``node_t0_s``). The change over |dt| is the OU's exact
@@ -91,13 +92,16 @@ def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float
     times it, averaged, give it back). Without that factor the graph reads the process's
     short-term shape from n estimates as if they were n independent looks and grows overconfident
     of whatever hangs on short lags (the network's common turn from the robot's sweeps: 2-3 times
-    too small a sigma); the run's mean (the long lags) is held by the nodes and keeps its variance."""
+    too small a sigma); the run's mean (the long lags) is held by the nodes and keeps its variance.
+    ``per_span`` False: the change alone, as if each estimate's were independent."""
     t = np.asarray(t_s, float)
     dn = max(float(node_spacing_s), 1e-9)
     u = (t - node_t0_s) / dn
     node = np.clip(np.round(u).astype(int), 0, max(n_nodes - 1, 0))
     tau = max(float(correlation_s), 1e-3)
     change = correlated_sigma_m ** 2 * (1.0 - np.exp(-2.0 * np.abs(t - (node_t0_s + dn * node)) / tau))
+    if not per_span:
+        return node, change
     segment = np.clip(np.floor(u).astype(int), 0, max(n_nodes - 2, 0))
     shared = np.bincount(segment)[segment] if len(t) else np.zeros(0, int)
     return node, change * shared

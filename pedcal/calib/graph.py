@@ -25,9 +25,10 @@ Factors (all GTSAM built-in C++ factors)
   :class:`~pedcal.calib.amcl_model.AmclErrorModel` (assumed before the first solve, estimated
   from its residuals after it; estimates it marks as jumps are left out). With ``F_j = E_j^{-1}``
   as the variable ``a(j)``, ``BetweenFactorPose3(a(j), x(k), Z_j)`` has residual
-  ``Log(Z_j^{-1} F_j^{-1} X)`` and the white error (plus the process's change since its node,
-  its variance times the number of estimates between the same two nodes: those changes are one
-  path, not independent draws, :func:`~pedcal.calib.amcl_model.node_drift_variance`) as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
+  ``Log(Z_j^{-1} F_j^{-1} X)`` and the white error (plus the process's change since its node;
+  with the recipe's ``amcl_change_per_span`` its variance times the number of estimates between
+  the same two nodes, those changes being one path, not independent draws,
+  :func:`~pedcal.calib.amcl_model.node_drift_variance`) as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
   nodes, a = exp(-dn / tau), written as factors: ``BetweenFactorPose3(a(j), a(j+1), I)`` of
   variance sigma^2 (1 - a^2) / a and zero priors of variance sigma^2 (1 + a) / (1 - a) on every
   node (the AR(1)'s exact precision but at the two ends, where the process is left free:
@@ -428,10 +429,11 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     nodes = prob.amcl_node_times
     dn = float(nodes[1] - nodes[0]) if len(nodes) > 1 else 1.0
     # white error (the model's share of the reported covariance and its own std) and the OU's
-    # change since the node, its variance times the estimates sharing the span between two nodes
-    # (node_drift_variance: one path, not independent draws)
+    # change since the node, with the recipe's amcl_change_per_span its variance times the
+    # estimates sharing the span between two nodes (node_drift_variance: one path, not independent draws)
     node_of, drift_var = node_drift_variance(amcl_t[use], float(nodes[0]) if len(nodes) else 0.0, dn, len(nodes),
-                                             max(model.correlated_sigma_m, 1e-4), model.correlation_s)
+                                             max(model.correlated_sigma_m, 1e-4), model.correlation_s,
+                                             per_span=rec.amcl_change_per_span)
     tiny = np.radians(0.05)
     tau = max(model.correlation_s, 1e-3)
     sig_c = max(model.correlated_sigma_m, 1e-4)

@@ -117,6 +117,9 @@ class GraphRecipe:
     amcl_correlation_s: float = 20.0
     amcl_node_spacing_s: float = 1.0   # nodes of the error process (a small fraction of tau)
     amcl_white_fraction: float = 0.2   # share of AMCL's reported std that is white, per stamp
+    # the wandering error's change since its node counted once per span between two nodes
+    # (pedcal.calib.amcl_model.node_drift_variance); off: once per estimate
+    amcl_change_per_span: bool = False
     # AMCL's error model (white std, wandering std and correlation time, jumps) estimated from the
     # residuals of a first solve (pedcal.calib.amcl_model); the three above are its starting point
     estimate_amcl_model: bool = True
