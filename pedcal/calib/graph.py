@@ -28,11 +28,12 @@ Factors (all GTSAM built-in C++ factors)
   ``Log(Z_j^{-1} F_j^{-1} X)`` and the white error (plus the process's change since its node;
   with the recipe's ``amcl_change_per_span`` its variance times the number of estimates between
   the same two nodes, those changes being one path, not independent draws,
-  :func:`~pedcal.calib.amcl_model.node_drift_variance`) as noise. The process on F is the exact AR(1) of an OU process sampled every dn on its
-  nodes, a = exp(-dn / tau), written as factors: ``BetweenFactorPose3(a(j), a(j+1), I)`` of
-  variance sigma^2 (1 - a^2) / a and zero priors of variance sigma^2 (1 + a) / (1 - a) on every
-  node (the AR(1)'s exact precision but at the two ends, where the process is left free:
-  :func:`~pedcal.calib.amcl_model.ar1_factor_sigmas`). AMCL's heading error cannot be a world-frame rotation (that would swing the
+  :func:`~pedcal.calib.amcl_model.node_drift_variance`) as noise. The process on F is the exact
+  AR(1) of an OU process sampled every dn on its nodes, a = exp(-dn / tau), written as factors:
+  ``BetweenFactorPose3(a(j), a(j+1), I)`` of variance sigma^2 (1 - a^2) / a and zero priors of
+  variance sigma^2 (1 + a) / (1 - a) on every node (the AR(1)'s exact precision but at the two
+  ends, where the process is left free: :func:`~pedcal.calib.amcl_model.ar1_factor_sigmas`).
+  AMCL's heading error cannot be a world-frame rotation (that would swing the
   position about the map origin), so it is a white error per stamp inflated to 2 tau / dt times
   its variance: the information a process of correlation time tau holds about its mean. So the
   graph learns the run-average of AMCL, not its wander: sensors and trajectory are one rigid
@@ -90,7 +91,13 @@ import numpy as np
 
 from pedcal import frames
 from pedcal.calib.amcl_model import (  # noqa: F401
-    AmclErrorModel, amcl_cov_body, amcl_white_sigma, assumed_model, ar1_factor_sigmas, node_drift_variance)
+    AmclErrorModel,
+    amcl_cov_body,
+    amcl_white_sigma,
+    ar1_factor_sigmas,
+    assumed_model,
+    node_drift_variance,
+)
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
