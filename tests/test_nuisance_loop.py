@@ -24,7 +24,8 @@ def slow_log():
 
 def _calibrate(log, caplog):
     caplog.clear()
-    with warnings.catch_warnings(), caplog.at_level(logging.INFO):
+    # (on the "pedcal" logger itself: a command-line test run before may have left it at WARNING)
+    with warnings.catch_warnings(), caplog.at_level(logging.INFO, logger="pedcal"):
         warnings.simplefilter("ignore")
         res = calibrate_factorgraph(log, progress=True)
     return res, caplog.text
