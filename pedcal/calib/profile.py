@@ -522,18 +522,15 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
             d = (sparse_system(observations(th, scale).linearize(values), cols)[1] - b_ref) / nuisances[j].step
             columns[j] = (np.flatnonzero(d), d[d != 0.0])
     lengths = [len(c[0]) for c in columns]
-    if chord:
-        # the gradient exact, -B^T rho0 with this point's B and weights (A^T rho0 = 0 at z0): the
-        # chord's fixed point is the profile's optimum; only the Hessian is the full step's
-        B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
-                            (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
-                             np.repeat(np.arange(k), lengths))), shape=(A.shape[0], k))
-        grad = -(B.T @ rho0) + info @ (theta[:k_exact] - mean)
-        return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
-                           Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
     B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
                         (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
                          np.repeat(np.arange(k), lengths))), shape=(A.shape[0], k))
+    if chord:
+        # the gradient exact, -B^T rho0 with this point's B and weights (A^T rho0 = 0 at z0): the
+        # chord's fixed point is the profile's optimum; only the Hessian is the full step's
+        grad = -(B.T @ rho0) + info @ (theta[:k_exact] - mean)
+        return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
+                           Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
     columns = None                # (B holds them: 10 MB at 1000 sensors, not kept through the factorization)
     B, B_local = B[:, :k_exact], B[:, k_exact:]
     local_cols = None
