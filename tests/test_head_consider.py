@@ -211,13 +211,13 @@ def test_a_corridor_stretched_by_a_fading_head_shift_is_within_its_sigma(seed, m
     assert sd > 0.03 and sens.shape == (6 * len(res.network.ids) + 6,)
 
 
+@pytest.mark.filterwarnings("ignore")
 def test_a_sensors_sigma_widened_by_nuisances_keeps_its_estimate(monkeypatch):
     # a nuisance's prior carried into the sensors' covariance (the consider line's, which on a
     # large site reaches the installed prior's size) widens the sigma; it is no lack of data,
     # so the estimate is not replaced by the installed pose. The graph's own marginal given the
     # nuisances decides what the data constrain: widened as well, the sensors are degenerate.
     sim = simulate_logs("paper", seed=0, duration_s=60.0)
-    warnings.simplefilter("ignore")
     base = calibrate(sim.calib, method="factorgraph")
     original = fgmod._posterior
     wide = np.diag([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])       # 1 m sigma on each axis, m^2

@@ -36,6 +36,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS
+from pedcal.calib.keys import symbol_parts
 from pedcal.calib.profile import Nuisance
 from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, SIGMA_LATENCY_KEY
 
@@ -97,7 +98,7 @@ def solved_velocity_world(prob, result) -> np.ndarray | None:
 
     t = prob.pose_times
     keys = np.asarray(result.keys(), np.uint64)
-    n = int(np.count_nonzero((keys >> np.uint64(56)) == np.uint64(ord("x"))))   # (a Symbol's character: top byte)
+    n = int(np.count_nonzero(symbol_parts(keys)[0] == np.uint64(ord("x"))))
     if n < 2:
         return None
     x = pose_arrays(result, [X(k) for k in range(n)])[1]
@@ -208,17 +209,11 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
         return np.sum((u - u.mean(axis=1, keepdims=True)) ** 2, axis=1) * C / (C - 1)
 
     null = m2 - scatter(U_he).mean(axis=1)
-    if np.all(null > 0.0):
-        return _set(out, idx, scatter(U[:, :, :1])[:, 0] / null)
-    # (the draws' own scores only where the plain mean is needed: half the scores' cost spared)
-    U_e = block_scores(step, weights, e)[0]
-    plain = scatter(U_e - U_he).mean(axis=1)
-    return _set(out, idx, scatter(U[:, :, :1])[:, 0] / np.where(null > 0.0, null, plain))
-
-
-def _set(out: np.ndarray, idx: list, values: np.ndarray) -> np.ndarray:
-    """``out`` with ``values`` at ``idx``."""
-    out[idx] = values
+    if not np.all(null > 0.0):
+        # (the draws' own scores only where the plain mean is needed: half the scores' cost spared)
+        U_e = block_scores(step, weights, e)[0]
+        null = np.where(null > 0.0, null, scatter(U_e - U_he).mean(axis=1))
+    out[idx] = scatter(U[:, :, :1])[:, 0] / null
     return out
 
 
@@ -288,11 +283,9 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
     n_blocks = int(np.floor(max(float(np.max(pose_times, initial=0.0)), float(np.max(t_nodes, initial=0.0)))
                             / cluster_s)) + 1
     cols = step.cols
-    # each variable's block from its key (GTSAM's Symbol: its character in the top 8 bits, its index below)
-    keys = np.fromiter(cols.keys, np.uint64, len(cols.keys))
-    char = (keys >> np.uint64(56)).astype(np.int64)
-    index = (keys & np.uint64((1 << 56) - 1)).astype(np.int64)
-    block = np.full(len(keys), -1, np.int64)
+    # each variable's block from its key (GTSAM's Symbol: its character and its index)
+    char, index = (part.astype(np.int64) for part in symbol_parts(np.fromiter(cols.keys, np.uint64, len(cols.keys))))
+    block = np.full(len(char), -1, np.int64)
     for c, times in (("x", pose_times), ("a", t_nodes)):
         mine = (char == ord(c)) & (index < len(times))
         block[mine] = np.floor(times[index[mine]] / cluster_s).astype(np.int64)

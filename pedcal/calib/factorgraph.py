@@ -85,6 +85,7 @@ from pedcal.calib.headpoint import (
     select_head_profile,
     sensor_shift_nuisances,
 )
+from pedcal.calib.keys import symbol_parts
 from pedcal.calib.marginals import marginal_covariances
 from pedcal.calib.profile import (
     Columns,
@@ -304,7 +305,7 @@ def people_renumbered(values: gtsam.Values, kept: np.ndarray) -> gtsam.Values:
     variable is copied as it is)."""
     out = gtsam.Values(values)
     keys = np.asarray(values.keys(), np.uint64)
-    for key in keys[(keys >> np.uint64(56)) == np.uint64(ord("l"))].tolist():    # (a Symbol's character: top byte)
+    for key in keys[symbol_parts(keys)[0] == np.uint64(ord("l"))].tolist():
         out.erase(key)
     for m, j in enumerate(kept):
         if values.exists(L(int(j))):
@@ -477,29 +478,24 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # (a chord step takes B's finite differences too: its gradient, -B^T rho0, is exact only with
         # this point's B and robust weights; with the full step's, the chord settled elsewhere than
         # the profile's optimum)
-        differences = True
         plain = None
         if odo:
+            motion_rhs = MotionRhs(log, prob, result)
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES])
-            if differences:
-                motion_rhs = MotionRhs(log, prob, result)
-                plain += (lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))),)
-        rhs, footprint = None, None
-        if differences:
-            rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
-            # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
-            # and so does its own departure of the horizontal shift
-            footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
-                         if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
+                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
+                     lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
+        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
+        # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
+        # and so does its own departure of the horizontal shift
+        footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
+                     if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
             order=None if step is None else step.order,
-            residuals=None if rhs is None else lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)),
-                                                                                     scale),
+            residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
             footprint=footprint, local=local_cols)
         if not chord:
             full_step = step

@@ -103,7 +103,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import head_world, interpolate_pose2
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
-from pedcal.calib.keys import A, H, L, S, X  # noqa: F401 (the graph's keys, re-exported)
+from pedcal.calib.keys import A, H, L, S, X, symbol_parts  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
     RobotMotion,
     calibrate_odometry,
@@ -371,8 +371,7 @@ def _kept_values(values: gtsam.Values, kept: dict[str, int]) -> gtsam.Values:
     binding ~7 us a key (its overloads tried one by one)."""
     out = gtsam.Values(values)
     keys = np.asarray(values.keys(), np.uint64)
-    # a Symbol's character in the key's top byte, its index below
-    chars, index = keys >> np.uint64(56), keys & np.uint64((1 << 56) - 1)
+    chars, index = symbol_parts(keys)
     keep = np.zeros(len(keys), bool)
     for c, n in kept.items():
         keep |= (chars == np.uint64(ord(c))) & (index < np.uint64(n))

@@ -3,6 +3,7 @@
 node j, ``L(m)`` a person seen by two sensors at once, ``H(0)`` the head point's vertical offset."""
 
 import gtsam
+import numpy as np
 
 S = gtsam.symbol_shorthand.S
 X = gtsam.symbol_shorthand.X
@@ -10,4 +11,13 @@ A = gtsam.symbol_shorthand.A
 L = gtsam.symbol_shorthand.L
 H = gtsam.symbol_shorthand.H
 
-__all__ = ["S", "X", "A", "L", "H"]
+_INDEX_BITS = 56          # a Symbol: its character in the top byte, its index below
+
+
+def symbol_parts(keys) -> tuple[np.ndarray, np.ndarray]:
+    """(character code, index) of GTSAM Symbol ``keys`` (an array of uint64), as uint64 arrays."""
+    keys = np.asarray(keys, np.uint64)
+    return keys >> np.uint64(_INDEX_BITS), keys & np.uint64((1 << _INDEX_BITS) - 1)
+
+
+__all__ = ["S", "X", "A", "L", "H", "symbol_parts"]
