@@ -383,3 +383,40 @@ def test_the_odometry_at_the_pose_times_is_interpolated_once_and_again_for_new_t
     np.testing.assert_array_equal(other, interpolate_pose2(odo, times + 0.25))
     prob.odometry = odo.assign(x=odo["x"] + 1.0)                 # a new odometry: taken again
     np.testing.assert_allclose(_odometry_at(prob, times + 0.25)[:, 0], other[:, 0] + 1.0, rtol=0, atol=1e-12)
+
+
+def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized_at(monkeypatch):
+    # build_parts reads the observation block's noise ranges at the measured points (its initial
+    # values are no solution); the profile's right-hand sides (ObservationRhs) read them at the
+    # points the solution predicts. The first profile step after a solve must whiten A, b and B
+    # alike: its step is the one of a block built at that solution (on this log the stale block's
+    # step moved the ray shift 4 sigma further)
+    import warnings
+
+    import pedcal.calib.factorgraph as fgm
+    from pedcal.errors import DegenerateDataWarning
+    from pedcal.sim import simulate_logs
+
+    sim = simulate_logs("paper", seed=0, duration_s=60.0, vary_nuisances="zoo")
+    rec = GraphRecipe.load("default")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        prob = prepare(sim.calib, rec)
+        parts = build_parts(sim.calib, prob)
+        result, _ = optimize_graph(parts.graph(), parts.values, rec, max_iterations=10, relative_error_tol=1e-3)
+    steps = []
+    step_of = fgm.profile_step
+
+    def both(*args, **kw):
+        # (both before the loop moves the problem's nuisances: the blocks read them)
+        fresh = step_of(*args, **{**kw, "obs0": observation_block(sim.calib, prob, args[2])})
+        steps.append((step_of(*args, **kw), fresh))
+        return steps[-1][0]
+
+    monkeypatch.setattr(fgm, "profile_step", both)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        fgm._estimate_nuisances(sim.calib, prob, parts, result, max_steps=1, final_graph=False)
+    (taken, fresh), = steps
+    sigma = np.sqrt(np.diag(fresh.covariance))
+    assert np.all(np.abs(taken.dtheta - fresh.dtheta) <= 1e-6 * sigma), (taken.dtheta - fresh.dtheta) / sigma
