@@ -119,6 +119,39 @@ def test_steps_in_amcls_track_are_jumps_wherever_the_robot_was():
     assert not detect_steps(t[:9], p[:9]).any()          # too few to tell
 
 
+def _wandering_track(rng, t):
+    """_track with AMCL's wandering (5 cm, 20 s) and white (8 mm) error."""
+    p = _track(rng, t) + np.column_stack([ou_process(rng, len(t), t[1] - t[0], 0.05, 20.0) for _ in range(2)])
+    return p + rng.normal(0.0, 0.008, p.shape)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_two_steps_within_one_window_are_both_found(seed):
+    # at 10 Hz: a 0.4 m jump that ends 0.3 s before another starts (the zoo corridor seed 12's
+    # relocalizations), and two steps out 0.3 s apart (0.4 m, then 0.3 m 34 deg away) that come
+    # back in one: every estimate of both, and nothing else (a window's largest step alone missed
+    # one of each pair, and its bookkeeping left the jumps in)
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 300.0, 0.1)
+    p = _wandering_track(rng, t)
+    truth = np.zeros(len(t), bool)
+    for start, stop, size, angle in ((60.0, 70.0, 0.4, 1.0), (70.3, 80.3, 0.4, 3.0),
+                                     (180.0, 190.0, 0.4, 5.0), (180.3, 190.0, 0.3, 5.6)):
+        on = (t >= start - 1e-9) & (t < stop - 1e-9)
+        p[on] += size * np.array([np.cos(angle), np.sin(angle)])
+        truth |= on
+    assert np.array_equal(detect_steps(t, p), truth)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("period_s", [0.1, 0.2])
+def test_no_steps_are_found_in_a_wandering_track_without_jumps(seed, period_s):
+    # 10 minutes of a moving robot's AMCL track, wandering 5 cm over 20 s with 8 mm of jitter
+    rng = np.random.default_rng(100 + seed)
+    t = np.arange(0.0, 600.0, period_s)
+    assert not detect_steps(t, _wandering_track(rng, t)).any()
+
+
 def test_track_jumps_stay_left_out_where_no_sensor_saw_the_robot():
     # the assumed model leaves AMCL's track jumps out; the estimated one keeps them, with those
     # the sensors' residuals show (here none: the residuals are AMCL's wander alone)

@@ -286,10 +286,12 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     relocalization jump, found from AMCL's own track, wherever the sensors see the robot or not.
     A jump is a step: at each gap between estimates, the line through the estimates of the
     ``half_window_s`` after it minus the line through those of the ``half_window_s`` before,
-    both taken at the gap, is the step there (the robot's motion, smooth over a second, cancels;
-    a step spreads over the gaps within the window, so only a window's largest counts). Steps
-    beyond ``threshold`` robust sigmas of that statistic and ``min_jump_m`` move an offset that
-    starts at 0; the estimates while it is more than ``min_jump_m`` off are the jump, when a later
+    both taken at the gap, is the step there (the robot's motion, smooth over a second, cancels).
+    A step spreads over the gaps within the window: the largest step is taken, then taken out of
+    the track (the estimates after it moved back by it) and the steps across it taken again, and
+    so on while one is beyond ``threshold`` robust sigmas of that statistic (over the track as
+    given) and ``min_jump_m``; so two steps within one window are both found. In time order they
+    move an offset that starts at 0; the estimates while it is more than ``min_jump_m`` off are the jump, when a later
     step brings it back within ``max_jump_s`` (an offset that never returns is not told from a
     relocalization that was right, and nothing is left out for it)."""
     t = np.asarray(t, float)
@@ -305,23 +307,40 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     m = len(tu)
     k = np.arange(1, m)                                  # gap between estimates k - 1 and k
     at = 0.5 * (tu[k - 1] + tu[k])
-    before = _edge_values(tu, pu, np.searchsorted(tu, tu[k] - half_window_s), k, at)
-    after = _edge_values(tu, pu, k, np.searchsorted(tu, tu[k] + half_window_s), at)
-    step = after - before
-    size = np.linalg.norm(step, axis=1)
-    size[~np.isfinite(size)] = 0.0
+    first = np.searchsorted(tu, tu[k] - half_window_s)   # each gap's window: estimates first..last - 1
+    last = np.searchsorted(tu, tu[k] + half_window_s)
+
+    def steps_at(gaps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        kk = k[gaps]
+        d = _edge_values(tu, pu, kk, last[gaps], at[gaps]) - _edge_values(tu, pu, first[gaps], kk, at[gaps])
+        norm = np.linalg.norm(d, axis=1)
+        norm[~np.isfinite(norm)] = 0.0
+        return d, norm
+
+    step, size = steps_at(np.arange(m - 1))
     if not np.any(size > 0.0):
         return out
     scale = jump_scale(size[size > 0.0])
-    # a window's largest step only (the steps of the gaps near a jump see part of it)
-    lo = np.searchsorted(at, at - half_window_s)
-    hi = np.searchsorted(at, at + half_window_s, side="right")
-    peak = np.array([size[j] >= size[lo[j]:hi[j]].max() for j in range(len(size))])
-    big = np.flatnonzero(peak & (size > max(threshold * scale, min_jump_m)))
+    limit = max(threshold * scale, min_jump_m)
+    # the steps one at a time, the largest first, each taken out of the track before the next is
+    # looked for: the gaps whose windows reach across a step see part of it (as much as a third of
+    # it, on the far side of the window), which taking it out removes, where counting a window's
+    # largest step alone lost a second step within the window (two relocalizations 0.3 s apart)
+    found = []
+    for _ in range(m - 1):
+        j = int(np.argmax(size))
+        if not size[j] > limit:
+            break
+        found.append((j, step[j].copy()))
+        pu[k[j]:] -= step[j]
+        near = np.flatnonzero((first < k[j]) & (last > k[j]))          # the windows across gap j
+        step[near], size[near] = steps_at(near)
+        size[j] = 0.0
+    big = sorted(found, key=lambda f: f[0])
     jump_u = np.zeros(m, bool)
     offset, start = np.zeros(p.shape[1]), None
-    for j in big:
-        offset = offset + step[j]
+    for j, step_j in big:
+        offset = offset + step_j
         if start is None:
             if np.linalg.norm(offset) > min_jump_m:
                 start = k[j]
@@ -332,7 +351,7 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
                 jump_u[start:k[j]] = True
             offset[:], start = 0.0, None
         elif tu[k[j]] - tu[start] > max_jump_s:          # never came back: start again from here
-            offset, start = step[j].copy(), k[j]
+            offset, start = step_j.copy(), k[j]
     out[:] = jump_u[inv]
     return out
 
