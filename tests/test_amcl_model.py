@@ -259,7 +259,7 @@ def test_ar1_factor_sigmas_are_the_stationary_ar1_free_at_the_ends():
 def test_node_drift_variance_formula_and_shared_span():
     sigma, tau = 0.05, 20.0
     t = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 12.0])    # nodes at 0, 5, 10 (the last past them)
-    node, var = node_drift_variance(t, 0.0, 5.0, 3, sigma, tau)
+    node, var = node_drift_variance(t, 0.0, 5.0, 3, sigma, tau, per_span=True)
     np.testing.assert_array_equal(node, [0, 0, 0, 1, 1, 1, 2])
     change = sigma ** 2 * (1.0 - np.exp(-2.0 * np.abs(t - 5.0 * node) / tau))
     # five estimates between nodes 0 and 5, two from 5 on (the one past the last node counts there)
@@ -268,6 +268,27 @@ def test_node_drift_variance_formula_and_shared_span():
     # per estimate (the recipe's default): the change alone
     _, alone = node_drift_variance(t, 0.0, 5.0, 3, sigma, tau, per_span=False)
     np.testing.assert_allclose(alone, change, rtol=1e-12)
+    # no default of its own to disagree with the recipe's: the caller says which
+    with pytest.raises(TypeError, match="per_span"):
+        node_drift_variance(t, 0.0, 5.0, 3, sigma, tau)
+
+
+@pytest.mark.parametrize("per_span", [False, True])
+def test_the_graph_counts_the_change_as_its_recipe_says(monkeypatch, per_span):
+    # the AMCL block takes the recipe's amcl_change_per_span (default off), whatever the function's
+    import pedcal.calib.graph as graph
+    from pedcal.calib.recipe import GraphRecipe
+
+    assert GraphRecipe().amcl_change_per_span is False
+    asked = []
+    monkeypatch.setattr(graph, "node_drift_variance",
+                        lambda *a, **kw: asked.append(kw["per_span"]) or node_drift_variance(*a, **kw))
+    sim = simulate_logs("paper", seed=0, duration_s=20.0)
+    rec = GraphRecipe(amcl_change_per_span=per_span)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        graph.build_parts(sim.calib, graph.prepare(sim.calib, rec))
+    assert asked and set(asked) == {per_span}
 
 
 def _model_covariance(t, node_t0, dn, n_nodes, sigma, tau, white):
@@ -275,7 +296,7 @@ def _model_covariance(t, node_t0, dn, n_nodes, sigma, tau, white):
     each estimate's change since its node (node_drift_variance) and the white error."""
     prior_sig, step_sig = ar1_factor_sigmas(sigma, np.exp(-dn / tau), n_nodes)
     C_nodes = np.linalg.inv(_ar1_precision(prior_sig, step_sig, n_nodes))
-    node, drift = node_drift_variance(t, node_t0, dn, n_nodes, sigma, tau)
+    node, drift = node_drift_variance(t, node_t0, dn, n_nodes, sigma, tau, per_span=True)
     return C_nodes[np.ix_(node, node)] + np.diag(drift + white ** 2)
 
 

@@ -81,7 +81,7 @@ class AmclErrorModel:
 
 def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float, n_nodes: int,
                         correlated_sigma_m: float, correlation_s: float,
-                        per_span: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                        *, per_span: bool) -> tuple[np.ndarray, np.ndarray]:
     """(node of each estimate, variance per axis (m^2) of the wandering error's change since that
     node) for estimates at ``t_s``, each tied to its nearest node of the error process (nodes
     every ``node_spacing_s`` from ``node_t0_s``). The change over |dt| is the OU's exact
@@ -93,7 +93,10 @@ def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float
     short-term shape from n estimates as if they were n independent looks and grows overconfident
     of whatever hangs on short lags (the network's common turn from the robot's sweeps: 2-3 times
     too small a sigma); the run's mean (the long lags) is held by the nodes and keeps its variance.
-    ``per_span`` False: the change alone, as if each estimate's were independent."""
+    ``per_span`` False: the change alone, as if each estimate's were independent. It has no
+    default: the graph takes the recipe's ``amcl_change_per_span`` (off by default, for the
+    profile loop's convergence: README), while the model above is the one a Monte Carlo of the
+    process bears out; a caller states which it means."""
     t = np.asarray(t_s, float)
     dn = max(float(node_spacing_s), 1e-9)
     u = (t - node_t0_s) / dn
