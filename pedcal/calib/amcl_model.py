@@ -260,10 +260,14 @@ def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold
     return dev > max(threshold * jump_scale(dev), min_jump_m)
 
 
-def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, at: np.ndarray) -> np.ndarray:
+def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, at: np.ndarray,
+                 variance: bool = False):
     """(n, k) the least-squares line through the samples ``lo[j]:hi[j]`` of (``t``, ``p``),
     evaluated at ``at[j]``; NaN where fewer than two samples (or one time) are in the window.
-    From cumulative sums, so a long log costs O(n)."""
+    With ``variance``, also (n,) that value's variance per unit variance of a sample's noise,
+    sum(u^2) / (n sum(u^2) - (sum u)^2) with u the samples' times about ``at[j]`` (the line's
+    variance where it is read: large where it extrapolates over a hole or from samples close in
+    time). From cumulative sums, so a long log costs O(n)."""
     t0 = float(t[0]) if len(t) else 0.0
     tt = t - t0
     z = lambda a: np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])  # noqa: E731
@@ -280,7 +284,11 @@ def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, a
     ok = (n >= 2) & (det > 1e-12 * np.maximum(n * suu, 1e-300))
     out = np.full(p[lo].shape, np.nan)
     out[ok] = (suu[ok, None] * s_p[ok] - su[ok, None] * sup[ok]) / det[ok, None]
-    return out
+    if not variance:
+        return out
+    var = np.full(len(out), np.inf)
+    var[ok] = suu[ok] / det[ok]
+    return out, var
 
 
 def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, threshold: float = 5.0,
@@ -290,10 +298,14 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     A jump is a step: at each gap between estimates, the line through the estimates of the
     ``half_window_s`` after it minus the line through those of the ``half_window_s`` before,
     both taken at the gap, is the step there (the robot's motion, smooth over a second, cancels).
-    A step spreads over the gaps within the window: the largest step is taken, then taken out of
-    the track (the estimates after it moved back by it) and the steps across it taken again, and
-    so on while one is beyond ``threshold`` robust sigmas of that statistic (over the track as
-    given) and ``min_jump_m``; so two steps within one window are both found. In time order they
+    Each step is counted in its own standard error, the two lines' variances where they are read
+    (:func:`_edge_values`): at irregular times a window that extrapolates over a hole, or from
+    estimates close in time, reads a line several times as noisy, and its step is not a jump.
+    A step spreads over the gaps within the window: the largest step (in its standard errors) of
+    more than ``min_jump_m`` is taken, then taken out of the track (the estimates after it moved
+    back by it) and the steps across it taken again, and so on while one is beyond ``threshold``
+    robust sigmas of that statistic (over the track as given); so two steps within one window are
+    both found. In time order they
     move an offset that starts at 0; the estimates while it is more than ``min_jump_m`` off are the jump, when a later
     step brings it back within ``max_jump_s`` (an offset that never returns is not told from a
     relocalization that was right, and nothing is left out for it)."""
@@ -301,11 +313,14 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     p = np.asarray(p, float)
     n = len(t)
     out = np.zeros(n, bool)
-    if n < 10:
+    # (a non-finite estimate is left out and left unflagged: the cumulative sums would carry one
+    # NaN into every later window, and no step after it would be found)
+    finite = np.isfinite(t) & np.all(np.isfinite(p), axis=1)
+    if np.count_nonzero(finite) < 10:
         return out
-    tu, inv = np.unique(t, return_inverse=True)
+    tu, inv = np.unique(t[finite], return_inverse=True)
     pu = np.zeros((len(tu), p.shape[1]))
-    np.add.at(pu, inv, p)
+    np.add.at(pu, inv, p[finite])
     pu /= np.bincount(inv, minlength=len(tu))[:, None]
     m = len(tu)
     k = np.arange(1, m)                                  # gap between estimates k - 1 and k
@@ -313,18 +328,23 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     first = np.searchsorted(tu, tu[k] - half_window_s)   # each gap's window: estimates first..last - 1
     last = np.searchsorted(tu, tu[k] + half_window_s)
 
-    def steps_at(gaps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        kk = k[gaps]
-        d = _edge_values(tu, pu, kk, last[gaps], at[gaps]) - _edge_values(tu, pu, first[gaps], kk, at[gaps])
+    def steps_at(gaps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the steps at ``gaps``, their sizes in standard errors, their sizes in metres)"""
+        a, b = int(first[gaps].min()), int(last[gaps].max())     # the estimates these windows read
+        kk, ts, ps = k[gaps] - a, tu[a:b], pu[a:b]
+        after, v_after = _edge_values(ts, ps, kk, last[gaps] - a, at[gaps], variance=True)
+        before, v_before = _edge_values(ts, ps, first[gaps] - a, kk, at[gaps], variance=True)
+        d = after - before
         norm = np.linalg.norm(d, axis=1)
-        norm[~np.isfinite(norm)] = 0.0
-        return d, norm
+        z = norm / np.sqrt(v_after + v_before)
+        z[~np.isfinite(z)] = 0.0
+        return d, z, norm
 
-    step, size = steps_at(np.arange(m - 1))
+    step, size, metres = steps_at(np.arange(m - 1))
     if not np.any(size > 0.0):
         return out
-    scale = jump_scale(size[size > 0.0])
-    limit = max(threshold * scale, min_jump_m)
+    limit = threshold * jump_scale(size[size > 0.0])
+    size[metres <= min_jump_m] = 0.0
     # the steps one at a time, the largest first, each taken out of the track before the next is
     # looked for: the gaps whose windows reach across a step see part of it (as much as a third of
     # it, on the far side of the window), which taking it out removes, where counting a window's
@@ -336,8 +356,9 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
             break
         found.append((j, step[j].copy()))
         pu[k[j]:] -= step[j]
-        near = np.flatnonzero((first < k[j]) & (last > k[j]))          # the windows across gap j
-        step[near], size[near] = steps_at(near)
+        near = np.arange(np.searchsorted(last, k[j], 'right'), np.searchsorted(first, k[j]))  # windows across gap j
+        step[near], size[near], metres = steps_at(near)
+        size[near[metres <= min_jump_m]] = 0.0
         size[j] = 0.0
     big = sorted(found, key=lambda f: f[0])
     jump_u = np.zeros(m, bool)
@@ -355,7 +376,7 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
             offset[:], start = 0.0, None
         elif tu[k[j]] - tu[start] > max_jump_s:          # never came back: start again from here
             offset, start = step_j.copy(), k[j]
-    out[:] = jump_u[inv]
+    out[finite] = jump_u[inv]
     return out
 
 
