@@ -424,7 +424,7 @@ def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized
     # values are no solution); the profile's right-hand sides (ObservationRhs) read them at the
     # points the solution predicts. The first profile step after a solve must whiten A, b and B
     # alike: its step is the one of a block built at that solution (on this log the stale block's
-    # step moved the ray shift 4 sigma further)
+    # step moved the ray shift 1.3 sigma further)
     import warnings
 
     import pedcal.calib.factorgraph as fgm
