@@ -26,7 +26,14 @@ log, scored on the evaluation log, pedcal.metrics.evaluate), horizontal only (mm
   1 / (1^T Sigma^-1 1) per axis under AMCL's true error covariance (common_shift_variance_m2);
 - P(<= limit): the probability that an efficient estimator (Gaussian errors of exactly the
   bound's joint covariance) meets the limit on a log like this one;
-- graph / bound: the efficiency ratio (1: efficient; below 1 on one log is chance, or bias).
+- graph / bound: the efficiency ratio (1: efficient; below 1 on one log is chance, or bias);
+- AMCL run-mean error: the norm of AMCL's position error averaged over the calibration run (the
+  truth's draw of what every calibration anchored to AMCL shares); over logs, its RMS over the
+  bound's common part says how large the draws were (about 1 for an unbiased draw: the bound's
+  common part is the best estimate's of that mean); the graph's common part less it (RMS over
+  logs): the common error the graph adds to AMCL's own. The logs of one seed share AMCL's error
+  draw across scenarios (the same stream, routes of similar length), so 20 seeds are about 20
+  draws of it, not 100.
 
 Summaries per scenario, per AMCL family (white, correlated, jumps, relocalization) and pooled:
 means over logs of the per-log figures, the share of logs whose bound exceeds the limit, the
@@ -34,8 +41,8 @@ expected share of logs an efficient estimator meets it on (mean of P), how many 
 meets it on, and the efficiency as RMS over logs of the graph's over that of the bound (total,
 common and rest).
 
-``--xgen-results DIR`` adds the held-out generator's logs of an earlier
-``benchmarks/bench_xgen.py --out DIR`` run (its results.jsonl and logs): the factor graph's and the
+``--xgen-results DIR [DIR ...]`` adds the held-out generator's logs of earlier
+``benchmarks/bench_xgen.py --out DIR`` runs (their results.jsonl and logs): the factor graph's and the
 grid search's horizontal RMS as bench_xgen scored them, and the genie bound on the common shift
 under the generator's true AMCL process (xgen.json): an OU of std sigma_along along the room's
 long axis and sigma_cross across it, correlation time tau_xy, its white jitter and jumps taken as
@@ -92,8 +99,9 @@ def run_one(scenario: str, seed: int, limit_mm: float = 12.0) -> dict:
     warnings.simplefilter("ignore")
     sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo")
     log = sim.calib
+    amcl_mean_m = amcl_run_mean_error_m(log)
     out = dict(scenario=scenario, seed=seed, family=zoo_families(sim.scenario)["amcl"], sensors=len(log.truth),
-               amcl_mean_mm=float(1000 * np.linalg.norm(amcl_run_mean_error_m(log))))
+               amcl_mean_mm=float(1000 * np.linalg.norm(amcl_mean_m)))
     for method in ("factorgraph", "gridsearch"):
         c0 = time.process_time()
         res = calibrate(log, method=method)
@@ -101,7 +109,8 @@ def run_one(scenario: str, seed: int, limit_mm: float = 12.0) -> dict:
         ev = evaluate(sim.eval, res.network)
         E = np.array([s.position_error_mm[:2] for s in ev.sensors
                       if np.all(np.isfinite(s.position_error_mm))]) / 1000.0
-        out[method] = dict(zip(("xy", "common", "rest"), horizontal_split_mm(E), strict=True), cpu_s=cpu)
+        out[method] = dict(zip(("xy", "common", "rest"), horizontal_split_mm(E), strict=True), cpu_s=cpu,
+                           common_less_amcl=float(1000 * np.linalg.norm(E.mean(axis=0) - amcl_mean_m)))
     rec, model, sigma_yaw = simulator_noise(sim.scenario)
     c0 = time.process_time()
     t = log.robot["t"].to_numpy(float)
@@ -142,6 +151,8 @@ def summary_row(name: str, rs: list[dict], limit_mm: float) -> str:
             f"{g('bound', 'genie_common').mean():.1f} | "
             f"{g('factorgraph', 'common').mean():.1f} / {g('factorgraph', 'rest').mean():.1f} | "
             f"{np.mean([r['amcl_mean_mm'] for r in rs]):.1f} | "
+            f"{_rms([r['amcl_mean_mm'] for r in rs]) / _rms(g('bound', 'common')):.2f} | "
+            f"{_rms(g('factorgraph', 'common_less_amcl')):.1f} | "
             f"{100 * np.mean(b > limit_mm):.0f} | {100 * g('bound', 'p_within').mean():.0f} "
             f"({100 * g('bound_heading', 'p_within').mean():.0f}) | "
             f"{int(np.sum(fg <= limit_mm))} | {int(np.sum(fg <= 0.35 * gs))} | {eff} |")
@@ -220,12 +231,12 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--limit-mm", type=float, default=12.0)
     ap.add_argument("--verbose", action="store_true", help="one line per log")
-    ap.add_argument("--xgen-results", type=Path, default=None, metavar="DIR",
-                    help="also bound the held-out generator's logs of an earlier bench_xgen.py --out DIR run")
+    ap.add_argument("--xgen-results", type=Path, nargs="+", default=None, metavar="DIR",
+                    help="also bound the held-out generator's logs of earlier bench_xgen.py --out DIR runs")
     ap.add_argument("--xgen-only", action="store_true", help="with --xgen-results: no zoo logs")
     args = ap.parse_args()
     if args.xgen_results is not None:
-        print_xgen(xgen_rows(args.xgen_results, args.limit_mm), args.limit_mm)
+        print_xgen([row for d in args.xgen_results for row in xgen_rows(d, args.limit_mm)], args.limit_mm)
         if args.xgen_only:
             return
     tasks = [(sc, s, args.limit_mm) for sc in args.scenarios
@@ -245,10 +256,11 @@ def main() -> None:
           f"wall {wall:.0f} s with {args.jobs} jobs, load {os.getloadavg()[0]:.2f} at the end")
     print("\nhorizontal, mm; means over logs (efficiency: RMS over logs of the graph's over the bound's)\n")
     print(f"| group | logs | graph xy | grid xy | bound xy | bound xy, heading as the graph | bound common / rest | "
-          f"genie common | graph common / rest | AMCL run-mean error | bound > {lim} (% of logs) | "
+          f"genie common | graph common / rest | AMCL run-mean error | AMCL run-mean / bound common (RMS) | "
+          f"graph common less AMCL run mean (RMS) | bound > {lim} (% of logs) | "
           f"efficient <= {lim} (expected % of logs; heading as the graph) | "
           f"graph <= {lim} (logs) | graph <= 0.35x grid (logs) | graph / bound: xy / common / rest |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---" * 17 + "|")
     groups = defaultdict(list)
     for r in results:
         groups[r["scenario"]].append(r)
