@@ -1,5 +1,7 @@
 """The Cramér-Rao bound of sensor positions: a numeric Fisher-information check and its 1/N
-scaling, on small exact logs."""
+scaling, on small exact logs; under AMCL's true error process, its common shift against the exact
+best linear unbiased estimate of an Ornstein-Uhlenbeck mean, and the simulator's noise as the
+bound takes it (never above the simulated)."""
 
 import copy
 
@@ -8,9 +10,18 @@ import numpy as np
 import pytest
 from test_factorgraph import make_exact_log
 
-from pedcal.calib.crlb import sensor_position_crlb, true_values
+from pedcal.calib.amcl_model import AmclErrorModel
+from pedcal.calib.crlb import (
+    CRLBResult,
+    common_shift_variance_m2,
+    sensor_position_crlb,
+    simulator_noise,
+    true_values,
+)
 from pedcal.calib.factorgraph import GraphRecipe, S, build_graph, prepare, sensor_sigma_world
+from pedcal.calib.recipe import observation_sigmas
 from pedcal.errors import PedcalInputError
+from pedcal.sim.scenario import load_scenario
 
 SIGMA_M = 0.05      # observation noise large against AMCL's 1 mm: the sensors' data dominate
 
@@ -86,3 +97,79 @@ def test_crlb_needs_the_truth():
     log.truth = None
     with pytest.raises(PedcalInputError, match="truth"):
         sensor_position_crlb(log, _recipe(), is_robot=np.ones(len(log.observations), bool))
+
+
+# ------------------------------------------------------------------ the bound under the true noise
+def test_common_shift_variance_is_the_exact_blue_of_an_ou_mean():
+    # AR(1) of n samples, a = exp(-dt / tau): 1^T Q 1 = (2 + (n - 2)(1 - a)) / (sigma^2 (1 + a))
+    sigma, tau, dt, n = 0.05, 20.0, 0.2, 500
+    t = 1000.0 + dt * np.arange(n)
+    a = np.exp(-dt / tau)
+    ou = AmclErrorModel(white_sigma_m=0.0, correlated_sigma_m=sigma, correlation_s=tau)
+    assert common_shift_variance_m2(t, ou) == pytest.approx(sigma ** 2 * (1 + a) / (2 + (n - 2) * (1 - a)), rel=1e-9)
+    white = AmclErrorModel(white_sigma_m=sigma, correlated_sigma_m=0.0, correlation_s=tau)
+    assert common_shift_variance_m2(t, white) == pytest.approx(sigma ** 2 / n, rel=1e-12)
+    # the BLUE beats the plain mean (the floor pedcal reports, AmclErrorModel.floor_sigma_m), by 12 %
+    # over a run of 5 correlation times (continuous time: (1 + 2 tau / T) (1 - tau / T (1 - e^-T/tau)))
+    ratio = ou.floor_sigma_m(n * dt) ** 2 / common_shift_variance_m2(t, ou)
+    assert ratio == pytest.approx(1.4 * (1 - 0.2 * (1 - np.exp(-5.0))), rel=0.01)
+
+
+def test_graph_bound_on_the_common_shift_reaches_the_amcl_mean_bound():
+    """With the sensors' noise tiny the network is one rigid structure known but for AMCL's
+    run-mean error: the graph's bound on the sensors' mean horizontal position equals the BLUE's
+    variance of that mean (3.7 % above it here, the robot's unseen stretches; with the AR(1)'s
+    ends left free, as the estimator's graph has them, 32 % above), never below it."""
+    log = make_exact_log(seed=7, duration=120.0)
+    mask = np.ones(len(log.observations), bool)
+    rec = _recipe()
+    rec.range_sigma_floor_m = rec.lateral_sigma_m = 0.002
+    ou = AmclErrorModel(white_sigma_m=1e-3, correlated_sigma_m=0.05, correlation_s=20.0)
+    bound = sensor_position_crlb(log, rec, is_robot=mask, amcl_model=ou, amcl_sigma_yaw_rad=np.radians(1.0),
+                                 joint=True)
+    common_mm, rest_mm = bound.horizontal_split_mm()
+    genie_mm = 1000 * np.sqrt(2 * common_shift_variance_m2(log.robot["t"].to_numpy(float), ou))
+    assert genie_mm <= common_mm <= 1.04 * genie_mm
+    assert common_mm ** 2 + rest_mm ** 2 == pytest.approx(bound.horizontal_rms_bound_mm ** 2, rel=1e-9)
+    # a white AMCL error of the same std averages out over the run: the common shift's bound drops
+    white = AmclErrorModel(white_sigma_m=0.05, correlated_sigma_m=0.0, correlation_s=1e-3)
+    b_white = sensor_position_crlb(log, rec, is_robot=mask, amcl_model=white, amcl_sigma_yaw_rad=np.radians(1.0),
+                                   joint=True)
+    assert b_white.horizontal_split_mm()[0] < 0.2 * common_mm
+
+
+def test_efficient_share_within_a_limit_is_the_rayleigh_probability():
+    # one sensor, isotropic horizontal sigma s: P(|e| <= r) = 1 - exp(-r^2 / (2 s^2))
+    s = 0.010
+    res = CRLBResult(position_covariance_m2={"a": np.diag([s * s, s * s, 1e-4])}, recipe="x",
+                     joint_position_covariance_m2=np.diag([s * s, s * s, 1e-4]))
+    for r_mm in (5.0, 12.0, 20.0):
+        assert res.share_within_mm(r_mm, draws=20000) == pytest.approx(1 - np.exp(-r_mm ** 2 / 200.0), abs=0.015)
+    # a shift every sensor shares: the rest is nothing, the common part is the whole bound
+    C = np.kron(np.ones((4, 4)), np.diag([s * s, s * s, 1e-4]))
+    shared = CRLBResult(position_covariance_m2={str(i): C[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(4)},
+                        recipe="x", joint_position_covariance_m2=C)
+    common_mm, rest_mm = shared.horizontal_split_mm()
+    assert common_mm == pytest.approx(1000 * s * np.sqrt(2), rel=1e-6) and rest_mm < 1e-3
+    with pytest.raises(ValueError, match="joint"):
+        CRLBResult(position_covariance_m2={"a": np.eye(3)}, recipe="x").horizontal_split_mm()
+
+
+def test_simulator_noise_never_exceeds_the_simulated_noise():
+    sc = load_scenario("paper")
+    ranges = np.linspace(sc.min_range_m, sc.max_range_m, 200)
+    for model in ("quadratic", "linear"):
+        s = sc.resolve(depth_noise_model=model)
+        rec, amcl, sigma_yaw = simulator_noise(s)
+        grow = 2.5 * ranges if model == "linear" else ranges ** 2
+        true_depth = s.depth_noise_k_per_m * grow * np.where(ranges > s.reliable_range_m, s.far_noise_factor, 1.0)
+        bound_depth = observation_sigmas(rec, ranges)[:, 2]
+        assert np.all(bound_depth <= true_depth * (1 + 1e-12))
+        if model == "quadratic":
+            np.testing.assert_allclose(bound_depth, true_depth, rtol=1e-12)
+        else:   # the chord touches the line at both ends of the ranges
+            assert bound_depth[0] == pytest.approx(true_depth[0]) and bound_depth[-1] == pytest.approx(true_depth[-1])
+        assert rec.lateral_sigma_m == s.lateral_noise_m and sigma_yaw == pytest.approx(np.radians(s.amcl_sigma_yaw_deg))
+        assert (amcl.correlated_sigma_m, amcl.correlation_s) == (s.amcl_sigma_m, s.amcl_tau_s)
+    white = simulator_noise(sc.resolve(amcl_error="white"))[1]
+    assert (white.white_sigma_m, white.correlated_sigma_m) == (sc.amcl_sigma_m, 0.0)
