@@ -36,7 +36,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS
-from pedcal.calib.keys import symbol_parts
+from pedcal.calib.keys import symbol_parts, symbols
 from pedcal.calib.profile import Nuisance
 from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, SIGMA_LATENCY_KEY
 
@@ -60,6 +60,8 @@ VELOCITY_HALF_WINDOW_S = 0.5
 # exact, a control variate); reseeded, a widened sigma moves by up to 7.6 % on the zoo's seeds 0-1
 # of five scenarios (18 % with the draws' plain mean; benchmarks/bench_clock_overdispersion.py)
 NULL_DRAWS = 32
+# the efficient rows (rows x offsets) :func:`block_scores` holds at once: 32 MB
+SCORE_CHUNK_ENTRIES = 4_000_000
 
 
 def is_clock_nuisance(name: str) -> bool:
@@ -94,14 +96,13 @@ def solved_velocity_world(prob, result) -> np.ndarray | None:
     own, whose wandering error's increments (a few cm/s over a second) the regressor would
     carry; the solved path is the better measure of it. None without poses."""
     from pedcal.calib.graph import pose_arrays  # (the graph module imports this one)
-    from pedcal.calib.keys import X
 
     t = prob.pose_times
     keys = np.asarray(result.keys(), np.uint64)
     n = int(np.count_nonzero(symbol_parts(keys)[0] == np.uint64(ord("x"))))
     if n < 2:
         return None
-    x = pose_arrays(result, [X(k) for k in range(n)])[1]
+    x = pose_arrays(result, symbols("x", range(n)))[1]
     t = t[:n]
     lo = np.clip(np.searchsorted(t, t - VELOCITY_HALF_WINDOW_S), 0, n - 1)
     hi = np.clip(np.searchsorted(t, t + VELOCITY_HALF_WINDOW_S), 0, n - 1)
@@ -253,11 +254,27 @@ def block_scores(step, weights, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     X = np.asarray(X, float).reshape(len(block), -1)
     U = np.empty((len(idx), C, X.shape[1]))
     m2 = np.zeros(len(idx))
-    for b in range(C):
-        rows = order[bounds[b]:bounds[b + 1]]
-        m_b = np.asarray(A[rows] @ ZW) - np.asarray(B[rows] @ W)
-        U[:, b, :] = m_b.T @ X[rows]
-        m2 += np.einsum("ic,ic->c", m_b, m_b)
+    # the blocks' efficient rows taken a run of consecutive blocks at a time, up to
+    # SCORE_CHUNK_ENTRIES of m (a product per block cost more in its own overhead than in
+    # arithmetic on a few thousand rows; each row's value is the same however they are taken)
+    runs, lo_block = [], 0
+    while lo_block < C:
+        hi_block = lo_block + 1
+        while hi_block < C and (bounds[hi_block + 1] - bounds[lo_block]) * len(idx) <= SCORE_CHUNK_ENTRIES:
+            hi_block += 1
+        runs.append((lo_block, hi_block))
+        lo_block = hi_block
+    for lo_block, hi_block in runs:
+        rows = order[bounds[lo_block]:bounds[hi_block]]
+        if len(runs) == 1:      # (all rows' products, then picked: no copy of A's rows)
+            m = (np.asarray(A @ ZW) - np.asarray(B @ W))[rows]
+        else:
+            m = np.asarray(A[rows] @ ZW) - np.asarray(B[rows] @ W)
+        X_run = X[rows]
+        for b in range(lo_block, hi_block):
+            lo, hi = bounds[b] - bounds[lo_block], bounds[b + 1] - bounds[lo_block]
+            U[:, b, :] = m[lo:hi].T @ X_run[lo:hi]
+            m2 += np.einsum("ic,ic->c", m[lo:hi], m[lo:hi])
     return U, m2
 
 

@@ -85,7 +85,7 @@ from pedcal.calib.headpoint import (
     select_head_profile,
     sensor_shift_nuisances,
 )
-from pedcal.calib.keys import symbol_parts
+from pedcal.calib.keys import symbol_parts, symbols
 from pedcal.calib.marginals import marginal_covariances
 from pedcal.calib.profile import (
     Columns,
@@ -213,7 +213,7 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     c, s_ = np.cos(amcl["yaw"].to_numpy(float)), np.sin(amcl["yaw"].to_numpy(float))
     z_xy = np.column_stack([amcl["x"].to_numpy(float) + c * head_m[0] - s_ * head_m[1],
                             amcl["y"].to_numpy(float) + s_ * head_m[0] + c * head_m[1]])
-    x_xy = pose_arrays(result, [X(i) for i in range(len(times))])[1][:, :2].reshape(len(times), 2)
+    x_xy = pose_arrays(result, symbols("x", range(len(times))))[1][:, :2].reshape(len(times), 2)
     res = np.full((len(t), 2), np.nan)
     res[has] = z_xy[has] - x_xy[k[has]]
     # pose index -> AMCL row (where the pose sits on an AMCL stamp)
@@ -678,7 +678,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     use = prob.fac_key_index < n_pose
     if not (rec.robot and use.any()):
         return np.zeros((0, 3))
-    xk = pose_arrays(result, [X(k) for k in range(n_pose)])[1]
+    xk = pose_arrays(result, symbols("x", range(n_pose)))[1]
     idx = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     si = np.array([idx[s] for s in prob.fac_sensor[use]])
     R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]

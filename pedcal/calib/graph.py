@@ -102,8 +102,9 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import head_world, interpolate_pose2
+from pedcal.calib.filters import gaussian_filter1d
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
-from pedcal.calib.keys import A, H, L, S, X, symbol_parts  # noqa: F401 (the graph's keys, re-exported)
+from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
     RobotMotion,
     calibrate_odometry,
@@ -143,7 +144,11 @@ def pose_arrays(values: gtsam.Values, keys) -> tuple[np.ndarray, np.ndarray]:
     if not len(keys):
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     rows = np.asarray(gtsam.utilities.extractPose3(values), float).reshape(-1, 12)
-    have = np.asarray(gtsam.utilities.allPose3s(values).keys(), np.uint64)   # the same key order
+    # the Pose3 keys, in the same (key) order: every key when every variable is a Pose3 (the
+    # robot's graph without people), else GTSAM's copy of the Pose3 variables' keys
+    have = np.asarray(values.keys(), np.uint64)
+    if len(have) != len(rows):
+        have = np.asarray(gtsam.utilities.allPose3s(values).keys(), np.uint64)
     at = np.searchsorted(have, keys)
     if np.any(at >= len(have)) or np.any(have[np.minimum(at, len(have) - 1)] != keys):
         missing = keys[(at >= len(have)) | (have[np.minimum(at, len(have) - 1)] != keys)][0]
@@ -386,8 +391,6 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     path then has odometry's shape, which its factors expect, and AMCL's place); without it AMCL
     smoothed (when it jitters) or AMCL itself. AMCL's estimates the error model left out as
     jumps are not used."""
-    from scipy.ndimage import gaussian_filter1d
-
     amcl = log.robot.sort_values("t", kind="stable")
     model = prob.amcl_model
     if model is not None and model.excluded is not None:
@@ -610,9 +613,9 @@ def predicted_points(prob: FactorGraphProblem, values: gtsam.Values | None, sens
         return None
     uniq, inv = np.unique(target, return_inverse=True)
     try:
-        Rs, ts = pose_arrays(values, [S(i) for i in range(len(prob.sensor_ids))])
+        Rs, ts = pose_arrays(values, symbols("s", range(len(prob.sensor_ids))))
         if is_pose:
-            t_target = pose_arrays(values, [X(int(k)) for k in uniq])[1]
+            t_target = pose_arrays(values, symbols("x", uniq))[1]
         elif all(values.exists(L(int(m))) for m in uniq):
             t_target = np.array([values.atPoint3(L(int(m))) for m in uniq], float).reshape(len(uniq), 3)
         else:
@@ -624,7 +627,7 @@ def predicted_points(prob: FactorGraphProblem, values: gtsam.Values | None, sens
 
 
 def regressors(prob: FactorGraphProblem, values: gtsam.Values | None, sensor: np.ndarray, target: np.ndarray,
-               is_pose: bool, measured: Regressors) -> Regressors:
+               is_pose: bool, measured: Regressors, predicted: tuple | None = None) -> Regressors:
     """The :class:`Regressors` of factors from sensors ``sensor`` to targets ``target``:
     ``measured`` (read at the measured points) with the distance and the noise's range read at
     the predicted points (:func:`predicted_points`; the noise's range the predicted point's less
@@ -639,8 +642,9 @@ def regressors(prob: FactorGraphProblem, values: gtsam.Values | None, sensor: np
     the noise, of mean 0, whatever the weights), as the full likelihood's is. The left-out part
     of the Jacobian is the profile's slope against distance (a few percent:
     tests/test_observation_sigmas.py measures it by finite differences), so the covariance read
-    from GTSAM's Jacobians is off by as little."""
-    got = predicted_points(prob, values, sensor, target, is_pose)
+    from GTSAM's Jacobians is off by as little. ``predicted``: :func:`predicted_points`' answer
+    for these factors when the caller has it."""
+    got = predicted if predicted is not None else predicted_points(prob, values, sensor, target, is_pose)
     if got is None:
         return measured
     p, R = got
@@ -649,14 +653,41 @@ def regressors(prob: FactorGraphProblem, values: gtsam.Values | None, sensor: np
                       noise_range_m=np.maximum(np.linalg.norm(p, axis=1) - float(prob.ray_shift_m), 0.0))
 
 
+def people_sightings(prob: FactorGraphProblem, values: gtsam.Values | None, t_max: float | None = None):
+    """The shared people's sightings up to ``t_max`` as arrays, (sensor index (n,), the point in
+    the sensor's frame (n, 3), the person's index (n,), their :class:`Regressors`, read at the
+    points ``values`` predict where they hold every person, else at the measured ones), or None
+    without any: what does not move with the nuisances, so that a caller evaluating the block
+    at many of them (:class:`ObservationRhs`) reads it once."""
+    sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
+    seen_i, seen_p, seen_m = [], [], []
+    for m, (t, seen) in enumerate(prob.people):
+        if t_max is not None and t > t_max:
+            continue
+        for sid, p in seen:
+            seen_i.append(sid_index[sid])
+            seen_p.append(p)
+            seen_m.append(m)
+    if not seen_p:
+        return None
+    seen_i, seen_p, seen_m = np.asarray(seen_i, int), np.asarray(seen_p, float), np.asarray(seen_m, int)
+    R0 = np.array([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[seen_i]
+    toward = toward_sensor_horizontal(seen_p, R0)
+    measured = Regressors(toward_sensor=toward, up_cos2=frames.up_by_cos2_elevation(seen_p, R0),
+                          distance_m=horizontal_distance(seen_p, toward), noise_range_m=np.linalg.norm(seen_p, axis=1))
+    return seen_i, seen_p, seen_m, regressors(prob, values, seen_i, seen_m, False, measured)
+
+
 def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
                       t_max: float | None = None, insert_values: bool = False,
                       theta: dict | None = None, robust: bool = True,
                       sigma_scale: np.ndarray | None = None, predicted: bool = True,
-                      robot_regressors: Regressors | None = None) -> ObservationTerms:
+                      robot_regressors: Regressors | None = None,
+                      people_regressors: tuple | None = None) -> ObservationTerms:
     """The observation block's factors as arrays (:class:`ObservationTerms`; the arguments are
     :func:`observation_block`'s; ``robot_regressors``: the robot observations' :class:`Regressors`
-    when already read at ``values``)."""
+    when already read at ``values``, ``people_regressors`` the people's sightings and theirs
+    (:func:`people_sightings`) likewise)."""
     rec = prob.recipe
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
@@ -698,24 +729,10 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         noise_r.append(reg.noise_range_m)
         noise_count.append(np.asarray(prob.fac_count[use], int))
     if rec.people:
-        sid_index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
-        seen_i, seen_p, seen_m = [], [], []
-        for m, (t, seen) in enumerate(prob.people):
-            if t_max is not None and t > t_max:
-                continue
-            for sid, p in seen:
-                seen_i.append(sid_index[sid])
-                seen_p.append(p)
-                seen_m.append(m)
-        if seen_p:
-            seen_i, seen_p, seen_m = np.asarray(seen_i, int), np.asarray(seen_p, float), np.asarray(seen_m, int)
-            R0 = np.array([prob.init_sensors[sid].rotation().matrix() for sid in prob.sensor_ids])[seen_i]
-            toward = toward_sensor_horizontal(seen_p, R0)
-            measured = Regressors(toward_sensor=toward, up_cos2=frames.up_by_cos2_elevation(seen_p, R0),
-                                  distance_m=horizontal_distance(seen_p, toward),
-                                  noise_range_m=np.linalg.norm(seen_p, axis=1))
-            reg = regressors(prob, values if predicted and not insert_values else None, seen_i, seen_m, False,
-                             measured)
+        seen = people_regressors if people_regressors is not None else people_sightings(
+            prob, values if predicted and not insert_values else None, t_max)
+        if seen is not None:
+            seen_i, seen_p, seen_m, reg = seen
             noise_range = reg.noise_range_m
             seen_p = seen_p - hs * reg.toward_sensor - cv * reg.up_cos2
             if insert_values:
@@ -847,7 +864,7 @@ class MotionRhs:
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
         self.log, self.prob = log, prob
         self.times = _pose_times(prob, t_max)
-        R, t = pose_arrays(values, [X(k) for k in range(len(self.times))])
+        R, t = pose_arrays(values, symbols("x", range(len(self.times))))
         # X_k^-1 X_k+1
         self.R_h = np.einsum("nji,njk->nik", R[:-1], R[1:])
         self.t_h = np.einsum("nji,nj->ni", R[:-1], t[1:] - t[:-1])
@@ -931,24 +948,27 @@ class ObservationRhs:
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
         self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
         use = np.flatnonzero(prob.fac_key_index < len(_pose_times(prob, t_max))) if prob.recipe.robot else None
-        # the robot observations' regressors read once (they do not move with theta)
+        # the robot observations' and the people's regressors read once (they do not move with
+        # theta), from the points the values predict, which the factors' errors are taken at too
+        robot_points = None if use is None else predicted_points(prob, values, prob.fac_sensor_index[use],
+                                                                 prob.fac_key_index[use], True)
         self.robot_regressors = None if use is None else regressors(
-            prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True, measured_regressors(prob, use))
-        terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors)
-        n_s = len(prob.sensor_ids)
+            prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True, measured_regressors(prob, use),
+            predicted=robot_points)
+        self.people_regressors = people_sightings(prob, values, t_max) if prob.recipe.people else None
+        terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors,
+                                  people_regressors=self.people_regressors)
+        d = np.zeros((len(terms.sensor), 3))
         robot = np.flatnonzero(terms.is_pose)
-        u, inv = np.unique(terms.target[robot], return_inverse=True)
-        # the sensors' and the observed robot poses in one read
-        R, t = pose_arrays(values, [S(i) for i in range(n_s)] + [X(int(k)) for k in u])
-        Rs, ts = R[:n_s], t[:n_s]
-        target = np.zeros((len(terms.sensor), 3))
-        target[robot] = t[n_s:][np.asarray(inv).ravel()]
         people = np.flatnonzero(~terms.is_pose)
+        people_points = (predicted_points(prob, values, terms.sensor[people], terms.target[people], False)
+                         if len(people) else None)
+        if (len(robot) and robot_points is None) or (len(people) and people_points is None):
+            raise KeyError("the values do not hold every variable the observation block observes")
+        if len(robot):
+            d[robot] = robot_points[0]      # (the robot's factors lead, in the order of ``use``)
         if len(people):
-            u, inv = np.unique(terms.target[people], return_inverse=True)
-            got = np.array([values.atPoint3(L(int(k))) for k in u], float).reshape(len(u), 3)
-            target[people] = got[np.asarray(inv).ravel()]
-        d = np.einsum("nji,nj->ni", Rs[terms.sensor], target - ts[terms.sensor])
+            d[people] = people_points[0]
         self.range_pred = np.linalg.norm(d, axis=1)
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
         self.basis = _unit3_basis(self.u_pred)
@@ -969,7 +989,8 @@ class ObservationRhs:
 
     def __call__(self, theta: dict | None, sigma_scale: np.ndarray | None = None) -> np.ndarray:
         terms = observation_terms(self.log, self.prob, self.values, t_max=self.t_max, theta=theta,
-                                  sigma_scale=sigma_scale, robot_regressors=self.robot_regressors)
+                                  sigma_scale=sigma_scale, robot_regressors=self.robot_regressors,
+                                  people_regressors=self.people_regressors)
         rows = []
         if terms.prior is not None:
             prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))

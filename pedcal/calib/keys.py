@@ -20,4 +20,11 @@ def symbol_parts(keys) -> tuple[np.ndarray, np.ndarray]:
     return keys >> np.uint64(_INDEX_BITS), keys & np.uint64((1 << _INDEX_BITS) - 1)
 
 
-__all__ = ["S", "X", "A", "L", "H", "symbol_parts"]
+def symbols(char: str, indices) -> np.ndarray:
+    """The GTSAM Symbol keys ``char``(i) of ``indices`` (uint64 array; ``symbols("x", range(n))``
+    equals ``[X(k) for k in range(n)]``), made in one pass, not one binding call each."""
+    index = np.asarray(indices, np.uint64).reshape(-1)
+    return (np.uint64(ord(char)) << np.uint64(_INDEX_BITS)) | index
+
+
+__all__ = ["S", "X", "A", "L", "H", "symbol_parts", "symbols"]
