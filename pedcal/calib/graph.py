@@ -102,7 +102,6 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import head_world, interpolate_pose2
-from pedcal.calib.filters import gaussian_filter1d
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
@@ -391,6 +390,8 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     path then has odometry's shape, which its factors expect, and AMCL's place); without it AMCL
     smoothed (when it jitters) or AMCL itself. AMCL's estimates the error model left out as
     jumps are not used."""
+    from scipy.ndimage import gaussian_filter1d
+
     amcl = log.robot.sort_values("t", kind="stable")
     model = prob.amcl_model
     if model is not None and model.excluded is not None:

@@ -10,7 +10,6 @@ import numpy as np
 import pandas as pd
 
 from pedcal.calib.common import head_interpolator, head_world, interpolate_pose2
-from pedcal.calib.filters import gaussian_filter1d  # (scipy.ndimage's, without its import)
 from pedcal.model import Log
 
 
@@ -26,6 +25,8 @@ def head_frame(x: float, y: float, yaw: float, head_m: np.ndarray) -> gtsam.Pose
 def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
     """A t/x/y/yaw table smoothed by a Gaussian of ``sigma_s`` seconds (x, y and unwrapped yaw;
     the samples taken as evenly spaced at their median interval; ends by reflection)."""
+    from scipy.ndimage import gaussian_filter1d
+
     tr = track.groupby("t", sort=True)[["x", "y", "yaw"]].mean()
     t = tr.index.to_numpy(float)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
