@@ -56,6 +56,13 @@ def test_a_column_nothing_holds_is_a_linalg_error():
         NormalCholesky(A)
 
 
+def test_the_librarys_workspace_layout_is_the_one_spelled_out():
+    # the fields written by offset (the print level, the number of ordering methods) sit among
+    # cholmod_start's defaults where they are looked for: with another layout they would not be
+    # written, and a given order would be compared with CHOLMOD's own (slower, still right)
+    assert cholmod.library().defaults
+
+
 def test_bad_order_and_right_hand_side_are_value_errors():
     A = _system(30, 10, 3)
     with pytest.raises(ValueError, match="permutation of the 10 columns"):
