@@ -1028,11 +1028,13 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     solve: a direction nothing holds, which LM's damping does)."""
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
-    # the robot's chain of poses eliminates faster sequentially, in one COLAMD ordering computed
-    # once (the graph's structure does not change between iterations): ~20 % per iteration
+    # one COLAMD ordering computed once (the graph's structure does not change between
+    # iterations), eliminated multifrontally: per Gauss-Newton iteration as fast as sequentially
+    # on the paper and corridor scenes (17-23 ms), 12-20 % faster on 160-1000 synthetic sensors
+    # (0.70 -> 0.53-0.63 s at 1000: GTSAM's dense frontal blocks)
     ordering = fg.orderingCOLAMD()      # symbolic: the same order as of its linearization
     gn_params = gtsam.GaussNewtonParams()
-    gn_params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
+    gn_params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
     gn_params.setOrdering(ordering)
     gn = gtsam.GaussNewtonOptimizer(fg, values, gn_params)
     result, error, iterations = values, gn.error(), 0      # (the optimizer's own error at values: not again)
@@ -1056,7 +1058,7 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations - iterations)
         params.setRelativeErrorTol(relative_error_tol)
-        params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
+        params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
         params.setOrdering(ordering)
         opt = gtsam.LevenbergMarquardtOptimizer(fg, result, params)
         result = opt.optimize()

@@ -14,12 +14,12 @@ Minimizing over dx for each dtheta, the profile, leaves
 so the profile error 1/2 |r_p|^2 (GTSAM's error, chi^2 / 2) is quadratic in dtheta with gradient
 M^T rho0 and Hessian M^T M, to which theta's prior adds. A and b come from GTSAM's linearization
 (``GaussianFactorGraph.sparseJacobian_``), B's column j from the observation block rebuilt at
-theta + h e_j; the k + 1 solves with N share one sparse factorization (SuperLU, in a COLAMD order
-of the graph computed once and kept across steps), a chord step's single solve takes one of its
-own. The Hessian's inverse is theta's covariance, and Z
-carries it into every variable: the marginal over theta, not the conditional at its estimate.
-z0 is the Gauss-Newton step at theta itself, which also settles directions Levenberg-Marquardt
-barely moves along (a flat gauge held by weak priors only).
+theta + h e_j; the k + 1 solves with N share one sparse factorization (CHOLMOD's supernodal
+Cholesky of A^T A from A, :mod:`pedcal.calib.cholmod`, in a COLAMD order of the graph computed
+once and kept across steps), a chord step's single solve takes one of its own. The Hessian's
+inverse is theta's covariance, and Z carries it into every variable: the marginal over theta,
+not the conditional at its estimate. z0 is the Gauss-Newton step at theta itself, which also
+settles directions Levenberg-Marquardt barely moves along (a flat gauge held by weak priors only).
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import scipy.sparse as sps
-import scipy.sparse.linalg as spla
 
 
 @dataclass
@@ -125,19 +124,6 @@ def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.nda
     return cols.index(keys + missing)
 
 
-def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray]:
-    """The normal matrix A^T A with its columns in the fill-reducing ``order``
-    (:func:`fill_reducing_order`), CSC: A's columns are renumbered into the order (its values
-    shared, not copied), so that the normal matrix is formed permuted, no permuted copies of it.
-    Returns (it, each column of A's position in it)."""
-    order = np.asarray(order, np.int64)
-    position = np.empty_like(order)
-    position[order] = np.arange(len(order))
-    A = sps.csr_matrix(A)
-    A_ordered = sps.csr_matrix((A.data, position.astype(A.indices.dtype)[A.indices], A.indptr), shape=A.shape)
-    return (A_ordered.T @ A_ordered).tocsc(), position
-
-
 def release_free_memory() -> None:
     """The C heap's free pages handed back to the system (glibc's ``malloc_trim``), before a
     large factorization: the linearizations and the solve before it free hundreds of MB in blocks
@@ -162,61 +148,36 @@ def _malloc_trim():
 
 _MALLOC: dict = {}
 
-# the free memory is handed back before factorizing a normal matrix of at least this many entries
-# (~25 MB: its factor is several times that); below, the pages taken back cost more than the
-# peak they would spare (paper scene: 1.7 ms a factorization of 23 ms). Above, they cost too: the
-# allocations after it fault the pages in again (1000 synthetic sensors: 1.0 s of 21 s of CPU
-# over five factorizations, for 140 MB off the peak); a larger value trades the memory back
-RELEASE_BEFORE_ENTRIES = 2_000_000
-
-
-def normal_lu(N: sps.csc_matrix):
-    """SuperLU's factorization of a normal matrix in its own order, without pivoting (it is
-    positive definite: the graph's priors hold every variable). A singular one (a variable no
-    factor holds) is a LinAlgError, as the factor's own checks name it."""
-    if N.nnz >= RELEASE_BEFORE_ENTRIES:
-        release_free_memory()
-    try:
-        return spla.splu(N, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
-        raise np.linalg.LinAlgError(f"the normal matrix is singular (a variable no factor holds): {e}") from e
-
-
-def ordered_normal_lu(A: sps.spmatrix, order: np.ndarray):
-    """SuperLU's factorization of A^T A in the fill-reducing ``order``
-    (:func:`ordered_normal_matrix`, :func:`normal_lu`): (it, each column of A's position in it)."""
-    N, position = ordered_normal_matrix(A, order)
-    return normal_lu(N), position
+# the free memory is handed back before factorizing a system of at least this many entries in A
+# (~12 MB; its factor is several times that); below, the pages taken back cost more than the
+# peak they would spare (paper scene: a fraction of a factorization's milliseconds). Above, they
+# cost too: the allocations after it fault the pages in again; a larger value trades the memory back
+RELEASE_BEFORE_ENTRIES = 1_000_000
 
 
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
-    """A solver of the normal equations A^T A x = y (one sparse LU factorization, SuperLU with no
-    pivoting), in the fill-reducing column ``order`` (:func:`ordered_normal_lu`) or, without one,
-    SuperLU's minimum-degree ordering of the symmetric matrix. Many right-hand sides go to
-    SuperLU's solve at once (its supernodal kernels take them together). Its ``factor_entries``:
-    the entries stored in the factors (SuperLU's ``nnz``), what holding it costs."""
-    if order is None:
-        N = (A.T @ A).tocsc()
-        if N.nnz >= RELEASE_BEFORE_ENTRIES:
-            release_free_memory()
-        lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    """A solver of the normal equations A^T A x = y: one sparse Cholesky factorization of A^T A
+    from A itself (:class:`pedcal.calib.cholmod.NormalCholesky`, CHOLMOD's supernodal, its
+    symbolic analysis reused by the next factorization of the same graph), in the fill-reducing
+    column ``order`` (:func:`fill_reducing_order`) or, without one, CHOLMOD's own. Many
+    right-hand sides go to it at once. Its ``factor_entries``: the values stored in the factor,
+    what holding it costs."""
+    from pedcal.calib.cholmod import NormalCholesky
 
-        def solve(y):
-            return lu.solve(np.asarray(y, float))
-    else:
-        lu, position = ordered_normal_lu(A, order)
+    if A.nnz >= RELEASE_BEFORE_ENTRIES:
+        release_free_memory()
+    chol = NormalCholesky(A, order)
 
-        def solve(y):
-            y = np.asarray(y, float)
-            return lu.solve(y[order])[position]
-    solve.factor_entries = int(lu.nnz)     # (L and U themselves would be copies of the factors)
+    def solve(y):
+        return chol.solve(y)
+    solve.factor_entries = chol.factor_entries
     return solve
 
 
 # A full profile step keeps its factorization for the chord steps that follow it up to this many
-# entries stored in L and U (SuperLU's ``nnz``, the supernodes' padding included; ~12 bytes
-# each: 60 MB); a larger one is dropped with the step's solves, and a chord step takes a fresh
-# one (the peak memory of a large graph is not raised)
+# values stored in L (CHOLMOD's supernodes, their padding included; 8 bytes each: 40 MB); a
+# larger one is dropped with the step's solves, and a chord step takes a fresh one (the peak
+# memory of a large graph is not raised)
 KEEP_FACTOR_ENTRIES = 5_000_000
 
 
@@ -587,7 +548,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
 # the profile's right-hand sides are solved this many at a time: the solver's dense copies of
 # them (permuted in, solved, permuted back) stay a few MB rather than several n x k arrays (160
 # sensors' clock offsets and head shift departures profiled exactly: k ~ 330, 80 MB each, the
-# step's peak memory); SuperLU's supernodal solve is as fast per column from a few dozen on
+# step's peak memory); CHOLMOD's supernodal solve is as fast per column from a few dozen on
 SOLVE_COLUMNS = 32
 
 
@@ -751,5 +712,4 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
 
 
 __all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order", "ordered_normal_lu",
-           "ordered_normal_matrix", "normal_lu"]
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]

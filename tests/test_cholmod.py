@@ -1,0 +1,121 @@
+"""CHOLMOD's factorization of a normal matrix from A (pedcal.calib.cholmod)."""
+
+import gc
+
+import numpy as np
+import pytest
+import scipy.sparse as sps
+
+import pedcal.calib.cholmod as cholmod
+from pedcal.calib.cholmod import NormalCholesky
+
+
+def _system(m: int, n: int, seed: int) -> sps.csr_matrix:
+    # random rows plus an identity block: A^T A positive definite
+    return (sps.random(m, n, density=0.1, random_state=seed, format="csr")
+            + sps.vstack([sps.eye(n), sps.csr_matrix((m - n, n))])).tocsr()
+
+
+def test_solves_the_normal_equations_in_any_order_one_or_many_columns():
+    rng = np.random.default_rng(0)
+    A = _system(200, 60, 1)
+    N = (A.T @ A).toarray()
+    Y = rng.normal(size=(60, 7))
+    for order in (None, np.arange(60), rng.permutation(60)):
+        chol = NormalCholesky(A, order)
+        X = chol.solve(Y)
+        assert X.shape == (60, 7)
+        assert np.abs(N @ X - Y).max() < 1e-10 * np.abs(Y).max()
+        x = chol.solve(Y[:, 2])
+        assert x.shape == (60,) and np.abs(x - X[:, 2]).max() < 1e-12 * np.abs(X).max()
+        assert chol.solve(np.zeros((60, 0))).shape == (60, 0)
+    # the factor's stored values: at least the lower triangle of N's
+    assert NormalCholesky(A).factor_entries >= np.count_nonzero(np.tril(N))
+
+
+def test_unsorted_and_empty_rows_and_64_bit_indices():
+    # A's CSR rows in any order of columns, rows with no entry, int64 index arrays: the same solution
+    rng = np.random.default_rng(1)
+    A = _system(120, 40, 2)
+    A = sps.vstack([A, sps.csr_matrix((5, 40))], format="csr")
+    y = rng.normal(size=40)
+    want = np.linalg.solve((A.T @ A).toarray(), y)
+    perm = [rng.permutation(np.arange(A.indptr[r], A.indptr[r + 1])) for r in range(A.shape[0])]
+    scrambled = sps.csr_matrix((A.data[np.concatenate(perm)], A.indices[np.concatenate(perm)].astype(np.int64),
+                                A.indptr.astype(np.int64)), shape=A.shape)
+    assert not scrambled.has_sorted_indices
+    got = NormalCholesky(scrambled, rng.permutation(40)).solve(y)
+    assert np.abs(got - want).max() < 1e-10 * np.abs(want).max()
+
+
+def test_a_column_nothing_holds_is_a_linalg_error():
+    A = sps.csr_matrix(np.array([[1.0, 0.0, 2.0], [0.0, 0.0, 1.0], [3.0, 0.0, 0.0]]))
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        NormalCholesky(A, np.arange(3))
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        NormalCholesky(A)
+
+
+def test_the_librarys_workspace_layout_is_the_one_spelled_out():
+    # the fields written by offset (the print level, the number of ordering methods) sit among
+    # cholmod_start's defaults where they are looked for: with another layout they would not be
+    # written, and a given order would be compared with CHOLMOD's own (slower, still right)
+    assert cholmod.library().defaults
+
+
+def test_bad_order_and_right_hand_side_are_value_errors():
+    A = _system(30, 10, 3)
+    with pytest.raises(ValueError, match="permutation of the 10 columns"):
+        NormalCholesky(A, np.r_[0, 0, np.arange(2, 10)])
+    with pytest.raises(ValueError, match="permutation of the 10 columns"):
+        NormalCholesky(A, np.arange(9))
+    with pytest.raises(ValueError, match="11 rows for 10 columns"):
+        NormalCholesky(A).solve(np.ones(11))
+
+
+def test_the_analysis_is_reused_for_the_same_pattern_and_order_only(monkeypatch):
+    # a factorization of the same pattern and order after the last one was let go of takes its
+    # symbolic analysis; another order, another pattern, or one still held make their own; the
+    # solves are the new values' every time
+    lib = cholmod.library()
+    analyses = []
+    real = lib.lib
+
+    class Counting:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def cholmod_analyze_p(self, *args):
+            analyses.append(1)
+            return real.cholmod_analyze_p(*args)
+
+    monkeypatch.setattr(lib, "lib", Counting())
+    monkeypatch.setattr(cholmod, "_ANALYSES", cholmod._Analyses())
+    rng = np.random.default_rng(7)
+    n = 30
+    A0 = _system(90, n, 4)
+    order = rng.permutation(n)
+    y = rng.normal(size=(n, 3))
+
+    def check(A, order):
+        x = NormalCholesky(A, order).solve(y)
+        assert np.abs((A.T @ A) @ x - y).max() < 1e-10 * np.abs(y).max()
+        gc.collect()
+
+    check(A0, order)
+    assert len(analyses) == 1
+    A1 = A0.copy()
+    A1.data = A1.data * (1.0 + 0.1 * rng.standard_normal(A1.nnz))       # the same pattern, new values
+    check(A1, order)
+    assert len(analyses) == 1
+    check(A1, rng.permutation(n))                                        # another order
+    assert len(analyses) == 2
+    check(A1, None)                                                      # CHOLMOD's own order
+    assert len(analyses) == 3
+    A2 = sps.vstack([A1, sps.csr_matrix(([1.0, 1.0], ([0, 0], [0, n - 1])), shape=(1, n))], format="csr")
+    check(A2, None)                                                      # another pattern
+    assert len(analyses) == 4
+    held = NormalCholesky(A2)                                            # still held: not shared
+    check(A2, None)
+    assert len(analyses) == 5
+    assert np.abs((A2.T @ A2) @ held.solve(y) - y).max() < 1e-10 * np.abs(y).max()
