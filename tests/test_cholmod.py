@@ -119,3 +119,32 @@ def test_the_analysis_is_reused_for_the_same_pattern_and_order_only(monkeypatch)
     check(A2, None)
     assert len(analyses) == 5
     assert np.abs((A2.T @ A2) @ held.solve(y) - y).max() < 1e-10 * np.abs(y).max()
+
+
+def test_without_cholmod_the_normal_equations_go_to_superlu_with_the_same_solution(monkeypatch):
+    from pedcal.calib import profile
+
+    rng = np.random.default_rng(3)
+    A = _system(150, 50, 4)
+    Y = rng.normal(size=(50, 3))
+    order = rng.permutation(50)
+    want = {o is None: profile._normal_solver(A, o)(Y) for o in (None, order)}
+    monkeypatch.setattr(cholmod, "available", lambda: False)
+    for o in (None, order):
+        got = profile._normal_solver(A, o)(Y)
+        assert np.abs(got - want[o is None]).max() < 1e-10 * np.abs(want[o is None]).max()
+    singular = sps.csr_matrix(np.array([[1.0, 0.0, 2.0], [0.0, 0.0, 1.0], [3.0, 0.0, 0.0]]))
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        profile._normal_solver(singular, np.arange(3))
+
+
+def test_a_cholmod_of_another_layout_is_not_loaded_and_the_failure_is_kept(monkeypatch):
+    monkeypatch.setattr(cholmod, "_LIBRARY", [])
+    monkeypatch.setattr(cholmod, "_MISSING", [])
+    monkeypatch.setattr(cholmod, "LAYOUT_MAJOR_VERSIONS", (99,))
+    with pytest.raises(ImportError, match="major versions"):
+        cholmod.library()
+    assert not cholmod.available()
+    calls = []
+    monkeypatch.setattr(cholmod, "_Library", lambda: calls.append(1))
+    assert not cholmod.available() and not calls          # (not loaded again)

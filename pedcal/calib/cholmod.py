@@ -11,7 +11,9 @@ are of the same graph. Many right-hand sides are solved together (dense blocks).
 
 The library is the one cvxopt's wheels carry (with their serial ATLAS BLAS: one thread), loaded
 after cvxopt's own module, which brings its dependencies into the process; else the system's
-``libcholmod`` (Debian's libcholmod3 / libcholmod5). Only CHOLMOD's stable public structures are
+``libcholmod`` (Debian's libcholmod3), of a major version in LAYOUT_MAJOR_VERSIONS; where none
+is found, :func:`pedcal.calib.profile._normal_solver` takes SuperLU's LU of the formed normal
+matrix instead (the same solution, slower on large graphs). Only CHOLMOD's stable public structures are
 spelled out (``cholmod_sparse``, ``cholmod_dense``, the head of ``cholmod_factor``); its
 ``cholmod_common`` is an opaque buffer its own ``cholmod_start`` fills.
 """
@@ -21,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import glob
+import logging
 import os
 import threading
 
@@ -58,6 +61,11 @@ class _FactorHead(ctypes.Structure):
                 ("pi", ctypes.c_void_p), ("px", ctypes.c_void_p), ("s", ctypes.c_void_p), ("ordering", ctypes.c_int),
                 ("is_ll", ctypes.c_int), ("is_super", ctypes.c_int)]
 
+
+# the CHOLMOD major versions whose cholmod_sparse, cholmod_dense and cholmod_factor head are the
+# ones spelled out below (3: cvxopt 1.3's wheels and Debian 12's libcholmod3, where they were
+# tested; 4 shares 3's layout); another is not loaded (the normal equations go to SuperLU)
+LAYOUT_MAJOR_VERSIONS = (3, 4)
 
 # cholmod_common's size differs by version (~2-4 KB); its buffer is made far larger
 _COMMON_BYTES = 1 << 16
@@ -120,6 +128,15 @@ class _Library:
         lib.cholmod_free_factor.argtypes = [ctypes.POINTER(fp), common]
         lib.cholmod_change_factor.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
                                               fp, common]
+        version = (ctypes.c_int * 3)()
+        try:
+            lib.cholmod_version(version)
+        except AttributeError:                         # (before CHOLMOD 3: no cholmod_version)
+            version[0] = 0
+        self.version = tuple(version)
+        if self.version[0] not in LAYOUT_MAJOR_VERSIONS:
+            raise ImportError(f"CHOLMOD {'.'.join(map(str, self.version))} at {path}: its structures are spelled "
+                              f"out here for major versions {LAYOUT_MAJOR_VERSIONS} only")
         self.lib = lib
         self.common = ctypes.create_string_buffer(_COMMON_BYTES)
         if not lib.cholmod_start(self.common):
@@ -157,10 +174,21 @@ class _Library:
 _LIBRARY: list = []
 
 
+_MISSING: list = []
+
+
 def library() -> _Library:
-    """CHOLMOD, loaded on first use (ImportError when it is nowhere)."""
+    """CHOLMOD, loaded on first use (ImportError when it is nowhere, or of another layout: the
+    first failure is kept and raised again, not retried on every call)."""
+    if _MISSING:
+        raise _MISSING[0]
     if not _LIBRARY:
-        _LIBRARY.append(_Library())
+        try:
+            _LIBRARY.append(_Library())
+        except ImportError as e:
+            _MISSING.append(e)
+            logging.getLogger("pedcal").info("the normal equations go to SuperLU: %s", e)
+            raise
     return _LIBRARY[0]
 
 

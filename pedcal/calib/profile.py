@@ -155,18 +155,58 @@ _MALLOC: dict = {}
 RELEASE_BEFORE_ENTRIES = 1_000_000
 
 
+def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_matrix, np.ndarray]:
+    """The normal matrix A^T A with its columns in the fill-reducing ``order``
+    (:func:`fill_reducing_order`), CSC: A's columns are renumbered into the order (its values
+    shared, not copied), so that the normal matrix is formed permuted, no permuted copies of it.
+    Returns (it, each column of A's position in it)."""
+    order = np.asarray(order, np.int64)
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    A = sps.csr_matrix(A)
+    A_ordered = sps.csr_matrix((A.data, position.astype(A.indices.dtype)[A.indices], A.indptr), shape=A.shape)
+    return (A_ordered.T @ A_ordered).tocsc(), position
+
+
+def _superlu_normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
+    """The normal equations by SuperLU's LU of the formed A^T A, no pivoting (it is positive
+    definite: the graph's priors hold every variable), in the fill-reducing ``order`` or SuperLU's
+    minimum-degree one: where CHOLMOD cannot be loaded (:mod:`pedcal.calib.cholmod`)."""
+    import scipy.sparse.linalg as spla
+
+    if order is None:
+        N, position = (A.T @ A).tocsc(), None
+    else:
+        N, position = ordered_normal_matrix(A, order)
+    try:
+        lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A" if order is None else "NATURAL", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+    except RuntimeError as e:          # SuperLU: "Factor is exactly singular"
+        raise np.linalg.LinAlgError(f"the normal matrix is not positive definite (a variable no factor holds): "
+                                    f"{e}") from e
+
+    def solve(y):
+        y = np.asarray(y, float)
+        return lu.solve(y) if order is None else lu.solve(y[order])[position]
+    solve.factor_entries = int(lu.nnz)     # (L and U themselves would be copies of the factors)
+    return solve
+
+
 def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     """A solver of the normal equations A^T A x = y: one sparse Cholesky factorization of A^T A
     from A itself (:class:`pedcal.calib.cholmod.NormalCholesky`, CHOLMOD's supernodal, its
     symbolic analysis reused by the next factorization of the same graph), in the fill-reducing
     column ``order`` (:func:`fill_reducing_order`) or, without one, CHOLMOD's own. Many
-    right-hand sides go to it at once. Its ``factor_entries``: the values stored in the factor,
+    right-hand sides go to it at once; where CHOLMOD cannot be loaded, SuperLU's LU
+    (:func:`_superlu_normal_solver`). Its ``factor_entries``: the values stored in the factor,
     what holding it costs."""
-    from pedcal.calib.cholmod import NormalCholesky
+    from pedcal.calib import cholmod
 
     if A.nnz >= RELEASE_BEFORE_ENTRIES:
         release_free_memory()
-    chol = NormalCholesky(A, order)
+    if not cholmod.available():
+        return _superlu_normal_solver(A, order)
+    chol = cholmod.NormalCholesky(A, order)
 
     def solve(y):
         return chol.solve(y)
