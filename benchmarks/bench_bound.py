@@ -29,8 +29,9 @@ log, scored on the evaluation log, pedcal.metrics.evaluate), horizontal only (mm
 - graph / bound: the efficiency ratio (1: efficient; below 1 on one log is chance, or bias);
 - AMCL run-mean error: the norm of AMCL's position error averaged over the calibration run (the
   truth's draw of what every calibration anchored to AMCL shares); over logs, its RMS over the
-  bound's common part says how large the draws were (about 1 for an unbiased draw: the bound's
-  common part is the best estimate's of that mean); the graph's common part less it (RMS over
+  bound's common part says how large the draws were (about 1.03 for an unbiased draw: the bound's
+  common part is the best linear estimate's of that mean, the run mean a plain average of it,
+  1.025 on the zoo's paper seed 0); the graph's common part less it (RMS over
   logs): the common error the graph adds to AMCL's own. The logs of one seed share AMCL's error
   draw across scenarios (the same stream, routes of similar length), so 20 seeds are about 20
   draws of it, not 100.

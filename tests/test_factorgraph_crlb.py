@@ -12,6 +12,8 @@ from test_factorgraph import make_exact_log
 
 from pedcal.calib.amcl_model import AmclErrorModel
 from pedcal.calib.crlb import (
+    KNOWN_HEADING_SIGMA_RAD,
+    MIN_WHITE_M,
     CRLBResult,
     common_shift_variance_m2,
     sensor_position_crlb,
@@ -130,6 +132,12 @@ def test_graph_bound_on_the_common_shift_reaches_the_amcl_mean_bound():
     common_mm, rest_mm = bound.horizontal_split_mm()
     genie_mm = 1000 * np.sqrt(2 * common_shift_variance_m2(log.robot["t"].to_numpy(float), ou))
     assert genie_mm <= common_mm <= 1.04 * genie_mm
+    # AMCL's heading known: the rest part (which the heading's error spreads) falls (6 % here), the common
+    # shift barely moves (the bound's two heading columns bracket the truth's)
+    known = sensor_position_crlb(log, rec, is_robot=mask, amcl_model=ou, amcl_sigma_yaw_rad=KNOWN_HEADING_SIGMA_RAD,
+                                 joint=True)
+    k_common_mm, k_rest_mm = known.horizontal_split_mm()
+    assert k_rest_mm < 0.97 * rest_mm and k_common_mm == pytest.approx(common_mm, rel=0.05)
     assert common_mm ** 2 + rest_mm ** 2 == pytest.approx(bound.horizontal_rms_bound_mm ** 2, rel=1e-9)
     # a white AMCL error of the same std averages out over the run: the common shift's bound drops
     white = AmclErrorModel(white_sigma_m=0.05, correlated_sigma_m=0.0, correlation_s=1e-3)
@@ -155,6 +163,26 @@ def test_efficient_share_within_a_limit_is_the_rayleigh_probability():
         CRLBResult(position_covariance_m2={"a": np.eye(3)}, recipe="x").horizontal_split_mm()
 
 
+def test_efficient_share_within_a_limit_for_an_elongated_correlated_error():
+    # one sensor, sigmas 15 and 5 mm along axes turned 34 deg: P(|e| <= r) by quadrature of the
+    # exact 2-D normal (0.146, 0.523, 0.802 at 5, 12, 20 mm; a Rayleigh of the same trace is
+    # 0.095, 0.438, 0.733)
+    c, s_ = np.cos(np.radians(34.0)), np.sin(np.radians(34.0))
+    R = np.array([[c, -s_], [s_, c]])
+    C2 = R @ np.diag([0.015 ** 2, 0.005 ** 2]) @ R.T
+    C = np.zeros((3, 3))
+    C[:2, :2], C[2, 2] = C2, 1e-4
+    res = CRLBResult(position_covariance_m2={"a": C}, recipe="x", joint_position_covariance_m2=C)
+    for r_mm, want in ((5.0, 0.146), (12.0, 0.523), (20.0, 0.802)):
+        assert res.share_within_mm(r_mm, draws=40000) == pytest.approx(want, abs=0.01)
+
+
+def test_common_shift_variance_takes_a_repeated_stamp_once():
+    ou = AmclErrorModel(white_sigma_m=0.0, correlated_sigma_m=0.05, correlation_s=20.0)
+    t = 0.2 * np.arange(100.0)
+    assert common_shift_variance_m2(np.r_[t, t[:10]], ou) == pytest.approx(common_shift_variance_m2(t, ou), rel=1e-12)
+
+
 def test_simulator_noise_never_exceeds_the_simulated_noise():
     sc = load_scenario("paper")
     ranges = np.linspace(sc.min_range_m, sc.max_range_m, 200)
@@ -171,5 +199,10 @@ def test_simulator_noise_never_exceeds_the_simulated_noise():
             assert bound_depth[0] == pytest.approx(true_depth[0]) and bound_depth[-1] == pytest.approx(true_depth[-1])
         assert rec.lateral_sigma_m == s.lateral_noise_m and sigma_yaw == pytest.approx(np.radians(s.amcl_sigma_yaw_deg))
         assert (amcl.correlated_sigma_m, amcl.correlation_s) == (s.amcl_sigma_m, s.amcl_tau_s)
+        assert amcl.white_sigma_m == MIN_WHITE_M and rec.head_radius_m == 0.0
+        # odometry: the simulator's white noise per step, as a random walk per sqrt(s)
+        assert rec.odometry_white_sigma_m ** 2 / s.truth_rate_hz == pytest.approx(s.odom_noise_m ** 2, rel=1e-12)
+        assert rec.odometry_white_yaw_sigma_deg ** 2 / s.truth_rate_hz == pytest.approx(s.odom_noise_yaw_deg ** 2,
+                                                                                     rel=1e-12)
     white = simulator_noise(sc.resolve(amcl_error="white"))[1]
     assert (white.white_sigma_m, white.correlated_sigma_m) == (sc.amcl_sigma_m, 0.0)
