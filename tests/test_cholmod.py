@@ -119,6 +119,64 @@ def test_the_analysis_is_reused_for_the_same_pattern_and_order_only(monkeypatch)
     check(A2, None)
     assert len(analyses) == 5
     assert np.abs((A2.T @ A2) @ held.solve(y) - y).max() < 1e-10 * np.abs(y).max()
+    del held
+    gc.collect()
+    # the same row lengths, one entry moved to another column: another pattern
+    A3 = A2.copy()
+    row = int(np.flatnonzero(np.diff(A3.indptr) > 0)[0])
+    cols = set(A3.indices[A3.indptr[row]:A3.indptr[row + 1]].tolist())
+    A3.indices[A3.indptr[row]] = min(set(range(n)) - cols)
+    A3.sort_indices()
+    check(A3, None)
+    assert len(analyses) == 6
+    # a pattern edited in place after its factorization (the caller's own arrays): not the kept one
+    A4 = A0.copy()
+    check(A4, order)
+    before = len(analyses)
+    r = int(np.flatnonzero(np.diff(A4.indptr) > 1)[0])
+    lo = A4.indptr[r]
+    A4.indices[lo:A4.indptr[r + 1]] = sorted(set(range(n)) - set(A4.indices[lo:A4.indptr[r + 1]].tolist()))[
+        :A4.indptr[r + 1] - lo]
+    A4.has_sorted_indices = False
+    A4.sort_indices()
+    check(A4, order)
+    assert len(analyses) == before + 1
+
+
+def test_a_large_system_is_factorized_in_supernodes_and_in_the_given_order():
+    # the production path: a supernodal factor (its analysis reused as such), taken in the given
+    # order (CHOLMOD's nmethods written where it is: with it unwritten or written elsewhere, CHOLMOD
+    # compares the order with its own and may keep its own)
+    rng = np.random.default_rng(11)
+    # a 30 x 30 grid's differences and a prior on each node: a random order of its nodes fills
+    # its factor far beyond what CHOLMOD's own orders leave
+    g = 30
+    D = sps.diags([-np.ones(g - 1), np.ones(g - 1)], [0, 1], shape=(g - 1, g))
+    I_g = sps.eye(g)
+    A = sps.vstack([sps.kron(I_g, D), sps.kron(D, I_g), 0.1 * sps.eye(g * g)], format="csr")
+    n = g * g
+    order = rng.permutation(n)
+    chol = NormalCholesky(A, order)
+    head = cholmod._FactorHead.from_address(chol._factor)
+    assert head.is_super == 1 and head.ordering == 1      # CHOLMOD_GIVEN
+    y = rng.normal(size=(n, 2))
+    assert np.abs((A.T @ A) @ chol.solve(y) - y).max() < 1e-9 * np.abs(y).max()
+
+
+def test_repeated_entries_are_summed_as_scipy_sums_them():
+    rng = np.random.default_rng(12)
+    A = _system(120, 40, 8)
+    # each entry split in two halves within its row: the same matrix, with repeated entries
+    lengths = np.diff(A.indptr)
+    row_of = np.repeat(np.arange(A.shape[0]), lengths)
+    order_ = np.argsort(np.r_[row_of, row_of], kind="stable")
+    indices = np.r_[A.indices, A.indices][order_]
+    data = np.r_[A.data / 2, A.data / 2][order_]
+    dup = sps.csr_matrix((data, indices, np.r_[0, np.cumsum(2 * lengths)]), shape=A.shape)
+    assert not dup.has_canonical_format and dup.nnz == 2 * A.nnz
+    y = rng.normal(size=40)
+    want = np.linalg.solve((A.T @ A).toarray(), y)
+    assert np.abs(NormalCholesky(dup, rng.permutation(40)).solve(y) - want).max() < 1e-10 * np.abs(want).max()
 
 
 def test_without_cholmod_the_normal_equations_go_to_superlu_with_the_same_solution(monkeypatch):
@@ -130,6 +188,10 @@ def test_without_cholmod_the_normal_equations_go_to_superlu_with_the_same_soluti
     order = rng.permutation(50)
     want = {o is None: profile._normal_solver(A, o)(Y) for o in (None, order)}
     monkeypatch.setattr(cholmod, "available", lambda: False)
+
+    def not_here(*args, **kwargs):
+        raise AssertionError("CHOLMOD called without it")
+    monkeypatch.setattr(cholmod, "NormalCholesky", not_here)
     for o in (None, order):
         got = profile._normal_solver(A, o)(Y)
         assert np.abs(got - want[o is None]).max() < 1e-10 * np.abs(want[o is None]).max()

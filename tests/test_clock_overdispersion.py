@@ -246,7 +246,14 @@ def test_nothing_is_computed_without_clock_offsets():
     assert phi.shape == (1,) and np.isnan(phi[0])
 
 
-def test_the_block_scores_sum_each_offsets_efficient_rows_times_the_residuals_over_each_block():
+@pytest.mark.parametrize("chunk_entries", [None, 1, 100])
+def test_the_block_scores_sum_each_offsets_efficient_rows_times_the_residuals_over_each_block(chunk_entries,
+                                                                                             monkeypatch):
+    # (the blocks' products in one run, one block at a time, and runs of a few blocks)
+    import pedcal.calib.clocks as clocks_module
+
+    if chunk_entries is not None:
+        monkeypatch.setattr(clocks_module, "SCORE_CHUNK_ENTRIES", chunk_entries)
     rng = np.random.default_rng(5)
     step, M = _step(rng)
     H = step.hessian

@@ -216,7 +216,8 @@ class _Analyses:
             # numeric -> symbolic, supernodal or simplicial as it was (CHOLMOD factorizes small
             # systems simplicially, LDL^T): the values (the factor's memory) freed, the analysis kept
             ok = lib.lib.cholmod_change_factor(_PATTERN, head.is_ll, head.is_super, 1, 1, factor, lib.common)
-        old, self.kept = self.kept, ((factor, key) if ok else None)
+        new = (factor, key) if ok else None      # (made before the swap: a collection it triggers may call give)
+        old, self.kept = self.kept, new
         if not ok:
             lib.free_factor(factor)
         if old is not None:
@@ -252,21 +253,26 @@ class NormalCholesky:
     def __init__(self, A: sps.spmatrix, order: np.ndarray | None = None):
         lib = library()
         A = sps.csr_matrix(A)
+        if not A.has_canonical_format:        # (CHOLMOD's analysis rejects repeated entries: summed, on a copy)
+            A = A.copy()
+            A.sum_duplicates()
         index = np.int32
         if A.nnz >= 2 ** 31 or max(A.shape) >= 2 ** 31:
             raise ValueError(f"a system of {A.shape} with {A.nnz} entries is beyond 32-bit indices")
-        # A's CSR arrays as F = A^T in CSC (kept referenced: CHOLMOD reads them in place)
-        self._indptr = np.ascontiguousarray(A.indptr, index)
-        self._indices = np.ascontiguousarray(A.indices, index)
-        self._data = np.ascontiguousarray(A.data, np.float64)
+        # A's CSR arrays as F = A^T in CSC (CHOLMOD reads them in place, while it analyzes and factorizes)
+        indptr = np.ascontiguousarray(A.indptr, index)
+        indices = np.ascontiguousarray(A.indices, index)
+        data = np.ascontiguousarray(A.data, np.float64)
         n, m = A.shape[1], A.shape[0]
         self.n = n
-        F = _Sparse(n, m, A.nnz, self._indptr.ctypes.data, self._indices.ctypes.data, None, self._data.ctypes.data,
+        F = _Sparse(n, m, A.nnz, indptr.ctypes.data, indices.ctypes.data, None, data.ctypes.data,
                     None, 0, _INT, _REAL, _DOUBLE, int(A.has_sorted_indices), 1)
         perm = None if order is None else np.ascontiguousarray(order, index)
         if perm is not None and (perm.shape != (n,) or not np.array_equal(np.sort(perm), np.arange(n))):
             raise ValueError(f"the column order must be a permutation of the {n} columns")
-        key = (n, self._indptr, self._indices) + (() if perm is None else (perm,))
+        # (copies: the caller's arrays may be A's own, and a pattern edited in place would match
+        # the analysis kept for the old one)
+        key = (n, indptr.copy(), indices.copy()) + (() if perm is None else (perm.copy(),))
         factor = _ANALYSES.take(key)
         with lib.lock:
             if factor is None:
@@ -274,15 +280,19 @@ class NormalCholesky:
                 factor = lib.lib.cholmod_analyze_p(ctypes.byref(F), None if perm is None else perm.ctypes.data,
                                                    None, 0, lib.common)
                 if not factor:
-                    raise MemoryError(f"CHOLMOD's analysis of a {n}-column normal matrix failed")
+                    raise MemoryError(f"CHOLMOD's analysis of a {n}-column normal matrix failed (memory, "
+                                      f"size or an invalid matrix)")
             self._factor, self._key = factor, key
             ok = lib.lib.cholmod_factorize(ctypes.byref(F), factor, lib.common)
+        # (not positive definite is CHOLMOD's warning, not a failure: the factor's ``minor`` says
+        # where; a failed call is memory or size)
+        if not ok:
+            raise MemoryError(f"CHOLMOD's factorization of a {n}-column normal matrix failed (memory or size)")
         head = _FactorHead.from_address(factor)
-        if not ok or head.minor < head.n:
-            column = int(head.minor) if head.minor < head.n else None
-            raise np.linalg.LinAlgError("the normal matrix is not positive definite (a variable no factor holds)"
-                                        + ("" if column is None else f": the factorization failed at its "
-                                           f"{column}th column in the elimination order"))
+        if head.minor < head.n:
+            raise np.linalg.LinAlgError("the normal matrix is not positive definite (a variable no factor holds): "
+                                        f"the factorization failed at its {int(head.minor)}th column in the "
+                                        "elimination order")
         self.factor_entries = int(head.xsize if head.is_super else head.nzmax)
 
     def solve(self, y) -> np.ndarray:

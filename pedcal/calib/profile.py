@@ -188,7 +188,7 @@ def _superlu_normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
     def solve(y):
         y = np.asarray(y, float)
         return lu.solve(y) if order is None else lu.solve(y[order])[position]
-    solve.factor_entries = int(lu.nnz)     # (L and U themselves would be copies of the factors)
+    solve.factor_entries = int(lu.L.nnz)   # (L's, as CHOLMOD's counts: U mirrors it)
     return solve
 
 
