@@ -225,10 +225,34 @@ def test_smoothed_amcls_increments_have_the_variance_the_motion_factors_assume(s
     track = pd.DataFrame({"t": t, "x": 0.3 * t + rng.normal(0.0, white, len(t)),
                           "y": rng.normal(0.0, white, len(t)), "yaw": np.zeros(len(t))})
     sm = smoothed_track(track, smooth_s)
-    inc = np.diff(sm["y"].to_numpy())[100:-100]          # away from the reflected ends
+    inc = np.diff(sm["y"].to_numpy())[100:-100]          # away from the padded ends
     predicted = np.sqrt(smoothed_increment_var(white, 1.0 / rate, rate, smooth_s))
     assert np.std(inc) == pytest.approx(predicted, rel=0.1)
     assert predicted < 0.2 * np.sqrt(2.0) * white
+
+
+def test_smoothed_amcl_keeps_a_steady_motion_at_its_ends_and_does_not_mix_across_a_gap():
+    # a robot at 1 m/s from the first estimate: an even reflection of the ends folded its path
+    # back, and the smoothed start lagged by 0.8 v sigma (0.4 m here); the point reflection keeps
+    # a steady motion exactly. A 20 s gap (a jump left out) splits the track: the estimates after
+    # it are 14 m on, and smoothed as neighbours they were pulled metres back
+    import pandas as pd
+
+    from pedcal.calib.motion import smoothed_track
+
+    t = np.r_[np.arange(0.0, 30.0, 0.2), np.arange(50.0, 80.0, 0.2)]
+    x = 1.0 * t - 6.0 * (t >= 50.0)
+    y = 0.5 * t ** 0 + 0.02 * t
+    track = pd.DataFrame({"t": t, "x": x, "y": y, "yaw": np.full(len(t), 0.3)})
+    sm = smoothed_track(track, 0.5)
+    np.testing.assert_allclose(sm["x"].to_numpy(), x, atol=1e-9)
+    np.testing.assert_allclose(sm["y"].to_numpy(), y, atol=1e-9)
+    np.testing.assert_allclose(sm["yaw"].to_numpy(), 0.3, atol=1e-12)
+    # a track of one estimate, or two: left as it is
+    one = smoothed_track(track.iloc[:1], 0.5)
+    assert one["x"].tolist() == [x[0]]
+    two = smoothed_track(track.iloc[:2], 0.5)
+    np.testing.assert_allclose(two["x"].to_numpy(), x[:2], atol=1e-12)
 
 
 # What a 2x error in a constant moves the sensors by, in their reported sigma, on paper seed 5
