@@ -3,7 +3,8 @@ factor graph and the grid search against the Cramér-Rao bound taken under the n
 truly generated with (pedcal.calib.crlb: ``simulator_noise``, ``sensor_position_crlb``).
 
     nice -n 5 .venv/bin/python benchmarks/bench_bound.py [--scenarios paper sparse corridor cross lhall] \
-        [--seeds 4] [--first-seed 0] [--jobs 1] [--limit-mm 12] [--verbose]
+        [--seeds 4] [--first-seed 0] [--jobs 1] [--limit-mm 12] [--verbose] \
+        [--off FAMILY ...] [--known FAMILY ...]
 
 Per log (``simulate_logs(scenario, seed, vary_nuisances="zoo")``, calibrated on the calibration
 log, scored on the evaluation log, pedcal.metrics.evaluate), horizontal only (mm):
@@ -36,11 +37,22 @@ log, scored on the evaluation log, pedcal.metrics.evaluate), horizontal only (mm
   draw across scenarios (the same stream, routes of similar length), so 20 seeds are about 20
   draws of it, not 100.
 
+Controlled experiments: ``--off FAMILY ...`` switches zoo families off in the simulator, every
+other draw of the seed left as it was (pedcal.sim.nuisances.switch_off: head, clock, latency,
+jumps, mounts, odometry, depth); ``--known FAMILY ...`` (head, clock, latency; each switched off
+too) gives the factor graph that family's truth (the head top itself, one shared clock, no
+latency: KNOWN_RECIPE). How much of the graph's rest over the bound's a family's switching off
+closes is what that family costs (the bound itself changes only where the family enters it:
+mounts, depth, AMCL's jumps).
+
 Summaries per scenario, per AMCL family (white, correlated, jumps, relocalization) and pooled:
 means over logs of the per-log figures, the share of logs whose bound exceeds the limit, the
 expected share of logs an efficient estimator meets it on (mean of P), how many logs the graph
 meets it on, and the efficiency as RMS over logs of the graph's over that of the bound (total,
-common and rest).
+common and rest), besides: the bound's rest with AMCL's heading held as the graph holds it and
+the graph's rest over it (RMS over logs), the median over logs of the graph's rest over the
+bound's (one failed log does not set it), and the share of the graph's per-axis errors (x, y,
+every sensor of every log) within its 1-sigma.
 
 ``--xgen-results DIR [DIR ...]`` adds the held-out generator's logs of earlier
 ``benchmarks/bench_xgen.py --out DIR`` runs (their results.jsonl and logs): the factor graph's and the
@@ -75,6 +87,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pedcal.sim.nuisances import OFF_FAMILIES
+
 
 def horizontal_split_mm(E_xy_m: np.ndarray) -> tuple[float, float, float]:
     """(RMS over sensors, norm of the mean, RMS of the departures from the mean) of horizontal
@@ -85,7 +99,20 @@ def horizontal_split_mm(E_xy_m: np.ndarray) -> tuple[float, float, float]:
             float(1000 * np.sqrt(np.mean(np.sum((E - m) ** 2, axis=1)))))
 
 
-def run_one(scenario: str, seed: int, limit_mm: float = 12.0) -> dict:
+# --known FAMILY: the factor graph given that nuisance's truth, for logs with it switched off
+# (--off FAMILY) in the simulator: recipe fields
+KNOWN_RECIPE = {
+    # the head top itself: no head model estimated, no per-sensor shift, curvature or profile
+    "head": dict(estimate_head_model=False, head_radius_m=0.0, estimate_head_horizontal_shift=False,
+                 head_shift_per_sensor_sigma_m=0.0, head_curvature="off", head_profile_consider=False),
+    "clock": dict(clock_offsets=False),      # one shared clock
+    "latency": dict(estimate_latency=False),  # no latency
+}
+
+
+def run_one(scenario: str, seed: int, limit_mm: float = 12.0, off: tuple = (), known: tuple = ()) -> dict:
+    import dataclasses
+
     from pedcal.calib import calibrate
     from pedcal.calib.crlb import (
         KNOWN_HEADING_SIGMA_RAD,
@@ -93,25 +120,43 @@ def run_one(scenario: str, seed: int, limit_mm: float = 12.0) -> dict:
         sensor_position_crlb,
         simulator_noise,
     )
+    from pedcal.calib.recipe import GraphRecipe
     from pedcal.metrics import amcl_run_mean_error_m, evaluate
     from pedcal.sim import simulate_logs
-    from pedcal.sim.nuisances import zoo_families
+    from pedcal.sim.nuisances import switch_off, vary, zoo_families
+    from pedcal.sim.scenario import load_scenario
 
     warnings.simplefilter("ignore")
-    sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo")
+    if off:
+        # the seed's zoo draw with the families switched off, everything else as drawn
+        sc = switch_off(vary(load_scenario(scenario).resolve(seed=seed), zoo=True), off)
+        sim = simulate_logs(sc, seed=seed)
+    else:
+        sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo")
+    recipe = dataclasses.replace(GraphRecipe(), **{k: v for f in known for k, v in KNOWN_RECIPE[f].items()})
     log = sim.calib
     amcl_mean_m = amcl_run_mean_error_m(log)
     out = dict(scenario=scenario, seed=seed, family=zoo_families(sim.scenario)["amcl"], sensors=len(log.truth),
                amcl_mean_mm=float(1000 * np.linalg.norm(amcl_mean_m)))
     for method in ("factorgraph", "gridsearch"):
         c0 = time.process_time()
-        res = calibrate(log, method=method)
+        res = calibrate(log, method=method, **(dict(graph=recipe) if method == "factorgraph" and known else {}))
         cpu = time.process_time() - c0
         ev = evaluate(sim.eval, res.network)
         E = np.array([s.position_error_mm[:2] for s in ev.sensors
                       if np.all(np.isfinite(s.position_error_mm))]) / 1000.0
         out[method] = dict(zip(("xy", "common", "rest"), horizontal_split_mm(E), strict=True), cpu_s=cpu,
                            common_less_amcl=float(1000 * np.linalg.norm(E.mean(axis=0) - amcl_mean_m)))
+        if method == "factorgraph":
+            # |error| / sigma per world axis x, y of every sensor (a sensor not calibrated or
+            # without a sigma: a miss)
+            z = []
+            for s in ev.sensors:
+                ext = res.network[s.id]
+                ok = ext.sigma_position_m is not None and (ext.status or "ok") == "ok"
+                e_m = np.abs(np.asarray(s.position_error_mm[:2]) / 1000.0)
+                z.append(e_m / np.asarray(ext.sigma_position_m)[:2] if ok else np.full(2, np.inf))
+            out[method]["z_xy"] = np.array(z).tolist()
     rec, model, sigma_yaw = simulator_noise(sim.scenario)
     c0 = time.process_time()
     t = log.robot["t"].to_numpy(float)
@@ -147,6 +192,8 @@ def summary_row(name: str, rs: list[dict], limit_mm: float) -> str:
     fg, gs, b = g("factorgraph", "xy"), g("gridsearch", "xy"), g("bound", "xy")
     eff = " / ".join(f"{_rms(g('factorgraph', k)) / _rms(g('bound', k)):.2f}" for k in ("xy", "common", "rest"))
     bh = g("bound_heading", "xy")
+    z = np.concatenate([np.asarray(r["factorgraph"]["z_xy"]).reshape(-1, 2) for r in rs])
+    within = ", ".join(f"{100 * np.mean(z[:, a] <= 1.0):.0f}" for a in (0, 1))
     return (f"| {name} | {len(rs)} | {fg.mean():.1f} | {gs.mean():.1f} | {b.mean():.1f} | {bh.mean():.1f} | "
             f"{g('bound', 'common').mean():.1f} / {g('bound', 'rest').mean():.1f} | "
             f"{g('bound', 'genie_common').mean():.1f} | "
@@ -156,7 +203,10 @@ def summary_row(name: str, rs: list[dict], limit_mm: float) -> str:
             f"{_rms(g('factorgraph', 'common_less_amcl')):.1f} | "
             f"{100 * np.mean(b > limit_mm):.0f} | {100 * g('bound', 'p_within').mean():.0f} "
             f"({100 * g('bound_heading', 'p_within').mean():.0f}) | "
-            f"{int(np.sum(fg <= limit_mm))} | {int(np.sum(fg <= 0.35 * gs))} | {eff} |")
+            f"{int(np.sum(fg <= limit_mm))} | {int(np.sum(fg <= 0.35 * gs))} | {eff} | "
+            f"{g('bound_heading', 'rest').mean():.1f} | "
+            f"{_rms(g('factorgraph', 'rest')) / _rms(g('bound_heading', 'rest')):.2f} | "
+            f"{np.median(g('factorgraph', 'rest') / g('bound', 'rest')):.2f} | {within} |")
 
 
 SINGLE_ROOM = ("rooms", "corridor", "openhall")
@@ -235,12 +285,20 @@ def main() -> None:
     ap.add_argument("--xgen-results", type=Path, nargs="+", default=None, metavar="DIR",
                     help="also bound the held-out generator's logs of earlier bench_xgen.py --out DIR runs")
     ap.add_argument("--xgen-only", action="store_true", help="with --xgen-results: no zoo logs")
+    ap.add_argument("--off", nargs="+", default=[], choices=OFF_FAMILIES, metavar="FAMILY",
+                    help=f"switch these zoo families off in the simulator (pedcal.sim.nuisances.switch_off): "
+                         f"{', '.join(OFF_FAMILIES)}")
+    ap.add_argument("--known", nargs="+", default=[], choices=sorted(KNOWN_RECIPE), metavar="FAMILY",
+                    help="give the factor graph these families' truth (with --off the same family: "
+                         f"{', '.join(sorted(KNOWN_RECIPE))})")
     args = ap.parse_args()
+    if set(args.known) - set(args.off):
+        ap.error("--known FAMILY needs --off FAMILY too (the truth the graph is given is the switched-off one)")
     if args.xgen_results is not None:
         print_xgen([row for d in args.xgen_results for row in xgen_rows(d, args.limit_mm)], args.limit_mm)
         if args.xgen_only:
             return
-    tasks = [(sc, s, args.limit_mm) for sc in args.scenarios
+    tasks = [(sc, s, args.limit_mm, tuple(args.off), tuple(args.known)) for sc in args.scenarios
              for s in range(args.first_seed, args.first_seed + args.seeds)]
     if args.verbose:
         print(LOG_HEADER.replace("limit", f"{args.limit_mm:g} mm") + "\n" + "|---" * 11 + "|", flush=True)
@@ -253,15 +311,19 @@ def main() -> None:
                 print(log_row(r), flush=True)
     wall = time.perf_counter() - w0
     lim = f"{args.limit_mm:g} mm"
-    print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), --vary-nuisances zoo; "
+    print(f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), --vary-nuisances zoo"
+          f"{'; off: ' + ' '.join(args.off) if args.off else ''}"
+          f"{'; known: ' + ' '.join(args.known) if args.known else ''}; "
           f"wall {wall:.0f} s with {args.jobs} jobs, load {os.getloadavg()[0]:.2f} at the end")
     print("\nhorizontal, mm; means over logs (efficiency: RMS over logs of the graph's over the bound's)\n")
     print(f"| group | logs | graph xy | grid xy | bound xy | bound xy, heading as the graph | bound common / rest | "
           f"genie common | graph common / rest | AMCL run-mean error | AMCL run-mean / bound common (RMS) | "
           f"graph common less AMCL run mean (RMS) | bound > {lim} (% of logs) | "
           f"efficient <= {lim} (expected % of logs; heading as the graph) | "
-          f"graph <= {lim} (logs) | graph <= 0.35x grid (logs) | graph / bound: xy / common / rest |")
-    print("|---" * 17 + "|")
+          f"graph <= {lim} (logs) | graph <= 0.35x grid (logs) | graph / bound: xy / common / rest | "
+          f"bound rest, heading as the graph | graph / that bound: rest | graph / bound rest (median over logs) | "
+          f"graph within 1 sigma x, y (%) |")
+    print("|---" * 21 + "|")
     groups = defaultdict(list)
     for r in results:
         groups[r["scenario"]].append(r)

@@ -8,11 +8,13 @@ from pedcal.calib.common import interpolate_pose2
 from pedcal.sim import simulate_logs
 from pedcal.sim.nuisances import (
     HEAD_KINDS,
+    OFF_FAMILIES,
     RAMP_SHAPES,
     draw_nuisances,
     head_point,
     ramp_share,
     sensor_head_models,
+    switch_off,
     vary,
     zoo_families,
 )
@@ -179,6 +181,40 @@ def test_zoo_leaves_the_classic_draw_alone_and_draws_every_alternative():
     assert "relocalization" in {f["amcl"] for f in fam} and "per-sensor" in {f["head"] for f in fam}
     assert {z.head_point for z in zoo} == set(HEAD_KINDS)
     assert all(abs(z.clock_offset_s) <= 0.15 for z in zoo)
+
+
+def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
+    base = load_scenario("cross")
+    zoo = [vary(base.resolve(seed=s), zoo=True) for s in range(12)]
+    # a seed whose draw has every family on: a per-sensor head, skewed clocks, wall mounts, relocalizations
+    sc = next(z for z in zoo if z.per_sensor_head and z.clock_skew_ppm and z.wall_mounted_fraction
+              and z.amcl_error == "jumps" and z.latency_s > 0.0)
+    assert switch_off(sc, []) is sc
+    off = {f: switch_off(sc, [f]) for f in OFF_FAMILIES}
+    assert zoo_families(off["head"])["head"] == "top" and off["head"].head_vertical_bias_m == 0.0
+    assert zoo_families(off["clock"])["clock"] == "shared"
+    assert off["latency"].latency_s == 0.0
+    assert off["jumps"].amcl_error == "correlated" and zoo_families(off["jumps"])["amcl"] == "correlated"
+    assert zoo_families(off["mounts"])["mounts"] == "ceiling"
+    assert (off["odometry"].odom_scale_error, off["odometry"].odom_gyro_bias_dps) == (0.0, 0.0)
+    assert off["odometry"].odometry == sc.odometry and off["depth"].depth_noise_model == "quadratic"
+    for family, o in off.items():      # only the family's own fields changed
+        changed = {k for k in vars(sc) if getattr(o, k) != getattr(sc, k)}
+        assert changed and changed <= {"head_point", "per_sensor_head", "head_vertical_bias_m", "clock_offset_s",
+                                       "clock_skew_ppm", "latency_s", "amcl_error", "sensor_height_range_m",
+                                       "wall_mounted_fraction", "odom_scale_error", "odom_gyro_bias_dps",
+                                       "depth_noise_model"} or family == "depth", family
+    every = switch_off(sc, OFF_FAMILIES)
+    assert zoo_families(every) == dict(head="top", clock="shared", mounts="ceiling", amcl="correlated")
+    # the same layout and route: the switched-off log's truth is the drawn one's, but for the mounts
+    a = simulate_logs(sc, seed=sc.seed, duration_s=30.0).calib
+    b = simulate_logs(switch_off(sc, ["head", "clock", "latency"]), seed=sc.seed, duration_s=30.0).calib
+    assert a.truth.ids == b.truth.ids
+    for sid in a.truth.ids:
+        np.testing.assert_allclose(a.truth[sid].position_m, b.truth[sid].position_m)
+    np.testing.assert_allclose(a.truth_robot[["x", "y"]].to_numpy(), b.truth_robot[["x", "y"]].to_numpy())
+    with pytest.raises(ValueError, match="unknown nuisance family 'weather'"):
+        switch_off(sc, ["weather"])
 
 
 def test_per_sensor_clock_offsets_shift_only_that_sensors_stamps():

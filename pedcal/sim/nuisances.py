@@ -165,6 +165,33 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
                      else sc.amcl_error)}
 
 
+# each family :func:`switch_off` takes out of a drawn scenario, and the values it sets
+OFF_FAMILIES = ("head", "clock", "latency", "jumps", "mounts", "odometry", "depth")
+
+
+def switch_off(sc: Scenario, families) -> Scenario:
+    """``sc`` (its nuisances drawn) with the nuisance ``families`` (of OFF_FAMILIES) switched off,
+    every other draw of the seed left as it was (the layout, the routes, the noise streams): for
+    controlled experiments, the same log with one family at a time made ideal. ``head``: the head
+    top itself, the same for every sensor, no vertical bias; ``clock``: one shared clock (no
+    per-sensor offsets or skews); ``latency``: none; ``jumps``: AMCL's wandering error without
+    its jumps or relocalizations; ``mounts``: every sensor on the ceiling at sensor_height_m;
+    ``odometry``: no scale error nor gyro bias (the odometry, when the log has one, stays);
+    ``depth``: depth noise quadratic in range (the simulator's own model)."""
+    off = {}
+    for family in families:
+        if family not in OFF_FAMILIES:
+            raise ValueError(f"unknown nuisance family '{family}', expected one of {', '.join(OFF_FAMILIES)}")
+        off.update({"head": dict(head_point="top", per_sensor_head=False, head_vertical_bias_m=0.0),
+                    "clock": dict(clock_offset_s=0.0, clock_skew_ppm=0.0),
+                    "latency": dict(latency_s=0.0),
+                    "jumps": dict(amcl_error="correlated") if sc.amcl_error == "jumps" else {},
+                    "mounts": dict(sensor_height_range_m=None, wall_mounted_fraction=0.0),
+                    "odometry": dict(odom_scale_error=0.0, odom_gyro_bias_dps=0.0),
+                    "depth": dict(depth_noise_model="quadratic")}[family])
+    return sc.resolve(**off) if off else sc
+
+
 def draw_nuisances(rng: np.random.Generator) -> dict:
     """One draw of the nuisance zoo, as scenario overrides: head point (top, dome of radius
     0-0.12 m, shift toward the sensor 0-6 cm, centroid of the top 10 cm; vertical bias +-3 cm),
@@ -218,5 +245,6 @@ def sensor_truth(sc: Scenario, ids: list[str]) -> dict:
     return out
 
 
-__all__ = ["head_point", "dome_point", "draw_nuisances", "draw_zoo", "vary", "head_model_truth", "sensor_clocks",
+__all__ = ["switch_off", "OFF_FAMILIES",
+           "head_point", "dome_point", "draw_nuisances", "draw_zoo", "vary", "head_model_truth", "sensor_clocks",
            "sensor_head_models", "sensor_truth", "zoo_families", "HEAD_KINDS", "RAMP_SHAPES", "ramp_share"]
