@@ -179,7 +179,9 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     else:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
-    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
+    # (fg is the parts' whole graph, whose COLAMD ordering the solve computed)
+    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts,
+                                                                      ordering=parts.colamd())
     record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body,
@@ -731,13 +733,13 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
                                  if bad else ""))
 
 
-def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None):
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None, ordering=None):
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
     where that exceeds 1. Returns (per-sensor body covariance, the graph's own per-sensor marginal
     given the nuisances (what the data constrain), the joint world-axes position covariance, the
-    head model, the model check)."""
+    head model, the model check). ``ordering``: ``fg``'s COLAMD ordering, when known."""
     rec = prob.recipe
     n = len(prob.sensor_ids)
     keys = [S(i) for i in range(n)] + ([H(0)] if result.exists(H(0)) else [])
@@ -750,7 +752,7 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes), by
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
-        blocks = marginal_covariances(fg, result, keys)
+        blocks = marginal_covariances(fg, result, keys, ordering=ordering)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)
     cov_given = {sid: blocks[i].copy() for i, sid in enumerate(prob.sensor_ids)}   # (views of C: copied)
