@@ -922,10 +922,13 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     models = cache.models(pairs[:, 0], pairs[:, 1])
     # (one pass over plain Python lists: a numpy scalar read per factor and field costs as much
     # as the factor)
-    model_of = [models[i] for i in np.asarray(inverse).ravel().tolist()]
+    model_table = np.empty(len(models), object)
+    model_table[:] = models
+    model_of = model_table[np.asarray(inverse).ravel()].tolist()
     is_pose = terms.is_pose.tolist()
-    s_keys = [S(i) for i in terms.sensor.tolist()]
-    t_keys = [X(k) if pose else L(k) for k, pose in zip(terms.target.tolist(), is_pose, strict=True)]
+    # (the keys made in numpy: S(i), X(k) and L(m) are the symbols' bit patterns)
+    s_keys = symbols("s", terms.sensor).tolist()
+    t_keys = np.where(terms.is_pose, symbols("x", terms.target), symbols("l", terms.target)).tolist()
     add, unit3 = graph.add, gtsam.Unit3
     to_pose, to_point = gtsam.BearingRangeFactorPose3, gtsam.BearingRangeFactor3D
     for s_key, t_key, p, r, pose, model in zip(s_keys, t_keys, terms.p_sensor, terms.range_m.tolist(), is_pose,
