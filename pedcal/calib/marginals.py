@@ -106,13 +106,16 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     LinAlgError, as the normal matrix is then singular; GTSAM's Marginals should a conditional
     carry a noise model (a constrained factor's: :func:`tree_marginal_blocks` refuses it).
     ``ordering``: ``graph``'s COLAMD ordering when already computed (``graph.orderingCOLAMD()``,
-    the same as of its linearization), else computed here."""
+    the same as of its linearization), else (or when it is not of the graph's variables) computed here."""
     gfg = graph.linearize(values)
     held = set(gfg.keyVector())
     free = [k for k in values.keys() if k not in held]
     if free:
         raise np.linalg.LinAlgError(f"the normal matrix is singular: {gtsam.DefaultKeyFormatter(free[0])} is a "
                                     "variable no factor holds")
+    if ordering is not None and (ordering.size() != len(held)
+                                 or not all(ordering.at(i) in held for i in range(ordering.size()))):
+        ordering = None                     # (not this graph's variables: its own computed)
     try:
         tree = gfg.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(gfg) if ordering is None
                                          else ordering)
