@@ -179,9 +179,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     else:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
-    # (fg is the parts' whole graph, whose COLAMD ordering the solve computed)
-    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts,
-                                                                      ordering=parts.colamd())
+    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
     record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body,
@@ -358,6 +356,8 @@ class _Nuisances:
     # (how far it may be from 0 given the data, m (pedcal.calib.headpoint.considered_rms), the
     # sensors' (and h(0)'s) error per unit of it)
     considered: tuple | None = None
+    # ``graph``'s COLAMD ordering (the parts', computed for the solve): the marginals' elimination order
+    ordering: gtsam.Ordering | None = None
 
 
 def _shown(name: str, value: float) -> str:
@@ -643,7 +643,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]),
-                       considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]))
+                       considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]),
+                       ordering=parts.colamd() if final_graph else None)
 
 
 def _unmodelled_curvature(step, chi2: float):
@@ -733,13 +734,13 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
                                  if bad else ""))
 
 
-def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None, ordering=None):
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None):
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
     where that exceeds 1. Returns (per-sensor body covariance, the graph's own per-sensor marginal
     given the nuisances (what the data constrain), the joint world-axes position covariance, the
-    head model, the model check). ``ordering``: ``fg``'s COLAMD ordering, when known."""
+    head model, the model check)."""
     rec = prob.recipe
     n = len(prob.sensor_ids)
     keys = [S(i) for i in range(n)] + ([H(0)] if result.exists(H(0)) else [])
@@ -752,6 +753,8 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes), by
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
+        # (the graph's COLAMD ordering that the solve computed, when the profile's graph is it)
+        ordering = shifts.ordering if shifts is not None and shifts.graph is fg else None
         blocks = marginal_covariances(fg, result, keys, ordering=ordering)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)
