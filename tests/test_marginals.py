@@ -77,6 +77,27 @@ def test_keys_in_any_order_and_repeated():
     assert np.array_equal(got[0], got[2])
 
 
+def test_the_nonlinear_graphs_colamd_ordering_gives_the_same_blocks():
+    # the graph's own COLAMD ordering (as the solver computed it) is its linearization's: the
+    # same elimination, the same blocks to the last digit; any other ordering, the same to roundoff
+    graph, values = path_graph(4, n_pose=25, n_sensor=4, points=2)
+    keys = [S(0), S(3), X(5), P(1)]
+    got = marginal_covariances(graph, values, keys)
+    same = marginal_covariances(graph, values, keys, ordering=graph.orderingCOLAMD())
+    assert all(np.array_equal(g, s) for g, s in zip(got, same, strict=True))
+    natural = gtsam.Ordering()
+    for k in sorted(values.keys()):
+        natural.push_back(k)
+    other = marginal_covariances(graph, values, keys, ordering=natural)
+    assert all(np.abs(g - o).max() <= 1e-9 * np.abs(g).max() for g, o in zip(got, other, strict=True))
+    # an ordering of other variables (another graph's) is not used: the graph's own is computed
+    short = gtsam.Ordering()
+    for k in sorted(values.keys())[:-1]:
+        short.push_back(k)
+    stale = marginal_covariances(graph, values, keys, ordering=short)
+    assert all(np.array_equal(g, s) for g, s in zip(got, stale, strict=True))
+
+
 def test_one_variable_graph_is_its_priors_inverse():
     # the root supernode alone (no structure below it): D^-1 through L_JJ only
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()

@@ -189,6 +189,25 @@ def test_observation_rhs_equals_gtsams_linearization(dome_paper):
     assert worst < 1e-8
 
 
+def test_observation_rhs_factor_rows_are_the_blocks(dome_paper):
+    # the rows each factor of the observation block takes in its linearization, from its
+    # structure (the head offset's prior 6, each observation 3), as GTSAM's factors give them:
+    # the robot's block with its prior, and the shared people's without one
+    from pedcal.calib.graph import ObservationRhs
+    from pedcal.calib.profile import _factor_rows
+
+    sim, prob, parts, result = dome_paper
+    block = observation_block(sim.calib, prob, result)
+    rows = ObservationRhs(sim.calib, prob, result).factor_rows()
+    assert block.at(0).dim() == 6 and rows[1] == 6          # (the prior leads)
+    assert np.array_equal(rows, _factor_rows(block))
+    sim, prob, parts = shared_people_problem()
+    values = parts.values
+    block = observation_block(sim.calib, prob, values)
+    rows = ObservationRhs(sim.calib, prob, values).factor_rows()
+    assert block.size() > 10 and np.array_equal(rows, _factor_rows(block))
+
+
 def shared_people_problem():
     """Paper seed 0 with every track taken for a person: the robot's, seen by two sensors at
     once, are the shared person sightings. Returns (sim, prob, parts)."""
@@ -421,6 +440,11 @@ def test_joint_system_is_the_stacked_blocks():
     want = sps.vstack([sps.hstack([A, C]), prior]).tocsr()
     assert got.shape == want.shape == (52, 34) and got.nnz == want.nnz
     assert abs(got - want).max() == 0.0
+    # A given as row blocks (one of them empty) is the same as A stacked
+    blocks = [A[:20], sps.csr_matrix((0, 30)), A[20:45], A[45:]]
+    got = _joint_system(blocks, C, prior)
+    assert got.shape == want.shape and got.nnz == want.nnz
+    assert np.array_equal(got.indptr, want.indptr) and abs(got - want).max() == 0.0
 
 
 def test_near_solve_is_the_direct_solve_of_the_moved_system():

@@ -311,11 +311,13 @@ class NormalCholesky:
             if not X:
                 raise MemoryError("CHOLMOD's solve failed")
             try:
+                # (CHOLMOD's column-major n x k: copied as it lies, k x n, and returned transposed,
+                # a column-major view, not transposed in the copy)
                 x = np.ctypeslib.as_array(ctypes.cast(X.contents.x, ctypes.POINTER(ctypes.c_double)),
-                                          shape=(k, self.n)).T.copy()
+                                          shape=(k, self.n)).copy()
             finally:
                 lib.lib.cholmod_free_dense(ctypes.byref(X), lib.common)
-        return x.reshape(y.shape)
+        return x.T.reshape(y.shape)
 
     def __del__(self):
         factor, self._factor = getattr(self, "_factor", None), None

@@ -90,6 +90,7 @@ from pedcal.calib.marginals import marginal_covariances
 from pedcal.calib.profile import (
     Columns,
     Nuisance,
+    fill_reducing_order,
     joint_marginal_covariance,
     profile_step,
     retract_flat,
@@ -146,7 +147,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     profiled = _profiled(recipe)
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
                                         gauss_newton_step=not profiled,
-                                        relative_error_tol=1e-3 if resolve else None)
+                                        relative_error_tol=1e-3 if resolve else None, ordering=parts.colamd())
     if progress:        # (the errors cost two passes over the graph: not when nobody reads them)
         _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
                        f"{fg.error(result):.1f}")
@@ -295,7 +296,8 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
     # (when Gauss-Newton steps follow, those of the nuisances' profile, LM stops at 0.1 % of the
     # error: they finish what it leaves, converging quadratically this close)
     result, iterations = optimize_graph(parts.graph(), values, rec, gauss_newton_step=gauss_newton_step,
-                                        relative_error_tol=None if gauss_newton_step else 1e-3)
+                                        relative_error_tol=None if gauss_newton_step else 1e-3,
+                                        ordering=parts.colamd())
     return parts, result, iterations
 
 
@@ -354,6 +356,8 @@ class _Nuisances:
     # (how far it may be from 0 given the data, m (pedcal.calib.headpoint.considered_rms), the
     # sensors' (and h(0)'s) error per unit of it)
     considered: tuple | None = None
+    # ``graph``'s COLAMD ordering (the parts', computed for the solve): the marginals' elimination order
+    ordering: gtsam.Ordering | None = None
 
 
 def _shown(name: str, value: float) -> str:
@@ -499,9 +503,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             np.r_[theta, theta_local], nuis + local_nuis, cols,
             obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
-            order=None if step is None else step.order,
+            # (the first step's fill-reducing order: the graph's COLAMD ordering, the solver's)
+            order=fill_reducing_order(parts.colamd(), cols) if step is None else step.order,
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
-            footprint=footprint, local=local_cols)
+            footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows())
         if not chord:
             full_step = step
         if considered and not chord:
@@ -638,7 +643,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]),
-                       considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]))
+                       considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]),
+                       ordering=parts.colamd() if final_graph else None)
 
 
 def _unmodelled_curvature(step, chi2: float):
@@ -747,7 +753,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes), by
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
-        blocks = marginal_covariances(fg, result, keys)
+        # (the graph's COLAMD ordering that the solve computed, when the profile's graph is it)
+        ordering = shifts.ordering if shifts is not None and shifts.graph is fg else None
+        blocks = marginal_covariances(fg, result, keys, ordering=ordering)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)
     cov_given = {sid: blocks[i].copy() for i, sid in enumerate(prob.sensor_ids)}   # (views of C: copied)

@@ -249,6 +249,16 @@ class GraphParts:
     values: gtsam.Values
     # what the motion block was built from (:func:`_motion_inputs`), for :func:`rebuild_parts`
     motion_inputs: tuple | None = None
+    # the whole graph's COLAMD ordering (``graph().orderingCOLAMD()``), once computed: the
+    # solver's elimination order, and the profile's fill-reducing order of the same structure
+    ordering: gtsam.Ordering | None = None
+
+    def colamd(self) -> gtsam.Ordering:
+        """The whole graph's COLAMD ordering, computed on the first call and kept (the blocks
+        are rebuilt with the same structure, or the parts built anew)."""
+        if self.ordering is None:
+            self.ordering = self.graph().orderingCOLAMD()
+        return self.ordering
 
     def graph(self, **replace) -> gtsam.NonlinearFactorGraph:
         """The whole graph; ``replace`` swaps blocks by name (e.g. ``observations=...``)."""
@@ -912,10 +922,13 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     models = cache.models(pairs[:, 0], pairs[:, 1])
     # (one pass over plain Python lists: a numpy scalar read per factor and field costs as much
     # as the factor)
-    model_of = [models[i] for i in np.asarray(inverse).ravel().tolist()]
+    model_table = np.empty(len(models), object)
+    model_table[:] = models
+    model_of = model_table[np.asarray(inverse).ravel()].tolist()
     is_pose = terms.is_pose.tolist()
-    s_keys = [S(i) for i in terms.sensor.tolist()]
-    t_keys = [X(k) if pose else L(k) for k, pose in zip(terms.target.tolist(), is_pose, strict=True)]
+    # (the keys made in numpy: S(i), X(k) and L(m) are the symbols' bit patterns)
+    s_keys = symbols("s", terms.sensor).tolist()
+    t_keys = np.where(terms.is_pose, symbols("x", terms.target), symbols("l", terms.target)).tolist()
     add, unit3 = graph.add, gtsam.Unit3
     to_pose, to_point = gtsam.BearingRangeFactorPose3, gtsam.BearingRangeFactor3D
     for s_key, t_key, p, r, pose, model in zip(s_keys, t_keys, terms.p_sensor, terms.range_m.tolist(), is_pose,
@@ -981,6 +994,13 @@ class ObservationRhs:
         self._robot_by_sensor = by_sensor
         self._robot_cuts = np.searchsorted(self.sensor[by_sensor], np.arange(int(self.sensor.max(initial=-1)) + 2))
 
+    def factor_rows(self) -> np.ndarray:
+        """The start row of every factor of the block in its linearization, and the end: the
+        head offset's prior (a Pose3's 6 rows) first when there is one, then 3 rows per
+        observation (its bearing's 2 and its range's), as the right-hand side's rows."""
+        dims = np.r_[np.full(self.first, 6), np.full(len(self.sensor), 3)]
+        return np.r_[0, np.cumsum(dims)].astype(np.int64)
+
     def robot_factors(self, sensor_index: int) -> np.ndarray:
         """Indices in the block of the robot observations of sensor ``sensor_index`` (in order)."""
         if not 0 <= sensor_index < len(self._robot_cuts) - 1:
@@ -1010,7 +1030,8 @@ class ObservationRhs:
 
 
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,
-                   gauss_newton_step: bool = True, relative_error_tol: float | None = None):
+                   gauss_newton_step: bool = True, relative_error_tol: float | None = None,
+                   ordering: gtsam.Ordering | None = None):
     """Levenberg-Marquardt from ``values``, then, with the head model's vertical offset free, one
     Gauss-Newton step (unless ``gauss_newton_step`` is False: the caller's next step is one, as
     every profile step of the nuisances is); (result, iterations). A common vertical shift of all variables changes no
@@ -1025,14 +1046,16 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     iterations are Gauss-Newton's, without the damped system LM forms (~15 % of an iteration),
     with LM's stopping rule, and the first step that would raise the error is not taken: LM
     goes on from the last point for the iterations left (and from an undamped system GTSAM cannot
-    solve: a direction nothing holds, which LM's damping does)."""
+    solve: a direction nothing holds, which LM's damping does). ``ordering``: ``fg``'s COLAMD
+    ordering when already computed (:meth:`GraphParts.colamd`)."""
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
     # one COLAMD ordering computed once (the graph's structure does not change between
     # iterations), eliminated multifrontally: per Gauss-Newton iteration as fast as sequentially
     # on the paper and corridor scenes (17-23 ms), 12-20 % faster on 160-1000 synthetic sensors
     # (0.70 -> 0.53-0.63 s at 1000: GTSAM's dense frontal blocks)
-    ordering = fg.orderingCOLAMD()      # symbolic: the same order as of its linearization
+    if ordering is None:
+        ordering = fg.orderingCOLAMD()      # symbolic: the same order as of its linearization
     gn_params = gtsam.GaussNewtonParams()
     gn_params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
     gn_params.setOrdering(ordering)

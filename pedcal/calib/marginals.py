@@ -96,22 +96,29 @@ def tree_marginal_blocks(tree: gtsam.GaussianBayesTree, dims: dict[int, int], ke
     return [found[k] for k in keys]
 
 
-def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> list[np.ndarray]:
+def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int],
+                         ordering: gtsam.Ordering | None = None) -> list[np.ndarray]:
     """Each variable of ``keys``' marginal covariance (its tangent's, as
     ``gtsam.Marginals(graph, values).marginalCovariance(key)``) at ``values``: the graph
     linearized and eliminated once (GTSAM's multifrontal Cholesky, COLAMD order), the keys'
     blocks taken by selected inversion of the Bayes tree (:func:`tree_marginal_blocks`). A
     variable of ``values`` that no factor holds (or a system GTSAM cannot eliminate) is a
     LinAlgError, as the normal matrix is then singular; GTSAM's Marginals should a conditional
-    carry a noise model (a constrained factor's: :func:`tree_marginal_blocks` refuses it)."""
+    carry a noise model (a constrained factor's: :func:`tree_marginal_blocks` refuses it).
+    ``ordering``: ``graph``'s COLAMD ordering when already computed (``graph.orderingCOLAMD()``,
+    the same as of its linearization), else (or when it is not of the graph's variables) computed here."""
     gfg = graph.linearize(values)
     held = set(gfg.keyVector())
     free = [k for k in values.keys() if k not in held]
     if free:
         raise np.linalg.LinAlgError(f"the normal matrix is singular: {gtsam.DefaultKeyFormatter(free[0])} is a "
                                     "variable no factor holds")
+    if ordering is not None and (ordering.size() != len(held)
+                                 or not all(ordering.at(i) in held for i in range(ordering.size()))):
+        ordering = None                     # (not this graph's variables: its own computed)
     try:
-        tree = gfg.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(gfg))
+        tree = gfg.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(gfg) if ordering is None
+                                         else ordering)
     except RuntimeError as e:               # (GTSAM's indeterminant system: a direction nothing holds)
         raise np.linalg.LinAlgError(f"the normal matrix is singular (a variable no factor holds): {e}") from e
     del gfg

@@ -114,12 +114,14 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
 
 
-def fill_reducing_order(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> np.ndarray:
+def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
     """A fill-reducing order of the system's columns: GTSAM's COLAMD ordering of the linearized
-    graph's variables, each variable's columns together. It depends on the graph's structure
-    alone, so one order serves every factorization of the same graph (the profile's steps)."""
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-    keys = [ordering.at(i) for i in range(ordering.size())]
+    graph's variables (``gfg``, a GaussianFactorGraph), or a given ``gtsam.Ordering`` of them
+    (the nonlinear graph's COLAMD, :func:`pedcal.calib.graph.optimize_graph`'s: the same
+    structure), each variable's columns together. It depends on the graph's structure alone, so
+    one order serves every factorization of the same graph (the profile's steps)."""
+    ordering = gfg if isinstance(gfg, gtsam.Ordering) else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+    keys = [k for k in (ordering.at(i) for i in range(ordering.size())) if k in cols.offset]
     missing = sorted(set(cols.keys) - set(keys))           # variables no factor touches, last
     return cols.index(keys + missing)
 
@@ -362,7 +364,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
                  plain=None, plain0=None, previous: ProfileStep | None = None,
                  order: np.ndarray | None = None, residuals=None, footprint: dict | None = None,
-                 local: np.ndarray | None = None) -> ProfileStep:
+                 local: np.ndarray | None = None, factor_rows: np.ndarray | None = None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -409,6 +411,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     ``Z`` are the others' (z0 and Z with m rows more, the local nuisances' joint step and
     sensitivity after the variables': :meth:`ProfileStep.local_step`); ``local`` carries these.
 
+    ``factor_rows``: optionally, the start row of each observation factor in the block's
+    linearization and the end (:meth:`pedcal.calib.graph.ObservationRhs.factor_rows`), which is
+    otherwise asked of each factor (taken only when its end is the block's row count).
+
     M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
     M^T r = Z^T A^T r - B^T r."""
     cols = cols or Columns.of(values)
@@ -444,7 +450,13 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         order = fill_reducing_order(lin, cols)
         lin = None
     n_f = A_f.shape[0]
-    A = sps.vstack([A_f, A_o, A_p], format="csr")
+    n_rows = n_f + A_o.shape[0] + A_p.shape[0]
+    if m_local:
+        # (stacked into the joint system below, with the local nuisances' columns: no stacked
+        # copy of A first, 60 MB at 1000 sensors)
+        A, blocks = None, [A_f, A_o, A_p]
+    else:
+        A, blocks = sps.vstack([A_f, A_o, A_p], format="csr"), None
     A_f = A_o = A_p = None
     b = np.r_[b_f, b_o0, b_p0]
     if chord:
@@ -463,7 +475,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
                            Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
-    rows = _factor_rows(obs0)
+    given = factor_rows is not None and len(factor_rows) == obs0.size() + 1 and factor_rows[-1] == len(b_o0)
+    rows = np.asarray(factor_rows, np.int64) if given else _factor_rows(obs0)
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
     sqrt_w = sqrt_weights(n_rob, *kernel)
     if sqrt_w is None:
@@ -525,7 +538,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     lengths = [len(c[0]) for c in columns]
     B = sps.csc_matrix((np.concatenate([c[1] for c in columns]) if k else np.zeros(0),
                         (n_f + np.concatenate([c[0] for c in columns]).astype(np.int64) if k else np.zeros(0, int),
-                         np.repeat(np.arange(k), lengths))), shape=(A.shape[0], k))
+                         np.repeat(np.arange(k), lengths))), shape=(n_rows, k))
     if chord:
         # the gradient exact, -B^T rho0 with this point's B and weights (A^T rho0 = 0 at z0): the
         # chord's fixed point is the profile's optimum; only the Hessian is the full step's
@@ -545,8 +558,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         n = cols.n
         prior = sps.csr_matrix((1.0 / sigma, (np.arange(m_local), n + np.arange(m_local))),
                                shape=(m_local, n + m_local))
-        A_joint = _joint_system(A, -B_local, prior)
-        A = None                  # (A_joint holds it: its first n columns, its prior rows zero there)
+        A_joint = _joint_system(blocks, -B_local, prior)
+        blocks = None             # (A_joint holds them: its first n columns, its prior rows zero there)
         b_joint = np.r_[b, -(theta[k_exact:] - mean_l) / sigma]
         B_joint = sps.vstack([B, sps.csc_matrix((m_local, k_exact))], format="csc")
         solve = _normal_solver(A_joint, _with_local_columns(order, local_cols, n))
@@ -603,7 +616,7 @@ def _gauss_newton_and_sensitivity(solve, A: sps.csr_matrix, b: np.ndarray,
     for lo in range(0, k + 1, SOLVE_COLUMNS):          # (column 0: A^T b, column j: A^T B's j - 1)
         hi = min(lo + SOLVE_COLUMNS, k + 1)
         first = int(lo == 0)
-        rhs = np.empty((n, hi - lo))
+        rhs = np.empty((n, hi - lo), order="F")      # (column-major: the solver's layout, not copied into it)
         if first:
             rhs[:, 0] = A.T @ b
         rhs[:, first:] = AtB[:, lo + first - 1:hi - 1].toarray()
@@ -614,27 +627,35 @@ def _gauss_newton_and_sensitivity(solve, A: sps.csr_matrix, b: np.ndarray,
     return z0, Z, AtB
 
 
-def _joint_system(A: sps.csr_matrix, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:
+def _joint_system(A, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:
     """[[A, C], [prior]] in CSR, assembled row by row from A's and C's CSR arrays (no COO round
-    trip: A has millions of entries): each row's A entries, then its C entries (columns n + j)."""
-    A = sps.csr_matrix(A)
+    trip: A has millions of entries): each row's A entries, then its C entries (columns n + j).
+    ``A``: one matrix, or a list of row blocks stacked in order (no stacked copy of them first)."""
+    blocks = [sps.csr_matrix(a) for a in (A if isinstance(A, (list, tuple)) else [A])]
     C = sps.csr_matrix(C)
-    n = A.shape[1]
-    count_a, count_c = np.diff(A.indptr), np.diff(C.indptr)
+    n = blocks[0].shape[1]
+    m = sum(a.shape[0] for a in blocks)
+    count_a = np.concatenate([np.diff(a.indptr) for a in blocks])
+    count_c = np.diff(C.indptr)
     indptr = np.r_[0, np.cumsum(count_a + count_c)]
-    # destination of each of A's entries: its own index shifted by the C entries of the rows
-    # before its row (C's: by the A entries of the rows up to and including its row)
-    at_a = np.arange(A.nnz, dtype=indptr.dtype) + np.repeat(C.indptr[:-1].astype(indptr.dtype), count_a)
-    at_c = np.arange(C.nnz, dtype=indptr.dtype) + np.repeat(A.indptr[1:].astype(indptr.dtype), count_c)
+    nnz_a = int(count_a.sum())
+    # destination of each of A's entries: its own index in the stacked A shifted by the C entries
+    # of the rows before its row (C's: by the A entries of the rows up to and including its row)
+    at_a = np.arange(nnz_a, dtype=indptr.dtype) + np.repeat(C.indptr[:-1].astype(indptr.dtype), count_a)
+    at_c = np.arange(C.nnz, dtype=indptr.dtype) + np.repeat(np.cumsum(count_a, dtype=indptr.dtype), count_c)
     nnz = int(indptr[-1])
     indices = np.empty(nnz + prior.nnz, np.int32 if max(nnz + prior.nnz, n + C.shape[1]) < 2 ** 31 else np.int64)
     data = np.empty(nnz + prior.nnz)
-    indices[at_a], data[at_a] = A.indices, A.data
+    start = 0
+    for a in blocks:
+        at = at_a[start:start + a.nnz]
+        indices[at], data[at] = a.indices, a.data
+        start += a.nnz
     indices[at_c], data[at_c] = C.indices + n, C.data
     prior = sps.csr_matrix(prior)
     indices[nnz:], data[nnz:] = prior.indices, prior.data
     indptr = np.r_[indptr, nnz + prior.indptr[1:]]
-    return sps.csr_matrix((data, indices, indptr), shape=(A.shape[0] + prior.shape[0], n + C.shape[1]))
+    return sps.csr_matrix((data, indices, indptr), shape=(m + prior.shape[0], n + C.shape[1]))
 
 
 def _with_local_columns(order: np.ndarray, local_cols: np.ndarray, n: int) -> np.ndarray:
