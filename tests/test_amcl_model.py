@@ -268,7 +268,8 @@ def test_amcl_jumps_seen_by_the_sensors_are_left_out():
     sim = simulate_logs("paper", seed=6, amcl_error="jumps", amcl_jump_rate_hz=1 / 40.0, amcl_jump_m=0.4)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
-        res = calibrate_factorgraph(sim.calib)
+        # (the track's own jumps left out, not moved back: amcl_jumps_moved_back's own test below)
+        res = calibrate_factorgraph(sim.calib, amcl_jumps_moved_back=False)
     model = res.diagnostics.amcl_error_model
     amcl = sim.calib.robot.sort_values("t", kind="stable")
     truth = interpolate_pose2(sim.calib.truth_robot, amcl["t"].to_numpy(float))
@@ -278,6 +279,27 @@ def test_amcl_jumps_seen_by_the_sensors_are_left_out():
     assert jump[model.excluded].mean() > 0.9                  # what is left out is a jump
     assert model.excluded[jump].mean() > 0.95                 # and the jumps are, seen or not
     assert res.network.extra["amcl_error_model"]["jumps"] == model.jumps
+    assert res.network.extra["amcl_error_model"]["jumps_moved_back"] == 0
+
+
+def test_a_sensor_that_sees_the_robot_only_inside_a_jump_without_odometry_is_calibrated():
+    # the zoo's cross seed 2: no odometry, five relocalization jumps of 0.4 m for 7-20 s; sensor
+    # s01 sees the robot 5 s at the log's start and 5 s inside a 20 s jump. With the jumps left out
+    # the robot's path there was the smoothness factor's alone, which carried the jump's steps:
+    # s01 929 mm off with a 48 mm sigma, the log's horizontal RMS 264 mm. Moved back by their
+    # steps, the jumps' estimates hold the path: 45 mm, s01 within 2 sigma
+    from pedcal.metrics import evaluate
+
+    sim = simulate_logs("cross", seed=2, vary_nuisances="zoo")
+    assert sim.calib.odometry is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate_factorgraph(sim.calib)
+    assert res.network.extra["amcl_error_model"]["jumps_moved_back"] == 5
+    ev = evaluate(sim.eval, res.network)
+    assert ev.sensor_position_rms_mm.horizontal < 60.0
+    s01 = next(s for s in ev.sensors if s.id == "s01")
+    assert np.all(np.abs(s01.position_error_mm[:2]) / 1000.0 <= 2.0 * res.network["s01"].sigma_position_m[:2])
 
 
 def _ar1_precision(prior_sig, step_sig, n):
@@ -378,3 +400,50 @@ def test_common_shift_and_turn_sigma_match_a_monte_carlo_of_the_process(tau, swe
     # the same without the ends' correction, sqrt(2 sigma^2 tau / T)
     shift_sigma = np.sqrt(claimed[0, 0])
     assert AmclErrorModel(0.0, sigma, tau).floor_sigma_m(T) * 0.98 <= shift_sigma <= sigma * np.sqrt(2 * tau / T) * 1.03
+
+
+def test_the_steps_offsets_move_a_jumps_estimates_back_onto_the_track():
+    # a 0.4 m jump out and back, and one out in two steps (0.3 m, then 0.2 m 3 s later) and back in
+    # one: the estimates less their offsets are the track without the jumps, within ~1 cm
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 300.0, 0.1)
+    clean = _wandering_track(rng, t)
+    p = clean.copy()
+    for start, stop, step in ((100.0, 110.0, [0.4, 0.1]), (200.0, 210.0, [0.0, -0.3]), (203.0, 210.0, [0.2, 0.0])):
+        p[(t >= start - 1e-9) & (t < stop - 1e-9)] += step
+    jump, offset = detect_steps(t, p, offsets=True)
+    assert np.array_equal(jump, (t >= 100.0 - 1e-9) & (t < 110.0 - 1e-9) | (t >= 200.0 - 1e-9) & (t < 210.0 - 1e-9))
+    assert not offset[~jump].any()
+    miss = np.linalg.norm(p - offset - clean, axis=1)
+    assert miss[jump].mean() < 0.015 and miss.max() < 0.03
+    # (and as a mask alone, the same)
+    assert np.array_equal(detect_steps(t, p), jump)
+
+
+def test_jumps_moved_back_keeps_the_tables_rows_and_moves_only_the_jumps():
+    import pandas as pd
+
+    from pedcal.calib.amcl_model import jumps_moved_back
+    from pedcal.model import Log
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 200.0, 0.2)
+    p = _wandering_track(rng, t)
+    on = (t >= 80.0 - 1e-9) & (t < 90.0 - 1e-9)
+    p[on] += [0.4, 0.0]
+    robot = pd.DataFrame({"t": t, "x": p[:, 0], "y": p[:, 1], "yaw": np.zeros(len(t)),
+                          **{c: np.full(len(t), 1e-3) for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy",
+                                                                 "cov_yyaw", "cov_yawyaw")}})
+    shuffled = robot.sample(frac=1.0, random_state=5).reset_index(drop=True)      # rows in any order
+    log = Log(sensors=None, robot=shuffled, observations=pd.DataFrame())
+    moved, n_jumps = jumps_moved_back(log)
+    assert n_jumps == 1 and moved is not log and log.robot is shuffled
+    changed = (moved.robot[["x", "y"]].to_numpy() != shuffled[["x", "y"]].to_numpy()).any(axis=1)
+    in_jump = (shuffled["t"].to_numpy() >= 80.0 - 1e-9) & (shuffled["t"].to_numpy() < 90.0 - 1e-9)
+    assert np.array_equal(changed, in_jump)
+    # (the offset is the mean of the step out and the step back, each off by AMCL's wander over
+    # the +-1 s windows, ~1.5 cm here, and its jitter: 2.2 cm off the 0.4 m on this track)
+    assert np.abs(moved.robot["x"].to_numpy()[in_jump] - (shuffled["x"].to_numpy()[in_jump] - 0.4)).max() < 0.03
+    assert moved.robot.drop(columns=["x", "y"]).equals(shuffled.drop(columns=["x", "y"]))
+    clean = Log(sensors=None, robot=robot.assign(x=robot["x"] - 0.4 * on), observations=pd.DataFrame())
+    assert jumps_moved_back(clean) == (clean, 0)

@@ -31,7 +31,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib import blas_threads, readback
-from pedcal.calib.amcl_model import estimate_model, reported_sigma_m
+from pedcal.calib.amcl_model import estimate_model, jumps_moved_back, reported_sigma_m
 from pedcal.calib.clocks import CLUSTER_S as CLOCK_CLUSTER_S
 from pedcal.calib.clocks import PREFIX as CLOCK_PREFIX
 from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks, widen_for_overdispersion
@@ -134,7 +134,14 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
 
         return calibrate_online(log, recipe=recipe, is_robot=is_robot, progress=progress)
 
+    n_jumps = 0
+    if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
+        log, n_jumps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
+        if n_jumps:
+            _log(progress, f"{n_jumps} relocalization jumps in AMCL's track: their estimates moved back by the "
+                           "jumps' steps")
     prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network)
+    prob.amcl_jumps_moved_back = n_jumps
     t_build = time.perf_counter()
     parts = build_parts(log, prob)
     fg = parts.graph()

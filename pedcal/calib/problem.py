@@ -52,6 +52,7 @@ class FactorGraphProblem:
     odometry: pd.DataFrame | None = None     # calibrated wheel odometry (odometry frame)
     odometry_estimates: dict = field(default_factory=dict)
     smoothed_amcl: pd.DataFrame | None = None    # AMCL smoothed, when it stands in for odometry
+    amcl_jumps_moved_back: int = 0    # relocalization jumps moved back by their steps (amcl_model.jumps_moved_back)
     people: list = field(default_factory=list)   # [(t, [(sensor, p_sensor), ...]), ...]
     rows_used: np.ndarray | None = None
     amcl_node_times: np.ndarray | None = None    # times of the AMCL error nodes a(j)

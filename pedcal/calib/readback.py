@@ -105,7 +105,7 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
             f"{3 * len(prob.sensor_ids)}) is not computed above {JOINT_COV_MAX_SENSORS} sensors (each sensor's "
             "marginal is); CalibrationResult.marginals().jointMarginalCovariance(keys) gives any part of it")
     if prob.amcl_model is not None and prob.recipe.amcl:
-        network.extra[AMCL_MODEL_KEY] = prob.amcl_model.to_dict()
+        network.extra[AMCL_MODEL_KEY] = {**prob.amcl_model.to_dict(), "jumps_moved_back": prob.amcl_jumps_moved_back}
     if prob.odometry is not None and prob.odometry_estimates:
         network.extra[ODOMETRY_MODEL_KEY] = {k: (round(v, 6) if isinstance(v, float) else v)
                                              for k, v in prob.odometry_estimates.items()}

@@ -125,6 +125,10 @@ class GraphRecipe:
     estimate_amcl_model: bool = True
     amcl_jump_threshold: float = 5.0   # robust sigmas off the running median: a jump, left out
     amcl_min_jump_m: float = 0.1       # ... and at least this far off
+    # the relocalization jumps found as steps in AMCL's own track moved back by their steps (kept,
+    # not left out: without odometry a left-out stretch left the robot's path there to the
+    # smoothness factor alone, which carried the jump's steps; pedcal.calib.amcl_model.jumps_moved_back)
+    amcl_jumps_moved_back: bool = True
     # robot poses: one per AMCL stamp, gaps longer than this filled
     max_pose_gap_s: float = 0.25
     # odometry: systematic errors estimated and removed, then white noise per sqrt(second)
