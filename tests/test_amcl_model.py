@@ -447,3 +447,23 @@ def test_jumps_moved_back_keeps_the_tables_rows_and_moves_only_the_jumps():
     assert moved.robot.drop(columns=["x", "y"]).equals(shuffled.drop(columns=["x", "y"]))
     clean = Log(sensors=None, robot=robot.assign(x=robot["x"] - 0.4 * on), observations=pd.DataFrame())
     assert jumps_moved_back(clean) == (clean, 0)
+
+
+@pytest.mark.parametrize("later", ["jump out and back", "step that stays"])
+def test_steps_that_pair_in_doubt_move_nothing(later):
+    # AMCL starting 0.4 m off and converging at 5 s, then a jump out at 30 s (back at 40 s, or
+    # never): the steps at 5 and 30 s cancel, and so pair the right 5-30 s stretch as a jump. The
+    # shorter wrong stretch is the start's, so that pairing is in doubt: nothing is moved
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 200.0, 0.1)
+    clean = _wandering_track(rng, t)
+    p = clean.copy()
+    p[t < 5.0 - 1e-9] += [0.4, 0.0]
+    p[(t >= 30.0 - 1e-9) & ((t < 40.0 - 1e-9) if later == "jump out and back" else True)] += [0.4, 0.0]
+    jump, offset = detect_steps(t, p, offsets=True)
+    assert not offset.any()
+    # while a jump well after the start, as long as it lasts, is moved back
+    p2 = clean.copy()
+    p2[(t >= 60.0 - 1e-9) & (t < 80.0 - 1e-9)] += [0.4, 0.0]
+    jump2, offset2 = detect_steps(t, p2, offsets=True)
+    assert jump2.sum() == 200 and np.abs(offset2[jump2, 0] - 0.4).max() < 0.03

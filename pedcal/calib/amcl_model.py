@@ -371,25 +371,43 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     jump_u = np.zeros(m, bool)
     off_u = np.zeros((m, p.shape[1]))
     offset, start, since = np.zeros(p.shape[1]), None, []
-    for j, step_j in big:
+    closed, opened = [], []          # (index in big of the opening step, of the closing, pieces, residual)
+    for n_step, (j, step_j) in enumerate(big):
         offset = offset + step_j
         if start is None:
             if np.linalg.norm(offset) > min_jump_m:
-                start, since = k[j], [(k[j], offset.copy())]
+                start, since, first = k[j], [(k[j], offset.copy())], n_step
+                opened.append(n_step)
             else:
                 offset[:] = 0.0
         elif np.linalg.norm(offset) <= min_jump_m:
             if tu[k[j] - 1] - tu[start] <= max_jump_s:
                 jump_u[start:k[j]] = True
-                # the step back measures the jump as the step out does: half of what they leave
-                # between them off each piece (an out-and-back jump's offset (out - back) / 2)
-                for (a, o), b in zip(since, [s_[0] for s_ in since[1:]] + [k[j]], strict=True):
-                    off_u[a:b] = o - 0.5 * offset
+                closed.append((first, n_step, since + [(k[j], None)], offset.copy()))
             offset[:], start = 0.0, None
         elif tu[k[j]] - tu[start] > max_jump_s:          # never came back: start again from here
-            offset, start, since = step_j.copy(), k[j], [(k[j], step_j.copy())]
+            offset, start, since, first = step_j.copy(), k[j], [(k[j], step_j.copy())], n_step
+            opened.append(n_step)
         else:
             since.append((k[j], offset.copy()))
+    # Each jump's offset, where its steps pair without doubt: a stretch between two steps that
+    # cancel is a jump, or its complement is (a start-up error that converges, then a jump out
+    # and back, pairs the right stretch as the jump). Of the two the shorter is taken as wrong: a
+    # jump whose opening step is the track's first and comes sooner after the track's start than
+    # the jump lasts, or whose closing step is followed within max_jump_s by a step that opens
+    # one that never closes, keeps offset 0: moved back by nothing, left for the caller to leave
+    # out.
+    never_closed = [n_step for n_step in opened if n_step not in {f for f, _, _, _ in closed}]
+    for first, last, pieces, residual in closed:
+        t_open, t_close = tu[k[big[first][0]]], tu[k[big[last][0]]]
+        if first == 0 and t_open - tu[0] <= t_close - t_open:
+            continue
+        if any(n > last and tu[k[big[n][0]]] - t_close <= max_jump_s for n in never_closed):
+            continue
+        # the step back measures the jump as the step out does: half of what they leave between
+        # them off each piece (an out-and-back jump's offset (out - back) / 2)
+        for (a, o), (b, _) in zip(pieces[:-1], pieces[1:], strict=True):
+            off_u[a:b] = o - 0.5 * residual
     out[finite] = jump_u[inv]
     off[finite] = off_u[inv]
     return result()
@@ -406,6 +424,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1):
     xy = robot[["x", "y"]].to_numpy(float)[order]
     jump, offset = detect_steps(robot["t"].to_numpy(float)[order], xy, threshold=threshold, min_jump_m=min_jump_m,
                                 offsets=True)
+    jump &= np.any(offset != 0.0, axis=1)       # (a jump whose steps pair in doubt is not moved)
     if not jump.any():
         return log, 0
     moved = xy - offset
@@ -414,8 +433,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1):
     rows = order[jump]
     out.robot.iloc[rows, out.robot.columns.get_loc("x")] = moved[jump, 0]
     out.robot.iloc[rows, out.robot.columns.get_loc("y")] = moved[jump, 1]
-    starts = np.flatnonzero(np.diff(np.r_[0, jump.astype(int)]) == 1)
-    return out, len(starts)
+    return out, _exclusion(jump, jump, robot["t"].to_numpy(float)[order])["jumps"]
 
 
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,

@@ -129,17 +129,17 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
         raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
                                column="sensor_height_sigma_m")
-    if online:
-        from pedcal.calib.online import calibrate_online
-
-        return calibrate_online(log, recipe=recipe, is_robot=is_robot, progress=progress)
-
     n_jumps = 0
     if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
         log, n_jumps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
         if n_jumps:
             _log(progress, f"{n_jumps} relocalization jumps in AMCL's track: their estimates moved back by the "
                            "jumps' steps")
+    if online:
+        from pedcal.calib.online import calibrate_online
+
+        return calibrate_online(log, recipe=recipe, is_robot=is_robot, progress=progress)
+
     prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network)
     prob.amcl_jumps_moved_back = n_jumps
     t_build = time.perf_counter()

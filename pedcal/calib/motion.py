@@ -22,19 +22,21 @@ def head_frame(x: float, y: float, yaw: float, head_m: np.ndarray) -> gtsam.Pose
 
 
 
-# a gap between estimates longer than this many median intervals splits the track: each side is
-# smoothed on its own (a left-out jump, a dropout), not as if its samples were neighbours
+# a gap between estimates longer than this many median intervals, and beyond the kernel's reach
+# (4 sigma), splits the track: each side is smoothed on its own (a left-out jump, a dropout), not
+# as if its samples were neighbours (AMCL publishing irregularly is not cut into pieces)
 SMOOTH_GAP_INTERVALS = 3.0
 
 
 def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
     """A t/x/y/yaw table smoothed by a Gaussian of ``sigma_s`` seconds (x, y and unwrapped yaw;
     the samples taken as evenly spaced at their median interval). The track is cut at gaps of
-    more than SMOOTH_GAP_INTERVALS intervals, and each piece is smoothed about its least-squares
-    line (the line kept, what departs from it smoothed, its ends by reflection): a steady motion
-    stays as it is, where reflecting the track itself folds a moving robot's path back on itself
-    and its smoothed ends lagged by 0.8 v sigma (20 cm at 1 m/s over 0.5 s), where the sensors
-    seeing the robot in the log's first second took it."""
+    more than SMOOTH_GAP_INTERVALS intervals and 4 sigma, and each piece is smoothed about its
+    least-squares line, what departs from the line padded at the ends by point reflection
+    (2 r_end - r mirrored): a motion smooth over the kernel stays as it is at the ends too, where
+    reflecting the track itself folded a moving robot's path back on itself and its smoothed ends
+    lagged by 0.8 v sigma (20 cm at 1 m/s over 0.5 s), where the sensors seeing the robot in the
+    log's first second took it."""
     from scipy.ndimage import gaussian_filter1d
 
     tr = track.groupby("t", sort=True)[["x", "y", "yaw"]].mean()
@@ -43,14 +45,16 @@ def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
     s = max(sigma_s / dt, 1e-6)
     xy_yaw = np.column_stack([tr["x"].to_numpy(float), tr["y"].to_numpy(float), np.unwrap(tr["yaw"].to_numpy(float))])
     out = xy_yaw.copy()
-    cuts = np.r_[0, np.flatnonzero(np.diff(t) > SMOOTH_GAP_INTERVALS * dt) + 1, len(t)]
+    cuts = np.r_[0, np.flatnonzero(np.diff(t) > max(SMOOTH_GAP_INTERVALS * dt, 4.0 * sigma_s)) + 1, len(t)]
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
         if b - a < 2:
             continue
         u = t[a:b] - t[a:b].mean()
         slope = (u @ (xy_yaw[a:b] - xy_yaw[a:b].mean(axis=0))) / (u @ u)
         line = xy_yaw[a:b].mean(axis=0) + u[:, None] * slope
-        out[a:b] = line + gaussian_filter1d(xy_yaw[a:b] - line, s, axis=0, mode="reflect")
+        pad = min(int(4.0 * s) + 1, b - a - 1)
+        r = np.pad(xy_yaw[a:b] - line, ((pad, pad), (0, 0)), mode="reflect", reflect_type="odd")
+        out[a:b] = line + gaussian_filter1d(r, s, axis=0, mode="nearest")[pad:pad + b - a]
     return pd.DataFrame({"t": t, "x": out[:, 0], "y": out[:, 1], "yaw": out[:, 2]})
 
 
