@@ -191,12 +191,18 @@ def test_at_irregular_times_a_jump_is_found_and_nothing_else(seed):
     assert np.array_equal(detect_steps(t, p), on)
 
 
+def _jumped(p: np.ndarray, t: np.ndarray, start_s: float, stop_s: float, step_m) -> np.ndarray:
+    """``p`` moved by ``step_m`` from ``start_s`` to ``stop_s`` (in place): the jump's mask."""
+    on = (t >= start_s - 1e-9) & (t < stop_s - 1e-9)
+    p[on] += step_m
+    return on
+
+
 def test_a_non_finite_estimate_does_not_hide_a_later_jump():
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 300.0, 0.1)
     p = _wandering_track(rng, t)
-    on = (t >= 100.0 - 1e-9) & (t < 110.0 - 1e-9)
-    p[on] += [0.4, 0.0]
+    on = _jumped(p, t, 100.0, 110.0, [0.4, 0.0])
     p[50] = np.nan
     flagged = detect_steps(t, p)
     assert np.array_equal(flagged, on)
@@ -429,8 +435,7 @@ def test_jumps_moved_back_keeps_the_tables_rows_and_moves_only_the_jumps():
     rng = np.random.default_rng(4)
     t = np.arange(0.0, 200.0, 0.2)
     p = _wandering_track(rng, t)
-    on = (t >= 80.0 - 1e-9) & (t < 90.0 - 1e-9)
-    p[on] += [0.4, 0.0]
+    on = _jumped(p, t, 80.0, 90.0, [0.4, 0.0])
     robot = pd.DataFrame({"t": t, "x": p[:, 0], "y": p[:, 1], "yaw": np.zeros(len(t)),
                           **{c: np.full(len(t), 1e-3) for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy",
                                                                  "cov_yyaw", "cov_yawyaw")}})
@@ -464,6 +469,6 @@ def test_steps_that_pair_in_doubt_move_nothing(later):
     assert not offset.any()
     # while a jump well after the start, as long as it lasts, is moved back
     p2 = clean.copy()
-    p2[(t >= 60.0 - 1e-9) & (t < 80.0 - 1e-9)] += [0.4, 0.0]
+    _jumped(p2, t, 60.0, 80.0, [0.4, 0.0])
     jump2, offset2 = detect_steps(t, p2, offsets=True)
     assert jump2.sum() == 200 and np.abs(offset2[jump2, 0] - 0.4).max() < 0.03
