@@ -310,8 +310,9 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     move an offset that starts at 0; the estimates while it is more than ``min_jump_m`` off are the jump, when a later
     step brings it back within ``max_jump_s`` (an offset that never returns is not told from a
     relocalization that was right, and nothing is left out for it). With ``offsets``, also (n, 2)
-    each estimate's offset in its jump (the steps taken since the jump began; 0 outside one):
-    the estimate less it is where AMCL's track would have been without the jump."""
+    each estimate's offset in its jump (the steps taken since the jump began, less half of what
+    the step back leaves; 0 outside one, and 0 in a jump whose steps pair in doubt, below): the
+    estimate less it is where AMCL's track would have been without the jump."""
     t = np.asarray(t, float)
     p = np.asarray(p, float)
     n = len(t)
@@ -418,7 +419,9 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1):
     back by the jumps' steps (:func:`detect_steps` with ``offsets``), the number of jumps): the
     track as it would have been without them, within the steps' own error (AMCL's wander over
     the steps' +-1 s windows and its jitter: 1-3 cm on 0.3-0.4 m jumps in a 5 cm wander,
-    tests/test_amcl_model.py). ``log`` itself when the track shows none."""
+    tests/test_amcl_model.py). Jumps whose steps pair in doubt are not moved (the error model
+    leaves them out as before); AMCL's heading is not moved (the steps are measured in position).
+    ``log`` itself when the track shows none."""
     robot = log.robot
     order = np.argsort(robot["t"].to_numpy(float), kind="stable")
     xy = robot[["x", "y"]].to_numpy(float)[order]
