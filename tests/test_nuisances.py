@@ -194,16 +194,17 @@ def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
     assert zoo_families(off["head"])["head"] == "top" and off["head"].head_vertical_bias_m == 0.0
     assert zoo_families(off["clock"])["clock"] == "shared"
     assert off["latency"].latency_s == 0.0
-    assert off["jumps"].amcl_error == "correlated" and zoo_families(off["jumps"])["amcl"] == "correlated"
+    assert off["jumps"].amcl_jump_m == 0.0 and zoo_families(off["jumps"])["amcl"] == "correlated"
     assert zoo_families(off["mounts"])["mounts"] == "ceiling"
     assert (off["odometry"].odom_scale_error, off["odometry"].odom_gyro_bias_dps) == (0.0, 0.0)
     assert off["odometry"].odometry == sc.odometry and off["depth"].depth_noise_model == "quadratic"
+    own = {"head": {"head_point", "per_sensor_head", "head_vertical_bias_m"},
+           "clock": {"clock_offset_s", "clock_skew_ppm"}, "latency": {"latency_s"}, "jumps": {"amcl_jump_m"},
+           "mounts": {"sensor_height_range_m", "wall_mounted_fraction"},
+           "odometry": {"odom_scale_error", "odom_gyro_bias_dps"}, "depth": {"depth_noise_model"}}
     for family, o in off.items():      # only the family's own fields changed
         changed = {k for k in vars(sc) if getattr(o, k) != getattr(sc, k)}
-        assert changed and changed <= {"head_point", "per_sensor_head", "head_vertical_bias_m", "clock_offset_s",
-                                       "clock_skew_ppm", "latency_s", "amcl_error", "sensor_height_range_m",
-                                       "wall_mounted_fraction", "odom_scale_error", "odom_gyro_bias_dps",
-                                       "depth_noise_model"} or family == "depth", family
+        assert changed <= own[family] and (changed or family == "depth"), family
     every = switch_off(sc, OFF_FAMILIES)
     assert zoo_families(every) == dict(head="top", clock="shared", mounts="ceiling", amcl="correlated")
     # the same layout and route: the switched-off log's truth is the drawn one's, but for the mounts
@@ -213,6 +214,14 @@ def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
     for sid in a.truth.ids:
         np.testing.assert_allclose(a.truth[sid].position_m, b.truth[sid].position_m)
     np.testing.assert_allclose(a.truth_robot[["x", "y"]].to_numpy(), b.truth_robot[["x", "y"]].to_numpy())
+    # AMCL's table, every column, the same draws (but the jumps' size), and the same sightings
+    for family in ("head", "clock", "latency", "odometry", "depth"):
+        c = simulate_logs(off[family], seed=sc.seed, duration_s=30.0).calib
+        assert c.robot.equals(a.robot), family
+        pairs = sorted(map(tuple, c.observations[["sensor", "track"]].drop_duplicates().to_numpy().tolist()))
+        assert pairs == sorted(map(tuple, a.observations[["sensor", "track"]].drop_duplicates().to_numpy().tolist()))
+    j = simulate_logs(off["jumps"], seed=sc.seed, duration_s=30.0).calib
+    assert j.robot.drop(columns=["x", "y", "yaw"]).equals(a.robot.drop(columns=["x", "y", "yaw"]))
     with pytest.raises(ValueError, match="unknown nuisance family 'weather'"):
         switch_off(sc, ["weather"])
 

@@ -114,8 +114,8 @@ def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
         raise np.linalg.LinAlgError(f"the normal matrix is singular: {gtsam.DefaultKeyFormatter(free[0])} is a "
                                     "variable no factor holds")
     if ordering is not None and (ordering.size() != len(held)
-                                 or not all(ordering.at(i) in held for i in range(ordering.size()))):
-        ordering = None                     # (not this graph's variables: its own computed)
+                                 or {ordering.at(i) for i in range(ordering.size())} != held):
+        ordering = None                     # (not exactly this graph's variables, once each: its own computed)
     try:
         tree = gfg.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(gfg) if ordering is None
                                          else ordering)

@@ -161,7 +161,8 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
     return {"head": ("per-sensor" if sc.per_sensor_head else sc.head_point),
             "clock": ("skew" if sc.clock_skew_ppm else "offsets" if sc.clock_offset_s else "shared"),
             "mounts": ("wall" if sc.wall_mounted_fraction else "mixed" if sc.sensor_height_range_m else "ceiling"),
-            "amcl": ("relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
+            "amcl": ("correlated" if sc.amcl_error == "jumps" and sc.amcl_jump_m <= 0.0
+                     else "relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
                      else sc.amcl_error)}
 
 
@@ -174,8 +175,10 @@ def switch_off(sc: Scenario, families) -> Scenario:
     every other draw of the seed left as it was (the layout, the routes, the noise streams): for
     controlled experiments, the same log with one family at a time made ideal. ``head``: the head
     top itself, the same for every sensor, no vertical bias; ``clock``: one shared clock (no
-    per-sensor offsets or skews); ``latency``: none; ``jumps``: AMCL's wandering error without
-    its jumps or relocalizations; ``mounts``: every sensor on the ceiling at sensor_height_m;
+    per-sensor offsets or skews); ``latency``: none; ``jumps``: AMCL's jumps or relocalizations
+    of size 0 (drawn as before, so AMCL's wander and reported covariance stay the same draws);
+    ``mounts``: every sensor on the ceiling at sensor_height_m (this one changes which
+    observations there are, and with them the tracker's noise draws: not a paired comparison);
     ``odometry``: no scale error nor gyro bias (the odometry, when the log has one, stays);
     ``depth``: depth noise quadratic in range (the simulator's own model)."""
     off = {}
@@ -185,7 +188,7 @@ def switch_off(sc: Scenario, families) -> Scenario:
         off.update({"head": dict(head_point="top", per_sensor_head=False, head_vertical_bias_m=0.0),
                     "clock": dict(clock_offset_s=0.0, clock_skew_ppm=0.0),
                     "latency": dict(latency_s=0.0),
-                    "jumps": dict(amcl_error="correlated") if sc.amcl_error == "jumps" else {},
+                    "jumps": dict(amcl_jump_m=0.0) if sc.amcl_error == "jumps" else {},
                     "mounts": dict(sensor_height_range_m=None, wall_mounted_fraction=0.0),
                     "odometry": dict(odom_scale_error=0.0, odom_gyro_bias_dps=0.0),
                     "depth": dict(depth_noise_model="quadratic")}[family])
