@@ -225,7 +225,7 @@ def test_smoothed_amcls_increments_have_the_variance_the_motion_factors_assume(s
     track = pd.DataFrame({"t": t, "x": 0.3 * t + rng.normal(0.0, white, len(t)),
                           "y": rng.normal(0.0, white, len(t)), "yaw": np.zeros(len(t))})
     sm = smoothed_track(track, smooth_s)
-    inc = np.diff(sm["y"].to_numpy())[100:-100]          # away from the padded ends
+    inc = np.diff(sm["y"].to_numpy())[100:-100]          # away from the ends
     predicted = np.sqrt(smoothed_increment_var(white, 1.0 / rate, rate, smooth_s))
     assert np.std(inc) == pytest.approx(predicted, rel=0.1)
     assert predicted < 0.2 * np.sqrt(2.0) * white
@@ -233,9 +233,9 @@ def test_smoothed_amcls_increments_have_the_variance_the_motion_factors_assume(s
 
 def test_smoothed_amcl_keeps_a_steady_motion_at_its_ends_and_does_not_mix_across_a_gap():
     # a robot at 1 m/s from the first estimate: an even reflection of the ends folded its path
-    # back, and the smoothed start lagged by 0.8 v sigma (0.4 m here); the point reflection keeps
-    # a steady motion exactly. A 20 s gap (a jump left out) splits the track: the estimates after
-    # it are 14 m on, and smoothed as neighbours they were pulled metres back
+    # back, and the smoothed start lagged by 0.8 v sigma (0.4 m here); a line fitted in time keeps
+    # a steady motion exactly. A 20 s gap (a jump left out): the estimates after it are 14 m on,
+    # and smoothed as neighbours by their index they were pulled metres back
     import pandas as pd
 
     from pedcal.calib.motion import smoothed_track
@@ -255,8 +255,8 @@ def test_smoothed_amcl_keeps_a_steady_motion_at_its_ends_and_does_not_mix_across
     smc = smoothed_track(circle, 0.5)
     miss = np.hypot(smc["x"] - circle["x"], smc["y"] - circle["y"]).to_numpy()
     assert max(miss[0], miss[-1]) <= 2.0 * np.median(miss) + 1e-9
-    # AMCL publishing irregularly (0.2-1.2 s apart) is one piece: every estimate smoothed (but the
-    # two ends, which the point reflection keeps where they are)
+    # AMCL publishing irregularly (0.2-1.2 s apart): every estimate with a neighbour in reach is
+    # smoothed (the ends' lines too: only the inner ones are checked)
     rng = np.random.default_rng(2)
     ti = np.cumsum(rng.uniform(0.2, 1.2, 200))
     jitter = pd.DataFrame({"t": ti, "x": ti + rng.normal(0.0, 0.05, len(ti)), "y": np.zeros(len(ti)),

@@ -22,39 +22,37 @@ def head_frame(x: float, y: float, yaw: float, head_m: np.ndarray) -> gtsam.Pose
 
 
 
-# a gap between estimates longer than this many median intervals, and beyond the kernel's reach
-# (4 sigma), splits the track: each side is smoothed on its own (a left-out jump, a dropout), not
-# as if its samples were neighbours (AMCL publishing irregularly is not cut into pieces)
-SMOOTH_GAP_INTERVALS = 3.0
-
-
 def smoothed_track(track: pd.DataFrame, sigma_s: float) -> pd.DataFrame:
-    """A t/x/y/yaw table smoothed by a Gaussian of ``sigma_s`` seconds (x, y and unwrapped yaw;
-    the samples taken as evenly spaced at their median interval). The track is cut at gaps of
-    more than SMOOTH_GAP_INTERVALS intervals and 4 sigma, and each piece is smoothed about its
-    least-squares line, what departs from the line padded at the ends by point reflection
-    (2 r_end - r mirrored): a motion smooth over the kernel stays as it is at the ends too, where
-    reflecting the track itself folded a moving robot's path back on itself and its smoothed ends
-    lagged by 0.8 v sigma (20 cm at 1 m/s over 0.5 s), where the sensors seeing the robot in the
-    log's first second took it."""
-    from scipy.ndimage import gaussian_filter1d
-
+    """A t/x/y/yaw table smoothed by a Gaussian of ``sigma_s`` seconds in time (x, y and unwrapped
+    yaw): at each estimate the line fitted to its neighbours within 4 sigma, each weighted by the
+    Gaussian of its time from it (local linear regression). Where the samples sit evenly on
+    both sides this is the Gaussian's weighted mean; at the track's ends, at gaps (a left-out
+    jump, a dropout) and where AMCL publishes irregularly the line carries a steady motion as it
+    is, where a Gaussian of the samples' index read the estimates as evenly spaced, folded the
+    path back at its ends (lagging by 0.8 v sigma, 20 cm at 1 m/s over 0.5 s) and averaged
+    across gaps. An estimate with no neighbour within reach stays as it is."""
     tr = track.groupby("t", sort=True)[["x", "y", "yaw"]].mean()
     t = tr.index.to_numpy(float)
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    s = max(sigma_s / dt, 1e-6)
     xy_yaw = np.column_stack([tr["x"].to_numpy(float), tr["y"].to_numpy(float), np.unwrap(tr["yaw"].to_numpy(float))])
-    out = xy_yaw.copy()
-    cuts = np.r_[0, np.flatnonzero(np.diff(t) > max(SMOOTH_GAP_INTERVALS * dt, 4.0 * sigma_s)) + 1, len(t)]
-    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-        if b - a < 2:
-            continue
-        u = t[a:b] - t[a:b].mean()
-        slope = (u @ (xy_yaw[a:b] - xy_yaw[a:b].mean(axis=0))) / (u @ u)
-        line = xy_yaw[a:b].mean(axis=0) + u[:, None] * slope
-        pad = min(int(4.0 * s) + 1, b - a - 1)
-        r = np.pad(xy_yaw[a:b] - line, ((pad, pad), (0, 0)), mode="reflect", reflect_type="odd")
-        out[a:b] = line + gaussian_filter1d(r, s, axis=0, mode="nearest")[pad:pad + b - a]
+    n, reach = len(t), 4.0 * max(float(sigma_s), 1e-9)
+    i = np.arange(n)
+    lo, hi = np.searchsorted(t, t - reach), np.searchsorted(t, t + reach, side="right")
+    s0, s1, s2 = np.zeros(n), np.zeros(n), np.zeros(n)
+    y0, y1 = np.zeros((n, 3)), np.zeros((n, 3))
+    before, after = (int((i - lo).max()), int((hi - 1 - i).max())) if n else (0, 0)
+    for o in range(-before, after + 1):       # the neighbours o estimates away, for every estimate at once
+        j = np.clip(i + o, 0, max(n - 1, 0))
+        u = t[j] - t
+        w = np.exp(-0.5 * (u / sigma_s) ** 2) * ((i + o >= lo) & (i + o < hi))
+        s0 += w
+        s1 += w * u
+        s2 += w * u * u
+        y0 += w[:, None] * xy_yaw[j]
+        y1 += (w * u)[:, None] * xy_yaw[j]
+    det = s0 * s2 - s1 ** 2
+    line = det > 1e-12 * np.maximum(s0 * s2, 1e-300)
+    out = y0 / np.maximum(s0, 1e-300)[:, None]          # (one neighbour in reach: itself)
+    out[line] = (s2[line, None] * y0[line] - s1[line, None] * y1[line]) / det[line, None]
     return pd.DataFrame({"t": t, "x": out[:, 0], "y": out[:, 1], "yaw": out[:, 2]})
 
 
