@@ -78,6 +78,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 import warnings
 from collections import defaultdict
@@ -88,6 +89,9 @@ import numpy as np
 import pandas as pd
 
 from pedcal.sim.nuisances import OFF_FAMILIES
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_factorgraph_nuisances import sigma_ratios  # noqa: E402
 
 
 def horizontal_split_mm(E_xy_m: np.ndarray) -> tuple[float, float, float]:
@@ -143,20 +147,14 @@ def run_one(scenario: str, seed: int, limit_mm: float = 12.0, off: tuple = (), k
         res = calibrate(log, method=method, **(dict(graph=recipe) if method == "factorgraph" and known else {}))
         cpu = time.process_time() - c0
         ev = evaluate(sim.eval, res.network)
-        E = np.array([s.position_error_mm[:2] for s in ev.sensors
-                      if np.all(np.isfinite(s.position_error_mm))]) / 1000.0
+        E = np.array([s.position_error_mm[:2] for s in ev.sensors]) / 1000.0
         out[method] = dict(zip(("xy", "common", "rest"), horizontal_split_mm(E), strict=True), cpu_s=cpu,
                            common_less_amcl=float(1000 * np.linalg.norm(E.mean(axis=0) - amcl_mean_m)))
         if method == "factorgraph":
-            # |error| / sigma per world axis x, y of every sensor (a sensor not calibrated or
-            # without a sigma: a miss)
-            z = []
-            for s in ev.sensors:
-                ext = res.network[s.id]
-                ok = ext.sigma_position_m is not None and (ext.status or "ok") == "ok"
-                e_m = np.abs(np.asarray(s.position_error_mm[:2]) / 1000.0)
-                z.append(e_m / np.asarray(ext.sigma_position_m)[:2] if ok else np.full(2, np.inf))
-            out[method]["z_xy"] = np.array(z).tolist()
+            # |error| / sigma per world axis x, y of every sensor (inf: a miss)
+            out[method]["z_xy"] = sigma_ratios(res.network, [s.id for s in ev.sensors],
+                                               [np.asarray(s.position_error_mm[:2]) / 1000.0 for s in ev.sensors],
+                                               missing=len(ev.missing_sensors)).tolist()
     rec, model, sigma_yaw = simulator_noise(sim.scenario)
     c0 = time.process_time()
     t = log.robot["t"].to_numpy(float)

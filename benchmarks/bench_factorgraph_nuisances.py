@@ -150,21 +150,42 @@ def rigid_residual_rms_mm(est_xy: np.ndarray, true_xy: np.ndarray) -> float:
     return float(1000 * np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
 
 
+def projected_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal errors ``E`` (n, 2) split into the motions of the network that ``A`` (2 n, k)
+    spans (least squares, x and y per sensor) and the rest, each over its sigma from the joint
+    position covariance (3 n, 3 n): (k,) and (2 n,) ratios, N(0, 1) when the covariance is right."""
+    n = len(E_xy_m)
+    idx = np.array([3 * i + a for i in range(n) for a in (0, 1)])
+    C = joint_cov_m2[np.ix_(idx, idx)]
+    L = np.linalg.pinv(A)
+    R = np.eye(2 * n) - A @ L
+    e = E_xy_m.ravel()
+    return (L @ e) / np.sqrt(np.diag(L @ C @ L.T)), (R @ e) / np.sqrt(np.diag(R @ C @ R.T))
+
+
 def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The horizontal errors split into what the sensors share (their mean, x and y) and the rest
-    (each sensor's departure from it), each over its sigma from the joint position covariance:
-    (2,) and (2 n,) ratios, N(0, 1) when the covariance is right. Empty without the joint."""
+    (each sensor's departure from it), each over its sigma (:func:`projected_z`). Empty without
+    the joint covariance."""
     n = len(E_xy_m)
     if joint_cov_m2 is None or n < 2:
         return np.zeros(0), np.zeros(0)
-    idx = np.array([3 * i + a for i in range(n) for a in (0, 1)])
-    C = joint_cov_m2[np.ix_(idx, idx)]
-    mean_op = np.kron(np.ones((1, n)) / n, np.eye(2))
-    rest_op = np.eye(2 * n) - np.kron(np.ones((n, n)) / n, np.eye(2))
-    m = E_xy_m.mean(axis=0)
-    z_shared = m / np.sqrt(np.diag(mean_op @ C @ mean_op.T))
-    z_rest = (E_xy_m - m).ravel() / np.sqrt(np.diag(rest_op @ C @ rest_op.T))
-    return z_shared, z_rest
+    return projected_z(E_xy_m, joint_cov_m2, np.kron(np.ones((n, 1)), np.eye(2)))
+
+
+def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0) -> np.ndarray:
+    """(len(ids) + missing, k) each sensor's |error| over its reported sigma per world axis (the
+    first k of x, y, z: ``abs_err_m`` is (n, k)); inf for a miss, not a padding: a sensor not
+    calibrated (status not ok: its sigma the prior's, wide enough to hold any error), without a
+    sigma or an error, or left out of the result altogether (``missing`` of them)."""
+    err = np.abs(np.asarray(abs_err_m, float)).reshape(len(ids), -1)
+    k = err.shape[1]
+    out = np.full((len(ids) + missing, k), np.inf)
+    for r, sid in enumerate(ids):
+        ext = network[sid]
+        if ext.sigma_position_m is not None and (ext.status or "ok") == "ok" and np.all(np.isfinite(err[r])):
+            out[r] = err[r] / np.asarray(ext.sigma_position_m, float)[:k]
+    return out
 
 
 def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = None) -> dict:
@@ -193,15 +214,9 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
                                np.array([sim.eval.truth[sid].position_m[:2] for sid in finite])),
                            wall_s=wall, cpu_s=cpu)
         if method == "factorgraph":
-            # error over sigma per axis; a sensor not calibrated (status not ok: its sigma the prior's,
-            # wide enough to hold any error) or without a sigma is a miss, not a padding
-            ratios = []
-            for s in ev.sensors:
-                ext = res.network[s.id]
-                ok = ext.sigma_position_m is not None and (ext.status or "ok") == "ok"
-                ratios.append(np.abs(np.asarray(s.position_error_mm) / 1000.0) / np.asarray(ext.sigma_position_m)
-                              if ok else np.full(3, np.inf))
-            out["ratios"] = np.array(ratios)
+            out["ratios"] = sigma_ratios(res.network, [s.id for s in ev.sensors],
+                                         [np.asarray(s.position_error_mm) / 1000.0 for s in ev.sensors],
+                                         missing=len(ev.missing_sensors))
             out["z_shared"], out["z_rest"] = shared_and_rest_z(E[:, :2] / 1000.0, res.position_covariance_m2)
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)

@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_factorgraph_nuisances import recipe_overrides  # noqa: E402
+from bench_factorgraph_nuisances import recipe_overrides, sigma_ratios  # noqa: E402
 
 from pedcal.calib import calibrate  # noqa: E402
 from pedcal.metrics import evaluate  # noqa: E402
@@ -42,17 +42,10 @@ from pedcal.sim.walkers import RECORDINGS, SHARED_DATA  # noqa: E402
 
 def within_sigma(ev, network) -> np.ndarray:
     """(n_sensors, 3) whether each sensor's error on each world axis is within its reported
-    sigma; a sensor not calibrated (status not ok: its sigma the prior's, wide enough to hold any
-    error) or without a sigma or an error is a miss (False), not a padding."""
-    out = []
-    for s in ev.sensors:
-        ext = network[s.id]
-        err = np.abs(np.asarray(s.position_error_mm, float) / 1000.0)
-        if ext.sigma_position_m is None or (ext.status or "ok") != "ok" or not np.all(np.isfinite(err)):
-            out.append(np.zeros(3, bool))
-        else:
-            out.append(err <= np.asarray(ext.sigma_position_m, float))
-    return np.array(out).reshape(-1, 3)
+    sigma (a miss, :func:`bench_factorgraph_nuisances.sigma_ratios`, is False)."""
+    return sigma_ratios(network, [s.id for s in ev.sensors],
+                        [np.asarray(s.position_error_mm, float) / 1000.0 for s in ev.sensors],
+                        missing=len(ev.missing_sensors)) <= 1.0
 
 
 def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None) -> dict:
