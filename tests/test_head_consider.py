@@ -7,7 +7,6 @@ takes its scale from the sensors' views, whose radial scale such a line sets: a 
 sensors then spread along it by what the line moves them, which the sigma must carry; where the
 data measure the line near 0, the sigma is not widened by the prior's."""
 
-import sys
 import warnings
 from pathlib import Path
 from types import SimpleNamespace
@@ -247,12 +246,19 @@ def test_on_a_site_whose_head_point_is_the_models_the_line_widens_the_sigma_by_w
     # the sensors' sensitivity to the line is a stretch of the whole network, which the 3 cm
     # prior made 1.6x the sigma without the line; the data measure the line to a few mm, and
     # the width is what they leave of the prior
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from bench_factorgraph_scale import synthetic_log
 
     log = synthetic_log(40, seed=1)
     seen = {}
     original = fgmod._posterior
+    rms_calls = []
+    considered_rms = fgmod.considered_rms
+
+    def recording(step, j, held=()):
+        rms_calls.append((held, considered_rms(step, j, held=held)))
+        return rms_calls[-1][1]
+    monkeypatch.setattr(fgmod, "considered_rms", recording)
 
     def spy(log_, prob, fg, result, shifts):
         seen["considered"] = shifts.considered
@@ -265,7 +271,10 @@ def test_on_a_site_whose_head_point_is_the_models_the_line_widens_the_sigma_by_w
         warnings.simplefilter("ignore")
         res = fgmod.calibrate_factorgraph(log, **kwargs)
         sd = seen["considered"][0]
+        calls = list(rms_calls)
         held = fgmod.calibrate_factorgraph(log, head_profile_consider=False, **kwargs)
+    # the curvature left out, the width is taken again with it held at 0 (what is considered)
+    assert calls and calls[-1][0] and sd == calls[-1][1]
     assert 0.0 < sd < 0.3 * 0.03          # (1.8-7.3 mm on seeds 0-3)
     sigma = np.median([s.sigma_position_m[:2] for s in res.network], axis=0)
     sigma_held = np.median([s.sigma_position_m[:2] for s in held.network], axis=0)

@@ -162,7 +162,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     # leaving per-sensor offsets in the residuals that look like a wandering AMCL; the profile is
     # nearly quadratic, so one Newton step from the prior lands within about a sigma)
     # (the AMCL model's re-solve rebuilds the graph: this pass's graph at its result is not built)
-    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else MAX_PROFILE_STEPS,
+    shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=1 if resolve else None,
                                  tolerance=0.5 if resolve else 0.1, curvature=not resolve, odometry=not resolve,
                                  final_graph=not resolve)
     if resolve:
@@ -176,7 +176,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
         fg = shifts = None
         parts, result, more = _reestimate_amcl(log, prob, parts, result, progress, gauss_newton_step=not profiled)
         iterations += more
-        shifts = _estimate_nuisances(log, prob, parts, result, progress, max_steps=MAX_PROFILE_STEPS, odometry=True)
+        shifts = _estimate_nuisances(log, prob, parts, result, progress, odometry=True)
     if shifts is not None:
         fg, result = shifts.graph, shifts.result
         sd = 1000 * np.sqrt(np.diag(shifts.cov))
@@ -396,7 +396,7 @@ MAX_PROFILE_STEPS = 20
 
 
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
-                        max_steps: int = MAX_PROFILE_STEPS, tolerance: float = 0.1, curvature: bool = True,
+                        max_steps: int | None = None, tolerance: float = 0.1, curvature: bool = True,
                         odometry: bool = False, final_graph: bool = True) -> _Nuisances | None:
     """The nuisances that enter the measurements, by their profile likelihood on the linearized
     graph (pedcal.calib.profile): the head point's shift toward the sensor along the ray (a range
@@ -481,6 +481,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
     local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
     previous_u, previous_names, slow, extrapolated = None, None, False, False
+    max_steps = MAX_PROFILE_STEPS if max_steps is None else max_steps       # (read when called: tests set it)
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
         theta = np.array([getattr(prob, n) for n in names], float)

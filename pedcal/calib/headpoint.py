@@ -198,9 +198,6 @@ def considered_rms(step: ProfileStep, j: int, held: tuple = ()) -> float:
     nothing, d = 0 and v the prior's variance (the prior's sigma again); where they measure the
     nuisance near the held value, their sigma; where they find it away from it, that distance."""
     H = step.hessian
-    if not any(i != j for i in held):
-        # every other nuisance free: the step's own Newton step and covariance (H^-1, kept on it)
-        return float(np.sqrt(float(step.dtheta[j]) ** 2 + step.covariance[j, j]))
     g = -H @ step.dtheta
     free = np.array([i for i in range(len(H)) if i == j or i not in held], int)
     at = int(np.flatnonzero(free == j)[0])

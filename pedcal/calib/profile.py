@@ -352,10 +352,10 @@ def sqrt_weights(reweighted_norm: np.ndarray, kernel: str, k: float) -> np.ndarr
 
 
 def takes_chord(previous: ProfileStep | None, local) -> bool:
-    """Whether :func:`profile_step` given ``previous`` and ``local`` takes a chord step (the
-    previous full step's system and sensitivities, no finite differences): with a previous step
-    that kept its system, and no local nuisances (with them every step is a full one: the system
-    they join changes with their B)."""
+    """Whether :func:`profile_step` given ``previous`` and ``local`` (and its ``residuals``) takes a
+    chord step (the previous full step's Hessian and sensitivities, this point's gradient from
+    this point's B): with a previous step that kept its system, and no local nuisances (with them
+    every step is a full one: the system they join changes with their B)."""
     return previous is not None and previous.A is not None and (local is None or len(local) == 0)
 
 
@@ -383,8 +383,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds.
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
-    its Hessian, sensitivity Z and residual change M are kept and only the variables' step z0
-    and the gradient are taken here (a chord step of Newton's method: one solve instead of k + 1).
+    its Hessian and sensitivity Z are kept and only the variables' step z0 and the gradient (B's
+    finite differences at this point) are taken here (a chord step of Newton's method: one solve
+    instead of k + 1). Only with ``residuals`` (a gradient from the previous step's B settled
+    elsewhere than the profile's optimum).
 
     ``order``: the fill-reducing column order of an earlier step on the same graph (its
     ``order``), so that the ordering is computed once per graph, not once per step.
@@ -421,7 +423,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     k = len(nuisances)
     m_local = 0 if local is None else len(local)
     k_exact = k - m_local                 # the nuisances profiled exactly lead
-    chord = takes_chord(previous, local)
+    chord = residuals is not None and takes_chord(previous, local)
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
     # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
@@ -470,10 +472,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     elif not m_local:
         solve = _normal_solver(A, order)
     theta = np.asarray(theta, float)
-    if chord and residuals is None:
-        grad = _residual_change_t(previous, rho0) + info @ (theta[:k_exact] - mean)
-        return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
-                           Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
     given = factor_rows is not None and len(factor_rows) == obs0.size() + 1 and factor_rows[-1] == len(b_o0)
     rows = np.asarray(factor_rows, np.int64) if given else _factor_rows(obs0)
@@ -544,7 +542,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         # chord's fixed point is the profile's optimum; only the Hessian is the full step's
         grad = -(B.T @ rho0) + info @ (theta[:k_exact] - mean)
         return ProfileStep(dtheta=-np.linalg.solve(previous.hessian, grad), hessian=previous.hessian, z0=z0,
-                           Z=previous.Z, cols=cols, order=order, A=previous.A, B=previous.B)
+                           Z=previous.Z, cols=cols, order=order, A=previous.A, B=B)
     columns = None                # (B holds them: 10 MB at 1000 sensors, not kept through the factorization)
     B, B_local = B[:, :k_exact], B[:, k_exact:]
     local_cols = None
