@@ -458,7 +458,9 @@ def test_jumps_moved_back_keeps_the_tables_rows_and_moves_only_the_jumps():
 def test_steps_that_pair_in_doubt_move_nothing(later):
     # AMCL starting 0.4 m off and converging at 5 s, then a jump out at 30 s (back at 40 s, or
     # never): the steps at 5 and 30 s cancel, and so pair the right 5-30 s stretch as a jump. The
-    # shorter wrong stretch is the start's, so that pairing is in doubt: nothing is moved
+    # shorter wrong stretch is the start's, so that pairing is in doubt (the first rule: its
+    # opening step is the track's first, sooner after the start than the jump lasts): nothing is
+    # moved
     rng = np.random.default_rng(6)
     t = np.arange(0.0, 200.0, 0.1)
     clean = _wandering_track(rng, t)
@@ -472,3 +474,22 @@ def test_steps_that_pair_in_doubt_move_nothing(later):
     _jumped(p2, t, 60.0, 80.0, [0.4, 0.0])
     jump2, offset2 = detect_steps(t, p2, offsets=True)
     assert jump2.sum() == 200 and np.abs(offset2[jump2, 0] - 0.4).max() < 0.03
+
+
+@pytest.mark.parametrize("stays_from_s, in_doubt", [(90.0, True), (140.0, False)])
+def test_a_jump_followed_soon_by_a_step_that_stays_is_in_doubt(stays_from_s, in_doubt):
+    # the second rule: a jump out and back (60-70 s), then a step out that never comes back within
+    # max_jump_s of the jump's end (at 90 s): the lasting step could be the right one and the
+    # jump's stretch the complement of a longer wrong one, so the jump is not moved; 70 s later,
+    # beyond max_jump_s (60 s), the two are unrelated and the jump is moved back
+    rng = np.random.default_rng(8)
+    t = np.arange(0.0, 300.0, 0.1)
+    p = _wandering_track(rng, t)
+    on = _jumped(p, t, 60.0, 70.0, [0.4, 0.0])
+    _jumped(p, t, stays_from_s, 1e9, [0.4, 0.0])
+    jump, offset = detect_steps(t, p, offsets=True)
+    assert np.array_equal(jump, on)
+    if in_doubt:
+        assert not offset.any()
+    else:
+        assert np.abs(offset[on, 0] - 0.4).max() < 0.03 and not offset[~on].any()

@@ -317,7 +317,7 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     p = np.asarray(p, float)
     n = len(t)
     out = np.zeros(n, bool)
-    off = np.zeros((n, p.shape[1] if p.ndim == 2 else 2))
+    off = np.zeros((n, p.shape[1]))
 
     def result():
         return (out, off) if offsets else out
@@ -369,46 +369,44 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
         size[near[metres <= min_jump_m]] = 0.0
         size[j] = 0.0
     big = sorted(found, key=lambda f: f[0])
+    gap = [k[j] for j, _ in big]                        # the estimate each step starts at
     jump_u = np.zeros(m, bool)
     off_u = np.zeros((m, p.shape[1]))
-    offset, start, since = np.zeros(p.shape[1]), None, []
-    closed, opened = [], []          # (index in big of the opening step, of the closing, pieces, residual)
-    for n_step, (j, step_j) in enumerate(big):
-        offset = offset + step_j
-        if start is None:
-            if np.linalg.norm(offset) > min_jump_m:
-                start, since, first = k[j], [(k[j], offset.copy())], n_step
-                opened.append(n_step)
-            else:
-                offset[:] = 0.0
+    spans, dropped = [], []       # (first, last) step of each jump that came back; the openings that did not
+    offset, i_open = np.zeros(p.shape[1]), None
+    for i, (_, step_i) in enumerate(big):
+        offset = offset + step_i
+        if i_open is None:                               # (every step found is above min_jump_m)
+            i_open = i
         elif np.linalg.norm(offset) <= min_jump_m:
-            if tu[k[j] - 1] - tu[start] <= max_jump_s:
-                jump_u[start:k[j]] = True
-                closed.append((first, n_step, since + [(k[j], None)], offset.copy()))
-            offset[:], start = 0.0, None
-        elif tu[k[j]] - tu[start] > max_jump_s:          # never came back: start again from here
-            offset, start, since, first = step_j.copy(), k[j], [(k[j], step_j.copy())], n_step
-            opened.append(n_step)
-        else:
-            since.append((k[j], offset.copy()))
+            if tu[gap[i] - 1] - tu[gap[i_open]] <= max_jump_s:
+                jump_u[gap[i_open]:gap[i]] = True
+                spans.append((i_open, i))
+            else:
+                dropped.append(i_open)
+            offset, i_open = np.zeros(p.shape[1]), None
+        elif tu[gap[i]] - tu[gap[i_open]] > max_jump_s:
+            dropped.append(i_open)
+            offset, i_open = step_i.copy(), i
+    if i_open is not None:
+        dropped.append(i_open)
     # Each jump's offset, where its steps pair without doubt: a stretch between two steps that
     # cancel is a jump, or its complement is (a start-up error that converges, then a jump out
     # and back, pairs the right stretch as the jump). Of the two the shorter is taken as wrong: a
     # jump whose opening step is the track's first and comes sooner after the track's start than
     # the jump lasts, or whose closing step is followed within max_jump_s by a step that opens
     # one that never closes, keeps offset 0: moved back by nothing, left for the caller to leave
-    # out.
-    never_closed = [n_step for n_step in opened if n_step not in {f for f, _, _, _ in closed}]
-    for first, last, pieces, residual in closed:
-        t_open, t_close = tu[k[big[first][0]]], tu[k[big[last][0]]]
-        if first == 0 and t_open - tu[0] <= t_close - t_open:
+    # out. Otherwise the step back measures the jump as the step out does: half of what they
+    # leave between them off each piece (an out-and-back jump's offset (out - back) / 2).
+    for i0, i1 in spans:
+        t_open, t_close = tu[gap[i0]], tu[gap[i1]]
+        if i0 == 0 and t_open - tu[0] <= t_close - t_open:
             continue
-        if any(n > last and tu[k[big[n][0]]] - t_close <= max_jump_s for n in never_closed):
+        if any(i > i1 and tu[gap[i]] - t_close <= max_jump_s for i in dropped):
             continue
-        # the step back measures the jump as the step out does: half of what they leave between
-        # them off each piece (an out-and-back jump's offset (out - back) / 2)
-        for (a, o), (b, _) in zip(pieces[:-1], pieces[1:], strict=True):
-            off_u[a:b] = o - 0.5 * residual
+        cum = np.cumsum([s_ for _, s_ in big[i0:i1 + 1]], axis=0)
+        for i in range(i0, i1):
+            off_u[gap[i]:gap[i + 1]] = cum[i - i0] - 0.5 * cum[-1]
     out[finite] = jump_u[inv]
     off[finite] = off_u[inv]
     return result()
