@@ -212,26 +212,30 @@ class _Analyses:
     def give(self, factor, key) -> None:
         lib = library()
         head = _FactorHead.from_address(factor)
+        # (under the library's lock, an RLock: two threads' factorizations never take or free the
+        # same kept analysis)
         with lib.lock:
             # numeric -> symbolic, supernodal or simplicial as it was (CHOLMOD factorizes small
             # systems simplicially, LDL^T): the values (the factor's memory) freed, the analysis kept
             ok = lib.lib.cholmod_change_factor(_PATTERN, head.is_ll, head.is_super, 1, 1, factor, lib.common)
-        new = (factor, key) if ok else None      # (made before the swap: a collection it triggers may call give)
-        old, self.kept = self.kept, new
-        if not ok:
-            lib.free_factor(factor)
-        if old is not None:
-            lib.free_factor(old[0])
+            new = (factor, key) if ok else None      # (made before the swap: a collection it triggers may call give)
+            old, self.kept = self.kept, new
+            if not ok:
+                lib.free_factor(factor)
+            if old is not None:
+                lib.free_factor(old[0])
 
     def take(self, key):
-        kept, self.kept = self.kept, None
-        if kept is None:
+        lib = library()
+        with lib.lock:
+            kept, self.kept = self.kept, None
+            if kept is None:
+                return None
+            factor, kept_key = kept
+            if _same_key(kept_key, key):
+                return factor
+            lib.free_factor(factor)
             return None
-        factor, kept_key = kept
-        if _same_key(kept_key, key):
-            return factor
-        library().free_factor(factor)
-        return None
 
 
 def _same_key(a, b) -> bool:
