@@ -572,6 +572,20 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if not interrupts.running_the_command_line():   # a Ctrl-C while the process exits is one line too
             interrupts.restore(previous)
+        else:
+            _spare_the_last_collection()
+
+
+def _spare_the_last_collection() -> None:
+    """The process ends with this command: the objects the libraries made (NumPy, SciPy, pandas,
+    GTSAM: modules, classes, docstrings' caches) are moved out of the cycle collector's sight, so
+    that the interpreter's collections at exit do not walk them all again (0.1 s of CPU of a
+    1.5 s `pedcal calibrate`). Reference counting still frees them, atexit handlers and the
+    standard streams' flush still run; only cyclic garbage made before this point is left to the
+    operating system. Not for a library user's process (``main`` called from Python)."""
+    import gc
+
+    gc.freeze()
 
 
 def _run(args) -> int:

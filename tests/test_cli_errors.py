@@ -247,3 +247,18 @@ def test_simulate_refuses_a_scenario_file_it_would_overwrite(tmp_path, capsys):
     assert main(["simulate", str(out / "scenario.yaml"), "-o", str(out), "-q"]) == 2
     assert "scenario file is among what simulate writes" in capsys.readouterr().err
     assert (out / "scenario.yaml").read_bytes() == before and sorted(p.name for p in out.iterdir()) == ["scenario.yaml"]
+
+
+def test_only_the_command_line_process_spares_the_last_collection():
+    """The command line's process moves what it made out of the cycle collector's sight before it
+    exits (gc.freeze); a library caller's process (main called from Python) is left alone."""
+    import gc
+    import subprocess
+    import sys
+
+    assert main(["simulate", "--help"]) == 0
+    assert gc.get_freeze_count() == 0
+    code = ("import gc, sys; sys.argv[0] = 'pedcal'; from pedcal.cli import main; rc = main(['simulate', '--help']); "
+            "print(rc, gc.get_freeze_count() > 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "0 True"
