@@ -334,6 +334,7 @@ for _dumper in (_Dumper, _CDumper):
     _dumper.add_multi_representer(np.generic, lambda d, v: d.represent_data(v.item()))
     _dumper.add_representer(np.ndarray, lambda d, v: d.represent_data(_FlowList(v.tolist()) if v.ndim == 1
                                                                       else v.tolist()))
+del _dumper
 
 
 def flow_vector(values) -> _FlowList:
