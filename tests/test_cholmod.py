@@ -210,3 +210,17 @@ def test_a_cholmod_of_another_layout_is_not_loaded_and_the_failure_is_kept(monke
     calls = []
     monkeypatch.setattr(cholmod, "_Library", lambda: calls.append(1))
     assert not cholmod.available() and not calls          # (not loaded again)
+
+
+def test_the_systems_library_is_looked_for_only_past_the_wheels(monkeypatch):
+    """ctypes.util.find_library runs ldconfig, gcc and ld: not while cvxopt's wheel's CHOLMOD loads."""
+    import ctypes.util
+
+    looked = []
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: looked.append(name) or "/nowhere/libcholmod.so")
+    paths = cholmod._library_paths()
+    first = next(paths)
+    if "cvxopt" not in first:
+        pytest.skip("cvxopt's wheel carries no CHOLMOD here")
+    assert looked == []
+    assert list(paths)[-1] == "/nowhere/libcholmod.so" and looked == ["cholmod"]    # (then, in turn)

@@ -247,3 +247,30 @@ def test_simulate_refuses_a_scenario_file_it_would_overwrite(tmp_path, capsys):
     assert main(["simulate", str(out / "scenario.yaml"), "-o", str(out), "-q"]) == 2
     assert "scenario file is among what simulate writes" in capsys.readouterr().err
     assert (out / "scenario.yaml").read_bytes() == before and sorted(p.name for p in out.iterdir()) == ["scenario.yaml"]
+
+
+def test_only_the_command_line_process_spares_the_cycle_collector(tmp_path):
+    """The command line's process loads a command's libraries without the cycle collector's
+    passes and moves them out of its sight (gc.freeze), the collector on again for the work, and
+    freezes what is left before it exits; a library caller's process (main called from Python) is
+    left alone."""
+    import gc
+    import subprocess
+    import sys
+
+    write_log(small_log(), tmp_path / "log")
+    assert main(["simulate", "--help"]) == 0
+    assert main(["calibrate", str(tmp_path / "log"), "-o", str(tmp_path / "in.yaml"), "--method", "closedform",
+                 "-q"]) in (0, EXIT_BAD_INPUT)
+    assert gc.get_freeze_count() == 0 and gc.isenabled()
+    # the method's module imported by the command while it loads (collector off), then by calibrate()
+    code = ("import gc, importlib, sys; sys.argv[0] = 'pedcal'; from pedcal.cli import main; seen = []; "
+            "load = importlib.import_module; "
+            "importlib.import_module = lambda name, *a: (seen.append(gc.isenabled()), load(name, *a))[1]; "
+            f"rc = main(['calibrate', {str(tmp_path / 'log')!r}, '-o', {str(tmp_path / 'out.yaml')!r}, "
+            "'--method', 'closedform', '-q']); "
+            "print(rc, seen[0], seen[-1], gc.isenabled(), gc.get_freeze_count() > 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    rc, rest = out.strip().splitlines()[-1].split(" ", 1)
+    assert int(rc) in (0, EXIT_BAD_INPUT)
+    assert rest == "False True True True"

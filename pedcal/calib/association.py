@@ -179,9 +179,14 @@ def _squared_residuals(R, t, p, q):
     qp = (q[..., :, :, None] * p[:, None, :]).reshape(q.shape[:-2] + (len(p), 9))
     d2 = ((np.einsum("ni,ni->n", p, p) + np.einsum("...ni,...ni->...n", q, q))[..., None, :]
           + np.einsum("...hi,...hi->...h", t, t)[..., :, None])
-    d2 += 2.0 * (np.einsum("...hij,...hi->...hj", R, t) @ p.T - t @ np.swapaxes(q, -1, -2)
-                 - R.reshape(R.shape[:-2] + (9,)) @ np.swapaxes(qp, -1, -2))
-    return np.maximum(d2, 0.0)
+    # 2 ((R^T t).p - t.q - <R, q p^T>), its terms taken in that order in place (the hypotheses x
+    # points arrays are the cost: one made per term, no more)
+    cross = np.einsum("...hij,...hi->...hj", R, t) @ p.T
+    cross -= t @ np.swapaxes(q, -1, -2)
+    cross -= R.reshape(R.shape[:-2] + (9,)) @ np.swapaxes(qp, -1, -2)
+    cross *= 2.0
+    d2 += cross
+    return np.maximum(d2, 0.0, out=d2)
 
 
 def _prior_ok(R, t, sensor: SensorExtrinsics, params):
@@ -320,26 +325,45 @@ def pooled_rigid_sse(p: np.ndarray, bounds: list[int], q: np.ndarray) -> np.ndar
     H = sum p~ q~^T, where tr(R H) is the sum of H's singular values, the least one signed by the
     rotation's determinant (Umeyama 1991, eqs. 34-42, the fit :func:`rigid_from_moments`
     makes): no residuals formed, one 3 x n by n x 3 product per group and leading index."""
-    lead = q.shape[:-2]
-    q = q.reshape(-1, q.shape[-2], 3)
-    total = np.zeros(len(q))
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        pg = p[a:b] - p[a:b].mean(axis=0)
-        qg = q[:, a:b, :]
-        qg = qg - qg.mean(axis=1, keepdims=True)
-        H = pg.T @ qg                                      # (L, 3, 3)
+    return _pooled_rigid_sse_of(p, bounds)(q)
+
+
+def _pooled_rigid_sse_of(p: np.ndarray, bounds: list[int]):
+    """q -> :func:`pooled_rigid_sse` (p, bounds, q), the groups' p~ and |p~|^2 taken once for every
+    q, and one SVD call for every group's H (LAPACK takes the stack's matrices one by one: the
+    values of a call per group, to the bit, which the latency's bounded search, on a flat
+    minimum, needs)."""
+    groups = [(a, b, p[a:b] - p[a:b].mean(axis=0)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    groups = [(a, b, pg, pg.T, float(np.sum(pg * pg))) for a, b, pg in groups]
+
+    def sse(q: np.ndarray) -> np.ndarray:
+        lead = q.shape[:-2]
+        q = q.reshape(-1, q.shape[-2], 3)
+        total = np.zeros(len(q))
+        if not groups:
+            return total.reshape(lead)
+        H = np.empty((len(groups), len(q), 3, 3))
+        spread = []
+        for g, (a, b, _, pg_t, pp) in enumerate(groups):
+            qg = q[:, a:b, :]
+            qg = qg - qg.mean(axis=1, keepdims=True)
+            H[g] = pg_t @ qg                               # (L, 3, 3)
+            spread.append(pp + np.einsum("lni,lni->l", qg, qg))
         U, sv, Vt = np.linalg.svd(H)
         d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
         d = np.where(d == 0, 1.0, d)
-        total += (float(np.sum(pg * pg)) + np.einsum("lni,lni->l", qg, qg)
-                  - 2.0 * (sv[:, 0] + sv[:, 1] + d * sv[:, 2]))
-    return total.reshape(lead)
+        for g, s_g in enumerate(spread):                   # (summed in the groups' order)
+            total += s_g - 2.0 * (sv[g, :, 0] + sv[g, :, 1] + d[g] * sv[g, :, 2])
+        return total.reshape(lead)
+
+    return sse
 
 
 def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0.4,
-                     p_sensor: np.ndarray | None = None) -> float:
+                     p_sensor: np.ndarray | None = None, head_at=None) -> float:
     """Tracker latency (observation stamp minus the time the robot was there, s) minimising the
-    pooled residual of per-sensor rigid fits of the robot's observations to the AMCL head."""
+    pooled residual of per-sensor rigid fits of the robot's observations to the AMCL head
+    (``head_at``: :func:`pedcal.calib.common.head_interpolator` of ``log``, made when None)."""
     is_robot = np.asarray(is_robot, bool)
     if is_robot.sum() < 4:
         return 0.0
@@ -355,10 +379,8 @@ def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0
         return 0.0
     starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
     bounds = np.r_[starts, len(codes)].tolist()
-    head_at = head_interpolator(log)
-
-    def sse_of(q):
-        return pooled_rigid_sse(p, bounds, q)
+    head_at = head_interpolator(log) if head_at is None else head_at
+    sse_of = _pooled_rigid_sse_of(p, bounds)
 
     def sse(latency_s):
         return float(sse_of(head_at(t - latency_s)))
@@ -442,7 +464,8 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
                                                  extra={"progress": (i + 1, len(per_sensor))})
 
         # one latency for the whole log, pooled over the sensors
-        latency_s = estimate_latency(log, is_robot, max_latency_s=params["max_latency_s"], p_sensor=p_sensor)
+        latency_s = estimate_latency(log, is_robot, max_latency_s=params["max_latency_s"], p_sensor=p_sensor,
+                                     head_at=head_at)
         if progress:
             logging.getLogger(__name__).info(f"association: tracker latency {latency_s:+.3f} s")
         q_all = head_at(t_all - latency_s)

@@ -81,20 +81,21 @@ _METHOD_OFFSET, _METHOD_BYTES = 184, 168       # cholmod_method_struct: 9 double
 _GIVEN = 1                                     # CHOLMOD_GIVEN, the default's first method (then AMD, METIS)
 
 
-def _library_paths() -> list[str]:
-    paths = []
+def _library_paths():
+    """The candidate libraries in turn: cvxopt's wheel's, then the system's. A generator: the
+    system's is looked for (ctypes.util.find_library runs ldconfig, gcc and ld, tens of ms) only
+    when the wheel's cannot be loaded."""
     try:
         import cvxopt.cholmod  # noqa: F401  (loads the libraries CHOLMOD's needs from the wheel)
 
         root = os.path.dirname(os.path.dirname(cvxopt.cholmod.__file__))
         for pattern in ("cvxopt.libs/libcholmod*.so*", "cvxopt/.dylibs/libcholmod*.dylib"):
-            paths += sorted(glob.glob(os.path.join(root, pattern)))
+            yield from sorted(glob.glob(os.path.join(root, pattern)))
     except ImportError:
         pass
     system = ctypes.util.find_library("cholmod")
     if system:
-        paths.append(system)
-    return paths
+        yield system
 
 
 def _int(raw: bytes, offset: int) -> int:

@@ -192,16 +192,17 @@ class GraphRecipe:
             else:
                 flat[k] = v
         known = {f.name: f for f in fields(cls)}
+        defaults = cls()
         for k, v in flat.items():
             if k not in known:
                 raise PedcalInputError(f"unknown key '{k}', expected one of {', '.join(known)}", path=path)
-            default = getattr(cls(), k)
+            default = getattr(defaults, k)
             if isinstance(default, bool) != isinstance(v, bool) or (
                     isinstance(default, float) and not isinstance(v, (int, float))):
                 raise PedcalInputError(f"key '{k}' must be {type(default).__name__}, got {v!r}", path=path)
         if "name" not in flat:
             flat["name"] = path.stem
-        check_recipe_numbers(flat, cls(), path)
+        check_recipe_numbers(flat, defaults, path)
         return cls(**flat)
 
 

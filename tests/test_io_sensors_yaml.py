@@ -1,0 +1,74 @@
+"""The calibrated YAML's emitter: libyaml's (where PyYAML has it) writes the text PyYAML's own does."""
+
+import numpy as np
+import pytest
+import yaml
+
+from pedcal.io.sensors_yaml import _CDumper, dump_yaml, flow_vector, read_sensors_yaml, sensors_yaml_text
+from pedcal.model import SensorExtrinsics, SensorNetwork
+
+needs_libyaml = pytest.mark.skipif(_CDumper is None, reason="PyYAML built without libyaml")
+
+
+def _calibrated_network() -> SensorNetwork:
+    rng = np.random.default_rng(3)
+    sensors = []
+    for i in range(4):
+        s = SensorExtrinsics(f"{i + 1:02d}", rng.normal(size=3) + [0, 0, 2.6], rng.normal(scale=40, size=3),
+                             observations=100 + i, status="ok" if i else "degenerate")
+        s.sigma_position_m = np.abs(rng.normal(scale=0.02, size=3))
+        s.sigma_ypr_deg = np.abs(rng.normal(scale=0.2, size=3))
+        s.sigma_rotation_deg = np.abs(rng.normal(scale=0.2, size=3))
+        if not i:
+            s.unobservable = ["rotation about the robot's line of travel"]
+        sensors.append(s)
+    net = SensorNetwork(sensors, "map")
+    cov = rng.normal(size=(12, 12))
+    net.extra["tracker_latency_s"] = 0.0946
+    net.extra["head_model"] = {"vertical_offset_m": -0.1041, "estimated": True, "height_reference": "none",
+                               "note": "a note of 'quotes', \"double\" ones, colons: and # signs, μm and ± "
+                                       "long enough to be folded over several lines by the emitter " * 2}
+    net.extra["position_covariance_m2"] = {"sensors": [s.id for s in sensors], "order": "x y z per sensor",
+                                           "matrix": [flow_vector(r) for r in cov @ cov.T * 1e-4]}
+    net.extra["clock_offset_s"] = {s.id: np.float64(0.01 * i) for i, s in enumerate(sensors)}
+    return net
+
+
+@needs_libyaml
+def test_calibrated_file_text_is_pyyaml_s(tmp_path):
+    net = _calibrated_network()
+    text = sensors_yaml_text(net)
+    data = yaml.safe_load(text)
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    # the same through the writer's own path, and it reads back
+    (tmp_path / "out.yaml").write_text(text)
+    back = read_sensors_yaml(tmp_path / "out.yaml")
+    assert [s.id for s in back] == ["01", "02", "03", "04"]
+    np.testing.assert_array_equal(back["03"].position_m, net["03"].position_m)
+
+
+@needs_libyaml
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf"), 1e-300, -0.0, 12345678901234567890,
+                                   True, None, "", "yes", "null", "0.1", " lead", "trail ", "- item", "*x", "&x",
+                                   "%x", "@x", "`x", "a\tb", "bell\x07", "a\u00a0b", "a\u2028b", "\ufeffx",
+                                   "line one\nline two\n  indented\n", "漢字 μ ±"])
+def test_scalars_written_alike(value):
+    data = {"k": value, "list": [value, flow_vector([1.5, 2.0])], "nested": {"v": value}}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+
+
+@needs_libyaml
+@pytest.mark.parametrize("char", ["\x85", "\U0001F600", "\U00010000", "\U0010FFFF"])
+def test_characters_libyaml_escapes_written_by_pyyaml(char):
+    """NEL and the characters beyond the Basic Multilingual Plane, which libyaml escapes where
+    PyYAML may not: the text is PyYAML's."""
+    data = {"frame": f"a{char}b", "sensors": [], "note": "\\N and \\U written as such"}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert ("\U0001F600" in dump_yaml(data)) == (char == "\U0001F600")      # (written as it is, not escaped)
+
+
+@needs_libyaml
+def test_every_latin_and_greek_character_written_alike():
+    for cp in range(0x20, 0x800):
+        data = {"k": "a" + chr(cp) + "b"}
+        assert dump_yaml(data) == dump_yaml(data, libyaml=False), hex(cp)
