@@ -71,18 +71,22 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
+from pedcal.calib.headpoint import RAY_SENSOR_PREFIX as RAY_SHIFT_PREFIX
 from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     considered_nuisances,
     considered_rms,
     head_profile_nuisances,
+    head_ray_shift_sensor,
     is_head_profile,
+    is_sensor_ray_shift,
     is_sensor_shift,
     leave_out,
     record_head_profile,
     row_clusters,
     row_sensors,
     select_head_profile,
+    sensor_ray_shift_nuisances,
     sensor_shift_nuisances,
 )
 from pedcal.calib.keys import symbol_parts, symbols
@@ -229,7 +233,8 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     row_of_pose[k[has]] = np.flatnonzero(has)
     use = prob.fac_key_index < len(times)
     p = prob.head_points_sensor()
-    p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]        # the head top, sensor frame
+    rho = prob.ray_shift_m + head_ray_shift_sensor(prob, {}, np.arange(len(p)))      # shared and each sensor's own
+    p = p * (1.0 + rho / np.linalg.norm(p, axis=1))[:, None]        # the head top, sensor frame
     per_sensor = []
     for i, m in _groups(np.where(use, prob.fac_sensor_index, len(prob.sensor_ids)), len(prob.sensor_ids)):
         rows = row_of_pose[prob.fac_key_index[m]]
@@ -385,6 +390,8 @@ def _profiled(rec: GraphRecipe) -> bool:
 
 def _sensor_of(name: str) -> str:
     """The sensor id of a per-sensor nuisance's name (a clock offset, a head shift departure)."""
+    if is_sensor_ray_shift(name):
+        return name[len(RAY_SHIFT_PREFIX):]
     return name[len(SHIFT_PREFIX):] if is_sensor_shift(name) else name[len(CLOCK_PREFIX):]
 
 
@@ -457,6 +464,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         local_nuis = local_nuis + sensor_shift_nuisances(prob)
     else:
         nuis += sensor_shift_nuisances(prob)
+    nuis += sensor_ray_shift_nuisances(prob)     # each sensor's own ray shift (a random effect; off by default)
     # (the shift against distance is chosen among its shapes; the random effect's departures are
     # no candidates, and without a profile there is nothing to choose: no rows labelled for it)
     select_profile = bool(profile_nuis)
@@ -503,9 +511,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                      lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
         rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
         # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
-        # and so does its own departure of the horizontal shift
+        # and so do its own departures of the horizontal and the ray shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
-                     if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
+                     if (is_clock_nuisance(n) or is_sensor_shift(n) or is_sensor_ray_shift(n))
+                     and _sensor_of(n) in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
@@ -711,7 +720,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     sig = (observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1))
            / np.sqrt(prob.fac_count[use])[:, None])
     return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
-                            (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
+                            (r_pred - r_meas - prob.ray_shift_m - head_ray_shift_sensor(prob, {}, use)) / sig[:, 2]])
 
 
 def _groups(index: np.ndarray, n: int):

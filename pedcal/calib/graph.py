@@ -102,7 +102,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import head_world, interpolate_pose2
-from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
+from pedcal.calib.headpoint import head_profile_shift_sensor, head_ray_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
     RobotMotion,
@@ -736,7 +736,8 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         target.append(prob.fac_key_index[use])
         is_pose.append(np.ones(len(use), bool))
         p_all.append(p_obs)
-        r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
+        # (each sensor's own ray shift beside the shared one: pedcal.calib.headpoint)
+        r_all.append(np.linalg.norm(p_obs, axis=1) + rho + head_ray_shift_sensor(prob, theta, use))
         noise_r.append(reg.noise_range_m)
         noise_count.append(np.asarray(prob.fac_count[use], int))
     if rec.people:
