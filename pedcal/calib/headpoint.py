@@ -39,6 +39,7 @@ import numpy as np
 import scipy.sparse as sps
 from scipy.special import ndtri
 
+from pedcal.calib.keys import S
 from pedcal.calib.profile import Nuisance, ProfileStep
 from pedcal.errors import PedcalInputError
 
@@ -232,15 +233,16 @@ def sensor_shift_nuisances(prob) -> list[Nuisance]:
 
 
 def sensor_ray_shift_nuisances(prob) -> list[Nuisance]:
-    """Each sensor's own departure rho_s of the ray shift from the shared one, a random effect
-    (recipe ``head_ray_shift_per_sensor_sigma_m`` > 0): the reported point rho + rho_s nearer the
-    sensor along the ray, for every sensor that saw the robot, prior 0 +- that sigma. A tracker
-    whose dome (or blob) differs from the others' moves its point along the ray, which seen
-    obliquely is both toward the sensor and down, by amounts that change with the elevation:
-    the sensor's own horizontal departure holds the mean of the first, its height the mean of
-    the second, and what changes with the elevation tilts the sensor, moving it along its view
-    axis. Only the robot's observations take it (like the horizontal departure). [] when off,
-    without the head model's ray shift, or without robot observations."""
+    """Each sensor's own dome departure rho_s from the shared ray shift, a random effect (recipe
+    ``head_ray_shift_per_sensor_sigma_m`` > 0): a tracker whose dome is larger or smaller than
+    the others' reports a point rho_s farther along the ray toward the sensor and rho_s lower
+    (:func:`head_ray_shift_sensor`), the shared model's own prior (offset = -shift) for one
+    sensor. Seen obliquely its horizontal part, rho_s cos(e), and its vertical part,
+    -rho_s (1 - sin e), change with the elevation e: the sensor's own horizontal departure holds
+    the first's mean, its height the second's, and what is left tilts the sensor, moving it along
+    its view axis. Every sensor that saw the robot gets one, prior 0 +- that sigma; only the
+    robot's observations take them (like the horizontal departure). [] when off, without the
+    head model's ray shift, or without robot observations."""
     rec = prob.recipe
     sigma = rec.head_ray_shift_per_sensor_sigma_m
     if sigma < 0.0:
@@ -258,21 +260,33 @@ def is_sensor_ray_shift(name: str) -> bool:
 
 
 def sensor_ray_departures(prob, theta: dict | None = None) -> np.ndarray:
-    """(n_sensors,) each sensor's departure from the shared ray shift (m; 0 for one without its
-    own), ``theta`` overriding by name."""
+    """(n_sensors,) each sensor's dome departure from the shared ray shift (m; 0 for one without
+    its own), ``theta`` overriding by name, taken about their mean over the sensors that have
+    one: a departure shared by every sensor is the shared ray shift's (with its vertical offset,
+    which the prior ties to it: the two would trade along a direction the data cannot see,
+    where only the priors would hold them)."""
     theta = theta or {}
-    return np.array([float(theta.get(RAY_SENSOR_PREFIX + sid, getattr(prob, RAY_SENSOR_PREFIX + sid, 0.0)))
-                     for sid in prob.sensor_ids])
+    names = [RAY_SENSOR_PREFIX + sid for sid in prob.sensor_ids]
+    has = np.array([name in theta or hasattr(prob, name) for name in names], bool)
+    own = np.array([float(theta.get(n, getattr(prob, n, 0.0))) for n in names])
+    return np.where(has, own - own[has].mean(), 0.0) if has.any() else own
 
 
-def head_ray_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
-    """What the sensors' own ray shifts add to the range of the robot-observation factors ``use``
-    (m): rho_s of the observing sensor (the head top is rho + rho_s farther along the ray than
-    the reported point). 0 when none is set."""
+def head_ray_shift_sensor(prob, theta: dict, use: np.ndarray,
+                          values: gtsam.Values | None = None) -> tuple[np.ndarray | float, np.ndarray | float]:
+    """What the sensors' own dome departures (:func:`sensor_ray_departures`) do to the
+    robot-observation factors ``use`` (indices or a mask): (the reported point moved, sensor
+    frame (N, 3) m; the range added, (N,) m). The head top is rho_s farther along the ray than
+    the reported point (+ rho_s on the range) and rho_s higher than the dome's point (+ rho_s
+    times the world's up in the sensor's frame, R^T e_z, R the sensor's rotation in ``values``,
+    else the one the factors were carried with). (0, 0) when none is set."""
     own = sensor_ray_departures(prob, theta)
     if not np.any(own):
-        return 0.0
-    return own[prob.fac_sensor_index[use]]
+        return 0.0, 0.0
+    up = np.stack([(values.atPose3(S(i)).rotation().matrix() if values is not None and values.exists(S(i))
+                    else np.asarray(prob._rotations[sid], float))[2, :] for i, sid in enumerate(prob.sensor_ids)])
+    index = prob.fac_sensor_index[use]
+    return own[index][:, None] * up[index], own[index]
 
 
 def is_sensor_shift(name: str) -> bool:
