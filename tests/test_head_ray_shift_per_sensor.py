@@ -1,16 +1,14 @@
-"""Each sensor's own departure of the head point's ray shift, a random effect beside the
-horizontal one (pedcal.calib.headpoint.sensor_ray_shift_nuisances, recipe
-head_ray_shift_per_sensor_sigma_m): a tracker whose dome differs from the others' moves its
-point along the ray, which the range of its own robot observations takes."""
+"""Each sensor's own dome, a random effect beside the horizontal departure
+(pedcal.calib.headpoint.sensor_ray_shift_nuisances, recipe head_ray_shift_per_sensor_sigma_m):
+a tracker whose dome differs from the others' moves its point along the ray and down alike,
+which its own robot observations take, about the sensors' mean."""
 
-import warnings
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from test_head_shift_per_sensor import _calibrate, _shifted_log
 
-import pedcal.calib.factorgraph as fgmod
-from pedcal.calib import calibrate
 from pedcal.calib.headpoint import (
     RAY_SENSOR_PREFIX,
     head_ray_shift_sensor,
@@ -22,8 +20,6 @@ from pedcal.calib.headpoint import (
 )
 from pedcal.calib.recipe import GraphRecipe
 from pedcal.errors import PedcalInputError
-from pedcal.metrics import robot_rows
-from pedcal.sim import simulate_logs
 
 SIGMA_M = 0.03
 
@@ -84,47 +80,18 @@ def test_a_departure_is_a_dome_of_the_sensors_own_about_their_mean():
     np.testing.assert_allclose(lift, [0.02 * prob._rotations["s2"][2, :]])
 
 
-def _dome_shifted_log(seed: int):
-    """The paper's room, every sensor's tracker reporting the robot's head point on a dome 3 cm
-    larger or smaller than the simulator's own (shared) one: 3 cm nearer the sensor along the
-    ray and 3 cm lower, or farther and higher."""
-    sim = simulate_logs("paper", seed=seed)
-    log = sim.calib
-    ids = list(log.truth.ids)
-    delta = dict(zip(ids, np.random.default_rng(seed).choice([-1.0, 1.0], len(ids)) * 0.03, strict=True))
-    obs = log.observations
-    P = obs[["x", "y", "z"]].to_numpy(float).copy()
-    robot = robot_rows(log)[0]
-    sensor = obs["sensor"].astype(str).to_numpy()
-    for sid in ids:
-        m = (sensor == sid) & robot
-        # (the log's points are in the world of the installed extrinsics: to the true world and back)
-        p = log.sensors[sid].to_sensor(P[m])
-        world = log.truth[sid].to_world(p)
-        toward = log.truth[sid].position_m - world
-        world = world + delta[sid] * (toward / np.linalg.norm(toward, axis=1, keepdims=True) - [0.0, 0.0, 1.0])
-        P[m] = log.sensors[sid].to_world(log.truth[sid].to_sensor(world))
-    obs[["x", "y", "z"]] = P
-    return sim, delta
-
-
-def _solve(log, monkeypatch, **overrides):
-    seen = {}
-    original = fgmod._posterior
-
-    def spy(log_, prob, fg, result, shifts):
-        seen.update(prob=prob, shifts=shifts)
-        return original(log_, prob, fg, result, shifts)
-    monkeypatch.setattr(fgmod, "_posterior", spy)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = calibrate(log, method="factorgraph", **overrides)
-    return res, seen
+def _dome(p_sensor, truth, delta_m):
+    """A head point on a dome ``delta_m`` larger than the simulator's (sensor frame): delta_m
+    nearer the sensor along the ray and delta_m lower, R^T (delta_m (u - e_z)), u the unit
+    toward the sensor."""
+    toward = -p_sensor / np.linalg.norm(p_sensor, axis=1, keepdims=True)
+    return delta_m * (toward - truth.R_world_sensor[2, :])
 
 
 def test_each_sensors_own_ray_shift_is_recovered(monkeypatch):
-    sim, delta = _dome_shifted_log(0)
-    res, seen = _solve(sim.calib, monkeypatch, head_ray_shift_per_sensor_sigma_m=SIGMA_M)
+    # the paper's room, each sensor's tracker on a dome 3 cm larger or smaller than the others'
+    sim, delta = _shifted_log(0, _dome, sensor_height_range_m=None)
+    res, seen = _calibrate(sim.calib, 0.02, monkeypatch, head_ray_shift_per_sensor_sigma_m=SIGMA_M)
     prob, shifts = seen["prob"], seen["shifts"]
     ids = list(prob.sensor_ids)
     assert sum(is_sensor_ray_shift(n) for n in shifts.names) == len(ids)
