@@ -71,7 +71,6 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     sensor_sigma_world,
     set_amcl_model,
 )
-from pedcal.calib.headpoint import RAY_SENSOR_PREFIX as RAY_SHIFT_PREFIX
 from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     considered_nuisances,
@@ -79,7 +78,6 @@ from pedcal.calib.headpoint import (
     head_profile_nuisances,
     head_ray_shift_sensor,
     is_head_profile,
-    is_sensor_ray_shift,
     is_sensor_shift,
     leave_out,
     record_head_profile,
@@ -391,8 +389,6 @@ def _profiled(rec: GraphRecipe) -> bool:
 
 def _sensor_of(name: str) -> str:
     """The sensor id of a per-sensor nuisance's name (a clock offset, a head shift departure)."""
-    if is_sensor_ray_shift(name):
-        return name[len(RAY_SHIFT_PREFIX):]
     return name[len(SHIFT_PREFIX):] if is_sensor_shift(name) else name[len(CLOCK_PREFIX):]
 
 
@@ -515,8 +511,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # and so does its own departure of the horizontal shift (its dome's, taken about the
         # sensors' mean, enters every sensor's)
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
-                     if (is_clock_nuisance(n) or is_sensor_shift(n))
-                     and _sensor_of(n) in index}
+                     if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
