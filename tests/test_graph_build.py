@@ -276,6 +276,29 @@ def test_optimize_graph_takes_levenberg_marquardts_steps(first_solve):
             assert np.linalg.norm(ours.atPose3(key).translation() - lm.atPose3(key).translation()) < 1e-6
 
 
+def test_optimize_graph_stops_on_the_predicted_remaining_decrease(first_solve):
+    # with predicted_stop, the iterations stop once theta / (1 - theta) of the last decrease
+    # (theta: its ratio to the one before) is below the tolerance, where LM's test, on the last
+    # decrease itself, goes on one iteration more; the steps taken are the same
+    log, rec, prob, parts, _ = first_solve
+    fg = parts.graph()
+    tol = 1e-3
+    errors = [fg.error(parts.values)]
+    for n in (1, 2):
+        r, _ = optimize_graph(fg, parts.values, rec, max_iterations=n, relative_error_tol=1e-15,
+                              gauss_newton_step=False)
+        errors.append(fg.error(r))
+    d1, d2 = errors[0] - errors[1], errors[1] - errors[2]
+    theta = d2 / d1
+    assert d2 > tol * errors[1]                         # (LM's test goes on after the second)
+    assert theta / (1.0 - theta) * d2 <= tol * errors[2]
+    plain, n_plain = optimize_graph(fg, parts.values, rec, relative_error_tol=tol, gauss_newton_step=False)
+    ours, n_ours = optimize_graph(fg, parts.values, rec, relative_error_tol=tol, gauss_newton_step=False,
+                                  predicted_stop=True)
+    assert (n_plain, n_ours) == (3, 2)
+    assert fg.error(ours) == pytest.approx(errors[2], rel=1e-12)
+
+
 def test_optimize_graph_hands_a_rising_step_to_levenberg_marquardt():
     # a point seen at 1 m straight ahead by a held sensor, started behind it: the undamped first
     # step raises the error (checked here), so LM goes on from the start and reaches its optimum

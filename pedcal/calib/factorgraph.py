@@ -157,7 +157,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
                                         gauss_newton_step=not profiled,
                                         relative_error_tol=(1e-2 if profiled else 1e-3) if resolve else None,
-                                        ordering=parts.colamd())
+                                        ordering=parts.colamd(), predicted_stop=profiled and resolve)
     if progress:        # (the errors cost two passes over the graph: not when nobody reads them)
         _log(progress, f"converged in {iterations} iterations, error {fg.error(parts.values):.1f} -> "
                        f"{fg.error(result):.1f}")

@@ -1031,7 +1031,7 @@ class ObservationRhs:
 
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,
                    gauss_newton_step: bool = True, relative_error_tol: float | None = None,
-                   ordering: gtsam.Ordering | None = None):
+                   ordering: gtsam.Ordering | None = None, predicted_stop: bool = False):
     """Levenberg-Marquardt from ``values``, then, with the head model's vertical offset free, one
     Gauss-Newton step (unless ``gauss_newton_step`` is False: the caller's next step is one, as
     every profile step of the nuisances is); (result, iterations). A common vertical shift of all variables changes no
@@ -1047,7 +1047,11 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     with LM's stopping rule, and the first step that would raise the error is not taken: LM
     goes on from the last point for the iterations left (and from an undamped system GTSAM cannot
     solve: a direction nothing holds, which LM's damping does). ``ordering``: ``fg``'s COLAMD
-    ordering when already computed (:meth:`GraphParts.colamd`)."""
+    ordering when already computed (:meth:`GraphParts.colamd`). ``predicted_stop``: the
+    iterations also stop when the decreases still to come are predicted below the tolerance,
+    theta / (1 - theta) of this iteration's decrease, theta its ratio to the last one's (a
+    linear contraction's geometric series, an upper estimate of Gauss-Newton's quadratic one):
+    for a caller whose next step is a Gauss-Newton step of its own, which takes that remainder."""
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
     # one COLAMD ordering computed once (the graph's structure does not change between
@@ -1062,6 +1066,7 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     gn = gtsam.GaussNewtonOptimizer(fg, values, gn_params)
     result, error, iterations = values, gn.error(), 0      # (the optimizer's own error at values: not again)
     absolute_tol = gn_params.getAbsoluteErrorTol()
+    last_decrease = None
     while iterations < max_iterations:
         try:
             gn.iterate()
@@ -1075,6 +1080,11 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
         decrease, error = error - new_error, new_error
         if decrease <= relative_error_tol * (error + decrease) or decrease <= absolute_tol:
             break                             # (LM's convergence test, gtsam.checkConvergence)
+        if predicted_stop and last_decrease is not None and decrease < last_decrease:
+            theta = decrease / last_decrease
+            if theta / (1.0 - theta) * decrease <= relative_error_tol * error:
+                break
+        last_decrease = decrease
     else:
         new_error = error
     if new_error > error or not np.isfinite(new_error):
