@@ -623,14 +623,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             # extrapolated): the steps still to come, theta / (1 - theta) of this one, below
             # ``tolerance``; without a step to compare with, or not contracting, the step itself
             u_all = np.r_[u, loc.dtheta / np.sqrt(loc.variance)]
-            rate_all = None
-            if previous_all is not None and previous_all[0] == names and len(previous_all[1]) == len(u_all):
-                norm_before = float(np.linalg.norm(previous_all[1]))
-                rate_all = float(np.linalg.norm(u_all)) / norm_before if norm_before > 0.0 else None
-            if rate_all is not None and rate_all < 1.0:
-                converged = bool(np.all(rate_all / (1.0 - rate_all) * np.abs(u_all) <= tolerance))
-            else:
-                converged = converged and bool(np.all(ratio <= tolerance))
+            to_come = steps_to_come_below(u_all, previous_all[1] if previous_all is not None
+                                          and previous_all[0] == names else None, tolerance)
+            converged = to_come if to_come is not None else converged and bool(np.all(ratio <= tolerance))
             previous_all = (names, u_all)
             for kind, unit, mine in (("clock offsets", "ms", ~own_shift), ("head shift departures", "mm", own_shift)):
                 if mine.any():
@@ -675,6 +670,23 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                                                     unmodelled[2]),
                        considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]),
                        ordering=parts.colamd() if final_graph else None)
+
+
+def steps_to_come_below(u: np.ndarray, previous_u: np.ndarray | None, tolerance: float) -> bool | None:
+    """Whether the steps still to come of a contracting iteration are all below ``tolerance``:
+    with theta = |u| / |previous_u| (this step's length over the last one's, each in its
+    variables' sigmas), the geometric series theta / (1 - theta) of this step, component by
+    component (the stopping rule of simplified Newton iterations, Hairer & Wanner, Solving ODEs
+    II, IV.8). None where there is no contraction to measure: no last step (or one of other
+    variables, or of length 0) or a step no shorter than it."""
+    u = np.asarray(u, float)
+    if previous_u is None or len(previous_u) != len(u):
+        return None
+    before = float(np.linalg.norm(previous_u))
+    rate = float(np.linalg.norm(u)) / before if before > 0.0 else None
+    if rate is None or rate >= 1.0:
+        return None
+    return bool(np.all(rate / (1.0 - rate) * np.abs(u) <= tolerance))
 
 
 def _unmodelled_curvature(step, chi2: float):
