@@ -477,3 +477,36 @@ def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized
     (taken, fresh), = steps
     sigma = np.sqrt(np.diag(fresh.covariance))
     assert np.all(np.abs(taken.dtheta - fresh.dtheta) <= 1e-6 * sigma), (taken.dtheta - fresh.dtheta) / sigma
+
+
+def test_rebuild_without_the_observation_block_holds_the_same_values():
+    # the caller building the observation block next: the block left empty, the variables (the
+    # people's at the given solution) those of the full rebuild; a solution missing a person's
+    # position has the block built, for that person's initial one
+    from test_profile import shared_people_problem
+
+    from pedcal.calib.graph import L
+
+    sim, prob, parts = shared_people_problem()
+    assert len(prob.people) > 10
+    result = gtsam.Values(parts.values)
+    for m in (0, 3):
+        result.update(L(m), result.atPoint3(L(m)) + np.array([0.1, -0.2, 0.05]))
+    full = rebuild_parts(sim.calib, prob, parts, result)
+    bare = rebuild_parts(sim.calib, prob, parts, result, observations=False)
+    assert bare.blocks["observations"].size() == 0 < full.blocks["observations"].size()
+    for name in BLOCKS:
+        if name != "observations":
+            assert bare.blocks[name].size() == full.blocks[name].size(), name
+    assert sorted(bare.values.keys()) == sorted(full.values.keys())
+    for key in full.values.keys():
+        if chr(gtsam.Symbol(key).chr()) == "l":
+            assert np.array_equal(bare.values.atPoint3(key), full.values.atPoint3(key))
+        else:
+            assert np.array_equal(bare.values.atPose3(key).matrix(), full.values.atPose3(key).matrix())
+    assert np.array_equal(bare.values.atPoint3(L(3)), result.atPoint3(L(3)))
+    missing = gtsam.Values(result)
+    missing.erase(L(2))
+    built = rebuild_parts(sim.calib, prob, parts, missing, observations=False)
+    assert built.blocks["observations"].size() == full.blocks["observations"].size()
+    assert built.values.exists(L(2))

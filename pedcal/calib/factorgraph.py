@@ -284,7 +284,8 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
         result = people_renumbered(result, np.flatnonzero(~bad))
     # the variables at the first solution, but the AMCL error's nodes (new with the model: below);
     # the sensors' priors and an unchanged motion block kept from the first graph
-    parts = rebuild_parts(log, prob, parts, result)
+    # (without a re-solve, the nuisances' profile builds the observation block at these values first)
+    parts = rebuild_parts(log, prob, parts, result, observations=gauss_newton_step)
     values = parts.values
     # the error process's nodes start at its share of AMCL's mean residual near them (the node
     # F = X Z^-1 is minus the residual): c^2 / (c^2 + w^2 / n) of it for n estimates; its height at
