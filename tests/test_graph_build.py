@@ -510,3 +510,28 @@ def test_rebuild_without_the_observation_block_holds_the_same_values():
     built = rebuild_parts(sim.calib, prob, parts, missing, observations=False)
     assert built.blocks["observations"].size() == full.blocks["observations"].size()
     assert built.values.exists(L(2))
+
+
+@pytest.mark.parametrize("excluded", [False, True])
+def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(first_solve, monkeypatch, excluded):
+    # with the profile's Gauss-Newton steps to follow, the graph rebuilt under AMCL's model is
+    # left to them (its observation block too, which they build first), unless the model's jumps
+    # changed the robot's motion (AMCL standing in for odometry): then LM solves it again first
+    import pedcal.calib.factorgraph as fg
+
+    log, rec, prob, parts, result = first_solve
+    assert prob.odometry is None
+    mask = None
+    if excluded:
+        mask = np.zeros(len(log.robot), bool)
+        mask[10:25] = True
+    monkeypatch.setattr(fg, "estimate_model", lambda *a, **kw: _model(prob, excluded=mask))
+    calls = []
+    monkeypatch.setattr(fg, "optimize_graph", lambda graph, values, rec, **kw: calls.append(kw) or (values, 3))
+    rebuilt, _, iterations = fg._reestimate_amcl(log, prob, parts, result, progress=False, gauss_newton_step=False)
+    if excluded:
+        assert iterations == 3 and len(calls) == 1 and calls[0]["relative_error_tol"] == 1e-3
+        assert rebuilt.blocks["observations"].size() > 0
+    else:
+        assert iterations == 0 and not calls
+        assert rebuilt.blocks["observations"].size() == 0

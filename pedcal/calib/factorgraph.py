@@ -7,7 +7,8 @@ the whole log, with what the graph does not hold as variables estimated around i
    the linearized graph (:mod:`pedcal.calib.profile`, :func:`_estimate_nuisances`), roughly;
 3. AMCL's error model (white and wandering std, correlation time, jumps left out) from the
    residuals of AMCL against what each sensor saw (:mod:`pedcal.calib.amcl_model`); shared
-   sightings the solution contradicts dropped; the graph rebuilt and solved again;
+   sightings the solution contradicts dropped; the graph rebuilt and, unless the profile's
+   steps (joint Gauss-Newton steps of the variables) follow, solved again;
 4. the shifts again, to a tenth of their sigma, and with wheel odometry the corrections of its
    calibration (scale, heading drift per metre and per second) with them, their covariance
    carried into the sensors';
@@ -255,8 +256,8 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
     """AMCL's error model estimated from the first solve's residuals (pedcal.calib.amcl_model),
     the graph rebuilt with it and solved again from the first solution (``parts``: the first
     graph's, whose sensors' priors and unchanged motion block are kept), or, with
-    ``gauss_newton_step`` False, left at the first solution for the nuisances' profile steps to
-    solve. Returns (parts, result, iterations)."""
+    ``gauss_newton_step`` False and the robot's motion unchanged by the model, left at the first
+    solution for the nuisances' profile steps to solve. Returns (parts, result, iterations)."""
     rec = prob.recipe
     t, res, per_sensor = amcl_residuals(log, prob, result)
     ok = np.isfinite(res[:, 0])
@@ -272,7 +273,12 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
                    f"{1000 * model.correlated_sigma_m:.1f} mm over {model.correlation_s:.1f} s; {model.jumps} jumps "
                    f"({model.excluded_s:.1f} s) left out")
     rotations = {sid: result.atPose3(S(i)).rotation().matrix() for i, sid in enumerate(prob.sensor_ids)}
-    set_amcl_model(log, prob, model, rotations=rotations)
+    motion_changed = set_amcl_model(log, prob, model, rotations=rotations)
+    # the re-solve is left to the nuisances' profile steps, Gauss-Newton steps of the variables
+    # (``gauss_newton_step`` False), unless the robot's motion changed with the model (AMCL's
+    # jumps left out where it stands in for odometry: every observation carried again), which
+    # moves the data, not the noise alone, and Levenberg-Marquardt solves again first
+    resolve = gauss_newton_step or motion_changed
     # shared sightings the solution contradicts (two sensors' views of "one" person far apart:
     # a wrong match) hold nothing but a flat robust cost between the two views, which the
     # solver crawls along; they are left out
@@ -285,7 +291,7 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
     # the variables at the first solution, but the AMCL error's nodes (new with the model: below);
     # the sensors' priors and an unchanged motion block kept from the first graph
     # (without a re-solve, the nuisances' profile builds the observation block at these values first)
-    parts = rebuild_parts(log, prob, parts, result, observations=gauss_newton_step)
+    parts = rebuild_parts(log, prob, parts, result, observations=resolve)
     values = parts.values
     # the error process's nodes start at its share of AMCL's mean residual near them (the node
     # F = X Z^-1 is minus the residual): c^2 / (c^2 + w^2 / n) of it for n estimates; its height at
@@ -305,7 +311,7 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
             if values.exists(A(m)):
                 values.update(A(m), gtsam.Pose3(gtsam.Rot3(), np.array([-share[m] * mean[m, 0],
                                                                          -share[m] * mean[m, 1], z])))
-    if not gauss_newton_step:
+    if not resolve:
         # Gauss-Newton steps follow, those of the nuisances' profile (each a joint step of the
         # variables, from a point one such step already settled under the first model): they
         # solve the rebuilt graph, converging quadratically this close, and no iteration of its
@@ -313,7 +319,11 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
         # sensors' 17 s; without them, the zoo logs' sensors moved by at most 1 mm, their RMS by
         # less than 0.1 mm)
         return parts, values, 0
-    result, iterations = optimize_graph(parts.graph(), values, rec, ordering=parts.colamd())
+    # (when Gauss-Newton steps follow, those of the nuisances' profile, LM stops at 0.1 % of the
+    # error: they finish what it leaves)
+    result, iterations = optimize_graph(parts.graph(), values, rec, gauss_newton_step=gauss_newton_step,
+                                        relative_error_tol=None if gauss_newton_step else 1e-3,
+                                        ordering=parts.colamd())
     return parts, result, iterations
 
 

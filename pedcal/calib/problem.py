@@ -359,11 +359,12 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
-                   rotations: dict[str, np.ndarray] | None = None) -> None:
+                   rotations: dict[str, np.ndarray] | None = None) -> bool:
     """Build the graph with AMCL's error ``model`` from now on: the error process's nodes spaced
     for its correlation time and, when the model leaves estimates out as jumps and AMCL stands in
     for odometry, the robot's short-term motion from AMCL without them (observations carried
-    again, with ``rotations``, the current R_world_sensor per sensor, when ``carry``)."""
+    again, with ``rotations``, the current R_world_sensor per sensor, when ``carry``). Returns
+    whether the robot's motion changed (the observations then carried again, or to be)."""
     rec = prob.recipe
     t_a = np.unique(log.robot["t"].to_numpy(float))
     period = float(np.median(np.diff(t_a))) if len(t_a) > 1 else rec.amcl_node_spacing_s
@@ -371,7 +372,7 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
     prob.amcl_node_times = t_a[0] + dn * np.arange(int(np.round((t_a[-1] - t_a[0]) / dn)) + 1)
     prob.amcl_model = model
     if model.excluded is None or prob.odometry is not None:
-        return
+        return False
     clean = copy.copy(log)
     clean.robot = log.robot.sort_values("t", kind="stable")[~model.excluded]
     if prob.smoothed_amcl is not None:
@@ -381,6 +382,7 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
         prob.motion = RobotMotion(clean, None)
     if carry:
         prob.carry_observations(rotations or {sid: T.rotation().matrix() for sid, T in prob.init_sensors.items()})
+    return True
 
 
 
