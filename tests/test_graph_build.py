@@ -276,6 +276,29 @@ def test_optimize_graph_takes_levenberg_marquardts_steps(first_solve):
             assert np.linalg.norm(ours.atPose3(key).translation() - lm.atPose3(key).translation()) < 1e-6
 
 
+def test_optimize_graph_stops_on_the_predicted_remaining_decrease(first_solve):
+    # with predicted_stop, the iterations stop once theta / (1 - theta) of the last decrease
+    # (theta: its ratio to the one before) is below the tolerance, where LM's test, on the last
+    # decrease itself, goes on one iteration more; the steps taken are the same
+    log, rec, prob, parts, _ = first_solve
+    fg = parts.graph()
+    tol = 1e-3
+    errors = [fg.error(parts.values)]
+    for n in (1, 2):
+        r, _ = optimize_graph(fg, parts.values, rec, max_iterations=n, relative_error_tol=1e-15,
+                              gauss_newton_step=False)
+        errors.append(fg.error(r))
+    d1, d2 = errors[0] - errors[1], errors[1] - errors[2]
+    theta = d2 / d1
+    assert d2 > tol * errors[1]                         # (LM's test goes on after the second)
+    assert theta / (1.0 - theta) * d2 <= tol * errors[2]
+    plain, n_plain = optimize_graph(fg, parts.values, rec, relative_error_tol=tol, gauss_newton_step=False)
+    ours, n_ours = optimize_graph(fg, parts.values, rec, relative_error_tol=tol, gauss_newton_step=False,
+                                  predicted_stop=True)
+    assert (n_plain, n_ours) == (3, 2)
+    assert fg.error(ours) == pytest.approx(errors[2], rel=1e-12)
+
+
 def test_optimize_graph_hands_a_rising_step_to_levenberg_marquardt():
     # a point seen at 1 m straight ahead by a held sensor, started behind it: the undamped first
     # step raises the error (checked here), so LM goes on from the start and reaches its optimum
@@ -454,3 +477,61 @@ def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized
     (taken, fresh), = steps
     sigma = np.sqrt(np.diag(fresh.covariance))
     assert np.all(np.abs(taken.dtheta - fresh.dtheta) <= 1e-6 * sigma), (taken.dtheta - fresh.dtheta) / sigma
+
+
+def test_rebuild_without_the_observation_block_holds_the_same_values():
+    # the caller building the observation block next: the block left empty, the variables (the
+    # people's at the given solution) those of the full rebuild; a solution missing a person's
+    # position has the block built, for that person's initial one
+    from test_profile import shared_people_problem
+
+    from pedcal.calib.graph import L
+
+    sim, prob, parts = shared_people_problem()
+    assert len(prob.people) > 10
+    result = gtsam.Values(parts.values)
+    for m in (0, 3):
+        result.update(L(m), result.atPoint3(L(m)) + np.array([0.1, -0.2, 0.05]))
+    full = rebuild_parts(sim.calib, prob, parts, result)
+    bare = rebuild_parts(sim.calib, prob, parts, result, observations=False)
+    assert bare.blocks["observations"].size() == 0 < full.blocks["observations"].size()
+    for name in BLOCKS:
+        if name != "observations":
+            assert bare.blocks[name].size() == full.blocks[name].size(), name
+    assert sorted(bare.values.keys()) == sorted(full.values.keys())
+    for key in full.values.keys():
+        if chr(gtsam.Symbol(key).chr()) == "l":
+            assert np.array_equal(bare.values.atPoint3(key), full.values.atPoint3(key))
+        else:
+            assert np.array_equal(bare.values.atPose3(key).matrix(), full.values.atPose3(key).matrix())
+    assert np.array_equal(bare.values.atPoint3(L(3)), result.atPoint3(L(3)))
+    missing = gtsam.Values(result)
+    missing.erase(L(2))
+    built = rebuild_parts(sim.calib, prob, parts, missing, observations=False)
+    assert built.blocks["observations"].size() == full.blocks["observations"].size()
+    assert built.values.exists(L(2))
+
+
+@pytest.mark.parametrize("excluded", [False, True])
+def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(first_solve, monkeypatch, excluded):
+    # with the profile's Gauss-Newton steps to follow, the graph rebuilt under AMCL's model is
+    # left to them (its observation block too, which they build first), unless the model's jumps
+    # changed the robot's motion (AMCL standing in for odometry): then LM solves it again first
+    import pedcal.calib.factorgraph as fg
+
+    log, rec, prob, parts, result = first_solve
+    assert prob.odometry is None
+    mask = None
+    if excluded:
+        mask = np.zeros(len(log.robot), bool)
+        mask[10:25] = True
+    monkeypatch.setattr(fg, "estimate_model", lambda *a, **kw: _model(prob, excluded=mask))
+    calls = []
+    monkeypatch.setattr(fg, "optimize_graph", lambda graph, values, rec, **kw: calls.append(kw) or (values, 3))
+    rebuilt, _, iterations = fg._reestimate_amcl(log, prob, parts, result, progress=False, gauss_newton_step=False)
+    if excluded:
+        assert iterations == 3 and len(calls) == 1 and calls[0]["relative_error_tol"] == 1e-3
+        assert rebuilt.blocks["observations"].size() > 0
+    else:
+        assert iterations == 0 and not calls
+        assert rebuilt.blocks["observations"].size() == 0

@@ -579,3 +579,20 @@ def test_free_memory_is_handed_back_before_large_factorizations_only(monkeypatch
     assert calls == [1]
     assert np.array_equal(small, large)
     assert np.abs(N @ large - y).max() < 1e-10
+
+
+def test_steps_to_come_are_the_geometric_series_of_a_contracting_step():
+    from pedcal.calib.factorgraph import steps_to_come_below
+
+    # a step of 0.14 sigma after one of 1.24 (rate 0.113): 0.018 sigma to come, below 0.1
+    u, before = np.array([0.14, -0.02, 0.0]), np.array([1.24, 0.1, 0.0])
+    rate = np.linalg.norm(u) / np.linalg.norm(before)
+    assert rate / (1 - rate) * 0.14 < 0.02
+    assert steps_to_come_below(u, before, 0.1) is True
+    assert steps_to_come_below(u, before, 0.01) is False
+    # a slow contraction (rate 0.8): four times this step to come
+    assert steps_to_come_below(np.array([0.08]), np.array([0.1]), 0.3) is False
+    assert steps_to_come_below(np.array([0.08]), np.array([0.1]), 0.33) is True
+    # nothing to measure the contraction by: no last step, another length, one of 0, no shrinking
+    for previous in (None, np.array([1.0, 1.0]), np.zeros(3), np.array([0.1, 0.0, 0.0])):
+        assert steps_to_come_below(u, previous, 0.1) is None

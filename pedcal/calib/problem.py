@@ -134,12 +134,13 @@ class FactorGraphProblem:
         self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, R)
         self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, R)
 
-    def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
+    def carry_observations(self, rotations: dict[str, np.ndarray], merge: bool = True) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
         t = stamp - latency is the head at the pose's time t_k minus the robot's motion from t
         to t_k, p_sensor(t_k) = p_sensor(t) + R_world_sensor^T (h(t_k) - h(t)). ``rotations``:
         current R_world_sensor per sensor (an error of a degree moves a point carried a few
-        centimetres by under a millimetre)."""
+        centimetres by under a millimetre). Then the factors merged (:meth:`merge_observations`),
+        unless ``merge`` is False (the caller merges them, against a noise it estimates first)."""
         self.obs_t = self.obs_t_raw - self.latency_s
         tk = self.pose_times
         i = np.clip(np.searchsorted(tk, self.obs_t), 1, max(len(tk) - 1, 1))
@@ -153,7 +154,8 @@ class FactorGraphProblem:
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
         self._rotations = dict(rotations)
-        self.merge_observations()
+        if merge:
+            self.merge_observations()
 
 
 def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
@@ -267,12 +269,15 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
     set_amcl_model(log, prob, assumed_model(log.robot, recipe), carry=False)
-    prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()})
-    if recipe.estimate_observation_noise and recipe.robot:
+    # (merged once, against the noise estimated from the carried observations when it is)
+    estimate_noise = recipe.estimate_observation_noise and recipe.robot
+    prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()}, merge=not estimate_noise)
+    if estimate_noise:
         noise = estimate_observation_noise(log, prob)
         if noise is None:
             warnings.warn("too few pairs of consecutive robot observations to estimate the sensors' noise; the "
                           "recipe's depth and lateral noise are assumed", DegenerateDataWarning, stacklevel=3)
+            prob.merge_observations()
         else:
             prob.recipe = copy.copy(recipe)
             for k in ("range_sigma_floor_m", "range_sigma_k_per_m", "lateral_sigma_m"):
@@ -307,9 +312,11 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     rows = prob.rows_used
     if rows is None or len(rows) < 2:
         return None
-    track = log.observations["track"].astype(str).to_numpy()[rows]
-    order = np.lexsort((prob.obs_t, track, prob.obs_sensor))
-    s_o, tr_o, t_o = prob.obs_sensor[order], track[order], prob.obs_t[order]
+    # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
+    track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
+    sensor = pd.factorize(prob.obs_sensor, use_na_sentinel=False)[0]
+    order = np.lexsort((prob.obs_t, track, sensor))
+    s_o, tr_o, t_o = sensor[order], track[order], prob.obs_t[order]
     dt = np.diff(t_o)
     nxt = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1]) & (dt > 0.0) & (dt <= max_gap_s)
     i, j = order[:-1][nxt], order[1:][nxt]
@@ -352,11 +359,12 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
-                   rotations: dict[str, np.ndarray] | None = None) -> None:
+                   rotations: dict[str, np.ndarray] | None = None) -> bool:
     """Build the graph with AMCL's error ``model`` from now on: the error process's nodes spaced
     for its correlation time and, when the model leaves estimates out as jumps and AMCL stands in
     for odometry, the robot's short-term motion from AMCL without them (observations carried
-    again, with ``rotations``, the current R_world_sensor per sensor, when ``carry``)."""
+    again, with ``rotations``, the current R_world_sensor per sensor, when ``carry``). Returns
+    whether the robot's motion changed (the observations then carried again, or to be)."""
     rec = prob.recipe
     t_a = np.unique(log.robot["t"].to_numpy(float))
     period = float(np.median(np.diff(t_a))) if len(t_a) > 1 else rec.amcl_node_spacing_s
@@ -364,7 +372,7 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
     prob.amcl_node_times = t_a[0] + dn * np.arange(int(np.round((t_a[-1] - t_a[0]) / dn)) + 1)
     prob.amcl_model = model
     if model.excluded is None or prob.odometry is not None:
-        return
+        return False
     clean = copy.copy(log)
     clean.robot = log.robot.sort_values("t", kind="stable")[~model.excluded]
     if prob.smoothed_amcl is not None:
@@ -374,6 +382,7 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
         prob.motion = RobotMotion(clean, None)
     if carry:
         prob.carry_observations(rotations or {sid: T.rotation().matrix() for sid, T in prob.init_sensors.items()})
+    return True
 
 
 
