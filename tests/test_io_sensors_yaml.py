@@ -72,3 +72,19 @@ def test_every_latin_and_greek_character_written_alike():
     for cp in range(0x20, 0x800):
         data = {"k": "a" + chr(cp) + "b"}
         assert dump_yaml(data) == dump_yaml(data, libyaml=False), hex(cp)
+
+
+def test_lone_surrogate_read_from_a_file_written_back_as_pyyaml_does(tmp_path, monkeypatch):
+    """libyaml's emitter cannot encode a lone surrogate (a "\\uDCFF" escape read from a file) and
+    raises; PyYAML's escapes it: the text is PyYAML's."""
+    from pedcal.io import sensors_yaml
+    from pedcal.io.sensors_yaml import write_sensors_yaml
+
+    (tmp_path / "in.yaml").write_text('frame: map\nsensors:\n- id: "s\\uDCFF"\n  position: [1.0, 2.0, 2.6]\n'
+                                      '  ypr_deg: [0.0, 0.0, 90.0]\n')
+    net = read_sensors_yaml(tmp_path / "in.yaml")
+    assert [s.id for s in net] == ["s\udcff"]
+    write_sensors_yaml(net, tmp_path / "out.yaml")
+    monkeypatch.setattr(sensors_yaml, "_CDumper", None)
+    assert (tmp_path / "out.yaml").read_text() == sensors_yaml_text(net)
+    assert '- id: "s\\uDCFF"\n' in sensors_yaml_text(net)

@@ -351,8 +351,11 @@ def dump_yaml(data: dict, *, libyaml: bool = True) -> str:
         return yaml.dump(data, Dumper=dumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
 
     if libyaml and _CDumper is not None:
-        text = dump(_CDumper)
-        if "\\U" not in text and "\\N" not in text:
+        try:
+            text = dump(_CDumper)
+        except UnicodeEncodeError:      # a lone surrogate (a "\uDCFF" escape read from a file): PyYAML escapes it
+            text = None
+        if text is not None and "\\U" not in text and "\\N" not in text:
             return text
     return dump(_Dumper)
 
