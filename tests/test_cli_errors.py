@@ -274,3 +274,20 @@ def test_only_the_command_line_process_spares_the_cycle_collector(tmp_path):
     rc, rest = out.strip().splitlines()[-1].split(" ", 1)
     assert int(rc) in (0, EXIT_BAD_INPUT)
     assert rest == "False True True True"
+
+
+def test_command_line_process_that_fails_leaves_the_exit_s_collection_alone(tmp_path):
+    """A command that fails (exit 2) is not followed by the exit's freeze: the interpreter's last
+    collection still finalizes the cyclic garbage it left (an unclosed writer in a cycle is flushed);
+    the loading's freeze alone happened."""
+    import subprocess
+    import sys
+
+    (tmp_path / "log").mkdir()
+    code = ("import gc, sys; sys.argv[0] = 'pedcal'; from pedcal.cli import main; freeze = gc.freeze; calls = []; "
+            "gc.freeze = lambda: (calls.append(1), freeze())[1]; "
+            f"rc = main(['calibrate', {str(tmp_path / 'log')!r}, '-o', {str(tmp_path / 'out.yaml')!r}, "
+            "'--method', 'closedform', '-q']); "
+            "print(rc, len(calls))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == f"{EXIT_BAD_INPUT} 1"
