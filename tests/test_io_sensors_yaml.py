@@ -62,9 +62,18 @@ def test_scalars_written_alike(value):
 def test_characters_libyaml_escapes_written_by_pyyaml(char):
     """NEL and the characters beyond the Basic Multilingual Plane, which libyaml escapes where
     PyYAML may not: the text is PyYAML's."""
-    data = {"frame": f"a{char}b", "sensors": [], "note": "\\N and \\U written as such"}
+    data = {"frame": f"a{char}b", "sensors": []}
     assert dump_yaml(data) == dump_yaml(data, libyaml=False)
     assert ("\U0001F600" in dump_yaml(data)) == (char == "\U0001F600")      # (written as it is, not escaped)
+
+
+@needs_libyaml
+def test_backslash_escapes_spelt_out_in_a_plain_scalar_written_by_libyaml(monkeypatch):
+    """A backslash and N or U in a plain scalar is no escape: written as it is, by libyaml."""
+    data = {"frame": "map", "note": "\\N and \\U written as such", "sensors": [{"id": "a\\U0001F600"}]}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert "note: \\N and \\U written as such\n" in dump_yaml(data)
+    assert _written_by_libyaml(data, monkeypatch)
 
 
 @needs_libyaml
