@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pedcal.io.sensors_yaml import _CDumper, dump_yaml, flow_vector, read_sensors_yaml, sensors_yaml_text
+from pedcal.io.sensors_yaml import _CDumper, _Dumper, dump_yaml, flow_vector, read_sensors_yaml, sensors_yaml_text
 from pedcal.model import SensorExtrinsics, SensorNetwork
 
 needs_libyaml = pytest.mark.skipif(_CDumper is None, reason="PyYAML built without libyaml")
@@ -189,3 +189,6 @@ def test_factor_graph_s_calibrated_file_written_by_libyaml(tmp_path, monkeypatch
     write_sensors_yaml(network, tmp_path / "calibrated.yaml")
     text = (tmp_path / "calibrated.yaml").read_text()
     assert "position_covariance_m2" in text and "head_model" in text
+    monkeypatch.setattr(sensors_yaml, "_Dumper", _Dumper)
+    monkeypatch.setattr(sensors_yaml, "_CDumper", None)
+    assert sensors_yaml_text(network) == text
