@@ -568,17 +568,20 @@ def _warning_to_log(message, category, filename, lineno, file=None, line=None) -
 
 def main(argv: list[str] | None = None) -> int:
     previous = interrupts.install()      # Ctrl-C: one line, exit 130, from here on
+    code = None
     try:
         try:
             args = build_parser().parse_args(argv)
         except SystemExit as e:      # usage error (an option outside its domain...) or --help: the code
-            return e.code if isinstance(e.code, int) else EXIT_BAD_INPUT
+            code = e.code if isinstance(e.code, int) else EXIT_BAD_INPUT
+            return code
         configure_logging(quiet=args.log_quiet, verbose=args.verbose)
-        return _run(args)
+        code = _run(args)
+        return code
     finally:
         if not interrupts.running_the_command_line():   # a Ctrl-C while the process exits is one line too
             interrupts.restore(previous)
-        else:
+        elif code == 0:      # (after a failure the exit's collection still finalizes what the command left)
             _spare_the_last_collection()
 
 
@@ -605,12 +608,16 @@ def _loading():
 
 
 def _spare_the_last_collection() -> None:
-    """The process ends with this command: the objects the libraries made (NumPy, SciPy, pandas,
-    GTSAM: modules, classes, docstrings' caches) are moved out of the cycle collector's sight, so
-    that the interpreter's collections at exit do not walk them all again (0.1 s of CPU of a
-    1.5 s `pedcal calibrate`). Reference counting still frees them, atexit handlers and the
-    standard streams' flush still run; only cyclic garbage made before this point is left to the
-    operating system. Not for a library user's process (``main`` called from Python)."""
+    """The process ends with this command, which returned cleanly (exit code 0): the objects the
+    libraries made (NumPy, SciPy, pandas, GTSAM: modules, classes, docstrings' caches) are moved
+    out of the cycle collector's sight, so that the interpreter's collections at exit do not walk
+    them all again (0.1 s of CPU of a 1.5 s `pedcal calibrate`). Reference counting still frees
+    them, atexit handlers (``weakref.finalize``'s among them) and the standard streams' flush still
+    run. What is not finalized: cyclic garbage made before this point (objects in a reference
+    cycle nothing reaches any more) is left to the operating system, its ``__del__`` and weak
+    references' callbacks never run, so a file or writer left open in such a cycle is not flushed
+    or closed; hence only after a clean return, the command's outputs written and closed. Not for
+    a library user's process (``main`` called from Python)."""
     import gc
 
     gc.freeze()

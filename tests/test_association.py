@@ -288,6 +288,14 @@ def test_pooled_rigid_sse_is_the_fits_residuals():
     assert pooled_rigid_sse(p, bounds, q[0]).shape == ()
 
 
+def test_pooled_rigid_sse_of_no_group_is_zero():
+    from pedcal.calib.association import pooled_rigid_sse
+
+    rng = np.random.default_rng(5)
+    got = pooled_rigid_sse(rng.normal(size=(6, 3)), [0], rng.normal(size=(2, 4, 6, 3)))
+    np.testing.assert_array_equal(got, np.zeros((2, 4)))
+
+
 def test_segment_table_medians_are_each_segments():
     # segments of odd and even length, in scrambled order, an unexplained (infinite) residual
     from pedcal.calib.association import DEFAULT_PARAMS, _segment_columns, _segment_table, _SensorRows

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pedcal.io.sensors_yaml import _CDumper, dump_yaml, flow_vector, read_sensors_yaml, sensors_yaml_text
+from pedcal.io.sensors_yaml import _CDumper, _Dumper, dump_yaml, flow_vector, read_sensors_yaml, sensors_yaml_text
 from pedcal.model import SensorExtrinsics, SensorNetwork
 
 needs_libyaml = pytest.mark.skipif(_CDumper is None, reason="PyYAML built without libyaml")
@@ -26,7 +26,7 @@ def _calibrated_network() -> SensorNetwork:
     cov = rng.normal(size=(12, 12))
     net.extra["tracker_latency_s"] = 0.0946
     net.extra["head_model"] = {"vertical_offset_m": -0.1041, "estimated": True, "height_reference": "none",
-                               "note": "a note of 'quotes', \"double\" ones, colons: and # signs, μm and ± "
+                               "note": "a note of 'quotes', 5\" (inches), colons: and # signs, μm and ± "
                                        "long enough to be folded over several lines by the emitter " * 2}
     net.extra["position_covariance_m2"] = {"sensors": [s.id for s in sensors], "order": "x y z per sensor",
                                            "matrix": [flow_vector(r) for r in cov @ cov.T * 1e-4]}
@@ -35,11 +35,17 @@ def _calibrated_network() -> SensorNetwork:
 
 
 @needs_libyaml
-def test_calibrated_file_text_is_pyyaml_s(tmp_path):
+def test_calibrated_file_text_is_pyyaml_s(tmp_path, monkeypatch):
+    from pedcal.io import sensors_yaml
+
     net = _calibrated_network()
-    text = sensors_yaml_text(net)
-    data = yaml.safe_load(text)
-    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    with monkeypatch.context() as m:
+        m.setattr(sensors_yaml, "_Dumper", _RefusedDumper)      # (libyaml's text, none of the guard's cases)
+        text = sensors_yaml_text(net)
+    assert "matrix:\n  - [" in text                   # (the flow rows, compared as written)
+    with monkeypatch.context() as m:
+        m.setattr(sensors_yaml, "_CDumper", None)
+        assert sensors_yaml_text(net) == text
     # the same through the writer's own path, and it reads back
     (tmp_path / "out.yaml").write_text(text)
     back = read_sensors_yaml(tmp_path / "out.yaml")
@@ -62,9 +68,18 @@ def test_scalars_written_alike(value):
 def test_characters_libyaml_escapes_written_by_pyyaml(char):
     """NEL and the characters beyond the Basic Multilingual Plane, which libyaml escapes where
     PyYAML may not: the text is PyYAML's."""
-    data = {"frame": f"a{char}b", "sensors": [], "note": "\\N and \\U written as such"}
+    data = {"frame": f"a{char}b", "sensors": []}
     assert dump_yaml(data) == dump_yaml(data, libyaml=False)
     assert ("\U0001F600" in dump_yaml(data)) == (char == "\U0001F600")      # (written as it is, not escaped)
+
+
+@needs_libyaml
+def test_backslash_escapes_spelt_out_in_a_plain_scalar_written_by_libyaml(monkeypatch):
+    """A backslash and N or U in a plain scalar is no escape: written as it is, by libyaml."""
+    data = {"frame": "map", "note": "\\N and \\U written as such", "sensors": [{"id": "a\\U0001F600"}]}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert "note: \\N and \\U written as such\n" in dump_yaml(data)
+    assert _written_by_libyaml(data, monkeypatch)
 
 
 @needs_libyaml
@@ -72,3 +87,108 @@ def test_every_latin_and_greek_character_written_alike():
     for cp in range(0x20, 0x800):
         data = {"k": "a" + chr(cp) + "b"}
         assert dump_yaml(data) == dump_yaml(data, libyaml=False), hex(cp)
+
+
+def test_lone_surrogate_read_from_a_file_written_back_as_pyyaml_does(tmp_path, monkeypatch):
+    """libyaml's emitter cannot encode a lone surrogate (a "\\uDCFF" escape read from a file) and
+    raises; PyYAML's escapes it: the text is PyYAML's."""
+    from pedcal.io import sensors_yaml
+    from pedcal.io.sensors_yaml import write_sensors_yaml
+
+    (tmp_path / "in.yaml").write_text('frame: map\nsensors:\n- id: "s\\uDCFF"\n  position: [1.0, 2.0, 2.6]\n'
+                                      '  ypr_deg: [0.0, 0.0, 90.0]\n')
+    net = read_sensors_yaml(tmp_path / "in.yaml")
+    assert [s.id for s in net] == ["s\udcff"]
+    write_sensors_yaml(net, tmp_path / "out.yaml")
+    monkeypatch.setattr(sensors_yaml, "_CDumper", None)
+    assert (tmp_path / "out.yaml").read_text() == sensors_yaml_text(net)
+    assert '- id: "s\\uDCFF"\n' in sensors_yaml_text(net)
+
+
+class _PyYAMLEmitterUsed(Exception):
+    pass
+
+
+class _RefusedDumper(yaml.SafeDumper):
+    def __init__(self, *args, **kwargs):
+        raise _PyYAMLEmitterUsed
+
+
+def _written_by_libyaml(data, monkeypatch) -> bool:
+    """Whether dump_yaml writes ``data`` with libyaml's emitter alone (PyYAML's refused)."""
+    from pedcal.io import sensors_yaml
+
+    with monkeypatch.context() as m:
+        m.setattr(sensors_yaml, "_Dumper", _RefusedDumper)
+        try:
+            dump_yaml(data)
+        except _PyYAMLEmitterUsed:
+            return False
+    return True
+
+
+_TAME = list("abcXYZ019 .-_:#'") + ["é", "μ", "±", "漢字", "  ", "- ", ": ", " #", "yes", "null", "1e3", "~"]
+_WILD = _TAME + list("?[]{},&*!|>%@`\"\\=") + ["\t", "\n", "\r", "\r\n", "\x00", "\x07", "\x1b", "\x7f", "\x85",
+                 "\xa0", "\u2028", "\u2029", "\ufeff", "\U0001F600", "\U00010000", "\udcff", "0x1F"]
+
+
+def _random_string(rng: np.random.Generator) -> str:
+    """Short or long (past a key's 128 bytes), of the tame pieces alone half the time (libyaml's
+    to write, mostly), else of any (tabs, control characters, line breaks, quotes, NEL, astral
+    characters, a lone surrogate)."""
+    pieces = _TAME if rng.random() < 0.5 else _WILD
+    n = int(rng.integers(0, 12)) if rng.random() < 0.7 else int(rng.integers(40, 160))
+    return "".join(pieces[i] for i in rng.integers(0, len(pieces), size=n))
+
+
+@needs_libyaml
+@pytest.mark.parametrize("seed", range(4))
+def test_random_strings_as_values_and_keys_written_as_pyyaml_does(seed, monkeypatch):
+    rng = np.random.default_rng(seed)
+    by_libyaml = 0
+    for _ in range(100):
+        value, key = _random_string(rng), _random_string(rng)
+        data = {"frame": value, "sensors": [{"id": value, "position": flow_vector([1.0, 2.0, 2.6]),
+                                             "unobservable": flow_vector([]) if rng.random() < 0.5 else [value]}],
+                key: {key: [value, key]}, "k": value}
+        assert dump_yaml(data) == dump_yaml(data, libyaml=False), (value, key)
+        by_libyaml += _written_by_libyaml(data, monkeypatch)
+    assert by_libyaml >= 10         # (the guard lets libyaml write the plain ones)
+
+
+@needs_libyaml
+def test_empty_key_written_as_pyyaml_does(monkeypatch):
+    data = {"frame": "map", "extra": {"": 1.5, "b": {"": None}}}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert not _written_by_libyaml(data, monkeypatch)
+
+
+@needs_libyaml
+@pytest.mark.parametrize("key", ["k" * 101, "k" * 123, "k" * 128, "μ" * 65, "漢" * 43, "a" * 300],
+                         ids=lambda k: f"{len(k)}x{ord(k[0]):x}")
+def test_long_key_written_as_pyyaml_does(key, monkeypatch):
+    data = {"frame": "map", "sensors": [{key: 1, "id": "s01"}], "extra": {key: [1, 2]}}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert not _written_by_libyaml(data, monkeypatch)
+    short = {"frame": "map", "extra": {"k" * 100: 1, "μ" * 50: 2}}      # (100 bytes: libyaml's)
+    assert dump_yaml(short) == dump_yaml(short, libyaml=False) and _written_by_libyaml(short, monkeypatch)
+
+
+def test_factor_graph_s_calibrated_file_written_by_libyaml(tmp_path, monkeypatch):
+    """The guard leaves the factor graph's own output (covariance, head model, notes) to libyaml."""
+    from pedcal.calib import calibrate
+    from pedcal.io import sensors_yaml
+    from pedcal.io.sensors_yaml import write_sensors_yaml
+    from pedcal.sim import simulate_logs
+
+    if _CDumper is None:
+        pytest.skip("PyYAML built without libyaml")
+    with pytest.warns(Warning):
+        network = calibrate(simulate_logs("paper", seed=0).calib, "factorgraph").network
+    monkeypatch.setattr(sensors_yaml, "_Dumper", _RefusedDumper)
+    write_sensors_yaml(network, tmp_path / "calibrated.yaml")
+    text = (tmp_path / "calibrated.yaml").read_text()
+    assert "position_covariance_m2" in text and "head_model" in text
+    monkeypatch.setattr(sensors_yaml, "_Dumper", _Dumper)
+    monkeypatch.setattr(sensors_yaml, "_CDumper", None)
+    assert sensors_yaml_text(network) == text

@@ -334,17 +334,15 @@ def _pooled_rigid_sse_of(p: np.ndarray, bounds: list[int]):
     values of a call per group, to the bit, which the latency's bounded search, on a flat
     minimum, needs)."""
     groups = [(a, b, p[a:b] - p[a:b].mean(axis=0)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-    groups = [(a, b, pg, pg.T, float(np.sum(pg * pg))) for a, b, pg in groups]
+    groups = [(a, b, pg.T, float(np.sum(pg * pg))) for a, b, pg in groups]
 
     def sse(q: np.ndarray) -> np.ndarray:
         lead = q.shape[:-2]
         q = q.reshape(-1, q.shape[-2], 3)
         total = np.zeros(len(q))
-        if not groups:
-            return total.reshape(lead)
         H = np.empty((len(groups), len(q), 3, 3))
         spread = []
-        for g, (a, b, _, pg_t, pp) in enumerate(groups):
+        for g, (a, b, pg_t, pp) in enumerate(groups):
             qg = q[:, a:b, :]
             qg = qg - qg.mean(axis=1, keepdims=True)
             H[g] = pg_t @ qg                               # (L, 3, 3)

@@ -90,6 +90,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             from pedcal.calib.association import associate_robot
 
             assoc = associate_robot(log, progress=progress, **association_params)
+            head_at = head_interpolator(log)
             is_robot = assoc.is_robot
             diagnostics.association_runtime_s = assoc.runtime_s
             if latency_s is None:
@@ -100,14 +101,14 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                 raise PedcalInputError(f"is_robot must be a boolean mask with one entry per observation "
                                        f"({len(log.observations)}), got dtype {is_robot.dtype} and shape "
                                        f"{is_robot.shape}", path=log.path)
+            head_at = head_interpolator(log)
             if latency_s is None:
-                latency_s = estimate_latency(log, is_robot)
+                latency_s = estimate_latency(log, is_robot, head_at=head_at)
         diagnostics.tracker_latency_s = float(latency_s)
 
         sensor_col = log.observations["sensor"].astype(str).to_numpy()
         p_sensor_all = log.observation_points_sensor()
         t_all = log.observations["t"].to_numpy(float)
-        head_at = head_interpolator(log)
         # robot observations past either end of robot.csv have no AMCL position to pair with
         robot_t = log.robot["t"].to_numpy(float)
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())

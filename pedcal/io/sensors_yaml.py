@@ -16,6 +16,7 @@ as the integer 1) and matches the ``sensor`` column of observations.csv, which i
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -342,17 +343,58 @@ def flow_vector(values) -> _FlowList:
     return _FlowList(float(v) for v in np.asarray(values, dtype=float).reshape(-1))
 
 
+# where libyaml's text is not PyYAML's: a double-quoted scalar opens (libyaml escapes NEL as \N and
+# the characters beyond the Basic Multilingual Plane as \U... that PyYAML writes as they are, and
+# breaks long ones elsewhere), at a line's start (past its sequences' dashes), after a key or a
+# flow collection's bracket or comma; a quote inside a plain or single-quoted scalar may match too,
+# which only costs PyYAML's emitter's time
+_DOUBLE_QUOTED = re.compile(r'(?:^ *(?:- )*|: |\? |\[|, )"', re.M)
+# PyYAML writes a key of 123 characters or more as "? key", libyaml one of more than 128 bytes (UTF-8):
+# a key longer than this (in bytes) is left to PyYAML
+_LONG_KEY_BYTES = 100
+
+
+def _keys_libyaml_writes_otherwise(data) -> bool:
+    """A mapping key in ``data`` (dicts and lists walked, not the flow rows of numbers) that is
+    empty or longer than ``_LONG_KEY_BYTES`` in UTF-8, or binary: libyaml and PyYAML write it
+    differently (an empty key, or a long one as "? key" in one and not the other)."""
+    stack, seen = [data], set()
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, dict):
+            keys = node.keys()
+            stack.extend(node.values())
+        elif isinstance(node, (set, frozenset)):      # (written as a mapping of its elements)
+            keys = node
+        elif isinstance(node, list) and not isinstance(node, _FlowList):
+            stack.extend(node)
+            continue
+        else:
+            continue
+        for k in keys:
+            if isinstance(k, (bytes, bytearray)) or k == "" or (
+                    len(str(k).encode("utf-8", "surrogatepass")) > _LONG_KEY_BYTES):
+                return True
+    return False
+
+
 def dump_yaml(data: dict, *, libyaml: bool = True) -> str:
     """``data`` as block-style YAML, keys in their order; by libyaml's emitter where PyYAML has it
-    (``libyaml=False``: PyYAML's own), the same text: libyaml escapes the characters beyond the
-    Basic Multilingual Plane (\\U...) and NEL (\\N) that PyYAML writes as they are, so a text
-    with either escape is written again by PyYAML's emitter."""
+    (``libyaml=False``: PyYAML's own), the same text: a text libyaml would write otherwise (a
+    double-quoted scalar, an empty or long key, a lone surrogate it cannot encode) is written by
+    PyYAML's emitter."""
     def dump(dumper):
         return yaml.dump(data, Dumper=dumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
 
-    if libyaml and _CDumper is not None:
-        text = dump(_CDumper)
-        if "\\U" not in text and "\\N" not in text:
+    if libyaml and _CDumper is not None and not _keys_libyaml_writes_otherwise(data):
+        try:
+            text = dump(_CDumper)
+        except UnicodeEncodeError:      # a lone surrogate (a "\uDCFF" escape read from a file): PyYAML escapes it
+            text = None
+        if text is not None and not _DOUBLE_QUOTED.search(text):
             return text
     return dump(_Dumper)
 
