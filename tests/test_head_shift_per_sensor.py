@@ -62,16 +62,10 @@ def test_a_departure_moves_its_own_sensors_points_toward_the_sensor_alone():
     np.testing.assert_allclose(out[2:], -0.03 * prob.fac_toward_sensor[2:])
 
 
-def _toward(p_sensor, truth, delta_m):
-    """A head point moved ``delta_m`` horizontally toward the sensor (sensor frame)."""
-    return delta_m * toward_sensor_horizontal(p_sensor, truth.R_world_sensor)
-
-
-def _shifted_log(seed: int, move=_toward, **overrides):
+def _shifted_log(seed: int, **overrides):
     """The paper's room (with a third of the sensors on walls, a one-sided view, unless
     ``overrides`` say otherwise) and every sensor's tracker shifting the robot's head point
-    toward it by its own 3 cm, either way (``move(p_sensor, true extrinsics, +-0.03)``: the
-    sensor-frame move, by default horizontally toward the sensor)."""
+    toward it by its own 3 cm, either way."""
     sim = simulate_logs("paper", seed=seed, **(overrides or dict(wall_mounted_fraction=0.3,
                                                                   sensor_height_range_m=[2.6, 4.5])))
     log = sim.calib
@@ -85,7 +79,7 @@ def _shifted_log(seed: int, move=_toward, **overrides):
         m = (sensor == sid) & robot
         # (the log's points are in the world of the installed extrinsics: to the sensor's frame and back)
         p = log.sensors[sid].to_sensor(P[m])
-        P[m] = log.sensors[sid].to_world(p + move(p, log.truth[sid], delta[sid]))
+        P[m] = log.sensors[sid].to_world(p + delta[sid] * toward_sensor_horizontal(p, log.truth[sid].R_world_sensor))
     obs[["x", "y", "z"]] = P
     return sim, delta
 

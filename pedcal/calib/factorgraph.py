@@ -77,7 +77,6 @@ from pedcal.calib.headpoint import (
     considered_nuisances,
     considered_rms,
     head_profile_nuisances,
-    head_ray_shift_sensor,
     is_head_profile,
     is_sensor_shift,
     leave_out,
@@ -85,7 +84,6 @@ from pedcal.calib.headpoint import (
     row_clusters,
     row_sensors,
     select_head_profile,
-    sensor_ray_shift_nuisances,
     sensor_shift_nuisances,
 )
 from pedcal.calib.keys import symbol_parts, symbols
@@ -234,10 +232,8 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     row_of_pose = np.full(len(times), -1)
     row_of_pose[k[has]] = np.flatnonzero(has)
     use = prob.fac_key_index < len(times)
-    # the head top, sensor frame (the shared ray shift and each sensor's own dome)
-    own_lift, own_range = head_ray_shift_sensor(prob, {}, np.arange(len(prob.fac_p_sensor)), result)
-    p = prob.head_points_sensor() + own_lift
-    p = p * (1.0 + (prob.ray_shift_m + own_range) / np.linalg.norm(p, axis=1))[:, None]
+    p = prob.head_points_sensor()
+    p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]        # the head top, sensor frame
     per_sensor = []
     for i, m in _groups(np.where(use, prob.fac_sensor_index, len(prob.sensor_ids)), len(prob.sensor_ids)):
         rows = row_of_pose[prob.fac_key_index[m]]
@@ -480,7 +476,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         local_nuis = local_nuis + sensor_shift_nuisances(prob)
     else:
         nuis += sensor_shift_nuisances(prob)
-    nuis += sensor_ray_shift_nuisances(prob)     # each sensor's own dome (a random effect; off by default)
     # (the shift against distance is chosen among its shapes; the random effect's departures are
     # no candidates, and without a profile there is nothing to choose: no rows labelled for it)
     select_profile = bool(profile_nuis)
@@ -528,8 +523,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                      lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
         rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
         # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
-        # and so does its own departure of the horizontal shift (its dome's, taken about the
-        # sensors' mean, enters every sensor's)
+        # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
                      if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
@@ -749,8 +743,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])[si]
     t = np.stack([result.atPose3(S(i)).translation() for i in range(len(prob.sensor_ids))])[si]
     p_pred = np.einsum("nji,nj->ni", R, xk[prob.fac_key_index[use]] - t)
-    own_lift, own_range = head_ray_shift_sensor(prob, {}, use, result)
-    p_meas = prob.head_points_sensor()[use] + own_lift
+    p_meas = prob.head_points_sensor()[use]
     r_meas = np.linalg.norm(p_meas, axis=1)
     u = p_meas / r_meas[:, None]
     r_pred = np.linalg.norm(p_pred, axis=1)
@@ -763,7 +756,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     sig = (observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1))
            / np.sqrt(prob.fac_count[use])[:, None])
     return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
-                            (r_pred - r_meas - prob.ray_shift_m - own_range) / sig[:, 2]])
+                            (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
 
 
 def _groups(index: np.ndarray, n: int):

@@ -102,7 +102,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.common import head_world, interpolate_pose2
-from pedcal.calib.headpoint import head_profile_shift_sensor, head_ray_shift_sensor, horizontal_distance
+from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
     RobotMotion,
@@ -741,14 +741,11 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
         # shift vs distance (pedcal.calib.headpoint)
         p_obs = p_obs + head_profile_shift_sensor(prob, theta, use, reg.toward_sensor, reg.distance_m)
-        # each sensor's own dome beside the shared one (pedcal.calib.headpoint)
-        own_lift, own_range = head_ray_shift_sensor(prob, theta, use, values)
-        p_obs = p_obs + own_lift
         sensor.append(prob.fac_sensor_index[use])
         target.append(prob.fac_key_index[use])
         is_pose.append(np.ones(len(use), bool))
         p_all.append(p_obs)
-        r_all.append(np.linalg.norm(p_obs, axis=1) + rho + own_range)
+        r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
         noise_r.append(reg.noise_range_m)
         noise_count.append(np.asarray(prob.fac_count[use], int))
     if rec.people:

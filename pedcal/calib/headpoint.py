@@ -39,13 +39,11 @@ import numpy as np
 import scipy.sparse as sps
 from scipy.special import ndtri
 
-from pedcal.calib.keys import S
 from pedcal.calib.profile import Nuisance, ProfileStep
 from pedcal.errors import PedcalInputError
 
 PREFIX = "head_profile_m:"            # nuisance names: PREFIX + knot index (1..m)
 SENSOR_PREFIX = "head_shift_sensor_m:"  # a sensor's own departure from the shared shift: + sensor id
-RAY_SENSOR_PREFIX = "head_ray_shift_sensor_m:"  # a sensor's own departure from the shared ray shift: + id
 SLOPE = "head_profile_slope_m"        # a one-parameter shape's amplitude (m; the line's rise from d_0 to d_m)
 MODES = ("off", "cv", "bic", "linear", "knots")
 STEP_M = 0.01                         # finite-difference step of the profile (they enter linearly)
@@ -58,9 +56,7 @@ KNOT_QUANTILES_END = 0.05             # the end knots at these quantiles of d (t
 
 
 def is_head_profile(name: str) -> bool:
-    """Whether ``name`` is one of this module's nuisances (recorded in the head model's profile or
-    per-sensor maps, not as a field of its own)."""
-    return name.startswith((PREFIX, SENSOR_PREFIX, RAY_SENSOR_PREFIX)) or name == SLOPE
+    return name.startswith(PREFIX) or name.startswith(SENSOR_PREFIX) or name == SLOPE
 
 
 def horizontal_distance(p_sensor: np.ndarray, toward_sensor: np.ndarray) -> np.ndarray:
@@ -142,16 +138,16 @@ def head_profile_nuisances(prob) -> list[Nuisance]:
     return out
 
 
-def _departures(prob, min_factors: int, sigma: float, prefix: str = SENSOR_PREFIX) -> list[Nuisance]:
-    """Each sensor's own departure delta_s from the shared horizontal shift (``prefix``: from
-    another shared shift), prior 0 +- ``sigma``, for the sensors with at least ``min_factors``
-    robot-observation factors (each starts at 0 on ``prob`` the first time)."""
+def _departures(prob, min_factors: int, sigma: float) -> list[Nuisance]:
+    """Each sensor's own departure delta_s from the shared horizontal shift, prior 0 +- ``sigma``,
+    for the sensors with at least ``min_factors`` robot-observation factors (each starts at 0 on
+    ``prob`` the first time)."""
     n_pose = len(prob.pose_times)
     counts = np.bincount(prob.fac_sensor_index[prob.fac_key_index < n_pose], minlength=len(prob.sensor_ids))
     out = []
     for i, sid in enumerate(prob.sensor_ids):
         if counts[i] >= min_factors:
-            name = prefix + sid
+            name = SENSOR_PREFIX + sid
             setattr(prob, name, float(getattr(prob, name, 0.0)))
             out.append(Nuisance(name, 0.0, sigma, STEP_M))
     return out
@@ -230,63 +226,6 @@ def sensor_shift_nuisances(prob) -> list[Nuisance]:
             or rec.head_horizontal_shift_sigma_m <= 0.0 or prob.fac_sensor_index is None):
         return []
     return _departures(prob, 1, sigma)
-
-
-def sensor_ray_shift_nuisances(prob) -> list[Nuisance]:
-    """Each sensor's own dome departure rho_s from the shared ray shift, a random effect (recipe
-    ``head_ray_shift_per_sensor_sigma_m`` > 0): a tracker whose dome is larger or smaller than
-    the others' reports a point rho_s farther along the ray toward the sensor and rho_s lower
-    (:func:`head_ray_shift_sensor`), the shared model's own prior (offset = -shift) for one
-    sensor. Seen obliquely its horizontal part, rho_s cos(e), and its vertical part,
-    -rho_s (1 - sin e), change with the elevation e: the sensor's own horizontal departure holds
-    the first's mean, its height the second's, and what is left tilts the sensor, moving it along
-    its view axis. Every sensor that saw the robot gets one, prior 0 +- that sigma; only the
-    robot's observations take them (like the horizontal departure). [] when off, without the
-    head model's ray shift, or without robot observations."""
-    rec = prob.recipe
-    sigma = rec.head_ray_shift_per_sensor_sigma_m
-    if sigma < 0.0:
-        raise PedcalInputError(f"head_ray_shift_per_sensor_sigma_m must be 0 (off) or positive, got {sigma}",
-                               column="head_ray_shift_per_sensor_sigma_m")
-    if (sigma == 0.0 or not rec.robot or not rec.estimate_head_model or rec.head_ray_shift_sigma_m <= 0.0
-            or prob.fac_sensor_index is None):
-        return []
-    return _departures(prob, 1, sigma, RAY_SENSOR_PREFIX)
-
-
-def is_sensor_ray_shift(name: str) -> bool:
-    """Whether ``name`` is a sensor's own departure of the ray shift."""
-    return name.startswith(RAY_SENSOR_PREFIX)
-
-
-def sensor_ray_departures(prob, theta: dict | None = None) -> np.ndarray:
-    """(n_sensors,) each sensor's dome departure from the shared ray shift (m; 0 for one without
-    its own), ``theta`` overriding by name, taken about their mean over the sensors that have
-    one: a departure shared by every sensor is the shared ray shift's (with its vertical offset,
-    which the prior ties to it: the two would trade along a direction the data cannot see,
-    where only the priors would hold them)."""
-    theta = theta or {}
-    names = [RAY_SENSOR_PREFIX + sid for sid in prob.sensor_ids]
-    has = np.array([name in theta or hasattr(prob, name) for name in names], bool)
-    own = np.array([float(theta.get(n, getattr(prob, n, 0.0))) for n in names])
-    return np.where(has, own - own[has].mean(), 0.0) if has.any() else own
-
-
-def head_ray_shift_sensor(prob, theta: dict, use: np.ndarray,
-                          values: gtsam.Values | None = None) -> tuple[np.ndarray | float, np.ndarray | float]:
-    """What the sensors' own dome departures (:func:`sensor_ray_departures`) do to the
-    robot-observation factors ``use`` (indices or a mask): (the reported point moved, sensor
-    frame (N, 3) m; the range added, (N,) m). The head top is rho_s farther along the ray than
-    the reported point (+ rho_s on the range) and rho_s higher than the dome's point (+ rho_s
-    times the world's up in the sensor's frame, R^T e_z, R the sensor's rotation in ``values``,
-    else the one the factors were carried with). (0, 0) when none is set."""
-    own = sensor_ray_departures(prob, theta)
-    if not np.any(own):
-        return 0.0, 0.0
-    up = np.stack([(values.atPose3(S(i)).rotation().matrix() if values is not None and values.exists(S(i))
-                    else np.asarray(prob._rotations[sid], float))[2, :] for i, sid in enumerate(prob.sensor_ids)])
-    index = prob.fac_sensor_index[use]
-    return own[index][:, None] * up[index], own[index]
 
 
 def is_sensor_shift(name: str) -> bool:
@@ -695,5 +634,4 @@ __all__ = ["record_head_profile", "head_profile_nuisances", "head_profile_shift_
            "profile_record", "departures_record", "is_head_profile", "hats", "horizontal_distance", "shift_at",
            "line_of_knots", "shapes",
            "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
-           "knot_values", "sensor_shift_nuisances", "is_sensor_shift", "sensor_ray_shift_nuisances",
-           "is_sensor_ray_shift", "sensor_ray_departures", "head_ray_shift_sensor", "RAY_SENSOR_PREFIX"]
+           "knot_values", "sensor_shift_nuisances", "is_sensor_shift"]

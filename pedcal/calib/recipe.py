@@ -93,17 +93,6 @@ class GraphRecipe:
     # by default: on the zoo (20 seeds, five scenes) it takes the horizontal RMS down 1-5 mm and
     # the within-1-sigma shares up (README)
     head_shift_per_sensor_sigma_m: float = 0.02
-    # each sensor's own dome beside the shared one, a random effect beside the horizontal
-    # departure (pedcal.calib.headpoint.sensor_ray_shift_nuisances: the point along the ray and
-    # down alike, about the sensors' mean), prior 0 +- this (m; 0: off; 0.03 is the spread of a
-    # dome's radius between trackers, which the zoo's per-sensor logs confirm): a tracker whose
-    # dome differs from the others' moves its point by amounts that change with the elevation,
-    # tilting the sensor along its view axis. Off by default: on the zoo (five scenes) it takes
-    # the horizontal RMS down 0.9 mm on seeds 0-9 and 1.1 mm on 10-19, the vertical unchanged,
-    # but sparse's up 0.6 mm on seeds 0-9, and the held-out generator's up 0.9 mm (README). The
-    # domes shape the solve only: the calibrated YAML's head model and evaluate's reprojection
-    # hold the shared one
-    head_ray_shift_per_sensor_sigma_m: float = 0.0
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
     # auto (estimated when its profile chi^2 reaches head_curvature_select_chi2) or widen (the
