@@ -11,22 +11,27 @@ and the offset the graph's estimated model gives (vertical offset, ray shift, ho
 the sensor's own departure of it, curvature: ``result.diagnostics.head_model``); their
 difference d (world, m) is what the graph takes for the head top's error. A sensor pose moved by
 a small rigid motion (omega about its centre c, translation tau) explains d_k by
-omega x (x_k - c) + tau: the weighted least-squares tau (each sighting whitened by its range
-and lateral sigma, recipe defaults) is the position error the misfit predicts, were the robot's
-path and the other sensors held. That prediction is split by the misfit's parts, each fitted
-alone (the fit is linear, so they add up): the horizontal part of d toward the sensor (its
-per-sensor mean, ``radial const``, and what varies with distance, ``radial var``), across, and
-vertical. The sensors' errors and predictions are taken about their mean over the log (the
-"rest": the common shift is AMCL's) and projected on each sensor's view axis (the mean
-horizontal unit from the sensor to its sightings of the robot) and across it.
+omega x (x_k - c) + tau: the weighted least-squares tau (each sighting whitened by the graph's
+own range and lateral sigmas, :func:`pedcal.calib.recipe.observation_sigmas` of the recipe
+defaults, far_factor past the reliable range included) is the position error the misfit
+predicts, were the robot's path and the other sensors held. That prediction is split by the
+misfit's parts, each fitted alone (the fit is linear, so they add up): the horizontal part of d
+toward the sensor (its per-sensor mean, ``radial const``, and what varies with distance,
+``radial var``) and the vertical part. d has no part across: every simulated head model and the
+graph's own move the head point within the vertical plane through the sensor and the head top
+(the largest across part found is printed as a check). The sensors' errors and predictions are
+taken about their mean over the log (the "rest": the common shift is AMCL's) and projected on
+each sensor's view axis (the mean horizontal unit from the sensor to its sightings of the
+robot) and across it.
 
 Printed: per log and pooled, the RMS of the actual rest error along and across the view axis,
 of the prediction and of each part, the regression slope and R^2 of actual on predicted, and of
 actual on the error of the graph's per-sensor horizontal shift (estimated less the truth's
-per-sensor mean offset toward the sensor). The prediction reads the graph's head model as
-``result.diagnostics.head_model`` records it: without the sensors' own ray shifts
-(``head_ray_shift_per_sensor_sigma_m``), which it does not record, so with them on only the
-actual errors are comparable. Figures only; no assertion.
+per-sensor mean offset toward the sensor); what a sensor's own horizontal shift, ray shift or
+both, free beside its pose, would leave of the predicted leak, and the variance they cost; and
+by the sensors' head-point kind (:data:`pedcal.sim.nuisances.HEAD_KINDS`), the actual rest
+error, the predicted leak and what those own shifts would leave of it. Figures only; no
+assertion.
 """
 
 from __future__ import annotations
@@ -43,7 +48,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_factorgraph_nuisances import recipe_overrides  # noqa: E402
 
-PARTS = ("radial const", "radial var", "across", "vertical")
+PARTS = ("radial const", "radial var", "vertical")
+EXTRAS = ("h", "ray", "h+ray")
 
 
 def rigid_translation(x: np.ndarray, d: np.ndarray, c: np.ndarray, w: np.ndarray,
@@ -77,19 +83,22 @@ def rigid_translation(x: np.ndarray, d: np.ndarray, c: np.ndarray, w: np.ndarray
 
 
 def whitening(x: np.ndarray, c: np.ndarray, rec) -> np.ndarray:
-    """(N, 3, 3) rows whitening a sighting's error: range sigma along the ray from ``c``,
-    the lateral sigma across it (recipe ``rec``'s noise model)."""
+    """(N, 3, 3) rows whitening a sighting's error: the range sigma along the ray from ``c``,
+    the lateral sigma across it (recipe ``rec``'s noise model, as the graph weighs them)."""
+    from pedcal.calib.recipe import observation_sigmas
+
     ray = x - c
     rng = np.linalg.norm(ray, axis=1)
     u = ray / rng[:, None]
-    s_r = rec.range_sigma_floor_m + rec.range_sigma_k_per_m * rng ** 2
+    sig = observation_sigmas(rec, rng)
+    s_r, s_lat = sig[:, 2], sig[:, 0] * rng          # the bearing sigma as a distance across the ray
     P = np.einsum("ni,nj->nij", u, u)
-    return P / s_r[:, None, None] + (np.eye(3) - P) / rec.lateral_sigma_m
+    return P / s_r[:, None, None] + (np.eye(3) - P) / s_lat[:, None, None]
 
 
 def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
     from pedcal.calib import calibrate
-    from pedcal.calib.common import interpolate_pose2
+    from pedcal.calib.common import head_world, interpolate_pose2
     from pedcal.calib.recipe import GraphRecipe
     from pedcal.metrics import robot_rows
     from pedcal.sim import simulate_logs
@@ -115,10 +124,7 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
     offset, _ = sensor_clocks(sc, len(log.truth))
     t = obs["t"].to_numpy(float) - sc.latency_s - offset[k_sensor]
     pose = interpolate_pose2(log.truth_robot, t)
-    off = np.asarray(sc.head_offset_m, float)
-    cs, sn = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-    top = np.column_stack([pose[:, 0] + cs * off[0] - sn * off[1], pose[:, 1] + sn * off[0] + cs * off[1],
-                           np.full(len(t), off[2])])
+    top = head_world(pose, sc.head_offset_m)
     rows = []
     for sid in log.truth.ids:
         mine = sensors == sid
@@ -140,8 +146,8 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
         d = est_off - true_off          # what the graph takes for the head top's displacement
         radial = np.sum(d * u_h, axis=1)
         across_u = np.column_stack([-u_h[:, 1], u_h[:, 0], np.zeros(len(u_h))])
+        across_max = float(np.max(np.abs(np.sum(d * across_u, axis=1))))
         parts = {"radial const": radial.mean() * u_h, "radial var": (radial - radial.mean())[:, None] * u_h,
-                 "across": np.sum(d * across_u, axis=1)[:, None] * across_u,
                  "vertical": d[:, 2:3] * np.array([0.0, 0.0, 1.0])}
         w = whitening(x, c, rec)
         # the sensor moves so that its sightings land on the graph's head top: by -d, rigidly
@@ -166,7 +172,7 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
                          view=(view / max(np.linalg.norm(view), 1e-9)).tolist(), one_sided=one_sided,
                          dist_m=float(np.median(dist_h)), true_radial_m=true_radial,
                          est_radial_m=float(np.mean(np.sum((est_off - (q - x)) * u_h, axis=1))),
-                         shift_est_m=float(hs), n=int(mine.sum())))
+                         shift_est_m=float(hs), across_max_m=across_max, n=int(mine.sum())))
     return dict(scenario=scenario, seed=seed, cpu_s=cpu, rows=rows,
                 head=dict(vertical=head.vertical_offset_m, ray=head.ray_shift_m, horizontal=head.horizontal_shift_m,
                           curvature=head.curvature_m))
@@ -184,57 +190,77 @@ def along_across(rows: list[dict], key, sub=None, leaf=None) -> np.ndarray:
 def fit(y: np.ndarray, x: np.ndarray) -> tuple[float, float]:
     """Slope through 0 and R^2 (about 0) of y on x."""
     sxx = float(np.sum(x * x))
-    if sxx <= 0:
+    if sxx <= 1e-12 * max(float(np.sum(y * y)), 1e-30):     # x nil against y: no slope to read
         return float("nan"), float("nan")
     b = float(np.sum(x * y)) / sxx
     return b, 1.0 - float(np.sum((y - b * x) ** 2)) / max(float(np.sum(y * y)), 1e-30)
 
 
+def rms_mm(v: np.ndarray) -> np.ndarray:
+    """RMS over the rows (axis 0), in mm."""
+    return 1000 * np.sqrt(np.mean(v ** 2, axis=0))
+
+
 def summarize(results: list[dict]) -> None:
+    from pedcal.sim.nuisances import HEAD_KINDS
+
     act, pred, parts, shift_err = [], [], {p: [] for p in PARTS}, []
-    print("| log | sensors | rest along / across (mm) | predicted along / across | radial const | radial var | "
-          "across | vertical | CPU (s) |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for r in results:
+    extras = {e: [] for e in EXTRAS}
+    kinds = []
+    print("| log | sensors | rest along / across (mm) | predicted along / across | "
+          + " | ".join(PARTS) + " | CPU (s) |")
+    print("|---|---|---|---|" + "---|" * len(PARTS) + "---|")
+    used = [r for r in results if len(r["rows"]) >= 2]
+    for r in used:
         rows = r["rows"]
-        if len(rows) < 2:
-            continue
         a, p = along_across(rows, "err"), along_across(rows, "pred")
         pp = {q: along_across(rows, "parts", q) for q in PARTS}
         act.append(a)
         pred.append(p)
         for q in PARTS:
             parts[q].append(pp[q])
+        for e in EXTRAS:
+            extras[e].append(along_across(rows, "extra", e, "pred"))
+        kinds += [x["kind"] for x in rows]
         se = np.array([x["shift_est_m"] - x["true_radial_m"] for x in rows])
         shift_err.append(se - se.mean())
-
-        def rms(v):
-            return 1000 * np.sqrt(np.mean(v ** 2, axis=0))
-
-        ra, rp = rms(a), rms(p)
+        ra, rp = rms_mm(a), rms_mm(p)
         print(f"| {r['scenario']} {r['seed']} | {len(rows)} | {ra[0]:.1f} / {ra[1]:.1f} | {rp[0]:.1f} / {rp[1]:.1f} | "
-              + " | ".join(f"{rms(pp[q])[0]:.1f} / {rms(pp[q])[1]:.1f}" for q in PARTS) + f" | {r['cpu_s']:.1f} |")
+              + " | ".join(f"{rms_mm(pp[q])[0]:.1f} / {rms_mm(pp[q])[1]:.1f}" for q in PARTS)
+              + f" | {r['cpu_s']:.1f} |")
     A, P = np.concatenate(act), np.concatenate(pred)
-    print(f"\npooled over {len(A)} sensors of {len(act)} logs (mm RMS; slope, R^2 of actual on predicted):")
+    X = {e: np.concatenate(v) for e, v in extras.items()}
+    kinds = np.array(kinds)
+    across_max = max(x["across_max_m"] for r in used for x in r["rows"])
+    print(f"\npooled over {len(A)} sensors of {len(act)} logs (mm RMS; slope, R^2 of actual on predicted; "
+          f"largest misfit across the sensor's vertical plane {1000 * across_max:.1g} mm):")
     for ax, name in ((0, "along the view axis"), (1, "across")):
         b, r2 = fit(A[:, ax], P[:, ax])
-        print(f"  {name}: actual {1000 * np.sqrt(np.mean(A[:, ax] ** 2)):.1f}, predicted "
-              f"{1000 * np.sqrt(np.mean(P[:, ax] ** 2)):.1f}, slope {b:.2f}, R^2 {r2:.2f}")
+        print(f"  {name}: actual {rms_mm(A[:, ax]):.1f}, predicted {rms_mm(P[:, ax]):.1f}, slope {b:.2f}, R^2 {r2:.2f}")
         for q in PARTS:
             Q = np.concatenate(parts[q])[:, ax]
             b, r2 = fit(A[:, ax], Q)
-            print(f"    part {q:12s}: {1000 * np.sqrt(np.mean(Q ** 2)):5.1f} mm, slope {b:+.2f}, R^2 {r2:+.2f}")
-    for name in ("h", "ray", "h+ray"):
-        X = np.concatenate([along_across(r["rows"], "extra", name, "pred") for r in results if len(r["rows"]) >= 2])
-        vif = np.array([x["extra"][name]["vif"] for r in results if len(r["rows"]) >= 2 for x in r["rows"]])
-        print(f"  the sensor's own {name:5s} free beside its pose: predicted leak left along / across "
-              f"{1000 * np.sqrt(np.mean(X[:, 0] ** 2)):.1f} / {1000 * np.sqrt(np.mean(X[:, 1] ** 2)):.1f} mm; "
+            print(f"    part {q:12s}: {rms_mm(Q):5.1f} mm, slope {b:+.2f}, R^2 {r2:+.2f}")
+    for e in EXTRAS:
+        vif = np.array([x["extra"][e]["vif"] for r in used for x in r["rows"]])
+        print(f"  the sensor's own {e:5s} free beside its pose: predicted leak left along / across "
+              f"{rms_mm(X[e][:, 0]):.1f} / {rms_mm(X[e][:, 1]):.1f} mm; "
               f"its variance inflation along the view axis median {np.median(vif):.1f}, 90th percentile "
               f"{np.quantile(vif, 0.9):.1f}")
     S = np.concatenate(shift_err)
     b, r2 = fit(A[:, 0], -S)
     print(f"  along the view axis on -(per-sensor shift estimated - true mean radial offset), rest: "
-          f"RMS {1000 * np.sqrt(np.mean(S ** 2)):.1f} mm, slope {b:.2f}, R^2 {r2:.2f}")
+          f"RMS {rms_mm(S):.1f} mm, slope {b:.2f}, R^2 {r2:.2f}")
+    print("\nby the sensor's head-point kind (mm RMS of the rest, along / across the view axis; the leak "
+          "predicted, and what it leaves with the sensor's own shifts free):")
+    print("| kind | sensors | actual | predicted | " + " | ".join(f"left, own {e}" for e in EXTRAS) + " |")
+    print("|---|---|---|---|" + "---|" * len(EXTRAS))
+    for kind in HEAD_KINDS:
+        m = kinds == kind
+        if not m.any():
+            continue
+        cells = [rms_mm(A[m]), rms_mm(P[m])] + [rms_mm(X[e][m]) for e in EXTRAS]
+        print(f"| {kind} | {int(m.sum())} | " + " | ".join(f"{v[0]:.1f} / {v[1]:.1f}" for v in cells) + " |")
 
 
 def main() -> None:
