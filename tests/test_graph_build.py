@@ -299,6 +299,45 @@ def test_optimize_graph_stops_on_the_predicted_remaining_decrease(first_solve):
     assert fg.error(ours) == pytest.approx(errors[2], rel=1e-12)
 
 
+def _replayed_errors(errors):
+    """A stand-in for GTSAM's Gauss-Newton optimizer whose error after k iterations is
+    ``errors[k]`` (the last one from then on); its values never move."""
+    class Replayed:
+        def __init__(self, fg, values, params):
+            self.k, self.v = 0, values
+
+        def iterate(self):
+            self.k += 1
+
+        def error(self):
+            return errors[min(self.k, len(errors) - 1)]
+
+        def values(self):
+            return self.v
+    return Replayed
+
+
+@pytest.mark.parametrize("errors, lm_stops_at, stops_at", [
+    # theta 0.5: the remainder is the second decrease itself, 20 > 1.5 % of 1000 (where theta
+    # alone, 10, would stop), so both stop at the third, 10 <= 1.5 % of 1000
+    ([1060.0, 1020.0, 1000.0, 990.0, 985.0, 982.5], 3, 3),
+    # theta 0.4: 2/3 of the second decrease to come, 13.3 <= 1.5 % of 1000 = 15, where LM's
+    # test on the decrease itself (20 > 15.3) needs one iteration more
+    ([1070.0, 1020.0, 1000.0, 992.0, 989.0], 3, 2),
+    # a growing decrease (theta 1.5): no prediction (the series' sum, negative, is no bound);
+    # LM's test alone
+    ([1000.0, 960.0, 900.0, 899.0, 898.99], 3, 3),
+])
+def test_predicted_stop_sums_the_geometric_series_of_the_decreases(monkeypatch, errors, lm_stops_at, stops_at):
+    # the error sequences scripted: the stop at theta / (1 - theta) of the last decrease, theta
+    # its ratio to the one before, against 1.5 % of the error, and LM's own test beside it
+    monkeypatch.setattr(gtsam, "GaussNewtonOptimizer", _replayed_errors(errors))
+    counts = [optimize_graph(gtsam.NonlinearFactorGraph(), gtsam.Values(), GraphRecipe(), max_iterations=10,
+                             gauss_newton_step=False, relative_error_tol=0.015, ordering=gtsam.Ordering(),
+                             predicted_stop=predicted)[1] for predicted in (False, True)]
+    assert counts == [lm_stops_at, stops_at]
+
+
 def test_optimize_graph_hands_a_rising_step_to_levenberg_marquardt():
     # a point seen at 1 m straight ahead by a held sensor, started behind it: the undamped first
     # step raises the error (checked here), so LM goes on from the start and reaches its optimum
