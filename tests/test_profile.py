@@ -594,5 +594,6 @@ def test_steps_to_come_are_the_geometric_series_of_a_contracting_step():
     assert steps_to_come_below(np.array([0.08]), np.array([0.1]), 0.3) is False
     assert steps_to_come_below(np.array([0.08]), np.array([0.1]), 0.33) is True
     # nothing to measure the contraction by: no last step, another length, one of 0, no shrinking
-    for previous in (None, np.array([1.0, 1.0]), np.zeros(3), np.array([0.1, 0.0, 0.0])):
+    # (a longer step, and one of the same length: rate 1 exactly)
+    for previous in (None, np.array([1.0, 1.0]), np.zeros(3), np.array([0.1, 0.0, 0.0]), -u):
         assert steps_to_come_below(u, previous, 0.1) is None
