@@ -140,20 +140,25 @@ def test_rebuild_under_a_new_amcl_model_equals_a_full_build(noisy_solve, exclude
     assert fast.blocks["sensors"] is parts.blocks["sensors"]
 
 
-def test_rebuild_rebuilds_the_motion_block_when_the_odometry_corrections_change():
+def _odometry_solve():
+    """A log with wheel odometry (the true path in an odometry frame of its own, 1 mm of random
+    walk), its problem, first graph and a first solve of two iterations."""
     log = make_exact_log(seed=5, duration=30.0)
     rng = np.random.default_rng(5)
-    # wheel odometry: the true path in an odometry frame of its own
     t = log.robot["t"].to_numpy(float)
     odo = log.robot[["t", "x", "y", "yaw"]].copy()
     odo["x"] += 0.5 + 0.001 * rng.normal(size=len(t)).cumsum()
     log.odometry = odo
     rec = _exact_recipe(odometry=True)
     prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
-    if prob.odometry is None:
-        pytest.skip("the log's odometry was not taken")
+    assert prob.odometry is not None
     parts = build_parts(log, prob)
     result, _ = optimize_graph(parts.graph(), parts.values, rec, max_iterations=2)
+    return log, rec, prob, parts, result
+
+
+def test_rebuild_rebuilds_the_motion_block_when_the_odometry_corrections_change():
+    log, rec, prob, parts, result = _odometry_solve()
     same = rebuild_parts(log, prob, parts, result)
     assert same.blocks["motion"] is parts.blocks["motion"]
     prob.odometry_scale_correction = 0.01
@@ -551,15 +556,16 @@ def test_rebuild_without_the_observation_block_holds_the_same_values():
     assert built.values.exists(L(2))
 
 
-@pytest.mark.parametrize("excluded", [False, True])
-def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(first_solve, monkeypatch, excluded):
+@pytest.mark.parametrize("odometry, excluded", [(False, False), (False, True), (True, True)])
+def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(request, monkeypatch, odometry, excluded):
     # with the profile's Gauss-Newton steps to follow, the graph rebuilt under AMCL's model is
     # left to them (its observation block too, which they build first), unless the model's jumps
-    # changed the robot's motion (AMCL standing in for odometry): then LM solves it again first
+    # changed the robot's motion (AMCL standing in for odometry): then LM solves it again first;
+    # with wheel odometry, jumps left out change no motion
     import pedcal.calib.factorgraph as fg
 
-    log, rec, prob, parts, result = first_solve
-    assert prob.odometry is None
+    log, rec, prob, parts, result = _odometry_solve() if odometry else request.getfixturevalue("first_solve")
+    assert (prob.odometry is not None) == odometry
     mask = None
     if excluded:
         mask = np.zeros(len(log.robot), bool)
@@ -568,7 +574,8 @@ def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(first_so
     calls = []
     monkeypatch.setattr(fg, "optimize_graph", lambda graph, values, rec, **kw: calls.append(kw) or (values, 3))
     rebuilt, _, iterations = fg._reestimate_amcl(log, prob, parts, result, progress=False, gauss_newton_step=False)
-    if excluded:
+    assert (prob.amcl_model.excluded is not None) == excluded
+    if excluded and not odometry:
         assert iterations == 3 and len(calls) == 1 and calls[0]["relative_error_tol"] == 1e-3
         assert rebuilt.blocks["observations"].size() > 0
     else:
