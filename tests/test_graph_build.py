@@ -577,7 +577,34 @@ def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(request,
     assert (prob.amcl_model.excluded is not None) == excluded
     if excluded and not odometry:
         assert iterations == 3 and len(calls) == 1 and calls[0]["relative_error_tol"] == 1e-3
+        assert not calls[0].get("predicted_stop", False)       # (LM's test alone: see the first solve's)
         assert rebuilt.blocks["observations"].size() > 0
     else:
         assert iterations == 0 and not calls
         assert rebuilt.blocks["observations"].size() == 0
+
+
+@pytest.mark.parametrize("estimate_amcl_model", [True, False])
+def test_only_the_first_solve_before_amcls_model_stops_on_the_predicted_remainder(monkeypatch, estimate_amcl_model):
+    # the first solve stops on the predicted remainder when the AMCL model is estimated from its
+    # residuals (a re-solve follows, with the profile's Gauss-Newton steps), not when its result
+    # is the one the final profile steps start from
+    import pedcal.calib.factorgraph as fg
+    from pedcal.calib import calibrate
+    from pedcal.sim import simulate_logs
+
+    class FirstSolve(Exception):
+        pass
+
+    def first(graph, values, rec, **kw):
+        raise FirstSolve(kw)
+
+    monkeypatch.setattr(fg, "optimize_graph", first)
+    sim = simulate_logs("paper", seed=1)
+    rec = GraphRecipe.load("default")
+    rec.estimate_amcl_model = estimate_amcl_model
+    assert fg._profiled(rec) and rec.amcl and rec.robot
+    with pytest.raises(FirstSolve) as solve:
+        calibrate(sim.calib, method="factorgraph", graph=rec)
+    kw = solve.value.args[0]
+    assert kw["predicted_stop"] is estimate_amcl_model and kw["gauss_newton_step"] is False

@@ -155,7 +155,12 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
     # residuals the model is estimated from (to 1 % of the error; with the nuisances profiled, the
     # first profile step, a joint Gauss-Newton step of the variables, follows before them, and
-    # at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below 0.05 mm)
+    # at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below 0.05 mm).
+    # It alone also stops on the predicted remainder (``predicted_stop``): its point feeds AMCL's
+    # residuals and one rough profile step, and the graph is solved again under the model. The
+    # two other solves the profile's steps follow (this call when AMCL's model is not estimated,
+    # and the re-solve after the model changed the robot's motion) give the point the final
+    # profile loop starts from; the rule was measured on this one only, and they keep LM's test
     profiled = _profiled(recipe)
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
                                         gauss_newton_step=not profiled,
