@@ -311,7 +311,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     obs_t = prob.obs_t_raw - prob.latency_s
     # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
     track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
-    sensor = pd.factorize(prob.obs_sensor, use_na_sentinel=False)[0]
+    sensor, sensor_ids = pd.factorize(prob.obs_sensor, use_na_sentinel=False)
     order = np.lexsort((obs_t, track, sensor))
     s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
@@ -319,7 +319,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     i, j = order[:-1][nxt], order[1:][nxt]
     if len(i) < min_pairs:
         return None
-    R = per_row(prob.obs_sensor[i], lambda sid: prob.init_sensors[sid].rotation().matrix(), (3, 3))
+    R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])[sensor[i]]
     disp = prob.motion.displacement(obs_t[j], obs_t[i])
     p_i = prob.obs_p_raw[i]
     d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
