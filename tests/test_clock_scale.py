@@ -72,6 +72,29 @@ def test_local_sigma_is_the_conditional_one_given_the_path(exact_and_local):
         assert np.all((sd_l > 0.8 * sd_e) & (sd_l < 1.05 * sd_e)), (s.id, sd_l / sd_e)
 
 
+def test_local_offsets_stop_on_the_predicted_steps_to_come(exact_and_local, monkeypatch):
+    # the profile steps with local offsets stop when the steps still to come (the geometric
+    # series of the whole step, exact nuisances' and local ones', in sigmas) are below the
+    # tolerance: here on a step that is itself above it, where the step-itself rule goes on
+    import pedcal.calib.factorgraph as fgm
+
+    sim, _, _ = exact_and_local
+    calls, rule = [], fgm.steps_to_come_below
+
+    def spy(u, *rest):
+        calls.append((float(np.abs(u).max()), rest[-1], rule(u, *rest)))
+        return calls[-1][2]
+
+    monkeypatch.setattr(fgm, "steps_to_come_below", spy)
+    rec = GraphRecipe.load("default")
+    rec.clock_offsets_joint_max = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        calibrate(sim.calib, method="factorgraph", graph=rec)
+    largest, tolerance, stopped = calls[-1]
+    assert stopped is True and largest > tolerance, calls
+
+
 def test_local_offsets_are_logged_as_fitted_given_the_path(caplog):
     from types import SimpleNamespace
 

@@ -140,20 +140,25 @@ def test_rebuild_under_a_new_amcl_model_equals_a_full_build(noisy_solve, exclude
     assert fast.blocks["sensors"] is parts.blocks["sensors"]
 
 
-def test_rebuild_rebuilds_the_motion_block_when_the_odometry_corrections_change():
+def _odometry_solve():
+    """A log with wheel odometry (the true path in an odometry frame of its own, 1 mm of random
+    walk), its problem, first graph and a first solve of two iterations."""
     log = make_exact_log(seed=5, duration=30.0)
     rng = np.random.default_rng(5)
-    # wheel odometry: the true path in an odometry frame of its own
     t = log.robot["t"].to_numpy(float)
     odo = log.robot[["t", "x", "y", "yaw"]].copy()
     odo["x"] += 0.5 + 0.001 * rng.normal(size=len(t)).cumsum()
     log.odometry = odo
     rec = _exact_recipe(odometry=True)
     prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
-    if prob.odometry is None:
-        pytest.skip("the log's odometry was not taken")
+    assert prob.odometry is not None
     parts = build_parts(log, prob)
     result, _ = optimize_graph(parts.graph(), parts.values, rec, max_iterations=2)
+    return log, rec, prob, parts, result
+
+
+def test_rebuild_rebuilds_the_motion_block_when_the_odometry_corrections_change():
+    log, rec, prob, parts, result = _odometry_solve()
     same = rebuild_parts(log, prob, parts, result)
     assert same.blocks["motion"] is parts.blocks["motion"]
     prob.odometry_scale_correction = 0.01
@@ -297,6 +302,45 @@ def test_optimize_graph_stops_on_the_predicted_remaining_decrease(first_solve):
                                   predicted_stop=True)
     assert (n_plain, n_ours) == (3, 2)
     assert fg.error(ours) == pytest.approx(errors[2], rel=1e-12)
+
+
+def _replayed_errors(errors):
+    """A stand-in for GTSAM's Gauss-Newton optimizer whose error after k iterations is
+    ``errors[k]`` (the last one from then on); its values never move."""
+    class Replayed:
+        def __init__(self, fg, values, params):
+            self.k, self.v = 0, values
+
+        def iterate(self):
+            self.k += 1
+
+        def error(self):
+            return errors[min(self.k, len(errors) - 1)]
+
+        def values(self):
+            return self.v
+    return Replayed
+
+
+@pytest.mark.parametrize("errors, lm_stops_at, stops_at", [
+    # theta 0.5: the remainder is the second decrease itself, 20 > 1.5 % of 1000 (where theta
+    # alone, 10, would stop), so both stop at the third, 10 <= 1.5 % of 1000
+    ([1060.0, 1020.0, 1000.0, 990.0, 985.0, 982.5], 3, 3),
+    # theta 0.4: 2/3 of the second decrease to come, 13.3 <= 1.5 % of 1000 = 15, where LM's
+    # test on the decrease itself (20 > 15.3) needs one iteration more
+    ([1070.0, 1020.0, 1000.0, 992.0, 989.0], 3, 2),
+    # a growing decrease (theta 1.5): no prediction (the series' sum, negative, is no bound);
+    # LM's test alone
+    ([1000.0, 960.0, 900.0, 899.0, 898.99], 3, 3),
+])
+def test_predicted_stop_sums_the_geometric_series_of_the_decreases(monkeypatch, errors, lm_stops_at, stops_at):
+    # the error sequences scripted: the stop at theta / (1 - theta) of the last decrease, theta
+    # its ratio to the one before, against 1.5 % of the error, and LM's own test beside it
+    monkeypatch.setattr(gtsam, "GaussNewtonOptimizer", _replayed_errors(errors))
+    counts = [optimize_graph(gtsam.NonlinearFactorGraph(), gtsam.Values(), GraphRecipe(), max_iterations=10,
+                             gauss_newton_step=False, relative_error_tol=0.015, ordering=gtsam.Ordering(),
+                             predicted_stop=predicted)[1] for predicted in (False, True)]
+    assert counts == [lm_stops_at, stops_at]
 
 
 def test_optimize_graph_hands_a_rising_step_to_levenberg_marquardt():
@@ -512,15 +556,16 @@ def test_rebuild_without_the_observation_block_holds_the_same_values():
     assert built.values.exists(L(2))
 
 
-@pytest.mark.parametrize("excluded", [False, True])
-def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(first_solve, monkeypatch, excluded):
+@pytest.mark.parametrize("odometry, excluded", [(False, False), (False, True), (True, True)])
+def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(request, monkeypatch, odometry, excluded):
     # with the profile's Gauss-Newton steps to follow, the graph rebuilt under AMCL's model is
     # left to them (its observation block too, which they build first), unless the model's jumps
-    # changed the robot's motion (AMCL standing in for odometry): then LM solves it again first
+    # changed the robot's motion (AMCL standing in for odometry): then LM solves it again first;
+    # with wheel odometry, jumps left out change no motion
     import pedcal.calib.factorgraph as fg
 
-    log, rec, prob, parts, result = first_solve
-    assert prob.odometry is None
+    log, rec, prob, parts, result = _odometry_solve() if odometry else request.getfixturevalue("first_solve")
+    assert (prob.odometry is not None) == odometry
     mask = None
     if excluded:
         mask = np.zeros(len(log.robot), bool)
@@ -529,9 +574,37 @@ def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(first_so
     calls = []
     monkeypatch.setattr(fg, "optimize_graph", lambda graph, values, rec, **kw: calls.append(kw) or (values, 3))
     rebuilt, _, iterations = fg._reestimate_amcl(log, prob, parts, result, progress=False, gauss_newton_step=False)
-    if excluded:
+    assert (prob.amcl_model.excluded is not None) == excluded
+    if excluded and not odometry:
         assert iterations == 3 and len(calls) == 1 and calls[0]["relative_error_tol"] == 1e-3
+        assert not calls[0].get("predicted_stop", False)       # (LM's test alone: see the first solve's)
         assert rebuilt.blocks["observations"].size() > 0
     else:
         assert iterations == 0 and not calls
         assert rebuilt.blocks["observations"].size() == 0
+
+
+@pytest.mark.parametrize("estimate_amcl_model", [True, False])
+def test_only_the_first_solve_before_amcls_model_stops_on_the_predicted_remainder(monkeypatch, estimate_amcl_model):
+    # the first solve stops on the predicted remainder when the AMCL model is estimated from its
+    # residuals (a re-solve follows, with the profile's Gauss-Newton steps), not when its result
+    # is the one the final profile steps start from
+    import pedcal.calib.factorgraph as fg
+    from pedcal.calib import calibrate
+    from pedcal.sim import simulate_logs
+
+    class FirstSolve(Exception):
+        pass
+
+    def first(graph, values, rec, **kw):
+        raise FirstSolve(kw)
+
+    monkeypatch.setattr(fg, "optimize_graph", first)
+    sim = simulate_logs("paper", seed=1)
+    rec = GraphRecipe.load("default")
+    rec.estimate_amcl_model = estimate_amcl_model
+    assert fg._profiled(rec) and rec.amcl and rec.robot
+    with pytest.raises(FirstSolve) as solve:
+        calibrate(sim.calib, method="factorgraph", graph=rec)
+    kw = solve.value.args[0]
+    assert kw["predicted_stop"] is estimate_amcl_model and kw["gauss_newton_step"] is False

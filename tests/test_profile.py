@@ -588,11 +588,14 @@ def test_steps_to_come_are_the_geometric_series_of_a_contracting_step():
     u, before = np.array([0.14, -0.02, 0.0]), np.array([1.24, 0.1, 0.0])
     rate = np.linalg.norm(u) / np.linalg.norm(before)
     assert rate / (1 - rate) * 0.14 < 0.02
-    assert steps_to_come_below(u, before, 0.1) is True
-    assert steps_to_come_below(u, before, 0.01) is False
+    assert steps_to_come_below(u, rate, 0.1) is True
+    assert steps_to_come_below(u, rate, 0.01) is False
     # a slow contraction (rate 0.8): four times this step to come
-    assert steps_to_come_below(np.array([0.08]), np.array([0.1]), 0.3) is False
-    assert steps_to_come_below(np.array([0.08]), np.array([0.1]), 0.33) is True
-    # nothing to measure the contraction by: no last step, another length, one of 0, no shrinking
-    for previous in (None, np.array([1.0, 1.0]), np.zeros(3), np.array([0.1, 0.0, 0.0])):
-        assert steps_to_come_below(u, previous, 0.1) is None
+    assert steps_to_come_below(np.array([0.08]), 0.8, 0.3) is False
+    assert steps_to_come_below(np.array([0.08]), 0.8, 0.33) is True
+    # nothing to measure the contraction by: no rate, a step no shorter than the last (one of
+    # the same length, -u: rate 1 exactly; a longer one), a rate or a step that is not a number
+    same = np.linalg.norm(u) / np.linalg.norm(-u)
+    assert same == 1.0
+    for step, r in ((u, None), (u, same), (u, 1.5), (u, np.nan), (np.array([0.01, np.nan, 0.0]), rate)):
+        assert steps_to_come_below(step, r, 0.1) is None

@@ -153,7 +153,12 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
     # residuals the model is estimated from (to 1 % of the error; with the nuisances profiled, the
     # first profile step, a joint Gauss-Newton step of the variables, follows before them, and
-    # at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below 0.05 mm)
+    # at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below 0.05 mm).
+    # It alone also stops on the predicted remainder (``predicted_stop``): its point feeds AMCL's
+    # residuals and one rough profile step, and the graph is solved again under the model. The
+    # two other solves the profile's steps follow (this call when AMCL's model is not estimated,
+    # and the re-solve after the model changed the robot's motion) give the point the final
+    # profile loop starts from; the rule was measured on this one only, and they keep LM's test
     profiled = _profiled(recipe)
     result, iterations = optimize_graph(fg, parts.values, recipe, max_iterations=10 if resolve else None,
                                         gauss_newton_step=not profiled,
@@ -603,7 +608,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                 if slow:
                     rate = cos * rate
         if rate is not None and cos >= 0.0:
-            converged = rate < 1.0 and bool(np.all(rate / (1.0 - rate) * np.abs(u) <= tolerance))
+            converged = steps_to_come_below(u, rate, tolerance) is True
         elif rate is not None:      # (steps that swap sides of the optimum: it lies within this one)
             converged = bool(np.all(np.abs(u) <= tolerance))
         else:
@@ -634,8 +639,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             # extrapolated): the steps still to come, theta / (1 - theta) of this one, below
             # ``tolerance``; without a step to compare with, or not contracting, the step itself
             u_all = np.r_[u, loc.dtheta / np.sqrt(loc.variance)]
-            to_come = steps_to_come_below(u_all, previous_all[1] if previous_all is not None
-                                          and previous_all[0] == names else None, tolerance)
+            before = np.linalg.norm(previous_all[1]) if previous_all is not None and previous_all[0] == names else 0.0
+            to_come = steps_to_come_below(u_all, np.linalg.norm(u_all) / before if before > 0.0 else None, tolerance)
             converged = to_come if to_come is not None else converged and bool(np.all(ratio <= tolerance))
             previous_all = (names, u_all)
             for kind, unit, mine in (("clock offsets", "ms", ~own_shift), ("head shift departures", "mm", own_shift)):
@@ -683,21 +688,18 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        ordering=parts.colamd() if final_graph else None)
 
 
-def steps_to_come_below(u: np.ndarray, previous_u: np.ndarray | None, tolerance: float) -> bool | None:
-    """Whether the steps still to come of a contracting iteration are all below ``tolerance``:
-    with theta = |u| / |previous_u| (this step's length over the last one's, each in its
-    variables' sigmas), the geometric series theta / (1 - theta) of this step, component by
-    component (the stopping rule of simplified Newton iterations, Hairer & Wanner, Solving ODEs
-    II, IV.8). None where there is no contraction to measure: no last step (or one of other
-    variables, or of length 0) or a step no shorter than it."""
-    u = np.asarray(u, float)
-    if previous_u is None or len(previous_u) != len(u):
+def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> bool | None:
+    """Whether the steps still to come of an iteration contracting at ``rate`` are all below
+    ``tolerance``: with theta = ``rate`` (this step's length over the last one's, each in its
+    variables' sigmas, as the caller measures it), the geometric series theta / (1 - theta) of
+    this step ``u``, component by component (the stopping rule of simplified Newton iterations,
+    Hairer & Wanner, Solving ODEs II, IV.8). None where there is no contraction to measure: no
+    rate (no last step, one of other variables or of length 0), a step no shorter than the last
+    (``rate`` >= 1), or a step or rate that is not a number."""
+    u = np.abs(np.asarray(u, float))
+    if rate is None or not rate < 1.0 or np.isnan(u).any():
         return None
-    before = float(np.linalg.norm(previous_u))
-    rate = float(np.linalg.norm(u)) / before if before > 0.0 else None
-    if rate is None or rate >= 1.0:
-        return None
-    return bool(np.all(rate / (1.0 - rate) * np.abs(u) <= tolerance))
+    return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
 
 
 def _unmodelled_curvature(step, chi2: float):

@@ -363,7 +363,10 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
             if c != "a" and result.exists(key):
                 new.values.update(key, result.atPoint3(key) if c == "l" else result.atPose3(key))
         return new
-    values = _kept_values(result, {"s": len(prob.sensor_ids), "x": n_pose})
+    observations = observations or not all(result.exists(L(m)) for m in range(len(prob.people)))
+    # (without the observation block, the people's positions are kept from ``result`` as they are)
+    values = _kept_values(result, {"s": len(prob.sensor_ids), "x": n_pose}
+                          | ({} if observations else {"l": len(prob.people)}))
     blocks = {"sensors": parts.blocks["sensors"], "amcl": gtsam.NonlinearFactorGraph()}
     if n_pose:
         _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
@@ -375,13 +378,11 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
                             else motion_block(log, prob))
     else:
         blocks["motion"] = gtsam.NonlinearFactorGraph()
-    if observations or not all(result.exists(L(m)) for m in range(len(prob.people))):
-        blocks["observations"] = observation_block(log, prob, values, insert_values=True)
-    else:
+    if not observations:
         # (the block the caller builds next would replace this one: 0.14 s at 1000 sensors)
         blocks["observations"] = gtsam.NonlinearFactorGraph()
-        for m in range(len(prob.people)):
-            values.insert(L(m), result.atPoint3(L(m)))
+        return GraphParts(blocks=blocks, values=values, motion_inputs=inputs)
+    blocks["observations"] = observation_block(log, prob, values, insert_values=True)
     for m in range(len(prob.people)):
         if values.exists(L(m)) and result.exists(L(m)):
             values.update(L(m), result.atPoint3(L(m)))

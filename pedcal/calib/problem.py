@@ -134,13 +134,12 @@ class FactorGraphProblem:
         self.fac_toward_sensor = toward_sensor_horizontal(self.fac_p_sensor, R)
         self.fac_up_cos2 = frames.up_by_cos2_elevation(self.fac_p_sensor, R)
 
-    def carry_observations(self, rotations: dict[str, np.ndarray], merge: bool = True) -> None:
+    def carry_observations(self, rotations: dict[str, np.ndarray]) -> None:
         """Carry every robot observation to its nearest pose variable: the head seen at
         t = stamp - latency is the head at the pose's time t_k minus the robot's motion from t
         to t_k, p_sensor(t_k) = p_sensor(t) + R_world_sensor^T (h(t_k) - h(t)). ``rotations``:
         current R_world_sensor per sensor (an error of a degree moves a point carried a few
-        centimetres by under a millimetre). Then the factors merged (:meth:`merge_observations`),
-        unless ``merge`` is False (the caller merges them, against a noise it estimates first)."""
+        centimetres by under a millimetre). Then the factors merged (:meth:`merge_observations`)."""
         self.obs_t = self.obs_t_raw - self.latency_s
         tk = self.pose_times
         i = np.clip(np.searchsorted(tk, self.obs_t), 1, max(len(tk) - 1, 1))
@@ -154,8 +153,7 @@ class FactorGraphProblem:
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
         self._rotations = dict(rotations)
-        if merge:
-            self.merge_observations()
+        self.merge_observations()
 
 
 def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
@@ -269,24 +267,21 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
     set_amcl_model(log, prob, assumed_model(log.robot, recipe), carry=False)
-    # (merged once, against the noise estimated from the carried observations when it is)
-    estimate_noise = recipe.estimate_observation_noise and recipe.robot
-    prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()}, merge=not estimate_noise)
-    if estimate_noise:
+    if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
         if noise is None:
             warnings.warn("too few pairs of consecutive robot observations to estimate the sensors' noise; the "
                           "recipe's depth and lateral noise are assumed", DegenerateDataWarning, stacklevel=3)
-            prob.merge_observations()
         else:
             prob.recipe = copy.copy(recipe)
             for k in ("range_sigma_floor_m", "range_sigma_k_per_m", "lateral_sigma_m"):
                 setattr(prob.recipe, k, noise[k])
             prob.noise_estimate = noise
-            prob.merge_observations()           # judged against the estimated noise
             _log(progress, f"observation noise from {noise['pairs']} pairs of consecutive observations: depth "
                            f"{1000 * noise['range_sigma_floor_m']:.1f} mm + {1000 * noise['range_sigma_k_per_m']:.2f} "
                            f"mm/m^2 x r^2, lateral {1000 * noise['lateral_sigma_m']:.1f} mm")
+    # (the observations' factors merged against the noise estimated, when it is)
+    prob.carry_observations({sid: T.rotation().matrix() for sid, T in init.items()})
     if recipe.people:
         net = SensorNetwork([SensorExtrinsics.from_pose3(sid, init[sid]) for sid in log.sensors.ids],
                             frame=log.sensors.frame)
@@ -307,23 +302,25 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     robot's speed in it). A tracker that smooths its output makes consecutive reports alike and
     this an underestimate, which the model check after the solve sees (a variance ratio above 1)
     and widens the sigma for. Returns the recipe's three noise fields and the number of pairs, or
-    None with fewer than ``min_pairs`` pairs."""
+    None with fewer than ``min_pairs`` pairs. ``prob``'s observations need not be carried yet
+    (their instants, stamp - latency, are taken here)."""
     rec = prob.recipe
     rows = prob.rows_used
     if rows is None or len(rows) < 2:
         return None
+    obs_t = prob.obs_t_raw - prob.latency_s
     # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
     track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
-    sensor = pd.factorize(prob.obs_sensor, use_na_sentinel=False)[0]
-    order = np.lexsort((prob.obs_t, track, sensor))
-    s_o, tr_o, t_o = sensor[order], track[order], prob.obs_t[order]
+    sensor, sensor_ids = pd.factorize(prob.obs_sensor, use_na_sentinel=False)
+    order = np.lexsort((obs_t, track, sensor))
+    s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
     nxt = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1]) & (dt > 0.0) & (dt <= max_gap_s)
     i, j = order[:-1][nxt], order[1:][nxt]
     if len(i) < min_pairs:
         return None
-    R = per_row(prob.obs_sensor[i], lambda sid: prob.init_sensors[sid].rotation().matrix(), (3, 3))
-    disp = prob.motion.displacement(prob.obs_t[j], prob.obs_t[i])
+    R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])[sensor[i]]
+    disp = prob.motion.displacement(obs_t[j], obs_t[i])
     p_i = prob.obs_p_raw[i]
     d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
     r = np.linalg.norm(p_i, axis=1)
