@@ -173,16 +173,27 @@ def robust_variogram(t: np.ndarray, series: list[tuple[np.ndarray, np.ndarray]],
     number of such pairs. NaN where fewer than ``min_pairs`` pairs exist."""
     out = np.full(len(lags_s), np.nan)
     pairs = np.zeros(len(lags_s), int)
+    # every series at once, in order: its times as the imaginary part of a complex key whose real
+    # part is the series' number, so that one sorted search (complex numbers order by real part,
+    # then imaginary) finds each sample's partner within its own series; a search past the
+    # series' end lands on the next one's first sample, past ``end``. (The times themselves are
+    # compared as they are: the pairs and their differences those of a search per series.)
+    if series:
+        lengths = np.array([len(rows) for rows, _ in series], np.int64)
+        tg = np.concatenate([t[rows] for rows, _ in series]).astype(float)
+        e_all = np.concatenate([np.asarray(e, float) for _, e in series])
+        number = np.repeat(np.arange(len(series), dtype=float), lengths)
+        end = np.repeat(np.cumsum(lengths), lengths)
+        key = number + 1j * tg
     for n, lag in enumerate(lags_s):
-        diffs = []
-        for rows, e in series:
-            tg = t[rows]
-            j = np.searchsorted(tg, tg + lag)
-            ok = j < len(tg)
+        if series:
+            j = np.searchsorted(key, number + 1j * (tg + lag))
+            ok = j < end
             jj = j[ok]
             ok[ok] = np.abs(tg[jj] - tg[ok] - lag) <= 0.25 * lag + 1e-6
-            diffs.append(e[j[ok]] - e[ok])
-        d = np.concatenate(diffs) if diffs else np.zeros((0, 2))
+            d = e_all[j[ok]] - e_all[ok]
+        else:
+            d = np.zeros((0, 2))
         pairs[n] = len(d)
         if len(d) < min_pairs:
             continue
