@@ -945,9 +945,10 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     to_pose, to_point = gtsam.BearingRangeFactorPose3, gtsam.BearingRangeFactor3D
     # (each bearing made from its three coordinates as floats: the same normalization as from the
     # numpy row, without an array conversion per factor, 0.3 us of the factor's 1.7)
-    for s_key, t_key, p, r, pose, model in zip(s_keys, t_keys, np.asarray(terms.p_sensor, float).tolist(),
-                                               terms.range_m.tolist(), is_pose, model_of, strict=True):
-        add((to_pose if pose else to_point)(s_key, t_key, unit3(*p), r, model))
+    x, y, z = np.asarray(terms.p_sensor, float).T.tolist()
+    for s_key, t_key, px, py, pz, r, pose, model in zip(s_keys, t_keys, x, y, z, terms.range_m.tolist(), is_pose,
+                                                        model_of, strict=True):
+        add((to_pose if pose else to_point)(s_key, t_key, unit3(px, py, pz), r, model))
     return graph
 
 
