@@ -227,7 +227,8 @@ class _Analyses:
         # same kept analysis)
         with lib.lock:
             # numeric -> symbolic, supernodal or simplicial as it was (without the defaults
-            # recognized, CHOLMOD factorizes small systems simplicially, LDL^T): the values (the factor's memory) freed, the analysis kept
+            # recognized, CHOLMOD factorizes small systems simplicially, LDL^T): the values (the
+            # factor's memory) freed, the analysis kept
             ok = lib.lib.cholmod_change_factor(_PATTERN, head.is_ll, head.is_super, 1, 1, factor, lib.common)
             new = (factor, key) if ok else None      # (made before the swap: a collection it triggers may call give)
             old, self.kept = self.kept, new

@@ -68,7 +68,8 @@ class Columns:
         spans = self.__dict__.get("_spans")
         if spans is None:
             starts = [self.offset[k] for k in self.keys]
-            spans = self.__dict__["_spans"] = (starts, [s + self.dim[k] for s, k in zip(starts, self.keys, strict=True)])
+            ends = [s + self.dim[k] for s, k in zip(starts, self.keys, strict=True)]
+            spans = self.__dict__["_spans"] = (starts, ends)
         return spans
 
     def index(self, keys) -> np.ndarray:
