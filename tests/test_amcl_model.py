@@ -25,6 +25,34 @@ from pedcal.sim import simulate_logs
 from pedcal.sim.robot import ou_process
 
 
+def test_the_variograms_pairs_are_each_series_own_at_every_lag():
+    # all series searched at once: the pairs, and so the semivariances, are those of a search
+    # within each series (times with ties, empty series, series of one sample)
+    rng = np.random.default_rng(31)
+    t = np.sort(np.round(rng.uniform(0.0, 300.0, 3000), 1))
+    sizes = [0, 1, 5, 150, 0, 400, 80, 2]
+    series = [(np.sort(rng.choice(len(t), k, replace=False)), rng.normal(size=(k, 2))) for k in sizes]
+    gamma, pairs = robust_variogram(t, series, min_pairs=5)
+    for n, lag in enumerate(VARIOGRAM_LAGS_S):
+        diffs = []
+        for rows, e in series:
+            tg = t[rows]
+            j = np.searchsorted(tg, tg + lag)
+            ok = j < len(tg)
+            ok[ok] = np.abs(tg[j[ok]] - tg[ok] - lag) <= 0.25 * lag + 1e-6
+            diffs.append(e[j[ok]] - e[ok])
+        d = np.concatenate(diffs)
+        assert pairs[n] == len(d)
+        if len(d) >= 5:
+            mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+            assert gamma[n] == 0.5 * float(np.mean(mad ** 2))
+        else:
+            assert np.isnan(gamma[n])
+    assert pairs.max() > 0
+    empty, none = robust_variogram(t, [])
+    assert np.all(np.isnan(empty)) and not none.any()
+
+
 def _visits(rng, t, n_sensors=6, visit_s=8.0):
     """Per sensor the sorted indices of the instants it 'sees': visits of visit_s, in turn."""
     slot = np.floor(t / visit_s).astype(int) % n_sensors

@@ -224,3 +224,19 @@ def test_the_systems_library_is_looked_for_only_past_the_wheels(monkeypatch):
         pytest.skip("cvxopt's wheel carries no CHOLMOD here")
     assert looked == []
     assert list(paths)[-1] == "/nowhere/libcholmod.so" and looked == ["cholmod"]    # (then, in turn)
+
+
+def test_a_small_system_is_factorized_supernodally_with_the_same_solution():
+    # below CHOLMOD's own supernodal switch (a factor of few flops per entry: a chain's) the
+    # factorization is supernodal all the same (the library's setting), and solves as the dense
+    lib = cholmod.library()
+    rng = np.random.default_rng(21)
+    n = 12
+    D = sps.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n))
+    A = sps.vstack([D, 0.5 * sps.eye(n)], format="csr")
+    chol = NormalCholesky(A, rng.permutation(n))
+    head = cholmod._FactorHead.from_address(chol._factor)
+    assert head.is_super == (1 if lib.defaults else 0)
+    y = rng.normal(size=(n, 3))
+    want = np.linalg.solve((A.T @ A).toarray(), y)
+    assert np.abs(chol.solve(y) - want).max() < 1e-12 * np.abs(want).max()

@@ -53,6 +53,24 @@ def test_sparse_system_reproduces_gtsams_gauss_newton_step(dome_paper):
 
 
 
+def test_a_given_orderings_keys_outside_the_system_are_skipped_and_its_missing_ones_come_last():
+    # the order follows the Ordering over the system's own variables, each variable's columns
+    # together; a key the system lacks is skipped, the system's variables the Ordering lacks
+    # come last in key order
+    values = gtsam.Values()
+    for k in (5, 1, 9, 3):
+        values.insert(k, gtsam.Point3(0.0, 0.0, 0.0))
+    values.insert(7, gtsam.Pose3())
+    cols = Columns.of(values)                          # keys 1, 3, 5, 7 (6 wide), 9
+    ordering = gtsam.Ordering()
+    for k in (9, 4, 7, 1):                             # 4: not a variable of the system
+        ordering.push_back(k)
+    order = fill_reducing_order(ordering, cols)
+    want = np.concatenate([cols.index([k]) for k in (9, 7, 1, 3, 5)])
+    assert np.array_equal(order, want)
+    assert np.array_equal(np.sort(order), np.arange(cols.n))
+
+
 def test_normal_solve_in_the_graphs_colamd_order_is_gtsams_step(dome_paper):
     # the order is a permutation of every column (each variable's together) and the solve in it
     # is GTSAM's Gauss-Newton step, as the solve in SuperLU's own ordering is

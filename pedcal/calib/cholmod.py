@@ -72,9 +72,15 @@ _COMMON_BYTES = 1 << 16
 # cholmod_common's fields set here, by byte offset (CHOLMOD 3-5's layout): `print` (messages on
 # stderr: set to 0), `nmethods` (0: CHOLMOD tries a given order and its own COLAMD and keeps the
 # sparser factor; 1: the given order alone, what the first of its `method` entries says by
-# default, an analysis 0.15 s faster on 1000 sensors' system, where COLAMD was no sparser).
-# Written only when the fields around them hold the defaults cholmod_start gives them (the
-# relaxation parameters, the print level, the methods' parameters and orderings): the offsets checked
+# default, an analysis 0.15 s faster on 1000 sensors' system, where COLAMD was no sparser),
+# `supernodal` (CHOLMOD_AUTO: a simplicial LL^T where the factor's flops per entry are below
+# `supernodal_switch`, 40, as on the paper scene's system; CHOLMOD_SUPERNODAL: supernodal always,
+# its dense blocks BLAS-3: the paper scene's factorization 13 -> 8 ms, the same factor to
+# rounding). Written only when the fields around them hold the defaults cholmod_start gives them
+# (the relaxation parameters, the print level, the supernodal switch, the methods' parameters and
+# orderings): the offsets checked
+_SUPERNODAL_SWITCH_OFFSET, _SUPERNODAL_OFFSET = 40, 48
+_AUTO, _SUPERNODAL = 1, 2                      # CHOLMOD_AUTO (the default), CHOLMOD_SUPERNODAL
 _PRINT_OFFSET = 144
 _NMETHODS_OFFSET = 168
 _METHOD_OFFSET, _METHOD_BYTES = 184, 168       # cholmod_method_struct: 9 doubles, 5 size_t, 6 ints, 4 size_t
@@ -144,10 +150,13 @@ class _Library:
             raise ImportError("CHOLMOD did not start")
         raw = self.common.raw
         method = _METHOD_OFFSET
-        # (relaxation 0.8 / 0.1 / 0.05 and 4 / 16 / 48, print 3; no methods chosen; the first
-        # method's prune_dense 10, nd_oksep 1, nd_small 200 and the orderings GIVEN, AMD, METIS)
+        # (supernodal switch 40, CHOLMOD_AUTO; relaxation 0.8 / 0.1 / 0.05 and 4 / 16 / 48, print
+        # 3; no methods chosen; the first method's prune_dense 10, nd_oksep 1, nd_small 200 and the
+        # orderings GIVEN, AMD, METIS)
         self.defaults = (np.frombuffer(raw, np.float64, 3, 80).tolist() == [0.8, 0.1, 0.05]
                          and np.frombuffer(raw, np.uint64, 3, 104).tolist() == [4, 16, 48]
+                         and np.frombuffer(raw, np.float64, 1, _SUPERNODAL_SWITCH_OFFSET)[0] == 40.0
+                         and _int(raw, _SUPERNODAL_OFFSET) == _AUTO
                          and _int(raw, _PRINT_OFFSET) == 3 and _int(raw, _NMETHODS_OFFSET) == 0
                          and np.frombuffer(raw, np.float64, 1, method + 16)[0] == 10.0
                          and np.frombuffer(raw, np.float64, 1, method + 32)[0] == 1.0
@@ -155,6 +164,7 @@ class _Library:
                          and [_int(raw, method + 132 + i * _METHOD_BYTES) for i in range(3)] == [_GIVEN, 2, 3])
         if self.defaults:
             self._set_int(_PRINT_OFFSET, 0)
+            self._set_int(_SUPERNODAL_OFFSET, _SUPERNODAL)
         self.lock = threading.RLock()
 
     def _set_int(self, offset: int, value: int) -> None:
@@ -216,8 +226,9 @@ class _Analyses:
         # (under the library's lock, an RLock: two threads' factorizations never take or free the
         # same kept analysis)
         with lib.lock:
-            # numeric -> symbolic, supernodal or simplicial as it was (CHOLMOD factorizes small
-            # systems simplicially, LDL^T): the values (the factor's memory) freed, the analysis kept
+            # numeric -> symbolic, supernodal or simplicial as it was (without the defaults
+            # recognized, CHOLMOD factorizes small systems simplicially, LDL^T): the values (the
+            # factor's memory) freed, the analysis kept
             ok = lib.lib.cholmod_change_factor(_PATTERN, head.is_ll, head.is_super, 1, 1, factor, lib.common)
             new = (factor, key) if ok else None      # (made before the swap: a collection it triggers may call give)
             old, self.kept = self.kept, new

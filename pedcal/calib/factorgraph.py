@@ -503,7 +503,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     index = {sid: i for i, sid in enumerate(prob.sensor_ids)}
     local_sensors = np.array([index[_sensor_of(n)] for n in local_names], np.int64)
     own_shift = np.array([is_sensor_shift(n) for n in local_names], bool)
-    local_cols = (np.stack([cols.index([S(int(i))]) for i in local_sensors]) if local_nuis else None)
+    # (each local nuisance's sensor's columns, one row each: looked up together, not one sensor at a time)
+    local_cols = (cols.index([S(int(i)) for i in local_sensors]).reshape(len(local_sensors), -1) if local_nuis
+                  else None)
     previous_u, previous_names, slow, extrapolated = None, None, False, False
     previous_all = None           # (the names and the whole step, in sigmas, of a step with local nuisances)
     max_steps = MAX_PROFILE_STEPS if max_steps is None else max_steps       # (read when called: tests set it)

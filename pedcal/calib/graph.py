@@ -941,9 +941,12 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     t_keys = np.where(terms.is_pose, symbols("x", terms.target), symbols("l", terms.target)).tolist()
     add, unit3 = graph.add, gtsam.Unit3
     to_pose, to_point = gtsam.BearingRangeFactorPose3, gtsam.BearingRangeFactor3D
-    for s_key, t_key, p, r, pose, model in zip(s_keys, t_keys, terms.p_sensor, terms.range_m.tolist(), is_pose,
-                                               model_of, strict=True):
-        add((to_pose if pose else to_point)(s_key, t_key, unit3(p), r, model))
+    # (each bearing made from its three coordinates as floats: the same normalization as from the
+    # numpy row, without an array conversion per factor, 0.3 us of the factor's 1.7)
+    x, y, z = np.asarray(terms.p_sensor, float).T.tolist()
+    for s_key, t_key, px, py, pz, r, pose, model in zip(s_keys, t_keys, x, y, z, terms.range_m.tolist(), is_pose,
+                                                        model_of, strict=True):
+        add((to_pose if pose else to_point)(s_key, t_key, unit3(px, py, pz), r, model))
     return graph
 
 

@@ -63,6 +63,15 @@ class Columns:
             n += int(dims[k])
         return cls(keys=keys, offset=offset, dim={k: int(dims[k]) for k in keys}, n=n)
 
+    def spans(self) -> tuple[list[int], list[int]]:
+        """Each variable's first column and the column after its last, in key order (lists, kept)."""
+        spans = self.__dict__.get("_spans")
+        if spans is None:
+            starts = [self.offset[k] for k in self.keys]
+            ends = [s + self.dim[k] for s, k in zip(starts, self.keys, strict=True)]
+            spans = self.__dict__["_spans"] = (starts, ends)
+        return spans
+
     def index(self, keys) -> np.ndarray:
         """Column indices of ``keys``' variables, concatenated."""
         keys = np.asarray(keys, np.uint64).reshape(-1)
@@ -121,9 +130,12 @@ def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
     structure), each variable's columns together. It depends on the graph's structure alone, so
     one order serves every factorization of the same graph (the profile's steps)."""
     ordering = gfg if isinstance(gfg, gtsam.Ordering) else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-    keys = [k for k in (ordering.at(i) for i in range(ordering.size())) if k in cols.offset]
-    missing = sorted(set(cols.keys) - set(keys))           # variables no factor touches, last
-    return cols.index(keys + missing)
+    keys = np.fromiter((ordering.at(i) for i in range(ordering.size())), np.uint64, ordering.size())
+    own = np.array(cols.keys, np.uint64)
+    at = np.minimum(np.searchsorted(own, keys), max(len(own) - 1, 0))
+    keys = keys[own[at] == keys] if len(own) else keys[:0]          # (the system's variables only)
+    missing = np.setdiff1d(own, keys)                  # variables no factor touches, last (sorted)
+    return cols.index(np.r_[keys, missing])
 
 
 def release_free_memory() -> None:
@@ -758,9 +770,9 @@ def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.V
 def retract_flat(values: gtsam.Values, delta: np.ndarray, cols: Columns) -> gtsam.Values:
     """``values`` moved by the tangent vector ``delta`` laid out in ``cols``."""
     vv = gtsam.VectorValues()
-    for key in cols.keys:
-        o = cols.offset[key]
-        vv.insert(key, delta[o:o + cols.dim[key]])
+    insert = vv.insert
+    for key, start, end in zip(cols.keys, *cols.spans(), strict=True):
+        insert(key, delta[start:end])
     return values.retract(vv)
 
 
