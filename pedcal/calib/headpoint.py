@@ -606,9 +606,9 @@ def head_depth_note(head_vertical_sigma_m: float) -> str:
     ``head_vertical_sigma_m``), so that sigma holds for a tracker whose point, seen from straight
     above, lies within it of the head top, and a point deeper in the head is a shared height
     error beyond it. (The simulator's centroid of the head's top 10 cm lies 43-50 mm below the
-    top at every elevation, its along-ray shift 0-50 mm: the graph's point, at the prior's mean,
-    stays within 6 mm of the top, and every sensor's height is off by 42-59 mm, 1.4-2.0 sigma, on
-    the zoo's ten centroid logs, the sensors' errors within 0.4-3.4 mm of their mean.)"""
+    top at every elevation, its shift toward the sensor 0-50 mm: the graph's point, at the prior's
+    mean, stays within 7 mm of the top, 42-59 mm (1.4-2.0 sigma) above the tracker's on the zoo's
+    ten centroid logs, and the sensors' heights are off by 46-63 mm, their spread 0.4-3.4 mm.)"""
     return (f"That sigma holds for a tracker whose point seen from straight above lies within "
             f"{1000 * head_vertical_sigma_m:.0f} mm of the head top (a blob's highest point, a dome's facing "
             "point): a point deeper in the head (a centroid of the head's top, 4-5 cm lower; an ellipsoid's "
