@@ -11,6 +11,7 @@ import test_factorgraph
 from test_factorgraph import _exact_recipe, make_exact_log
 
 from pedcal.calib.factorgraph import calibrate_factorgraph
+from pedcal.calib.headpoint import head_depth_note
 from pedcal.errors import DegenerateDataWarning
 from pedcal.io import read_sensors_yaml, write_sensors_yaml
 from pedcal.metrics import amcl_run_mean_error_m, evaluate
@@ -77,6 +78,72 @@ def test_without_a_height_reference_the_degeneracy_is_stated_and_in_the_vertical
     back = read_sensors_yaml(path)
     assert back.extra["head_model"]["ray_shift_m"] == pytest.approx(head.ray_shift_m, abs=1e-4)
     np.testing.assert_allclose(back["s01"].sigma_rotation_deg, res.network["s01"].sigma_rotation_deg)
+
+
+@pytest.fixture(scope="module")
+def point_5cm_low():
+    """A tracker reporting a point 5 cm below the head top, seen from any elevation (no shift)."""
+    return simulate_logs("paper", seed=4, head_point="top", head_vertical_bias_m=-0.05)
+
+
+def _z_errors_and_sigma(sim, res):
+    """(each sensor's z error, its reported z sigma), m, in the network's order."""
+    err = {s.id: s.position_error_mm[2] / 1000.0 for s in evaluate(sim.eval, res.network).sensors}
+    return (np.array([err[s.id] for s in res.network]), np.array([s.sigma_position_m[2] for s in res.network]))
+
+
+def test_a_tracker_point_below_the_head_top_is_a_shared_height_error_its_prior_alone_bounds(point_5cm_low):
+    sim = point_5cm_low
+    with pytest.warns(DegenerateDataWarning, match="within it of the head top"):
+        res = calibrate_factorgraph(sim.calib)
+    head = res.diagnostics.head_model
+    ez, sz = _z_errors_and_sigma(sim, res)
+    # one error shared by every sensor (not the curvature's per-sensor part): within 5 mm of their mean
+    assert np.max(np.abs(ez - ez.mean())) < 0.005
+    # and it is the offset's: the graph's point seen from above (offset + shift, the dome prior's
+    # mean: at the top) less the true -0.05 m
+    assert head.vertical_offset_m + head.ray_shift_m == pytest.approx(0.0, abs=0.01)
+    assert ez.mean() == pytest.approx(head.vertical_offset_m + head.ray_shift_m + 0.05, abs=0.006)
+    # the offset's sigma is the prior's and every sensor's z sigma carries it, the joint
+    # covariance's diagonal being those very sigma
+    assert head.sigma_vertical_offset_m == pytest.approx(0.03, rel=0.05)
+    np.testing.assert_allclose(sz, head.sigma_vertical_offset_m, rtol=0.1)
+    ids = [s.id for s in res.network]
+    np.testing.assert_allclose(np.sqrt(np.diag(res.position_covariance_m2)[2::3]), sz, rtol=1e-9)
+    assert ids == list(res.network.extra["position_covariance_m2"]["sensors"])
+    # which is no bound on a point 50 mm below the top: every sensor beyond its sigma, and the
+    # user told so where the sigma is read
+    assert np.all(np.abs(ez) > sz)
+    assert head_depth_note(0.03) in head.note
+    assert head_depth_note(0.03) in res.summary()
+
+
+def test_head_depth_note_states_the_prior_it_rests_on():
+    assert "within 30 mm of the head top" in head_depth_note(0.03)
+    assert "within 60 mm of the head top" in head_depth_note(0.06)
+    assert "height reference" in head_depth_note(0.03)
+
+
+@pytest.mark.parametrize("remedy", ["height reference", "head offset", "prior width"])
+def test_a_tracker_point_below_the_head_top_is_within_sigma_once_its_depth_is_stated(point_5cm_low, remedy):
+    # the note's remedies: the installed heights (true, to 5 mm), the tracker's point as the
+    # log's head offset (5 cm lower), or a prior that covers the depth (60 mm)
+    sim = point_5cm_low
+    log, kw = copy.copy(sim.calib), {}
+    if remedy == "height reference":
+        log, kw = _with_true_heights(log), dict(sensor_height_sigma_m=0.005)
+    elif remedy == "head offset":
+        log.meta = copy.copy(log.meta)
+        log.meta.head_offset_m = np.asarray(log.meta.head_offset_m, float) - np.array([0.0, 0.0, 0.05])
+    else:
+        kw = dict(head_vertical_sigma_m=0.06)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(log, **kw)
+    ez, sz = _z_errors_and_sigma(sim, res)
+    assert np.all(np.abs(ez) < sz)
+    if remedy == "height reference":
+        assert res.diagnostics.head_model.vertical_offset_m == pytest.approx(-0.05, abs=0.01)
 
 
 def test_a_head_point_shifted_toward_the_sensor_does_not_scale_the_corridor():

@@ -600,17 +600,37 @@ PER_SENSOR_HEIGHT_NOTE = ("A tracker whose head point sits higher or lower for o
                           "installed heights as a reference (sensor_height_sigma_m) hold it.")
 
 
+def head_depth_note(head_vertical_sigma_m: float) -> str:
+    """What the sensors' vertical sigma rests on without a height reference: the shared vertical
+    offset is known only to its prior (a dome's facing point, offset = -ray shift, give or take
+    ``head_vertical_sigma_m``), so that sigma holds for a tracker whose point, seen from straight
+    above, lies within it of the head top, and a point deeper in the head is a shared height
+    error beyond it. (The simulator's centroid of the head's top 10 cm lies 43-50 mm below the
+    top at every elevation, its shift toward the sensor 0-50 mm: the graph's point, at the prior's
+    mean, stays within 7 mm of the top, 42-59 mm (1.4-2.0 sigma) above the tracker's on the zoo's
+    ten centroid logs, and the sensors' heights are off by 46-63 mm, their spread 0.4-3.4 mm.)"""
+    return (f"That sigma holds for a tracker whose point seen from straight above lies within "
+            f"{1000 * head_vertical_sigma_m:.0f} mm of the head top (a blob's highest point, a dome's facing "
+            "point): a point deeper in the head (a centroid of the head's top, 4-5 cm lower; an ellipsoid's "
+            "centre or a skeleton's head joint, about the head's radius) puts every sensor that much higher, "
+            "beyond its sigma. Give a height reference, the tracker's point seen from above as the log's "
+            "head_offset (meta.yaml), or a head_vertical_sigma_m that covers its depth.")
+
+
 def record_head_profile(head_model, prob, shifts) -> None:
     """Put the profile the solve kept (if any) into ``head_model`` (its ``horizontal_profile``),
     or without one each sensor's own shift where its departure was estimated (its
     ``per_sensor_shift_m`` and sigma, :func:`departures_record`), from the nuisances' result
     ``shifts`` (None: nothing estimated); without a height reference
-    its note also says that a per-sensor vertical offset is a height error
-    (PER_SENSOR_HEIGHT_NOTE)."""
+    its note also says which trackers its vertical sigma holds for (:func:`head_depth_note`)
+    and that a per-sensor vertical offset is a height error (PER_SENSOR_HEIGHT_NOTE)."""
     if head_model is None:
         return
-    if head_model.height_reference == "none" and head_model.note and PER_SENSOR_HEIGHT_NOTE not in head_model.note:
-        head_model.note = f"{head_model.note} {PER_SENSOR_HEIGHT_NOTE}"
+    if head_model.height_reference == "none" and head_model.note:
+        depth = head_depth_note(prob.recipe.head_vertical_sigma_m)
+        for note in (depth, PER_SENSOR_HEIGHT_NOTE):
+            if note not in head_model.note:
+                head_model.note = f"{head_model.note} {note}"
     if shifts is None:
         return
     # (with the profile off, knots set by a line only considered at 0 are no profile)
@@ -630,7 +650,8 @@ def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
                      np.asarray(profile["shift_m"], float))
 
 
-__all__ = ["record_head_profile", "head_profile_nuisances", "head_profile_shift_sensor", "select_head_profile",
+__all__ = ["record_head_profile", "head_depth_note", "PER_SENSOR_HEIGHT_NOTE", "head_profile_nuisances",
+           "head_profile_shift_sensor", "select_head_profile",
            "profile_record", "departures_record", "is_head_profile", "hats", "horizontal_distance", "shift_at",
            "line_of_knots", "shapes",
            "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
