@@ -74,6 +74,14 @@ def test_characters_libyaml_escapes_written_by_pyyaml(char):
 
 
 @needs_libyaml
+def test_double_quoted_key_opening_a_flow_mapping_written_by_pyyaml():
+    """A double-quoted scalar right after a flow mapping's brace (a mapping in a one-line list, here
+    an object array among the extra keys): libyaml escapes it, the text is PyYAML's."""
+    data = {"frame": "map", "extra": {"x": np.array([{"\U0001F600": 1}], dtype=object)}}
+    assert dump_yaml(data) == dump_yaml(data, libyaml=False) == "frame: map\nextra:\n  x: [{\U0001F600: 1}]\n"
+
+
+@needs_libyaml
 def test_backslash_escapes_spelt_out_in_a_plain_scalar_written_by_libyaml(monkeypatch):
     """A backslash and N or U in a plain scalar is no escape: written as it is, by libyaml."""
     data = {"frame": "map", "note": "\\N and \\U written as such", "sensors": [{"id": "a\\U0001F600"}]}

@@ -346,9 +346,9 @@ def flow_vector(values) -> _FlowList:
 # where libyaml's text is not PyYAML's: a double-quoted scalar opens (libyaml escapes NEL as \N and
 # the characters beyond the Basic Multilingual Plane as \U... that PyYAML writes as they are, and
 # breaks long ones elsewhere), at a line's start (past its sequences' dashes), after a key or a
-# flow collection's bracket or comma; a quote inside a plain or single-quoted scalar may match too,
-# which only costs PyYAML's emitter's time
-_DOUBLE_QUOTED = re.compile(r'(?:^ *(?:- )*|: |\? |\[|, )"', re.M)
+# flow collection's bracket, brace (a mapping inside a one-line list) or comma; a quote inside a
+# plain or single-quoted scalar may match too, which only costs PyYAML's emitter's time
+_DOUBLE_QUOTED = re.compile(r'(?:^ *(?:- )*|: |\? |[\[{]|, )"', re.M)
 # PyYAML writes a key of 123 characters or more as "? key", libyaml one of more than 128 bytes (UTF-8):
 # a key longer than this (in bytes) is left to PyYAML
 _LONG_KEY_BYTES = 100
