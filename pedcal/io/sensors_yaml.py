@@ -381,15 +381,14 @@ def _keys_libyaml_writes_otherwise(data) -> bool:
     return False
 
 
-def dump_yaml(data: dict, *, libyaml: bool = True) -> str:
-    """``data`` as block-style YAML, keys in their order; by libyaml's emitter where PyYAML has it
-    (``libyaml=False``: PyYAML's own), the same text: a text libyaml would write otherwise (a
-    double-quoted scalar, an empty or long key, a lone surrogate it cannot encode) is written by
-    PyYAML's emitter."""
+def dump_yaml(data: dict) -> str:
+    """``data`` as block-style YAML, keys in their order; by libyaml's emitter where PyYAML has it,
+    the text of PyYAML's own: a text libyaml would write otherwise (a double-quoted scalar, an
+    empty or long key, a lone surrogate it cannot encode) is written by PyYAML's emitter."""
     def dump(dumper):
         return yaml.dump(data, Dumper=dumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
 
-    if libyaml and _CDumper is not None and not _keys_libyaml_writes_otherwise(data):
+    if _CDumper is not None and not _keys_libyaml_writes_otherwise(data):
         try:
             text = dump(_CDumper)
         except UnicodeEncodeError:      # a lone surrogate (a "\uDCFF" escape read from a file): PyYAML escapes it
