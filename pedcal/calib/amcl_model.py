@@ -168,16 +168,19 @@ def _exclusion(excluded: np.ndarray, track_jumps: np.ndarray, t: np.ndarray) -> 
 def robust_variogram(t: np.ndarray, series: list[tuple[np.ndarray, np.ndarray]],
                      lags_s: np.ndarray = VARIOGRAM_LAGS_S, min_pairs: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """Robust semivariance (m^2, per axis, averaged over the axes) at each lag of several series
-    ``(rows, values (n, k))`` sampled at ``t[rows]`` (rows increasing), pairs taken within a
-    series only (a quarter of the lag of it): (1.4826 MAD of the differences)^2 / 2, and the
-    number of such pairs. NaN where fewer than ``min_pairs`` pairs exist."""
+    ``(rows, values (n, k))`` sampled at ``t[rows]`` (finite times, non-decreasing within each
+    series; ties allowed), pairs taken within a series only (a quarter of the lag of it):
+    (1.4826 MAD of the differences)^2 / 2, and the number of such pairs. NaN where fewer than
+    ``min_pairs`` pairs exist."""
     out = np.full(len(lags_s), np.nan)
     pairs = np.zeros(len(lags_s), int)
     # every series at once, in order: its times as the imaginary part of a complex key whose real
     # part is the series' number, so that one sorted search (complex numbers order by real part,
     # then imaginary) finds each sample's partner within its own series; a search past the
     # series' end lands on the next one's first sample, past ``end``. (The times themselves are
-    # compared as they are: the pairs and their differences those of a search per series.)
+    # compared as they are: the pairs and their differences those of a search per series, for
+    # finite times non-decreasing within each series only: the keys must be sorted, and a NaN
+    # time has no place in their order.)
     if series:
         lengths = np.array([len(rows) for rows, _ in series], np.int64)
         tg = np.concatenate([t[rows] for rows, _ in series]).astype(float)
