@@ -25,13 +25,8 @@ from pedcal.sim import simulate_logs
 from pedcal.sim.robot import ou_process
 
 
-def test_the_variograms_pairs_are_each_series_own_at_every_lag():
-    # all series searched at once: the pairs, and so the semivariances, are those of a search
-    # within each series (times with ties, empty series, series of one sample)
-    rng = np.random.default_rng(31)
-    t = np.sort(np.round(rng.uniform(0.0, 300.0, 3000), 1))
-    sizes = [0, 1, 5, 150, 0, 400, 80, 2]
-    series = [(np.sort(rng.choice(len(t), k, replace=False)), rng.normal(size=(k, 2))) for k in sizes]
+def _assert_pairs_within_each_series(t, series):
+    """robust_variogram's pairs, and so its semivariances, are those of a search within each series."""
     gamma, pairs = robust_variogram(t, series, min_pairs=5)
     for n, lag in enumerate(VARIOGRAM_LAGS_S):
         diffs = []
@@ -49,8 +44,28 @@ def test_the_variograms_pairs_are_each_series_own_at_every_lag():
         else:
             assert np.isnan(gamma[n])
     assert pairs.max() > 0
+
+
+def test_the_variograms_pairs_are_each_series_own_at_every_lag():
+    # all series searched at once: the pairs, and so the semivariances, are those of a search
+    # within each series (times with ties, empty series, series of one sample)
+    rng = np.random.default_rng(31)
+    t = np.sort(np.round(rng.uniform(0.0, 300.0, 3000), 1))
+    sizes = [0, 1, 5, 150, 0, 400, 80, 2]
+    series = [(np.sort(rng.choice(len(t), k, replace=False)), rng.normal(size=(k, 2))) for k in sizes]
+    _assert_pairs_within_each_series(t, series)
     empty, none = robust_variogram(t, [])
     assert np.all(np.isnan(empty)) and not none.any()
+
+
+def test_the_variograms_pairs_stop_at_each_series_end():
+    # series over consecutive spans of time: a search past one series' end would find, a lag
+    # later, the next series' first samples, which are no pairs of either
+    rng = np.random.default_rng(37)
+    t = np.arange(3000) * 0.1
+    cuts = [0, 400, 401, 1100, 1900, 3000]
+    series = [(np.arange(a, b), rng.normal(size=(b - a, 2))) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+    _assert_pairs_within_each_series(t, series)
 
 
 def _visits(rng, t, n_sensors=6, visit_s=8.0):

@@ -286,6 +286,12 @@ def test_pooled_rigid_sse_is_the_fits_residuals():
         assert got[L] == pytest.approx(want, rel=1e-9, abs=1e-12)
     assert got[3] > 10 * got[0]                           # the mirrored group does not fit
     assert pooled_rigid_sse(p, bounds, q[0]).shape == ()
+    # the groups' SVDs in one call: the values of a call per group, summed in the groups' order,
+    # to the bit
+    alone = np.zeros(4)
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        alone += pooled_rigid_sse(p[a:b], [0, b - a], q[:, a:b])
+    np.testing.assert_array_equal(got, alone)
 
 
 def test_pooled_rigid_sse_of_no_group_is_zero():

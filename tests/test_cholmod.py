@@ -73,6 +73,21 @@ def test_bad_order_and_right_hand_side_are_value_errors():
         NormalCholesky(A).solve(np.ones(11))
 
 
+def test_no_column_or_no_right_hand_side_solves_to_zeros_of_its_shape():
+    # a system of no variables (rows or none) factorizes; its solve of one, several or no
+    # right-hand sides is empty, as a system's solve of no right-hand side is
+    for rows in (5, 0):
+        chol = NormalCholesky(sps.csr_matrix((rows, 0)))
+        assert chol.n == 0
+        for shape in ((0,), (0, 3), (0, 0)):
+            x = chol.solve(np.zeros(shape))
+            assert x.shape == shape and x.dtype == float
+        with pytest.raises(ValueError, match="1 rows for 0 columns"):
+            chol.solve(np.ones(1))
+    x = NormalCholesky(_system(30, 10, 3)).solve(np.zeros((10, 0)))
+    assert x.shape == (10, 0)
+
+
 def test_the_analysis_is_reused_for_the_same_pattern_and_order_only(monkeypatch):
     # a factorization of the same pattern and order after the last one was let go of takes its
     # symbolic analysis; another order, another pattern, or one still held make their own; the

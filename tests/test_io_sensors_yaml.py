@@ -4,10 +4,18 @@ import numpy as np
 import pytest
 import yaml
 
+from pedcal.io import sensors_yaml
 from pedcal.io.sensors_yaml import _CDumper, _Dumper, dump_yaml, flow_vector, read_sensors_yaml, sensors_yaml_text
 from pedcal.model import SensorExtrinsics, SensorNetwork
 
 needs_libyaml = pytest.mark.skipif(_CDumper is None, reason="PyYAML built without libyaml")
+
+
+def _pyyaml_text(data) -> str:
+    """dump_yaml's text with libyaml's emitter taken away: PyYAML's own, the reference."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(sensors_yaml, "_CDumper", None)
+        return dump_yaml(data)
 
 
 def _calibrated_network() -> SensorNetwork:
@@ -36,8 +44,6 @@ def _calibrated_network() -> SensorNetwork:
 
 @needs_libyaml
 def test_calibrated_file_text_is_pyyaml_s(tmp_path, monkeypatch):
-    from pedcal.io import sensors_yaml
-
     net = _calibrated_network()
     with monkeypatch.context() as m:
         m.setattr(sensors_yaml, "_Dumper", _RefusedDumper)      # (libyaml's text, none of the guard's cases)
@@ -60,7 +66,7 @@ def test_calibrated_file_text_is_pyyaml_s(tmp_path, monkeypatch):
                                    "line one\nline two\n  indented\n", "漢字 μ ±"])
 def test_scalars_written_alike(value):
     data = {"k": value, "list": [value, flow_vector([1.5, 2.0])], "nested": {"v": value}}
-    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert dump_yaml(data) == _pyyaml_text(data)
 
 
 @needs_libyaml
@@ -69,15 +75,23 @@ def test_characters_libyaml_escapes_written_by_pyyaml(char):
     """NEL and the characters beyond the Basic Multilingual Plane, which libyaml escapes where
     PyYAML may not: the text is PyYAML's."""
     data = {"frame": f"a{char}b", "sensors": []}
-    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert dump_yaml(data) == _pyyaml_text(data)
     assert ("\U0001F600" in dump_yaml(data)) == (char == "\U0001F600")      # (written as it is, not escaped)
+
+
+@needs_libyaml
+def test_double_quoted_key_opening_a_flow_mapping_written_by_pyyaml():
+    """A double-quoted scalar right after a flow mapping's brace (a mapping in a one-line list, here
+    an object array among the extra keys): libyaml escapes it, the text is PyYAML's."""
+    data = {"frame": "map", "extra": {"x": np.array([{"\U0001F600": 1}], dtype=object)}}
+    assert dump_yaml(data) == _pyyaml_text(data) == "frame: map\nextra:\n  x: [{\U0001F600: 1}]\n"
 
 
 @needs_libyaml
 def test_backslash_escapes_spelt_out_in_a_plain_scalar_written_by_libyaml(monkeypatch):
     """A backslash and N or U in a plain scalar is no escape: written as it is, by libyaml."""
     data = {"frame": "map", "note": "\\N and \\U written as such", "sensors": [{"id": "a\\U0001F600"}]}
-    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert dump_yaml(data) == _pyyaml_text(data)
     assert "note: \\N and \\U written as such\n" in dump_yaml(data)
     assert _written_by_libyaml(data, monkeypatch)
 
@@ -86,13 +100,12 @@ def test_backslash_escapes_spelt_out_in_a_plain_scalar_written_by_libyaml(monkey
 def test_every_latin_and_greek_character_written_alike():
     for cp in range(0x20, 0x800):
         data = {"k": "a" + chr(cp) + "b"}
-        assert dump_yaml(data) == dump_yaml(data, libyaml=False), hex(cp)
+        assert dump_yaml(data) == _pyyaml_text(data), hex(cp)
 
 
 def test_lone_surrogate_read_from_a_file_written_back_as_pyyaml_does(tmp_path, monkeypatch):
     """libyaml's emitter cannot encode a lone surrogate (a "\\uDCFF" escape read from a file) and
     raises; PyYAML's escapes it: the text is PyYAML's."""
-    from pedcal.io import sensors_yaml
     from pedcal.io.sensors_yaml import write_sensors_yaml
 
     (tmp_path / "in.yaml").write_text('frame: map\nsensors:\n- id: "s\\uDCFF"\n  position: [1.0, 2.0, 2.6]\n'
@@ -116,8 +129,6 @@ class _RefusedDumper(yaml.SafeDumper):
 
 def _written_by_libyaml(data, monkeypatch) -> bool:
     """Whether dump_yaml writes ``data`` with libyaml's emitter alone (PyYAML's refused)."""
-    from pedcal.io import sensors_yaml
-
     with monkeypatch.context() as m:
         m.setattr(sensors_yaml, "_Dumper", _RefusedDumper)
         try:
@@ -151,7 +162,7 @@ def test_random_strings_as_values_and_keys_written_as_pyyaml_does(seed, monkeypa
         data = {"frame": value, "sensors": [{"id": value, "position": flow_vector([1.0, 2.0, 2.6]),
                                              "unobservable": flow_vector([]) if rng.random() < 0.5 else [value]}],
                 key: {key: [value, key]}, "k": value}
-        assert dump_yaml(data) == dump_yaml(data, libyaml=False), (value, key)
+        assert dump_yaml(data) == _pyyaml_text(data), (value, key)
         by_libyaml += _written_by_libyaml(data, monkeypatch)
     assert by_libyaml >= 10         # (the guard lets libyaml write the plain ones)
 
@@ -159,7 +170,7 @@ def test_random_strings_as_values_and_keys_written_as_pyyaml_does(seed, monkeypa
 @needs_libyaml
 def test_empty_key_written_as_pyyaml_does(monkeypatch):
     data = {"frame": "map", "extra": {"": 1.5, "b": {"": None}}}
-    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert dump_yaml(data) == _pyyaml_text(data)
     assert not _written_by_libyaml(data, monkeypatch)
 
 
@@ -168,16 +179,15 @@ def test_empty_key_written_as_pyyaml_does(monkeypatch):
                          ids=lambda k: f"{len(k)}x{ord(k[0]):x}")
 def test_long_key_written_as_pyyaml_does(key, monkeypatch):
     data = {"frame": "map", "sensors": [{key: 1, "id": "s01"}], "extra": {key: [1, 2]}}
-    assert dump_yaml(data) == dump_yaml(data, libyaml=False)
+    assert dump_yaml(data) == _pyyaml_text(data)
     assert not _written_by_libyaml(data, monkeypatch)
     short = {"frame": "map", "extra": {"k" * 100: 1, "μ" * 50: 2}}      # (100 bytes: libyaml's)
-    assert dump_yaml(short) == dump_yaml(short, libyaml=False) and _written_by_libyaml(short, monkeypatch)
+    assert dump_yaml(short) == _pyyaml_text(short) and _written_by_libyaml(short, monkeypatch)
 
 
 def test_factor_graph_s_calibrated_file_written_by_libyaml(tmp_path, monkeypatch):
     """The guard leaves the factor graph's own output (covariance, head model, notes) to libyaml."""
     from pedcal.calib import calibrate
-    from pedcal.io import sensors_yaml
     from pedcal.io.sensors_yaml import write_sensors_yaml
     from pedcal.sim import simulate_logs
 

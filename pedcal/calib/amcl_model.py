@@ -168,16 +168,19 @@ def _exclusion(excluded: np.ndarray, track_jumps: np.ndarray, t: np.ndarray) -> 
 def robust_variogram(t: np.ndarray, series: list[tuple[np.ndarray, np.ndarray]],
                      lags_s: np.ndarray = VARIOGRAM_LAGS_S, min_pairs: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """Robust semivariance (m^2, per axis, averaged over the axes) at each lag of several series
-    ``(rows, values (n, k))`` sampled at ``t[rows]`` (rows increasing), pairs taken within a
-    series only (a quarter of the lag of it): (1.4826 MAD of the differences)^2 / 2, and the
-    number of such pairs. NaN where fewer than ``min_pairs`` pairs exist."""
+    ``(rows, values (n, k))`` sampled at ``t[rows]`` (finite times, non-decreasing within each
+    series; ties allowed), pairs taken within a series only (a quarter of the lag of it):
+    (1.4826 MAD of the differences)^2 / 2, and the number of such pairs. NaN where fewer than
+    ``min_pairs`` pairs exist."""
     out = np.full(len(lags_s), np.nan)
     pairs = np.zeros(len(lags_s), int)
     # every series at once, in order: its times as the imaginary part of a complex key whose real
     # part is the series' number, so that one sorted search (complex numbers order by real part,
     # then imaginary) finds each sample's partner within its own series; a search past the
     # series' end lands on the next one's first sample, past ``end``. (The times themselves are
-    # compared as they are: the pairs and their differences those of a search per series.)
+    # compared as they are: the pairs and their differences those of a search per series, for
+    # finite times non-decreasing within each series only: the keys must be sorted, and a NaN
+    # time has no place in their order.)
     if series:
         lengths = np.array([len(rows) for rows, _ in series], np.int64)
         tg = np.concatenate([t[rows] for rows, _ in series]).astype(float)
@@ -272,25 +275,17 @@ def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold
     return dev > max(threshold * jump_scale(dev), min_jump_m)
 
 
-def _edge_sums(t: np.ndarray, p: np.ndarray) -> tuple:
-    """The cumulative sums :func:`_edge_values` reads (the first time t0, then of 1, t - t0,
-    (t - t0)^2, p and (t - t0) p, each with a leading 0)."""
+def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, at: np.ndarray):
+    """(n, k) the least-squares line through the samples ``lo[j]:hi[j]`` of (``t``, ``p``),
+    evaluated at ``at[j]``; NaN where fewer than two samples (or one time) are in the window.
+    Also (n,) that value's variance per unit variance of a sample's noise,
+    sum(u^2) / (n sum(u^2) - (sum u)^2) with u the samples' times about ``at[j]`` (the line's
+    variance where it is read: large where it extrapolates over a hole or from samples close in
+    time). From cumulative sums, so a long log costs O(n)."""
     t0 = float(t[0]) if len(t) else 0.0
     tt = t - t0
     z = lambda a: np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])  # noqa: E731
-    return t0, z(np.ones_like(tt)), z(tt), z(tt * tt), z(p), z(tt[:, None] * p)
-
-
-def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, at: np.ndarray,
-                 variance: bool = False, sums: tuple | None = None):
-    """(n, k) the least-squares line through the samples ``lo[j]:hi[j]`` of (``t``, ``p``),
-    evaluated at ``at[j]``; NaN where fewer than two samples (or one time) are in the window.
-    With ``variance``, also (n,) that value's variance per unit variance of a sample's noise,
-    sum(u^2) / (n sum(u^2) - (sum u)^2) with u the samples' times about ``at[j]`` (the line's
-    variance where it is read: large where it extrapolates over a hole or from samples close in
-    time). From cumulative sums, so a long log costs O(n); ``sums``: those of (``t``, ``p``) when
-    already taken (:func:`_edge_sums`: one window's before and after read the same)."""
-    t0, c1, ct, ctt, cp, ctp = _edge_sums(t, p) if sums is None else sums
+    c1, ct, ctt, cp, ctp = z(np.ones_like(tt)), z(tt), z(tt * tt), z(p), z(tt[:, None] * p)
     n = c1[hi] - c1[lo]
     s_t, s_tt = ct[hi] - ct[lo], ctt[hi] - ctt[lo]
     s_p, s_tp = cp[hi] - cp[lo], ctp[hi] - ctp[lo]
@@ -303,8 +298,6 @@ def _edge_values(t: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, a
     ok = (n >= 2) & (det > 1e-12 * np.maximum(n * suu, 1e-300))
     out = np.full(p[lo].shape, np.nan)
     out[ok] = (suu[ok, None] * s_p[ok] - su[ok, None] * sup[ok]) / det[ok, None]
-    if not variance:
-        return out
     var = np.full(len(out), np.inf)
     var[ok] = suu[ok] / det[ok]
     return out, var
@@ -358,9 +351,10 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
         """(the steps at ``gaps``, their sizes in standard errors, their sizes in metres)"""
         a, b = int(first[gaps].min()), int(last[gaps].max())     # the estimates these windows read
         kk, ts, ps = k[gaps] - a, tu[a:b], pu[a:b]
-        sums = _edge_sums(ts, ps)
-        after, v_after = _edge_values(ts, ps, kk, last[gaps] - a, at[gaps], variance=True, sums=sums)
-        before, v_before = _edge_values(ts, ps, first[gaps] - a, kk, at[gaps], variance=True, sums=sums)
+        # the windows after the gaps, then those before, in one call (one set of cumulative sums)
+        both, v_both = _edge_values(ts, ps, np.r_[kk, first[gaps] - a], np.r_[last[gaps] - a, kk],
+                                    np.r_[at[gaps], at[gaps]])
+        (after, before), (v_after, v_before) = np.split(both, 2), np.split(v_both, 2)
         d = after - before
         norm = np.linalg.norm(d, axis=1)
         z = norm / np.sqrt(v_after + v_before)

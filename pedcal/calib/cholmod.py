@@ -316,10 +316,10 @@ class NormalCholesky:
         y = np.asarray(y, float)
         if y.shape[0] != self.n:
             raise ValueError(f"a right-hand side of {y.shape[0]} rows for {self.n} columns")
+        if y.size == 0:           # no column, or no right-hand side (before the reshape, which 0 rows cannot take)
+            return np.zeros(y.shape)
         Y = np.asfortranarray(y.reshape(self.n, -1))
         k = Y.shape[1]
-        if k == 0 or self.n == 0:
-            return np.zeros(y.shape)
         B = _Dense(self.n, k, self.n * k, self.n, Y.ctypes.data, None, _REAL, _DOUBLE)
         lib = library()
         with lib.lock:

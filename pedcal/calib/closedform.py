@@ -90,7 +90,6 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             from pedcal.calib.association import associate_robot
 
             assoc = associate_robot(log, progress=progress, **association_params)
-            head_at = head_interpolator(log)
             is_robot = assoc.is_robot
             diagnostics.association_runtime_s = assoc.runtime_s
             if latency_s is None:
@@ -101,9 +100,10 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                 raise PedcalInputError(f"is_robot must be a boolean mask with one entry per observation "
                                        f"({len(log.observations)}), got dtype {is_robot.dtype} and shape "
                                        f"{is_robot.shape}", path=log.path)
-            head_at = head_interpolator(log)
-            if latency_s is None:
-                latency_s = estimate_latency(log, is_robot, head_at=head_at)
+        # (made after the association, whose error for a log without robot.csv is the clearer)
+        head_at = head_interpolator(log)
+        if latency_s is None:       # (a mask given: the association's estimate is not at hand)
+            latency_s = estimate_latency(log, is_robot, head_at=head_at)
         diagnostics.tracker_latency_s = float(latency_s)
 
         sensor_col = log.observations["sensor"].astype(str).to_numpy()

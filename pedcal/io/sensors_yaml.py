@@ -346,9 +346,9 @@ def flow_vector(values) -> _FlowList:
 # where libyaml's text is not PyYAML's: a double-quoted scalar opens (libyaml escapes NEL as \N and
 # the characters beyond the Basic Multilingual Plane as \U... that PyYAML writes as they are, and
 # breaks long ones elsewhere), at a line's start (past its sequences' dashes), after a key or a
-# flow collection's bracket or comma; a quote inside a plain or single-quoted scalar may match too,
-# which only costs PyYAML's emitter's time
-_DOUBLE_QUOTED = re.compile(r'(?:^ *(?:- )*|: |\? |\[|, )"', re.M)
+# flow collection's bracket, brace (a mapping inside a one-line list) or comma; a quote inside a
+# plain or single-quoted scalar may match too, which only costs PyYAML's emitter's time
+_DOUBLE_QUOTED = re.compile(r'(?:^ *(?:- )*|: |\? |[\[{]|, )"', re.M)
 # PyYAML writes a key of 123 characters or more as "? key", libyaml one of more than 128 bytes (UTF-8):
 # a key longer than this (in bytes) is left to PyYAML
 _LONG_KEY_BYTES = 100
@@ -381,15 +381,14 @@ def _keys_libyaml_writes_otherwise(data) -> bool:
     return False
 
 
-def dump_yaml(data: dict, *, libyaml: bool = True) -> str:
-    """``data`` as block-style YAML, keys in their order; by libyaml's emitter where PyYAML has it
-    (``libyaml=False``: PyYAML's own), the same text: a text libyaml would write otherwise (a
-    double-quoted scalar, an empty or long key, a lone surrogate it cannot encode) is written by
-    PyYAML's emitter."""
+def dump_yaml(data: dict) -> str:
+    """``data`` as block-style YAML, keys in their order; by libyaml's emitter where PyYAML has it,
+    the text of PyYAML's own: a text libyaml would write otherwise (a double-quoted scalar, an
+    empty or long key, a lone surrogate it cannot encode) is written by PyYAML's emitter."""
     def dump(dumper):
         return yaml.dump(data, Dumper=dumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
 
-    if libyaml and _CDumper is not None and not _keys_libyaml_writes_otherwise(data):
+    if _CDumper is not None and not _keys_libyaml_writes_otherwise(data):
         try:
             text = dump(_CDumper)
         except UnicodeEncodeError:      # a lone surrogate (a "\uDCFF" escape read from a file): PyYAML escapes it
