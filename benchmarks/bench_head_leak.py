@@ -7,13 +7,17 @@ factor graph's error of each sensor against what its head model's misfit predict
 
 Per robot sighting of the calibration log, the head point's true offset from the head top (the
 sensor's own simulated model, :func:`pedcal.sim.nuisances.head_point`, at the true robot path)
-and the offset the graph's estimated model gives (vertical offset, ray shift, horizontal shift,
-the sensor's own departure of it, curvature: ``result.diagnostics.head_model``); their
+and the offset the graph's estimated model gives (vertical offset, ray shift, horizontal shift
+or its profile against distance, the sensor's own departure of it, curvature:
+``result.diagnostics.head_model``, applied as :func:`pedcal.metrics.reproject_observations`
+applies it); their
 difference d (world, m) is what the graph takes for the head top's error. A sensor pose moved by
 a small rigid motion (omega about its centre c, translation tau) explains d_k by
 omega x (x_k - c) + tau: the weighted least-squares tau (each sighting whitened by the graph's
 own range and lateral sigmas, :func:`pedcal.calib.recipe.observation_sigmas` of the recipe
-defaults, far_factor past the reliable range included) is the position error the misfit
+with the depth and lateral noise the graph estimated from the log,
+``result.diagnostics.observation_noise``, far_factor past the reliable range included) is the
+position error the misfit
 predicts, were the robot's path and the other sensors held. That prediction is split by the
 misfit's parts, each fitted alone (the fit is linear, so they add up): the horizontal part of d
 toward the sensor (its per-sensor mean, ``radial const``, and what varies with distance,
@@ -25,13 +29,18 @@ each sensor's view axis (the mean horizontal unit from the sensor to its sightin
 robot) and across it.
 
 Printed: per log and pooled, the RMS of the actual rest error along and across the view axis,
-of the prediction and of each part, the regression slope and R^2 of actual on predicted, and of
-actual on the error of the graph's per-sensor horizontal shift (estimated less the truth's
-per-sensor mean offset toward the sensor); what a sensor's own horizontal shift, ray shift or
+of the prediction and of each part; along the view axis, the regression slope and R^2 of actual
+on predicted, on each part, and on the error of the graph's per-sensor horizontal shift
+(estimated less the truth's per-sensor mean offset toward the sensor); across it, where the
+misfit has no part and the prediction is small, the RMS alone; what a sensor's own horizontal shift, ray shift or
 both, free beside its pose, would leave of the predicted leak, and the variance they cost; and
 by the sensors' head-point kind (:data:`pedcal.sim.nuisances.HEAD_KINDS`), the actual rest
 error, the predicted leak and what those own shifts would leave of it. Figures only; no
-assertion.
+assertion. ``--json`` writes the per-sensor rows, with fields the printout does not use: the
+sensor's simulated head model (``radius``, ``shift``, ``ramp``), its median horizontal distance
+to the sightings (``dist_m``), the estimated model's mean offset toward the sensor
+(``est_radial_m``), the number of sightings (``n``), and per log the estimated shared model
+(``head``).
 """
 
 from __future__ import annotations
@@ -53,13 +62,14 @@ EXTRAS = ("h", "ray", "h+ray")
 
 
 def rigid_translation(x: np.ndarray, d: np.ndarray, c: np.ndarray, w: np.ndarray,
-                      extra: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                      extra: np.ndarray | None = None, want_vif: bool = True) -> tuple[np.ndarray, float]:
     """(3,) the translation tau of the small rigid motion about ``c`` (rotation omega free) that
     best explains displacements ``d`` (N, 3) of points ``x`` (N, 3), each row whitened by the
     (N, 3, 3) ``w``: least squares of w_k (omega x (x_k - c) + tau + extra_k beta - d_k), the
     (N, 3, m) ``extra`` columns free beside it (none by default); and the variance inflation of
     tau's horizontal part along the sightings' mean direction that the extra columns bring (1:
-    none), from the least squares' normal matrix."""
+    none), from the least squares' normal matrix (NaN, not computed, when ``want_vif`` is
+    false)."""
     r = x - c
     n = len(x)
     m = 0 if extra is None else extra.shape[2]
@@ -74,10 +84,12 @@ def rigid_translation(x: np.ndarray, d: np.ndarray, c: np.ndarray, w: np.ndarray
     A = np.einsum("nij,njk->nik", w, J).reshape(-1, 6 + m)
     b = np.einsum("nij,nj->ni", w, d).ravel()
     tau = np.linalg.lstsq(A, b, rcond=None)[0][3:6]
+    if not want_vif:
+        return tau, float("nan")
     axis = np.append(r[:, :2].mean(axis=0), 0.0)
     axis /= max(np.linalg.norm(axis), 1e-12)
     cov_full = np.linalg.pinv(A.T @ A)[3:6, 3:6]
-    A6 = A.reshape(n * 3, 6 + m)[:, :6]
+    A6 = A[:, :6]
     cov_rigid = np.linalg.pinv(A6.T @ A6)[3:6, 3:6]
     return tau, float(axis @ cov_full @ axis) / max(float(axis @ cov_rigid @ axis), 1e-30)
 
@@ -96,9 +108,43 @@ def whitening(x: np.ndarray, c: np.ndarray, rec) -> np.ndarray:
     return P / s_r[:, None, None] + (np.eye(3) - P) / s_lat[:, None, None]
 
 
+def estimated_head_offset(x: np.ndarray, c: np.ndarray, head, sid: str) -> dict:
+    """The head point the graph's estimated model ``head`` gives for sensor ``sid`` at ``c``
+    and head tops ``x`` (N, 3, world): ``off`` (N, 3) its offset from the head top (m), ``hs``
+    (N,) the horizontal shift toward the sensor in it, ``u_h`` (N, 3) the horizontal unit toward
+    the sensor, ``u_ray`` (N, 3) the unit along the ray to it and ``dist_h`` (N,) the horizontal
+    distance to it (m), all read at the head top moved up by the vertical offset. The model of
+    :func:`pedcal.metrics.reproject_observations`, run forward: the ray shift toward the sensor,
+    curvature_m cos^2(e) up, then the horizontal shift toward the sensor -- with a
+    ``horizontal_profile`` read at the head point's horizontal distance (plus the sensor's own
+    departure, ``per_sensor_shift_m`` at the profile's first knot), without one the sensor's own
+    shift (``per_sensor_shift_m``) where it was estimated, else the shared one."""
+    from pedcal.calib.headpoint import shift_at
+
+    q = x + np.array([0.0, 0.0, head.vertical_offset_m])
+    u = c - q
+    u_ray = u / np.linalg.norm(u, axis=1, keepdims=True)
+    u_h = np.column_stack([u[:, :2], np.zeros(len(u))])
+    dist_h = np.linalg.norm(u_h, axis=1)
+    u_h /= np.maximum(dist_h, 1e-9)[:, None]
+    cos2 = np.sum(u[:, :2] ** 2, axis=1) / np.sum(u ** 2, axis=1)
+    profile = head.horizontal_profile
+    if profile is not None:
+        own = profile.get("per_sensor_shift_m", {}).get(sid, profile["shift_m"][0]) - profile["shift_m"][0]
+        # the distance after the ray shift, less the horizontal shift itself (one fixed-point
+        # step: the profile is read at the head point, as reproject_observations reads it)
+        d0 = dist_h - head.ray_shift_m * np.sqrt(cos2)
+        hs = shift_at(profile, d0 - (shift_at(profile, d0) + own)) + own
+    else:
+        hs = np.full(len(q), float((head.per_sensor_shift_m or {}).get(sid, head.horizontal_shift_m)))
+    off = (q - x + head.ray_shift_m * u_ray + hs[:, None] * u_h
+           + head.curvature_m * cos2[:, None] * np.array([0.0, 0.0, 1.0]))
+    return dict(off=off, hs=hs, u_h=u_h, u_ray=u_ray, dist_h=dist_h)
+
+
 def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
     from pedcal.calib import calibrate
-    from pedcal.calib.common import head_world, interpolate_pose2
+    from pedcal.calib.common import robot_head_at
     from pedcal.calib.recipe import GraphRecipe
     from pedcal.metrics import robot_rows
     from pedcal.sim import simulate_logs
@@ -113,8 +159,13 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
     res = calibrate(log, method="factorgraph", **recipe)
     cpu = time.process_time() - c0
     head = res.diagnostics.head_model
-    own = head.per_sensor_shift_m or {}
-    rec = GraphRecipe()
+    # the noise model the graph weighed the sightings with: the recipe's, its depth and lateral
+    # sigmas replaced by those estimated from the log (pedcal.calib.problem.prepare)
+    rec = GraphRecipe(**recipe)
+    noise = res.diagnostics.observation_noise or {}
+    for key in ("range_sigma_floor_m", "range_sigma_k_per_m", "lateral_sigma_m"):
+        if key in noise:
+            setattr(rec, key, float(noise[key]))
     models = sensor_head_models(sc, len(log.truth))
     mask, _ = robot_rows(log)
     obs = log.observations[mask]
@@ -123,8 +174,7 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
     k_sensor = np.array([index[s] for s in sensors], int)
     offset, _ = sensor_clocks(sc, len(log.truth))
     t = obs["t"].to_numpy(float) - sc.latency_s - offset[k_sensor]
-    pose = interpolate_pose2(log.truth_robot, t)
-    top = head_world(pose, sc.head_offset_m)
+    top = robot_head_at(log, t, truth=True)
     rows = []
     for sid in log.truth.ids:
         mine = sensors == sid
@@ -134,15 +184,8 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
         c = log.truth[sid].position_m
         x = top[mine]
         true_off = head_point(x, np.tile(c, (len(x), 1)), models[k]) - x
-        q = x + np.array([0.0, 0.0, head.vertical_offset_m])
-        u = c - q
-        u_h = np.column_stack([u[:, :2], np.zeros(len(u))])
-        dist_h = np.linalg.norm(u_h, axis=1)
-        u_h /= np.maximum(dist_h, 1e-9)[:, None]
-        cos2 = np.sum(u[:, :2] ** 2, axis=1) / np.sum(u ** 2, axis=1)
-        hs = own.get(sid, head.horizontal_shift_m)
-        est_off = (q - x + head.ray_shift_m * u / np.linalg.norm(u, axis=1, keepdims=True)
-                   + hs * u_h + head.curvature_m * cos2[:, None] * np.array([0.0, 0.0, 1.0]))
+        est = estimated_head_offset(x, c, head, sid)
+        est_off, u_h = est["off"], est["u_h"]
         d = est_off - true_off          # what the graph takes for the head top's displacement
         radial = np.sum(d * u_h, axis=1)
         across_u = np.column_stack([-u_h[:, 1], u_h[:, 0], np.zeros(len(u_h))])
@@ -152,27 +195,26 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
         w = whitening(x, c, rec)
         # the sensor moves so that its sightings land on the graph's head top: by -d, rigidly
         # (T_est p - T_true p = est_off - true_off: the sensor moves by d, rigidly)
-        pred = rigid_translation(x, d, c, w)[0]
-        part_pred = {p: rigid_translation(x, v, c, w)[0] for p, v in parts.items()}
+        pred = rigid_translation(x, d, c, w, want_vif=False)[0]
+        part_pred = {p: rigid_translation(x, v, c, w, want_vif=False)[0] for p, v in parts.items()}
         # what a sensor's own extra terms, free beside its pose, would leave of the leak (the
         # misfit taken up by them as far as the pose cannot), and what they cost in variance
-        ray_u = u / np.linalg.norm(u, axis=1, keepdims=True)
+        ray_u = est["u_ray"]
         bases = {"h": u_h[:, :, None], "ray": ray_u[:, :, None], "h+ray": np.stack([u_h, ray_u], axis=2)}
         extra = {}
         for name, basis in bases.items():
             tau, vif = rigid_translation(x, d, c, w, basis)
             extra[name] = dict(pred=tau[:2].tolist(), vif=vif)
         view = (x - c)[:, :2].mean(axis=0)
-        one_sided = float(np.linalg.norm(np.mean(-u_h[:, :2], axis=0)))
         true_radial = float(np.mean(np.sum(true_off * u_h, axis=1)))
         rows.append(dict(sensor=sid, kind=models[k].head_point, radius=models[k].head_radius_m,
                          shift=models[k].head_shift_m, ramp=models[k].head_ramp_m,
                          err=(res.network[sid].position_m - c)[:2].tolist(), pred=pred[:2].tolist(),
                          parts={p: v[:2].tolist() for p, v in part_pred.items()}, extra=extra,
-                         view=(view / max(np.linalg.norm(view), 1e-9)).tolist(), one_sided=one_sided,
-                         dist_m=float(np.median(dist_h)), true_radial_m=true_radial,
-                         est_radial_m=float(np.mean(np.sum((est_off - (q - x)) * u_h, axis=1))),
-                         shift_est_m=float(hs), across_max_m=across_max, n=int(mine.sum())))
+                         view=(view / max(np.linalg.norm(view), 1e-9)).tolist(),
+                         dist_m=float(np.median(est["dist_h"])), true_radial_m=true_radial,
+                         est_radial_m=float(np.mean(np.sum(est_off * u_h, axis=1))),
+                         shift_est_m=float(np.mean(est["hs"])), across_max_m=across_max, n=int(mine.sum())))
     return dict(scenario=scenario, seed=seed, cpu_s=cpu, rows=rows,
                 head=dict(vertical=head.vertical_offset_m, ray=head.ray_shift_m, horizontal=head.horizontal_shift_m,
                           curvature=head.curvature_m))
@@ -234,13 +276,16 @@ def summarize(results: list[dict]) -> None:
     across_max = max(x["across_max_m"] for r in used for x in r["rows"])
     print(f"\npooled over {len(A)} sensors of {len(act)} logs (mm RMS; slope, R^2 of actual on predicted; "
           f"largest misfit across the sensor's vertical plane {1000 * across_max:.1g} mm):")
-    for ax, name in ((0, "along the view axis"), (1, "across")):
-        b, r2 = fit(A[:, ax], P[:, ax])
-        print(f"  {name}: actual {rms_mm(A[:, ax]):.1f}, predicted {rms_mm(P[:, ax]):.1f}, slope {b:.2f}, R^2 {r2:.2f}")
-        for q in PARTS:
-            Q = np.concatenate(parts[q])[:, ax]
-            b, r2 = fit(A[:, ax], Q)
-            print(f"    part {q:12s}: {rms_mm(Q):5.1f} mm, slope {b:+.2f}, R^2 {r2:+.2f}")
+    Q = {q: np.concatenate(parts[q]) for q in PARTS}
+    b, r2 = fit(A[:, 0], P[:, 0])
+    print(f"  along the view axis: actual {rms_mm(A[:, 0]):.1f}, predicted {rms_mm(P[:, 0]):.1f}, "
+          f"slope {b:.2f}, R^2 {r2:.2f}")
+    for q in PARTS:
+        b, r2 = fit(A[:, 0], Q[q][:, 0])
+        print(f"    part {q:12s}: {rms_mm(Q[q][:, 0]):5.1f} mm, slope {b:+.2f}, R^2 {r2:+.2f}")
+    # across, the parts are a millimetre against errors of centimetres: a slope on them means nothing
+    print(f"  across (RMS alone): actual {rms_mm(A[:, 1]):.1f}, predicted {rms_mm(P[:, 1]):.1f}; parts "
+          + ", ".join(f"{q} {rms_mm(Q[q][:, 1]):.1f}" for q in PARTS))
     for e in EXTRAS:
         vif = np.array([x["extra"][e]["vif"] for r in used for x in r["rows"]])
         print(f"  the sensor's own {e:5s} free beside its pose: predicted leak left along / across "
