@@ -151,9 +151,10 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     t_opt = time.perf_counter()
     resolve = recipe.estimate_amcl_model and recipe.amcl and recipe.robot
     # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
-    # residuals the model is estimated from (to 1 % of the error; with the nuisances profiled, the
-    # first profile step, a joint Gauss-Newton step of the variables, follows before them, and
-    # at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below 0.05 mm).
+    # residuals the model is estimated from (to 0.1 % of the error, 1 % with the nuisances
+    # profiled: the first profile step, a joint Gauss-Newton step of the variables, follows before
+    # them, and at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below
+    # 0.05 mm).
     # It alone also stops on the predicted remainder (``predicted_stop``): its point feeds AMCL's
     # residuals and one rough profile step, and the graph is solved again under the model. The
     # two other solves the profile's steps follow (this call when AMCL's model is not estimated,
