@@ -7,8 +7,9 @@ the whole log, with what the graph does not hold as variables estimated around i
    the linearized graph (:mod:`pedcal.calib.profile`, :func:`_estimate_nuisances`), roughly;
 3. AMCL's error model (white and wandering std, correlation time, jumps left out) from the
    residuals of AMCL against what each sensor saw (:mod:`pedcal.calib.amcl_model`); shared
-   sightings the solution contradicts dropped; the graph rebuilt and, unless the profile's
-   steps (joint Gauss-Newton steps of the variables) follow, solved again;
+   sightings the solution contradicts dropped; the graph rebuilt and solved again, unless the
+   profile's steps (joint Gauss-Newton steps of the variables) follow and the model left the
+   robot's motion unchanged;
 4. the shifts again, to a tenth of their sigma, and with wheel odometry the corrections of its
    calibration (scale, heading drift per metre and per second) with them, their covariance
    carried into the sensors';
