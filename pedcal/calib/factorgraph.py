@@ -96,6 +96,7 @@ from pedcal.calib.profile import (
     joint_marginal_covariance,
     profile_step,
     retract_flat,
+    steps_to_come_below,
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
@@ -690,20 +691,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                                                     unmodelled[2]),
                        considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]),
                        ordering=parts.colamd() if final_graph else None)
-
-
-def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> bool | None:
-    """Whether the steps still to come of an iteration contracting at ``rate`` are all below
-    ``tolerance``: with theta = ``rate`` (this step's length over the last one's, each in its
-    variables' sigmas, as the caller measures it), the geometric series theta / (1 - theta) of
-    this step ``u``, component by component (the stopping rule of simplified Newton iterations,
-    Hairer & Wanner, Solving ODEs II, IV.8). None where there is no contraction to measure: no
-    rate (no last step, one of other variables or of length 0), a step no shorter than the last
-    (``rate`` >= 1), or a step or rate that is not a number."""
-    u = np.abs(np.asarray(u, float))
-    if rate is None or not rate < 1.0 or np.isnan(u).any():
-        return None
-    return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
 
 
 def _unmodelled_curvature(step, chi2: float):

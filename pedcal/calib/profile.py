@@ -782,5 +782,20 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
     return values.retract(graph.linearize(values).optimize())
 
 
+def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> bool | None:
+    """Whether the steps still to come of an iteration contracting at ``rate`` are all below
+    ``tolerance``: with theta = ``rate`` (this step's length over the last one's, each in its
+    variables' sigmas, as the caller measures it), the geometric series theta / (1 - theta) of
+    this step ``u``, component by component (the stopping rule of simplified Newton iterations,
+    Hairer & Wanner, Solving ODEs II, IV.8). None where there is no contraction to measure: no
+    rate (no last step, one of other variables or of length 0), a step no shorter than the last
+    (``rate`` >= 1), or a step or rate that is not a number."""
+    u = np.abs(np.asarray(u, float))
+    if rate is None or not rate < 1.0 or np.isnan(u).any():
+        return None
+    return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
+
+
 __all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order",
+           "steps_to_come_below"]
