@@ -63,25 +63,27 @@ class Columns:
             n += int(dims[k])
         return cls(keys=keys, offset=offset, dim={k: int(dims[k]) for k in keys}, n=n)
 
+    def _table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The keys (uint64), each one's first column and width (int64), in key order: worked
+        out once and kept (the lookups of :meth:`index`, :meth:`spans`, fill_reducing_order)."""
+        table = self.__dict__.get("_layout")
+        if table is None:
+            table = self.__dict__["_layout"] = (np.array(self.keys, np.uint64),
+                                                np.array([self.offset[k] for k in self.keys], np.int64),
+                                                np.array([self.dim[k] for k in self.keys], np.int64))
+        return table
+
     def spans(self) -> tuple[list[int], list[int]]:
-        """Each variable's first column and the column after its last, in key order (lists, kept)."""
-        spans = self.__dict__.get("_spans")
-        if spans is None:
-            starts = [self.offset[k] for k in self.keys]
-            ends = [s + self.dim[k] for s, k in zip(starts, self.keys, strict=True)]
-            spans = self.__dict__["_spans"] = (starts, ends)
-        return spans
+        """Each variable's first column and the column after its last, in key order (lists)."""
+        _, starts, dims = self._table()
+        return starts.tolist(), (starts + dims).tolist()
 
     def index(self, keys) -> np.ndarray:
         """Column indices of ``keys``' variables, concatenated."""
         keys = np.asarray(keys, np.uint64).reshape(-1)
         if len(keys) > 16:
             # many keys (a linearized graph's): looked up in the sorted key array, not one by one
-            table = self.__dict__.get("_table")
-            if table is None:
-                table = self.__dict__["_table"] = (np.array(self.keys, np.uint64),
-                                                   np.array([self.offset[k] for k in self.keys], np.int64),
-                                                   np.array([self.dim[k] for k in self.keys], np.int64))
+            table = self._table()
             at = np.minimum(np.searchsorted(table[0], keys), len(table[0]) - 1)
             if len(table[0]) == 0 or np.any(table[0][at] != keys):
                 raise KeyError(int(keys[np.flatnonzero(table[0][at] != keys)[0]]) if len(table[0]) else int(keys[0]))
@@ -131,7 +133,7 @@ def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
     one order serves every factorization of the same graph (the profile's steps)."""
     ordering = gfg if isinstance(gfg, gtsam.Ordering) else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
     keys = np.fromiter((ordering.at(i) for i in range(ordering.size())), np.uint64, ordering.size())
-    own = np.array(cols.keys, np.uint64)
+    own = cols._table()[0]
     at = np.minimum(np.searchsorted(own, keys), max(len(own) - 1, 0))
     keys = keys[own[at] == keys] if len(own) else keys[:0]          # (the system's variables only)
     missing = np.setdiff1d(own, keys)                  # variables no factor touches, last (sorted)
