@@ -509,8 +509,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # (each local nuisance's sensor's columns, one row each: looked up together, not one sensor at a time)
     local_cols = (cols.index([S(int(i)) for i in local_sensors]).reshape(len(local_sensors), -1) if local_nuis
                   else None)
+    # (the last step in sigmas, its nuisances' names: with local nuisances, every step has them,
+    # the whole step, theirs too)
     previous_u, previous_names, slow, extrapolated = None, None, False, False
-    previous_all = None           # (the names and the whole step, in sigmas, of a step with local nuisances)
     max_steps = MAX_PROFILE_STEPS if max_steps is None else max_steps       # (read when called: tests set it)
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
@@ -604,7 +605,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # factors crossing the kernel's threshold and back), whose optimum lies within the step.
         u = step.dtheta / np.sqrt(np.diag(step.covariance))
         slow, rate, cos = False, None, 0.0
-        if previous_u is not None and previous_names == names and step.local is None:
+        same = previous_names == names
+        if previous_u is not None and same and step.local is None:
             nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(previous_u))
             if npv > 0.0:
                 rate = nu / npv
@@ -621,7 +623,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         extrapolated = slow and not converged and rate < 1.0
         if extrapolated:
             step.dtheta = step.dtheta * min(1.0 / (1.0 - rate), 4.0)
-        previous_u, previous_names = (None if extrapolated else u), names
+        previous_names = names
+        if step.local is None:
+            previous_u = None if extrapolated else u
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -644,10 +648,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             # extrapolated): the steps still to come, theta / (1 - theta) of this one, below
             # ``tolerance``; without a step to compare with, or not contracting, the step itself
             u_all = np.r_[u, loc.dtheta / np.sqrt(loc.variance)]
-            before = np.linalg.norm(previous_all[1]) if previous_all is not None and previous_all[0] == names else 0.0
+            before = np.linalg.norm(previous_u) if previous_u is not None and same else 0.0
             to_come = steps_to_come_below(u_all, np.linalg.norm(u_all) / before if before > 0.0 else None, tolerance)
             converged = to_come if to_come is not None else converged and bool(np.all(ratio <= tolerance))
-            previous_all = (names, u_all)
+            previous_u = u_all
             for kind, unit, mine in (("clock offsets", "ms", ~own_shift), ("head shift departures", "mm", own_shift)):
                 if mine.any():
                     _log(progress, f"  {int(mine.sum())} {kind} (sigma per sensor given the path): median "
