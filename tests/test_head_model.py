@@ -94,7 +94,7 @@ def _z_errors_and_sigma(sim, res):
 
 def test_a_tracker_point_below_the_head_top_is_a_shared_height_error_its_prior_alone_bounds(point_5cm_low):
     sim = point_5cm_low
-    with pytest.warns(DegenerateDataWarning, match="within it of the head top"):
+    with pytest.warns(DegenerateDataWarning, match="lies within 30 mm of the head top"):
         res = calibrate_factorgraph(sim.calib)
     head = res.diagnostics.head_model
     ez, sz = _z_errors_and_sigma(sim, res)

@@ -77,6 +77,7 @@ from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     considered_nuisances,
     considered_rms,
+    head_depth_note,
     head_profile_nuisances,
     is_head_profile,
     is_sensor_shift,
@@ -874,10 +875,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
                         "shared by all of them.")
         warnings.warn("the head point's vertical offset cannot be told from the sensors' common height by "
                       "the robot alone: the sensors' vertical sigma carries its prior "
-                      f"({1000 * rec.head_vertical_sigma_m:.0f} mm), which holds for a tracker whose point seen from "
-                      "straight above is within it of the head top (one deeper in the head, the centroid of the "
-                      "head's top, puts every sensor 4-5 cm higher); give a height reference "
-                      "(--sensor-height-sigma or --ceiling-height)", DegenerateDataWarning, stacklevel=3)
+                      f"({1000 * rec.head_vertical_sigma_m:.0f} mm). {head_depth_note(rec.head_vertical_sigma_m)} "
+                      "(A height reference: --sensor-height-sigma or --ceiling-height.)",
+                      DegenerateDataWarning, stacklevel=3)
     return cov_body, cov_given, joint_pos, head, check
 
 
