@@ -94,7 +94,7 @@ def _z_errors_and_sigma(sim, res):
 
 def test_a_tracker_point_below_the_head_top_is_a_shared_height_error_its_prior_alone_bounds(point_5cm_low):
     sim = point_5cm_low
-    with pytest.warns(DegenerateDataWarning, match="within it of the head top"):
+    with pytest.warns(DegenerateDataWarning, match="lies within 30 mm of the head top"):
         res = calibrate_factorgraph(sim.calib)
     head = res.diagnostics.head_model
     ez, sz = _z_errors_and_sigma(sim, res)
@@ -144,6 +144,10 @@ def test_a_tracker_point_below_the_head_top_is_within_sigma_once_its_depth_is_st
     assert np.all(np.abs(ez) < sz)
     if remedy == "height reference":
         assert res.diagnostics.head_model.vertical_offset_m == pytest.approx(-0.05, abs=0.01)
+    elif remedy == "prior width":
+        # the note states the prior the sigma rests on: the vertical offset's, not the profile's
+        # (both 0.03 m by default)
+        assert head_depth_note(0.06) in res.diagnostics.head_model.note
 
 
 def test_a_head_point_shifted_toward_the_sensor_does_not_scale_the_corridor():

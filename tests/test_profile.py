@@ -600,7 +600,7 @@ def test_free_memory_is_handed_back_before_large_factorizations_only(monkeypatch
 
 
 def test_steps_to_come_are_the_geometric_series_of_a_contracting_step():
-    from pedcal.calib.factorgraph import steps_to_come_below
+    from pedcal.calib.profile import steps_to_come_below
 
     # a step of 0.14 sigma after one of 1.24 (rate 0.113): 0.018 sigma to come, below 0.1
     u, before = np.array([0.14, -0.02, 0.0]), np.array([1.24, 0.1, 0.0])

@@ -7,8 +7,9 @@ the whole log, with what the graph does not hold as variables estimated around i
    the linearized graph (:mod:`pedcal.calib.profile`, :func:`_estimate_nuisances`), roughly;
 3. AMCL's error model (white and wandering std, correlation time, jumps left out) from the
    residuals of AMCL against what each sensor saw (:mod:`pedcal.calib.amcl_model`); shared
-   sightings the solution contradicts dropped; the graph rebuilt and, unless the profile's
-   steps (joint Gauss-Newton steps of the variables) follow, solved again;
+   sightings the solution contradicts dropped; the graph rebuilt and solved again, unless the
+   profile's steps (joint Gauss-Newton steps of the variables) follow and the model left the
+   robot's motion unchanged;
 4. the shifts again, to a tenth of their sigma, and with wheel odometry the corrections of its
    calibration (scale, heading drift per metre and per second) with them, their covariance
    carried into the sensors';
@@ -76,6 +77,7 @@ from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     considered_nuisances,
     considered_rms,
+    head_depth_note,
     head_profile_nuisances,
     is_head_profile,
     is_sensor_shift,
@@ -95,6 +97,7 @@ from pedcal.calib.profile import (
     joint_marginal_covariance,
     profile_step,
     retract_flat,
+    steps_to_come_below,
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
@@ -151,9 +154,10 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     t_opt = time.perf_counter()
     resolve = recipe.estimate_amcl_model and recipe.amcl and recipe.robot
     # a first solve that the AMCL model's re-solve continues: a few iterations are enough for the
-    # residuals the model is estimated from (to 1 % of the error; with the nuisances profiled, the
-    # first profile step, a joint Gauss-Newton step of the variables, follows before them, and
-    # at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below 0.05 mm).
+    # residuals the model is estimated from (to 0.1 % of the error, 1 % with the nuisances
+    # profiled: the first profile step, a joint Gauss-Newton step of the variables, follows before
+    # them, and at 0.1 % the 1000-sensor graph took one iteration more, 0.6 s, for changes below
+    # 0.05 mm).
     # It alone also stops on the predicted remainder (``predicted_stop``): its point feeds AMCL's
     # residuals and one rough profile step, and the graph is solved again under the model. The
     # two other solves the profile's steps follow (this call when AMCL's model is not estimated,
@@ -506,8 +510,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # (each local nuisance's sensor's columns, one row each: looked up together, not one sensor at a time)
     local_cols = (cols.index([S(int(i)) for i in local_sensors]).reshape(len(local_sensors), -1) if local_nuis
                   else None)
+    # (the last step in sigmas, its nuisances' names: with local nuisances, every step has them,
+    # the whole step, theirs too)
     previous_u, previous_names, slow, extrapolated = None, None, False, False
-    previous_all = None           # (the names and the whole step, in sigmas, of a step with local nuisances)
     max_steps = MAX_PROFILE_STEPS if max_steps is None else max_steps       # (read when called: tests set it)
     for n_step in range(1, max_steps + 1):
         names = [n.name for n in nuis]
@@ -601,7 +606,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # factors crossing the kernel's threshold and back), whose optimum lies within the step.
         u = step.dtheta / np.sqrt(np.diag(step.covariance))
         slow, rate, cos = False, None, 0.0
-        if previous_u is not None and previous_names == names and step.local is None:
+        same = previous_names == names
+        if previous_u is not None and same and step.local is None:
             nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(previous_u))
             if npv > 0.0:
                 rate = nu / npv
@@ -618,7 +624,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         extrapolated = slow and not converged and rate < 1.0
         if extrapolated:
             step.dtheta = step.dtheta * min(1.0 / (1.0 - rate), 4.0)
-        previous_u, previous_names = (None if extrapolated else u), names
+        previous_names = names
+        if step.local is None:
+            previous_u = None if extrapolated else u
         theta = theta + step.dtheta
         _log(progress, f"profile step {n_step}: " + ", ".join(
             f"{n} {_shown(n, v)} (step {_shown(n, d)}, sigma {_shown(n, s)})" for n, v, d, s in
@@ -641,10 +649,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             # extrapolated): the steps still to come, theta / (1 - theta) of this one, below
             # ``tolerance``; without a step to compare with, or not contracting, the step itself
             u_all = np.r_[u, loc.dtheta / np.sqrt(loc.variance)]
-            before = np.linalg.norm(previous_all[1]) if previous_all is not None and previous_all[0] == names else 0.0
+            before = np.linalg.norm(previous_u) if previous_u is not None and same else 0.0
             to_come = steps_to_come_below(u_all, np.linalg.norm(u_all) / before if before > 0.0 else None, tolerance)
             converged = to_come if to_come is not None else converged and bool(np.all(ratio <= tolerance))
-            previous_all = (names, u_all)
+            previous_u = u_all
             for kind, unit, mine in (("clock offsets", "ms", ~own_shift), ("head shift departures", "mm", own_shift)):
                 if mine.any():
                     _log(progress, f"  {int(mine.sum())} {kind} (sigma per sensor given the path): median "
@@ -688,20 +696,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                                                     unmodelled[2]),
                        considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]),
                        ordering=parts.colamd() if final_graph else None)
-
-
-def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> bool | None:
-    """Whether the steps still to come of an iteration contracting at ``rate`` are all below
-    ``tolerance``: with theta = ``rate`` (this step's length over the last one's, each in its
-    variables' sigmas, as the caller measures it), the geometric series theta / (1 - theta) of
-    this step ``u``, component by component (the stopping rule of simplified Newton iterations,
-    Hairer & Wanner, Solving ODEs II, IV.8). None where there is no contraction to measure: no
-    rate (no last step, one of other variables or of length 0), a step no shorter than the last
-    (``rate`` >= 1), or a step or rate that is not a number."""
-    u = np.abs(np.asarray(u, float))
-    if rate is None or not rate < 1.0 or np.isnan(u).any():
-        return None
-    return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
 
 
 def _unmodelled_curvature(step, chi2: float):
@@ -881,10 +875,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
                         "shared by all of them.")
         warnings.warn("the head point's vertical offset cannot be told from the sensors' common height by "
                       "the robot alone: the sensors' vertical sigma carries its prior "
-                      f"({1000 * rec.head_vertical_sigma_m:.0f} mm), which holds for a tracker whose point seen from "
-                      "straight above is within it of the head top (one deeper in the head, the centroid of the "
-                      "head's top, puts every sensor 4-5 cm higher); give a height reference "
-                      "(--sensor-height-sigma or --ceiling-height)", DegenerateDataWarning, stacklevel=3)
+                      f"({1000 * rec.head_vertical_sigma_m:.0f} mm). {head_depth_note(rec.head_vertical_sigma_m)} "
+                      "(A height reference: --sensor-height-sigma or --ceiling-height.)",
+                      DegenerateDataWarning, stacklevel=3)
     return cov_body, cov_given, joint_pos, head, check
 
 

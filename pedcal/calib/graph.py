@@ -112,6 +112,7 @@ from pedcal.calib.motion import (  # noqa: F401
     smoothed_track,
 )
 from pedcal.calib.problem import FactorGraphProblem, estimate_observation_noise, prepare, set_amcl_model  # noqa: F401
+from pedcal.calib.profile import steps_to_come_below
 from pedcal.calib.readback import (  # noqa: F401
     JOINT_COV_MAX_SENSORS,
     _network_from_result,
@@ -1063,7 +1064,8 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     ordering when already computed (:meth:`GraphParts.colamd`). ``predicted_stop``: the
     iterations also stop when the decreases still to come are predicted below the tolerance,
     theta / (1 - theta) of this iteration's decrease, theta its ratio to the last one's (a
-    linear contraction's geometric series, an upper estimate of Gauss-Newton's quadratic one):
+    linear contraction's geometric series, an upper estimate of Gauss-Newton's quadratic one,
+    :func:`pedcal.calib.profile.steps_to_come_below`):
     for a caller whose next step is a Gauss-Newton step of its own, which takes that remainder."""
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
@@ -1093,10 +1095,9 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
         decrease, error = error - new_error, new_error
         if decrease <= relative_error_tol * (error + decrease) or decrease <= absolute_tol:
             break                             # (LM's convergence test, gtsam.checkConvergence)
-        if predicted_stop and last_decrease is not None and decrease < last_decrease:
-            theta = decrease / last_decrease
-            if theta / (1.0 - theta) * decrease <= relative_error_tol * error:
-                break
+        if predicted_stop and last_decrease is not None and steps_to_come_below(
+                decrease, decrease / last_decrease, relative_error_tol * error) is True:
+            break
         last_decrease = decrease
     else:
         new_error = error

@@ -63,25 +63,27 @@ class Columns:
             n += int(dims[k])
         return cls(keys=keys, offset=offset, dim={k: int(dims[k]) for k in keys}, n=n)
 
+    def _table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The keys (uint64), each one's first column and width (int64), in key order: worked
+        out once and kept (the lookups of :meth:`index`, :meth:`spans`, fill_reducing_order)."""
+        table = self.__dict__.get("_layout")
+        if table is None:
+            table = self.__dict__["_layout"] = (np.array(self.keys, np.uint64),
+                                                np.array([self.offset[k] for k in self.keys], np.int64),
+                                                np.array([self.dim[k] for k in self.keys], np.int64))
+        return table
+
     def spans(self) -> tuple[list[int], list[int]]:
-        """Each variable's first column and the column after its last, in key order (lists, kept)."""
-        spans = self.__dict__.get("_spans")
-        if spans is None:
-            starts = [self.offset[k] for k in self.keys]
-            ends = [s + self.dim[k] for s, k in zip(starts, self.keys, strict=True)]
-            spans = self.__dict__["_spans"] = (starts, ends)
-        return spans
+        """Each variable's first column and the column after its last, in key order (lists)."""
+        _, starts, dims = self._table()
+        return starts.tolist(), (starts + dims).tolist()
 
     def index(self, keys) -> np.ndarray:
         """Column indices of ``keys``' variables, concatenated."""
         keys = np.asarray(keys, np.uint64).reshape(-1)
         if len(keys) > 16:
             # many keys (a linearized graph's): looked up in the sorted key array, not one by one
-            table = self.__dict__.get("_table")
-            if table is None:
-                table = self.__dict__["_table"] = (np.array(self.keys, np.uint64),
-                                                   np.array([self.offset[k] for k in self.keys], np.int64),
-                                                   np.array([self.dim[k] for k in self.keys], np.int64))
+            table = self._table()
             at = np.minimum(np.searchsorted(table[0], keys), len(table[0]) - 1)
             if len(table[0]) == 0 or np.any(table[0][at] != keys):
                 raise KeyError(int(keys[np.flatnonzero(table[0][at] != keys)[0]]) if len(table[0]) else int(keys[0]))
@@ -131,7 +133,7 @@ def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
     one order serves every factorization of the same graph (the profile's steps)."""
     ordering = gfg if isinstance(gfg, gtsam.Ordering) else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
     keys = np.fromiter((ordering.at(i) for i in range(ordering.size())), np.uint64, ordering.size())
-    own = np.array(cols.keys, np.uint64)
+    own = cols._table()[0]
     at = np.minimum(np.searchsorted(own, keys), max(len(own) - 1, 0))
     keys = keys[own[at] == keys] if len(own) else keys[:0]          # (the system's variables only)
     missing = np.setdiff1d(own, keys)                  # variables no factor touches, last (sorted)
@@ -782,5 +784,20 @@ def gauss_newton_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -
     return values.retract(graph.linearize(values).optimize())
 
 
+def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> bool | None:
+    """Whether the steps still to come of an iteration contracting at ``rate`` are all below
+    ``tolerance``: with theta = ``rate`` (this step's length over the last one's, each in its
+    variables' sigmas, as the caller measures it), the geometric series theta / (1 - theta) of
+    this step ``u``, component by component (the stopping rule of simplified Newton iterations,
+    Hairer & Wanner, Solving ODEs II, IV.8). None where there is no contraction to measure: no
+    rate (no last step, one of other variables or of length 0), a step no shorter than the last
+    (``rate`` >= 1), or a step or rate that is not a number."""
+    u = np.abs(np.asarray(u, float))
+    if rate is None or not rate < 1.0 or np.isnan(u).any():
+        return None
+    return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
+
+
 __all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order"]
+           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order",
+           "steps_to_come_below"]
