@@ -204,6 +204,16 @@ def test_each_row_falls_in_the_time_block_of_the_latest_pose_or_amcl_node_it_hol
     blocks = row_blocks(step, np.array([5.0, 25.0, 41.0]), np.array([0.0, 40.0]), cluster_s=20.0)
     # 3 blocks of 20 s (0-60 s): a person's rows come after them, as block 3 + its index
     np.testing.assert_array_equal(blocks, [-1, 0, 1, 2, 0, 2, 3, -1])
+    # stamps since the epoch (a ROS bag's; 1.7e9 s is 85 million blocks of 20 s): the blocks are
+    # counted from the log's first, the same numbers, not labels of ~10^8 that the offsets'
+    # overdispersion would size its arrays by
+    epoch = 1_700_000_000.0
+    at_epoch = row_blocks(step, epoch + np.array([5.0, 25.0, 41.0]), epoch + np.array([0.0, 40.0]), cluster_s=20.0)
+    np.testing.assert_array_equal(at_epoch, blocks)
+    # a log starting within its first block's span counts from that block: 25 s later, the
+    # first pose (30 s) in block 1 of the epoch-aligned grid, numbered 0
+    later = row_blocks(step, np.array([30.0, 50.0, 66.0]), np.array([25.0, 65.0]), cluster_s=20.0)
+    np.testing.assert_array_equal(later, [-1, 0, 1, 2, 0, 2, 3, -1])
 
 
 def test_the_row_blocks_follow_the_columns_offsets_not_the_keys_order_and_skip_poses_without_a_time():
