@@ -214,6 +214,10 @@ def test_each_row_falls_in_the_time_block_of_the_latest_pose_or_amcl_node_it_hol
     # first pose (30 s) in block 1 of the epoch-aligned grid, numbered 0
     later = row_blocks(step, np.array([30.0, 50.0, 66.0]), np.array([25.0, 65.0]), cluster_s=20.0)
     np.testing.assert_array_equal(later, [-1, 0, 1, 2, 0, 2, 3, -1])
+    # an AMCL node earlier than every pose sets the first block: poses in blocks 2, 3, 4 of the
+    # grid, the node at 10 s in block 0
+    node_first = row_blocks(step, np.array([45.0, 65.0, 81.0]), np.array([10.0, 80.0]), cluster_s=20.0)
+    np.testing.assert_array_equal(node_first, [-1, 2, 3, 4, 0, 4, 5, -1])
 
 
 def test_the_row_blocks_follow_the_columns_offsets_not_the_keys_order_and_skip_poses_without_a_time():

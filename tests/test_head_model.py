@@ -463,3 +463,22 @@ def test_a_curving_head_point_the_data_show_below_the_estimation_threshold_widen
     for s in evaluate(sim.eval, res.network).sensors:
         e_mm = np.abs(np.asarray(s.position_error_mm[:2]) - shared)
         assert np.all(e_mm < 2 * 1000 * np.asarray(res.network[s.id].sigma_position_m[:2])), (s.id, e_mm)
+
+
+def test_the_residuals_time_clusters_are_counted_from_the_first_pose():
+    # a factor on pose k falls in pose k's 20 s block, counted from the first pose's: before 0 the
+    # blocks would be labelled below 0, and -1 reads as "left out" (the priors); at stamps since
+    # the epoch the labels are the same small numbers
+    import gtsam
+
+    from pedcal.calib.headpoint import row_clusters
+    from pedcal.calib.keys import L, X
+
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
+    for k in range(3):
+        graph.add(gtsam.PriorFactorPose2(X(k), gtsam.Pose2(), noise))
+    graph.add(gtsam.PriorFactorPoint3(L(1), gtsam.Point3(0, 0, 0), noise))
+    expected = np.repeat([0, 1, 2, 3 + 1], 3)       # a person's cluster after the poses' blocks
+    for times in ([-50.0, -30.0, -10.0], [5.0, 25.0, 45.0], [1.7e9 + 5.0, 1.7e9 + 25.0, 1.7e9 + 45.0]):
+        np.testing.assert_array_equal(row_clusters([graph], np.array(times), 12), expected)

@@ -302,10 +302,11 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
     pose_times = np.asarray(pose_times, float)
     every = np.concatenate([pose_times, t_nodes])
     first = np.floor(float(every.min()) / cluster_s) if every.size else 0.0
-    n_blocks = int(np.floor(float(every.max(initial=0.0)) / cluster_s) - first) + 1
+    n_blocks = int(np.floor(float(every.max()) / cluster_s) - first) + 1 if every.size else 1
     cols = step.cols
     # each variable's block from its key (GTSAM's Symbol: its character and its index)
-    char, index = (part.astype(np.int64) for part in symbol_parts(np.fromiter(cols.keys, np.uint64, len(cols.keys))))
+    keys, starts, dims = cols._table()
+    char, index = (part.astype(np.int64) for part in symbol_parts(keys))
     block = np.full(len(char), -1, np.int64)
     for c, times in (("x", pose_times), ("a", t_nodes)):
         mine = (char == ord(c)) & (index < len(times))
@@ -313,8 +314,6 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
     person = char == ord("l")
     block[person] = n_blocks + index[person]
     # spread over each variable's columns
-    starts = np.fromiter(map(cols.offset.__getitem__, cols.keys), np.int64, len(cols.keys))
-    dims = np.fromiter(map(cols.dim.__getitem__, cols.keys), np.int64, len(cols.keys))
     label = np.full(cols.n, -1, np.int64)
     label[np.repeat(starts - (np.cumsum(dims) - dims), dims) + np.arange(int(dims.sum()))] = np.repeat(block, dims)
     A = sps.csr_matrix(step.A)

@@ -298,13 +298,15 @@ def row_clusters(graphs, pose_times: np.ndarray, n_rows: int, cluster_s: float =
     factor on a robot pose X(k) falls in the block of ``cluster_s`` seconds holding pose k, a
     factor on a person L(m) in that person's cluster, any other in the cluster of the factor
     before it in its graph (AMCL's error nodes between poses, in time order), else -1 (the
-    priors)."""
-    n_blocks = int(np.floor(float(pose_times[-1]) / cluster_s)) + 1 if len(pose_times) else 1
+    priors). The blocks are counted from the first pose's (times before 0 would label theirs
+    below 0, which reads as left out)."""
+    first = np.floor(float(pose_times[0]) / cluster_s) if len(pose_times) else 0.0
+    n_blocks = int(np.floor(float(pose_times[-1]) / cluster_s) - first) + 1 if len(pose_times) else 1
 
     def label_of(symbols, previous):
         for c, k in symbols:
             if c == "x" and k < len(pose_times):
-                return int(np.floor(float(pose_times[k]) / cluster_s))
+                return int(np.floor(float(pose_times[k]) / cluster_s) - first)
         for c, k in symbols:
             if c == "l":
                 return n_blocks + int(k) if people else -1
