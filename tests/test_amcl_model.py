@@ -251,6 +251,15 @@ def test_a_non_finite_estimate_does_not_hide_a_later_jump():
     assert np.array_equal(flagged, on)
 
 
+def test_estimates_all_at_one_instant_have_no_step():
+    # twelve estimates stamped alike (a replayed message): one instant, no gap between estimates,
+    # nothing flagged, no offset (the windows' search had nothing to reduce over and raised)
+    p = np.random.default_rng(4).normal(size=(12, 2))
+    mask, off = detect_steps(np.full(12, 3.0), p, offsets=True)
+    assert not mask.any() and mask.shape == (12,)
+    np.testing.assert_array_equal(off, np.zeros((12, 2)))
+
+
 def test_track_jumps_stay_left_out_where_no_sensor_saw_the_robot():
     # the assumed model leaves AMCL's track jumps out; the estimated one keeps them, with those
     # the sensors' residuals show (here none: the residuals are AMCL's wander alone)

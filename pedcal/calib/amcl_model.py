@@ -342,6 +342,8 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     np.add.at(pu, inv, p[finite])
     pu /= np.bincount(inv, minlength=len(tu))[:, None]
     m = len(tu)
+    if m < 2:                                            # (one instant, however many estimates: no gap)
+        return result()
     k = np.arange(1, m)                                  # gap between estimates k - 1 and k
     at = 0.5 * (tu[k - 1] + tu[k])
     first = np.searchsorted(tu, tu[k] - half_window_s)   # each gap's window: estimates first..last - 1
