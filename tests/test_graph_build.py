@@ -584,8 +584,9 @@ def test_the_rebuilt_graph_is_solved_again_only_when_the_motion_changed(request,
         assert rebuilt.blocks["observations"].size() == 0
 
 
-@pytest.mark.parametrize("estimate_amcl_model", [True, False])
-def test_only_the_first_solve_before_amcls_model_stops_on_the_predicted_remainder(monkeypatch, estimate_amcl_model):
+@pytest.mark.parametrize("estimate_amcl_model, profiled", [(True, True), (False, True), (True, False)])
+def test_only_the_first_solve_before_amcls_model_stops_on_the_predicted_remainder(monkeypatch, estimate_amcl_model,
+                                                                                  profiled):
     # the first solve stops on the predicted remainder when the AMCL model is estimated from its
     # residuals (a re-solve follows, with the profile's Gauss-Newton steps), not when its result
     # is the one the final profile steps start from
@@ -603,11 +604,13 @@ def test_only_the_first_solve_before_amcls_model_stops_on_the_predicted_remainde
     sim = simulate_logs("paper", seed=1)
     rec = GraphRecipe.load("default")
     rec.estimate_amcl_model = estimate_amcl_model
-    assert fg._profiled(rec) and rec.amcl and rec.robot
+    rec.estimate_head_model = profiled          # (the head model held: no profile steps follow)
+    assert fg._profiled(rec) is profiled and rec.amcl and rec.robot
     with pytest.raises(FirstSolve) as solve:
         calibrate(sim.calib, method="factorgraph", graph=rec)
     kw = solve.value.args[0]
-    assert kw["predicted_stop"] is estimate_amcl_model and kw["gauss_newton_step"] is False
+    assert kw["predicted_stop"] is (estimate_amcl_model and profiled) and kw["gauss_newton_step"] is (not profiled)
     # (profiled: the first profile step follows before the model, 1 % of the error is enough;
-    # without the model's re-solve, the recipe's own tolerance)
-    assert kw["relative_error_tol"] == (1e-2 if estimate_amcl_model else None)
+    # not profiled, the re-solve under the model starts from it: 0.1 %; without the model's
+    # re-solve, the recipe's own tolerance)
+    assert kw["relative_error_tol"] == ((1e-2 if profiled else 1e-3) if estimate_amcl_model else None)
