@@ -35,7 +35,7 @@ import logging
 import numpy as np
 import scipy.sparse as sps
 
-from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS
+from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS, time_blocks
 from pedcal.calib.keys import symbol_parts, symbols
 from pedcal.calib.profile import Nuisance
 from pedcal.metrics import CLOCK_OFFSET_KEY, LATENCY_KEY, SIGMA_CLOCK_OFFSET_KEY, SIGMA_LATENCY_KEY
@@ -292,17 +292,16 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
                ) -> np.ndarray:
     """(rows,) the time block of every row of the profile step's system, from the variables the
     row holds (A's sparsity, no walk over the factors): a robot pose x(k) is in block
-    floor(t_k / ``cluster_s``) - floor(t_0 / ``cluster_s``), t_0 the earliest pose or node time
-    (the blocks counted from the log's first: stamps since the epoch, as a ROS bag's, would make
-    the blocks' count, and the arrays :func:`efficient_weights` sizes by it, ~10^8), an AMCL error
+    floor(t_k / ``cluster_s``) counted from the earliest pose's or node's (:func:`time_blocks`:
+    stamps since the epoch would make the blocks' count, and the arrays
+    :func:`efficient_weights` sizes by it, ~10^8), an AMCL error
     node a(j) in its time's, a person l(m) in a block of its own after them; a row takes the
     latest block among its variables', -1 when it holds none of these (the sensors' priors, the
     head offset's)."""
     t_nodes = np.zeros(0) if node_times is None else np.asarray(node_times, float)
     pose_times = np.asarray(pose_times, float)
-    every = np.concatenate([pose_times, t_nodes])
-    first = np.floor(float(every.min()) / cluster_s) if every.size else 0.0
-    n_blocks = int(np.floor(float(every.max()) / cluster_s) - first) + 1 if every.size else 1
+    every_block, n_blocks = time_blocks(np.concatenate([pose_times, t_nodes]), cluster_s)
+    time_block = {"x": every_block[:len(pose_times)], "a": every_block[len(pose_times):]}
     cols = step.cols
     # each variable's block from its key (GTSAM's Symbol: its character and its index)
     keys, starts, dims = cols._table()
@@ -310,7 +309,7 @@ def row_blocks(step, pose_times: np.ndarray, node_times: np.ndarray | None, clus
     block = np.full(len(char), -1, np.int64)
     for c, times in (("x", pose_times), ("a", t_nodes)):
         mine = (char == ord(c)) & (index < len(times))
-        block[mine] = (np.floor(times[index[mine]] / cluster_s) - first).astype(np.int64)
+        block[mine] = time_block[c][index[mine]]
     person = char == ord("l")
     block[person] = n_blocks + index[person]
     # spread over each variable's columns

@@ -292,21 +292,31 @@ def _row_labels(graphs, n_rows: int, label_of) -> np.ndarray:
     return labels
 
 
+def time_blocks(times: np.ndarray, cluster_s: float = CLUSTER_S) -> tuple[np.ndarray, int]:
+    """(each time's block (int64), the blocks' count): block floor(t / ``cluster_s``) -
+    floor(t_0 / ``cluster_s``), t_0 the earliest of ``times``, so the blocks are counted from the
+    log's first (stamps since the epoch, as a ROS bag's, would give labels of ~10^8, and times
+    before 0 labels below 0, which the residuals' clusters read as left out); no times: none, 1."""
+    times = np.asarray(times, float)
+    if not times.size:
+        return np.zeros(0, np.int64), 1
+    first = np.floor(float(times.min()) / cluster_s)
+    return (np.floor(times / cluster_s) - first).astype(np.int64), int(np.floor(float(times.max()) / cluster_s) - first) + 1
+
+
 def row_clusters(graphs, pose_times: np.ndarray, n_rows: int, cluster_s: float = CLUSTER_S,
                  people: bool = True) -> np.ndarray:
     """(n_rows,) the time cluster of every row of the profile's system (:func:`_row_labels`): a
     factor on a robot pose X(k) falls in the block of ``cluster_s`` seconds holding pose k, a
     factor on a person L(m) in that person's cluster, any other in the cluster of the factor
     before it in its graph (AMCL's error nodes between poses, in time order), else -1 (the
-    priors). The blocks are counted from the first pose's (times before 0 would label theirs
-    below 0, which reads as left out)."""
-    first = np.floor(float(pose_times[0]) / cluster_s) if len(pose_times) else 0.0
-    n_blocks = int(np.floor(float(pose_times[-1]) / cluster_s) - first) + 1 if len(pose_times) else 1
+    priors). The blocks are counted from the first pose's (:func:`time_blocks`)."""
+    pose_blocks, n_blocks = time_blocks(np.asarray(pose_times, float), cluster_s)
 
     def label_of(symbols, previous):
         for c, k in symbols:
             if c == "x" and k < len(pose_times):
-                return int(np.floor(float(pose_times[k]) / cluster_s) - first)
+                return int(pose_blocks[k])
         for c, k in symbols:
             if c == "l":
                 return n_blocks + int(k) if people else -1
