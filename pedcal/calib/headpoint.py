@@ -301,7 +301,8 @@ def time_blocks(times: np.ndarray, cluster_s: float = CLUSTER_S) -> tuple[np.nda
     if not times.size:
         return np.zeros(0, np.int64), 1
     first = np.floor(float(times.min()) / cluster_s)
-    return (np.floor(times / cluster_s) - first).astype(np.int64), int(np.floor(float(times.max()) / cluster_s) - first) + 1
+    n_blocks = int(np.floor(float(times.max()) / cluster_s) - first) + 1
+    return (np.floor(times / cluster_s) - first).astype(np.int64), n_blocks
 
 
 def row_clusters(graphs, pose_times: np.ndarray, n_rows: int, cluster_s: float = CLUSTER_S,
