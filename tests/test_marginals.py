@@ -103,6 +103,12 @@ def test_the_nonlinear_graphs_colamd_ordering_gives_the_same_blocks():
         twice.push_back(k)
     doubled = marginal_covariances(graph, values, keys, ordering=twice)
     assert all(np.array_equal(g, s) for g, s in zip(got, doubled, strict=True))
+    # every key, and one of them again: the count tells it, not the set
+    extra = gtsam.Ordering()
+    for k in ks + [ks[0]]:
+        extra.push_back(k)
+    repeated = marginal_covariances(graph, values, keys, ordering=extra)
+    assert all(np.array_equal(g, s) for g, s in zip(got, repeated, strict=True))
 
 
 def test_one_variable_graph_is_its_priors_inverse():

@@ -543,6 +543,8 @@ def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper, m
     monkeypatch.setattr(profile_mod, "_normal_solver", lambda *a, **k: factorized.append(1) or real(*a, **k))
     kept = step_at(moved, theta, previous=full, order=full.order)
     assert factorized == []          # z0 from the kept factorization, none of its own
+    # its B is its own point's (the exact gradient -B^T r), not the full step's
+    assert kept.B.shape == full.B.shape and abs(kept.B - full.B).max() > 0.0
     monkeypatch.undo()
     bare = copy.copy(full)
     bare.__dict__.pop("_normal_solve")
@@ -608,6 +610,8 @@ def test_steps_to_come_are_the_geometric_series_of_a_contracting_step():
     assert rate / (1 - rate) * 0.14 < 0.02
     assert steps_to_come_below(u, rate, 0.1) is True
     assert steps_to_come_below(u, rate, 0.01) is False
+    # the steps' sizes, whatever their signs: the same step reversed is no nearer converged
+    assert steps_to_come_below(-u, rate, 0.1) is True and steps_to_come_below(-u, rate, 0.01) is False
     # a slow contraction (rate 0.8): four times this step to come
     assert steps_to_come_below(np.array([0.08]), 0.8, 0.3) is False
     assert steps_to_come_below(np.array([0.08]), 0.8, 0.33) is True

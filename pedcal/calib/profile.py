@@ -134,8 +134,7 @@ def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
     ordering = gfg if isinstance(gfg, gtsam.Ordering) else gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
     keys = np.fromiter((ordering.at(i) for i in range(ordering.size())), np.uint64, ordering.size())
     own = cols._table()[0]
-    at = np.minimum(np.searchsorted(own, keys), max(len(own) - 1, 0))
-    keys = keys[own[at] == keys] if len(own) else keys[:0]          # (the system's variables only)
+    keys = keys[np.isin(keys, own)]                    # (the system's variables only, in the order's sequence)
     missing = np.setdiff1d(own, keys)                  # variables no factor touches, last (sorted)
     return cols.index(np.r_[keys, missing])
 
