@@ -5,6 +5,7 @@ logs whose AMCL error is white, wandering or jumping."""
 import warnings
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from pedcal.calib.amcl_model import (
@@ -521,6 +522,12 @@ def test_steps_that_pair_in_doubt_move_nothing(later):
     p[(t >= 30.0 - 1e-9) & ((t < 40.0 - 1e-9) if later == "jump out and back" else True)] += [0.4, 0.0]
     jump, offset = detect_steps(t, p, offsets=True)
     assert not offset.any()
+    # and so the log's track is left as it is: the pairing in doubt moves nothing back
+    from pedcal.calib.amcl_model import jumps_moved_back
+    from pedcal.model import Log
+
+    log = Log(sensors=None, robot=_robot_table(t, p), observations=pd.DataFrame())
+    assert jumps_moved_back(log) == (log, 0)
     # while a jump well after the start, as long as it lasts, is moved back
     p2 = clean.copy()
     _jumped(p2, t, 60.0, 80.0, [0.4, 0.0])
@@ -545,3 +552,51 @@ def test_a_jump_followed_soon_by_a_step_that_stays_is_in_doubt(stays_from_s, in_
         assert not offset.any()
     else:
         assert np.abs(offset[on, 0] - 0.4).max() < 0.03 and not offset[~on].any()
+
+
+def _robot_table(t, p):
+    import pandas as pd
+
+    return pd.DataFrame({"t": t, "x": p[:, 0], "y": p[:, 1], "yaw": np.zeros(len(t)),
+                         **{c: np.full(len(t), 1e-3) for c in ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy",
+                                                                "cov_yyaw", "cov_yawyaw")}})
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_jump_is_found_where_the_sampling_rate_changes(seed):
+    # 10 Hz, with 50 Hz bursts of 10 s every 20 s: each step is counted in its own standard error
+    # (the square root of the two lines' variances), not in their variance, or the bursts' windows
+    # and the sparse ones are weighed unlike and the jump is missed
+    rng = np.random.default_rng(seed)
+    fine = np.arange(0.0, 300.0, 0.02)
+    path = _track(rng, fine) + np.column_stack([ou_process(rng, len(fine), 0.02, 0.05, 20.0) for _ in range(2)])
+    dense = np.concatenate([np.arange(a, a + 10.0, 0.02) for a in range(0, 300, 20)])
+    t = np.unique(np.round(np.concatenate([np.arange(0.0, 300.0, 0.1), dense]), 6))
+    p = np.column_stack([np.interp(t, fine, path[:, c]) for c in range(2)]) + rng.normal(0.0, 0.008, (len(t), 2))
+    assert not detect_steps(t, p).any()
+    on = _jumped(p, t, 133.0, 143.0, [0.2, 0.0])
+    assert np.array_equal(detect_steps(t, p), on)
+
+
+def test_a_step_below_min_jump_m_is_no_jump_however_quiet_the_track():
+    # a quiet track (2 mm of jitter, no wander): a 6 cm step out and back stands far above the
+    # noise in standard errors, but it is below min_jump_m (10 cm) in metres
+    rng = np.random.default_rng(9)
+    t = np.arange(0.0, 200.0, 0.1)
+    p = np.column_stack([0.3 * t, np.zeros(len(t))]) + rng.normal(0.0, 0.002, (len(t), 2))
+    _jumped(p, t, 100.0, 110.0, [0.06, 0.0])
+    assert not detect_steps(t, p).any()
+    _jumped(p, t, 100.0, 110.0, [0.1, 0.0])        # 16 cm: a jump
+    assert detect_steps(t, p).sum() == 100
+
+
+def test_a_step_that_never_comes_back_does_not_hide_a_later_jump():
+    # a lasting 0.4 m step along x at 30 s (a relocalization that was right, or never undone),
+    # then a jump along y at 150-160 s: the offset opened at 30 s never returns within
+    # max_jump_s, so the search starts again from the later step and finds the jump alone
+    rng = np.random.default_rng(12)
+    t = np.arange(0.0, 250.0, 0.1)
+    p = _wandering_track(rng, t)
+    p[t >= 30.0 - 1e-9] += [0.4, 0.0]
+    on = _jumped(p, t, 150.0, 160.0, [0.0, 0.4])
+    assert np.array_equal(detect_steps(t, p), on)
