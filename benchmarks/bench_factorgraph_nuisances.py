@@ -177,13 +177,13 @@ def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, rows)
     return projected_z(E_xy_m, joint_cov_m2, np.kron(np.ones((n, 1)), np.eye(2)), rows)
 
 
-def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0) -> np.ndarray:
-    """(len(ids) + missing, k) each sensor's |error| over its reported sigma per world axis (the
-    first k of x, y, z: ``abs_err_m`` is (n, k)); inf for a miss, not a padding: a sensor not
-    calibrated (status not ok: its sigma the prior's, wide enough to hold any error), without a
-    sigma or an error, or left out of the result altogether (``missing`` of them)."""
-    err = np.abs(np.asarray(abs_err_m, float)).reshape(len(ids), -1)
-    k = err.shape[1]
+def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: int = 3) -> np.ndarray:
+    """(len(ids) + missing, axes) each sensor's |error| over its reported sigma per world axis
+    (the first ``axes`` of x, y, z: ``abs_err_m`` is (n, axes)); inf for a miss, not a padding: a
+    sensor not calibrated (status not ok: its sigma the prior's, wide enough to hold any error),
+    without a sigma or an error, or left out of the result altogether (``missing`` of them)."""
+    err = np.abs(np.asarray(abs_err_m, float)).reshape(len(ids), axes)
+    k = axes
     out = np.full((len(ids) + missing, k), np.inf)
     for r, sid in enumerate(ids):
         ext = network[sid]
