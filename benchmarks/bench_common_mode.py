@@ -76,7 +76,8 @@ def run_one(scenario: str, seed: int) -> dict:
     floor = AmclErrorModel(0.0, sigma_m, tau_s).floor_sigma_m(float(t.max() - t.min()))
     z_truth = amcl_run_mean_error_m(log) / floor if family == "correlated" else np.full(2, np.nan)
     return dict(scenario=scenario, family=family, z_common=z_common, z_rest=z_rest,
-                within=sigma_ratios(res.network, ids, E, axes=2) <= 1.0, z_truth=z_truth)
+                within=sigma_ratios(res.network, ids, E, missing=sum(sid not in res.network for sid in truth.ids),
+                                          axes=2) <= 1.0, z_truth=z_truth)
 
 
 def main() -> None:
