@@ -150,12 +150,16 @@ def rigid_residual_rms_mm(est_xy: np.ndarray, true_xy: np.ndarray) -> float:
     return float(1000 * np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
 
 
-def projected_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def projected_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray, A: np.ndarray,
+                rows) -> tuple[np.ndarray, np.ndarray]:
     """Horizontal errors ``E`` (n, 2) split into the motions of the network that ``A`` (2 n, k)
     spans (least squares, x and y per sensor) and the rest, each over its sigma from the joint
-    position covariance (3 n, 3 n): (k,) and (2 n,) ratios, N(0, 1) when the covariance is right."""
+    position covariance (3 N, 3 N, the network's N sensors): (k,) and (2 n,) ratios, N(0, 1) when
+    the covariance is right. ``rows`` (n,): each error's sensor's position in the network (the
+    covariance's 3x3 block), so that the caller may leave sensors out (not calibrated: the
+    prior's sigma would drown the shared motion; without an error)."""
     n = len(E_xy_m)
-    idx = np.array([3 * i + a for i in range(n) for a in (0, 1)])
+    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
     C = joint_cov_m2[np.ix_(idx, idx)]
     L = np.linalg.pinv(A)
     R = np.eye(2 * n) - A @ L
@@ -163,23 +167,23 @@ def projected_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray, A: np.ndarray) -> 
     return (L @ e) / np.sqrt(np.diag(L @ C @ L.T)), (R @ e) / np.sqrt(np.diag(R @ C @ R.T))
 
 
-def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, rows) -> tuple[np.ndarray, np.ndarray]:
     """The horizontal errors split into what the sensors share (their mean, x and y) and the rest
-    (each sensor's departure from it), each over its sigma (:func:`projected_z`). Empty without
-    the joint covariance."""
+    (each sensor's departure from it), each over its sigma (:func:`projected_z`; ``rows`` the
+    sensors' positions in the network). Empty without the joint covariance."""
     n = len(E_xy_m)
     if joint_cov_m2 is None or n < 2:
         return np.zeros(0), np.zeros(0)
-    return projected_z(E_xy_m, joint_cov_m2, np.kron(np.ones((n, 1)), np.eye(2)))
+    return projected_z(E_xy_m, joint_cov_m2, np.kron(np.ones((n, 1)), np.eye(2)), rows)
 
 
-def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0) -> np.ndarray:
-    """(len(ids) + missing, k) each sensor's |error| over its reported sigma per world axis (the
-    first k of x, y, z: ``abs_err_m`` is (n, k)); inf for a miss, not a padding: a sensor not
-    calibrated (status not ok: its sigma the prior's, wide enough to hold any error), without a
-    sigma or an error, or left out of the result altogether (``missing`` of them)."""
-    err = np.abs(np.asarray(abs_err_m, float)).reshape(len(ids), -1)
-    k = err.shape[1]
+def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: int = 3) -> np.ndarray:
+    """(len(ids) + missing, axes) each sensor's |error| over its reported sigma per world axis
+    (the first ``axes`` of x, y, z: ``abs_err_m`` is (n, axes)); inf for a miss, not a padding: a
+    sensor not calibrated (status not ok: its sigma the prior's, wide enough to hold any error),
+    without a sigma or an error, or left out of the result altogether (``missing`` of them)."""
+    err = np.abs(np.asarray(abs_err_m, float)).reshape(len(ids), axes)
+    k = axes
     out = np.full((len(ids) + missing, k), np.inf)
     for r, sid in enumerate(ids):
         ext = network[sid]
@@ -217,7 +221,13 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
             out["ratios"] = sigma_ratios(res.network, [s.id for s in ev.sensors],
                                          [np.asarray(s.position_error_mm) / 1000.0 for s in ev.sensors],
                                          missing=len(ev.missing_sensors))
-            out["z_shared"], out["z_rest"] = shared_and_rest_z(E[:, :2] / 1000.0, res.position_covariance_m2)
+            # only calibrated sensors with an error, each with its own block of the covariance
+            row_of = {sid: r for r, sid in enumerate(res.network.ids)}
+            kept = [s for s in ev.sensors if (res.network[s.id].status or "ok") == "ok"
+                    and np.all(np.isfinite(s.position_error_mm))]
+            out["z_shared"], out["z_rest"] = shared_and_rest_z(
+                np.array([s.position_error_mm[:2] for s in kept]).reshape(-1, 2) / 1000.0,
+                res.position_covariance_m2, [row_of[s.id] for s in kept])
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
             out["clock_z"], out["clock_err_s"] = clock_offset_errors(sim, res.network)

@@ -119,7 +119,7 @@ def estimated_head_offset(x: np.ndarray, c: np.ndarray, head, sid: str) -> dict:
     ``horizontal_profile`` read at the head point's horizontal distance (plus the sensor's own
     departure, ``per_sensor_shift_m`` at the profile's first knot), without one the sensor's own
     shift (``per_sensor_shift_m``) where it was estimated, else the shared one."""
-    from pedcal.calib.headpoint import shift_at
+    from pedcal.calib.headpoint import own_shift, shift_at
 
     q = x + np.array([0.0, 0.0, head.vertical_offset_m])
     u = c - q
@@ -130,7 +130,7 @@ def estimated_head_offset(x: np.ndarray, c: np.ndarray, head, sid: str) -> dict:
     cos2 = np.sum(u[:, :2] ** 2, axis=1) / np.sum(u ** 2, axis=1)
     profile = head.horizontal_profile
     if profile is not None:
-        own = profile.get("per_sensor_shift_m", {}).get(sid, profile["shift_m"][0]) - profile["shift_m"][0]
+        own = own_shift(profile, sid)
         # the distance after the ray shift, less the horizontal shift itself (one fixed-point
         # step: the profile is read at the head point, as reproject_observations reads it)
         d0 = dist_h - head.ray_shift_m * np.sqrt(cos2)
@@ -193,8 +193,8 @@ def run_one(scenario: str, seed: int, recipe: dict) -> dict | None:
         parts = {"radial const": radial.mean() * u_h, "radial var": (radial - radial.mean())[:, None] * u_h,
                  "vertical": d[:, 2:3] * np.array([0.0, 0.0, 1.0])}
         w = whitening(x, c, rec)
-        # the sensor moves so that its sightings land on the graph's head top: by -d, rigidly
-        # (T_est p - T_true p = est_off - true_off: the sensor moves by d, rigidly)
+        # the sensor moves so that its sightings land on the graph's head top: by d, rigidly
+        # (T_est p - T_true p = est_off - true_off = d, the displacement rigid_translation fits)
         pred = rigid_translation(x, d, c, w, want_vif=False)[0]
         part_pred = {p: rigid_translation(x, v, c, w, want_vif=False)[0] for p, v in parts.items()}
         # what a sensor's own extra terms, free beside its pose, would leave of the leak (the

@@ -194,7 +194,7 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
     """World head points of the observations recomputed with ``extrinsics`` (NaN for sensors the
     extrinsics do not name), with the head-point model the extrinsics file carries (each
     sensor's own horizontal shift, ``per_sensor_shift_m``, where it names one)."""
-    from pedcal.calib.headpoint import horizontal_distance, shift_at
+    from pedcal.calib.headpoint import horizontal_distance, own_shift, shift_at
 
     vertical_m, ray_m, horizontal_m, curvature_m = head_model_of(extrinsics)
     hm = extrinsics.extra.get(HEAD_MODEL_KEY)
@@ -214,7 +214,7 @@ def reproject_observations(log: Log, extrinsics: SensorNetwork, mask: np.ndarray
             if profile is not None:        # the shift against horizontal distance (pedcal.calib.headpoint)
                 toward = frames.toward_sensor_horizontal(p, s.R_world_sensor)
                 # and this sensor's own departure from it, where one was kept (the shared shift at d_0 is shift_m[0])
-                own = profile.get("per_sensor_shift_m", {}).get(s.id, profile["shift_m"][0]) - profile["shift_m"][0]
+                own = own_shift(profile, s.id)
                 p = p - (shift_at(profile, horizontal_distance(p, toward)) + own)[:, None] * toward
             else:
                 # the shared shift, or this sensor's own where the calibration estimated one

@@ -181,6 +181,9 @@ def test_long_key_written_as_pyyaml_does(key, monkeypatch):
     data = {"frame": "map", "sensors": [{key: 1, "id": "s01"}], "extra": {key: [1, 2]}}
     assert dump_yaml(data) == _pyyaml_text(data)
     assert not _written_by_libyaml(data, monkeypatch)
+    in_array = {"frame": "map", "extra": {"x": np.array([{key: 1}], dtype=object)}}   # (an object array's dict)
+    assert dump_yaml(in_array) == _pyyaml_text(in_array)
+    assert not _written_by_libyaml(in_array, monkeypatch)
     short = {"frame": "map", "extra": {"k" * 100: 1, "μ" * 50: 2}}      # (100 bytes: libyaml's)
     assert dump_yaml(short) == _pyyaml_text(short) and _written_by_libyaml(short, monkeypatch)
 

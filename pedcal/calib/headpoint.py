@@ -663,9 +663,17 @@ def shift_at(profile: dict, d_m: np.ndarray) -> np.ndarray:
                      np.asarray(profile["shift_m"], float))
 
 
+def own_shift(profile: dict, sensor_id: str) -> float:
+    """A sensor's own departure (m) from a YAML head profile's shared shift: its
+    ``per_sensor_shift_m`` (its shift at the first knot, d_0) less the profile's ``shift_m[0]``;
+    0 for a sensor without one."""
+    shared_m = profile["shift_m"][0]
+    return profile.get("per_sensor_shift_m", {}).get(sensor_id, shared_m) - shared_m
+
+
 __all__ = ["record_head_profile", "head_depth_note", "PER_SENSOR_HEIGHT_NOTE", "head_profile_nuisances",
            "head_profile_shift_sensor", "select_head_profile",
            "profile_record", "departures_record", "is_head_profile", "hats", "horizontal_distance", "shift_at",
            "line_of_knots", "shapes",
-           "held_out_gain", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
+           "held_out_gain", "own_shift", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
            "knot_values", "sensor_shift_nuisances", "is_sensor_shift"]

@@ -355,7 +355,7 @@ _LONG_KEY_BYTES = 100
 
 
 def _keys_libyaml_writes_otherwise(data) -> bool:
-    """A mapping key in ``data`` (dicts and lists walked, not the flow rows of numbers) that is
+    """A mapping key in ``data`` (dicts, lists and object arrays walked, not the flow rows of numbers) that is
     empty or longer than ``_LONG_KEY_BYTES`` in UTF-8, or binary: libyaml and PyYAML write it
     differently (an empty key, or a long one as "? key" in one and not the other)."""
     stack, seen = [data], set()
@@ -371,6 +371,9 @@ def _keys_libyaml_writes_otherwise(data) -> bool:
             keys = node
         elif isinstance(node, list) and not isinstance(node, _FlowList):
             stack.extend(node)
+            continue
+        elif isinstance(node, np.ndarray) and node.dtype == object:     # (written as its list: dicts may be in it)
+            stack.extend(node.ravel().tolist())
             continue
         else:
             continue
