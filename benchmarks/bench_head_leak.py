@@ -249,10 +249,13 @@ def summarize(results: list[dict]) -> None:
     act, pred, parts, shift_err = [], [], {p: [] for p in PARTS}, []
     extras = {e: [] for e in EXTRAS}
     kinds = []
+    used = [r for r in results if len(r["rows"]) >= 2]
+    if not used:        # (a leak is read about a log's mean: one sensor has none to read)
+        print(f"no log of {len(results)} has two sensors with a head model and an estimate: nothing to pool")
+        return
     print("| log | sensors | rest along / across (mm) | predicted along / across | "
           + " | ".join(PARTS) + " | CPU (s) |")
     print("|---|---|---|---|" + "---|" * len(PARTS) + "---|")
-    used = [r for r in results if len(r["rows"]) >= 2]
     for r in used:
         rows = r["rows"]
         a, p = along_across(rows, "err"), along_across(rows, "pred")

@@ -17,6 +17,7 @@ from pedcal.calib.crlb import (
     CRLBResult,
     common_shift_variance_m2,
     sensor_position_crlb,
+    share_rms_within_mm,
     simulator_noise,
     true_values,
 )
@@ -177,6 +178,21 @@ def test_efficient_share_within_a_limit_for_an_elongated_correlated_error():
     res = CRLBResult(position_covariance_m2={"a": C}, recipe="x", joint_position_covariance_m2=C)
     for r_mm, want in ((5.0, 0.146), (12.0, 0.523), (20.0, 0.802)):
         assert res.share_within_mm(r_mm, draws=40000) == pytest.approx(want, abs=0.01)
+
+
+def test_share_within_a_limit_of_a_bare_covariance():
+    # a 2 x 2 covariance alone (a common shift's): the turned, correlated one gives exactly its
+    # principal axes' share (the same seeded draws), the quadrature's 0.523 at 12 mm
+    c, s_ = np.cos(np.radians(34.0)), np.sin(np.radians(34.0))
+    R = np.array([[c, -s_], [s_, c]])
+    C2 = R @ np.diag([0.015 ** 2, 0.005 ** 2]) @ R.T
+    turned = share_rms_within_mm(C2, 12.0, draws=40000, seed=3)
+    assert turned == share_rms_within_mm(np.diag([0.005 ** 2, 0.015 ** 2]), 12.0, draws=40000, seed=3)
+    assert turned == pytest.approx(0.523, abs=0.01)
+    # its diagonal alone (the correlation dropped) is another ellipse: 0.465 at 12 mm
+    assert share_rms_within_mm(np.diag(np.diag(C2)), 12.0, draws=40000, seed=3) < turned - 0.03
+    with pytest.raises(ValueError, match="2 n x 2 n"):
+        share_rms_within_mm(np.eye(3), 12.0)
 
 
 def test_common_shift_variance_takes_a_repeated_stamp_once():

@@ -142,15 +142,24 @@ class CRLBResult:
     def share_within_mm(self, limit_mm: float, draws: int = 4000, seed: int = 0) -> float:
         """The probability that an efficient estimator (Gaussian errors of exactly this joint
         covariance) has a horizontal RMS over sensors of at most ``limit_mm`` on a log like this
-        one: the share of ``draws`` seeded draws."""
-        C = self.horizontal_joint_m2()
-        rng = np.random.default_rng(seed)
-        # the RMS over sensors is the error vector's norm, which C's eigenvectors (orthonormal)
-        # leave as it is: a draw's squared norm is sum_i w_i z_i^2
-        w = np.maximum(np.linalg.eigvalsh(C), 0.0)
-        z = rng.standard_normal((draws, len(w)))
-        rms_mm = 1000.0 * np.sqrt((z ** 2 @ w) / (len(w) // 2))
-        return float(np.mean(rms_mm <= limit_mm))
+        one (:func:`share_rms_within_mm` of :meth:`horizontal_joint_m2`)."""
+        return share_rms_within_mm(self.horizontal_joint_m2(), limit_mm, draws=draws, seed=seed)
+
+
+def share_rms_within_mm(C_m2: np.ndarray, limit_mm: float, draws: int = 4000, seed: int = 0) -> float:
+    """The share of ``draws`` seeded Gaussian draws of horizontal errors with the (2 n x 2 n, x y
+    per sensor) covariance ``C_m2`` whose RMS over the n sensors is at most ``limit_mm`` (n = 1:
+    the probability that a 2-D error of covariance C lies within the limit)."""
+    C_m2 = np.asarray(C_m2, float)
+    if C_m2.ndim != 2 or C_m2.shape[0] != C_m2.shape[1] or C_m2.shape[0] % 2:
+        raise ValueError(f"a horizontal covariance is 2 n x 2 n, got {C_m2.shape}")
+    rng = np.random.default_rng(seed)
+    # the RMS over sensors is the error vector's norm, which C's eigenvectors (orthonormal)
+    # leave as it is: a draw's squared norm is sum_i w_i z_i^2
+    w = np.maximum(np.linalg.eigvalsh(C_m2), 0.0)
+    z = rng.standard_normal((draws, len(w)))
+    rms_mm = 1000.0 * np.sqrt((z ** 2 @ w) / (len(w) // 2))
+    return float(np.mean(rms_mm <= limit_mm))
 
 
 def true_values(log: Log, prob, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
