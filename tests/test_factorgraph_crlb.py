@@ -189,7 +189,7 @@ def test_share_within_a_limit_of_a_bare_covariance():
     turned = share_rms_within_mm(C2, 12.0, draws=40000, seed=3)
     assert turned == share_rms_within_mm(np.diag([0.005 ** 2, 0.015 ** 2]), 12.0, draws=40000, seed=3)
     assert turned == pytest.approx(0.523, abs=0.01)
-    # its diagonal alone (the correlation dropped) is another ellipse: 0.465 at 12 mm
+    # its diagonal alone (the correlation dropped) is another ellipse: 0.447 at 12 mm
     assert share_rms_within_mm(np.diag(np.diag(C2)), 12.0, draws=40000, seed=3) < turned - 0.03
     with pytest.raises(ValueError, match="2 n x 2 n"):
         share_rms_within_mm(np.eye(3), 12.0)
