@@ -101,7 +101,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import head_world, interpolate_pose2
+from pedcal.calib.common import gaussian_smooth_nearest, head_world, interpolate_pose2
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
@@ -411,8 +411,6 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     path then has odometry's shape, which its factors expect, and AMCL's place); without it AMCL
     smoothed (when it jitters) or AMCL itself. AMCL's estimates the error model left out as
     jumps are not used."""
-    from scipy.ndimage import gaussian_filter1d
-
     amcl = log.robot.sort_values("t", kind="stable")
     model = prob.amcl_model
     if model is not None and model.excluded is not None:
@@ -429,7 +427,7 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     ty = amcl["y"].to_numpy(float) - (s_ * odo[:, 0] + c * odo[:, 1])
     sig = smooth_s / max(float(np.median(np.diff(t_a))), 1e-3)
     # the transform's components smoothed (the rotation through its sine and cosine)
-    tx, ty, c, s_ = (gaussian_filter1d(v, sig, mode="nearest") for v in (tx, ty, c, s_))
+    tx, ty, c, s_ = (gaussian_smooth_nearest(v, sig) for v in (tx, ty, c, s_))
     yaw_d = np.arctan2(s_, c)
     o = interpolate_pose2(prob.odometry, times)
     D = np.column_stack([np.interp(times, t_a, tx), np.interp(times, t_a, ty), np.interp(times, t_a, np.unwrap(yaw_d))])
