@@ -356,8 +356,10 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
     people's positions then taken from ``result``, which must hold them all: else it is built)."""
     n_pose = len(prob.pose_times)
     rec = prob.recipe
-    if not rec.amcl or not all(result.exists(S(i)) for i in range(len(prob.sensor_ids))) or not all(
-            result.exists(X(k)) for k in range(n_pose)):
+    # (every sensor and robot pose looked up in the values' keys at once, not one binding call each)
+    held = np.isin(np.r_[symbols("s", range(len(prob.sensor_ids))), symbols("x", range(n_pose))],
+                   np.asarray(result.keys(), np.uint64))
+    if not rec.amcl or not held.all():
         # (without AMCL the planarity priors sit at the initial track, which the model's jumps change)
         new = build_parts(log, prob)
         for key in new.values.keys():
