@@ -23,7 +23,10 @@ methods run in turns. Then, as a new user meets it, the whole ``pedcal calibrate
 --method M -q`` command of each method on the scenario written to a temporary directory (a fresh
 process: imports, reading the log, the solve, the YAML; CPU from the children's rusage), also
 without the BLAS thread variables this process was given (``OPENBLAS_NUM_THREADS`` ...: as a
-shell that never set them runs it), and the import of what it loads before reading the log.
+shell that never set them runs it), and the import of what it loads before reading the log; where
+``PYTHONDONTWRITEBYTECODE`` is set (every start compiles every module imported), the import and
+the command again with the compiled modules kept (a temporary ``PYTHONPYCACHEPREFIX``), as an
+installed package runs.
 Repeats: the minimum over them (the machine's noise only adds); the load average is printed at
 the start and the end.
 """
@@ -111,29 +114,45 @@ def timed_stages(totals: dict, stages: dict | None = None):
             setattr(mod, name, f)
 
 
-def import_time(method: str = "factorgraph") -> tuple[float, float]:
+def _environment(default_blas: bool = False, bytecode: str | None = None) -> dict:
+    """This process's environment for a child: without the BLAS thread variables
+    (``default_blas``), and with ``bytecode`` a directory Python keeps its compiled modules in
+    (``PYTHONPYCACHEPREFIX``, ``PYTHONDONTWRITEBYTECODE`` dropped: as an installed package, whose
+    modules are compiled once, runs), else as this process has it."""
+    env = {k: v for k, v in os.environ.items() if not (default_blas and k in BLAS_THREAD_VARIABLES)}
+    if bytecode is not None:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env["PYTHONPYCACHEPREFIX"] = bytecode
+    return env
+
+
+def import_time(method: str = "factorgraph", bytecode: str | None = None) -> tuple[float, float]:
     """(wall, CPU) of importing what ``pedcal calibrate --method METHOD`` loads before it reads the
-    log, in a fresh process (one run: the caller keeps the fastest of its repeats)."""
+    log, in a fresh process (one run: the caller keeps the fastest of its repeats); ``bytecode``:
+    :func:`_environment`'s."""
     code = ("import time; w, c = time.perf_counter(), time.process_time(); import pedcal.cli; "
             "from pedcal.calib import calibrate; from pedcal.io import read_log, write_sensors_yaml; "
             f"import pedcal.calib.{method}; print(time.perf_counter() - w, time.process_time() - c)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env=_environment(bytecode=bytecode)).stdout.split()
     return float(out[0]), float(out[1])
 
 
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def command_time(log_dir: Path, method: str, default_blas: bool = False) -> tuple[float, float]:
+def command_time(log_dir: Path, method: str, default_blas: bool = False,
+                 bytecode: str | None = None) -> tuple[float, float]:
     """(wall, CPU) of the whole ``pedcal calibrate LOG -o OUT --method METHOD -q`` as a new user runs
     it (a fresh process: imports, reading the log, the solve, writing the YAML; CPU the child's
     user + system time), one run; ``default_blas``: without the BLAS thread variables
     (``OPENBLAS_NUM_THREADS`` ...) of this process, at the library's own default, as a shell
-    that never set them runs it."""
+    that never set them runs it; ``bytecode``: the modules' compiled code kept there
+    (:func:`_environment`)."""
     import resource
     import tempfile
 
-    env = {k: v for k, v in os.environ.items() if not (default_blas and k in BLAS_THREAD_VARIABLES)}
+    env = _environment(default_blas, bytecode)
     with tempfile.TemporaryDirectory() as tmp:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         w0 = time.perf_counter()
@@ -195,16 +214,28 @@ def main() -> None:
     imports = {m: [] for m in ("factorgraph", "gridsearch")}
     commands = {m: [] for m in ("factorgraph", "gridsearch")}
     default_blas = {m: [] for m in ("factorgraph", "gridsearch")}
+    # (with PYTHONDONTWRITEBYTECODE set, as this machine's environment has it, every process compiles
+    # every module it imports from source, which an installed package, compiled once, does not:
+    # then the import and the command are also timed with the compiled modules kept)
+    compiled = {m: ([], []) for m in ("factorgraph", "gridsearch")} if os.environ.get(
+        "PYTHONDONTWRITEBYTECODE") else {}
     if not args.no_command:
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
             simulate(args.scenario, Path(tmp) / "run", seed=args.seed)
+            cache = str(Path(tmp) / "bytecode")
+            for m in compiled:            # (the first run compiles and keeps: not timed)
+                command_time(Path(tmp) / "run" / "calib", m, bytecode=cache)
+                import_time(m, bytecode=cache)
             for _ in range(args.repeats):
                 for m in imports:
                     imports[m].append(import_time(m))
                     commands[m].append(command_time(Path(tmp) / "run" / "calib", m))
                     default_blas[m].append(command_time(Path(tmp) / "run" / "calib", m, default_blas=True))
+                    if m in compiled:
+                        compiled[m][0].append(import_time(m, bytecode=cache))
+                        compiled[m][1].append(command_time(Path(tmp) / "run" / "calib", m, bytecode=cache))
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_factorgraph_scale import synthetic_log
 
@@ -233,14 +264,18 @@ def main() -> None:
         print(f"\nthe whole `pedcal calibrate LOG -o OUT --method M -q` ({args.scenario} seed {args.seed} written "
               f"by `pedcal simulate`), fastest of {args.repeats} by CPU, wall / CPU (s):")
         blas = ", ".join(f"{k}={os.environ[k]}" for k in BLAS_THREAD_VARIABLES if k in os.environ) or "none set"
+        kept = " | import, compiled modules kept | whole command, compiled modules kept" if compiled else ""
         print(f"| method | import (fresh process) | whole command (BLAS threads: {blas}) | whole command, "
-              "BLAS at its default threads |")
-        print("|---|---|---|---|")
+              f"BLAS at its default threads{kept} |")
+        print("|---|---|---|---|" + "---|---|" * bool(compiled))
         for m in commands:
-            w, c = min(imports[m], key=lambda r: r[1])
-            cw, cc = min(commands[m], key=lambda r: r[1])
-            dw, dc = min(default_blas[m], key=lambda r: r[1])
-            print(f"| {m} | {w:.3f} / {c:.3f} | {cw:.3f} / {cc:.3f} | {dw:.3f} / {dc:.3f} |")
+            cells = [min(imports[m], key=lambda r: r[1]), min(commands[m], key=lambda r: r[1]),
+                     min(default_blas[m], key=lambda r: r[1])]
+            if m in compiled:
+                cells += [min(runs, key=lambda r: r[1]) for runs in compiled[m]]
+            print(f"| {m} | " + " | ".join(f"{w:.3f} / {c:.3f}" for w, c in cells) + " |")
+        if compiled:
+            print("(PYTHONDONTWRITEBYTECODE is set: the first columns compile every module at each start)")
     load1 = os.getloadavg()
     print(f"\nload average (1 min) {load0[0]:.1f} at the start, {load1[0]:.1f} at the end (2 cores)")
 

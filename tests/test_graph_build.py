@@ -467,6 +467,56 @@ def test_unique_rows_are_numpys_unique_over_rows():
     assert empty_uniq.shape == (0, 2) and empty_inverse.shape == (0,)
 
 
+@pytest.mark.parametrize("n", [1, 2, 7, 400])
+@pytest.mark.parametrize("sigma", [0.3, 1.0, 2.5, 25.0, 300.0])
+def test_gaussian_smoothing_is_scipys_gaussian_filter1d_with_the_nearest_edges(n, sigma):
+    # the kernel's radius int(4 sigma + 0.5) beyond the series' length (repeated end values) and
+    # within it, below one sample (a kernel of 3) and a single sample
+    from scipy.ndimage import gaussian_filter1d
+
+    from pedcal.calib.common import gaussian_smooth_nearest
+
+    v = 5.0 + np.cumsum(np.random.default_rng(n).standard_normal(n))
+    got = gaussian_smooth_nearest(v, sigma)
+    want = gaussian_filter1d(v, sigma, mode="nearest")
+    assert got.shape == want.shape
+    np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-12 * np.max(np.abs(v)))
+    assert gaussian_smooth_nearest(np.zeros(0), sigma).shape == (0,)
+
+
+def test_gaussian_smoothing_keeps_a_constant_and_takes_its_truncation():
+    from pedcal.calib.common import gaussian_smooth_nearest
+
+    np.testing.assert_allclose(gaussian_smooth_nearest(np.full(9, 3.5), 2.0), 3.5, rtol=1e-15)
+    # a unit step at sample 10 of 21 seen from sample 0, 10 samples away: within the kernel's
+    # reach at truncate 4 (radius 8 at sigma 2: not reached), at truncate 6 (radius 12: reached)
+    step = (np.arange(21) >= 10).astype(float)
+    assert gaussian_smooth_nearest(step, 2.0)[0] == 0.0
+    assert gaussian_smooth_nearest(step, 2.0, truncate=6.0)[0] > 0.0
+
+
+@pytest.mark.parametrize("n, size", [(1, 1), (11, 3), (11, 9), (12, 11), (50, 49), (300, 151)])
+def test_running_median_is_scipys_median_filter_to_the_last_digit(n, size):
+    from scipy.ndimage import median_filter
+
+    from pedcal.calib.common import running_median_nearest
+
+    rng = np.random.default_rng(size)
+    e = rng.standard_normal((n, 2))
+    e[rng.integers(0, n, max(n // 10, 1))] += 5.0                 # outliers the median ignores
+    np.testing.assert_array_equal(running_median_nearest(e, size), median_filter(e, size=(size, 1), mode="nearest"))
+    # a 1-D series alike, and ties (repeated values)
+    r = np.round(e[:, 0])
+    np.testing.assert_array_equal(running_median_nearest(r, size), median_filter(r, size=size, mode="nearest"))
+
+
+def test_running_median_refuses_an_even_window():
+    from pedcal.calib.common import running_median_nearest
+
+    with pytest.raises(ValueError, match="odd"):
+        running_median_nearest(np.zeros((5, 2)), 4)
+
+
 def test_the_odometry_at_the_pose_times_is_interpolated_once_and_again_for_new_times_or_odometry():
     from types import SimpleNamespace
 

@@ -263,14 +263,14 @@ def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold
                  min_jump_m: float = 0.1) -> np.ndarray:
     """Mask of estimates whose residual departs from its running median (over +-``window_s``)
     by more than ``threshold`` robust sigmas of such departures and ``min_jump_m``."""
-    from scipy.ndimage import median_filter
+    from pedcal.calib.common import running_median_nearest
 
     n = len(t)
     if n < 10:
         return np.zeros(n, bool)
     # the window in samples at the median spacing (the estimates come at AMCL's rate)
     size = int(2 * round(window_s / max(float(np.median(np.diff(t))), 1e-6)) + 1)
-    med = median_filter(e, size=(min(size, 2 * (n // 2) - 1), 1), mode="nearest")
+    med = running_median_nearest(e, min(size, 2 * (n // 2) - 1))
     dev = np.linalg.norm(e - med, axis=1)
     return dev > max(threshold * jump_scale(dev), min_jump_m)
 

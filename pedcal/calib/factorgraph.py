@@ -316,10 +316,11 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
         mean /= np.maximum(n, 1)[:, None]
         c2, w2 = model.correlated_sigma_m ** 2, model.white_sigma_m ** 2
         share = np.where(n > 0, c2 / (c2 + w2 / np.maximum(n, 1)), 0.0)
-        for m in range(len(nodes)):
-            if values.exists(A(m)):
-                values.update(A(m), gtsam.Pose3(gtsam.Rot3(), np.array([-share[m] * mean[m, 0],
-                                                                         -share[m] * mean[m, 1], z])))
+        start = np.column_stack([-share * mean[:, 0], -share * mean[:, 1], np.full(len(nodes), z)])
+        no_turn, exists, update = gtsam.Rot3(), values.exists, values.update
+        for key, t in zip(symbols("a", range(len(nodes))).tolist(), start, strict=True):
+            if exists(key):
+                update(key, gtsam.Pose3(no_turn, t))
     if not resolve:
         # Gauss-Newton steps follow, those of the nuisances' profile (each a joint step of the
         # variables, from a point one such step already settled under the first model): they

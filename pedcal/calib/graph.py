@@ -101,7 +101,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import head_world, interpolate_pose2
+from pedcal.calib.common import gaussian_smooth_nearest, head_world, interpolate_pose2
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
@@ -316,10 +316,11 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     # own factor holds them when it is in the graph).
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
-    for k, P in enumerate(head_frames(init, head_m)):
-        values.insert(X(k), P)
+    insert = values.insert
+    for key, P in zip(symbols("x", range(n_pose)).tolist(), head_frames(init, head_m), strict=True):
+        insert(key, P)
         if not rec.amcl:
-            blocks["amcl"].add(gtsam.PriorFactorPose3(X(k), P, planar))
+            blocks["amcl"].add(gtsam.PriorFactorPose3(key, P, planar))
     if rec.amcl and n_pose:
         _amcl_block(blocks["amcl"], values, log, prob, times)
     if n_pose > 1:
@@ -355,8 +356,10 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
     people's positions then taken from ``result``, which must hold them all: else it is built)."""
     n_pose = len(prob.pose_times)
     rec = prob.recipe
-    if not rec.amcl or not all(result.exists(S(i)) for i in range(len(prob.sensor_ids))) or not all(
-            result.exists(X(k)) for k in range(n_pose)):
+    # (every sensor and robot pose looked up in the values' keys at once, not one binding call each)
+    held = np.isin(np.r_[symbols("s", range(len(prob.sensor_ids))), symbols("x", range(n_pose))],
+                   np.asarray(result.keys(), np.uint64))
+    if not rec.amcl or not held.all():
         # (without AMCL the planarity priors sit at the initial track, which the model's jumps change)
         new = build_parts(log, prob)
         for key in new.values.keys():
@@ -411,8 +414,6 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     path then has odometry's shape, which its factors expect, and AMCL's place); without it AMCL
     smoothed (when it jitters) or AMCL itself. AMCL's estimates the error model left out as
     jumps are not used."""
-    from scipy.ndimage import gaussian_filter1d
-
     amcl = log.robot.sort_values("t", kind="stable")
     model = prob.amcl_model
     if model is not None and model.excluded is not None:
@@ -429,13 +430,31 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     ty = amcl["y"].to_numpy(float) - (s_ * odo[:, 0] + c * odo[:, 1])
     sig = smooth_s / max(float(np.median(np.diff(t_a))), 1e-3)
     # the transform's components smoothed (the rotation through its sine and cosine)
-    tx, ty, c, s_ = (gaussian_filter1d(v, sig, mode="nearest") for v in (tx, ty, c, s_))
+    tx, ty, c, s_ = (gaussian_smooth_nearest(v, sig) for v in (tx, ty, c, s_))
     yaw_d = np.arctan2(s_, c)
     o = interpolate_pose2(prob.odometry, times)
     D = np.column_stack([np.interp(times, t_a, tx), np.interp(times, t_a, ty), np.interp(times, t_a, np.unwrap(yaw_d))])
     c, s_ = np.cos(D[:, 2]), np.sin(D[:, 2])
     return np.column_stack([D[:, 0] + c * o[:, 0] - s_ * o[:, 1], D[:, 1] + s_ * o[:, 0] + c * o[:, 1],
                             D[:, 2] + o[:, 2]])
+
+
+def _amcl_measurements(log: Log, prob: FactorGraphProblem) -> tuple:
+    """AMCL's estimates in time order as the AMCL block reads them: (t, yaw, the six covariance
+    columns (n, 6), each estimate's head frame, a Pose3 (:func:`head_frames`)), read
+    once per robot table and head frame and kept on the problem: the block is built again under
+    AMCL's estimated error model (:func:`rebuild_parts`) from the same estimates."""
+    head_m = _head_m(log, prob.recipe)
+    hit = prob.__dict__.get("_amcl_measurements")
+    if hit is not None and hit[0] is log.robot and np.array_equal(hit[1], head_m):
+        return hit[2]
+    amcl = log.robot.sort_values("t", kind="stable")
+    x, y, yaw = (amcl[c].to_numpy(float) for c in ("x", "y", "yaw"))
+    read = (amcl["t"].to_numpy(float), yaw,
+            amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float),
+            head_frames(np.column_stack([x, y, yaw]), head_m))
+    prob.__dict__["_amcl_measurements"] = (log.robot, head_m, read)
+    return read
 
 
 def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray) -> None:
@@ -445,12 +464,9 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     node; the process itself as the exact discretization of an Ornstein-Uhlenbeck process on the
     nodes; estimates the model marks as jumps left out."""
     rec = prob.recipe
-    head_m = _head_m(log, rec)
     model = prob.amcl_model
-    amcl = log.robot.sort_values("t", kind="stable")
-    amcl_t = amcl["t"].to_numpy(float)
+    amcl_t, yaw_all, cov, frames = _amcl_measurements(log, prob)
     n_pose = len(times)
-    cov = amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float)
     k_of = np.searchsorted(times, amcl_t)
     use = (k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t)
     if model.excluded is not None:
@@ -468,8 +484,7 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     tiny = np.radians(0.05)
     tau = max(model.correlation_s, 1e-3)
     sig_c = max(model.correlated_sigma_m, 1e-4)
-    yaw_a = amcl["yaw"].to_numpy(float)[use]
-    x_a, y_a = amcl["x"].to_numpy(float)[use], amcl["y"].to_numpy(float)[use]
+    yaw_a = yaw_all[use]
     # AMCL's covariance in the body frame (amcl_cov_body); the slow error is a world-frame
     # translation (F is held to a pure translation), the white error stays here; the heading error
     # is white, inflated to the information of an OU mean (2 tau / dt).
@@ -482,10 +497,10 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     Cb[:, 0, 0] = Cb[:, 1, 1] = tiny ** 2
     Cb[:, 3:5, 3:5] += (model.white_sigma_m ** 2 + drift_var)[:, None, None] * np.eye(2)
     Cb[:, 5, 5] = 1e-6
-    between, covariance = gtsam.BetweenFactorPose3, gtsam.noiseModel.Gaussian.Covariance
-    for a_node, x_k, Z, C in zip(node_of.tolist(), k_of[use].tolist(),
-                                 head_frames(np.column_stack([x_a, y_a, yaw_a]), head_m), Cb, strict=True):
-        graph.add(between(A(a_node), X(x_k), Z, covariance(C)))
+    between, covariance, add = gtsam.BetweenFactorPose3, gtsam.noiseModel.Gaussian.Covariance, graph.add
+    for a_key, x_key, u, C in zip(symbols("a", node_of).tolist(), symbols("x", k_of[use]).tolist(), use.tolist(), Cb,
+                                  strict=True):
+        add(between(a_key, x_key, frames[u], covariance(C)))
     # The error process on its nodes: the exact AR(1) of an OU process sampled every dn,
     # a = exp(-dn / tau), written as increments and per-node priors (module docstring).
     a = float(np.exp(-dn / tau))
@@ -507,13 +522,16 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
         # head point the sensors see, moves up or down with it alike.
         values.insert(H(0), gtsam.Pose3())
         tie = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 1e3, 1e3, 1e-4]))
-    for m in range(n_nodes):
-        values.insert(A(m), gtsam.Pose3())
-        graph.add(gtsam.PriorFactorPose3(A(m), gtsam.Pose3(), priors[m]))
+    # (one identity Pose3 and the keys made once: the factors keep copies)
+    identity, node_keys, h_key = gtsam.Pose3(), symbols("a", range(n_nodes)).tolist(), H(0)
+    prior_factor, insert = gtsam.PriorFactorPose3, values.insert
+    for m, key in enumerate(node_keys):
+        insert(key, identity)
+        add(prior_factor(key, identity, priors[m]))
         if m and a > 1e-9:
-            graph.add(gtsam.BetweenFactorPose3(A(m - 1), A(m), gtsam.Pose3(), q))
+            add(between(node_keys[m - 1], key, identity, q))
         if free_z:
-            graph.add(gtsam.BetweenFactorPose3(H(0), A(m), gtsam.Pose3(), tie))
+            add(between(h_key, key, identity, tie))
 
 
 ODOMETRY_NUISANCES = ("odometry_scale_correction", "odometry_drift_rad_per_m", "odometry_drift_rad_per_s")
@@ -561,7 +579,7 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
     uniq, inverse = unique_rows(_motion_sigma_keys(sy, st))
     models = [gtsam.noiseModel.Diagonal.Sigmas(_motion_sigmas(row[None, :])[0]) for row in uniq]
     between, add = gtsam.BetweenFactorPose3, graph.add
-    keys = [X(k) for k in range(n_pose)]
+    keys = symbols("x", range(n_pose)).tolist()
     for k0, k1, step, i in zip(keys[:-1], keys[1:], steps, np.asarray(inverse).ravel().tolist(), strict=True):
         add(between(k0, k1, step, models[i]))
     return graph
@@ -635,10 +653,13 @@ def predicted_points(prob: FactorGraphProblem, values: gtsam.Values | None, sens
         return None
     uniq, inv = np.unique(target, return_inverse=True)
     try:
-        Rs, ts = pose_arrays(values, symbols("s", range(len(prob.sensor_ids))))
+        n_sensors = len(prob.sensor_ids)
         if is_pose:
-            t_target = pose_arrays(values, symbols("x", uniq))[1]
+            # (the sensors and the poses read in one pass over the values)
+            R_all, t_all = pose_arrays(values, np.r_[symbols("s", range(n_sensors)), symbols("x", uniq)])
+            Rs, ts, t_target = R_all[:n_sensors], t_all[:n_sensors], t_all[n_sensors:]
         elif all(values.exists(L(int(m))) for m in uniq):
+            Rs, ts = pose_arrays(values, symbols("s", range(n_sensors)))
             t_target = np.array([values.atPoint3(L(int(m))) for m in uniq], float).reshape(len(uniq), 3)
         else:
             return None

@@ -753,10 +753,8 @@ def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.V
     gfg = graph.linearize(values)
     kept = set(keys)
     full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, gtsam.KeyVector(keys))
-    others = gtsam.Ordering()
-    for i in range(full.size()):
-        if full.at(i) not in kept:
-            others.push_back(full.at(i))
+    at = full.at
+    others = gtsam.Ordering([k for k in map(at, range(full.size())) if k not in kept])
     _, rest = gfg.eliminatePartialMultifrontal(others)
     info, _ = rest.hessian()                 # columns: the kept keys in key order
     dims = values.dims()
