@@ -239,6 +239,13 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
             out["sigma_m"] = np.array([res.network[s.id].sigma_position_m if res.network[s.id].sigma_position_m
                                        is not None else [np.nan] * 3 for s in ev.sensors], float).reshape(-1, 3)
             out["amcl_mean_m"] = amcl_run_mean_error_m(sim.calib)
+            model = res.diagnostics.amcl_error_model
+            if model is not None:
+                t = sim.calib.robot["t"].to_numpy(float)
+                out["amcl_model"] = dict(white_m=model.white_sigma_m, correlated_m=model.correlated_sigma_m,
+                                         correlation_s=model.correlation_s, source=model.source,
+                                         floor_m=model.floor_sigma_m(float(t.max() - t.min())),
+                                         duration_s=float(t.max() - t.min()))
             # only calibrated sensors with an error, each with its own block of the covariance
             row_of = {sid: r for r, sid in enumerate(res.network.ids)}
             kept = [s for s in ev.sensors if (res.network[s.id].status or "ok") == "ok"
@@ -395,6 +402,7 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
         print_families(results)
         groups += family_groups(results)
     print_honesty(groups)
+    print_shared(groups)
 
 
 def _xy(r: dict) -> tuple[float, float]:
@@ -449,6 +457,31 @@ def print_families(results: list[dict]) -> None:
               f"{xy[:, 1].mean():.2f} | {clock} |")
 
 
+def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
+    """Per group of logs, where the horizontal error's overconfidence lies: the RMS over the
+    logs of AMCL's run-mean error (the simulator's truth; x, y pooled, mm) beside the graph's
+    own estimate of its spread (the median over the logs of its AMCL model's run-mean sigma,
+    ``AmclErrorModel.floor_sigma_m``), the sensors' mean error (RMS over the logs, mm), and the
+    error over its sigma of that mean (shared) and of the departures from it (rest). A shared
+    error/sigma far above 1 with AMCL's draws far above the model's spread is the draws'
+    doing, not the sigma's."""
+    print("\n| logs of | logs (seeds) | AMCL run-mean error RMS (mm) | graph's AMCL run-mean sigma, median (mm) | "
+          "sensors' mean error RMS (mm) | error / sigma RMS, shared / rest (xy) |")
+    print("|---|---|---|---|---|---|")
+    for name, rs in groups:
+        if not rs:
+            continue
+        amcl = 1000 * np.sqrt(np.mean([np.mean(np.square(r["amcl_mean_m"])) for r in rs if r.get("amcl_mean_m") is not None]))
+        floors = [r["amcl_model"]["floor_m"] for r in rs if r.get("amcl_model")]
+        floor = f"{1000 * np.median(floors):.1f}" if floors else "-"
+        mean_err = [np.nanmean(r["error_m"][:, :2], axis=0) for r in rs if "error_m" in r]
+        mean_text = f"{1000 * np.sqrt(np.mean(np.square(mean_err))):.1f}" if mean_err else "-"
+        zs = np.concatenate([r["z_shared"] for r in rs])
+        zr = np.concatenate([r["z_rest"] for r in rs])
+        z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
+        print(f"| {name} | {len(rs)} ({len({r['seed'] for r in rs})}) | {amcl:.1f} | {floor} | {mean_text} | {z_text} |")
+
+
 def by_seed(rs: list[dict]) -> list[np.ndarray]:
     """The error / sigma ratios of ``rs`` pooled per seed: the unit of the bootstrap. A seed's
     logs share its zoo draw in every scenario (the same families, head model, clocks) and much
@@ -472,8 +505,8 @@ def print_honesty(groups: list[tuple[str, list[dict]]]) -> None:
         if not rs:
             continue
         within, rms = sigma_honesty(by_seed(rs))
-        print(f"| {name} | {len(rs)} ({within.logs}) | {within.rows} | {format_clustered(within, 100)} | "
-              f"{format_clustered(rms, digits=2)} |")
+        print(f"| {name} | {len(rs)} ({within.logs}) | {within.rows} | {format_clustered(within, 100, unit='seeds')} | "
+              f"{format_clustered(rms, digits=2, unit='seeds')} |")
 
 
 if __name__ == "__main__":

@@ -90,8 +90,8 @@ def _row(name: str, runs: list[dict]) -> str:
     # resampled by seed: the logs of one seed share its zoo and AMCL draws
     within, ratio_rms = sigma_honesty(list(clusters(runs).values()))
     return (f"| {name} | {len(runs)} ({within.logs}) | {rms['factorgraph']:.1f} | {rms['gridsearch']:.1f} | "
-            f"{rms['factorgraph'] / rms['gridsearch']:.2f} | {format_clustered(within, 100)} | "
-            f"{format_clustered(ratio_rms, digits=2)} |")
+            f"{rms['factorgraph'] / rms['gridsearch']:.2f} | {format_clustered(within, 100, unit='seeds')} | "
+            f"{format_clustered(ratio_rms, digits=2, unit='seeds')} |")
 
 
 def main() -> None:

@@ -382,9 +382,14 @@ def sigma_honesty(per_log_ratios: list[np.ndarray], n_boot: int = 2000, seed: in
             log_bootstrap(per_log_ratios, sigma_ratio_rms, n_boot, seed, level))
 
 
-def format_clustered(fig: ClusteredFigure, scale: float = 1.0, digits: int = 0) -> str:
-    """'a [lo-hi] / b [lo-hi] / ...' per axis, each value times ``scale``."""
+def format_clustered(fig: ClusteredFigure, scale: float = 1.0, digits: int = 0, min_logs: int = 3,
+                     unit: str = "logs") -> str:
+    """'a [lo-hi] / b [lo-hi] / ...' per axis, each value times ``scale``; with fewer than
+    ``min_logs`` logs (``unit`` names them) the estimates alone, 'a / b / ... (N logs: no
+    interval)': a bootstrap over one or two logs only repeats them, a width of nothing."""
     def f(v):
         return "-" if not np.isfinite(v) else f"{scale * v:.{digits}f}"
 
+    if fig.logs < min_logs:
+        return " / ".join(f(e) for e in fig.estimate) + f" ({fig.logs} {unit}: no interval)"
     return " / ".join(f"{f(e)} [{f(lo)}-{f(hi)}]" for e, lo, hi in zip(fig.estimate, fig.low, fig.high, strict=True))

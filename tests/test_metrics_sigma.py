@@ -93,9 +93,13 @@ def test_sigma_honesty_pairs_the_share_and_the_ratio_on_the_same_resamples():
 
 
 def test_the_format_names_each_axis_estimate_and_interval():
-    fig = log_bootstrap([np.array([[0.5, 2.0, 0.1]]), np.array([[2.0, 0.5, 0.2]])], within_sigma_share, n_boot=400)
+    logs = [np.array([[0.5, 2.0, 0.1]]), np.array([[2.0, 0.5, 0.2]])]
+    fig = log_bootstrap(logs * 2, within_sigma_share, n_boot=400)
     assert format_clustered(fig, 100) == "50 [0-100] / 50 [0-100] / 100 [100-100]"
-    rms = log_bootstrap([np.array([[INF]])], sigma_ratio_rms, n_boot=10)
+    # two logs: a bootstrap only repeats them, so no interval is claimed
+    two = log_bootstrap(logs, within_sigma_share, n_boot=400)
+    assert format_clustered(two, 100, unit="seeds") == "50 / 50 / 100 (2 seeds: no interval)"
+    rms = log_bootstrap([np.array([[INF]])] * 3, sigma_ratio_rms, n_boot=10)
     assert format_clustered(rms, digits=2) == "- [---]"          # no finite ratio
 
 
@@ -153,8 +157,8 @@ def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss
     r = log_ratios(row)
     np.testing.assert_allclose(r[0], [0.5, 1.5, 0.0])
     assert np.all(np.isinf(r[1:]))
-    text = honesty_table([row], "m", [("all", [row])], "t")
-    assert "| all | 1 | 3 | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
+    text = honesty_table([row] * 3, "m", [("all", [row] * 3)], "t")
+    assert "| all | 3 | 9 | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
     # a method without any sigma has no table
     bare = {"method": "g", "sensors": [{**row["sensors"][0], "sigma_p": None}]}
     assert honesty_table([bare], "g", [("all", [bare])], "t") == ""
