@@ -471,7 +471,8 @@ def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
     for name, rs in groups:
         if not rs:
             continue
-        amcl = 1000 * np.sqrt(np.mean([np.mean(np.square(r["amcl_mean_m"])) for r in rs if r.get("amcl_mean_m") is not None]))
+        amcl = 1000 * np.sqrt(np.mean([np.mean(np.square(r["amcl_mean_m"])) for r in rs
+                                       if r.get("amcl_mean_m") is not None]))
         floors = [r["amcl_model"]["floor_m"] for r in rs if r.get("amcl_model")]
         floor = f"{1000 * np.median(floors):.1f}" if floors else "-"
         mean_err = [np.nanmean(r["error_m"][:, :2], axis=0) for r in rs if "error_m" in r]
@@ -479,7 +480,8 @@ def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
         zs = np.concatenate([r["z_shared"] for r in rs])
         zr = np.concatenate([r["z_rest"] for r in rs])
         z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
-        print(f"| {name} | {len(rs)} ({len({r['seed'] for r in rs})}) | {amcl:.1f} | {floor} | {mean_text} | {z_text} |")
+        seeds = len({r["seed"] for r in rs})
+        print(f"| {name} | {len(rs)} ({seeds}) | {amcl:.1f} | {floor} | {mean_text} | {z_text} |")
 
 
 def by_seed(rs: list[dict]) -> list[np.ndarray]:
