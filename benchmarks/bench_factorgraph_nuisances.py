@@ -9,6 +9,7 @@ one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalization
         [--scenarios paper sparse corridor cross lhall] [--seeds 20] [--first-seed 0] [--jobs 1] [--zoo]
         [--recipe KEY=VALUE ...]     # graph recipe fields, e.g. head_shift_per_sensor_sigma_m=0
         [--only FAMILY=VALUE ...]    # with --zoo: only seeds whose zoo drew these, e.g. head=top
+        [--off FAMILY ...]           # those seeds' logs with these nuisances switched off (paired)
         [--save FILE] [--from-results FILE]   # keep the per-log results; print an earlier run's
 
 Per scenario (means over seeds): sensor position RMS of the factor graph and of the grid search
@@ -62,7 +63,16 @@ from pedcal.metrics import (
     sigma_honesty,
 )
 from pedcal.sim import load_scenario, simulate_logs
-from pedcal.sim.nuisances import head_model_truth, head_point, sensor_clocks, sensor_head_models, vary, zoo_families
+from pedcal.sim.nuisances import (
+    OFF_FAMILIES,
+    head_model_truth,
+    head_point,
+    sensor_clocks,
+    sensor_head_models,
+    switch_off,
+    vary,
+    zoo_families,
+)
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:
@@ -190,6 +200,27 @@ def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, rows)
     return projected_z(E_xy_m, joint_cov_m2, np.kron(np.ones((n, 1)), np.eye(2)), rows)
 
 
+def stretch_fit(E_xy_m: np.ndarray, true_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None,
+                rows) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal errors ``E`` (n, 2) fitted (least squares) by a common shift and a stretch
+    along each axis about the sensors' middle, e_x = c_x + s_x (x - mean x), e_y likewise: the
+    coefficients (c_x, c_y in m; s_x, s_y in m/m) and their sigma from the joint position
+    covariance (``rows``: each sensor's place in it, as in :func:`projected_z`); NaN sigma
+    without the covariance. A head point whose shift toward the sensor changes with distance
+    scales each view radially, which shows as a stretch."""
+    n = len(E_xy_m)
+    d = np.asarray(true_xy_m, float) - np.mean(true_xy_m, axis=0)
+    A = np.zeros((2 * n, 4))
+    A[0::2, 0] = A[1::2, 1] = 1.0
+    A[0::2, 2], A[1::2, 3] = d[:, 0], d[:, 1]
+    L = np.linalg.pinv(A)
+    coef = L @ np.asarray(E_xy_m, float).ravel()
+    if joint_cov_m2 is None:
+        return coef, np.full(4, np.nan)
+    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
+    return coef, np.sqrt(np.diag(L @ joint_cov_m2[np.ix_(idx, idx)] @ L.T))
+
+
 def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: int = 3) -> np.ndarray:
     """(len(ids) + missing, axes) each sensor's |error| over its reported sigma per world axis
     (the first ``axes`` of x, y, z: ``abs_err_m`` is (n, axes)); inf for a miss, not a padding: a
@@ -205,9 +236,14 @@ def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: in
     return out
 
 
-def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = None) -> dict:
+def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = None, off: tuple = ()) -> dict:
     warnings.simplefilter("ignore")
-    sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo" if zoo else True)
+    if off:
+        # the seed's draw with these families made ideal, every other draw as it was (paired)
+        sc = switch_off(vary(load_scenario(scenario).resolve(seed=seed), zoo=zoo), off)
+        sim = simulate_logs(sc, seed=seed)
+    else:
+        sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo" if zoo else True)
     out = dict(scenario=scenario, seed=seed, nuisances=head_model_truth(sim.scenario),
                families=zoo_families(sim.scenario),
                amcl=sim.scenario.amcl_error, odometry=sim.scenario.odometry, latency_s=sim.scenario.latency_s,
@@ -239,6 +275,8 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
             out["sigma_m"] = np.array([res.network[s.id].sigma_position_m if res.network[s.id].sigma_position_m
                                        is not None else [np.nan] * 3 for s in ev.sensors], float).reshape(-1, 3)
             out["amcl_mean_m"] = amcl_run_mean_error_m(sim.calib)
+            out["ids"] = [s.id for s in ev.sensors]
+            out["true_m"] = np.array([sim.eval.truth[s.id].position_m for s in ev.sensors], float).reshape(-1, 3)
             model = res.diagnostics.amcl_error_model
             if model is not None:
                 t = sim.calib.robot["t"].to_numpy(float)
@@ -253,6 +291,10 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
             out["z_shared"], out["z_rest"] = shared_and_rest_z(
                 np.array([s.position_error_mm[:2] for s in kept]).reshape(-1, 2) / 1000.0,
                 res.position_covariance_m2, [row_of[s.id] for s in kept])
+            if res.position_covariance_m2 is not None and len(kept) >= 3:
+                out["stretch"] = stretch_fit(np.array([s.position_error_mm[:2] for s in kept]) / 1000.0,
+                                             np.array([sim.eval.truth[s.id].position_m[:2] for s in kept]),
+                                             res.position_covariance_m2, [row_of[s.id] for s in kept])
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
             out["clock_z"], out["clock_err_s"] = clock_offset_errors(sim, res.network)
@@ -323,6 +365,9 @@ def main() -> None:
     ap.add_argument("--only", nargs="+", default=[], metavar="FAMILY=VALUE",
                     help="with --zoo: per scenario the first --seeds seeds from --first-seed whose zoo draws "
                          "these families (head=top, amcl=correlated, mounts=wall, clock=skew, ...)")
+    ap.add_argument("--off", nargs="+", default=[], choices=OFF_FAMILIES,
+                    help="switch these nuisance families off in each seed's draw, every other draw kept "
+                         "(pedcal.sim.nuisances.switch_off): the same logs without them")
     ap.add_argument("--save", default=None, metavar="FILE", help="write the per-log results (pickle)")
     ap.add_argument("--from-results", default=None, metavar="FILE",
                     help="print the tables of an earlier run's --save FILE without running")
@@ -339,13 +384,14 @@ def main() -> None:
         ap.error("--only selects zoo families: give --zoo")
     seeds = {sc: (seeds_with(sc, only, args.first_seed, args.seeds) if only
                   else list(range(args.first_seed, args.first_seed + args.seeds))) for sc in args.scenarios}
-    tasks = [(sc, s, args.zoo, recipe) for sc in args.scenarios for s in seeds[sc]]
+    tasks = [(sc, s, args.zoo, recipe, tuple(args.off)) for sc in args.scenarios for s in seeds[sc]]
     with ProcessPoolExecutor(args.jobs) as ex:
         results = list(ex.map(run_one, *zip(*tasks, strict=True)))
     title = (f"{len(args.scenarios)} scenarios x {args.seeds} seeds (first {args.first_seed}), "
              f"--vary-nuisances{' zoo' if args.zoo else ''}"
              + (f", only {' '.join(args.only)}" if args.only else "")
-             + (f", recipe {' '.join(args.recipe)}" if args.recipe else ""))
+             + (f", recipe {' '.join(args.recipe)}" if args.recipe else "")
+             + (f", off {' '.join(args.off)}" if args.off else ""))
     if args.save:
         with open(args.save, "wb") as fh:
             pickle.dump(dict(title=title, results=results, zoo=args.zoo), fh)
@@ -403,6 +449,7 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
         groups += family_groups(results)
     print_honesty(groups)
     print_shared(groups)
+    print_stretch(groups)
 
 
 def _xy(r: dict) -> tuple[float, float]:
@@ -482,6 +529,27 @@ def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
         z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
         seeds = len({r["seed"] for r in rs})
         print(f"| {name} | {len(rs)} ({seeds}) | {amcl:.1f} | {floor} | {mean_text} | {z_text} |")
+
+
+def print_stretch(groups: list[tuple[str, list[dict]]]) -> None:
+    """Per group of logs, the network's stretch (:func:`stretch_fit`, mm/m along x and y): its
+    mean and spread over the logs, the median of its sigma, and the RMS of stretch / sigma (1
+    when the covariance holds the stretch the errors show)."""
+    rows = [(name, [r["stretch"] for r in rs if r.get("stretch") is not None]) for name, rs in groups]
+    rows = [(name, fits) for name, fits in rows if fits]
+    if not rows:
+        return
+    print("\n| logs of | logs | stretch x: mean, sd over logs, median sigma (mm/m) | stretch / sigma RMS x | "
+          "stretch y: mean, sd, median sigma (mm/m) | stretch / sigma RMS y |")
+    print("|---|---|---|---|---|---|")
+    for name, fits in rows:
+        coef = 1000 * np.array([c for c, _ in fits])
+        sig = 1000 * np.array([s for _, s in fits])
+        cells = []
+        for k in (2, 3):
+            cells.append(f"{coef[:, k].mean():+.1f}, {coef[:, k].std():.1f}, {np.median(sig[:, k]):.1f}")
+            cells.append(f"{np.sqrt(np.mean((coef[:, k] / sig[:, k]) ** 2)):.2f}")
+        print(f"| {name} | {len(fits)} | " + " | ".join(cells) + " |")
 
 
 def by_seed(rs: list[dict]) -> list[np.ndarray]:

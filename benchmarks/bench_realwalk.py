@@ -8,6 +8,7 @@ in each scenario and seed, with the nuisance zoo drawn from the seed
         [--recordings atc eth_ucy thor] [--scenarios paper corridor cross] [--seeds 2] [--first-seed 0]
         [--jobs 1] [--recipe KEY=VALUE ...]     # graph recipe fields for the factor graph
         [--by-scenario]                         # rows pooling each scenario over the recordings
+        [--save FILE] [--from-results FILE]     # keep the per-log results; print an earlier run's
 
 Per recording and scenario, over the seeds: the sensors' horizontal position RMS (mm, on the
 evaluation log, ``pedcal.metrics.evaluate``) of the factor graph and of the grid search and their
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import pickle
 import sys
 import time
 import warnings
@@ -104,7 +106,16 @@ def main() -> None:
     ap.add_argument("--recipe", nargs="+", default=[], metavar="KEY=VALUE",
                     help="graph recipe fields for the factor graph (head_profile_consider=false)")
     ap.add_argument("--by-scenario", action="store_true", help="rows pooling each scenario over the recordings")
+    ap.add_argument("--save", default=None, metavar="FILE", help="write the per-log results (pickle)")
+    ap.add_argument("--from-results", default=None, metavar="FILE",
+                    help="print the table of an earlier run's --save FILE without running")
     args = ap.parse_args()
+    if args.from_results:
+        with open(args.from_results, "rb") as fh:
+            saved = pickle.load(fh)
+        print(saved["title"] + f" (from {args.from_results})")
+        print_table(saved["results"], saved["recordings"], saved["scenarios"], args.by_scenario)
+        return
     recipe = recipe_overrides(args.recipe, ap)
     recordings = []
     for rec in args.recordings:
@@ -119,21 +130,30 @@ def main() -> None:
     tasks = [(rec, sc, s, recipe) for rec in recordings for sc in args.scenarios for s in seeds]
     with ProcessPoolExecutor(args.jobs) as ex:
         results = list(ex.map(run_one, *zip(*tasks, strict=True)))
-    print(f"recorded walkers x scenarios x {args.seeds} seeds (first {args.first_seed}), --vary-nuisances zoo"
-          + (f", recipe {' '.join(args.recipe)}" if args.recipe else ""))
+    title = (f"recorded walkers x scenarios x {args.seeds} seeds (first {args.first_seed}), --vary-nuisances zoo"
+             + (f", recipe {' '.join(args.recipe)}" if args.recipe else ""))
+    if args.save:
+        with open(args.save, "wb") as fh:
+            pickle.dump(dict(title=title, results=results, recordings=recordings, scenarios=args.scenarios), fh)
+    print(title)
+    print_table(results, recordings, args.scenarios, args.by_scenario)
+    cpu = sum(r["factorgraph"]["cpu_s"] for r in results)
+    print(f"graph calibrate() CPU {cpu:.0f} s over {len(results)} logs; load average at the start {load0:.1f}, "
+          f"at the end {os.getloadavg()[0]:.1f}")
+
+
+def print_table(results: list[dict], recordings: list[str], scenarios: list[str], by_scenario: bool) -> None:
+    """The table: a row per recording and scenario, per scenario (``by_scenario``), all pooled."""
     print("| recording / scenario | logs (seeds) | graph xy RMS (mm) | grid search xy RMS (mm) | graph / grid | "
           "graph within 1 sigma x / y / z (%) [90 % over logs] | graph error / sigma RMS x / y / z [90 % over logs] |")
     print("|---|---|---|---|---|---|---|")
     for rec in recordings:
-        for sc in args.scenarios:
+        for sc in scenarios:
             print(_row(f"{rec} / {sc}", [r for r in results if r["recording"] == rec and r["scenario"] == sc]))
-    if args.by_scenario:
-        for sc in args.scenarios:
+    if by_scenario:
+        for sc in scenarios:
             print(_row(f"all / {sc}", [r for r in results if r["scenario"] == sc]))
     print(_row("all", results))
-    cpu = sum(r["factorgraph"]["cpu_s"] for r in results)
-    print(f"graph calibrate() CPU {cpu:.0f} s over {len(results)} logs; load average at the start {load0:.1f}, "
-          f"at the end {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -173,3 +173,20 @@ def test_the_crowds_bench_pools_a_seeds_recordings_and_scenarios():
     assert sorted(out) == [0, 1]
     assert all(len(v) == 8 for v in out.values())
     np.testing.assert_allclose(out[1], 1.5)
+
+
+def test_the_stretch_fit_recovers_a_known_stretch_and_its_sigma():
+    from bench_factorgraph_nuisances import stretch_fit
+
+    true_xy = np.array([[0.0, 0.0], [4.0, 1.0], [8.0, 0.0], [12.0, 1.0], [16.0, 0.0]])
+    d = true_xy - true_xy.mean(axis=0)
+    E = np.column_stack([0.010 + 0.002 * d[:, 0], -0.020 - 0.001 * d[:, 1]])      # 2 mm/m along x, -1 along y
+    # the covariance of 5 sensors' positions (3 per sensor), isotropic 10 mm, in a shuffled order
+    rows = [4, 2, 0, 1, 3]
+    cov = 0.01 ** 2 * np.eye(15)
+    coef, sigma = stretch_fit(E, true_xy, cov, rows)
+    np.testing.assert_allclose(coef, [0.010, -0.020, 0.002, -0.001], atol=1e-12)
+    # the columns are orthogonal (the positions taken about their mean): sigma / sqrt(n) for the
+    # shift, sigma / sqrt(sum d^2) for the stretch
+    np.testing.assert_allclose(sigma, 0.01 / np.sqrt([5, 5, np.sum(d[:, 0] ** 2), np.sum(d[:, 1] ** 2)]))
+    assert np.all(np.isnan(stretch_fit(E, true_xy, None, rows)[1]))
