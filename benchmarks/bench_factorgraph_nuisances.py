@@ -38,7 +38,10 @@ too wide, which the share alone would reward), x, y, z, each with its 90 % inter
 bootstrap over the seeds (seeded; ``pedcal.metrics.sigma_honesty``): a log's sensors share one
 draw of AMCL's error and of the head point, and a seed's logs in every scenario share its zoo
 draw and much of AMCL's, so a figure of few seeds is uncertain however many sensors it pools,
-and the interval says how much.
+and the interval says how much (none is claimed below 3 seeds). Beside it, per group: AMCL's
+run-mean error (the truth) against the graph's AMCL model's sigma of it, and the error over
+sigma of the sensors' common error and of the rest; and the network's stretch along x and y
+(mm/m, :func:`stretch_fit`) against its sigma.
 """
 
 from __future__ import annotations

@@ -145,7 +145,8 @@ def main() -> None:
 def print_table(results: list[dict], recordings: list[str], scenarios: list[str], by_scenario: bool) -> None:
     """The table: a row per recording and scenario, per scenario (``by_scenario``), all pooled."""
     print("| recording / scenario | logs (seeds) | graph xy RMS (mm) | grid search xy RMS (mm) | graph / grid | "
-          "graph within 1 sigma x / y / z (%) [90 % over logs] | graph error / sigma RMS x / y / z [90 % over logs] |")
+          "graph within 1 sigma x / y / z (%) [90 % over seeds] | "
+          "graph error / sigma RMS x / y / z [90 % over seeds] |")
     print("|---|---|---|---|---|---|---|")
     for rec in recordings:
         for sc in scenarios:
