@@ -12,6 +12,7 @@ Calibration (Kimoto et al., Tables I and II):
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -291,3 +292,104 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
                             head_tracking_rms_mm=head_rms, head_reference=reference,
                             head_observations=n_head, robot_rows=how, sensors=sensors,
                             missing_sensors=missing)
+
+
+# --- the reported sigma's honesty over many logs -------------------------------------------------
+# A calibration's sensors share much of their error (AMCL's error over the run, the head point's
+# model), so a log is one draw of it, not one per sensor: a share pooled over the sensors of a
+# few logs is as uncertain as those few draws. The figures below take the log as the unit of
+# resampling.
+
+def _rows(a) -> np.ndarray:
+    """``a`` as a float array of rows (n, axes): a flat one is one axis."""
+    a = np.asarray(a, float)
+    return a[:, None] if a.ndim == 1 else a
+
+
+def within_sigma_share(ratios: np.ndarray, k: float = 1.0) -> np.ndarray:
+    """Per axis, the share (0-1) of ``ratios`` (n, axes): |error| / sigma, inf for a miss (a sensor
+    not calibrated, without a sigma or left out) that are <= ``k``; NaN for an axis with no rows.
+    A miss counts in the denominator and never within."""
+    r = _rows(ratios)
+    if not len(r):
+        return np.full(r.shape[1], np.nan)
+    return np.mean(np.nan_to_num(r, nan=np.inf) <= k, axis=0)
+
+
+def sigma_ratio_rms(ratios: np.ndarray) -> np.ndarray:
+    """Per axis, the root mean square of the finite |error| / sigma ``ratios`` (n, axes): 1 when
+    the sigma is honest, below 1 when it is too wide (which the share within 1 sigma alone would
+    reward), above 1 when it is too narrow. Misses (inf, NaN) are left out (the share within
+    sigma counts them); NaN for an axis with no finite ratio."""
+    r = _rows(ratios)
+    out = np.full(r.shape[1], np.nan)
+    for a in range(r.shape[1]):
+        col = r[np.isfinite(r[:, a]), a]
+        if len(col):
+            out[a] = float(np.sqrt(np.mean(col ** 2)))
+    return out
+
+
+@dataclass
+class ClusteredFigure:
+    """A figure pooled over the sensors of many logs, per axis, with its percentile interval
+    from a bootstrap over the logs (each resample draws logs with replacement and pools all of
+    their sensors): ``estimate``, ``low``, ``high`` (axes,), over ``logs`` logs and ``rows``
+    sensors, at confidence ``level``."""
+
+    estimate: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    logs: int
+    rows: int
+    level: float
+
+
+def log_bootstrap(per_log: list[np.ndarray], statistic, n_boot: int = 2000, seed: int = 0,
+                  level: float = 0.9) -> ClusteredFigure:
+    """``statistic`` (a function of the pooled (n, axes) rows, giving (axes,)) of the rows of
+    ``per_log`` (one (n_i, axes) array per log) with its ``level`` percentile interval from
+    ``n_boot`` resamples of the logs with replacement (seeded by ``seed``): the interval a
+    share of a few logs' sensors deserves, their errors being shared within a log. Logs without
+    rows are kept as logs (their resample adds nothing). NaN statistics of a resample (no rows)
+    are left out of the percentiles. With one log the interval is the point."""
+    blocks = [_rows(b) for b in per_log]
+    if not blocks:
+        raise ValueError("log_bootstrap needs at least one log")
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+    axes = max(b.shape[1] for b in blocks)
+    blocks = [b if len(b) else np.zeros((0, axes)) for b in blocks]
+    pooled = np.concatenate(blocks)
+    estimate = np.asarray(statistic(pooled), float)
+    rng = np.random.default_rng(seed)
+    draws = np.array([np.asarray(statistic(np.concatenate([blocks[i] for i in pick])), float)
+                      for pick in rng.integers(0, len(blocks), (n_boot, len(blocks)))]).reshape(n_boot, -1)
+    tail = 100 * (1.0 - level) / 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # an axis NaN in every resample
+        low = np.nanpercentile(draws, tail, axis=0)
+        high = np.nanpercentile(draws, 100 - tail, axis=0)
+    return ClusteredFigure(estimate=estimate, low=low, high=high, logs=len(blocks), rows=len(pooled), level=level)
+
+
+def sigma_honesty(per_log_ratios: list[np.ndarray], n_boot: int = 2000, seed: int = 0,
+                  level: float = 0.9) -> tuple[ClusteredFigure, ClusteredFigure]:
+    """(share within 1 sigma, error / sigma RMS) per axis of the |error| / sigma ratios of many
+    logs (one (n_i, axes) array per log, inf for a miss), each with its interval from a
+    bootstrap over the logs (:func:`log_bootstrap`, the same resamples for both)."""
+    return (log_bootstrap(per_log_ratios, within_sigma_share, n_boot, seed, level),
+            log_bootstrap(per_log_ratios, sigma_ratio_rms, n_boot, seed, level))
+
+
+def format_clustered(fig: ClusteredFigure, scale: float = 1.0, digits: int = 0, min_logs: int = 3,
+                     unit: str = "logs") -> str:
+    """'a [lo-hi] / b [lo-hi] / ...' per axis, each value times ``scale``; with fewer than
+    ``min_logs`` logs (``unit`` names them) the estimates alone, 'a / b / ... (N logs: no
+    interval)': a bootstrap over one or two logs only repeats them, a width of nothing."""
+    def f(v):
+        return "-" if not np.isfinite(v) else f"{scale * v:.{digits}f}"
+
+    if fig.logs < min_logs:
+        return " / ".join(f(e) for e in fig.estimate) + f" ({fig.logs} {unit}: no interval)"
+    return " / ".join(f"{f(e)} [{f(lo)}-{f(hi)}]" for e, lo, hi in zip(fig.estimate, fig.low, fig.high, strict=True))

@@ -1,0 +1,192 @@
+"""The sigma's honesty over many logs: the share of errors within 1 sigma, the RMS of error over
+sigma (which does not reward a sigma that is only wide), and their intervals from a bootstrap
+over the logs (a log's sensors share one draw of AMCL's error: the log is the unit)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pedcal.metrics import format_clustered, log_bootstrap, sigma_honesty, sigma_ratio_rms, within_sigma_share
+from pedcal.model import SensorExtrinsics, SensorNetwork
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from bench_factorgraph_nuisances import by_seed, family_filter, seeds_with, sigma_ratios  # noqa: E402
+
+INF = np.inf
+
+
+def test_the_share_within_sigma_counts_a_miss_in_the_denominator_and_never_within():
+    ratios = np.array([[0.5, 2.0], [1.0, INF], [3.0, 0.2], [INF, np.nan]])
+    assert within_sigma_share(ratios) == pytest.approx([2 / 4, 1 / 4])
+    assert within_sigma_share(ratios, k=2.0) == pytest.approx([2 / 4, 2 / 4])
+    assert np.all(np.isnan(within_sigma_share(np.zeros((0, 3)))))
+
+
+def test_the_ratio_rms_by_hand_leaves_misses_out():
+    ratios = np.array([[0.5, 2.0, INF], [1.0, INF, INF], [3.0, 0.2, np.nan]])
+    out = sigma_ratio_rms(ratios)
+    assert out[0] == pytest.approx(np.sqrt((0.25 + 1.0 + 9.0) / 3))
+    assert out[1] == pytest.approx(np.sqrt((4.0 + 0.04) / 2))
+    assert np.isnan(out[2])                       # no finite ratio on that axis
+
+
+def test_a_sigma_only_wide_is_within_but_its_ratio_rms_says_so():
+    # errors N(0, 1) against a sigma 3x too wide: nearly all within 1 sigma (the share rewards
+    # it), the ratio RMS a third (it does not); against the right sigma, ~68 % and ~1
+    rng = np.random.default_rng(0)
+    err = np.abs(rng.normal(size=(4000, 3)))
+    wide, right = err / 3.0, err / 1.0
+    assert np.all(within_sigma_share(wide) > 0.99)
+    assert sigma_ratio_rms(wide) == pytest.approx([1 / 3] * 3, rel=0.05)
+    assert within_sigma_share(right) == pytest.approx([0.683] * 3, abs=0.03)
+    assert sigma_ratio_rms(right) == pytest.approx([1.0] * 3, rel=0.05)
+
+
+def test_the_bootstrap_is_seeded_and_its_interval_holds_the_pooled_estimate():
+    rng = np.random.default_rng(1)
+    logs = [np.abs(rng.normal(scale=s, size=(rng.integers(3, 9), 3))) for s in rng.uniform(0.5, 2.0, 12)]
+    a = log_bootstrap(logs, within_sigma_share, n_boot=500, seed=7)
+    b = log_bootstrap(logs, within_sigma_share, n_boot=500, seed=7)
+    np.testing.assert_array_equal(a.low, b.low)
+    np.testing.assert_array_equal(a.high, b.high)
+    assert a.logs == 12 and a.rows == sum(len(x) for x in logs)
+    np.testing.assert_allclose(a.estimate, within_sigma_share(np.concatenate(logs)))
+    assert np.all(a.low <= a.estimate) and np.all(a.estimate <= a.high)
+    assert np.all(a.high - a.low > 0.05)          # twelve logs of unequal sigma: not a point
+
+
+def test_two_logs_all_in_and_all_out_span_the_whole_range():
+    # each resample holds each log 0, 1 or 2 times: shares 0, 1/2, 1 with probability 1/4, 1/2,
+    # 1/4, so the 90 % interval runs from 0 to 1 about the pooled 1/2
+    logs = [np.array([[0.5]]), np.array([[2.0]])]
+    fig = log_bootstrap(logs, within_sigma_share, n_boot=2000, seed=0, level=0.9)
+    assert fig.estimate == pytest.approx([0.5])
+    assert fig.low == pytest.approx([0.0]) and fig.high == pytest.approx([1.0])
+
+
+def test_one_log_or_identical_logs_give_no_width():
+    one = log_bootstrap([np.array([[0.5, 2.0], [1.5, 0.1]])], sigma_ratio_rms, n_boot=200)
+    np.testing.assert_allclose(one.low, one.estimate)
+    np.testing.assert_allclose(one.high, one.estimate)
+    same = log_bootstrap([np.array([[0.5], [2.0]])] * 5, within_sigma_share, n_boot=200)
+    assert same.low == pytest.approx([0.5]) and same.high == pytest.approx([0.5])
+
+
+def test_bad_bootstrap_input_is_refused():
+    with pytest.raises(ValueError, match="at least one log"):
+        log_bootstrap([], within_sigma_share)
+    with pytest.raises(ValueError, match="level"):
+        log_bootstrap([np.ones((1, 1))], within_sigma_share, level=1.0)
+
+
+def test_sigma_honesty_pairs_the_share_and_the_ratio_on_the_same_resamples():
+    logs = [np.array([[0.5, INF]]), np.array([[2.0, 1.0]]), np.array([[1.0, 0.4], [3.0, 0.2]])]
+    within, rms = sigma_honesty(logs, n_boot=300, seed=3)
+    assert within.estimate == pytest.approx([2 / 4, 3 / 4])
+    assert rms.estimate == pytest.approx([np.sqrt((0.25 + 4 + 1 + 9) / 4), np.sqrt((1 + 0.16 + 0.04) / 3)])
+    assert within.logs == rms.logs == 3
+
+
+def test_the_format_names_each_axis_estimate_and_interval():
+    logs = [np.array([[0.5, 2.0, 0.1]]), np.array([[2.0, 0.5, 0.2]])]
+    fig = log_bootstrap(logs * 2, within_sigma_share, n_boot=400)
+    assert format_clustered(fig, 100) == "50 [0-100] / 50 [0-100] / 100 [100-100]"
+    # two logs: a bootstrap only repeats them, so no interval is claimed
+    two = log_bootstrap(logs, within_sigma_share, n_boot=400)
+    assert format_clustered(two, 100, unit="seeds") == "50 / 50 / 100 (2 seeds: no interval)"
+    rms = log_bootstrap([np.array([[INF]])] * 3, sigma_ratio_rms, n_boot=10)
+    assert format_clustered(rms, digits=2) == "- [---]"          # no finite ratio
+
+
+def test_a_missing_sensor_is_a_miss_in_the_benchmarks_ratios():
+    net = SensorNetwork([SensorExtrinsics("a", [0.0, 0.0, 3.0], [0.0, 90.0, 0.0]),
+                         SensorExtrinsics("b", [1.0, 0.0, 3.0], [0.0, 90.0, 0.0])])
+    net["a"].sigma_position_m = np.array([0.01, 0.02, 0.04])
+    net["b"].sigma_position_m = np.array([0.01, 0.01, 0.01])
+    net["b"].status = "no-data"                   # its sigma the prior's: a miss
+    ratios = sigma_ratios(net, ["a", "b"], [np.array([0.005, 0.03, 0.02]), np.array([0.0, 0.0, 0.0])], missing=1)
+    assert ratios.shape == (3, 3)
+    np.testing.assert_allclose(ratios[0], [0.5, 1.5, 0.5])
+    assert np.all(np.isinf(ratios[1:]))
+    assert within_sigma_share(ratios) == pytest.approx([1 / 3, 0.0, 1 / 3])
+    assert sigma_ratio_rms(ratios) == pytest.approx([0.5, 1.5, 0.5])
+
+
+def test_the_bench_resamples_seeds_not_scenarios():
+    rs = [dict(seed=0, ratios=np.array([[0.5, 0.5, 0.5]])), dict(seed=1, ratios=np.array([[2.0, 2.0, 2.0]])),
+          dict(seed=0, ratios=np.array([[0.7, 0.7, 0.7], [0.9, 0.9, 0.9]]))]
+    blocks = by_seed(rs)
+    assert [len(b) for b in blocks] == [3, 1]
+    np.testing.assert_allclose(blocks[0][:, 0], [0.5, 0.7, 0.9])
+
+
+def test_only_selects_the_seeds_whose_zoo_draws_the_family():
+    from pedcal.sim import load_scenario
+    from pedcal.sim.nuisances import vary, zoo_families
+
+    seeds = seeds_with("paper", {"head": "top"}, 0, 3)
+    assert len(seeds) == 3 and seeds == sorted(seeds)
+    base = load_scenario("paper")
+    drawn = [zoo_families(vary(base.resolve(seed=s), zoo=True))["head"] for s in range(seeds[-1] + 1)]
+    assert [s for s, h in enumerate(drawn) if h == "top"] == seeds
+
+
+def test_only_refuses_an_unknown_family():
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    assert family_filter(["head=top", "amcl=correlated"], ap) == {"head": "top", "amcl": "correlated"}
+    with pytest.raises(SystemExit):
+        family_filter(["hair=long"], ap)
+    with pytest.raises(SystemExit):
+        family_filter(["head"], ap)
+
+
+def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss():
+    from bench_xgen import honesty_table, log_ratios
+
+    row = {"method": "m", "sensors": [
+        {"dx": 0.01, "dy": -0.03, "dz": 0.0, "sigma_p": [0.02, 0.02, 0.01], "status": "ok"},
+        {"dx": 0.0, "dy": 0.0, "dz": 0.0, "sigma_p": [0.5, 0.5, 0.5], "status": "no-data"},
+        {"dx": 0.0, "dy": 0.0, "dz": 0.0, "sigma_p": None, "status": "missing"}]}
+    r = log_ratios(row)
+    np.testing.assert_allclose(r[0], [0.5, 1.5, 0.0])
+    assert np.all(np.isinf(r[1:]))
+    text = honesty_table([row] * 3, "m", [("all", [row] * 3)], "t")
+    assert "| all | 3 | 9 | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
+    # a method without any sigma has no table
+    bare = {"method": "g", "sensors": [{**row["sensors"][0], "sigma_p": None}]}
+    assert honesty_table([bare], "g", [("all", [bare])], "t") == ""
+
+
+def test_the_crowds_bench_pools_a_seeds_recordings_and_scenarios():
+    from bench_realwalk import clusters
+
+    runs = [dict(recording=rec, scenario=sc, seed=seed, ratios=np.full((2, 3), seed + 0.5))
+            for rec in ("atc", "thor") for sc in ("paper", "cross") for seed in (0, 1)]
+    out = clusters(runs)
+    assert sorted(out) == [0, 1]
+    assert all(len(v) == 8 for v in out.values())
+    np.testing.assert_allclose(out[1], 1.5)
+
+
+def test_the_stretch_fit_recovers_a_known_stretch_and_its_sigma():
+    from bench_factorgraph_nuisances import stretch_fit
+
+    true_xy = np.array([[0.0, 0.0], [4.0, 1.0], [8.0, 0.0], [12.0, 1.0], [16.0, 0.0]])
+    d = true_xy - true_xy.mean(axis=0)
+    E = np.column_stack([0.010 + 0.002 * d[:, 0], -0.020 - 0.001 * d[:, 1]])      # 2 mm/m along x, -1 along y
+    # the covariance of 5 sensors' positions (3 per sensor), isotropic 10 mm, in a shuffled order
+    rows = [4, 2, 0, 1, 3]
+    cov = 0.01 ** 2 * np.eye(15)
+    coef, sigma = stretch_fit(E, true_xy, cov, rows)
+    np.testing.assert_allclose(coef, [0.010, -0.020, 0.002, -0.001], atol=1e-12)
+    # the columns are orthogonal (the positions taken about their mean): sigma / sqrt(n) for the
+    # shift, sigma / sqrt(sum d^2) for the stretch
+    np.testing.assert_allclose(sigma, 0.01 / np.sqrt([5, 5, np.sum(d[:, 0] ** 2), np.sum(d[:, 1] ** 2)]))
+    assert np.all(np.isnan(stretch_fit(E, true_xy, None, rows)[1]))
