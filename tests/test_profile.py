@@ -465,6 +465,33 @@ def test_joint_system_is_the_stacked_blocks():
     assert np.array_equal(got.indptr, want.indptr) and abs(got - want).max() == 0.0
 
 
+def test_joint_system_lays_each_row_out_as_its_a_entries_then_its_c_entries():
+    # blocks whose rows hold no C entry (a fixed block's, taken in one piece) between blocks
+    # whose rows do: each row's A entries in A's order, then its C entries in column order
+    import scipy.sparse as sps
+
+    from pedcal.calib.profile import _joint_system
+
+    rs = np.random.RandomState(4)
+    A = sps.random(60, 20, density=0.2, random_state=rs, format="csr")
+    C = sps.random(60, 3, density=0.3, random_state=rs, format="lil")
+    C[:25] = 0.0
+    C[40:48] = 0.0
+    C = sps.csc_matrix(C)
+    C.eliminate_zeros()
+    prior = sps.csr_matrix((np.r_[5.0], (np.r_[0], np.r_[22])), shape=(1, 23))
+    got = _joint_system([A[:25], A[25:40], A[40:48], A[48:]], C, prior)
+    C_rows = sps.csr_matrix(C)
+    C_rows.sort_indices()
+    for r in range(60):
+        a = slice(A.indptr[r], A.indptr[r + 1])
+        c = slice(C_rows.indptr[r], C_rows.indptr[r + 1])
+        row = slice(got.indptr[r], got.indptr[r + 1])
+        assert np.array_equal(got.indices[row], np.r_[A.indices[a], C_rows.indices[c] + 20])
+        assert np.array_equal(got.data[row], np.r_[A.data[a], C_rows.data[c]])
+    assert np.array_equal(got.indices[got.indptr[60]:], [22]) and got.data[-1] == 5.0
+
+
 def test_near_solve_is_the_direct_solve_of_the_moved_system():
     # conjugate gradients preconditioned with a nearby system's factorization reach the moved
     # system's own solution; without that factorization, or out of iterations, None

@@ -649,20 +649,29 @@ def _joint_system(A, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:
     count_a = np.concatenate([np.diff(a.indptr) for a in blocks])
     count_c = np.diff(C.indptr)
     indptr = np.r_[0, np.cumsum(count_a + count_c)]
-    nnz_a = int(count_a.sum())
-    # destination of each of A's entries: its own index in the stacked A shifted by the C entries
-    # of the rows before its row (C's: by the A entries of the rows up to and including its row)
-    at_a = np.arange(nnz_a, dtype=indptr.dtype) + np.repeat(C.indptr[:-1].astype(indptr.dtype), count_a)
-    at_c = np.arange(C.nnz, dtype=indptr.dtype) + np.repeat(np.cumsum(count_a, dtype=indptr.dtype), count_c)
     nnz = int(indptr[-1])
     indices = np.empty(nnz + prior.nnz, np.int32 if max(nnz + prior.nnz, n + C.shape[1]) < 2 ** 31 else np.int64)
     data = np.empty(nnz + prior.nnz)
-    start = 0
+    row = 0
     for a in blocks:
-        at = at_a[start:start + a.nnz]
+        rows = slice(row, row + a.shape[0])
+        start, c_first, c_end = int(indptr[row]), int(C.indptr[row]), int(C.indptr[row + a.shape[0]])
+        row += a.shape[0]
+        if c_first == c_end:
+            # rows without C entries (the fixed factors'): the block's arrays in one piece
+            indices[start:start + a.nnz], data[start:start + a.nnz] = a.indices, a.data
+            continue
+        # destination of each of the block's A entries: its own index in the block shifted by the
+        # block's C entries of the rows before its row (C's: by the block's A entries of the rows
+        # up to and including its row), from the block's first entry on (per block, not over all
+        # of A: index arrays of a block's size, not of millions of entries)
+        dtype = indptr.dtype
+        at = np.repeat((C.indptr[rows] - c_first).astype(dtype), np.diff(a.indptr))
+        at += np.arange(start, start + a.nnz, dtype=dtype)
         indices[at], data[at] = a.indices, a.data
-        start += a.nnz
-    indices[at_c], data[at_c] = C.indices + n, C.data
+        at = np.repeat(a.indptr[1:].astype(dtype), count_c[rows])
+        at += np.arange(start, start + c_end - c_first, dtype=dtype)
+        indices[at], data[at] = C.indices[c_first:c_end] + n, C.data[c_first:c_end]
     prior = sps.csr_matrix(prior)
     indices[nnz:], data[nnz:] = prior.indices, prior.data
     indptr = np.r_[indptr, nnz + prior.indptr[1:]]
