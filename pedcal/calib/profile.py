@@ -524,10 +524,11 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                 th[j] += nuisances[j].step
             d = residuals(th, scale) - b_ref
             if len(group) > 1:
-                own = [_rows_of(footprint[j], rows) for j in group]
+                # the group's rows at once, nuisance by nuisance (each one's factors' rows in its
+                # footprint's order): one pass for all its nuisances, not one per nuisance
+                own, member = _group_rows([footprint[j] for j in group], rows)
                 outside = np.ones(len(d), bool)
-                for r in own:
-                    outside[r] = False
+                outside[own] = False
                 if np.any(d[outside] != 0.0):        # a footprint was wrong: one by one
                     for j in group:
                         th = np.array(theta, float)
@@ -535,11 +536,15 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                         dj = (residuals(th, scale) - b_ref) / nuisances[j].step
                         columns[j] = (np.flatnonzero(dj), dj[dj != 0.0])
                     continue
+                dj = d[own] / np.array([nuisances[j].step for j in group])[member]
+                nonzero = dj != 0.0
+                own, dj = own[nonzero], dj[nonzero]
+                bounds = np.searchsorted(member[nonzero], np.arange(len(group) + 1))
+                for g, j in enumerate(group):
+                    columns[j] = (own[bounds[g]:bounds[g + 1]], dj[bounds[g]:bounds[g + 1]])
             else:
-                own = [np.arange(len(d))]
-            for j, r in zip(group, own, strict=True):
-                dj = d[r] / nuisances[j].step
-                columns[j] = (r[dj != 0.0], dj[dj != 0.0])
+                dj = d / nuisances[group[0]].step
+                columns[group[0]] = (np.flatnonzero(dj != 0.0), dj[dj != 0.0])
     else:
         for j in moved:
             th = np.array(theta, float)
@@ -727,6 +732,19 @@ def _rows_of(factors: np.ndarray, rows: np.ndarray) -> np.ndarray:
     lengths = ends - starts
     first = np.cumsum(lengths) - lengths
     return np.repeat(starts - first, lengths) + np.arange(int(lengths.sum()))
+
+
+def _group_rows(footprints: list, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The system rows of each footprint's factors (:func:`_rows_of`), concatenated in the
+    footprints' order, and for each row the index of its footprint."""
+    factors = [np.asarray(f, np.int64).reshape(-1) for f in footprints]
+    all_factors = np.concatenate(factors) if factors else np.zeros(0, np.int64)
+    lengths = rows[all_factors + 1] - rows[all_factors]
+    # each footprint's row count: its factors' lengths summed (a cumulative sum read at its ends)
+    ends = np.cumsum([len(f) for f in factors])
+    total = np.r_[0, np.cumsum(lengths)]
+    counts = np.diff(np.r_[0, total[ends]])
+    return _rows_of(all_factors, rows), np.repeat(np.arange(len(factors)), counts)
 
 
 def _disjoint_groups(indices: list[int], footprint: dict) -> list[list[int]]:
