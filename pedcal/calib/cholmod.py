@@ -13,7 +13,8 @@ cholmod_factorize takes two transposes of its own: 0.03-0.04 s and 23 000 page f
 factorization of 1000 sensors' system, the same factor bit for bit). Many right-hand sides are
 solved together (dense blocks).
 
-The library is the one cvxopt's wheels carry (with their serial ATLAS BLAS: one thread), loaded
+The library is the one cvxopt's wheels carry (its BLAS calls bound to the wheel's OpenBLAS, not
+its ATLAS: the dynamic linker's bindings, ``LD_DEBUG=bindings``), loaded
 after cvxopt's own module, which brings its dependencies into the process; else the system's
 ``libcholmod`` (Debian's libcholmod3), of a major version in LAYOUT_MAJOR_VERSIONS; where none
 is found, :func:`pedcal.calib.profile._normal_solver` takes SuperLU's LU of the formed normal
