@@ -15,7 +15,9 @@ on ``--blas-threads`` threads (1 by default: a multi-threaded OpenBLAS's idle th
 they wait, and on a busy shared machine that spinning counts as CPU time, several times the work
 of the small dense blocks here; ``bench_factorgraph_stages.py`` splits the time by stage). Prints
 sensors, observations, robot poses, calibrate() wall and CPU time (s; time.process_time, which a
-busy neighbour on a shared machine does not inflate), peak RSS (MB), and the growth exponents of
+busy neighbour on a shared machine does not inflate), peak RSS (MB), the minor page faults of the
+calibration (thousands: each a fresh 4 KB page the kernel zeroes, a share of the system CPU time
+that large temporary arrays cost), and the growth exponents of
 time and memory against the number of observations (least-squares slope in log-log), with the
 machine's load average at the start and the end.
 """
@@ -99,17 +101,19 @@ def run_one(n_sensors: int) -> dict:
 
     log = synthetic_log(n_sensors)
     warnings.simplefilter("ignore")
+    faults0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     t0, c0 = time.perf_counter(), time.process_time()
     res = calibrate_factorgraph(log, is_robot=np.ones(len(log.observations), bool), estimate_latency=False,
                                 people=False, head_radius_m=0.0)
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults0
     err = np.array([s.position_m - log.truth[s.id].position_m for s in res.network])
     sigma = np.array([s.sigma_position_m for s in res.network])
     # (an error or a sigma alone rewards failure: the share of sensors within their sigma, per axis)
     within = 100.0 * np.mean(np.abs(err[:, :2]) <= sigma[:, :2], axis=0)
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return dict(sensors=n_sensors, observations=len(log.observations), poses=int(len(log.robot)),
-                time_s=elapsed, cpu_s=cpu, peak_rss_mb=rss_mb, build_s=res.diagnostics.build_s,
+                time_s=elapsed, cpu_s=cpu, peak_rss_mb=rss_mb, minor_faults=faults, build_s=res.diagnostics.build_s,
                 optimize_s=res.diagnostics.optimize_s, rms_mm=float(1000 * np.sqrt(np.mean(np.sum(err ** 2, axis=1)))),
                 sigma_xy_mm=[float(v) for v in 1000 * np.median(sigma[:, :2], axis=0)],
                 within_xy_pct=[float(v) for v in within])
@@ -130,7 +134,7 @@ def main() -> None:
     out = []
     print(f"BLAS threads: {args.blas_threads}; load average at the start {os.getloadavg()[0]:.1f}")
     print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} {'build':>7s} "
-          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'RMS (mm)':>9s} {'median sigma x, y (mm)':>23s} "
+          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'page faults (k)':>16s} {'RMS (mm)':>9s} {'median sigma x, y (mm)':>23s} "
           f"{'within 1 sigma x, y (%)':>24s}")
     for n in (int(v) for v in args.sizes.split(",")):
         r = json.loads(subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True,
@@ -138,7 +142,7 @@ def main() -> None:
         out.append(r)
         print(f"{r['sensors']:8d} {r['observations']:13d} {r['poses']:11d} {r['time_s']:9.2f} {r['cpu_s']:8.2f} "
               f"{r['build_s']:7.2f} "
-              f"{r['optimize_s']:9.2f} {r['peak_rss_mb']:14.0f} {r['rms_mm']:9.1f} "
+              f"{r['optimize_s']:9.2f} {r['peak_rss_mb']:14.0f} {r['minor_faults'] / 1000:16.0f} {r['rms_mm']:9.1f} "
               f"{r['sigma_xy_mm'][0]:15.1f}, {r['sigma_xy_mm'][1]:6.1f} "
               f"{r['within_xy_pct'][0]:16.0f}, {r['within_xy_pct'][1]:6.0f}", flush=True)
     if len(out) >= 2:

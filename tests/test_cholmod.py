@@ -258,3 +258,36 @@ def test_a_small_system_is_factorized_supernodally_with_the_same_solution():
     y = rng.normal(size=(n, 3))
     want = np.linalg.solve((A.T @ A).toarray(), y)
     assert np.abs(chol.solve(y) - want).max() < 1e-12 * np.abs(want).max()
+
+
+@pytest.mark.parametrize("seed", [31, 32])
+def test_the_permuted_matrices_made_here_give_cholmod_factorizes_factor_bit_for_bit(seed):
+    # the supernodal factorization from S = P A^T and S^T made here (A's rows unsorted and some
+    # empty, a random order) against cholmod_factorize's own transposes: the same solutions to the
+    # last bit, and both the dense solution's
+    lib = cholmod.library()
+    if lib.super_numeric is None or not lib.defaults:
+        pytest.skip("this CHOLMOD has no cholmod_super_numeric or its settings are not the defaults")
+    rng = np.random.default_rng(seed)
+    g = 14
+    D = sps.diags([-np.ones(g - 1), np.ones(g - 1)], [0, 1], shape=(g - 1, g))
+    I_g = sps.eye(g)
+    A = sps.vstack([sps.kron(I_g, D), sps.kron(D, I_g), sps.random(40, g * g, density=0.05, random_state=seed),
+                    sps.csr_matrix((3, g * g)), 0.1 * sps.eye(g * g)], format="csr")
+    perm = [rng.permutation(np.arange(A.indptr[r], A.indptr[r + 1])) for r in range(A.shape[0])]
+    A = sps.csr_matrix((A.data[np.concatenate(perm)], A.indices[np.concatenate(perm)], A.indptr), shape=A.shape)
+    assert not A.has_sorted_indices
+    n = g * g
+    order = rng.permutation(n)
+    y = rng.normal(size=(n, 3))
+    x_here = NormalCholesky(A, order).solve(y)
+    assert cholmod._FactorHead.from_address(NormalCholesky(A, order)._factor).is_super == 1
+    made_here = lib.super_numeric
+    try:
+        lib.super_numeric = None                       # cholmod_factorize, its own transposes
+        x_cholmod = NormalCholesky(A, order).solve(y)
+    finally:
+        lib.super_numeric = made_here
+    assert np.array_equal(x_here, x_cholmod)
+    want = np.linalg.solve((A.T @ A).toarray(), y)
+    assert np.abs(x_here - want).max() < 1e-9 * np.abs(want).max()

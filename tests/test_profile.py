@@ -324,6 +324,22 @@ def test_disjoint_groups_share_no_factor():
     assert _disjoint_groups([], footprint) == []
 
 
+def test_group_rows_are_each_footprints_rows_in_turn():
+    # factors of 3, 1, 0, 2 and 3 rows; footprints in any order, one empty: the rows of each
+    # footprint's factors in its order, concatenated, each row labelled with its footprint
+    from pedcal.calib.profile import _group_rows, _rows_of
+
+    rows = np.array([0, 3, 4, 4, 6, 9], np.int64)
+    footprints = [[4, 0], [], [1, 2], np.array([3])]
+    got, member = _group_rows(footprints, rows)
+    want = [_rows_of(f, rows) for f in footprints]
+    assert np.array_equal(got, np.concatenate(want))
+    assert np.array_equal(got, [6, 7, 8, 0, 1, 2, 3, 4, 5])
+    assert np.array_equal(member, [0, 0, 0, 0, 0, 0, 2, 3, 3])
+    empty, none = _group_rows([[], []], rows)
+    assert len(empty) == len(none) == 0
+
+
 def _clock_profile(dome_paper, footprint_of, calls: list | None = None):
     """One profile step with the ray shift and every sensor's clock offset; ``calls`` (if given)
     collects one entry per evaluation of the observations' right-hand side."""
@@ -463,6 +479,33 @@ def test_joint_system_is_the_stacked_blocks():
     got = _joint_system(blocks, C, prior)
     assert got.shape == want.shape and got.nnz == want.nnz
     assert np.array_equal(got.indptr, want.indptr) and abs(got - want).max() == 0.0
+
+
+def test_joint_system_lays_each_row_out_as_its_a_entries_then_its_c_entries():
+    # blocks whose rows hold no C entry (a fixed block's, taken in one piece) between blocks
+    # whose rows do: each row's A entries in A's order, then its C entries in column order
+    import scipy.sparse as sps
+
+    from pedcal.calib.profile import _joint_system
+
+    rs = np.random.RandomState(4)
+    A = sps.random(60, 20, density=0.2, random_state=rs, format="csr")
+    C = sps.random(60, 3, density=0.3, random_state=rs, format="lil")
+    C[:25] = 0.0
+    C[40:48] = 0.0
+    C = sps.csc_matrix(C)
+    C.eliminate_zeros()
+    prior = sps.csr_matrix((np.r_[5.0], (np.r_[0], np.r_[22])), shape=(1, 23))
+    got = _joint_system([A[:25], A[25:40], A[40:48], A[48:]], C, prior)
+    C_rows = sps.csr_matrix(C)
+    C_rows.sort_indices()
+    for r in range(60):
+        a = slice(A.indptr[r], A.indptr[r + 1])
+        c = slice(C_rows.indptr[r], C_rows.indptr[r + 1])
+        row = slice(got.indptr[r], got.indptr[r + 1])
+        assert np.array_equal(got.indices[row], np.r_[A.indices[a], C_rows.indices[c] + 20])
+        assert np.array_equal(got.data[row], np.r_[A.data[a], C_rows.data[c]])
+    assert np.array_equal(got.indices[got.indptr[60]:], [22]) and got.data[-1] == 5.0
 
 
 def test_near_solve_is_the_direct_solve_of_the_moved_system():

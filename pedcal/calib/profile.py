@@ -524,10 +524,11 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                 th[j] += nuisances[j].step
             d = residuals(th, scale) - b_ref
             if len(group) > 1:
-                own = [_rows_of(footprint[j], rows) for j in group]
+                # the group's rows at once, nuisance by nuisance (each one's factors' rows in its
+                # footprint's order): one pass for all its nuisances, not one per nuisance
+                own, member = _group_rows([footprint[j] for j in group], rows)
                 outside = np.ones(len(d), bool)
-                for r in own:
-                    outside[r] = False
+                outside[own] = False
                 if np.any(d[outside] != 0.0):        # a footprint was wrong: one by one
                     for j in group:
                         th = np.array(theta, float)
@@ -535,11 +536,15 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                         dj = (residuals(th, scale) - b_ref) / nuisances[j].step
                         columns[j] = (np.flatnonzero(dj), dj[dj != 0.0])
                     continue
+                dj = d[own] / np.array([nuisances[j].step for j in group])[member]
+                nonzero = dj != 0.0
+                own, dj = own[nonzero], dj[nonzero]
+                bounds = np.searchsorted(member[nonzero], np.arange(len(group) + 1))
+                for g, j in enumerate(group):
+                    columns[j] = (own[bounds[g]:bounds[g + 1]], dj[bounds[g]:bounds[g + 1]])
             else:
-                own = [np.arange(len(d))]
-            for j, r in zip(group, own, strict=True):
-                dj = d[r] / nuisances[j].step
-                columns[j] = (r[dj != 0.0], dj[dj != 0.0])
+                dj = d / nuisances[group[0]].step
+                columns[group[0]] = (np.flatnonzero(dj != 0.0), dj[dj != 0.0])
     else:
         for j in moved:
             th = np.array(theta, float)
@@ -649,20 +654,29 @@ def _joint_system(A, C: sps.spmatrix, prior: sps.csr_matrix) -> sps.csr_matrix:
     count_a = np.concatenate([np.diff(a.indptr) for a in blocks])
     count_c = np.diff(C.indptr)
     indptr = np.r_[0, np.cumsum(count_a + count_c)]
-    nnz_a = int(count_a.sum())
-    # destination of each of A's entries: its own index in the stacked A shifted by the C entries
-    # of the rows before its row (C's: by the A entries of the rows up to and including its row)
-    at_a = np.arange(nnz_a, dtype=indptr.dtype) + np.repeat(C.indptr[:-1].astype(indptr.dtype), count_a)
-    at_c = np.arange(C.nnz, dtype=indptr.dtype) + np.repeat(np.cumsum(count_a, dtype=indptr.dtype), count_c)
     nnz = int(indptr[-1])
     indices = np.empty(nnz + prior.nnz, np.int32 if max(nnz + prior.nnz, n + C.shape[1]) < 2 ** 31 else np.int64)
     data = np.empty(nnz + prior.nnz)
-    start = 0
+    row = 0
     for a in blocks:
-        at = at_a[start:start + a.nnz]
+        rows = slice(row, row + a.shape[0])
+        start, c_first, c_end = int(indptr[row]), int(C.indptr[row]), int(C.indptr[row + a.shape[0]])
+        row += a.shape[0]
+        if c_first == c_end:
+            # rows without C entries (the fixed factors'): the block's arrays in one piece
+            indices[start:start + a.nnz], data[start:start + a.nnz] = a.indices, a.data
+            continue
+        # destination of each of the block's A entries: its own index in the block shifted by the
+        # block's C entries of the rows before its row (C's: by the block's A entries of the rows
+        # up to and including its row), from the block's first entry on (per block, not over all
+        # of A: index arrays of a block's size, not of millions of entries)
+        dtype = indptr.dtype
+        at = np.repeat((C.indptr[rows] - c_first).astype(dtype), np.diff(a.indptr))
+        at += np.arange(start, start + a.nnz, dtype=dtype)
         indices[at], data[at] = a.indices, a.data
-        start += a.nnz
-    indices[at_c], data[at_c] = C.indices + n, C.data
+        at = np.repeat(a.indptr[1:].astype(dtype), count_c[rows])
+        at += np.arange(start, start + c_end - c_first, dtype=dtype)
+        indices[at], data[at] = C.indices[c_first:c_end] + n, C.data[c_first:c_end]
     prior = sps.csr_matrix(prior)
     indices[nnz:], data[nnz:] = prior.indices, prior.data
     indptr = np.r_[indptr, nnz + prior.indptr[1:]]
@@ -718,6 +732,19 @@ def _rows_of(factors: np.ndarray, rows: np.ndarray) -> np.ndarray:
     lengths = ends - starts
     first = np.cumsum(lengths) - lengths
     return np.repeat(starts - first, lengths) + np.arange(int(lengths.sum()))
+
+
+def _group_rows(footprints: list, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The system rows of each footprint's factors (:func:`_rows_of`), concatenated in the
+    footprints' order, and for each row the index of its footprint."""
+    factors = [np.asarray(f, np.int64).reshape(-1) for f in footprints]
+    all_factors = np.concatenate(factors) if factors else np.zeros(0, np.int64)
+    lengths = rows[all_factors + 1] - rows[all_factors]
+    # each footprint's row count: its factors' lengths summed (a cumulative sum read at its ends)
+    ends = np.cumsum([len(f) for f in factors])
+    total = np.r_[0, np.cumsum(lengths)]
+    counts = np.diff(np.r_[0, total[ends]])
+    return _rows_of(all_factors, rows), np.repeat(np.arange(len(factors)), counts)
 
 
 def _disjoint_groups(indices: list[int], footprint: dict) -> list[list[int]]:
