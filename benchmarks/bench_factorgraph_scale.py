@@ -134,7 +134,8 @@ def main() -> None:
     out = []
     print(f"BLAS threads: {args.blas_threads}; load average at the start {os.getloadavg()[0]:.1f}")
     print(f"{'sensors':>8s} {'observations':>13s} {'AMCL poses':>11s} {'time (s)':>9s} {'CPU (s)':>8s} {'build':>7s} "
-          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'page faults (k)':>16s} {'RMS (mm)':>9s} {'median sigma x, y (mm)':>23s} "
+          f"{'optimize':>9s} {'peak RSS (MB)':>14s} {'page faults (k)':>16s} {'RMS (mm)':>9s} "
+          f"{'median sigma x, y (mm)':>23s} "
           f"{'within 1 sigma x, y (%)':>24s}")
     for n in (int(v) for v in args.sizes.split(",")):
         r = json.loads(subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True,

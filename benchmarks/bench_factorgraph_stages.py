@@ -24,7 +24,8 @@ methods run in turns. Then, as a new user meets it, the whole ``pedcal calibrate
 process: imports, reading the log, the solve, the YAML; CPU from the children's rusage), also
 without the BLAS thread variables this process was given (``OPENBLAS_NUM_THREADS`` ...: as a
 shell that never set them runs it), and the import of what it loads before reading the log; where
-``PYTHONDONTWRITEBYTECODE`` is set (every start compiles every module imported), the import and
+``PYTHONDONTWRITEBYTECODE`` is set (every start compiles every module whose ``__pycache__`` copy is
+missing or stale, as after an edit or on a fresh checkout), the import and
 the command again with the compiled modules kept (a temporary ``PYTHONPYCACHEPREFIX``), as an
 installed package runs.
 Repeats: the minimum over them (the machine's noise only adds); the load average is printed at
@@ -215,7 +216,8 @@ def main() -> None:
     commands = {m: [] for m in ("factorgraph", "gridsearch")}
     default_blas = {m: [] for m in ("factorgraph", "gridsearch")}
     # (with PYTHONDONTWRITEBYTECODE set, as this machine's environment has it, every process compiles
-    # every module it imports from source, which an installed package, compiled once, does not:
+    # every module whose __pycache__ copy is missing or stale (edited sources, a fresh checkout),
+    # which an installed package, compiled once, does not:
     # then the import and the command are also timed with the compiled modules kept)
     compiled = {m: ([], []) for m in ("factorgraph", "gridsearch")} if os.environ.get(
         "PYTHONDONTWRITEBYTECODE") else {}

@@ -189,6 +189,12 @@ def test_share_within_a_limit_of_a_bare_covariance():
     turned = share_rms_within_mm(C2, 12.0, draws=40000, seed=3)
     assert turned == share_rms_within_mm(np.diag([0.005 ** 2, 0.015 ** 2]), 12.0, draws=40000, seed=3)
     assert turned == pytest.approx(0.523, abs=0.01)
+    # two sensors, each 10 mm per axis, independent: RMS^2 over them is |e|^2 / 2 with |e|^2 a
+    # chi^2 of 4 degrees of freedom times s^2, P(RMS <= r) = 1 - exp(-x/2)(1 + x/2), x = 2 r^2 / s^2
+    # (0.422 at 12 mm; the sum over both sensors, not their mean, would give 0.162)
+    x = 2 * 12.0 ** 2 / 10.0 ** 2
+    assert share_rms_within_mm(np.eye(4) * 0.01 ** 2, 12.0, draws=40000, seed=3) == pytest.approx(
+        1 - np.exp(-x / 2) * (1 + x / 2), abs=0.01)
     # its diagonal alone (the correlation dropped) is another ellipse: 0.447 at 12 mm
     assert share_rms_within_mm(np.diag(np.diag(C2)), 12.0, draws=40000, seed=3) < turned - 0.03
     with pytest.raises(ValueError, match="2 n x 2 n"):

@@ -468,10 +468,11 @@ def test_unique_rows_are_numpys_unique_over_rows():
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 400])
-@pytest.mark.parametrize("sigma", [0.3, 1.0, 2.5, 25.0, 300.0])
+@pytest.mark.parametrize("sigma", [0.2, 0.3, 1.0, 1.9, 2.5, 3.7, 25.0, 300.0])
 def test_gaussian_smoothing_is_scipys_gaussian_filter1d_with_the_nearest_edges(n, sigma):
     # the kernel's radius int(4 sigma + 0.5) beyond the series' length (repeated end values) and
-    # within it, below one sample (a kernel of 3) and a single sample
+    # within it, below one sample (a kernel of 3) and a single sample; sigmas whose radius the
+    # rounding's + 0.5 moves (0.2, 1.9, 3.7: 1, 8, 15 against 0, 7, 14 without it)
     from scipy.ndimage import gaussian_filter1d
 
     from pedcal.calib.common import gaussian_smooth_nearest
@@ -510,11 +511,19 @@ def test_running_median_is_scipys_median_filter_to_the_last_digit(n, size):
     np.testing.assert_array_equal(running_median_nearest(r, size), median_filter(r, size=size, mode="nearest"))
 
 
-def test_running_median_refuses_an_even_window():
+def test_running_median_refuses_an_even_window_and_a_value_not_finite():
     from pedcal.calib.common import running_median_nearest
 
     with pytest.raises(ValueError, match="odd"):
         running_median_nearest(np.zeros((5, 2)), 4)
+    # (pandas' rolling median spreads a NaN or an infinity over its window, where scipy's does
+    # not: refused rather than silently different)
+    for bad in (np.nan, np.inf):
+        e = np.zeros((20, 2))
+        e[7, 1] = bad
+        with pytest.raises(ValueError, match="finite"):
+            running_median_nearest(e, 5)
+    assert running_median_nearest(np.zeros((0, 2)), 5).shape == (0, 2)
 
 
 def test_the_odometry_at_the_pose_times_is_interpolated_once_and_again_for_new_times_or_odometry():
@@ -534,6 +543,24 @@ def test_the_odometry_at_the_pose_times_is_interpolated_once_and_again_for_new_t
     np.testing.assert_array_equal(other, interpolate_pose2(odo, times + 0.25))
     prob.odometry = odo.assign(x=odo["x"] + 1.0)                 # a new odometry: taken again
     np.testing.assert_allclose(_odometry_at(prob, times + 0.25)[:, 0], other[:, 0] + 1.0, rtol=0, atol=1e-12)
+
+
+def test_amcls_estimates_are_read_once_per_robot_table_and_kept_read_only(noisy_solve):
+    from pedcal.calib.graph import _amcl_measurements
+
+    log, _, prob, _, _ = noisy_solve
+    first = _amcl_measurements(log, prob)
+    assert _amcl_measurements(log, prob) is first                 # the same table: kept
+    t, yaw, cov, frames = first
+    assert not (t.flags.writeable or yaw.flags.writeable or cov.flags.writeable) and isinstance(frames, tuple)
+    order = np.argsort(log.robot["t"].to_numpy(float), kind="stable")
+    np.testing.assert_array_equal(t, log.robot["t"].to_numpy(float)[order])
+    np.testing.assert_array_equal(cov[:, 5], log.robot["cov_yawyaw"].to_numpy(float)[order])
+    # a new robot table (AMCL's jumps moved back, a copy): read again, from it
+    moved = dataclasses.replace(log, robot=log.robot.assign(yaw=log.robot["yaw"] + 0.1))
+    again = _amcl_measurements(moved, prob)
+    assert again is not first
+    np.testing.assert_allclose(again[1], yaw + 0.1, rtol=0, atol=1e-15)
 
 
 def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized_at(monkeypatch):

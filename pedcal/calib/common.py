@@ -374,6 +374,10 @@ def running_median_nearest(a: np.ndarray, size: int) -> np.ndarray:
     a = np.asarray(a, float)
     if size < 1 or size % 2 == 0:
         raise ValueError(f"the window must be an odd number of rows, got {size}")
+    if not len(a):
+        return a.copy()
+    if not np.isfinite(a).all():      # (pandas' window would spread it, scipy's does not)
+        raise ValueError(f"a running median of values not all finite ({int((~np.isfinite(a)).sum())} of {a.size})")
     half = size // 2
     padded = np.pad(a.reshape(len(a), -1), ((half, half), (0, 0)), mode="edge")
     med = pd.DataFrame(padded).rolling(size, center=True).median().to_numpy()

@@ -450,9 +450,11 @@ def _amcl_measurements(log: Log, prob: FactorGraphProblem) -> tuple:
         return hit[2]
     amcl = log.robot.sort_values("t", kind="stable")
     x, y, yaw = (amcl[c].to_numpy(float) for c in ("x", "y", "yaw"))
-    read = (amcl["t"].to_numpy(float), yaw,
-            amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float),
-            head_frames(np.column_stack([x, y, yaw]), head_m))
+    arrays = (amcl["t"].to_numpy(float, copy=True), yaw.copy(),
+              amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float, copy=True))
+    for a in arrays:       # (kept for the rebuild: no caller may write into them)
+        a.setflags(write=False)
+    read = (*arrays, tuple(head_frames(np.column_stack([x, y, yaw]), head_m)))
     prob.__dict__["_amcl_measurements"] = (log.robot, head_m, read)
     return read
 
