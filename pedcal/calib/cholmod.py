@@ -39,6 +39,7 @@ import scipy.sparse as sps
 _INT, _REAL, _DOUBLE = 0, 1, 0
 _SOLVE_A = 0          # CHOLMOD_A: solve A x = b (here F F^T x = b, the permutation applied inside)
 _PATTERN = 0          # CHOLMOD_PATTERN: a factor without values (its symbolic analysis)
+_NATURAL = 0          # CHOLMOD_NATURAL (a factor's ordering): its columns as they are, L->Perm not applied
 
 
 class _Sparse(ctypes.Structure):
@@ -336,7 +337,9 @@ class NormalCholesky:
                                       f"size or an invalid matrix)")
             self._factor, self._key = factor, key
             head = _FactorHead.from_address(factor)
-            if head.is_super and lib.super_numeric is not None:
+            # (a natural ordering is factorized unpermuted by cholmod_factorize, which then reads
+            # no L->Perm: left to it, as _super_numeric applies L->Perm)
+            if head.is_super and head.ordering != _NATURAL and lib.super_numeric is not None:
                 ok = _super_numeric(lib, A, indptr, data, head, factor)
             else:
                 ok = lib.lib.cholmod_factorize(ctypes.byref(F), factor, lib.common)
