@@ -175,11 +175,11 @@ def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_m
     (:func:`fill_reducing_order`), CSC: A's columns are renumbered into the order (its values
     shared, not copied), so that the normal matrix is formed permuted, no permuted copies of it.
     Returns (it, each column of A's position in it)."""
-    order = np.asarray(order, np.int64)
-    position = np.empty_like(order)
-    position[order] = np.arange(len(order))
+    from pedcal.calib.cholmod import renumbered
+
     A = sps.csr_matrix(A)
-    A_ordered = sps.csr_matrix((A.data, position.astype(A.indices.dtype)[A.indices], A.indptr), shape=A.shape)
+    indices, position = renumbered(A.indices, np.asarray(order, np.int64))
+    A_ordered = sps.csr_matrix((A.data, indices, A.indptr), shape=A.shape)
     return (A_ordered.T @ A_ordered).tocsc(), position
 
 
