@@ -780,8 +780,7 @@ def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.V
     gfg = graph.linearize(values)
     kept = set(keys)
     full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, gtsam.KeyVector(keys))
-    at = full.at
-    others = gtsam.Ordering([k for k in map(at, range(full.size())) if k not in kept])
+    others = gtsam.Ordering([k for k in map(full.at, range(full.size())) if k not in kept])
     _, rest = gfg.eliminatePartialMultifrontal(others)
     info, _ = rest.hessian()                 # columns: the kept keys in key order
     dims = values.dims()
