@@ -39,6 +39,7 @@ import scipy.sparse as sps
 _INT, _REAL, _DOUBLE = 0, 1, 0
 _SOLVE_A = 0          # CHOLMOD_A: solve A x = b (here F F^T x = b, the permutation applied inside)
 _PATTERN = 0          # CHOLMOD_PATTERN: a factor without values (its symbolic analysis)
+_NATURAL = 0          # CHOLMOD_NATURAL (a factor's ordering): its columns as they are, L->Perm not applied
 
 
 class _Sparse(ctypes.Structure):
@@ -268,27 +269,34 @@ def _same_key(a, b) -> bool:
 _ANALYSES = _Analyses()
 
 
-def _super_numeric(lib: _Library, A: sps.csr_matrix, indptr: np.ndarray, data: np.ndarray, head: _FactorHead,
-                   factor) -> int:
+def renumbered(indices: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A sparse matrix's column ``indices`` renumbered into the column ``order`` (column
+    ``order[k]`` becomes column k), and each column's position in the order; both of the
+    indices' integer type."""
+    position = np.empty(len(order), indices.dtype)
+    position[order] = np.arange(len(order), dtype=indices.dtype)
+    return position[indices], position
+
+
+def _super_numeric(lib: _Library, n: int, m: int, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
+                   head: _FactorHead, factor) -> int:
     """The supernodal factorization L L^T = S S^T of the analysed ``factor`` (its supernodes, and
     its column order P: the given order, postordered by the analysis), from S = P A^T and its
-    transpose S^T = A P^T, both made here from A's CSR arrays: cholmod_factorize makes them by two
-    transposes of its own, through A(P, :)^T (1000 sensors' system: 4.9 million entries, each
-    transpose a scattered pass with its own copy). S^T's columns list their rows in order, as
-    CHOLMOD's transpose does, so that each entry of S S^T is summed in the same order: the same
-    factor, bit for bit. S's columns may list their rows in any order (CHOLMOD scatters them)."""
-    n, m = A.shape[1], A.shape[0]
+    transpose S^T = A P^T, both made here from the CSR arrays (int32) of A, m x n: cholmod_factorize
+    makes them by two transposes of its own, through A(P, :)^T (1000 sensors' system: 4.9 million
+    entries, each transpose a scattered pass with its own copy). S^T's columns list their rows in
+    order, as CHOLMOD's transpose does, so that each entry of S S^T is summed in the same order:
+    the same factor, bit for bit. S's columns may list their rows in any order (CHOLMOD scatters
+    them)."""
     perm = np.ctypeslib.as_array(ctypes.cast(head.Perm, ctypes.POINTER(ctypes.c_int32)), shape=(n,))
-    position = np.empty(n, np.int32)
-    position[perm] = np.arange(n, dtype=np.int32)
-    s_rows = position[A.indices]              # S = P A^T: A's rows as its columns, the variables renumbered
+    s_rows, _ = renumbered(indices, perm)     # S = P A^T: A's rows as its columns, the variables renumbered
     s_transposed = sps.csr_matrix((data, s_rows, indptr), shape=(m, n)).tocsc()    # S^T = A P^T, CSC
     t_indptr = np.ascontiguousarray(s_transposed.indptr, np.int32)
     t_indices = np.ascontiguousarray(s_transposed.indices, np.int32)
     t_data = np.ascontiguousarray(s_transposed.data, np.float64)
-    S = _Sparse(n, m, A.nnz, indptr.ctypes.data, s_rows.ctypes.data, None, data.ctypes.data,
+    S = _Sparse(n, m, len(data), indptr.ctypes.data, s_rows.ctypes.data, None, data.ctypes.data,
                 None, 0, _INT, _REAL, _DOUBLE, 0, 1)
-    S_t = _Sparse(m, n, A.nnz, t_indptr.ctypes.data, t_indices.ctypes.data, None, t_data.ctypes.data,
+    S_t = _Sparse(m, n, len(data), t_indptr.ctypes.data, t_indices.ctypes.data, None, t_data.ctypes.data,
                   None, 0, _INT, _REAL, _DOUBLE, 1, 1)
     beta = (ctypes.c_double * 2)(0.0, 0.0)
     return lib.super_numeric(ctypes.byref(S), ctypes.byref(S_t), ctypes.byref(beta), factor, lib.common)
@@ -336,8 +344,10 @@ class NormalCholesky:
                                       f"size or an invalid matrix)")
             self._factor, self._key = factor, key
             head = _FactorHead.from_address(factor)
-            if head.is_super and lib.super_numeric is not None:
-                ok = _super_numeric(lib, A, indptr, data, head, factor)
+            # (a natural ordering is factorized unpermuted by cholmod_factorize, which then reads
+            # no L->Perm: left to it, as _super_numeric applies L->Perm)
+            if head.is_super and head.ordering != _NATURAL and lib.super_numeric is not None:
+                ok = _super_numeric(lib, n, m, indptr, indices, data, head, factor)
             else:
                 ok = lib.lib.cholmod_factorize(ctypes.byref(F), factor, lib.common)
         # (not positive definite is CHOLMOD's warning, not a failure: the factor's ``minor`` says
@@ -382,4 +392,4 @@ class NormalCholesky:
             _ANALYSES.give(factor, self._key)
 
 
-__all__ = ["NormalCholesky", "available", "library"]
+__all__ = ["NormalCholesky", "available", "library", "renumbered"]

@@ -175,11 +175,11 @@ def ordered_normal_matrix(A: sps.spmatrix, order: np.ndarray) -> tuple[sps.csc_m
     (:func:`fill_reducing_order`), CSC: A's columns are renumbered into the order (its values
     shared, not copied), so that the normal matrix is formed permuted, no permuted copies of it.
     Returns (it, each column of A's position in it)."""
-    order = np.asarray(order, np.int64)
-    position = np.empty_like(order)
-    position[order] = np.arange(len(order))
+    from pedcal.calib.cholmod import renumbered
+
     A = sps.csr_matrix(A)
-    A_ordered = sps.csr_matrix((A.data, position.astype(A.indices.dtype)[A.indices], A.indptr), shape=A.shape)
+    indices, position = renumbered(A.indices, np.asarray(order, np.int64))
+    A_ordered = sps.csr_matrix((A.data, indices, A.indptr), shape=A.shape)
     return (A_ordered.T @ A_ordered).tocsc(), position
 
 
@@ -725,26 +725,18 @@ def _residual_change_t(step: ProfileStep, r: np.ndarray) -> np.ndarray:
     return step.Z.T @ (step.A.T @ r) - step.B.T @ r
 
 
-def _rows_of(factors: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """The system rows of the block's ``factors`` (``rows``: each factor's first row, and the end)."""
-    factors = np.asarray(factors, np.int64)
-    starts, ends = rows[factors], rows[factors + 1]
-    lengths = ends - starts
-    first = np.cumsum(lengths) - lengths
-    return np.repeat(starts - first, lengths) + np.arange(int(lengths.sum()))
-
-
 def _group_rows(footprints: list, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The system rows of each footprint's factors (:func:`_rows_of`), concatenated in the
-    footprints' order, and for each row the index of its footprint."""
+    """The system rows of each footprint's factors (``rows``: each factor's first row, and the
+    end), each footprint's factors in its order, the footprints concatenated in theirs; and for
+    each row the index of its footprint (at least one footprint)."""
     factors = [np.asarray(f, np.int64).reshape(-1) for f in footprints]
-    all_factors = np.concatenate(factors) if factors else np.zeros(0, np.int64)
-    lengths = rows[all_factors + 1] - rows[all_factors]
-    # each footprint's row count: its factors' lengths summed (a cumulative sum read at its ends)
-    ends = np.cumsum([len(f) for f in factors])
-    total = np.r_[0, np.cumsum(lengths)]
-    counts = np.diff(np.r_[0, total[ends]])
-    return _rows_of(all_factors, rows), np.repeat(np.arange(len(factors)), counts)
+    all_factors = np.concatenate(factors)
+    starts = rows[all_factors]
+    lengths = rows[all_factors + 1] - starts
+    first = np.cumsum(lengths) - lengths              # each factor's first place among the rows returned
+    own = np.repeat(starts - first, lengths) + np.arange(int(lengths.sum()))
+    member = np.repeat(np.repeat(np.arange(len(factors)), [len(f) for f in factors]), lengths)
+    return own, member
 
 
 def _disjoint_groups(indices: list[int], footprint: dict) -> list[list[int]]:
@@ -780,8 +772,7 @@ def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.V
     gfg = graph.linearize(values)
     kept = set(keys)
     full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, gtsam.KeyVector(keys))
-    at = full.at
-    others = gtsam.Ordering([k for k in map(at, range(full.size())) if k not in kept])
+    others = gtsam.Ordering([k for k in map(full.at, range(full.size())) if k not in kept])
     _, rest = gfg.eliminatePartialMultifrontal(others)
     info, _ = rest.hessian()                 # columns: the kept keys in key order
     dims = values.dims()
