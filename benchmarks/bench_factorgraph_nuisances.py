@@ -38,10 +38,12 @@ too wide, which the share alone would reward), x, y, z, each with its 90 % inter
 bootstrap over the seeds (seeded; ``pedcal.metrics.sigma_honesty``): a log's sensors share one
 draw of AMCL's error and of the head point, and a seed's logs in every scenario share its zoo
 draw and much of AMCL's, so a figure of few seeds is uncertain however many sensors it pools,
-and the interval says how much (none is claimed below 3 seeds). Beside it, per group: AMCL's
-run-mean error (the truth) against the graph's AMCL model's sigma of it, and the error over
-sigma of the sensors' common error and of the rest; and the network's stretch along x and y
-(mm/m, :func:`stretch_fit`) against its sigma.
+and the interval says how much (none is claimed below 3 seeds); beside them the sensors pooled
+and, in brackets, those missed (not calibrated, without a sigma or left out: outside any sigma
+for the share, left out of the RMS, so a method that drops sensors shows it there). Beside it,
+per group: AMCL's run-mean error (the truth) against the graph's AMCL model's sigma of it, and
+the error over sigma of the sensors' common error and of the rest; and the network's stretch
+along x and y (mm/m, :func:`stretch_fit`) against its sigma.
 """
 
 from __future__ import annotations
@@ -570,16 +572,18 @@ def by_seed(rs: list[dict]) -> list[np.ndarray]:
 def print_honesty(groups: list[tuple[str, list[dict]]]) -> None:
     """Per group of logs: the share of per-axis errors within 1 sigma and the RMS of |error| /
     sigma, x / y / z, each with its 90 % interval from a bootstrap over the group's seeds
-    (:func:`by_seed`)."""
-    print("\n| logs of | logs (seeds) | sensors | within 1 sigma x / y / z (%) [90 % over seeds] | "
+    (:func:`by_seed`); beside them the sensors and, in brackets, how many of them were missed
+    (a ratio not finite: not calibrated, without a sigma or left out), which the share counts
+    as outside and the RMS leaves out."""
+    print("\n| logs of | logs (seeds) | sensors (missed) | within 1 sigma x / y / z (%) [90 % over seeds] | "
           "error / sigma RMS x / y / z [90 % over seeds] |")
     print("|---|---|---|---|---|")
     for name, rs in groups:
         if not rs:
             continue
         within, rms = sigma_honesty(by_seed(rs))
-        print(f"| {name} | {len(rs)} ({within.logs}) | {within.rows} | {format_clustered(within, 100, unit='seeds')} | "
-              f"{format_clustered(rms, digits=2, unit='seeds')} |")
+        print(f"| {name} | {len(rs)} ({within.logs}) | {within.rows} ({within.misses}) | "
+              f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(rms, digits=2, unit='seeds')} |")
 
 
 if __name__ == "__main__":

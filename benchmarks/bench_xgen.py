@@ -29,7 +29,8 @@ Then per method that reports a sigma, the sigma's honesty per family, pooled and
 log drew: the share within 1 sigma and the RMS of |error| / sigma (1 when honest, below 1 too
 wide), x, y, z, each with its 90 % interval from a bootstrap over the logs (seeded;
 ``pedcal.metrics.sigma_honesty``: a log's sensors share its AMCL draw, so a share pooled over a
-few logs is uncertain however many sensors it holds); a sensor not calibrated is a miss.
+few logs is uncertain however many sensors it holds); a sensor not calibrated is a miss,
+counted beside them ("sensors (missed)": outside for the share, left out of the RMS).
 Results are also written to OUT/results.jsonl; the tables are printed per family and pooled.
 """
 
@@ -185,9 +186,10 @@ def log_ratios(row) -> np.ndarray:
 
 def honesty_table(rows, method, groups, title, label="logs of"):
     """The sigma's honesty of ``method`` per group of logs: within 1 sigma and error / sigma
-    RMS per axis with their 90 % intervals over the group's logs; '' when it reports no sigma."""
+    RMS per axis with their 90 % intervals over the group's logs, beside the sensors and those
+    missed (:func:`log_ratios`' inf rows, which the RMS leaves out); '' when it reports no sigma."""
     lines = [f"### {title}", "",
-             f"| {label} | logs | sensors | within 1 sigma x / y / z (%) [90 % over logs] | "
+             f"| {label} | logs | sensors (missed) | within 1 sigma x / y / z (%) [90 % over logs] | "
              "error / sigma RMS x / y / z [90 % over logs] |", "|---|---|---|---|---|"]
     any_sigma = False
     for name, g in groups:
@@ -196,7 +198,7 @@ def honesty_table(rows, method, groups, title, label="logs of"):
             continue
         any_sigma |= any(x["sigma_p"] is not None for r in rr for x in r["sensors"])
         within, rms = sigma_honesty([log_ratios(r) for r in rr])
-        lines.append(f"| {name} | {within.logs} | {within.rows} | {format_clustered(within, 100)} | "
+        lines.append(f"| {name} | {within.logs} | {within.rows} ({within.misses}) | {format_clustered(within, 100)} | "
                      f"{format_clustered(rms, digits=2)} |")
     return "\n".join(lines) if any_sigma else ""
 

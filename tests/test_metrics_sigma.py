@@ -92,6 +92,28 @@ def test_sigma_honesty_pairs_the_share_and_the_ratio_on_the_same_resamples():
     assert within.logs == rms.logs == 3
 
 
+def test_the_bootstrap_counts_the_rows_missed_beside_the_rows():
+    # a row with any non-finite ratio (inf: a miss; NaN) is a miss, whatever its other axes
+    logs = [np.array([[0.5, INF], [1.0, 2.0]]), np.array([[np.nan, 1.0]]), np.zeros((0, 2)), np.array([[INF, INF]])]
+    within, rms = sigma_honesty(logs, n_boot=50, seed=0)
+    assert (within.rows, within.misses) == (rms.rows, rms.misses) == (4, 3)
+    assert log_bootstrap([np.array([[0.5], [2.0]])], sigma_ratio_rms, n_boot=10).misses == 0
+
+
+def test_the_benches_print_the_sensors_missed_beside_the_honesty(capsys):
+    from bench_factorgraph_nuisances import print_honesty
+    from bench_realwalk import _row
+
+    rs = [dict(seed=0, ratios=np.array([[0.5, 0.5, 0.5], [INF, INF, INF]]),
+               factorgraph=dict(sq_xy=np.array([1.0])), gridsearch=dict(sq_xy=np.array([4.0]))),
+          dict(seed=1, ratios=np.array([[2.0, np.nan, 2.0]]),
+               factorgraph=dict(sq_xy=np.array([1.0])), gridsearch=dict(sq_xy=np.array([4.0])))]
+    print_honesty([("g", rs)])
+    out = capsys.readouterr().out
+    assert "| sensors (missed) |" in out and "| g | 2 (2) | 3 (2) | " in out
+    assert _row("r", rs).startswith("| r | 2 (2) | 3 (2) | 1.0 | 2.0 | 0.50 | ")
+
+
 def test_the_format_names_each_axis_estimate_and_interval():
     logs = [np.array([[0.5, 2.0, 0.1]]), np.array([[2.0, 0.5, 0.2]])]
     fig = log_bootstrap(logs * 2, within_sigma_share, n_boot=400)
@@ -158,7 +180,7 @@ def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss
     np.testing.assert_allclose(r[0], [0.5, 1.5, 0.0])
     assert np.all(np.isinf(r[1:]))
     text = honesty_table([row] * 3, "m", [("all", [row] * 3)], "t")
-    assert "| all | 3 | 9 | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
+    assert "| all | 3 | 9 (6) | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
     # a method without any sigma has no table
     bare = {"method": "g", "sensors": [{**row["sensors"][0], "sigma_p": None}]}
     assert honesty_table([bare], "g", [("all", [bare])], "t") == ""
