@@ -212,3 +212,26 @@ def test_the_stretch_fit_recovers_a_known_stretch_and_its_sigma():
     # shift, sigma / sqrt(sum d^2) for the stretch
     np.testing.assert_allclose(sigma, 0.01 / np.sqrt([5, 5, np.sum(d[:, 0] ** 2), np.sum(d[:, 1] ** 2)]))
     assert np.all(np.isnan(stretch_fit(E, true_xy, None, rows)[1]))
+
+
+def test_the_stretch_fits_sigma_takes_each_sensors_own_x_and_y_variance():
+    # a different variance per sensor (v) and per axis (x: v, y: 2 v, z: 50 v), the errors' rows in
+    # a shuffled order of the network: a wrong map from rows to the covariance's blocks (rows
+    # ignored, or another axis taken) gives other sigma. The columns being orthogonal and the
+    # covariance diagonal, sigma of the shifts is sqrt(sum v) / n, of the stretches
+    # sqrt(sum d^2 v) / sum d^2
+    from bench_factorgraph_nuisances import stretch_fit
+
+    true_xy = np.array([[0.0, 0.0], [4.0, 1.0], [8.0, 0.0], [12.0, 1.0], [16.0, 0.0]])
+    d = true_xy - true_xy.mean(axis=0)
+    v = np.array([1.0, 4.0, 9.0, 16.0, 25.0]) * 1e-4
+    cov = np.diag(np.repeat(v, 3) * np.tile([1.0, 2.0, 50.0], 5))
+    rows = np.array([4, 2, 0, 1, 3])
+    vx, vy = v[rows], 2 * v[rows]
+    E = np.column_stack([0.010 + 0.002 * d[:, 0], -0.020 - 0.001 * d[:, 1]])
+    coef, sigma = stretch_fit(E, true_xy, cov, rows)
+    np.testing.assert_allclose(coef, [0.010, -0.020, 0.002, -0.001], atol=1e-12)
+    dx2, dy2 = d[:, 0] ** 2, d[:, 1] ** 2
+    np.testing.assert_allclose(sigma, [np.sqrt(vx.sum()) / 5, np.sqrt(vy.sum()) / 5,
+                                       np.sqrt(np.sum(dx2 * vx)) / dx2.sum(), np.sqrt(np.sum(dy2 * vy)) / dy2.sum()],
+                               rtol=1e-12)
