@@ -90,6 +90,11 @@ def test_sigma_honesty_pairs_the_share_and_the_ratio_on_the_same_resamples():
     assert within.estimate == pytest.approx([2 / 4, 3 / 4])
     assert rms.estimate == pytest.approx([np.sqrt((0.25 + 4 + 1 + 9) / 4), np.sqrt((1 + 0.16 + 0.04) / 3)])
     assert within.logs == rms.logs == 3
+    # the same resamples: each figure is log_bootstrap's with the seed given, for both
+    for fig, statistic in ((within, within_sigma_share), (rms, sigma_ratio_rms)):
+        alone = log_bootstrap(logs, statistic, 300, 3)
+        np.testing.assert_array_equal(fig.low, alone.low)
+        np.testing.assert_array_equal(fig.high, alone.high)
 
 
 def test_the_bootstrap_counts_the_rows_missed_beside_the_rows():
