@@ -558,11 +558,12 @@ def print_stretch(groups: list[tuple[str, list[dict]]]) -> None:
 
 
 def by_seed(rs: list[dict]) -> list[np.ndarray]:
-    """The error / sigma ratios of ``rs`` pooled per seed: the unit of the bootstrap. A seed's
-    logs share its zoo draw in every scenario (the same families, head model, clocks) and much
-    of AMCL's error (the same random streams along another route: paper, corridor and L-hall of
-    seed 0 average 45, 28 and 36 mm of it along y), so the scenarios of one seed are not
-    independent draws."""
+    """The error / sigma ratios of ``rs`` pooled per seed (in the order the seeds first come): the
+    unit of the bootstrap. A seed's logs share its zoo draw in every scenario (the same families,
+    head model, clocks; whatever the walkers, benchmarks/bench_realwalk.py) and much of AMCL's
+    error (the same random streams along another route: paper, corridor and L-hall of seed 0
+    average 45, 28 and 36 mm of it along y), so the scenarios of one seed are not independent
+    draws."""
     out: dict[int, list[np.ndarray]] = {}
     for r in rs:
         out.setdefault(r["seed"], []).append(r["ratios"])

@@ -43,7 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_factorgraph_nuisances import recipe_overrides, sigma_ratios  # noqa: E402
+from bench_factorgraph_nuisances import by_seed, recipe_overrides, sigma_ratios  # noqa: E402
 
 from pedcal.calib import calibrate  # noqa: E402
 from pedcal.metrics import evaluate, format_clustered, sigma_honesty  # noqa: E402
@@ -76,23 +76,14 @@ def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None
     return out
 
 
-def clusters(runs: list[dict]) -> dict[int, np.ndarray]:
-    """The runs' error / sigma ratios pooled per seed, the unit the bootstrap resamples: a
-    seed's logs share its zoo draw and AMCL's error whatever the recording (the walkers change
-    the people seen, not the robot's draws), and much of that error across scenarios (the same
-    random streams along another route)."""
-    out: dict[int, list[np.ndarray]] = {}
-    for r in runs:
-        out.setdefault(r["seed"], []).append(r["ratios"])
-    return {k: np.concatenate(v) for k, v in out.items()}
-
-
 def _row(name: str, runs: list[dict]) -> str:
     rms = {m: float(np.sqrt(np.mean(np.concatenate([r[m]["sq_xy"] for r in runs])))) for m in
            ("factorgraph", "gridsearch")}
     # the RMS of the finite ratios per axis (a miss is counted by the share within 1 sigma),
-    # resampled by seed: the logs of one seed share its zoo and AMCL draws
-    within, ratio_rms = sigma_honesty(list(clusters(runs).values()))
+    # resampled by seed: a seed's logs share its zoo draw and AMCL's error whatever the
+    # recording (the walkers change the people seen, not the robot's draws), and much of that
+    # error across scenarios
+    within, ratio_rms = sigma_honesty(by_seed(runs))
     return (f"| {name} | {len(runs)} ({within.logs}) | {within.rows} ({within.misses}) | "
             f"{rms['factorgraph']:.1f} | {rms['gridsearch']:.1f} | {rms['factorgraph'] / rms['gridsearch']:.2f} | "
             f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(ratio_rms, digits=2, unit='seeds')} |")

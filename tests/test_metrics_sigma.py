@@ -192,14 +192,13 @@ def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss
 
 
 def test_the_crowds_bench_pools_a_seeds_recordings_and_scenarios():
-    from bench_realwalk import clusters
-
+    # bench_realwalk resamples by_seed's blocks: one per seed, every recording and scenario of it
     runs = [dict(recording=rec, scenario=sc, seed=seed, ratios=np.full((2, 3), seed + 0.5))
-            for rec in ("atc", "thor") for sc in ("paper", "cross") for seed in (0, 1)]
-    out = clusters(runs)
-    assert sorted(out) == [0, 1]
-    assert all(len(v) == 8 for v in out.values())
-    np.testing.assert_allclose(out[1], 1.5)
+            for rec in ("atc", "thor") for sc in ("paper", "cross") for seed in (1, 0)]
+    out = by_seed(runs)
+    assert [len(v) for v in out] == [8, 8]
+    np.testing.assert_allclose(out[0], 1.5)                 # seed 1 first: the order they come in
+    np.testing.assert_allclose(out[1], 0.5)
 
 
 def test_the_stretch_fit_recovers_a_known_stretch_and_its_sigma():
