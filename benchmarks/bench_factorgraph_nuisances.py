@@ -66,6 +66,7 @@ from pedcal.metrics import (
     format_clustered,
     robot_rows,
     sigma_honesty,
+    within_sigma_share,
 )
 from pedcal.sim import load_scenario, simulate_logs
 from pedcal.sim.nuisances import (
@@ -427,8 +428,7 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
         b = np.mean([r["gridsearch"]["rms_mm"] for r in rs])
         bxy = np.mean([r["gridsearch"]["rms_xy_mm"] for r in rs])
         ratios = np.concatenate([r["ratios"] for r in rs])
-        w1 = 100 * np.mean(ratios <= 1.0, axis=0)
-        w2 = 100 * np.mean(ratios <= 2.0, axis=0)
+        w1, w2 = 100 * within_sigma_share(ratios, 1.0), 100 * within_sigma_share(ratios, 2.0)
         zs = np.concatenate([r["z_shared"] for r in rs])
         zr = np.concatenate([r["z_rest"] for r in rs])
         z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"

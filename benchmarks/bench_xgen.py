@@ -57,7 +57,7 @@ from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: 
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from pedcal.metrics import format_clustered, sigma_honesty  # noqa: E402
+from pedcal.metrics import format_clustered, sigma_honesty, within_sigma_share  # noqa: E402
 
 
 def read_network(path: Path) -> dict:
@@ -158,30 +158,34 @@ def summarize(rows, method):
                                   for r in rr),
            "not_ok": sum(1 for x in s if x["status"] != "ok"),
            "cpu_s": float(np.mean([r["cpu_s"] for r in rr])), "wall_s": float(np.mean([r["wall_s"] for r in rr]))}
+    # (a sensor left at its prior has a sigma wide enough to hold any error: a miss, not evidence)
     if any(x["sigma_p"] is not None for x in s):
-        # (a sensor left at its prior has a sigma wide enough to hold any error: not evidence)
-        e = np.abs(np.array([[x["dx"], x["dy"], x["dz"]] for x in s]))
-        sg = np.array([x["sigma_p"] if x["sigma_p"] is not None and x["status"] == "ok" else [-1.0] * 3 for x in s])
-        out["cov1"] = (100 * np.mean(e <= sg, axis=0)).tolist()
-        out["cov2"] = (100 * np.mean(e <= 2 * sg, axis=0)).tolist()
+        ratios = sensor_ratios(s)
+        out["cov1"] = (100 * within_sigma_share(ratios, 1.0)).tolist()
+        out["cov2"] = (100 * within_sigma_share(ratios, 2.0)).tolist()
     if any(x["sigma_rot_deg"] is not None for x in s):
-        e = np.abs(np.array([x["rot_deg"] for x in s]))
-        sg = np.array([x["sigma_rot_deg"] if x["sigma_rot_deg"] is not None and x["status"] == "ok"
-                       else [-1.0] * 3 for x in s])
-        out["rot1"] = float(100 * np.mean(e <= sg))
-        out["rot2"] = float(100 * np.mean(e <= 2 * sg))
+        ratios = sensor_ratios(s, "sigma_rot_deg").reshape(-1, 1)        # the three axes pooled
+        out["rot1"] = float(100 * within_sigma_share(ratios, 1.0)[0])
+        out["rot2"] = float(100 * within_sigma_share(ratios, 2.0)[0])
+    return out
+
+
+def sensor_ratios(sensors: list[dict], sigma: str = "sigma_p") -> np.ndarray:
+    """(n_sensors, 3) each scored sensor's |error| over its sigma per axis: the position's (x, y,
+    z world axes) against ``sigma_p``, or with ``sigma="sigma_rot_deg"`` the rotation's (sensor
+    axes) against it; inf for a miss (no sigma, or a status other than ok: a sensor left at its
+    prior or not calibrated, whose sigma would hold any error)."""
+    out = np.full((len(sensors), 3), np.inf)
+    for k, x in enumerate(sensors):
+        if x[sigma] is not None and x["status"] == "ok":
+            err = [x["dx"], x["dy"], x["dz"]] if sigma == "sigma_p" else x["rot_deg"]
+            out[k] = np.abs(err) / np.asarray(x[sigma], float)
     return out
 
 
 def log_ratios(row) -> np.ndarray:
-    """(n_sensors, 3) each scored sensor's |error| over its sigma per axis (x, y, z) in one
-    result row; inf for a miss (no sigma, or a status other than ok: a sensor left at its prior
-    or not calibrated, whose sigma would hold any error)."""
-    out = np.full((len(row.get("sensors", [])), 3), np.inf)
-    for k, x in enumerate(row.get("sensors", [])):
-        if x["sigma_p"] is not None and x["status"] == "ok":
-            out[k] = np.abs([x["dx"], x["dy"], x["dz"]]) / np.asarray(x["sigma_p"], float)
-    return out
+    """:func:`sensor_ratios` of the position of one result row's sensors."""
+    return sensor_ratios(row.get("sensors", []))
 
 
 def honesty_table(rows, method, groups, title, label="logs of"):

@@ -191,6 +191,22 @@ def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss
     assert honesty_table([bare], "g", [("all", [bare])], "t") == ""
 
 
+def test_the_exams_coverage_counts_within_k_sigma_and_a_miss_as_outside():
+    from bench_xgen import shared_shift_removed, summarize
+
+    def sensor(r, status="ok"):          # |error| / sigma = r on every axis, position and rotation
+        return {"dx": -0.01 * r, "dy": 0.02 * r, "dz": 0.01 * r, "sigma_p": [0.01, 0.02, 0.01],
+                "rot_deg": [r, -r, 0.5 * r], "sigma_rot_deg": [1.0, 1.0, 0.5], "status": status, "yaw_deg": 0.0}
+
+    row = {"method": "m", "rc": 0, "cpu_s": 1.0, "wall_s": 1.0,
+           "sensors": [sensor(0.5), sensor(1.0), sensor(1.5), sensor(2.5), sensor(0.1, "no-data"),
+                       {**sensor(0.1), "sigma_p": None, "sigma_rot_deg": None}]}
+    shared_shift_removed(row)
+    out = summarize([row], "m")
+    assert out["cov1"] == pytest.approx([100 * 2 / 6] * 3) and out["cov2"] == pytest.approx([100 * 3 / 6] * 3)
+    assert out["rot1"] == pytest.approx(100 * 2 / 6) and out["rot2"] == pytest.approx(100 * 3 / 6)
+
+
 def test_the_crowds_bench_pools_a_seeds_recordings_and_scenarios():
     # bench_realwalk resamples by_seed's blocks: one per seed, every recording and scenario of it
     runs = [dict(recording=rec, scenario=sc, seed=seed, ratios=np.full((2, 3), seed + 0.5))
