@@ -429,9 +429,7 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
         bxy = np.mean([r["gridsearch"]["rms_xy_mm"] for r in rs])
         ratios = np.concatenate([r["ratios"] for r in rs])
         w1, w2 = 100 * within_sigma_share(ratios, 1.0), 100 * within_sigma_share(ratios, 2.0)
-        zs = np.concatenate([r["z_shared"] for r in rs])
-        zr = np.concatenate([r["z_rest"] for r in rs])
-        z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
+        z_text = _z_text(rs)
         shape = np.sqrt(np.mean([r["head_shape_mm"] ** 2 for r in rs]))
         worst = np.max([r["head_shape_mm"] for r in rs])
         floor = np.mean([r["amcl_mean_xy_mm"] for r in rs])
@@ -455,6 +453,14 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
     print_honesty(groups)
     print_shared(groups)
     print_stretch(groups)
+
+
+def _z_text(rs: list[dict]) -> str:
+    """'shared / rest': the RMS over ``rs``'s sensors of the horizontal error over its sigma, split
+    into the sensors' mean and the departures from it (:func:`shared_and_rest_z`); '-' without."""
+    zs = np.concatenate([r["z_shared"] for r in rs])
+    zr = np.concatenate([r["z_rest"] for r in rs])
+    return f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
 
 
 def _xy(r: dict) -> tuple[float, float]:
@@ -529,9 +535,7 @@ def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
         floor = f"{1000 * np.median(floors):.1f}" if floors else "-"
         mean_err = [np.nanmean(r["error_m"][:, :2], axis=0) for r in rs if "error_m" in r]
         mean_text = f"{1000 * np.sqrt(np.mean(np.square(mean_err))):.1f}" if mean_err else "-"
-        zs = np.concatenate([r["z_shared"] for r in rs])
-        zr = np.concatenate([r["z_rest"] for r in rs])
-        z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
+        z_text = _z_text(rs)
         seeds = len({r["seed"] for r in rs})
         print(f"| {name} | {len(rs)} ({seeds}) | {amcl:.1f} | {floor} | {mean_text} | {z_text} |")
 

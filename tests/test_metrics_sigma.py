@@ -255,3 +255,12 @@ def test_the_stretch_fits_sigma_takes_each_sensors_own_x_and_y_variance():
     np.testing.assert_allclose(sigma, [np.sqrt(vx.sum()) / 5, np.sqrt(vy.sum()) / 5,
                                        np.sqrt(np.sum(dx2 * vx)) / dx2.sum(), np.sqrt(np.sum(dy2 * vy)) / dy2.sum()],
                                rtol=1e-12)
+
+
+def test_the_shared_and_rest_text_is_the_rms_of_each_over_the_logs_sensors():
+    from bench_factorgraph_nuisances import _z_text
+
+    rs = [dict(z_shared=np.array([3.0, 0.0]), z_rest=np.array([1.0, -1.0, 2.0])),
+          dict(z_shared=np.array([4.0, 0.0]), z_rest=np.array([0.0]))]
+    assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f}" == "2.50 / 1.22"
+    assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "-"      # no joint covariance
