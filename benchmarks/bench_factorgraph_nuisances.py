@@ -179,21 +179,38 @@ def rigid_residual_rms_mm(est_xy: np.ndarray, true_xy: np.ndarray) -> float:
     return float(1000 * np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
 
 
+def _xy_block(joint_cov_m2: np.ndarray, rows) -> np.ndarray:
+    """The x and y rows and columns of the joint position covariance (3 N, 3 N) for the sensors at
+    ``rows`` of the network, in that order, x and y per sensor: (2 n, 2 n)."""
+    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
+    return joint_cov_m2[np.ix_(idx, idx)]
+
+
+def _ls_fit(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, A: np.ndarray,
+            rows) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal errors ``E`` (n, 2) fitted by least squares by the columns of ``A`` (2 n, k,
+    x and y per sensor): the coefficients L e (L = pinv(A)) and their sigma sqrt(diag(L C L^T)),
+    C the joint position covariance's block of the sensors at ``rows`` (:func:`_xy_block`); NaN
+    sigma without the covariance."""
+    L = np.linalg.pinv(A)
+    coef = L @ np.asarray(E_xy_m, float).ravel()
+    if joint_cov_m2 is None:
+        return coef, np.full(len(coef), np.nan)
+    return coef, np.sqrt(np.diag(L @ _xy_block(joint_cov_m2, rows) @ L.T))
+
+
 def projected_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray, A: np.ndarray,
                 rows) -> tuple[np.ndarray, np.ndarray]:
     """Horizontal errors ``E`` (n, 2) split into the motions of the network that ``A`` (2 n, k)
-    spans (least squares, x and y per sensor) and the rest, each over its sigma from the joint
-    position covariance (3 N, 3 N, the network's N sensors): (k,) and (2 n,) ratios, N(0, 1) when
-    the covariance is right. ``rows`` (n,): each error's sensor's position in the network (the
-    covariance's 3x3 block), so that the caller may leave sensors out (not calibrated: the
-    prior's sigma would drown the shared motion; without an error)."""
-    n = len(E_xy_m)
-    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
-    C = joint_cov_m2[np.ix_(idx, idx)]
-    L = np.linalg.pinv(A)
-    R = np.eye(2 * n) - A @ L
-    e = E_xy_m.ravel()
-    return (L @ e) / np.sqrt(np.diag(L @ C @ L.T)), (R @ e) / np.sqrt(np.diag(R @ C @ R.T))
+    spans (least squares, x and y per sensor: :func:`_ls_fit`) and the rest, each over its sigma
+    from the joint position covariance (3 N, 3 N, the network's N sensors): (k,) and (2 n,)
+    ratios, N(0, 1) when the covariance is right. ``rows`` (n,): each error's sensor's position
+    in the network (the covariance's 3x3 block), so that the caller may leave sensors out (not
+    calibrated: the prior's sigma would drown the shared motion; without an error)."""
+    coef, sigma = _ls_fit(E_xy_m, joint_cov_m2, A, rows)
+    C = _xy_block(joint_cov_m2, rows)
+    R = np.eye(2 * len(E_xy_m)) - A @ np.linalg.pinv(A)
+    return coef / sigma, (R @ E_xy_m.ravel()) / np.sqrt(np.diag(R @ C @ R.T))
 
 
 def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, rows) -> tuple[np.ndarray, np.ndarray]:
@@ -219,12 +236,7 @@ def stretch_fit(E_xy_m: np.ndarray, true_xy_m: np.ndarray, joint_cov_m2: np.ndar
     A = np.zeros((2 * n, 4))
     A[0::2, 0] = A[1::2, 1] = 1.0
     A[0::2, 2], A[1::2, 3] = d[:, 0], d[:, 1]
-    L = np.linalg.pinv(A)
-    coef = L @ np.asarray(E_xy_m, float).ravel()
-    if joint_cov_m2 is None:
-        return coef, np.full(4, np.nan)
-    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
-    return coef, np.sqrt(np.diag(L @ joint_cov_m2[np.ix_(idx, idx)] @ L.T))
+    return _ls_fit(E_xy_m, joint_cov_m2, A, rows)
 
 
 def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: int = 3) -> np.ndarray:
