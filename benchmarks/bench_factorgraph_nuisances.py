@@ -256,12 +256,10 @@ def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: in
 
 def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = None, off: tuple = ()) -> dict:
     warnings.simplefilter("ignore")
-    if off:
-        # the seed's draw with these families made ideal, every other draw as it was (paired)
-        sc = switch_off(vary(load_scenario(scenario).resolve(seed=seed), zoo=zoo), off)
-        sim = simulate_logs(sc, seed=seed)
-    else:
-        sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo" if zoo else True)
+    # the seed's draw (simulate_logs(..., vary_nuisances=True or "zoo")) with the ``off`` families
+    # made ideal, every other draw as it was (paired); without ``off`` the draw itself
+    sc = switch_off(vary(load_scenario(scenario).resolve(seed=seed), zoo=zoo), off)
+    sim = simulate_logs(sc, seed=seed)
     out = dict(scenario=scenario, seed=seed, nuisances=head_model_truth(sim.scenario),
                families=zoo_families(sim.scenario),
                amcl=sim.scenario.amcl_error, odometry=sim.scenario.odometry, latency_s=sim.scenario.latency_s,

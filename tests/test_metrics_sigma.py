@@ -264,3 +264,33 @@ def test_the_shared_and_rest_text_is_the_rms_of_each_over_the_logs_sensors():
           dict(z_shared=np.array([4.0, 0.0]), z_rest=np.array([0.0]))]
     assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f}" == "2.50 / 1.22"
     assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "-"      # no joint covariance
+
+
+@pytest.mark.parametrize("zoo", [False, True])
+def test_the_bench_simulates_the_seeds_draw_when_nothing_is_switched_off(monkeypatch, zoo):
+    # run_one's one path (switch_off of no family) simulates what simulate_logs draws itself
+    from bench_factorgraph_nuisances import run_one
+
+    import pedcal.sim
+    from pedcal.sim.nuisances import switch_off
+
+    class Simulated(Exception):
+        pass
+
+    def stop(sc):                        # the scenario simulate_logs resolved, before any simulating
+        raise Simulated(sc)
+
+    monkeypatch.setattr(pedcal.sim, "networks", stop)
+    for name, seed in (("paper", 0), ("lhall", 3)):
+        with pytest.raises(Simulated) as bench:
+            run_one(name, seed, zoo=zoo)
+        with pytest.raises(Simulated) as direct:
+            pedcal.sim.simulate_logs(name, seed=seed, vary_nuisances="zoo" if zoo else True)
+        assert bench.value.args[0] == direct.value.args[0]
+    # and with a family off, the same draw less that family
+    with pytest.raises(Simulated) as off:
+        run_one("paper", 0, zoo=zoo, off=("latency",))
+    with pytest.raises(Simulated) as direct:
+        pedcal.sim.simulate_logs("paper", seed=0, vary_nuisances="zoo" if zoo else True)
+    assert direct.value.args[0].latency_s > 0.0
+    assert off.value.args[0] == switch_off(direct.value.args[0], ("latency",))
