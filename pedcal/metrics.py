@@ -313,7 +313,8 @@ def within_sigma_share(ratios: np.ndarray, k: float = 1.0) -> np.ndarray:
     r = _rows(ratios)
     if not len(r):
         return np.full(r.shape[1], np.nan)
-    return np.mean(np.nan_to_num(r, nan=np.inf) <= k, axis=0)
+    # a miss (inf) and NaN compare False: outside, in the denominator
+    return np.mean(r <= k, axis=0)
 
 
 def sigma_ratio_rms(ratios: np.ndarray) -> np.ndarray:
