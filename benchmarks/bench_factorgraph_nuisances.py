@@ -70,6 +70,7 @@ from pedcal.metrics import (
 )
 from pedcal.sim import load_scenario, simulate_logs
 from pedcal.sim.nuisances import (
+    HEAD_KINDS,
     OFF_FAMILIES,
     head_model_truth,
     head_point,
@@ -79,6 +80,13 @@ from pedcal.sim.nuisances import (
     vary,
     zoo_families,
 )
+from pedcal.sim.scenario import CHOICES
+
+# Each family pedcal.sim.nuisances.zoo_families names, with the values the zoo can draw for it
+# (--only FAMILY=VALUE, the figures split by family): the head point the same for every sensor
+# (any kind) or one per sensor; AMCL's classic draws or the zoo's relocalizations.
+ZOO_FAMILY_VALUES = {"head": ("per-sensor", *HEAD_KINDS), "clock": ("shared", "offsets", "skew"),
+                     "mounts": ("ceiling", "mixed", "wall"), "amcl": (*CHOICES["amcl_error"], "relocalization")}
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:
@@ -341,13 +349,16 @@ def recipe_overrides(items: list[str], ap: argparse.ArgumentParser) -> dict:
 
 
 def family_filter(items: list[str], ap: argparse.ArgumentParser) -> dict:
-    """FAMILY=VALUE items (--only) as {family: value}, each family one of zoo_families'."""
-    known = ("head", "clock", "mounts", "amcl")
+    """FAMILY=VALUE items (--only) as {family: value}, each family one of zoo_families' and each
+    value one the zoo can draw for it (:data:`ZOO_FAMILY_VALUES`): a value it never draws is
+    refused here, before any seed is drawn."""
     out = {}
     for item in items:
         family, _, value = item.partition("=")
-        if family not in known or not value:
-            ap.error(f"--only {item}: expected FAMILY=VALUE with FAMILY one of {', '.join(known)}")
+        if family not in ZOO_FAMILY_VALUES or not value:
+            ap.error(f"--only {item}: expected FAMILY=VALUE with FAMILY one of {', '.join(ZOO_FAMILY_VALUES)}")
+        if value not in ZOO_FAMILY_VALUES[family]:
+            ap.error(f"--only {item}: the zoo draws {family} as one of {', '.join(ZOO_FAMILY_VALUES[family])}")
         out[family] = value
     return out
 
@@ -505,7 +516,7 @@ def print_wings(results: list[dict]) -> None:
 def family_groups(results: list[dict]) -> list[tuple[str, list[dict]]]:
     """The logs grouped by the family each zoo nuisance fell in (all scenarios pooled)."""
     return [(f"{family}: {value}", [r for r in results if r["families"][family] == value])
-            for family in ("head", "clock", "mounts", "amcl")
+            for family in ZOO_FAMILY_VALUES
             for value in sorted({r["families"][family] for r in results})]
 
 

@@ -174,6 +174,31 @@ def test_only_refuses_an_unknown_family():
         family_filter(["head"], ap)
 
 
+def test_only_refuses_a_value_the_zoo_never_draws_naming_those_it_does(capsys):
+    import argparse
+
+    with pytest.raises(SystemExit):
+        family_filter(["head=tpo"], argparse.ArgumentParser())
+    assert "--only head=tpo: the zoo draws head as one of per-sensor, top, dome, shift, centroid, ramp, " \
+           "saturate" in capsys.readouterr().err
+    assert family_filter(["amcl=relocalization", "head=per-sensor"], argparse.ArgumentParser()) == \
+        {"amcl": "relocalization", "head": "per-sensor"}
+
+
+def test_the_families_values_are_those_the_zoo_draws():
+    # every value named is drawn in 300 seeds (each has a chance of 1/12 or more), and no other
+    from bench_factorgraph_nuisances import ZOO_FAMILY_VALUES
+
+    from pedcal.sim import load_scenario
+    from pedcal.sim.nuisances import vary, zoo_families
+
+    base = load_scenario("paper")
+    drawn = [zoo_families(vary(base.resolve(seed=s), zoo=True)) for s in range(300)]
+    assert set(drawn[0]) == set(ZOO_FAMILY_VALUES)
+    for family, values in ZOO_FAMILY_VALUES.items():
+        assert {d[family] for d in drawn} == set(values), family
+
+
 def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss():
     from bench_xgen import honesty_table, log_ratios
 
