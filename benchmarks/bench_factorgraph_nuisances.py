@@ -38,10 +38,12 @@ too wide, which the share alone would reward), x, y, z, each with its 90 % inter
 bootstrap over the seeds (seeded; ``pedcal.metrics.sigma_honesty``): a log's sensors share one
 draw of AMCL's error and of the head point, and a seed's logs in every scenario share its zoo
 draw and much of AMCL's, so a figure of few seeds is uncertain however many sensors it pools,
-and the interval says how much (none is claimed below 3 seeds). Beside it, per group: AMCL's
-run-mean error (the truth) against the graph's AMCL model's sigma of it, and the error over
-sigma of the sensors' common error and of the rest; and the network's stretch along x and y
-(mm/m, :func:`stretch_fit`) against its sigma.
+and the interval says how much (none is claimed below 3 seeds); beside them the sensors pooled
+and, in brackets, those missed (not calibrated, without a sigma or left out: outside any sigma
+for the share, left out of the RMS, so a method that drops sensors shows it there). Beside it,
+per group: AMCL's run-mean error (the truth) against the graph's AMCL model's sigma of it, and
+the error over sigma of the sensors' common error and of the rest; and the network's stretch
+along x and y (mm/m, :func:`stretch_fit`) against its sigma.
 """
 
 from __future__ import annotations
@@ -64,9 +66,11 @@ from pedcal.metrics import (
     format_clustered,
     robot_rows,
     sigma_honesty,
+    within_sigma_share,
 )
 from pedcal.sim import load_scenario, simulate_logs
 from pedcal.sim.nuisances import (
+    HEAD_KINDS,
     OFF_FAMILIES,
     head_model_truth,
     head_point,
@@ -76,6 +80,13 @@ from pedcal.sim.nuisances import (
     vary,
     zoo_families,
 )
+from pedcal.sim.scenario import CHOICES
+
+# Each family pedcal.sim.nuisances.zoo_families names, with the values the zoo can draw for it
+# (--only FAMILY=VALUE, the figures split by family): the head point the same for every sensor
+# (any kind) or one per sensor; AMCL's classic draws or the zoo's relocalizations.
+ZOO_FAMILY_VALUES = {"head": ("per-sensor", *HEAD_KINDS), "clock": ("shared", "offsets", "skew"),
+                     "mounts": ("ceiling", "mixed", "wall"), "amcl": (*CHOICES["amcl_error"], "relocalization")}
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:
@@ -176,21 +187,38 @@ def rigid_residual_rms_mm(est_xy: np.ndarray, true_xy: np.ndarray) -> float:
     return float(1000 * np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
 
 
+def _xy_block(joint_cov_m2: np.ndarray, rows) -> np.ndarray:
+    """The x and y rows and columns of the joint position covariance (3 N, 3 N) for the sensors at
+    ``rows`` of the network, in that order, x and y per sensor: (2 n, 2 n)."""
+    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
+    return joint_cov_m2[np.ix_(idx, idx)]
+
+
+def _ls_fit(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, A: np.ndarray,
+            rows) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal errors ``E`` (n, 2) fitted by least squares by the columns of ``A`` (2 n, k,
+    x and y per sensor): the coefficients L e (L = pinv(A)) and their sigma sqrt(diag(L C L^T)),
+    C the joint position covariance's block of the sensors at ``rows`` (:func:`_xy_block`); NaN
+    sigma without the covariance."""
+    L = np.linalg.pinv(A)
+    coef = L @ np.asarray(E_xy_m, float).ravel()
+    if joint_cov_m2 is None:
+        return coef, np.full(len(coef), np.nan)
+    return coef, np.sqrt(np.diag(L @ _xy_block(joint_cov_m2, rows) @ L.T))
+
+
 def projected_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray, A: np.ndarray,
                 rows) -> tuple[np.ndarray, np.ndarray]:
     """Horizontal errors ``E`` (n, 2) split into the motions of the network that ``A`` (2 n, k)
-    spans (least squares, x and y per sensor) and the rest, each over its sigma from the joint
-    position covariance (3 N, 3 N, the network's N sensors): (k,) and (2 n,) ratios, N(0, 1) when
-    the covariance is right. ``rows`` (n,): each error's sensor's position in the network (the
-    covariance's 3x3 block), so that the caller may leave sensors out (not calibrated: the
-    prior's sigma would drown the shared motion; without an error)."""
-    n = len(E_xy_m)
-    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
-    C = joint_cov_m2[np.ix_(idx, idx)]
-    L = np.linalg.pinv(A)
-    R = np.eye(2 * n) - A @ L
-    e = E_xy_m.ravel()
-    return (L @ e) / np.sqrt(np.diag(L @ C @ L.T)), (R @ e) / np.sqrt(np.diag(R @ C @ R.T))
+    spans (least squares, x and y per sensor: :func:`_ls_fit`) and the rest, each over its sigma
+    from the joint position covariance (3 N, 3 N, the network's N sensors): (k,) and (2 n,)
+    ratios, N(0, 1) when the covariance is right. ``rows`` (n,): each error's sensor's position
+    in the network (the covariance's 3x3 block), so that the caller may leave sensors out (not
+    calibrated: the prior's sigma would drown the shared motion; without an error)."""
+    coef, sigma = _ls_fit(E_xy_m, joint_cov_m2, A, rows)
+    C = _xy_block(joint_cov_m2, rows)
+    R = np.eye(2 * len(E_xy_m)) - A @ np.linalg.pinv(A)
+    return coef / sigma, (R @ E_xy_m.ravel()) / np.sqrt(np.diag(R @ C @ R.T))
 
 
 def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, rows) -> tuple[np.ndarray, np.ndarray]:
@@ -216,12 +244,7 @@ def stretch_fit(E_xy_m: np.ndarray, true_xy_m: np.ndarray, joint_cov_m2: np.ndar
     A = np.zeros((2 * n, 4))
     A[0::2, 0] = A[1::2, 1] = 1.0
     A[0::2, 2], A[1::2, 3] = d[:, 0], d[:, 1]
-    L = np.linalg.pinv(A)
-    coef = L @ np.asarray(E_xy_m, float).ravel()
-    if joint_cov_m2 is None:
-        return coef, np.full(4, np.nan)
-    idx = (3 * np.asarray(rows, int)[:, None] + [0, 1]).ravel()
-    return coef, np.sqrt(np.diag(L @ joint_cov_m2[np.ix_(idx, idx)] @ L.T))
+    return _ls_fit(E_xy_m, joint_cov_m2, A, rows)
 
 
 def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: int = 3) -> np.ndarray:
@@ -241,12 +264,10 @@ def sigma_ratios(network, ids, abs_err_m: np.ndarray, missing: int = 0, axes: in
 
 def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = None, off: tuple = ()) -> dict:
     warnings.simplefilter("ignore")
-    if off:
-        # the seed's draw with these families made ideal, every other draw as it was (paired)
-        sc = switch_off(vary(load_scenario(scenario).resolve(seed=seed), zoo=zoo), off)
-        sim = simulate_logs(sc, seed=seed)
-    else:
-        sim = simulate_logs(scenario, seed=seed, vary_nuisances="zoo" if zoo else True)
+    # the seed's draw (simulate_logs(..., vary_nuisances=True or "zoo")) with the ``off`` families
+    # made ideal, every other draw as it was (paired); without ``off`` the draw itself
+    sc = switch_off(vary(load_scenario(scenario).resolve(seed=seed), zoo=zoo), off)
+    sim = simulate_logs(sc, seed=seed)
     out = dict(scenario=scenario, seed=seed, nuisances=head_model_truth(sim.scenario),
                families=zoo_families(sim.scenario),
                amcl=sim.scenario.amcl_error, odometry=sim.scenario.odometry, latency_s=sim.scenario.latency_s,
@@ -328,13 +349,16 @@ def recipe_overrides(items: list[str], ap: argparse.ArgumentParser) -> dict:
 
 
 def family_filter(items: list[str], ap: argparse.ArgumentParser) -> dict:
-    """FAMILY=VALUE items (--only) as {family: value}, each family one of zoo_families'."""
-    known = ("head", "clock", "mounts", "amcl")
+    """FAMILY=VALUE items (--only) as {family: value}, each family one of zoo_families' and each
+    value one the zoo can draw for it (:data:`ZOO_FAMILY_VALUES`): a value it never draws is
+    refused here, before any seed is drawn."""
     out = {}
     for item in items:
         family, _, value = item.partition("=")
-        if family not in known or not value:
-            ap.error(f"--only {item}: expected FAMILY=VALUE with FAMILY one of {', '.join(known)}")
+        if family not in ZOO_FAMILY_VALUES or not value:
+            ap.error(f"--only {item}: expected FAMILY=VALUE with FAMILY one of {', '.join(ZOO_FAMILY_VALUES)}")
+        if value not in ZOO_FAMILY_VALUES[family]:
+            ap.error(f"--only {item}: the zoo draws {family} as one of {', '.join(ZOO_FAMILY_VALUES[family])}")
         out[family] = value
     return out
 
@@ -425,11 +449,8 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
         b = np.mean([r["gridsearch"]["rms_mm"] for r in rs])
         bxy = np.mean([r["gridsearch"]["rms_xy_mm"] for r in rs])
         ratios = np.concatenate([r["ratios"] for r in rs])
-        w1 = 100 * np.mean(ratios <= 1.0, axis=0)
-        w2 = 100 * np.mean(ratios <= 2.0, axis=0)
-        zs = np.concatenate([r["z_shared"] for r in rs])
-        zr = np.concatenate([r["z_rest"] for r in rs])
-        z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
+        w1, w2 = 100 * within_sigma_share(ratios, 1.0), 100 * within_sigma_share(ratios, 2.0)
+        z_text = _z_text(rs)
         shape = np.sqrt(np.mean([r["head_shape_mm"] ** 2 for r in rs]))
         worst = np.max([r["head_shape_mm"] for r in rs])
         floor = np.mean([r["amcl_mean_xy_mm"] for r in rs])
@@ -453,6 +474,14 @@ def print_all(results: list[dict], zoo: bool, verbose: bool = False) -> None:
     print_honesty(groups)
     print_shared(groups)
     print_stretch(groups)
+
+
+def _z_text(rs: list[dict]) -> str:
+    """'shared / rest': the RMS over ``rs``'s sensors of the horizontal error over its sigma, split
+    into the sensors' mean and the departures from it (:func:`shared_and_rest_z`); '-' without."""
+    zs = np.concatenate([r["z_shared"] for r in rs])
+    zr = np.concatenate([r["z_rest"] for r in rs])
+    return f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
 
 
 def _xy(r: dict) -> tuple[float, float]:
@@ -487,7 +516,7 @@ def print_wings(results: list[dict]) -> None:
 def family_groups(results: list[dict]) -> list[tuple[str, list[dict]]]:
     """The logs grouped by the family each zoo nuisance fell in (all scenarios pooled)."""
     return [(f"{family}: {value}", [r for r in results if r["families"][family] == value])
-            for family in ("head", "clock", "mounts", "amcl")
+            for family in ZOO_FAMILY_VALUES
             for value in sorted({r["families"][family] for r in results})]
 
 
@@ -527,9 +556,7 @@ def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
         floor = f"{1000 * np.median(floors):.1f}" if floors else "-"
         mean_err = [np.nanmean(r["error_m"][:, :2], axis=0) for r in rs if "error_m" in r]
         mean_text = f"{1000 * np.sqrt(np.mean(np.square(mean_err))):.1f}" if mean_err else "-"
-        zs = np.concatenate([r["z_shared"] for r in rs])
-        zr = np.concatenate([r["z_rest"] for r in rs])
-        z_text = f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
+        z_text = _z_text(rs)
         seeds = len({r["seed"] for r in rs})
         print(f"| {name} | {len(rs)} ({seeds}) | {amcl:.1f} | {floor} | {mean_text} | {z_text} |")
 
@@ -556,11 +583,12 @@ def print_stretch(groups: list[tuple[str, list[dict]]]) -> None:
 
 
 def by_seed(rs: list[dict]) -> list[np.ndarray]:
-    """The error / sigma ratios of ``rs`` pooled per seed: the unit of the bootstrap. A seed's
-    logs share its zoo draw in every scenario (the same families, head model, clocks) and much
-    of AMCL's error (the same random streams along another route: paper, corridor and L-hall of
-    seed 0 average 45, 28 and 36 mm of it along y), so the scenarios of one seed are not
-    independent draws."""
+    """The error / sigma ratios of ``rs`` pooled per seed (in the order the seeds first come): the
+    unit of the bootstrap. A seed's logs share its zoo draw in every scenario (the same families,
+    head model, clocks; whatever the walkers, benchmarks/bench_realwalk.py) and much of AMCL's
+    error (the same random streams along another route: paper, corridor and L-hall of seed 0
+    average 45, 28 and 36 mm of it along y), so the scenarios of one seed are not independent
+    draws."""
     out: dict[int, list[np.ndarray]] = {}
     for r in rs:
         out.setdefault(r["seed"], []).append(r["ratios"])
@@ -570,16 +598,18 @@ def by_seed(rs: list[dict]) -> list[np.ndarray]:
 def print_honesty(groups: list[tuple[str, list[dict]]]) -> None:
     """Per group of logs: the share of per-axis errors within 1 sigma and the RMS of |error| /
     sigma, x / y / z, each with its 90 % interval from a bootstrap over the group's seeds
-    (:func:`by_seed`)."""
-    print("\n| logs of | logs (seeds) | sensors | within 1 sigma x / y / z (%) [90 % over seeds] | "
+    (:func:`by_seed`); beside them the sensors and, in brackets, how many of them were missed
+    (a ratio not finite: not calibrated, without a sigma or left out), which the share counts
+    as outside and the RMS leaves out."""
+    print("\n| logs of | logs (seeds) | sensors (missed) | within 1 sigma x / y / z (%) [90 % over seeds] | "
           "error / sigma RMS x / y / z [90 % over seeds] |")
     print("|---|---|---|---|---|")
     for name, rs in groups:
         if not rs:
             continue
         within, rms = sigma_honesty(by_seed(rs))
-        print(f"| {name} | {len(rs)} ({within.logs}) | {within.rows} | {format_clustered(within, 100, unit='seeds')} | "
-              f"{format_clustered(rms, digits=2, unit='seeds')} |")
+        print(f"| {name} | {len(rs)} ({within.logs}) | {within.rows} ({within.misses}) | "
+              f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(rms, digits=2, unit='seeds')} |")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,8 @@ Then per method that reports a sigma, the sigma's honesty per family, pooled and
 log drew: the share within 1 sigma and the RMS of |error| / sigma (1 when honest, below 1 too
 wide), x, y, z, each with its 90 % interval from a bootstrap over the logs (seeded;
 ``pedcal.metrics.sigma_honesty``: a log's sensors share its AMCL draw, so a share pooled over a
-few logs is uncertain however many sensors it holds); a sensor not calibrated is a miss.
+few logs is uncertain however many sensors it holds); a sensor not calibrated is a miss,
+counted beside them ("sensors (missed)": outside for the share, left out of the RMS).
 Results are also written to OUT/results.jsonl; the tables are printed per family and pooled.
 """
 
@@ -56,7 +57,7 @@ from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: 
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from pedcal.metrics import format_clustered, sigma_honesty  # noqa: E402
+from pedcal.metrics import format_clustered, sigma_honesty, within_sigma_share  # noqa: E402
 
 
 def read_network(path: Path) -> dict:
@@ -157,37 +158,42 @@ def summarize(rows, method):
                                   for r in rr),
            "not_ok": sum(1 for x in s if x["status"] != "ok"),
            "cpu_s": float(np.mean([r["cpu_s"] for r in rr])), "wall_s": float(np.mean([r["wall_s"] for r in rr]))}
+    # (a sensor left at its prior has a sigma wide enough to hold any error: a miss, not evidence)
     if any(x["sigma_p"] is not None for x in s):
-        # (a sensor left at its prior has a sigma wide enough to hold any error: not evidence)
-        e = np.abs(np.array([[x["dx"], x["dy"], x["dz"]] for x in s]))
-        sg = np.array([x["sigma_p"] if x["sigma_p"] is not None and x["status"] == "ok" else [-1.0] * 3 for x in s])
-        out["cov1"] = (100 * np.mean(e <= sg, axis=0)).tolist()
-        out["cov2"] = (100 * np.mean(e <= 2 * sg, axis=0)).tolist()
+        ratios = sensor_ratios(s)
+        out["cov1"] = (100 * within_sigma_share(ratios, 1.0)).tolist()
+        out["cov2"] = (100 * within_sigma_share(ratios, 2.0)).tolist()
     if any(x["sigma_rot_deg"] is not None for x in s):
-        e = np.abs(np.array([x["rot_deg"] for x in s]))
-        sg = np.array([x["sigma_rot_deg"] if x["sigma_rot_deg"] is not None and x["status"] == "ok"
-                       else [-1.0] * 3 for x in s])
-        out["rot1"] = float(100 * np.mean(e <= sg))
-        out["rot2"] = float(100 * np.mean(e <= 2 * sg))
+        ratios = sensor_ratios(s, "sigma_rot_deg").reshape(-1, 1)        # the three axes pooled
+        out["rot1"] = float(100 * within_sigma_share(ratios, 1.0)[0])
+        out["rot2"] = float(100 * within_sigma_share(ratios, 2.0)[0])
+    return out
+
+
+def sensor_ratios(sensors: list[dict], sigma: str = "sigma_p") -> np.ndarray:
+    """(n_sensors, 3) each scored sensor's |error| over its sigma per axis: the position's (x, y,
+    z world axes) against ``sigma_p``, or with ``sigma="sigma_rot_deg"`` the rotation's (sensor
+    axes) against it; inf for a miss (no sigma, or a status other than ok: a sensor left at its
+    prior or not calibrated, whose sigma would hold any error)."""
+    out = np.full((len(sensors), 3), np.inf)
+    for k, x in enumerate(sensors):
+        if x[sigma] is not None and x["status"] == "ok":
+            err = [x["dx"], x["dy"], x["dz"]] if sigma == "sigma_p" else x["rot_deg"]
+            out[k] = np.abs(err) / np.asarray(x[sigma], float)
     return out
 
 
 def log_ratios(row) -> np.ndarray:
-    """(n_sensors, 3) each scored sensor's |error| over its sigma per axis (x, y, z) in one
-    result row; inf for a miss (no sigma, or a status other than ok: a sensor left at its prior
-    or not calibrated, whose sigma would hold any error)."""
-    out = np.full((len(row.get("sensors", [])), 3), np.inf)
-    for k, x in enumerate(row.get("sensors", [])):
-        if x["sigma_p"] is not None and x["status"] == "ok":
-            out[k] = np.abs([x["dx"], x["dy"], x["dz"]]) / np.asarray(x["sigma_p"], float)
-    return out
+    """:func:`sensor_ratios` of the position of one result row's sensors."""
+    return sensor_ratios(row.get("sensors", []))
 
 
 def honesty_table(rows, method, groups, title, label="logs of"):
     """The sigma's honesty of ``method`` per group of logs: within 1 sigma and error / sigma
-    RMS per axis with their 90 % intervals over the group's logs; '' when it reports no sigma."""
+    RMS per axis with their 90 % intervals over the group's logs, beside the sensors and those
+    missed (:func:`log_ratios`' inf rows, which the RMS leaves out); '' when it reports no sigma."""
     lines = [f"### {title}", "",
-             f"| {label} | logs | sensors | within 1 sigma x / y / z (%) [90 % over logs] | "
+             f"| {label} | logs | sensors (missed) | within 1 sigma x / y / z (%) [90 % over logs] | "
              "error / sigma RMS x / y / z [90 % over logs] |", "|---|---|---|---|---|"]
     any_sigma = False
     for name, g in groups:
@@ -196,7 +202,7 @@ def honesty_table(rows, method, groups, title, label="logs of"):
             continue
         any_sigma |= any(x["sigma_p"] is not None for r in rr for x in r["sensors"])
         within, rms = sigma_honesty([log_ratios(r) for r in rr])
-        lines.append(f"| {name} | {within.logs} | {within.rows} | {format_clustered(within, 100)} | "
+        lines.append(f"| {name} | {within.logs} | {within.rows} ({within.misses}) | {format_clustered(within, 100)} | "
                      f"{format_clustered(rms, digits=2)} |")
     return "\n".join(lines) if any_sigma else ""
 

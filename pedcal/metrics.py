@@ -313,7 +313,8 @@ def within_sigma_share(ratios: np.ndarray, k: float = 1.0) -> np.ndarray:
     r = _rows(ratios)
     if not len(r):
         return np.full(r.shape[1], np.nan)
-    return np.mean(np.nan_to_num(r, nan=np.inf) <= k, axis=0)
+    # a miss (inf) and NaN compare False: outside, in the denominator
+    return np.mean(r <= k, axis=0)
 
 
 def sigma_ratio_rms(ratios: np.ndarray) -> np.ndarray:
@@ -335,7 +336,9 @@ class ClusteredFigure:
     """A figure pooled over the sensors of many logs, per axis, with its percentile interval
     from a bootstrap over the logs (each resample draws logs with replacement and pools all of
     their sensors): ``estimate``, ``low``, ``high`` (axes,), over ``logs`` logs and ``rows``
-    sensors, at confidence ``level``."""
+    sensors, at confidence ``level``; ``misses`` of the rows hold a non-finite value (of
+    |error| / sigma ratios: the sensors missed, which :func:`sigma_ratio_rms` leaves out, so a
+    method may look honest by dropping sensors: print the count beside it)."""
 
     estimate: np.ndarray
     low: np.ndarray
@@ -343,6 +346,7 @@ class ClusteredFigure:
     logs: int
     rows: int
     level: float
+    misses: int = 0
 
 
 def log_bootstrap(per_log: list[np.ndarray], statistic, n_boot: int = 2000, seed: int = 0,
@@ -352,7 +356,8 @@ def log_bootstrap(per_log: list[np.ndarray], statistic, n_boot: int = 2000, seed
     ``n_boot`` resamples of the logs with replacement (seeded by ``seed``): the interval a
     share of a few logs' sensors deserves, their errors being shared within a log. Logs without
     rows are kept as logs (their resample adds nothing). NaN statistics of a resample (no rows)
-    are left out of the percentiles. With one log the interval is the point."""
+    are left out of the percentiles. With one log the interval is the point. Rows with a
+    non-finite value are counted (``misses``)."""
     blocks = [_rows(b) for b in per_log]
     if not blocks:
         raise ValueError("log_bootstrap needs at least one log")
@@ -370,7 +375,9 @@ def log_bootstrap(per_log: list[np.ndarray], statistic, n_boot: int = 2000, seed
         warnings.simplefilter("ignore", RuntimeWarning)      # an axis NaN in every resample
         low = np.nanpercentile(draws, tail, axis=0)
         high = np.nanpercentile(draws, 100 - tail, axis=0)
-    return ClusteredFigure(estimate=estimate, low=low, high=high, logs=len(blocks), rows=len(pooled), level=level)
+    misses = int(np.sum(~np.all(np.isfinite(pooled), axis=1)))
+    return ClusteredFigure(estimate=estimate, low=low, high=high, logs=len(blocks), rows=len(pooled), level=level,
+                           misses=misses)
 
 
 def sigma_honesty(per_log_ratios: list[np.ndarray], n_boot: int = 2000, seed: int = 0,

@@ -90,6 +90,33 @@ def test_sigma_honesty_pairs_the_share_and_the_ratio_on_the_same_resamples():
     assert within.estimate == pytest.approx([2 / 4, 3 / 4])
     assert rms.estimate == pytest.approx([np.sqrt((0.25 + 4 + 1 + 9) / 4), np.sqrt((1 + 0.16 + 0.04) / 3)])
     assert within.logs == rms.logs == 3
+    # the same resamples: each figure is log_bootstrap's with the seed given, for both
+    for fig, statistic in ((within, within_sigma_share), (rms, sigma_ratio_rms)):
+        alone = log_bootstrap(logs, statistic, 300, 3)
+        np.testing.assert_array_equal(fig.low, alone.low)
+        np.testing.assert_array_equal(fig.high, alone.high)
+
+
+def test_the_bootstrap_counts_the_rows_missed_beside_the_rows():
+    # a row with any non-finite ratio (inf: a miss; NaN) is a miss, whatever its other axes
+    logs = [np.array([[0.5, INF], [1.0, 2.0]]), np.array([[np.nan, 1.0]]), np.zeros((0, 2)), np.array([[INF, INF]])]
+    within, rms = sigma_honesty(logs, n_boot=50, seed=0)
+    assert (within.rows, within.misses) == (rms.rows, rms.misses) == (4, 3)
+    assert log_bootstrap([np.array([[0.5], [2.0]])], sigma_ratio_rms, n_boot=10).misses == 0
+
+
+def test_the_benches_print_the_sensors_missed_beside_the_honesty(capsys):
+    from bench_factorgraph_nuisances import print_honesty
+    from bench_realwalk import _row
+
+    rs = [dict(seed=0, ratios=np.array([[0.5, 0.5, 0.5], [INF, INF, INF]]),
+               factorgraph=dict(sq_xy=np.array([1.0])), gridsearch=dict(sq_xy=np.array([4.0]))),
+          dict(seed=1, ratios=np.array([[2.0, np.nan, 2.0]]),
+               factorgraph=dict(sq_xy=np.array([1.0])), gridsearch=dict(sq_xy=np.array([4.0])))]
+    print_honesty([("g", rs)])
+    out = capsys.readouterr().out
+    assert "| sensors (missed) |" in out and "| g | 2 (2) | 3 (2) | " in out
+    assert _row("r", rs).startswith("| r | 2 (2) | 3 (2) | 1.0 | 2.0 | 0.50 | ")
 
 
 def test_the_format_names_each_axis_estimate_and_interval():
@@ -147,6 +174,31 @@ def test_only_refuses_an_unknown_family():
         family_filter(["head"], ap)
 
 
+def test_only_refuses_a_value_the_zoo_never_draws_naming_those_it_does(capsys):
+    import argparse
+
+    with pytest.raises(SystemExit):
+        family_filter(["head=tpo"], argparse.ArgumentParser())
+    assert "--only head=tpo: the zoo draws head as one of per-sensor, top, dome, shift, centroid, ramp, " \
+           "saturate" in capsys.readouterr().err
+    assert family_filter(["amcl=relocalization", "head=per-sensor"], argparse.ArgumentParser()) == \
+        {"amcl": "relocalization", "head": "per-sensor"}
+
+
+def test_the_families_values_are_those_the_zoo_draws():
+    # every value named is drawn in 300 seeds (each has a chance of 1/12 or more), and no other
+    from bench_factorgraph_nuisances import ZOO_FAMILY_VALUES
+
+    from pedcal.sim import load_scenario
+    from pedcal.sim.nuisances import vary, zoo_families
+
+    base = load_scenario("paper")
+    drawn = [zoo_families(vary(base.resolve(seed=s), zoo=True)) for s in range(300)]
+    assert set(drawn[0]) == set(ZOO_FAMILY_VALUES)
+    for family, values in ZOO_FAMILY_VALUES.items():
+        assert {d[family] for d in drawn} == set(values), family
+
+
 def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss():
     from bench_xgen import honesty_table, log_ratios
 
@@ -158,21 +210,36 @@ def test_the_exams_ratios_count_a_sensor_at_its_prior_or_without_sigma_as_a_miss
     np.testing.assert_allclose(r[0], [0.5, 1.5, 0.0])
     assert np.all(np.isinf(r[1:]))
     text = honesty_table([row] * 3, "m", [("all", [row] * 3)], "t")
-    assert "| all | 3 | 9 | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
+    assert "| all | 3 | 9 (6) | 33 [33-33] / 0 [0-0] / 33 [33-33] | 0.50 [0.50-0.50] / 1.50 [1.50-1.50] / 0.00" in text
     # a method without any sigma has no table
     bare = {"method": "g", "sensors": [{**row["sensors"][0], "sigma_p": None}]}
     assert honesty_table([bare], "g", [("all", [bare])], "t") == ""
 
 
-def test_the_crowds_bench_pools_a_seeds_recordings_and_scenarios():
-    from bench_realwalk import clusters
+def test_the_exams_coverage_counts_within_k_sigma_and_a_miss_as_outside():
+    from bench_xgen import shared_shift_removed, summarize
 
+    def sensor(r, status="ok"):          # |error| / sigma = r on every axis, position and rotation
+        return {"dx": -0.01 * r, "dy": 0.02 * r, "dz": 0.01 * r, "sigma_p": [0.01, 0.02, 0.01],
+                "rot_deg": [r, -r, 0.5 * r], "sigma_rot_deg": [1.0, 1.0, 0.5], "status": status, "yaw_deg": 0.0}
+
+    row = {"method": "m", "rc": 0, "cpu_s": 1.0, "wall_s": 1.0,
+           "sensors": [sensor(0.5), sensor(1.0), sensor(1.5), sensor(2.5), sensor(0.1, "no-data"),
+                       {**sensor(0.1), "sigma_p": None, "sigma_rot_deg": None}]}
+    shared_shift_removed(row)
+    out = summarize([row], "m")
+    assert out["cov1"] == pytest.approx([100 * 2 / 6] * 3) and out["cov2"] == pytest.approx([100 * 3 / 6] * 3)
+    assert out["rot1"] == pytest.approx(100 * 2 / 6) and out["rot2"] == pytest.approx(100 * 3 / 6)
+
+
+def test_the_crowds_bench_pools_a_seeds_recordings_and_scenarios():
+    # bench_realwalk resamples by_seed's blocks: one per seed, every recording and scenario of it
     runs = [dict(recording=rec, scenario=sc, seed=seed, ratios=np.full((2, 3), seed + 0.5))
-            for rec in ("atc", "thor") for sc in ("paper", "cross") for seed in (0, 1)]
-    out = clusters(runs)
-    assert sorted(out) == [0, 1]
-    assert all(len(v) == 8 for v in out.values())
-    np.testing.assert_allclose(out[1], 1.5)
+            for rec in ("atc", "thor") for sc in ("paper", "cross") for seed in (1, 0)]
+    out = by_seed(runs)
+    assert [len(v) for v in out] == [8, 8]
+    np.testing.assert_allclose(out[0], 1.5)                 # seed 1 first: the order they come in
+    np.testing.assert_allclose(out[1], 0.5)
 
 
 def test_the_stretch_fit_recovers_a_known_stretch_and_its_sigma():
@@ -190,3 +257,65 @@ def test_the_stretch_fit_recovers_a_known_stretch_and_its_sigma():
     # shift, sigma / sqrt(sum d^2) for the stretch
     np.testing.assert_allclose(sigma, 0.01 / np.sqrt([5, 5, np.sum(d[:, 0] ** 2), np.sum(d[:, 1] ** 2)]))
     assert np.all(np.isnan(stretch_fit(E, true_xy, None, rows)[1]))
+
+
+def test_the_stretch_fits_sigma_takes_each_sensors_own_x_and_y_variance():
+    # a different variance per sensor (v) and per axis (x: v, y: 2 v, z: 50 v), the errors' rows in
+    # a shuffled order of the network: a wrong map from rows to the covariance's blocks (rows
+    # ignored, or another axis taken) gives other sigma. The columns being orthogonal and the
+    # covariance diagonal, sigma of the shifts is sqrt(sum v) / n, of the stretches
+    # sqrt(sum d^2 v) / sum d^2
+    from bench_factorgraph_nuisances import stretch_fit
+
+    true_xy = np.array([[0.0, 0.0], [4.0, 1.0], [8.0, 0.0], [12.0, 1.0], [16.0, 0.0]])
+    d = true_xy - true_xy.mean(axis=0)
+    v = np.array([1.0, 4.0, 9.0, 16.0, 25.0]) * 1e-4
+    cov = np.diag(np.repeat(v, 3) * np.tile([1.0, 2.0, 50.0], 5))
+    rows = np.array([4, 2, 0, 1, 3])
+    vx, vy = v[rows], 2 * v[rows]
+    E = np.column_stack([0.010 + 0.002 * d[:, 0], -0.020 - 0.001 * d[:, 1]])
+    coef, sigma = stretch_fit(E, true_xy, cov, rows)
+    np.testing.assert_allclose(coef, [0.010, -0.020, 0.002, -0.001], atol=1e-12)
+    dx2, dy2 = d[:, 0] ** 2, d[:, 1] ** 2
+    np.testing.assert_allclose(sigma, [np.sqrt(vx.sum()) / 5, np.sqrt(vy.sum()) / 5,
+                                       np.sqrt(np.sum(dx2 * vx)) / dx2.sum(), np.sqrt(np.sum(dy2 * vy)) / dy2.sum()],
+                               rtol=1e-12)
+
+
+def test_the_shared_and_rest_text_is_the_rms_of_each_over_the_logs_sensors():
+    from bench_factorgraph_nuisances import _z_text
+
+    rs = [dict(z_shared=np.array([3.0, 0.0]), z_rest=np.array([1.0, -1.0, 2.0])),
+          dict(z_shared=np.array([4.0, 0.0]), z_rest=np.array([0.0]))]
+    assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f}" == "2.50 / 1.22"
+    assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "-"      # no joint covariance
+
+
+@pytest.mark.parametrize("zoo", [False, True])
+def test_the_bench_simulates_the_seeds_draw_when_nothing_is_switched_off(monkeypatch, zoo):
+    # run_one's one path (switch_off of no family) simulates what simulate_logs draws itself
+    from bench_factorgraph_nuisances import run_one
+
+    import pedcal.sim
+    from pedcal.sim.nuisances import switch_off
+
+    class Simulated(Exception):
+        pass
+
+    def stop(sc):                        # the scenario simulate_logs resolved, before any simulating
+        raise Simulated(sc)
+
+    monkeypatch.setattr(pedcal.sim, "networks", stop)
+    for name, seed in (("paper", 0), ("lhall", 3)):
+        with pytest.raises(Simulated) as bench:
+            run_one(name, seed, zoo=zoo)
+        with pytest.raises(Simulated) as direct:
+            pedcal.sim.simulate_logs(name, seed=seed, vary_nuisances="zoo" if zoo else True)
+        assert bench.value.args[0] == direct.value.args[0]
+    # and with a family off, the same draw less that family
+    with pytest.raises(Simulated) as off:
+        run_one("paper", 0, zoo=zoo, off=("latency",))
+    with pytest.raises(Simulated) as direct:
+        pedcal.sim.simulate_logs("paper", seed=0, vary_nuisances="zoo" if zoo else True)
+    assert direct.value.args[0].latency_s > 0.0
+    assert off.value.args[0] == switch_off(direct.value.args[0], ("latency",))
