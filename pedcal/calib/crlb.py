@@ -84,6 +84,7 @@ from pedcal.calib.graph import (
     sensor_sigma_world,
     set_amcl_model,
 )
+from pedcal.calib.problem import amcl_period_s
 from pedcal.deprecation import renamed_fields
 from pedcal.errors import PedcalInputError
 from pedcal.model import Log
@@ -214,7 +215,7 @@ def sensor_position_crlb(log: Log, recipe: str | GraphRecipe | None = None, *,
         # a node of the error process at every estimate: the process held exactly, not through
         # each estimate's change since its node
         t_a = np.unique(log.robot["t"].to_numpy(float))
-        rec.amcl_node_spacing_s = float(np.median(np.diff(t_a))) if len(t_a) > 1 else rec.amcl_node_spacing_s
+        rec.amcl_node_spacing_s = amcl_period_s(t_a, rec.amcl_node_spacing_s)
         rec.amcl_change_per_span = False
     if is_robot is None:
         if log.truth_observations is None:

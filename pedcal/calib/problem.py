@@ -355,6 +355,12 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
             "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i))}
 
 
+def amcl_period_s(t_unique: np.ndarray, default_s: float) -> float:
+    """AMCL's period, s: the median step between its distinct stamps ``t_unique`` (sorted), or
+    ``default_s`` with fewer than two of them."""
+    return float(np.median(np.diff(t_unique))) if len(t_unique) > 1 else float(default_s)
+
+
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
                    rotations: dict[str, np.ndarray] | None = None) -> bool:
     """Build the graph with AMCL's error ``model`` from now on: the error process's nodes spaced
@@ -364,8 +370,7 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
     whether the robot's motion changed (the observations then carried again, or to be)."""
     rec = prob.recipe
     t_a = np.unique(log.robot["t"].to_numpy(float))
-    period = float(np.median(np.diff(t_a))) if len(t_a) > 1 else rec.amcl_node_spacing_s
-    dn = model.node_spacing_s(period, rec.amcl_node_spacing_s)
+    dn = model.node_spacing_s(amcl_period_s(t_a, rec.amcl_node_spacing_s), rec.amcl_node_spacing_s)
     prob.amcl_node_times = t_a[0] + dn * np.arange(int(np.round((t_a[-1] - t_a[0]) / dn)) + 1)
     prob.amcl_model = model
     if model.excluded is None or prob.odometry is not None:
@@ -383,4 +388,4 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
 
 
 
-__all__ = ["FactorGraphProblem", "prepare", "estimate_observation_noise", "set_amcl_model"]
+__all__ = ["FactorGraphProblem", "amcl_period_s", "prepare", "estimate_observation_noise", "set_amcl_model"]
