@@ -277,7 +277,8 @@ def main() -> None:
                 cells += [min(runs, key=lambda r: r[1]) for runs in compiled[m]]
             print(f"| {m} | " + " | ".join(f"{w:.3f} / {c:.3f}" for w, c in cells) + " |")
         if compiled:
-            print("(PYTHONDONTWRITEBYTECODE is set: the first columns compile every module at each start)")
+            print("(PYTHONDONTWRITEBYTECODE is set: the first columns compile at each start every module whose "
+                  "bytecode is missing or stale)")
     load1 = os.getloadavg()
     print(f"\nload average (1 min) {load0[0]:.1f} at the start, {load1[0]:.1f} at the end (2 cores)")
 
