@@ -3,19 +3,22 @@
 
 The graph carries the line (a horizontal shift toward the sensor rising with distance, held at
 0) into the sensors' covariance as S S^T times a width squared, the width the root of the
-line's posterior second moment about 0, sqrt(d^2 + v) (``considered_rms``), with the head
-point's curvature held at 0 when its selection drops it. Per log this prints the line's
+line's posterior second moment about 0, sqrt(d^2 + v), with the head point's curvature held at
+0 when its selection drops it, plus the square of the line's move between that hold and the
+curvature free (``considered_rms``). Per log this prints the line's
 estimate d with the curvature held and free (the same profile step), its sd, and v over the
 prior's variance (how much of the prior the data leave), then the sigma's honesty (within 1
 sigma, error / sigma RMS; bootstrap over seeds) with the width (``--width``):
 
-- ``data``: the graph's, sqrt(d^2 + v);
+- ``data``: the data's second moment alone, sqrt(d^2 + v) (the graph's before it carried the
+  curvature's hold, which ``spread`` adds);
 - ``prior``: the line's prior sigma (``head_profile_sigma_m``);
 - ``blend``: (1 - r) (d^2 + v) + r prior^2 under the root, r = v / prior^2 (the prior where
   the data leave it, the data's second moment where they pin the line);
 - ``free``: sqrt(d^2 + v) with the curvature free (its hold not trusted);
 - ``max``: the larger of ``data`` and ``free``;
-- ``spread``: the data's, plus the square of the line's move between the curvature held and free.
+- ``spread``: the data's, plus the square of the line's move between the curvature held and free
+  (the graph's: ``considered_rms``).
 
 The estimates do not depend on the width (it only widens the sigma), so the runs differ in
 their sigma alone. A call without a curvature in the step gives every width but ``prior`` and

@@ -26,8 +26,13 @@ def _step(seed: int, k: int = 4) -> ProfileStep:
 def test_the_moments_give_the_graphs_width(held):
     step = _step(0)
     d, v = line_moments(step, 1, held)
-    assert np.sqrt(d * d + v) == pytest.approx(considered_rms(step, 1, held=held), rel=1e-12)
+    d_free, v_free = line_moments(step, 1)
+    # the graph's width is the spread's: the data's second moment and the hold's move of the line
+    assert width_of("spread", d, v, d_free, v_free, 0.03) == pytest.approx(considered_rms(step, 1, held=held),
+                                                                          rel=1e-12)
     assert width_of("data", d, v, 0.0, 1.0, 0.03) == pytest.approx(np.sqrt(d * d + v), rel=1e-12)
+    if held:
+        assert considered_rms(step, 1, held=held) > np.sqrt(d * d + v) * (1 + 1e-6)
 
 
 def test_holding_the_curvature_moves_the_lines_estimate_and_shrinks_its_variance():

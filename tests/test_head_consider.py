@@ -94,8 +94,12 @@ def test_considered_rms_is_the_posterior_second_moment_about_the_held_value(held
     y = A @ rng.normal(size=A.shape[1]) + B @ np.array([0.3, -0.7, 1.1]) + rng.normal(size=len(A))
     step = _step_at_zero(A, B, Z, H, y)
     mu, v = _posterior(A, B, sigma, y, 1, held)
-    assert considered_rms(step, 1, held=held) == pytest.approx(np.sqrt(mu ** 2 + v), rel=1e-9)
+    # a nuisance held (the curvature): how far the hold moves the posterior mean counts too
+    mu_free = _posterior(A, B, sigma, y, 1, ())[0]
+    assert considered_rms(step, 1, held=held) == pytest.approx(np.sqrt(mu ** 2 + v + (mu - mu_free) ** 2), rel=1e-9)
     assert abs(mu) > 0.1                # (the data moved it: the distance counts, not the variance alone)
+    if held:
+        assert abs(mu - mu_free) > 0.05    # (the hold moved it: the move counts)
 
 
 def test_considered_rms_is_the_prior_sigma_where_the_data_say_nothing():

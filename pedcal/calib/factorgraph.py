@@ -389,7 +389,8 @@ class _Nuisances:
     # sensors' (and h(0)'s) sensitivity to it, chi^2)
     unmodelled: tuple | None = None
     # the shift against distance held at 0 but not known (pedcal.calib.headpoint.considered_nuisances):
-    # (how far it may be from 0 given the data, m (pedcal.calib.headpoint.considered_rms), the
+    # (how far it may be from 0 given the data and the curvature's hold, m
+    # (pedcal.calib.headpoint.considered_rms), the
     # sensors' (and h(0)'s) error per unit of it)
     considered: tuple | None = None
     # ``graph``'s COLAMD ordering (the parts', computed for the solve): the marginals' elimination order
