@@ -563,6 +563,26 @@ def test_amcls_estimates_are_read_once_per_robot_table_and_kept_read_only(noisy_
     np.testing.assert_allclose(again[1], yaw + 0.1, rtol=0, atol=1e-15)
 
 
+def test_amcls_residuals_leave_out_a_sighting_at_the_sensors_origin(noisy_solve, monkeypatch):
+    # a head point at (0, 0, 0) in the sensor's frame (a tracker's placeholder) has no ray to
+    # shift the head model along: left out of the per-sensor residuals rather than turned into
+    # a NaN the jump detector's running median would refuse
+    from pedcal.calib.factorgraph import amcl_residuals
+
+    log, _, prob, _, result = noisy_solve
+    base = amcl_residuals(log, prob, result)[2]
+    points = prob.head_points_sensor()
+    j = int(np.flatnonzero((prob.fac_key_index < len(prob.pose_times)) & (prob.fac_sensor_index == 0))[0])
+    zeroed = points.copy()
+    zeroed[j] = 0.0
+    monkeypatch.setattr(prob, "ray_shift_m", 0.02)
+    monkeypatch.setattr(type(prob), "head_points_sensor", lambda self: zeroed)
+    out = amcl_residuals(log, prob, result)[2]
+    assert all(np.isfinite(e).all() for _, e in out)
+    rows0 = base[0][0]
+    assert 0 < len(out[0][0]) <= len(rows0) and set(out[0][0]) <= set(rows0)
+
+
 def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized_at(monkeypatch):
     # build_parts reads the observation block's noise ranges at the measured points (its initial
     # values are no solution); the profile's right-hand sides (ObservationRhs) read them at the

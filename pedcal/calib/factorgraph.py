@@ -242,11 +242,14 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
     row_of_pose[k[has]] = np.flatnonzero(has)
     use = prob.fac_key_index < len(times)
     p = prob.head_points_sensor()
-    p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]        # the head top, sensor frame
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]    # the head top, sensor frame
+    # (a point at the sensor's own origin, a tracker's placeholder, has no ray to shift along: left out)
+    finite = np.isfinite(p).all(axis=1)
     per_sensor = []
     for i, m in _groups(np.where(use, prob.fac_sensor_index, len(prob.sensor_ids)), len(prob.sensor_ids)):
         rows = row_of_pose[prob.fac_key_index[m]]
-        keep = rows >= 0
+        keep = (rows >= 0) & finite[m]
         rows = rows[keep]
         if not len(rows):
             per_sensor.append((np.zeros(0, int), np.zeros((0, 2))))

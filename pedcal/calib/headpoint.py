@@ -215,7 +215,8 @@ def considered_rms(step: ProfileStep, j: int, held: tuple = ()) -> float:
         return float(-(cov @ g[free])[at]), float(cov[at, at])    # (the posterior mean's distance, variance)
 
     d, v = moments(held)
-    moved = d - moments(())[0] if held else 0.0
+    # (nothing held: the line's Newton step itself, -(H^-1 g)_j = dtheta_j)
+    moved = d - float(step.dtheta[j]) if held else 0.0
     return float(np.sqrt(d ** 2 + v + moved ** 2))
 
 
