@@ -21,8 +21,9 @@ sigma, error / sigma RMS; bootstrap over seeds) with the width (``--width``):
   (the graph's: ``considered_rms``).
 
 The estimates do not depend on the width (it only widens the sigma), so the runs differ in
-their sigma alone. A call without a curvature in the step gives every width but ``prior`` and
-``blend`` the data's.
+their sigma alone. The per-log table (its last column the width the sigma carries, mm) lists the
+logs with a considered line; the honesty figures pool every log. A call without a curvature in
+the step gives every width but ``prior`` and ``blend`` the data's.
 
     PYTHONPATH=$PWD nice -n 5 .venv/bin/python benchmarks/bench_consider_width.py --scenarios corridor cross \\
         --seeds 8 --first-seed 20 --jobs 2 --only head=centroid --width data spread
@@ -37,20 +38,10 @@ import numpy as np
 from bench_factorgraph_nuisances import family_filter, print_honesty, run_one, seeds_with
 
 import pedcal.calib.factorgraph as fgmod
+from pedcal.calib.headpoint import line_moments
 from pedcal.calib.recipe import GraphRecipe
 
 WIDTHS = ("data", "prior", "blend", "free", "max", "spread")
-
-
-def line_moments(step, j: int, held: tuple = ()) -> tuple[float, float]:
-    """(d, v): the line's posterior mean's distance from its held value and its variance, the
-    other nuisances free but ``held`` (the quantities of ``considered_rms``)."""
-    H = step.hessian
-    g = -H @ step.dtheta
-    free = np.array([i for i in range(len(H)) if i == j or i not in held], int)
-    at = int(np.flatnonzero(free == j)[0])
-    cov = np.linalg.inv(H[np.ix_(free, free)])
-    return float(-(cov @ g[free])[at]), float(cov[at, at])
 
 
 def width_of(kind: str, d: float, v: float, d_free: float, v_free: float, prior_sigma: float) -> float:

@@ -6,7 +6,7 @@ one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalization
 ``--vary-nuisances zoo``), and the figures split by family.
 
     nice -n 10 .venv/bin/python benchmarks/bench_factorgraph_nuisances.py \
-        [--scenarios paper sparse corridor cross lhall] [--seeds 20] [--first-seed 0] [--jobs 1] [--zoo]
+        [--scenarios paper sparse corridor cross] [--seeds 20] [--first-seed 0] [--jobs 1] [--zoo] [--verbose]
         [--recipe KEY=VALUE ...]     # graph recipe fields, e.g. head_shift_per_sensor_sigma_m=0
         [--only FAMILY=VALUE ...]    # with --zoo: only seeds whose zoo drew these, e.g. head=top
         [--off FAMILY ...]           # those seeds' logs with these nuisances switched off (paired)
@@ -27,8 +27,9 @@ part (which the robot cannot tell from the sensors' heights), its RMS over seeds
 seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time;
 the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <= 12 mm and
 <= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
-mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, within 1 sigma per axis, and
-the per-sensor clock offsets' error about their mean (RMS) and the share within 1 and 2 sigma.
+mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, and the per-sensor clock
+offsets' error about their mean (RMS) and the share within 1 and 2 sigma (the sigma's honesty per
+family is in the table below).
 On the L-shaped hall, each wing's mean error along x and y over its sigma (the wings share no
 view: the robot's path and AMCL join them).
 

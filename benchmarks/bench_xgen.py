@@ -4,8 +4,9 @@ The generator shares no code and no modelling choice with pedcal's simulator (se
 benchmarks/xgen/README.md); its logs test whether the estimator generalizes. This is an exam, not
 a training set: do not tune pedcal to it.
 
-    nice -n 5 .venv/bin/python benchmarks/bench_xgen.py [--seeds 4] [--first-seed 0] \
+    nice -n 5 .venv/bin/python benchmarks/bench_xgen.py [--seeds 2] [--first-seed 0] \
         [--families rooms lhall corridor openhall] [--methods factorgraph gridsearch] [--out DIR] [--jobs 1]
+        [--max-time 600]
         [--ideal head noise clocks amcl people]   # diagnosis: the same worlds without these nuisances
         [--head-profiles per-sensor|shared]       # one tracker profile per sensor (default) or per log
         [--from-results DIR]                      # the tables of an earlier run
@@ -25,9 +26,10 @@ the calibrated YAML against the generator's truth.yaml here, with its own arithm
 - installed: the installed extrinsics' xy RMS (the start); AMCL: the norm of AMCL's mean error
   over the run (mm), the error any calibration anchored to AMCL shares;
 - CPU (s): mean CPU time of one calibrate subprocess (user + sys, includes the import).
-Then per method that reports a sigma, the sigma's honesty per family, pooled and per what the
-log drew: the share within 1 sigma and the RMS of |error| / sigma (1 when honest, below 1 too
-wide), x, y, z, each with its 90 % interval from a bootstrap over the logs (seeded;
+Then per method that reports a sigma, the sigma's honesty per family, pooled, per what the
+log drew and per sensor mount and head profile: the share within 1 sigma and the RMS of
+|error| / sigma (1 when honest, below 1 too wide), x, y, z, each with its 90 % interval from a
+bootstrap over the logs (seeded;
 ``pedcal.metrics.sigma_honesty``: a log's sensors share its AMCL draw, so a share pooled over a
 few logs is uncertain however many sensors it holds); a sensor not calibrated is a miss,
 counted beside them ("sensors (missed)": outside for the share, left out of the RMS).

@@ -186,6 +186,19 @@ def leave_out(step: ProfileStep, j: int, held: tuple = ()) -> tuple[ProfileStep,
     return reduced, S
 
 
+def line_moments(step: ProfileStep, j: int, held: tuple = ()) -> tuple[float, float]:
+    """(d, v): nuisance ``j``'s posterior mean's distance from the value the ``step`` was taken
+    at and its variance, the profile's, the other nuisances free but those in ``held`` (their
+    rows and columns of the Hessian left out): with the free ones' Newton step -H^-1 g (g =
+    -H dtheta), d its j-th entry and v = (H^-1)_jj."""
+    H = step.hessian
+    g = -H @ step.dtheta
+    free = np.array([i for i in range(len(H)) if i == j or i not in held], int)
+    at = int(np.flatnonzero(free == j)[0])
+    cov = np.linalg.inv(H[np.ix_(free, free)])
+    return float(-(cov @ g[free])[at]), float(cov[at, at])
+
+
 def considered_rms(step: ProfileStep, j: int, held: tuple = ()) -> float:
     """How far nuisance ``j`` may be from its truth when held at the value the ``step`` was taken
     at, by what the data say of it: the root of its posterior's second moment about that value,
@@ -205,16 +218,7 @@ def considered_rms(step: ProfileStep, j: int, held: tuple = ()) -> float:
     centroid's head point, whose shift rises 22-31 mm over the line's distances, d held and free
     straddle the truth (held -4 to +26 mm, free -25 to +7 mm) and the data's width alone left
     the sensors' horizontal errors 1.41 times their sigma (README, "Candidate widths")."""
-    H = step.hessian
-    g = -H @ step.dtheta
-
-    def moments(hold: tuple) -> tuple[float, float]:
-        free = np.array([i for i in range(len(H)) if i == j or i not in hold], int)
-        at = int(np.flatnonzero(free == j)[0])
-        cov = np.linalg.inv(H[np.ix_(free, free)])
-        return float(-(cov @ g[free])[at]), float(cov[at, at])    # (the posterior mean's distance, variance)
-
-    d, v = moments(held)
+    d, v = line_moments(step, j, held)
     # (nothing held: the line's Newton step itself, -(H^-1 g)_j = dtheta_j)
     moved = d - float(step.dtheta[j]) if held else 0.0
     return float(np.sqrt(d ** 2 + v + moved ** 2))
