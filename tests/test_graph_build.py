@@ -570,17 +570,22 @@ def test_amcls_residuals_leave_out_a_sighting_at_the_sensors_origin(noisy_solve,
     from pedcal.calib.factorgraph import amcl_residuals
 
     log, _, prob, _, result = noisy_solve
-    base = amcl_residuals(log, prob, result)[2]
     points = prob.head_points_sensor()
     j = int(np.flatnonzero((prob.fac_key_index < len(prob.pose_times)) & (prob.fac_sensor_index == 0))[0])
+    monkeypatch.setattr(prob, "ray_shift_m", 0.02)
+    # what it should give: the same residuals with sighting j's factor unused
+    keys = prob.fac_key_index.copy()
+    keys[j] = len(prob.pose_times)
+    monkeypatch.setattr(prob, "fac_key_index", keys)
+    want = amcl_residuals(log, prob, result)[2]
+    monkeypatch.undo()
     zeroed = points.copy()
     zeroed[j] = 0.0
     monkeypatch.setattr(prob, "ray_shift_m", 0.02)
     monkeypatch.setattr(type(prob), "head_points_sensor", lambda self: zeroed)
     out = amcl_residuals(log, prob, result)[2]
-    assert all(np.isfinite(e).all() for _, e in out)
-    rows0 = base[0][0]
-    assert 0 < len(out[0][0]) <= len(rows0) and set(out[0][0]) <= set(rows0)
+    for (rows, e), (rows_want, e_want) in zip(out, want, strict=True):
+        assert np.array_equal(rows, rows_want) and np.array_equal(e, e_want)
 
 
 def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized_at(monkeypatch):

@@ -88,7 +88,7 @@ def _step_at_zero(A, B, Z, H, y):
 
 
 @pytest.mark.parametrize("held", [(), (2,)])
-def test_considered_rms_is_the_posterior_second_moment_about_the_held_value(held):
+def test_considered_rms_is_the_posterior_second_moment_about_the_held_value_plus_the_holds_move(held):
     A, B, sigma, Z, H = _linear_problem()
     rng = np.random.default_rng(2)
     y = A @ rng.normal(size=A.shape[1]) + B @ np.array([0.3, -0.7, 1.1]) + rng.normal(size=len(A))

@@ -54,6 +54,8 @@ def test_the_bootstrap_is_seeded_and_its_interval_holds_the_pooled_estimate():
     b = log_bootstrap(logs, within_sigma_share, n_boot=500, seed=7)
     np.testing.assert_array_equal(a.low, b.low)
     np.testing.assert_array_equal(a.high, b.high)
+    c = log_bootstrap(logs, within_sigma_share, n_boot=500, seed=8)     # another seed, other resamples
+    assert not np.array_equal(a.low, c.low)
     assert a.logs == 12 and a.rows == sum(len(x) for x in logs)
     np.testing.assert_allclose(a.estimate, within_sigma_share(np.concatenate(logs)))
     assert np.all(a.low <= a.estimate) and np.all(a.estimate <= a.high)
@@ -136,7 +138,7 @@ def test_a_missing_sensor_is_a_miss_in_the_benchmarks_ratios():
     net["a"].sigma_position_m = np.array([0.01, 0.02, 0.04])
     net["b"].sigma_position_m = np.array([0.01, 0.01, 0.01])
     net["b"].status = "no-data"                   # its sigma the prior's: a miss
-    ratios = sigma_ratios(net, ["a", "b"], [np.array([0.005, 0.03, 0.02]), np.array([0.0, 0.0, 0.0])], missing=1)
+    ratios = sigma_ratios(net, ["a", "b"], [np.array([-0.005, 0.03, -0.02]), np.array([0.0, 0.0, 0.0])], missing=1)
     assert ratios.shape == (3, 3)
     np.testing.assert_allclose(ratios[0], [0.5, 1.5, 0.5])
     assert np.all(np.isinf(ratios[1:]))
