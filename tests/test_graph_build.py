@@ -556,6 +556,14 @@ def test_amcls_estimates_are_read_once_per_robot_table_and_kept_read_only(noisy_
     order = np.argsort(log.robot["t"].to_numpy(float), kind="stable")
     np.testing.assert_array_equal(t, log.robot["t"].to_numpy(float)[order])
     np.testing.assert_array_equal(cov[:, 5], log.robot["cov_yawyaw"].to_numpy(float)[order])
+    # the same table under another head offset: read again, its frames moved by the offset turned
+    # by each estimate's heading
+    shifted = dataclasses.replace(log, meta=dataclasses.replace(
+        log.meta, head_offset_m=np.add(log.meta.head_offset_m, [0.1, 0.0, 0.0])))
+    other = _amcl_measurements(shifted, prob)
+    assert other is not first
+    step = other[3][5].translation() - frames[5].translation()
+    np.testing.assert_allclose(step, [0.1 * np.cos(yaw[5]), 0.1 * np.sin(yaw[5]), 0.0], rtol=0, atol=1e-12)
     # a new robot table (AMCL's jumps moved back, a copy): read again, from it
     moved = dataclasses.replace(log, robot=log.robot.assign(yaw=log.robot["yaw"] + 0.1))
     again = _amcl_measurements(moved, prob)

@@ -111,7 +111,13 @@ from pedcal.calib.motion import (  # noqa: F401
     smoothed_increment_var,
     smoothed_track,
 )
-from pedcal.calib.problem import FactorGraphProblem, estimate_observation_noise, prepare, set_amcl_model  # noqa: F401
+from pedcal.calib.problem import (  # noqa: F401
+    FactorGraphProblem,
+    amcl_period_s,
+    estimate_observation_noise,
+    prepare,
+    set_amcl_model,
+)
 from pedcal.calib.profile import steps_to_come_below
 from pedcal.calib.readback import (  # noqa: F401
     JOINT_COV_MAX_SENSORS,
@@ -568,7 +574,7 @@ def motion_block(log: Log, prob: FactorGraphProblem, *, t_max: float | None = No
         if prob.smoothed_amcl is not None:
             # the smoothed increments' errors are alike over the kernel's 2 s / dt steps, so each
             # counts that many times
-            rate = 1.0 / max(float(np.median(np.diff(np.unique(log.robot["t"].to_numpy(float))))), 1e-3)
+            rate = 1.0 / max(amcl_period_s(np.unique(log.robot["t"].to_numpy(float)), 1.0), 1e-3)
             jitter_var = (smoothed_increment_var(white, dt, rate, rec.amcl_smooth_s)
                           * np.maximum(2.0 * rec.amcl_smooth_s / dt, 1.0))
         st = np.sqrt((rec.smoothness_sigma_mps * dt) ** 2 + jitter_var) + 1e-3
