@@ -64,6 +64,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     motion_block,
     observability,
     observation_block,
+    observation_block_terms,
     observation_sigmas,
     optimize_graph,
     pose_arrays,
@@ -467,7 +468,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     if parts.blocks["observations"].size() == 0:
         # (a rebuild that left the block empty: an ordering kept from it would lack the people)
         parts.ordering = None
-    parts.blocks["observations"] = observation_block(log, prob, result)
+    parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
@@ -541,7 +542,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
                      [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
                      lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
-        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
+        # B's columns in numpy, no factors rebuilt (what the block read at ``result`` taken from it)
+        rhs = ObservationRhs(log, prob, result, terms=obs_terms)
+        obs_terms = None
         # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
         # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
@@ -669,7 +672,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                    f"{ratio[mine].max():.2f} sigma")
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
-            parts.blocks["observations"] = observation_block(log, prob, result)
+            parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
             if odo:
                 parts.blocks["motion"] = motion_block(log, prob)
         if converged:
@@ -902,10 +905,17 @@ def _record_odometry_correction(est: dict, name: str, value: float, sigma: float
     est["source"] = "calibrated against AMCL, corrected in the graph"
 
 
+def _count_held(values: gtsam.Values, char: str, n: int) -> int:
+    """How many of the symbols ``char``(0) .. ``char``(n - 1) ``values`` holds."""
+    chars, index = symbol_parts(np.asarray(values.keys(), np.uint64))
+    return int(np.count_nonzero((chars == np.uint64(ord(char))) & (index < np.uint64(max(n, 0)))))
+
+
 def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:
     """Which symbol of the solved graph is which variable (CalibrationResult.keys)."""
-    n_pose = sum(1 for k in range(len(prob.pose_times)) if result.exists(X(k)))
-    n_amcl = sum(1 for k in range(len(prob.amcl_node_times)) if result.exists(A(k)))
+    # (the values' keys read once, not one lookup per pose)
+    n_pose = _count_held(result, "x", len(prob.pose_times))
+    n_amcl = _count_held(result, "a", len(prob.amcl_node_times))
     people = [m for m in range(len(prob.people)) if result.exists(L(m))]
     return GraphKeys(sensors={sid: S(i) for i, sid in enumerate(prob.sensor_ids)},
                      robot_poses=[X(k) for k in range(n_pose)], robot_pose_times=prob.pose_times[:n_pose],

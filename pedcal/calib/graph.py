@@ -605,6 +605,14 @@ class ObservationTerms:
     noise_range_m: np.ndarray    # (n,)
     noise_scale: np.ndarray      # (n,)
     robust: bool                 # whether the factors carry the robust kernel
+    # what was read at ``values`` (the same whatever theta; :class:`ObservationRhs` reuses it):
+    # the robot observations' :class:`Regressors` and predicted points (:func:`predicted_points`,
+    # None where they were read at the measured points), the people's sightings
+    # (:func:`people_sightings`), and the values, t_max and ray shift they were read at
+    robot_regressors: Regressors | None = None
+    robot_points: tuple | None = None
+    people_regressors: tuple | None = None
+    read_at: tuple | None = None
 
     def sigmas(self, recipe: GraphRecipe) -> np.ndarray:
         """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them."""
@@ -734,6 +742,10 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     when already read at ``values``, ``people_regressors`` the people's sightings and theirs
     (:func:`people_sightings`) likewise)."""
     rec = prob.recipe
+    robot_points = None
+    # (terms given what was read elsewhere did not read it at the values themselves)
+    read_at = ((values, t_max, float(prob.ray_shift_m))
+               if predicted and not insert_values and robot_regressors is None and people_regressors is None else None)
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
     hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
@@ -759,9 +771,13 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         # whatever theta: sigmas that moved with the shifts would reward
         # shifts that shrink them (a least-squares fit is no likelihood when its weights depend on
         # the parameters), a bias along the shifts' nearly degenerate combination
-        reg = robot_regressors if robot_regressors is not None else regressors(
-            prob, values if predicted else None, prob.fac_sensor_index[use], prob.fac_key_index[use], True,
-            measured_regressors(prob, use))
+        if robot_regressors is None:
+            robot_points = (predicted_points(prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True)
+                            if predicted else None)
+            robot_regressors = regressors(prob, values if predicted else None, prob.fac_sensor_index[use],
+                                          prob.fac_key_index[use], True, measured_regressors(prob, use),
+                                          predicted=robot_points)
+        reg = robot_regressors
         p_obs = prob.fac_p_sensor[use] - hs * reg.toward_sensor - cv * reg.up_cos2
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
         # shift vs distance (pedcal.calib.headpoint)
@@ -774,8 +790,9 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         noise_r.append(reg.noise_range_m)
         noise_count.append(np.asarray(prob.fac_count[use], int))
     if rec.people:
-        seen = people_regressors if people_regressors is not None else people_sightings(
-            prob, values if predicted and not insert_values else None, t_max)
+        if people_regressors is None:
+            people_regressors = people_sightings(prob, values if predicted and not insert_values else None, t_max)
+        seen = people_regressors
         if seen is not None:
             seen_i, seen_p, seen_m, reg = seen
             noise_range = reg.noise_range_m
@@ -807,7 +824,9 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         scale = scale * np.asarray(sigma_scale[factor:factor + len(count)], float)
     return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),
                             is_pose=cat(is_pose, dtype=bool), p_sensor=cat(p_all, (0, 3)), range_m=cat(r_all),
-                            noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None)
+                            noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None,
+                            robot_regressors=robot_regressors if rec.robot else None, robot_points=robot_points,
+                            people_regressors=people_regressors if rec.people else None, read_at=read_at)
 
 
 def _motion_sigma_keys(sigma_turn: np.ndarray, sigma_translation: np.ndarray) -> np.ndarray:
@@ -943,6 +962,16 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     regressors and the noise's range are read at the points ``values`` predict (:class:`Regressors`;
     at the measured ones with ``predicted=False``: initial values, no solution yet, can predict a
     point decimetres off)."""
+    return observation_block_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
+                                   robust=robust, sigma_scale=sigma_scale, predicted=predicted)[0]
+
+
+def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
+                            t_max: float | None = None, insert_values: bool = False, theta: dict | None = None,
+                            robust: bool = True, sigma_scale: np.ndarray | None = None,
+                            predicted: bool = True) -> tuple[gtsam.NonlinearFactorGraph, ObservationTerms]:
+    """:func:`observation_block` and the :class:`ObservationTerms` it was made of (what an
+    :class:`ObservationRhs` at the same values and shifts reads again otherwise)."""
     terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
                               robust=robust, sigma_scale=sigma_scale, predicted=predicted)
     graph = gtsam.NonlinearFactorGraph()
@@ -950,7 +979,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
     n = len(terms.sensor)
     if not n:
-        return graph
+        return graph, terms
     cache = _NoiseCache.of(prob.recipe, robust=terms.robust)
     pairs, inverse = unique_rows(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]))
     models = cache.models(pairs[:, 0], pairs[:, 1])
@@ -971,7 +1000,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     for s_key, t_key, px, py, pz, r, pose, model in zip(s_keys, t_keys, x, y, z, terms.range_m.tolist(), is_pose,
                                                         model_of, strict=True):
         add((to_pose if pose else to_point)(s_key, t_key, unit3(px, py, pz), r, model))
-    return graph
+    return graph, terms
 
 
 def _unit3_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -994,21 +1023,33 @@ class ObservationRhs:
     tangent bases) are made once, each call re-measures. A bearing-range factor's error is
     GTSAM's: -Local_pred(u_meas) for the bearing (Unit3 local coordinates at the predicted
     direction: basis^T (theta / sin theta) (u_meas - cos theta u_pred)), predicted minus measured
-    range."""
+    range.
 
-    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
+    ``terms``: the block's :class:`ObservationTerms` as :func:`observation_block_terms` made them
+    at these ``values`` and ``t_max`` with the problem's present ray shift (what is read at the
+    values is taken from them, not read again; other terms raise ValueError)."""
+
+    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None,
+                 terms: ObservationTerms | None = None):
         self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
-        use = np.flatnonzero(prob.fac_key_index < len(_pose_times(prob, t_max))) if prob.recipe.robot else None
-        # the robot observations' and the people's regressors read once (they do not move with
-        # theta), from the points the values predict, which the factors' errors are taken at too
-        robot_points = None if use is None else predicted_points(prob, values, prob.fac_sensor_index[use],
-                                                                 prob.fac_key_index[use], True)
-        self.robot_regressors = None if use is None else regressors(
-            prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True, measured_regressors(prob, use),
-            predicted=robot_points)
-        self.people_regressors = people_sightings(prob, values, t_max) if prob.recipe.people else None
-        terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors,
-                                  people_regressors=self.people_regressors)
+        if terms is not None:
+            at = terms.read_at
+            if at is None or at[0] is not values or at[1] != t_max or at[2] != float(prob.ray_shift_m):
+                raise ValueError("the observation terms were not read at these values, t_max and ray shift")
+            robot_points = terms.robot_points
+            self.robot_regressors, self.people_regressors = terms.robot_regressors, terms.people_regressors
+        else:
+            use = np.flatnonzero(prob.fac_key_index < len(_pose_times(prob, t_max))) if prob.recipe.robot else None
+            # the robot observations' and the people's regressors read once (they do not move with
+            # theta), from the points the values predict, which the factors' errors are taken at too
+            robot_points = None if use is None else predicted_points(prob, values, prob.fac_sensor_index[use],
+                                                                     prob.fac_key_index[use], True)
+            self.robot_regressors = None if use is None else regressors(
+                prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True,
+                measured_regressors(prob, use), predicted=robot_points)
+            self.people_regressors = people_sightings(prob, values, t_max) if prob.recipe.people else None
+            terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors,
+                                      people_regressors=self.people_regressors)
         d = np.zeros((len(terms.sensor), 3))
         robot = np.flatnonzero(terms.is_pose)
         people = np.flatnonzero(~terms.is_pose)

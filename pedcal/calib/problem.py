@@ -25,14 +25,19 @@ from pedcal.frames import toward_sensor_horizontal
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 
-def per_row(names: np.ndarray, value_of, shape: tuple = ()) -> np.ndarray:
+def factorized(names: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(each row's code, the distinct names in order of first appearance) of ``names``, flattened:
+    hashed, not sorted (sorting 400 000 id strings took longer than the rest)."""
+    return pd.factorize(np.asarray(names).ravel(), use_na_sentinel=False)
+
+
+def per_row(names: np.ndarray, value_of, shape: tuple = (), codes: tuple | None = None) -> np.ndarray:
     """``value_of(name)`` for every row of ``names``, stacked; each distinct name's value computed
     once (hundreds of sensors over hundreds of thousands of observations). ``shape``: one value's
-    shape, for no rows."""
+    shape, for no rows; ``codes``: :func:`factorized` ``names`` when the caller has them."""
     if not len(names):
         return np.zeros((0,) + tuple(shape))
-    # (hashed, not sorted: sorting 400 000 id strings took longer than the rest)
-    inverse, uniq = pd.factorize(np.asarray(names).ravel(), use_na_sentinel=False)
+    inverse, uniq = factorized(names) if codes is None else codes
     return np.stack([np.asarray(value_of(n)) for n in uniq])[inverse]
 
 
@@ -92,6 +97,16 @@ class FactorGraphProblem:
                 + clock_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor)))    # each sensor's clock
                 + head_profile_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor))))   # shift vs distance
 
+    def obs_sensor_codes(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`factorized` ``obs_sensor``, computed once per array (carrying, merging and the
+        noise estimate each group the observations by sensor)."""
+        hit = self.__dict__.get("_obs_sensor_codes")
+        if hit is not None and hit[0] is self.obs_sensor:
+            return hit[1]
+        codes = factorized(self.obs_sensor)
+        self.__dict__["_obs_sensor_codes"] = (self.obs_sensor, codes)
+        return codes
+
     def merge_observations(self, max_sigmas: float = 4.0) -> None:
         """The graph's robot-observation factors: the observations one sensor made of the robot
         carried to one pose predict the same point, so their mean, with the noise's sigma over
@@ -101,7 +116,7 @@ class FactorGraphProblem:
         is left as single observations, for the robust kernel to judge each."""
         n = len(self.obs_key_index)
         sid_index = {sid: i for i, sid in enumerate(self.sensor_ids)}
-        sensor_i = per_row(self.obs_sensor, sid_index.get).astype(int)
+        sensor_i = per_row(self.obs_sensor, sid_index.get, codes=self.obs_sensor_codes()).astype(int)
         _, group, count = np.unique(self.obs_key_index * max(len(self.sensor_ids), 1) + sensor_i,
                                     return_inverse=True, return_counts=True)
         group = np.asarray(group).ravel()
@@ -149,7 +164,7 @@ class FactorGraphProblem:
             i = np.zeros(len(self.obs_t), int)
         self.obs_key_index = i
         disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
-        R = per_row(self.obs_sensor, rotations.get, (3, 3))
+        R = per_row(self.obs_sensor, rotations.get, (3, 3), codes=self.obs_sensor_codes())
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
         self._rotations = dict(rotations)
@@ -311,7 +326,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     obs_t = prob.obs_t_raw - prob.latency_s
     # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
     track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
-    sensor, sensor_ids = pd.factorize(prob.obs_sensor, use_na_sentinel=False)
+    sensor, sensor_ids = prob.obs_sensor_codes()
     order = np.lexsort((obs_t, track, sensor))
     s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
