@@ -134,9 +134,13 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
         raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
                                column="sensor_height_sigma_m")
-    n_jumps = 0
+    n_jumps, amcl_steps = 0, None
     if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
-        log, n_jumps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
+        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m,
+                                                      return_steps=True)
+        # (the steps of a track left as it was are the assumed AMCL model's, at the same
+        # threshold: not looked for again; a moved track's are)
+        amcl_steps, log = amcl_steps if moved is log else None, moved
         if n_jumps:
             _log(progress, f"{n_jumps} relocalization jumps in AMCL's track: their estimates moved back by the "
                            "jumps' steps")
@@ -145,7 +149,8 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
 
         return calibrate_online(log, recipe=recipe, is_robot=is_robot, progress=progress)
 
-    prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network)
+    prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network,
+                   amcl_steps=amcl_steps)
     prob.amcl_jumps_moved_back = n_jumps
     t_build = time.perf_counter()
     parts = build_parts(log, prob)

@@ -224,9 +224,11 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
 
 
 def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, progress: bool = False,
-            init_network: SensorNetwork | None = None) -> FactorGraphProblem:
+            init_network: SensorNetwork | None = None, amcl_steps: np.ndarray | None = None) -> FactorGraphProblem:
     """Association, latency, odometry calibration, initial values, the pose grid, the robot's
-    observations carried to it, and the people's shared observations."""
+    observations carried to it, and the people's shared observations. ``amcl_steps``: the
+    relocalization jumps' mask of ``log.robot`` at the recipe's threshold when the caller found
+    it (:func:`pedcal.calib.amcl_model.jumps_moved_back`), for the assumed AMCL model."""
     from pedcal.calib.association import associate_robot, estimate_latency
 
     latency = None
@@ -281,7 +283,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               motion=RobotMotion(log, odometry if odometry is not None else smooth),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
-    set_amcl_model(log, prob, assumed_model(log.robot, recipe), carry=False)
+    set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
         if noise is None:
