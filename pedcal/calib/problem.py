@@ -198,7 +198,11 @@ def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network:
 
 
 def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None) -> dict[str, gtsam.Pose3]:
+                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None
+                     ) -> dict[str, gtsam.Pose3]:
+    """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
+    ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
+    closed form reads too."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -207,7 +211,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
         from pedcal.calib import METHODS
 
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
-                                                                                latency_s=latency_s)
+                                                                                latency_s=latency_s,
+                                                                                points_sensor=points_sensor)
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
@@ -273,7 +278,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         smooth = smoothed_track(log.robot, recipe.amcl_smooth_s)
         _log(progress, f"AMCL jitter {1000 * amcl_white_sigma(log.robot):.0f} mm: short-term motion from AMCL "
                        f"smoothed over {recipe.amcl_smooth_s:.1f} s")
-    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network)
+    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network, points_sensor=p_all)
     # robot poses only when something observes them (people-only graphs hold the sensors alone)
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
