@@ -182,3 +182,33 @@ def test_the_clock_shift_kept_is_the_one_computed_again(solved):
     prob._pose_velocity_world = solved_velocity_world(prob, result)
     solved_v = clock_shift_sensor(prob, theta, use)
     assert solved_v is not first and not np.array_equal(solved_v, first)
+
+
+def _ordering(o: gtsam.Ordering) -> list:
+    return [o.at(i) for i in range(o.size())]
+
+
+def test_a_rebuild_of_the_same_structure_keeps_the_colamd_ordering(solved):
+    from pedcal.calib.graph import rebuild_parts, set_amcl_model
+
+    log, prob, result = solved
+    prob = dataclasses.replace(prob)
+    assert prob.recipe.amcl and not prob.people
+    parts = build_parts(log, prob)
+    first = parts.colamd()
+    for observations in (False, True):
+        same = rebuild_parts(log, prob, parts, result, observations=observations)
+        assert same.ordering is first and same.ordering_awaits_observations is not observations
+        if not observations:
+            same.blocks["observations"] = observation_block(log, prob, same.values)
+        # (the ordering COLAMD gives the rebuilt graph itself)
+        assert _ordering(same.graph().orderingCOLAMD()) == _ordering(first)
+    # AMCL's estimates left out as a jump: another structure, its ordering computed anew
+    excluded = np.zeros(len(log.robot), bool)
+    excluded[40:60] = True
+    set_amcl_model(log, prob, dataclasses.replace(prob.amcl_model, excluded=excluded))
+    other = rebuild_parts(log, prob, parts, result, observations=False)
+    assert other.ordering is None and not other.ordering_awaits_observations
+    # and a problem whose factors were carried again (new tables) keeps nothing either
+    prob.fac_key_index = prob.fac_key_index.copy()
+    assert rebuild_parts(log, prob, other, result).ordering is None

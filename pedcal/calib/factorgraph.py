@@ -470,9 +470,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # built before the solve (build_parts: its noise ranges read at the measured points;
     # rebuild_parts: at the solution before), while the right-hand sides (ObservationRhs) read them
     # at the points ``result`` predicts, so the first step's A and b were whitened unlike its B
-    if parts.blocks["observations"].size() == 0:
+    if parts.blocks["observations"].size() == 0 and not parts.ordering_awaits_observations:
         # (a rebuild that left the block empty: an ordering kept from it would lack the people)
         parts.ordering = None
+    parts.ordering_awaits_observations = False
     parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
