@@ -212,3 +212,28 @@ def test_a_rebuild_of_the_same_structure_keeps_the_colamd_ordering(solved):
     # and a problem whose factors were carried again (new tables) keeps nothing either
     prob.fac_key_index = prob.fac_key_index.copy()
     assert rebuild_parts(log, prob, other, result).ordering is None
+
+
+def test_group_medians_are_numpys_per_group():
+    from pedcal.calib.factorgraph import group_medians
+
+    rng = np.random.default_rng(0)
+    for trial in range(30):
+        n, m = int(rng.integers(1, 20)), int(rng.integers(0, 300))
+        index, values = rng.integers(0, n, m), rng.normal(size=(m, 3)) ** 2
+        if trial % 3 == 0 and m:
+            values[rng.integers(0, m, 2), rng.integers(0, 3, 2)] = np.nan
+        if trial % 5 == 0:
+            values = np.round(values, 1)              # ties
+        with np.errstate(invalid="ignore"):
+            med, count = group_medians(values, index, n)
+        for i in range(n):
+            rows = np.flatnonzero(index == i)
+            assert count[i] == len(rows)
+            if len(rows):
+                assert np.array_equal(med[i], np.median(values[rows], axis=0), equal_nan=True)
+            else:
+                assert np.isnan(med[i]).all()
+    # pinned: odd and even counts
+    med, count = group_medians(np.array([[3.0], [1.0], [2.0], [10.0], [4.0]]), np.array([0, 0, 0, 1, 1]), 3)
+    assert med[:, 0].tolist()[:2] == [2.0, 7.0] and np.isnan(med[2, 0]) and count.tolist() == [3, 2, 0]

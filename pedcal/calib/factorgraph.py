@@ -782,6 +782,30 @@ def _groups(index: np.ndarray, n: int):
         yield i, order[bounds[i]:bounds[i + 1]]
 
 
+def group_medians(values: np.ndarray, index: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """((n, k) each group's column medians, (n,) its row count) of ``values`` (m, k) grouped by
+    ``index`` (m,) in 0..n-1, by one sort for every group, each median what ``np.median(values[rows],
+    axis=0)`` gives to the bit (the middle value, or the two middle ones' sum over 2; NaN in a
+    column with a NaN, and for a group without rows)."""
+    values = np.asarray(values, float).reshape(len(index), -1)
+    index = np.asarray(index, np.int64)
+    count = np.bincount(index, minlength=n)[:n] if len(index) else np.zeros(n, np.int64)
+    start = np.r_[0, np.cumsum(count)[:-1]]
+    lo, hi = start + np.maximum(count - 1, 0) // 2, start + count // 2
+    out = np.full((n, values.shape[1]), np.nan)
+    has = count > 0
+    for c in range(values.shape[1]):
+        col = values[:, c]
+        v = col[np.lexsort((col, index))]          # (each group's rows in order, NaN last)
+        if not len(v):
+            continue
+        a, b = v[lo[has]], v[hi[has]]
+        out[has, c] = np.where(lo[has] == hi[has], a, (a + b) / 2.0)
+        nan = np.bincount(index, np.isnan(col), minlength=n)[:n] > 0
+        out[nan, c] = np.nan
+    return out, count
+
+
 def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> ModelMismatch:
     """Residuals against the noise model, per sensor: the robust variance ratio (median of the
     squared normalized residuals over the chi-square(1) median 0.455, averaged over the three
@@ -791,10 +815,8 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
     rec = prob.recipe
     n_pose = len(prob.pose_times)
     sensor_i = prob.fac_sensor_index[prob.fac_key_index < n_pose] if rec.robot else np.zeros(0, int)
-    ratio = {}
-    for i, rows in _groups(sensor_i, len(prob.sensor_ids)):
-        if len(rows) >= 10:
-            ratio[prob.sensor_ids[i]] = float(np.mean(np.median(z[rows] ** 2, axis=0)) / 0.4549)
+    med, count = group_medians(z ** 2, sensor_i, len(prob.sensor_ids))
+    ratio = {prob.sensor_ids[i]: float(np.mean(med[i]) / 0.4549) for i in np.flatnonzero(count >= 10).tolist()}
     bad = {sid: r for sid, r in ratio.items() if r > threshold}
     return ModelMismatch(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
                          misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
