@@ -237,3 +237,40 @@ def test_group_medians_are_numpys_per_group():
     # pinned: odd and even counts
     med, count = group_medians(np.array([[3.0], [1.0], [2.0], [10.0], [4.0]]), np.array([0, 0, 0, 1, 1]), 3)
     assert med[:, 0].tolist()[:2] == [2.0, 7.0] and np.isnan(med[2, 0]) and count.tolist() == [3, 2, 0]
+    # no rows at all (a graph without the robot): every group's NaN
+    med, count = group_medians(np.zeros((0, 3)), np.zeros(0, int), 4)
+    assert med.shape == (4, 3) and np.isnan(med).all() and count.tolist() == [0, 0, 0, 0]
+
+
+def test_amcl_residuals_per_sensor_are_each_sensors_own_means(solved):
+    # against the residuals one sensor at a time (its sightings mapped with its pose, averaged
+    # per AMCL estimate), to the bit
+    from pedcal.calib.factorgraph import S, amcl_residuals
+
+    log, prob, result = solved
+    t, res, per_sensor = amcl_residuals(log, prob, result)
+    assert len(per_sensor) == len(prob.sensor_ids) and sum(len(u) for u, _ in per_sensor) > 50
+    amcl = log.robot.sort_values("t", kind="stable")
+    head_m = np.asarray(log.meta.head_offset_m, float)
+    c, s_ = np.cos(amcl["yaw"].to_numpy(float)), np.sin(amcl["yaw"].to_numpy(float))
+    z_xy = np.column_stack([amcl["x"].to_numpy(float) + c * head_m[0] - s_ * head_m[1],
+                            amcl["y"].to_numpy(float) + s_ * head_m[0] + c * head_m[1]])
+    times = prob.pose_times
+    k = np.clip(np.searchsorted(times, t), 0, len(times) - 1)
+    has = times[k] == t
+    row_of_pose = np.full(len(times), -1)
+    row_of_pose[k[has]] = np.flatnonzero(has)
+    p = prob.head_points_sensor()
+    p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]
+    for i in range(len(prob.sensor_ids)):
+        m = np.flatnonzero((prob.fac_sensor_index == i) & (prob.fac_key_index < len(times)))
+        rows = row_of_pose[prob.fac_key_index[m]]
+        keep = rows >= 0
+        rows = rows[keep]
+        T = result.atPose3(S(i))
+        seen = (p[m][keep] @ T.rotation().matrix().T + T.translation())[:, :2]
+        u, inv = np.unique(rows, return_inverse=True)
+        d = z_xy[rows] - seen
+        mean = np.column_stack([np.bincount(inv, d[:, c], minlength=len(u)) for c in (0, 1)])
+        mean = mean / np.bincount(inv, minlength=len(u))[:, None]
+        assert np.array_equal(per_sensor[i][0], u) and np.array_equal(per_sensor[i][1], mean.reshape(-1, 2))

@@ -252,20 +252,32 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
         p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]    # the head top, sensor frame
     # (a point at the sensor's own origin, a tracker's placeholder, has no ray to shift along: left out)
     finite = np.isfinite(p).all(axis=1)
-    per_sensor = []
-    for i, m in _groups(np.where(use, prob.fac_sensor_index, len(prob.sensor_ids)), len(prob.sensor_ids)):
+    n_sensors = len(prob.sensor_ids)
+    # each sensor's sightings mapped with its own pose, then all of them averaged per (sensor,
+    # estimate) in one pass (the sums taken in the same order as one sensor at a time)
+    sensor_of, rows_of, d_of = [], [], []
+    for i, m in _groups(np.where(use, prob.fac_sensor_index, n_sensors), n_sensors):
         rows = row_of_pose[prob.fac_key_index[m]]
         keep = (rows >= 0) & finite[m]
         rows = rows[keep]
         if not len(rows):
-            per_sensor.append((np.zeros(0, int), np.zeros((0, 2))))
             continue
         T = result.atPose3(S(i))
         seen = (p[m][keep] @ T.rotation().matrix().T + T.translation())[:, :2]
-        u, inv = np.unique(rows, return_inverse=True)
-        d = z_xy[rows] - seen
+        sensor_of.append(np.full(len(rows), i, np.int64))
+        rows_of.append(rows)
+        d_of.append(z_xy[rows] - seen)
+    per_sensor = [(np.zeros(0, int), np.zeros((0, 2))) for _ in range(n_sensors)]
+    if sensor_of:
+        sensor_all, rows_all, d = np.concatenate(sensor_of), np.concatenate(rows_of), np.concatenate(d_of)
+        u, inv = np.unique(sensor_all * np.int64(len(t) + 1) + rows_all, return_inverse=True)
+        inv = np.asarray(inv).ravel()
         mean = np.column_stack([np.bincount(inv, d[:, c], minlength=len(u)) for c in (0, 1)])
-        per_sensor.append((u, mean / np.bincount(inv, minlength=len(u))[:, None]))
+        mean /= np.bincount(inv, minlength=len(u))[:, None]
+        owner, row = np.divmod(u, np.int64(len(t) + 1))
+        cuts = np.searchsorted(owner, np.arange(n_sensors + 1))
+        for i in np.flatnonzero(np.diff(cuts)).tolist():
+            per_sensor[i] = (row[cuts[i]:cuts[i + 1]], mean[cuts[i]:cuts[i + 1]])
     return t, res, per_sensor
 
 
@@ -787,7 +799,8 @@ def group_medians(values: np.ndarray, index: np.ndarray, n: int) -> tuple[np.nda
     ``index`` (m,) in 0..n-1, by one sort for every group, each median what ``np.median(values[rows],
     axis=0)`` gives to the bit (the middle value, or the two middle ones' sum over 2; NaN in a
     column with a NaN, and for a group without rows)."""
-    values = np.asarray(values, float).reshape(len(index), -1)
+    values = np.asarray(values, float)
+    values = values[:, None] if values.ndim == 1 else values
     index = np.asarray(index, np.int64)
     count = np.bincount(index, minlength=n)[:n] if len(index) else np.zeros(n, np.int64)
     start = np.r_[0, np.cumsum(count)[:-1]]

@@ -655,10 +655,14 @@ class ObservationTerms:
     people_regressors: tuple | None = None
     read_at: tuple | None = None
 
-    def sigmas(self, recipe: GraphRecipe) -> np.ndarray:
-        """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them."""
-        rounded = _NoiseCache.keys(self.noise_range_m) * _NoiseCache.STEP_M
-        return observation_sigmas(recipe, rounded) * self.noise_scale[:, None]
+    def sigmas(self, recipe: GraphRecipe, unscaled: np.ndarray | None = None) -> np.ndarray:
+        """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them;
+        ``unscaled``: :meth:`unscaled_sigmas` when the caller has them (the same ranges)."""
+        return (self.unscaled_sigmas(recipe) if unscaled is None else unscaled) * self.noise_scale[:, None]
+
+    def unscaled_sigmas(self, recipe: GraphRecipe) -> np.ndarray:
+        """(n, 3) the recipe's sigmas at each factor's rounded noise range, before its scale."""
+        return observation_sigmas(recipe, _NoiseCache.keys(self.noise_range_m) * _NoiseCache.STEP_M)
 
 
 @dataclass
@@ -1106,6 +1110,8 @@ class ObservationRhs:
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
         self.basis = _unit3_basis(self.u_pred)
         self.sensor, self.is_pose = terms.sensor, terms.is_pose
+        # (the noise's ranges do not move with theta: the sigmas before their scales taken once)
+        self._unscaled_sigmas = terms.unscaled_sigmas(prob.recipe)
         self.first = int(terms.prior is not None)        # the prior leads the block
         # the robot observations grouped by sensor once (each per-sensor nuisance asks for its own)
         robot = np.flatnonzero(self.is_pose)
@@ -1144,7 +1150,7 @@ class ObservationRhs:
             v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
             err = np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
                                    self.range_pred - terms.range_m])
-            rows.append((-err / terms.sigmas(self.prob.recipe)).ravel())
+            rows.append((-err / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())
         return np.concatenate(rows) if rows else np.zeros(0)
 
 
