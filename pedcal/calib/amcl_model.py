@@ -137,18 +137,22 @@ def reported_sigma_m(amcl) -> float:
     return max(float(np.sqrt(np.median(0.5 * (cov[:, 0] + cov[:, 1])))), 1e-3)
 
 
-def assumed_model(amcl, recipe) -> AmclErrorModel:
+def assumed_model(amcl, recipe, steps: np.ndarray | None = None) -> AmclErrorModel:
     """The model before any solve: the recipe's share of the reported covariance plus what AMCL's
     own jitter shows beyond it as the white error, the reported std as the wandering one with the
     recipe's correlation time; the relocalization jumps that AMCL's track shows as steps out and
     back (:func:`detect_steps`, at the recipe's ``amcl_jump_threshold`` and ``amcl_min_jump_m``)
-    left out, wherever the robot was."""
+    left out, wherever the robot was. ``steps``: that mask (over ``amcl`` sorted by time, stable)
+    when the caller has it (:func:`jumps_moved_back` with ``return_steps``, on this track)."""
     sig = reported_sigma_m(amcl)
     excess = max(amcl_white_sigma(amcl) ** 2 - recipe.amcl_white_fraction ** 2 * sig ** 2, 0.0)
     ordered = amcl.sort_values("t", kind="stable")
     t = ordered["t"].to_numpy(float)
-    steps = detect_steps(t, ordered[["x", "y"]].to_numpy(float), threshold=recipe.amcl_jump_threshold,
-                         min_jump_m=recipe.amcl_min_jump_m)
+    if steps is None:
+        steps = detect_steps(t, ordered[["x", "y"]].to_numpy(float), threshold=recipe.amcl_jump_threshold,
+                             min_jump_m=recipe.amcl_min_jump_m)
+    elif len(steps) != len(t):
+        raise ValueError(f"{len(steps)} step flags for {len(t)} AMCL estimates")
     return AmclErrorModel(white_sigma_m=float(np.sqrt(excess)), correlated_sigma_m=sig,
                           correlation_s=recipe.amcl_correlation_s, reported_white_fraction=recipe.amcl_white_fraction,
                           **_exclusion(steps, steps, t))
@@ -427,29 +431,33 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     return result()
 
 
-def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1):
+def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, return_steps: bool = False):
     """(``log`` with AMCL's estimates inside the relocalization jumps its own track shows moved
     back by the jumps' steps (:func:`detect_steps` with ``offsets``), the number of jumps): the
     track as it would have been without them, within the steps' own error (AMCL's wander over
     the steps' +-1 s windows and its jitter: 1-3 cm on 0.3-0.4 m jumps in a 5 cm wander,
     tests/test_amcl_model.py). Jumps whose steps pair in doubt are not moved (the error model
     leaves them out as before); AMCL's heading is not moved (the steps are measured in position).
-    ``log`` itself when the track shows none."""
+    ``log`` itself when the track shows none. ``return_steps``: also :func:`detect_steps`' mask of
+    the track as given (sorted by time, stable), every jump's, moved or not (what
+    :func:`assumed_model` takes of an unmoved track)."""
     robot = log.robot
     order = np.argsort(robot["t"].to_numpy(float), kind="stable")
     xy = robot[["x", "y"]].to_numpy(float)[order]
     jump, offset = detect_steps(robot["t"].to_numpy(float)[order], xy, threshold=threshold, min_jump_m=min_jump_m,
                                 offsets=True)
+    steps = jump.copy()
     jump &= np.any(offset != 0.0, axis=1)       # (a jump whose steps pair in doubt is not moved)
     if not jump.any():
-        return log, 0
+        return (log, 0, steps) if return_steps else (log, 0)
     moved = xy - offset
     out = copy.copy(log)
     out.robot = robot.copy()
     rows = order[jump]
     out.robot.iloc[rows, out.robot.columns.get_loc("x")] = moved[jump, 0]
     out.robot.iloc[rows, out.robot.columns.get_loc("y")] = moved[jump, 1]
-    return out, _exclusion(jump, jump, robot["t"].to_numpy(float)[order])["jumps"]
+    n = _exclusion(jump, jump, robot["t"].to_numpy(float)[order])["jumps"]
+    return (out, n, steps) if return_steps else (out, n)
 
 
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,

@@ -137,6 +137,17 @@ def _sensor_rotations(prob) -> np.ndarray:
     return R
 
 
+def clock_offsets(prob, theta: dict) -> np.ndarray:
+    """(n_sensors,) each sensor's clock offset (s), ``theta``'s by name where it has one, else the
+    problem's (0 where it has none): read from the problem's own attributes in one pass, the
+    profile asks at every evaluation of the observation block."""
+    own = vars(prob)
+    names = [PREFIX + sid for sid in prob.sensor_ids]
+    if theta:
+        return np.array([theta.get(n, own.get(n, 0.0)) for n in names], float).reshape(len(names))
+    return np.array([own.get(n, 0.0) for n in names], float).reshape(len(names))
+
+
 def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
     """What the sensors' clock offsets add to the robot-observation factors ``use`` (sensor
     frame, m): the head's motion over the offset, R_i^T (h(t) - h(t - delta_i)), t the factor's
@@ -146,19 +157,24 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
     of a second on a turn, which the offsets of the sensors that see the turns absorb: a bias
     of several of their sigma). ``theta`` overrides the problem's offsets by name. 0 when no
     offset is estimated."""
-    offsets = np.zeros(len(prob.sensor_ids))
-    any_set = False
-    for i, sid in enumerate(prob.sensor_ids):
-        name = PREFIX + sid
-        value = theta.get(name, getattr(prob, name, 0.0))
-        if value:
-            offsets[i] = value
-            any_set = True
-    if not any_set:
+    offsets = clock_offsets(prob, theta)
+    if not np.any(offsets != 0.0):     # (a NaN counts as set)
         return 0.0
+    # (the last answer kept: a profile's finite differences move its other nuisances, and ask again
+    # with the same offsets, factors and velocities)
+    use = np.asarray(use)
+    inputs = (prob.fac_sensor_index, prob.fac_key_index, prob.pose_times, prob.motion,
+              getattr(prob, "_pose_velocity_world", None))
+    hit = prob.__dict__.get("_clock_shift_last")
+    if (hit is not None and all(a is b for a, b in zip(hit[0], inputs, strict=True))
+            and np.array_equal(hit[1], offsets) and np.array_equal(hit[2], use)):
+        return hit[3]
     delta = offsets[prob.fac_sensor_index[use]]
     v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[use]] - 0.5 * delta)
-    return delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[use], v_world)
+    shift = delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[use], v_world)
+    shift.setflags(write=False)       # (handed out again: no caller may write into it)
+    prob.__dict__["_clock_shift_last"] = (inputs, offsets, use.copy(), shift)
+    return shift
 
 
 def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters: np.ndarray,
@@ -392,6 +408,6 @@ def record_clocks(network, prob, shifts) -> None:
     network.extra[SIGMA_CLOCK_OFFSET_KEY] = {sid: round(float(s), 4) for sid, s in zip(ids, sigma, strict=True)}
 
 
-__all__ = ["clock_nuisances", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
+__all__ = ["clock_nuisances", "clock_offsets", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
            "offset_overdispersion", "efficient_weights", "block_scores", "widened_covariance",
            "widen_for_overdispersion", "row_blocks"]

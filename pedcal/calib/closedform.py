@@ -77,13 +77,14 @@ def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarra
 
 def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, latency_s: float | None = None,
                          min_pairs: int = MIN_PAIRS, collinear_spread_m: float = COLLINEAR_SPREAD_M,
-                         **association_params) -> CalibrationResult:
+                         points_sensor: np.ndarray | None = None, **association_params) -> CalibrationResult:
     """Per-sensor Horn/Umeyama fit of the robot's observations to the AMCL head positions.
 
     ``is_robot``: bool mask over log.observations rows; None finds the robot with
     :func:`pedcal.calib.association.associate_robot` (``association_params`` go to it).
     ``latency_s``: tracker latency (observation stamp minus the robot's time); None takes the
-    association's estimate, or estimates it from the given ``is_robot``."""
+    association's estimate, or estimates it from the given ``is_robot``. ``points_sensor``:
+    ``log.observation_points_sensor()`` when the caller has it."""
     with Timer() as timer:
         diagnostics = ClosedFormDiagnostics()
         if is_robot is None:
@@ -107,7 +108,9 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         diagnostics.tracker_latency_s = float(latency_s)
 
         sensor_col = log.observations["sensor"].astype(str).to_numpy()
-        p_sensor_all = log.observation_points_sensor()
+        p_sensor_all = log.observation_points_sensor() if points_sensor is None else np.asarray(points_sensor, float)
+        if p_sensor_all.shape != (len(log.observations), 3):
+            raise ValueError(f"points_sensor must be (n_observations, 3), got {p_sensor_all.shape}")
         t_all = log.observations["t"].to_numpy(float)
         # robot observations past either end of robot.csv have no AMCL position to pair with
         robot_t = log.robot["t"].to_numpy(float)

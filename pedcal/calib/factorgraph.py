@@ -64,6 +64,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     motion_block,
     observability,
     observation_block,
+    observation_block_terms,
     observation_sigmas,
     optimize_graph,
     pose_arrays,
@@ -133,9 +134,13 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     if recipe.ceiling_height_m > 0.0 and recipe.sensor_height_sigma_m <= 0.0:
         raise PedcalInputError("a ceiling height needs its sigma (sensor_height_sigma_m > 0)",
                                column="sensor_height_sigma_m")
-    n_jumps = 0
+    n_jumps, amcl_steps = 0, None
     if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
-        log, n_jumps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
+        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m,
+                                                      return_steps=True)
+        # (the steps of a track left as it was are the assumed AMCL model's, at the same
+        # threshold: not looked for again; a moved track's are)
+        amcl_steps, log = amcl_steps if moved is log else None, moved
         if n_jumps:
             _log(progress, f"{n_jumps} relocalization jumps in AMCL's track: their estimates moved back by the "
                            "jumps' steps")
@@ -144,7 +149,8 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
 
         return calibrate_online(log, recipe=recipe, is_robot=is_robot, progress=progress)
 
-    prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network)
+    prob = prepare(log, recipe, is_robot=is_robot, progress=progress, init_network=init_network,
+                   amcl_steps=amcl_steps)
     prob.amcl_jumps_moved_back = n_jumps
     t_build = time.perf_counter()
     parts = build_parts(log, prob)
@@ -246,20 +252,32 @@ def amcl_residuals(log: Log, prob: FactorGraphProblem, result: gtsam.Values) -> 
         p = p * (1.0 + prob.ray_shift_m / np.linalg.norm(p, axis=1))[:, None]    # the head top, sensor frame
     # (a point at the sensor's own origin, a tracker's placeholder, has no ray to shift along: left out)
     finite = np.isfinite(p).all(axis=1)
-    per_sensor = []
-    for i, m in _groups(np.where(use, prob.fac_sensor_index, len(prob.sensor_ids)), len(prob.sensor_ids)):
+    n_sensors = len(prob.sensor_ids)
+    # each sensor's sightings mapped with its own pose, then all of them averaged per (sensor,
+    # estimate) in one pass (the sums taken in the same order as one sensor at a time)
+    sensor_of, rows_of, d_of = [], [], []
+    for i, m in _groups(np.where(use, prob.fac_sensor_index, n_sensors), n_sensors):
         rows = row_of_pose[prob.fac_key_index[m]]
         keep = (rows >= 0) & finite[m]
         rows = rows[keep]
         if not len(rows):
-            per_sensor.append((np.zeros(0, int), np.zeros((0, 2))))
             continue
         T = result.atPose3(S(i))
         seen = (p[m][keep] @ T.rotation().matrix().T + T.translation())[:, :2]
-        u, inv = np.unique(rows, return_inverse=True)
-        d = z_xy[rows] - seen
+        sensor_of.append(np.full(len(rows), i, np.int64))
+        rows_of.append(rows)
+        d_of.append(z_xy[rows] - seen)
+    per_sensor = [(np.zeros(0, int), np.zeros((0, 2))) for _ in range(n_sensors)]
+    if sensor_of:
+        sensor_all, rows_all, d = np.concatenate(sensor_of), np.concatenate(rows_of), np.concatenate(d_of)
+        u, inv = np.unique(sensor_all * np.int64(len(t) + 1) + rows_all, return_inverse=True)
+        inv = np.asarray(inv).ravel()
         mean = np.column_stack([np.bincount(inv, d[:, c], minlength=len(u)) for c in (0, 1)])
-        per_sensor.append((u, mean / np.bincount(inv, minlength=len(u))[:, None]))
+        mean /= np.bincount(inv, minlength=len(u))[:, None]
+        owner, row = np.divmod(u, np.int64(len(t) + 1))
+        cuts = np.searchsorted(owner, np.arange(n_sensors + 1))
+        for i in np.flatnonzero(np.diff(cuts)).tolist():
+            per_sensor[i] = (row[cuts[i]:cuts[i + 1]], mean[cuts[i]:cuts[i + 1]])
     return t, res, per_sensor
 
 
@@ -464,10 +482,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # built before the solve (build_parts: its noise ranges read at the measured points;
     # rebuild_parts: at the solution before), while the right-hand sides (ObservationRhs) read them
     # at the points ``result`` predicts, so the first step's A and b were whitened unlike its B
-    if parts.blocks["observations"].size() == 0:
+    if parts.blocks["observations"].size() == 0 and not parts.ordering_awaits_observations:
         # (a rebuild that left the block empty: an ordering kept from it would lack the people)
         parts.ordering = None
-    parts.blocks["observations"] = observation_block(log, prob, result)
+    parts.ordering_awaits_observations = False
+    parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
@@ -541,7 +560,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
                      [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
                      lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
-        rhs = ObservationRhs(log, prob, result)        # B's columns in numpy, no factors rebuilt
+        # B's columns in numpy, no factors rebuilt (what the block read at ``result`` taken from it)
+        rhs = ObservationRhs(log, prob, result, terms=obs_terms)
+        obs_terms = None
         # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
         # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
@@ -669,7 +690,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                    f"{ratio[mine].max():.2f} sigma")
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
-            parts.blocks["observations"] = observation_block(log, prob, result)
+            parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
             if odo:
                 parts.blocks["motion"] = motion_block(log, prob)
         if converged:
@@ -773,6 +794,31 @@ def _groups(index: np.ndarray, n: int):
         yield i, order[bounds[i]:bounds[i + 1]]
 
 
+def group_medians(values: np.ndarray, index: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """((n, k) each group's column medians, (n,) its row count) of ``values`` (m, k) grouped by
+    ``index`` (m,) in 0..n-1, by one sort for every group, each median what ``np.median(values[rows],
+    axis=0)`` gives to the bit (the middle value, or the two middle ones' sum over 2; NaN in a
+    column with a NaN, and for a group without rows)."""
+    values = np.asarray(values, float)
+    values = values[:, None] if values.ndim == 1 else values
+    index = np.asarray(index, np.int64)
+    count = np.bincount(index, minlength=n)[:n] if len(index) else np.zeros(n, np.int64)
+    start = np.r_[0, np.cumsum(count)[:-1]]
+    lo, hi = start + np.maximum(count - 1, 0) // 2, start + count // 2
+    out = np.full((n, values.shape[1]), np.nan)
+    has = count > 0
+    for c in range(values.shape[1]):
+        col = values[:, c]
+        v = col[np.lexsort((col, index))]          # (each group's rows in order, NaN last)
+        if not len(v):
+            continue
+        a, b = v[lo[has]], v[hi[has]]
+        out[has, c] = np.where(lo[has] == hi[has], a, (a + b) / 2.0)
+        nan = np.bincount(index, np.isnan(col), minlength=n)[:n] > 0
+        out[nan, c] = np.nan
+    return out, count
+
+
 def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float = 1.5) -> ModelMismatch:
     """Residuals against the noise model, per sensor: the robust variance ratio (median of the
     squared normalized residuals over the chi-square(1) median 0.455, averaged over the three
@@ -782,10 +828,8 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
     rec = prob.recipe
     n_pose = len(prob.pose_times)
     sensor_i = prob.fac_sensor_index[prob.fac_key_index < n_pose] if rec.robot else np.zeros(0, int)
-    ratio = {}
-    for i, rows in _groups(sensor_i, len(prob.sensor_ids)):
-        if len(rows) >= 10:
-            ratio[prob.sensor_ids[i]] = float(np.mean(np.median(z[rows] ** 2, axis=0)) / 0.4549)
+    med, count = group_medians(z ** 2, sensor_i, len(prob.sensor_ids))
+    ratio = {prob.sensor_ids[i]: float(np.mean(med[i]) / 0.4549) for i in np.flatnonzero(count >= 10).tolist()}
     bad = {sid: r for sid, r in ratio.items() if r > threshold}
     return ModelMismatch(variance_ratio=ratio, threshold=threshold, sensors=sorted(bad),
                          misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
@@ -902,10 +946,17 @@ def _record_odometry_correction(est: dict, name: str, value: float, sigma: float
     est["source"] = "calibrated against AMCL, corrected in the graph"
 
 
+def _count_held(values: gtsam.Values, char: str, n: int) -> int:
+    """How many of the symbols ``char``(0) .. ``char``(n - 1) ``values`` holds."""
+    chars, index = symbol_parts(np.asarray(values.keys(), np.uint64))
+    return int(np.count_nonzero((chars == np.uint64(ord(char))) & (index < np.uint64(max(n, 0)))))
+
+
 def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:
     """Which symbol of the solved graph is which variable (CalibrationResult.keys)."""
-    n_pose = sum(1 for k in range(len(prob.pose_times)) if result.exists(X(k)))
-    n_amcl = sum(1 for k in range(len(prob.amcl_node_times)) if result.exists(A(k)))
+    # (the values' keys read once, not one lookup per pose)
+    n_pose = _count_held(result, "x", len(prob.pose_times))
+    n_amcl = _count_held(result, "a", len(prob.amcl_node_times))
     people = [m for m in range(len(prob.people)) if result.exists(L(m))]
     return GraphKeys(sensors={sid: S(i) for i, sid in enumerate(prob.sensor_ids)},
                      robot_poses=[X(k) for k in range(n_pose)], robot_pose_times=prob.pose_times[:n_pose],

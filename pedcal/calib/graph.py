@@ -259,6 +259,12 @@ class GraphParts:
     # the whole graph's COLAMD ordering (``graph().orderingCOLAMD()``), once computed: the
     # solver's elimination order, and the profile's fill-reducing order of the same structure
     ordering: gtsam.Ordering | None = None
+    # what the graph's structure (its factors' keys, in order) was made from (:func:`_structure`):
+    # a rebuild of the same structure keeps the ordering
+    structure: tuple | None = None
+    # the ordering was kept by a rebuild that left the observation block for the caller to build
+    # (of the structure it had): it holds for the graph once the block is back
+    ordering_awaits_observations: bool = False
 
     def colamd(self) -> gtsam.Ordering:
         """The whole graph's COLAMD ordering, computed on the first call and kept (the blocks
@@ -327,13 +333,40 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
         insert(key, P)
         if not rec.amcl:
             blocks["amcl"].add(gtsam.PriorFactorPose3(key, P, planar))
-    if rec.amcl and n_pose:
-        _amcl_block(blocks["amcl"], values, log, prob, times)
+    amcl = _amcl_block(blocks["amcl"], values, log, prob, times) if rec.amcl and n_pose else None
     if n_pose > 1:
         blocks["motion"] = motion_block(log, prob, t_max=t_max)
     # (the regressors read at the measured points: the initial values are no solution)
     blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True, predicted=False)
-    return GraphParts(blocks=blocks, values=values, motion_inputs=_motion_inputs(prob, t_max))
+    return GraphParts(blocks=blocks, values=values, motion_inputs=_motion_inputs(prob, t_max),
+                      structure=_structure(prob, t_max, amcl))
+
+
+def _structure(prob: FactorGraphProblem, t_max: float | None, amcl: tuple | None) -> tuple | None:
+    """What the whole graph's structure is made from: the AMCL block's (:func:`_amcl_block`), the
+    problem's robot-observation factors and recipe (as objects: they are replaced, never changed
+    in place), the poses' count, ``t_max`` and whether the motion is odometry's; None (nothing kept) with shared people, whose
+    sightings a rebuild may leave out."""
+    if prob.people:
+        return None
+    return (amcl, prob.recipe, prob.fac_sensor_index, prob.fac_key_index, len(_pose_times(prob, t_max)), t_max,
+            prob.odometry is None)
+
+
+def _same_structure(a: tuple | None, b: tuple | None) -> bool:
+    """Whether two :func:`_structure` answers are the same: the AMCL block's by value, the
+    problem's tables and recipe by identity."""
+    if a is None or b is None or len(a) != len(b):
+        return False
+    (amcl_a, *rest_a), (amcl_b, *rest_b) = a, b
+    if (amcl_a is None) != (amcl_b is None):
+        return False
+    if amcl_a is not None and not (len(amcl_a) == len(amcl_b) and all(
+            np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y
+            for x, y in zip(amcl_a, amcl_b, strict=True))):
+        return False
+    return all(x is y if isinstance(x, (np.ndarray, GraphRecipe)) else x == y
+               for x, y in zip(rest_a, rest_b, strict=True))
 
 
 def _motion_inputs(prob: FactorGraphProblem, t_max: float | None) -> tuple:
@@ -378,8 +411,9 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
     values = _kept_values(result, {"s": len(prob.sensor_ids), "x": n_pose}
                           | ({} if observations else {"l": len(prob.people)}))
     blocks = {"sensors": parts.blocks["sensors"], "amcl": gtsam.NonlinearFactorGraph()}
+    amcl = None
     if n_pose:
-        _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
+        amcl = _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
         if values.exists(H(0)) and result.exists(H(0)):
             values.update(H(0), result.atPose3(H(0)))
     inputs = _motion_inputs(prob, None)
@@ -388,15 +422,19 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
                             else motion_block(log, prob))
     else:
         blocks["motion"] = gtsam.NonlinearFactorGraph()
+    # (the same structure as the graph rebuilt: its COLAMD ordering kept, 0.07 s at 1000 sensors)
+    structure = _structure(prob, None, amcl)
+    kept = parts.ordering if _same_structure(parts.structure, structure) else None
     if not observations:
         # (the block the caller builds next would replace this one: 0.14 s at 1000 sensors)
         blocks["observations"] = gtsam.NonlinearFactorGraph()
-        return GraphParts(blocks=blocks, values=values, motion_inputs=inputs)
+        return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept,
+                          ordering_awaits_observations=kept is not None)
     blocks["observations"] = observation_block(log, prob, values, insert_values=True)
     for m in range(len(prob.people)):
         if values.exists(L(m)) and result.exists(L(m)):
             values.update(L(m), result.atPoint3(L(m)))
-    return GraphParts(blocks=blocks, values=values, motion_inputs=inputs)
+    return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept)
 
 
 def _kept_values(values: gtsam.Values, kept: dict[str, int]) -> gtsam.Values:
@@ -465,12 +503,14 @@ def _amcl_measurements(log: Log, prob: FactorGraphProblem) -> tuple:
     return read
 
 
-def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray) -> None:
+def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray) -> tuple:
     """AMCL as a measurement with a Gauss-Markov error (module docstring), under the problem's
     AMCL error model (:class:`pedcal.calib.amcl_model.AmclErrorModel`): each estimate tied to the
     nearest node of the error process with its white error and the process's change since the
     node; the process itself as the exact discretization of an Ornstein-Uhlenbeck process on the
-    nodes; estimates the model marks as jumps left out."""
+    nodes; estimates the model marks as jumps left out. Returns what the block's structure is
+    made from: (each estimate's pose index, its node, the nodes' count, whether the nodes are
+    chained, whether they are tied to h(0))."""
     rec = prob.recipe
     model = prob.amcl_model
     amcl_t, yaw_all, cov, frames = _amcl_measurements(log, prob)
@@ -540,6 +580,7 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
             add(between(node_keys[m - 1], key, identity, q))
         if free_z:
             add(between(h_key, key, identity, tie))
+    return k_of[use], node_of, n_nodes, a > 1e-9, free_z
 
 
 ODOMETRY_NUISANCES = ("odometry_scale_correction", "odometry_drift_rad_per_m", "odometry_drift_rad_per_s")
@@ -611,11 +652,23 @@ class ObservationTerms:
     noise_range_m: np.ndarray    # (n,)
     noise_scale: np.ndarray      # (n,)
     robust: bool                 # whether the factors carry the robust kernel
+    # what was read at ``values`` (the same whatever theta; :class:`ObservationRhs` reuses it):
+    # the robot observations' :class:`Regressors` and predicted points (:func:`predicted_points`,
+    # None where they were read at the measured points), the people's sightings
+    # (:func:`people_sightings`), and the values, t_max and ray shift they were read at
+    robot_regressors: Regressors | None = None
+    robot_points: tuple | None = None
+    people_regressors: tuple | None = None
+    read_at: tuple | None = None
 
-    def sigmas(self, recipe: GraphRecipe) -> np.ndarray:
-        """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them."""
-        rounded = _NoiseCache.keys(self.noise_range_m) * _NoiseCache.STEP_M
-        return observation_sigmas(recipe, rounded) * self.noise_scale[:, None]
+    def sigmas(self, recipe: GraphRecipe, unscaled: np.ndarray | None = None) -> np.ndarray:
+        """(n, 3) each factor's sigmas, as its (cached, range-rounded) GTSAM noise model has them;
+        ``unscaled``: :meth:`unscaled_sigmas` when the caller has them (the same ranges)."""
+        return (self.unscaled_sigmas(recipe) if unscaled is None else unscaled) * self.noise_scale[:, None]
+
+    def unscaled_sigmas(self, recipe: GraphRecipe) -> np.ndarray:
+        """(n, 3) the recipe's sigmas at each factor's rounded noise range, before its scale."""
+        return observation_sigmas(recipe, _NoiseCache.keys(self.noise_range_m) * _NoiseCache.STEP_M)
 
 
 @dataclass
@@ -740,6 +793,10 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     when already read at ``values``, ``people_regressors`` the people's sightings and theirs
     (:func:`people_sightings`) likewise)."""
     rec = prob.recipe
+    robot_points = None
+    # (terms given what was read elsewhere did not read it at the values themselves)
+    read_at = ((values, t_max, float(prob.ray_shift_m))
+               if predicted and not insert_values and robot_regressors is None and people_regressors is None else None)
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
     hs = float(theta.get("horizontal_shift_m", prob.horizontal_shift_m))
@@ -765,9 +822,13 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         # whatever theta: sigmas that moved with the shifts would reward
         # shifts that shrink them (a least-squares fit is no likelihood when its weights depend on
         # the parameters), a bias along the shifts' nearly degenerate combination
-        reg = robot_regressors if robot_regressors is not None else regressors(
-            prob, values if predicted else None, prob.fac_sensor_index[use], prob.fac_key_index[use], True,
-            measured_regressors(prob, use))
+        if robot_regressors is None:
+            robot_points = (predicted_points(prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True)
+                            if predicted else None)
+            robot_regressors = regressors(prob, values if predicted else None, prob.fac_sensor_index[use],
+                                          prob.fac_key_index[use], True, measured_regressors(prob, use),
+                                          predicted=robot_points)
+        reg = robot_regressors
         p_obs = prob.fac_p_sensor[use] - hs * reg.toward_sensor - cv * reg.up_cos2
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
         # shift vs distance (pedcal.calib.headpoint)
@@ -780,8 +841,9 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         noise_r.append(reg.noise_range_m)
         noise_count.append(np.asarray(prob.fac_count[use], int))
     if rec.people:
-        seen = people_regressors if people_regressors is not None else people_sightings(
-            prob, values if predicted and not insert_values else None, t_max)
+        if people_regressors is None:
+            people_regressors = people_sightings(prob, values if predicted and not insert_values else None, t_max)
+        seen = people_regressors
         if seen is not None:
             seen_i, seen_p, seen_m, reg = seen
             noise_range = reg.noise_range_m
@@ -813,7 +875,9 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         scale = scale * np.asarray(sigma_scale[factor:factor + len(count)], float)
     return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),
                             is_pose=cat(is_pose, dtype=bool), p_sensor=cat(p_all, (0, 3)), range_m=cat(r_all),
-                            noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None)
+                            noise_range_m=cat(noise_r), noise_scale=scale, robust=robust and sigma_scale is None,
+                            robot_regressors=robot_regressors if rec.robot else None, robot_points=robot_points,
+                            people_regressors=people_regressors if rec.people else None, read_at=read_at)
 
 
 def _motion_sigma_keys(sigma_turn: np.ndarray, sigma_translation: np.ndarray) -> np.ndarray:
@@ -949,6 +1013,16 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     regressors and the noise's range are read at the points ``values`` predict (:class:`Regressors`;
     at the measured ones with ``predicted=False``: initial values, no solution yet, can predict a
     point decimetres off)."""
+    return observation_block_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
+                                   robust=robust, sigma_scale=sigma_scale, predicted=predicted)[0]
+
+
+def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
+                            t_max: float | None = None, insert_values: bool = False, theta: dict | None = None,
+                            robust: bool = True, sigma_scale: np.ndarray | None = None,
+                            predicted: bool = True) -> tuple[gtsam.NonlinearFactorGraph, ObservationTerms]:
+    """:func:`observation_block` and the :class:`ObservationTerms` it was made of (what an
+    :class:`ObservationRhs` at the same values and shifts reads again otherwise)."""
     terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
                               robust=robust, sigma_scale=sigma_scale, predicted=predicted)
     graph = gtsam.NonlinearFactorGraph()
@@ -956,7 +1030,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
     n = len(terms.sensor)
     if not n:
-        return graph
+        return graph, terms
     cache = _NoiseCache.of(prob.recipe, robust=terms.robust)
     pairs, inverse = unique_rows(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]))
     models = cache.models(pairs[:, 0], pairs[:, 1])
@@ -977,7 +1051,7 @@ def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     for s_key, t_key, px, py, pz, r, pose, model in zip(s_keys, t_keys, x, y, z, terms.range_m.tolist(), is_pose,
                                                         model_of, strict=True):
         add((to_pose if pose else to_point)(s_key, t_key, unit3(px, py, pz), r, model))
-    return graph
+    return graph, terms
 
 
 def _unit3_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1000,21 +1074,33 @@ class ObservationRhs:
     tangent bases) are made once, each call re-measures. A bearing-range factor's error is
     GTSAM's: -Local_pred(u_meas) for the bearing (Unit3 local coordinates at the predicted
     direction: basis^T (theta / sin theta) (u_meas - cos theta u_pred)), predicted minus measured
-    range."""
+    range.
 
-    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None):
+    ``terms``: the block's :class:`ObservationTerms` as :func:`observation_block_terms` made them
+    at these ``values`` and ``t_max`` with the problem's present ray shift (what is read at the
+    values is taken from them, not read again; other terms raise ValueError)."""
+
+    def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None,
+                 terms: ObservationTerms | None = None):
         self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
-        use = np.flatnonzero(prob.fac_key_index < len(_pose_times(prob, t_max))) if prob.recipe.robot else None
-        # the robot observations' and the people's regressors read once (they do not move with
-        # theta), from the points the values predict, which the factors' errors are taken at too
-        robot_points = None if use is None else predicted_points(prob, values, prob.fac_sensor_index[use],
-                                                                 prob.fac_key_index[use], True)
-        self.robot_regressors = None if use is None else regressors(
-            prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True, measured_regressors(prob, use),
-            predicted=robot_points)
-        self.people_regressors = people_sightings(prob, values, t_max) if prob.recipe.people else None
-        terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors,
-                                  people_regressors=self.people_regressors)
+        if terms is not None:
+            at = terms.read_at
+            if at is None or at[0] is not values or at[1] != t_max or at[2] != float(prob.ray_shift_m):
+                raise ValueError("the observation terms were not read at these values, t_max and ray shift")
+            robot_points = terms.robot_points
+            self.robot_regressors, self.people_regressors = terms.robot_regressors, terms.people_regressors
+        else:
+            use = np.flatnonzero(prob.fac_key_index < len(_pose_times(prob, t_max))) if prob.recipe.robot else None
+            # the robot observations' and the people's regressors read once (they do not move with
+            # theta), from the points the values predict, which the factors' errors are taken at too
+            robot_points = None if use is None else predicted_points(prob, values, prob.fac_sensor_index[use],
+                                                                     prob.fac_key_index[use], True)
+            self.robot_regressors = None if use is None else regressors(
+                prob, values, prob.fac_sensor_index[use], prob.fac_key_index[use], True,
+                measured_regressors(prob, use), predicted=robot_points)
+            self.people_regressors = people_sightings(prob, values, t_max) if prob.recipe.people else None
+            terms = observation_terms(log, prob, values, t_max=t_max, robot_regressors=self.robot_regressors,
+                                      people_regressors=self.people_regressors)
         d = np.zeros((len(terms.sensor), 3))
         robot = np.flatnonzero(terms.is_pose)
         people = np.flatnonzero(~terms.is_pose)
@@ -1030,6 +1116,8 @@ class ObservationRhs:
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
         self.basis = _unit3_basis(self.u_pred)
         self.sensor, self.is_pose = terms.sensor, terms.is_pose
+        # (the noise's ranges do not move with theta: the sigmas before their scales taken once)
+        self._unscaled_sigmas = terms.unscaled_sigmas(prob.recipe)
         self.first = int(terms.prior is not None)        # the prior leads the block
         # the robot observations grouped by sensor once (each per-sensor nuisance asks for its own)
         robot = np.flatnonzero(self.is_pose)
@@ -1068,7 +1156,7 @@ class ObservationRhs:
             v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
             err = np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
                                    self.range_pred - terms.range_m])
-            rows.append((-err / terms.sigmas(self.prob.recipe)).ravel())
+            rows.append((-err / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())
         return np.concatenate(rows) if rows else np.zeros(0)
 
 

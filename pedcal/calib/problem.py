@@ -25,14 +25,19 @@ from pedcal.frames import toward_sensor_horizontal
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 
-def per_row(names: np.ndarray, value_of, shape: tuple = ()) -> np.ndarray:
+def factorized(names: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(each row's code, the distinct names in order of first appearance) of ``names``, flattened:
+    hashed, not sorted (sorting 400 000 id strings took longer than the rest)."""
+    return pd.factorize(np.asarray(names).ravel(), use_na_sentinel=False)
+
+
+def per_row(names: np.ndarray, value_of, shape: tuple = (), codes: tuple | None = None) -> np.ndarray:
     """``value_of(name)`` for every row of ``names``, stacked; each distinct name's value computed
     once (hundreds of sensors over hundreds of thousands of observations). ``shape``: one value's
-    shape, for no rows."""
+    shape, for no rows; ``codes``: :func:`factorized` ``names`` when the caller has them."""
     if not len(names):
         return np.zeros((0,) + tuple(shape))
-    # (hashed, not sorted: sorting 400 000 id strings took longer than the rest)
-    inverse, uniq = pd.factorize(np.asarray(names).ravel(), use_na_sentinel=False)
+    inverse, uniq = factorized(names) if codes is None else codes
     return np.stack([np.asarray(value_of(n)) for n in uniq])[inverse]
 
 
@@ -92,6 +97,16 @@ class FactorGraphProblem:
                 + clock_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor)))    # each sensor's clock
                 + head_profile_shift_sensor(self, {}, np.arange(len(self.fac_p_sensor))))   # shift vs distance
 
+    def obs_sensor_codes(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`factorized` ``obs_sensor``, computed once per array (carrying, merging and the
+        noise estimate each group the observations by sensor)."""
+        hit = self.__dict__.get("_obs_sensor_codes")
+        if hit is not None and hit[0] is self.obs_sensor:
+            return hit[1]
+        codes = factorized(self.obs_sensor)
+        self.__dict__["_obs_sensor_codes"] = (self.obs_sensor, codes)
+        return codes
+
     def merge_observations(self, max_sigmas: float = 4.0) -> None:
         """The graph's robot-observation factors: the observations one sensor made of the robot
         carried to one pose predict the same point, so their mean, with the noise's sigma over
@@ -101,7 +116,7 @@ class FactorGraphProblem:
         is left as single observations, for the robust kernel to judge each."""
         n = len(self.obs_key_index)
         sid_index = {sid: i for i, sid in enumerate(self.sensor_ids)}
-        sensor_i = per_row(self.obs_sensor, sid_index.get).astype(int)
+        sensor_i = per_row(self.obs_sensor, sid_index.get, codes=self.obs_sensor_codes()).astype(int)
         _, group, count = np.unique(self.obs_key_index * max(len(self.sensor_ids), 1) + sensor_i,
                                     return_inverse=True, return_counts=True)
         group = np.asarray(group).ravel()
@@ -149,7 +164,7 @@ class FactorGraphProblem:
             i = np.zeros(len(self.obs_t), int)
         self.obs_key_index = i
         disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
-        R = per_row(self.obs_sensor, rotations.get, (3, 3))
+        R = per_row(self.obs_sensor, rotations.get, (3, 3), codes=self.obs_sensor_codes())
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
         self._rotations = dict(rotations)
@@ -183,7 +198,11 @@ def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network:
 
 
 def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None) -> dict[str, gtsam.Pose3]:
+                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None
+                     ) -> dict[str, gtsam.Pose3]:
+    """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
+    ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
+    closed form reads too."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -192,7 +211,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
         from pedcal.calib import METHODS
 
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
-                                                                                latency_s=latency_s)
+                                                                                latency_s=latency_s,
+                                                                                points_sensor=points_sensor)
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
@@ -209,9 +229,11 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
 
 
 def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, progress: bool = False,
-            init_network: SensorNetwork | None = None) -> FactorGraphProblem:
+            init_network: SensorNetwork | None = None, amcl_steps: np.ndarray | None = None) -> FactorGraphProblem:
     """Association, latency, odometry calibration, initial values, the pose grid, the robot's
-    observations carried to it, and the people's shared observations."""
+    observations carried to it, and the people's shared observations. ``amcl_steps``: the
+    relocalization jumps' mask of ``log.robot`` at the recipe's threshold when the caller found
+    it (:func:`pedcal.calib.amcl_model.jumps_moved_back`), for the assumed AMCL model."""
     from pedcal.calib.association import associate_robot, estimate_latency
 
     latency = None
@@ -256,7 +278,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         smooth = smoothed_track(log.robot, recipe.amcl_smooth_s)
         _log(progress, f"AMCL jitter {1000 * amcl_white_sigma(log.robot):.0f} mm: short-term motion from AMCL "
                        f"smoothed over {recipe.amcl_smooth_s:.1f} s")
-    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network)
+    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network, points_sensor=p_all)
     # robot poses only when something observes them (people-only graphs hold the sensors alone)
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
@@ -266,7 +288,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               motion=RobotMotion(log, odometry if odometry is not None else smooth),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
-    set_amcl_model(log, prob, assumed_model(log.robot, recipe), carry=False)
+    set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
         if noise is None:
@@ -311,7 +333,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     obs_t = prob.obs_t_raw - prob.latency_s
     # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
     track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
-    sensor, sensor_ids = pd.factorize(prob.obs_sensor, use_na_sentinel=False)
+    sensor, sensor_ids = prob.obs_sensor_codes()
     order = np.lexsort((obs_t, track, sensor))
     s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
