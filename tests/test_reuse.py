@@ -129,7 +129,9 @@ def test_the_sensor_codes_are_pandas_factorize_computed_once(solved):
     first = prob.obs_sensor_codes()
     assert prob.obs_sensor_codes() is first
     assert np.array_equal(first[0], pd.factorize(prob.obs_sensor)[0])
-    other = dataclasses.replace(prob, obs_sensor=prob.obs_sensor[::-1].copy())
+    other = dataclasses.replace(prob)
+    other.obs_sensor_codes()
+    other.obs_sensor = prob.obs_sensor[::-1].copy()
     assert np.array_equal(other.obs_sensor_codes()[0], pd.factorize(other.obs_sensor)[0])
 
 
@@ -179,6 +181,7 @@ def test_the_clock_shift_kept_is_the_one_computed_again(solved):
     # other factors, or the solved velocities set, are asked anew
     assert clock_shift_sensor(prob, dict(theta, **{names[0]: 0.05}), use[:10]).shape == (10, 3)
     from pedcal.calib.clocks import solved_velocity_world
+    clock_shift_sensor(prob, theta, use)          # (theta's answer kept last)
     prob._pose_velocity_world = solved_velocity_world(prob, result)
     solved_v = clock_shift_sensor(prob, theta, use)
     assert solved_v is not first and not np.array_equal(solved_v, first)
@@ -203,6 +206,8 @@ def test_a_rebuild_of_the_same_structure_keeps_the_colamd_ordering(solved):
             same.blocks["observations"] = observation_block(log, prob, same.values)
         # (the ordering COLAMD gives the rebuilt graph itself)
         assert _ordering(same.graph().orderingCOLAMD()) == _ordering(first)
+    carried = dataclasses.replace(prob, fac_key_index=prob.fac_key_index.copy())
+    assert rebuild_parts(log, carried, parts, result).ordering is None
     # AMCL's estimates left out as a jump: another structure, its ordering computed anew
     excluded = np.zeros(len(log.robot), bool)
     excluded[40:60] = True
