@@ -68,6 +68,10 @@ def test_terms_read_elsewhere_are_refused(solved):
     moved = dataclasses.replace(prob, ray_shift_m=prob.ray_shift_m + 0.01)
     with pytest.raises(ValueError, match="not read at these values"):
         ObservationRhs(log, moved, result, terms=terms)
+    # other observations' keys (carried again) or other shared people: read again, not reused
+    for field, value in (("fac_key_index", prob.fac_key_index.copy()), ("people", list(prob.people))):
+        with pytest.raises(ValueError, match="not read at these values"):
+            ObservationRhs(log, dataclasses.replace(prob, **{field: value}), result, terms=terms)
     # terms not read at any values (measured points, or given the regressors) carry no reading
     _, measured = observation_block_terms(log, prob, result, predicted=False)
     with pytest.raises(ValueError, match="not read at these values"):

@@ -408,6 +408,6 @@ def record_clocks(network, prob, shifts) -> None:
     network.extra[SIGMA_CLOCK_OFFSET_KEY] = {sid: round(float(s), 4) for sid, s in zip(ids, sigma, strict=True)}
 
 
-__all__ = ["clock_nuisances", "clock_offsets", "clock_shift_sensor", "record_clocks", "is_clock_nuisance", "centered_offsets",
-           "offset_overdispersion", "efficient_weights", "block_scores", "widened_covariance",
+__all__ = ["clock_nuisances", "clock_offsets", "clock_shift_sensor", "record_clocks", "is_clock_nuisance",
+           "centered_offsets", "offset_overdispersion", "efficient_weights", "block_scores", "widened_covariance",
            "widen_for_overdispersion", "row_blocks"]

@@ -345,8 +345,8 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
 def _structure(prob: FactorGraphProblem, t_max: float | None, amcl: tuple | None) -> tuple | None:
     """What the whole graph's structure is made from: the AMCL block's (:func:`_amcl_block`), the
     problem's robot-observation factors and recipe (as objects: they are replaced, never changed
-    in place), the poses' count, ``t_max`` and whether the motion is odometry's; None (nothing kept) with shared people, whose
-    sightings a rebuild may leave out."""
+    in place), the poses' count, ``t_max`` and whether the motion is odometry's; None (nothing
+    kept) with shared people, whose sightings a rebuild may leave out."""
     if prob.people:
         return None
     return (amcl, prob.recipe, prob.fac_sensor_index, prob.fac_key_index, len(_pose_times(prob, t_max)), t_max,
@@ -655,7 +655,8 @@ class ObservationTerms:
     # what was read at ``values`` (the same whatever theta; :class:`ObservationRhs` reuses it):
     # the robot observations' :class:`Regressors` and predicted points (:func:`predicted_points`,
     # None where they were read at the measured points), the people's sightings
-    # (:func:`people_sightings`), and the values, t_max and ray shift they were read at
+    # (:func:`people_sightings`), and the values, t_max, ray shift, observation keys and people
+    # they were read at
     robot_regressors: Regressors | None = None
     robot_points: tuple | None = None
     people_regressors: tuple | None = None
@@ -795,7 +796,7 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
     rec = prob.recipe
     robot_points = None
     # (terms given what was read elsewhere did not read it at the values themselves)
-    read_at = ((values, t_max, float(prob.ray_shift_m))
+    read_at = ((values, t_max, float(prob.ray_shift_m), prob.fac_key_index, prob.people)
                if predicted and not insert_values and robot_regressors is None and people_regressors is None else None)
     theta = theta or {}
     rho = float(theta.get("ray_shift_m", prob.ray_shift_m))
@@ -1085,8 +1086,10 @@ class ObservationRhs:
         self.log, self.prob, self.values, self.t_max = log, prob, values, t_max
         if terms is not None:
             at = terms.read_at
-            if at is None or at[0] is not values or at[1] != t_max or at[2] != float(prob.ray_shift_m):
-                raise ValueError("the observation terms were not read at these values, t_max and ray shift")
+            if (at is None or at[0] is not values or at[1] != t_max or at[2] != float(prob.ray_shift_m)
+                    or at[3] is not prob.fac_key_index or at[4] is not prob.people):
+                raise ValueError("the observation terms were not read at these values, t_max, ray shift, "
+                                 "observations and people")
             robot_points = terms.robot_points
             self.robot_regressors, self.people_regressors = terms.robot_regressors, terms.people_regressors
         else:
