@@ -587,7 +587,7 @@ def main(argv: list[str] | None = None) -> int:
 
 @contextlib.contextmanager
 def _loading():
-    """The libraries a command imports inside (NumPy, SciPy, pandas, GTSAM: ~170 000 objects the
+    """The libraries a command imports inside (NumPy, SciPy, pandas, GTSAM: ~100 000 objects the
     cycle collector tracks, none of them garbage) load without its collections, which walked them
     again and again as they grew (75 ms of CPU of `pedcal calibrate`, both methods), and are then
     moved out of its sight (gc.freeze: they live as long as the process). Only in the command

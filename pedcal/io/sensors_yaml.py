@@ -314,7 +314,9 @@ def _read_calibrated_fields(entry: dict, where: str, path: Path) -> dict:
 
 # ------------------------------------------------------------------------------------------- writing
 class _FlowList(list):
-    """A list written on one line: [1.2, 0.8, 2.6]."""
+    """A list written on one line: [1.2, 0.8, 2.6]. Of scalars only (floats, strings): the
+    libyaml path's guard (:func:`_keys_libyaml_writes_otherwise`) does not look inside it, so a
+    mapping in it with an empty or long key would be written as libyaml writes it, not PyYAML."""
 
 
 class _Dumper(yaml.SafeDumper):
