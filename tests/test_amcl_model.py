@@ -579,14 +579,14 @@ def test_a_jump_is_found_where_the_sampling_rate_changes(seed):
 
 
 def test_a_step_below_min_jump_m_is_no_jump_however_quiet_the_track():
-    # a quiet track (2 mm of jitter, no wander): a 6 cm step out and back stands far above the
+    # a quiet track (2 mm of jitter, no wander): a 9 cm step out and back stands far above the
     # noise in standard errors, but it is below min_jump_m (10 cm) in metres
     rng = np.random.default_rng(9)
     t = np.arange(0.0, 200.0, 0.1)
     p = np.column_stack([0.3 * t, np.zeros(len(t))]) + rng.normal(0.0, 0.002, (len(t), 2))
-    _jumped(p, t, 100.0, 110.0, [0.06, 0.0])
+    _jumped(p, t, 100.0, 110.0, [0.09, 0.0])
     assert not detect_steps(t, p).any()
-    _jumped(p, t, 100.0, 110.0, [0.1, 0.0])        # 16 cm: a jump
+    _jumped(p, t, 100.0, 110.0, [0.03, 0.0])       # 12 cm: a jump (at min_jump_m 0.08 or 0.12 one fails)
     assert detect_steps(t, p).sum() == 100
 
 

@@ -68,5 +68,7 @@ def test_the_curvature_widths_reduce_to_the_datas_when_its_hold_moves_nothing():
     assert width_of("spread", 0.009, v, -0.009, v, prior) == pytest.approx(np.sqrt(0.009 ** 2 + v + 0.018 ** 2))
     assert width_of("max", 0.002, v, -0.009, 2 * v, prior) == pytest.approx(np.sqrt(0.009 ** 2 + 2 * v))
     assert width_of("free", 0.002, v, -0.009, 2 * v, prior) == pytest.approx(np.sqrt(0.009 ** 2 + 2 * v))
+    # the held moments the larger: max takes them, free would not
+    assert width_of("max", 0.009, v, 0.002, 2 * v, prior) == pytest.approx(np.sqrt(0.009 ** 2 + v))
     assert width_of("prior", d, v, d, v, prior) == prior
     assert set(WIDTHS) == {"data", "prior", "blend", "free", "max", "spread"}

@@ -137,11 +137,13 @@ def test_a_tracker_point_below_the_head_top_is_within_sigma_once_its_depth_is_st
         log.meta.head_offset_m = np.asarray(log.meta.head_offset_m, float) - np.array([0.0, 0.0, 0.05])
     else:
         kw = dict(head_vertical_sigma_m=0.06)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DegenerateDataWarning)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DegenerateDataWarning)
         res = calibrate_factorgraph(log, **kw)
     ez, sz = _z_errors_and_sigma(sim, res)
     assert np.all(np.abs(ez) < sz)
+    if remedy == "prior width":         # the warning, like the note, names the prior given
+        assert any("within 60 mm of the head top" in str(w.message) for w in caught)
     if remedy == "height reference":
         assert res.diagnostics.head_model.vertical_offset_m == pytest.approx(-0.05, abs=0.01)
     elif remedy == "prior width":
@@ -480,5 +482,7 @@ def test_the_residuals_time_clusters_are_counted_from_the_first_pose():
         graph.add(gtsam.PriorFactorPose2(X(k), gtsam.Pose2(), noise))
     graph.add(gtsam.PriorFactorPoint3(L(1), gtsam.Point3(0, 0, 0), noise))
     expected = np.repeat([0, 1, 2, 3 + 1], 3)       # a person's cluster after the poses' blocks
-    for times in ([-50.0, -30.0, -10.0], [5.0, 25.0, 45.0], [1.7e9 + 5.0, 1.7e9 + 25.0, 1.7e9 + 45.0]):
+    # ([15, 25, 45]: the first pose late in its block, the next in the block after, not 20 s on)
+    for times in ([-50.0, -30.0, -10.0], [5.0, 25.0, 45.0], [15.0, 25.0, 45.0],
+                  [1.7e9 + 5.0, 1.7e9 + 25.0, 1.7e9 + 45.0]):
         np.testing.assert_array_equal(row_clusters([graph], np.array(times), 12), expected)
