@@ -3,6 +3,7 @@ taken by the right-hand sides, the AMCL track's steps by the assumed model, the 
 points by the closed form, the observations' sensor codes, the clock offsets read in one pass and
 the poses a solution holds counted from its keys."""
 
+import copy
 import dataclasses
 
 import gtsam
@@ -168,7 +169,7 @@ def test_held_symbols_are_counted_from_the_keys():
 
 
 def test_the_clock_shift_kept_is_the_one_computed_again(solved):
-    _, prob, result = solved
+    log, prob, result = solved
     prob = dataclasses.replace(prob)
     use = np.arange(len(prob.fac_p_sensor))
     names = [PREFIX + sid for sid in prob.sensor_ids]
@@ -189,6 +190,17 @@ def test_the_clock_shift_kept_is_the_one_computed_again(solved):
     prob._pose_velocity_world = solved_velocity_world(prob, result)
     solved_v = clock_shift_sensor(prob, theta, use)
     assert solved_v is not first and not np.array_equal(solved_v, first)
+    # each other input replaced: asked anew, the answer a problem without any kept gives
+    from pedcal.calib.motion import RobotMotion
+
+    for field, value in (("fac_key_index", np.roll(prob.fac_key_index, 1)), ("pose_times", prob.pose_times + 0.3),
+                         ("motion", RobotMotion(log, None))):
+        kept = clock_shift_sensor(prob, theta, use)
+        setattr(prob, field, value)
+        changed = clock_shift_sensor(prob, theta, use)
+        fresh = copy.copy(prob)             # (its solved velocities too: only the kept answer dropped)
+        fresh.__dict__.pop("_clock_shift_last", None)
+        assert changed is not kept and np.array_equal(changed, clock_shift_sensor(fresh, theta, use)), field
 
 
 def _ordering(o: gtsam.Ordering) -> list:
@@ -212,6 +224,13 @@ def test_a_rebuild_of_the_same_structure_keeps_the_colamd_ordering(solved):
         assert _ordering(same.graph().orderingCOLAMD()) == _ordering(first)
     carried = dataclasses.replace(prob, fac_key_index=prob.fac_key_index.copy())
     assert rebuild_parts(log, carried, parts, result).ordering is None
+    # AMCL's error nodes spaced otherwise (a shorter correlation time, as a re-estimated model
+    # may give): another node grid, its ordering computed anew
+    regridded = dataclasses.replace(prob)
+    shorter = dataclasses.replace(prob.amcl_model, correlation_s=prob.amcl_model.correlation_s / 8)
+    set_amcl_model(log, regridded, shorter)
+    assert len(regridded.amcl_node_times) != len(prob.amcl_node_times)
+    assert rebuild_parts(log, regridded, parts, result, observations=False).ordering is None
     # AMCL's estimates left out as a jump: another structure, its ordering computed anew
     excluded = np.zeros(len(log.robot), bool)
     excluded[40:60] = True
