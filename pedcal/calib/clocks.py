@@ -141,11 +141,8 @@ def clock_offsets(prob, theta: dict) -> np.ndarray:
     """(n_sensors,) each sensor's clock offset (s), ``theta``'s by name where it has one, else the
     problem's (0 where it has none): read from the problem's own attributes in one pass, the
     profile asks at every evaluation of the observation block."""
-    own = vars(prob)
-    names = [PREFIX + sid for sid in prob.sensor_ids]
-    if theta:
-        return np.array([theta.get(n, own.get(n, 0.0)) for n in names], float).reshape(len(names))
-    return np.array([own.get(n, 0.0) for n in names], float).reshape(len(names))
+    own, theta = vars(prob), theta or {}
+    return np.array([theta.get(n, own.get(n, 0.0)) for n in (PREFIX + sid for sid in prob.sensor_ids)], float)
 
 
 def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float:
