@@ -4,7 +4,12 @@
 SystemExit(130) after printing ``interrupted``: a SystemExit passes every ``except Exception`` of
 the work, runs the ``finally`` blocks that remove temporary outputs (pedcal.io.atomic), and is no
 traceback, also while the first modules are being imported; a process started with SIGINT ignored
-keeps ignoring it. ``children_ignore()`` starts helper processes (Dask workers) with SIGINT
+keeps ignoring it. A Ctrl-C whose handler runs where Python cannot raise (a weak reference's
+callback, a finalizer: the exception is "ignored" and printed with a traceback, the work goes on)
+is not lost: the unraisable hook installed beside the handler swallows that SystemExit and sets an
+alarm a millisecond on, which the same handler answers in ordinary code.
+
+``children_ignore()`` starts helper processes (Dask workers) with SIGINT
 ignored: the terminal sends Ctrl-C to the whole process group, and the parent alone answers it,
 by shutting its workers down.
 """
@@ -19,14 +24,37 @@ import sys
 EXIT_INTERRUPTED = 130
 
 
+_announced = False        # "interrupted" is printed once, however often the handler must run
+
+
 def _on_sigint(signum, frame):
+    global _announced
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # a second Ctrl-C does not interrupt the clean-up
     logging.disable(logging.CRITICAL)     # the shutdown's own messages (Dask killing its workers) are noise now
-    try:
-        print("interrupted", file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass
+    if not _announced:
+        _announced = True
+        try:
+            print("interrupted", file=sys.stderr, flush=True)
+        except (OSError, ValueError):
+            pass
     raise SystemExit(EXIT_INTERRUPTED)
+
+
+def _on_unraisable(unraisable) -> None:
+    """Our SystemExit raised where it cannot propagate (a weakref callback, ``__del__``): raise the
+    signal again for the handler to answer outside; anything else goes to the hook before us."""
+    exc = unraisable.exc_value
+    if isinstance(exc, SystemExit) and exc.code == EXIT_INTERRUPTED and _announced:
+        # not SIGINT now: its handler would run inside this hook (Python checks a signal sent to itself
+        # at once), and be ignored again; an alarm a millisecond on finds ordinary code running
+        with contextlib.suppress(ValueError, OSError, AttributeError):     # (main thread; POSIX)
+            signal.signal(signal.SIGALRM, _on_sigint)
+            signal.setitimer(signal.ITIMER_REAL, 0.001)
+        return
+    _previous_unraisablehook(unraisable)
+
+
+_previous_unraisablehook = sys.unraisablehook
 
 
 def caused_by_interrupt(error: BaseException) -> bool:
@@ -47,15 +75,22 @@ def install():
     try:
         if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:   # started with Ctrl-C ignored (nohup, a background job)
             return None
-        return signal.signal(signal.SIGINT, _on_sigint)
+        previous = signal.signal(signal.SIGINT, _on_sigint)
     except ValueError:           # not the main thread: leave the interpreter's handling alone
         return None
+    global _previous_unraisablehook
+    if sys.unraisablehook is not _on_unraisable:
+        _previous_unraisablehook = sys.unraisablehook
+        sys.unraisablehook = _on_unraisable
+    return previous
 
 
 def restore(previous) -> None:
     if previous is not None:
         with contextlib.suppress(ValueError):
             signal.signal(signal.SIGINT, previous)
+        if sys.unraisablehook is _on_unraisable:
+            sys.unraisablehook = _previous_unraisablehook
 
 
 @contextlib.contextmanager

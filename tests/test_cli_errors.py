@@ -4,6 +4,8 @@ row and column, never as a traceback."""
 from __future__ import annotations
 
 import importlib.util
+import os
+import signal
 
 import numpy as np
 import pandas as pd
@@ -203,6 +205,55 @@ def test_a_class_creation_failed_by_ctrl_c_is_an_interrupt_not_an_error(capsys):
 
     with pytest.raises(RuntimeError, match="a bug"):
         _run(SimpleNamespace(command="calibrate", func=fails))
+
+
+_CTRL_C_IN_A_CALLBACK = """
+import os, signal, sys, time, weakref
+import pedcal.interrupts as interrupts
+interrupts.install()
+class Held: pass
+held = Held()
+def callback(_):
+    os.kill(os.getpid(), signal.SIGINT)      # the handler runs here, inside the weakref's callback
+ref = weakref.ref(held, callback)
+del held
+time.sleep(5)
+print("not interrupted", file=sys.stderr)
+"""
+
+
+def _run_script(code: str):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def test_ctrl_c_whose_handler_runs_in_a_weakref_callback_still_ends_the_command():
+    """Python ignores an exception raised in a weakref's callback (it prints 'Exception ignored' and a
+    traceback, and the work goes on): a Ctrl-C that lands there (CI saw one in importlib's module
+    lock) still exits 130 with the one line 'interrupted', printed once."""
+    proc = _run_script(_CTRL_C_IN_A_CALLBACK)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr == "interrupted\n"
+
+
+def test_another_unraisable_error_still_reaches_the_hook_before_pedcals():
+    """The hook that rescues the lost Ctrl-C passes any other ignored exception on unchanged."""
+    code = ("import sys, weakref\nimport pedcal.interrupts as interrupts\n"
+            "seen = []\nsys.unraisablehook = lambda u: seen.append(type(u.exc_value).__name__)\n"
+            "previous = interrupts.install()\n"
+            "class Held: pass\nheld = Held()\n"
+            "def callback(_): raise ValueError('from a library')\n"
+            "ref = weakref.ref(held, callback)\ndel held\n"
+            "interrupts.restore(previous)\n"
+            "print(seen, sys.unraisablehook.__name__)\n")
+    proc = _run_script(code)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["['ValueError']", "<lambda>"]
 
 
 def test_json_output_is_strict_json_without_nan():
