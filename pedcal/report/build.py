@@ -21,6 +21,7 @@ import pandas as pd
 
 from pedcal.demo import PAPER
 from pedcal.io.atomic import write_text_atomic
+from pedcal.metrics import within_sigma_share
 from pedcal.report import figures
 from pedcal.report.results import SweepResults, load_results
 
@@ -100,19 +101,26 @@ def accuracy_table(results: SweepResults, scenario: str) -> pd.DataFrame:
 
 def sigma_consistency(results: SweepResults, scenario: str) -> pd.DataFrame:
     """Per method reporting a sigma: the fraction of per-axis position errors within k reported
-    sigma (k = 1, 2, 3), over all seeds and sensors whose status is ok."""
-    s = results.sensors[(results.sensors["scenario"] == scenario) & (results.sensors["status"] == "ok")]
+    sigma (k = 1, 2, 3) and the median |error| / sigma, over all seeds and sensors. A sensor the
+    method left uncalibrated (no data, its installed pose) or gave no finite sigma is a miss
+    (``missed`` of the ``axes``): in the denominator, never within, above the median's every
+    ratio, so that a method does not look consistent by dropping the sensors it fails."""
+    s = results.sensors[results.sensors["scenario"] == scenario]
     rows = []
     for m in results.config.methods:
         d = s[s["method"] == m]
-        err = d[["err_x_mm", "err_y_mm", "err_z_mm"]].to_numpy(float).ravel()
-        sig = d[["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"]].to_numpy(float).ravel()
-        use = np.isfinite(err) & np.isfinite(sig) & (sig > 0)
-        if not use.any():
+        err = d[["err_x_mm", "err_y_mm", "err_z_mm"]].to_numpy(float)
+        sig = d[["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"]].to_numpy(float)
+        if not (np.isfinite(sig) & (sig > 0)).any():        # the method reports no sigma
             continue
-        z = np.abs(err[use]) / sig[use]
-        rows.append(dict(method=m, axes=int(use.sum()), median_ratio=float(np.median(z)),
-                         **{f"within_{k}": float(np.mean(z <= k)) for k, _ in SIGMA_LEVELS}))
+        calibrated = d["status"].isin(("ok", "degenerate")).to_numpy()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.abs(err) / sig
+        z[~np.isfinite(z) | ~(sig > 0) | ~calibrated[:, None]] = np.inf
+        z = z.ravel()
+        rows.append(dict(method=m, axes=int(z.size), missed=int(np.isinf(z).sum()),
+                         median_ratio=float(np.median(z)),
+                         **{f"within_{k}": float(within_sigma_share(z, k)[0]) for k, _ in SIGMA_LEVELS}))
     return pd.DataFrame(rows)
 
 
@@ -257,15 +265,16 @@ def consistency_section(ctx: ReportContext) -> str:
     out = ["## Consistency of the reported sigma", "",
            "Fraction of per-axis position errors (x, y, z of every sensor with status ok, every seed) within "
            "k times the sigma the method reported. A consistent sigma gives 68.3 / 95.4 / 99.7 %; "
-           "less means the method is over-confident.", "",
-           "| scenario | method | axes | within 1σ (68.3 %) | within 2σ (95.4 %) | within 3σ (99.7 %) "
+           "less means the method is over-confident. A sensor the method left uncalibrated or without a "
+           "sigma is missed: counted among the axes, never within.", "",
+           "| scenario | method | axes (missed) | within 1σ (68.3 %) | within 2σ (95.4 %) | within 3σ (99.7 %) "
            "| median \\|e\\|/σ (0.67) |",
            "|---|---|---|---|---|---|---|"]
     rows = 0
     for sc in ctx.scenarios:
         for r in sigma_consistency(ctx.results, sc).itertuples():
-            out.append(f"| {sc} | {r.method} | {r.axes} | {100 * r.within_1:.1f} % | {100 * r.within_2:.1f} % "
-                       f"| {100 * r.within_3:.1f} % | {r.median_ratio:.2f} |")
+            out.append(f"| {sc} | {r.method} | {r.axes} ({r.missed}) | {100 * r.within_1:.1f} % "
+                       f"| {100 * r.within_2:.1f} % | {100 * r.within_3:.1f} % | {r.median_ratio:.2f} |")
             rows += 1
     return "\n".join(out) if rows else ""
 
