@@ -84,7 +84,8 @@ def shared_rest_parts(ev, network, joint_cov_m2) -> tuple[np.ndarray, np.ndarray
     from it over its sigma, x and y (``bench_factorgraph_nuisances.shared_and_rest_z``), over the
     calibrated sensors with an error; empty without the joint covariance or with fewer than 2."""
     row_of = {sid: r for r, sid in enumerate(network.ids)}
-    kept = [s for s in ev.sensors if (network[s.id].status or "ok") == "ok" and np.all(np.isfinite(s.position_error_mm))]
+    kept = [s for s in ev.sensors
+            if (network[s.id].status or "ok") == "ok" and np.all(np.isfinite(s.position_error_mm))]
     shared, rest = shared_and_rest_z(np.array([s.position_error_mm[:2] for s in kept], float).reshape(-1, 2) / 1000.0,
                                      joint_cov_m2, [row_of[s.id] for s in kept])
     return shared, rest.reshape(-1, 2)
