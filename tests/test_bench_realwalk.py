@@ -7,13 +7,20 @@ from __future__ import annotations
 import pickle
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from bench_realwalk import amcl_truth_z, load_results, shared_rest_text, truth_z_text  # noqa: E402
+from bench_realwalk import (  # noqa: E402
+    amcl_truth_z,
+    load_results,
+    shared_rest_parts,
+    shared_rest_text,
+    truth_z_text,
+)
 
 from pedcal.sim.robot import ou_process  # noqa: E402
 
@@ -80,3 +87,24 @@ def test_a_log_in_two_saved_runs_is_refused(tmp_path):
     b = _save(tmp_path / "b.pkl", [_run(1)], ["paper"])
     with pytest.raises(ValueError, match=r"b\.pkl: log \('atc', 'paper', 1\) is also in .*a\.pkl"):
         load_results([a, b])
+
+
+def test_the_split_pools_the_calibrated_sensors_with_an_error():
+    # four sensors of a network of five (s4 not evaluated), independent 10 mm per axis: s2 not
+    # calibrated and s3 without an error are left out, so the mean of s0 and s1 is the shared
+    # part, its sigma 10 / sqrt(2) mm, and each departure +-half their difference, its sigma
+    # 10 sqrt(1 - 1 / 2) mm
+    ids = ["s0", "s1", "s2", "s3", "s4"]
+    status = {"s0": "ok", "s1": None, "s2": "not_calibrated", "s3": "ok", "s4": "ok"}
+    network = type("Net", (), {"ids": ids, "__getitem__": lambda self, k: SimpleNamespace(status=status[k])})()
+    err_mm = {"s0": [30.0, -10.0, 5.0], "s1": [10.0, 10.0, 0.0], "s2": [900.0, 900.0, 0.0],
+              "s3": [np.nan, 0.0, 0.0]}
+    ev = SimpleNamespace(sensors=[SimpleNamespace(id=k, position_error_mm=np.array(v)) for k, v in err_mm.items()])
+    cov = np.eye(15) * 0.01 ** 2
+    shared, rest = shared_rest_parts(ev, network, cov)
+    np.testing.assert_allclose(shared, np.array([0.020, 0.0]) / (0.01 / np.sqrt(2.0)), rtol=1e-9, atol=1e-12)
+    half = 0.01 * np.sqrt(0.5)
+    np.testing.assert_allclose(rest, np.array([[0.010, -0.010], [-0.010, 0.010]]) / half, rtol=1e-9, atol=1e-12)
+    # without the joint covariance: nothing to split
+    shared, rest = shared_rest_parts(ev, network, None)
+    assert shared.shape == (0,) and rest.shape == (0, 2)
