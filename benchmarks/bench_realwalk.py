@@ -7,8 +7,8 @@ in each scenario and seed, with the nuisance zoo drawn from the seed
     nice -n 5 .venv/bin/python benchmarks/bench_realwalk.py \
         [--recordings atc eth_ucy thor] [--scenarios paper corridor cross] [--seeds 2] [--first-seed 0]
         [--jobs 1] [--recipe KEY=VALUE ...]     # graph recipe fields for the factor graph
-        [--by-scenario]                         # rows pooling each scenario over the recordings
-        [--save FILE] [--from-results FILE]     # keep the per-log results; print an earlier run's
+        [--by-scenario] [--by-seed]             # rows pooling each scenario / each seed
+        [--save FILE] [--from-results FILE ...] # keep the per-log results; print earlier runs' pooled
 
 Per recording and scenario, over the seeds: the sensors' horizontal position RMS (mm, on the
 evaluation log, ``pedcal.metrics.evaluate``) of the factor graph and of the grid search and their
@@ -22,7 +22,17 @@ it shares, much of it across scenarios, and the sensors of a log share it: a fig
 is uncertain however many sensors it pools; "logs (seeds)" counts both; "sensors (missed)" counts
 the graph's sensors the ratios pool and, in brackets, those it missed, which the RMS leaves out:
 a method that drops sensors shows it there); a last row pools every log, and with
-``--by-scenario`` rows pool each scenario over the recordings. Then the graph's calibrate()
+``--by-scenario`` rows pool each scenario over the recordings, with ``--by-seed`` each seed over
+the recordings and scenarios (a seed is one draw of what every sensor of its logs shares).
+Beside them, per axis x / y: the RMS of the horizontal error over its sigma split into the
+sensors' mean (the network's common shift, each log one value) and each sensor's departure from
+it (``bench_factorgraph_nuisances.shared_and_rest_z``, from the joint position covariance), and
+AMCL's true run-mean error over the exact std of an OU mean with the simulator's own parameters
+(2 sigma^2 tau / T (1 - tau / T (1 - e^-T/tau))): the truth's own draw of what anchors the network
+to the map, whatever the graph (1 in RMS over many seeds; logs whose AMCL family is
+``correlated`` only: a relocalization's or a jump's offset adds to the run mean beyond the OU,
+and the graph moves those back). A shared part over its sigma that follows the truth's draw is
+the draw, not the sigma. Then the graph's calibrate()
 CPU time (s, time.process_time) summed, and the load average at the start and the end. A
 recording missing from the shared data folder is said and skipped (the simulator would fall back
 to built-in walkers).
@@ -43,11 +53,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_factorgraph_nuisances import by_seed, recipe_overrides, sigma_ratios  # noqa: E402
+from bench_factorgraph_nuisances import by_seed, recipe_overrides, shared_and_rest_z, sigma_ratios  # noqa: E402
 
 from pedcal.calib import calibrate  # noqa: E402
-from pedcal.metrics import evaluate, format_clustered, sigma_honesty  # noqa: E402
+from pedcal.calib.amcl_model import AmclErrorModel  # noqa: E402
+from pedcal.metrics import amcl_run_mean_error_m, evaluate, format_clustered, sigma_honesty  # noqa: E402
 from pedcal.sim import simulate_logs  # noqa: E402
+from pedcal.sim.nuisances import zoo_families  # noqa: E402
 from pedcal.sim.walkers import RECORDINGS, SHARED_DATA  # noqa: E402
 
 
@@ -57,6 +69,26 @@ def error_sigma_ratios(ev, network) -> np.ndarray:
     return sigma_ratios(network, [s.id for s in ev.sensors],
                         [np.asarray(s.position_error_mm, float) / 1000.0 for s in ev.sensors],
                         missing=len(ev.missing_sensors))
+
+
+def amcl_truth_z(run_mean_m, amcl_sigma_m: float, amcl_tau_s: float, duration_s: float) -> np.ndarray:
+    """(2,) AMCL's true run-mean error (world x, y, m) over the exact std per axis of the mean of
+    an Ornstein-Uhlenbeck process of std ``amcl_sigma_m`` and correlation time ``amcl_tau_s``
+    over ``duration_s`` (:meth:`AmclErrorModel.floor_sigma_m`): N(0, 1) per axis over the
+    simulator's draws of such a process, whatever the calibration."""
+    return np.asarray(run_mean_m, float) / AmclErrorModel(0.0, amcl_sigma_m, amcl_tau_s).floor_sigma_m(duration_s)
+
+
+def shared_rest_parts(ev, network, joint_cov_m2) -> tuple[np.ndarray, np.ndarray]:
+    """(2,) the sensors' mean horizontal error over its sigma and (n, 2) each sensor's departure
+    from it over its sigma, x and y (``bench_factorgraph_nuisances.shared_and_rest_z``), over the
+    calibrated sensors with an error; empty without the joint covariance or with fewer than 2."""
+    row_of = {sid: r for r, sid in enumerate(network.ids)}
+    kept = [s for s in ev.sensors
+            if (network[s.id].status or "ok") == "ok" and np.all(np.isfinite(s.position_error_mm))]
+    shared, rest = shared_and_rest_z(np.array([s.position_error_mm[:2] for s in kept], float).reshape(-1, 2) / 1000.0,
+                                     joint_cov_m2, [row_of[s.id] for s in kept])
+    return shared, rest.reshape(-1, 2)
 
 
 def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None) -> dict:
@@ -73,6 +105,13 @@ def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None
         out[method] = dict(sq_xy=np.sum(E[:, :2] ** 2, axis=1), cpu_s=cpu)
         if method == "factorgraph":
             out["ratios"] = error_sigma_ratios(ev, res.network)
+            out["z_shared"], out["z_rest"] = shared_rest_parts(ev, res.network, res.position_covariance_m2)
+    t = sim.calib.robot["t"].to_numpy(float)
+    sc = sim.scenario
+    out["amcl_family"] = zoo_families(sc)["amcl"]
+    out["amcl_truth_z"] = (amcl_truth_z(amcl_run_mean_error_m(sim.calib), sc.amcl_sigma_m, sc.amcl_tau_s,
+                                        float(t.max() - t.min()))
+                           if out["amcl_family"] == "correlated" else np.full(2, np.nan))
     return out
 
 
@@ -86,7 +125,50 @@ def _row(name: str, runs: list[dict]) -> str:
     within, ratio_rms = sigma_honesty(by_seed(runs))
     return (f"| {name} | {len(runs)} ({within.logs}) | {within.rows} ({within.misses}) | "
             f"{rms['factorgraph']:.1f} | {rms['gridsearch']:.1f} | {rms['factorgraph'] / rms['gridsearch']:.2f} | "
-            f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(ratio_rms, digits=2, unit='seeds')} |")
+            f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(ratio_rms, digits=2, unit='seeds')} | "
+            f"{shared_rest_text(runs)} | {truth_z_text(runs)} |")
+
+
+def _rms_xy(z: np.ndarray) -> str:
+    return f"{np.sqrt(np.mean(z[:, 0] ** 2)):.2f} / {np.sqrt(np.mean(z[:, 1] ** 2)):.2f}"
+
+
+def shared_rest_text(runs: list[dict]) -> str:
+    """'x / y ; x / y': the RMS over ``runs`` of the shared part over its sigma (one value per log)
+    and of the rest (one per sensor), per horizontal axis; '-' for runs saved without them."""
+    if not all("z_shared" in r for r in runs):
+        return "-"
+    zs = np.array([r["z_shared"] for r in runs if len(r["z_shared"])]).reshape(-1, 2)
+    zr = np.concatenate([r["z_rest"] for r in runs]).reshape(-1, 2)
+    return f"{_rms_xy(zs) if len(zs) else '-'} ; {_rms_xy(zr) if len(zr) else '-'}"
+
+
+def truth_z_text(runs: list[dict]) -> str:
+    """'x / y (n)': the RMS over ``runs``' logs of AMCL's true run mean over its exact OU std
+    (:func:`amcl_truth_z`), n the logs it has (family ``correlated``); '-' without any."""
+    z = np.array([r.get("amcl_truth_z", np.full(2, np.nan)) for r in runs], float).reshape(-1, 2)
+    z = z[np.all(np.isfinite(z), axis=1)]
+    return f"{_rms_xy(z)} ({len(z)})" if len(z) else "-"
+
+
+def load_results(paths: list[str]) -> dict:
+    """Several runs' ``--save`` files pooled: their logs together (the recordings and scenarios in
+    the order first seen, the titles joined). A log ((recording, scenario, seed)) in two of the
+    files is an error: pooling it twice would count one draw as two."""
+    results, recordings, scenarios, titles, seen = [], [], [], [], {}
+    for path in paths:
+        with open(path, "rb") as fh:
+            saved = pickle.load(fh)
+        for r in saved["results"]:
+            key = (r["recording"], r["scenario"], r["seed"])
+            if key in seen:
+                raise ValueError(f"{path}: log {key} is also in {seen[key]}")
+            seen[key] = path
+            results.append(r)
+        recordings += [x for x in saved["recordings"] if x not in recordings]
+        scenarios += [x for x in saved["scenarios"] if x not in scenarios]
+        titles.append(saved["title"])
+    return dict(title=" + ".join(titles), results=results, recordings=recordings, scenarios=scenarios)
 
 
 def main() -> None:
@@ -99,15 +181,18 @@ def main() -> None:
     ap.add_argument("--recipe", nargs="+", default=[], metavar="KEY=VALUE",
                     help="graph recipe fields for the factor graph (head_profile_consider=false)")
     ap.add_argument("--by-scenario", action="store_true", help="rows pooling each scenario over the recordings")
+    ap.add_argument("--by-seed", action="store_true", help="rows pooling each seed over the recordings and scenarios")
     ap.add_argument("--save", default=None, metavar="FILE", help="write the per-log results (pickle)")
-    ap.add_argument("--from-results", default=None, metavar="FILE",
-                    help="print the table of an earlier run's --save FILE without running")
+    ap.add_argument("--from-results", default=None, nargs="+", metavar="FILE",
+                    help="print the table of earlier runs' --save FILEs (pooled; disjoint logs) without running")
     args = ap.parse_args()
     if args.from_results:
-        with open(args.from_results, "rb") as fh:
-            saved = pickle.load(fh)
-        print(saved["title"] + f" (from {args.from_results})")
-        print_table(saved["results"], saved["recordings"], saved["scenarios"], args.by_scenario)
+        try:
+            saved = load_results(args.from_results)
+        except (OSError, ValueError, pickle.UnpicklingError, KeyError) as exc:
+            ap.error(f"--from-results: {exc}")
+        print(saved["title"] + f" (from {' '.join(args.from_results)})")
+        print_table(saved["results"], saved["recordings"], saved["scenarios"], args.by_scenario, args.by_seed)
         return
     recipe = recipe_overrides(args.recipe, ap)
     recordings = []
@@ -129,25 +214,31 @@ def main() -> None:
         with open(args.save, "wb") as fh:
             pickle.dump(dict(title=title, results=results, recordings=recordings, scenarios=args.scenarios), fh)
     print(title)
-    print_table(results, recordings, args.scenarios, args.by_scenario)
+    print_table(results, recordings, args.scenarios, args.by_scenario, args.by_seed)
     cpu = sum(r["factorgraph"]["cpu_s"] for r in results)
     print(f"graph calibrate() CPU {cpu:.0f} s over {len(results)} logs; load average at the start {load0:.1f}, "
           f"at the end {os.getloadavg()[0]:.1f}")
 
 
-def print_table(results: list[dict], recordings: list[str], scenarios: list[str], by_scenario: bool) -> None:
-    """The table: a row per recording and scenario, per scenario (``by_scenario``), all pooled."""
+def print_table(results: list[dict], recordings: list[str], scenarios: list[str], by_scenario: bool,
+                by_seed: bool = False) -> None:
+    """The table: a row per recording and scenario, per scenario (``by_scenario``), per seed
+    (``by_seed``), all pooled."""
     print("| recording / scenario | logs (seeds) | graph's sensors (missed) | graph xy RMS (mm) | "
           "grid search xy RMS (mm) | graph / grid | "
           "graph within 1 sigma x / y / z (%) [90 % over seeds] | "
-          "graph error / sigma RMS x / y / z [90 % over seeds] |")
-    print("|---|---|---|---|---|---|---|---|")
+          "graph error / sigma RMS x / y / z [90 % over seeds] | "
+          "graph error / sigma RMS, shared x / y ; rest x / y | AMCL's true run mean / exact OU std RMS x / y (logs) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for rec in recordings:
         for sc in scenarios:
             print(_row(f"{rec} / {sc}", [r for r in results if r["recording"] == rec and r["scenario"] == sc]))
     if by_scenario:
         for sc in scenarios:
             print(_row(f"all / {sc}", [r for r in results if r["scenario"] == sc]))
+    if by_seed:
+        for seed in sorted({r["seed"] for r in results}):
+            print(_row(f"seed {seed}", [r for r in results if r["seed"] == seed]))
     print(_row("all", results))
 
 
