@@ -41,3 +41,12 @@ def test_what_no_rigid_transform_holds_is_left():
 
 def test_fewer_than_two_sensors_give_nan():
     assert np.isnan(rigid_residual_rms_mm(np.zeros((1, 2)), np.zeros((1, 2))))
+
+
+def test_missed_sensors_are_summed_over_logs_and_unknown_when_not_counted():
+    from bench_factorgraph_nuisances import missed_text
+
+    rs = [{"factorgraph": {"missed": 0}, "gridsearch": {"missed": 2}},
+          {"factorgraph": {"missed": 1}, "gridsearch": {"missed": 3}}]
+    assert (missed_text(rs, "factorgraph"), missed_text(rs, "gridsearch")) == ("1", "5")
+    assert missed_text(rs + [{"factorgraph": {}}], "factorgraph") == "?"     # saved before counting
