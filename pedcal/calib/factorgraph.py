@@ -65,6 +65,8 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     observability,
     observation_block,
     observation_block_terms,
+    observation_graph,
+    observation_terms,
     observation_sigmas,
     optimize_graph,
     pose_arrays,
@@ -98,6 +100,7 @@ from pedcal.calib.profile import (
     joint_marginal_covariance,
     profile_step,
     retract_flat,
+    sparse_system,
     steps_to_come_below,
 )
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
@@ -486,7 +489,19 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # (a rebuild that left the block empty: an ordering kept from it would lack the people)
         parts.ordering = None
     parts.ordering_awaits_observations = False
-    parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
+    # the block's terms at ``result``; its factors are made when asked for (``block()``: the
+    # selection of the head profile, an ordering not kept, people, the final graph), the steps
+    # take its linearization from the terms (ObservationRhs.linearized): the factors of a block
+    # nobody asks for (60 000 at 1000 sensors, 0.14 s a block) are not made
+    obs_terms = block_terms = observation_terms(log, prob, result)
+    built = None
+
+    def block() -> gtsam.NonlinearFactorGraph:
+        """The observation block of ``block_terms``, made on the first call for them."""
+        nonlocal built
+        if built is not block_terms:
+            parts.blocks["observations"], built = observation_graph(prob, block_terms), block_terms
+        return parts.blocks["observations"]
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
@@ -567,15 +582,20 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
                      if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
+        if step is None and parts.ordering is None:
+            block()                 # (the whole graph's COLAMD ordering is computed from it)
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols,
-            obs0=parts.blocks["observations"], kernel=kernel, plain_leading=prior_factors, plain=plain,
+            obs0=parts.blocks["observations"] if built is block_terms else None, kernel=kernel,
+            plain_leading=prior_factors, plain=plain,
             plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
             # (the first step's fill-reducing order: the graph's COLAMD ordering, the solver's)
             order=fill_reducing_order(parts.colamd(), cols) if step is None else step.order,
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
-            footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows())
+            footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows(),
+            # (the block's linearization made from its terms; GTSAM's where they cannot make it)
+            obs_linear=lambda f=rhs, t=block_terms: _linearized(f, t, cols, block, result))
         if not chord:
             full_step = step
         if considered and not chord:
@@ -609,7 +629,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             select_profile = False
             local = step.local
             # the rows of the profile's system: the fixed blocks', the observations', the motion's
-            graphs = [fixed, parts.blocks["observations"]] + ([parts.blocks["motion"]] if odo else [])
+            graphs = [fixed, block()] + ([parts.blocks["motion"]] if odo else [])
             n_rows = 0 if step.rho0 is None else len(step.rho0)
             step, nuis, compared = select_head_profile(prob, step, nuis, folds=row_sensors(graphs, n_rows),
                                                        clusters=row_clusters(graphs, prob.pose_times, n_rows))
@@ -690,7 +710,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                    f"{ratio[mine].max():.2f} sigma")
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
-            parts.blocks["observations"], obs_terms = observation_block_terms(log, prob, result)
+            obs_terms = block_terms = observation_terms(log, prob, result)
             if odo:
                 parts.blocks["motion"] = motion_block(log, prob)
         if converged:
@@ -719,12 +739,25 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         cov[:k, :k] = step.covariance
         cov[np.arange(k, len(cov)), np.arange(k, len(cov))] = step.local.variance
         local = (local_sensors, step.local.Z)
+    if final_graph:
+        block()
+    elif built is not block_terms:
+        # (a pass whose graph the caller rebuilds: the block left empty, not made)
+        parts.blocks["observations"] = gtsam.NonlinearFactorGraph()
+        parts.ordering_awaits_observations = parts.ordering is not None
     return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names,
                        local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],
                                                                     unmodelled[2]),
                        considered=None if consider_s is None else (consider_sd, consider_s[cols.index(keys)]),
                        ordering=parts.colamd() if final_graph else None)
+
+
+def _linearized(rhs: ObservationRhs, terms, cols, block, values: gtsam.Values):
+    """The observation block of ``terms`` linearized at ``values`` as (A, b) in ``cols``: made
+    from the terms (:meth:`ObservationRhs.linearized`), else GTSAM's linearization of ``block()``."""
+    made = rhs.linearized(cols, terms)
+    return made if made is not None else sparse_system(block().linearize(values), cols)
 
 
 def _unmodelled_curvature(step, chi2: float):

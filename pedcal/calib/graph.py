@@ -88,6 +88,7 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+import scipy.sparse as sps
 
 from pedcal import frames
 from pedcal.calib.amcl_model import (  # noqa: F401
@@ -1026,12 +1027,18 @@ def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Va
     :class:`ObservationRhs` at the same values and shifts reads again otherwise)."""
     terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
                               robust=robust, sigma_scale=sigma_scale, predicted=predicted)
+    return observation_graph(prob, terms), terms
+
+
+def observation_graph(prob: FactorGraphProblem, terms: ObservationTerms) -> gtsam.NonlinearFactorGraph:
+    """The observation block's factors made from its :class:`ObservationTerms` (what
+    :func:`observation_block_terms` builds)."""
     graph = gtsam.NonlinearFactorGraph()
     if terms.prior is not None:
         graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
     n = len(terms.sensor)
     if not n:
-        return graph, terms
+        return graph
     cache = _NoiseCache.of(prob.recipe, robust=terms.robust)
     pairs, inverse = unique_rows(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]))
     models = cache.models(pairs[:, 0], pairs[:, 1])
@@ -1052,7 +1059,7 @@ def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Va
     for s_key, t_key, px, py, pz, r, pose, model in zip(s_keys, t_keys, x, y, z, terms.range_m.tolist(), is_pose,
                                                         model_of, strict=True):
         add((to_pose if pose else to_point)(s_key, t_key, unit3(px, py, pz), r, model))
-    return graph, terms
+    return graph
 
 
 def _unit3_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1128,6 +1135,79 @@ class ObservationRhs:
         self._robot_by_sensor = by_sensor
         self._robot_cuts = np.searchsorted(self.sensor[by_sensor], np.arange(int(self.sensor.max(initial=-1)) + 2))
 
+    def linearized(self, cols, terms: ObservationTerms) -> tuple | None:
+        """(A, b) of the block :func:`observation_block_terms` built from ``terms`` (read at these
+        values: its ObservationTerms) linearized at the values, what
+        ``sparse_system(block.linearize(values), cols)`` gives (``cols``: the system's
+        :class:`pedcal.calib.profile.Columns`), to rounding, in numpy without the block: a
+        bearing-range factor's Jacobians are GTSAM's (Pose3::bearing and range to a pose's
+        translation, in the predicted direction's Unit3 basis), whitened by its sigmas and, with
+        the robust kernel, reweighted by the square root of its weight at the whitened error's
+        norm (GTSAM's Robust::WhitenSystem). The head offset's prior, one factor, is GTSAM's. A's
+        pattern is the factors' own, whatever the values (an entry GTSAM's sparse Jacobian would
+        leave out as below 1e-12 is kept, as the zero or near-zero it is). None where the block
+        holds people's sightings or a kernel other than Huber's, Cauchy's or none: the caller
+        linearizes the block."""
+        from pedcal.calib.profile import sparse_system
+
+        rec = self.prob.recipe
+        n = len(terms.sensor)
+        kernel = rec.robust_kernel.lower() if terms.robust else "none"
+        if (terms.robot_points is None or terms.read_at is None or terms.read_at[0] is not self.values
+                or terms.read_at[1] != self.t_max or n != len(self.sensor) or not terms.is_pose.all()
+                or kernel not in ("none", "huber", "cauchy")):
+            return None
+        blocks = []
+        if terms.prior is not None:
+            prior = gtsam.NonlinearFactorGraph()
+            prior.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
+            blocks.append(sparse_system(prior.linearize(self.values), cols))
+        if n:
+            R_s = terms.robot_points[1]                          # each factor's sensor rotation
+            R_x = pose_arrays(self.values, symbols("x", terms.target))[0]
+            b1, b2, u = self.basis[0], self.basis[1], self.u_pred
+            inv_range = (1.0 / self.range_pred)[:, None]
+            # the bearing's rows b_r^T / |q| and the range's u^T times d q: d q / d(sensor tangent
+            # [w, v]) = [skew(q), -I] (b_r^T skew(q) / |q| = (b_r x u)^T: -b2, b1), d q / d(the
+            # target's tangent v) = R_s^T R_x, nothing for its rotation
+            rows_q = np.stack([b1 * inv_range, b2 * inv_range, u], axis=1)
+            target = np.matmul(np.matmul(rows_q, R_s.transpose(0, 2, 1)), R_x)
+            inv_sigma = 1.0 / terms.sigmas(rec, self._unscaled_sigmas)
+            b = -self._errors(terms) * inv_sigma
+            # GTSAM's robust weight at the whitened error's norm e (Huber: k / e beyond k; Cauchy:
+            # k^2 / (k^2 + e^2)), its root scaling the factor's rows
+            e, k = np.linalg.norm(b, axis=1), float(rec.robust_k)
+            if kernel == "none":
+                w = np.ones(n)
+            elif kernel == "huber":
+                w = np.where(e <= k, 1.0, k / np.maximum(e, 1e-300))
+            else:
+                w = k * k / (k * k + e * e)
+            w = np.sqrt(w)[:, None]
+            b *= w
+            scale = inv_sigma * w                               # (n, 3) each row's whitening and weight
+            data = np.concatenate([-b2, -rows_q[:, 0], target[:, 0], b1, -rows_q[:, 1], target[:, 1],
+                                   -u, target[:, 2]], axis=1)
+            data *= np.repeat(scale, [9, 9, 6], axis=1)
+            s_col = cols.index(symbols("s", terms.sensor)).reshape(n, 6)
+            x_col = cols.index(symbols("x", terms.target)).reshape(n, 6)[:, 3:]
+            index_dtype = np.int32 if max(24 * n, cols.n) < 2 ** 31 else np.int64
+            indices = np.concatenate([s_col, x_col, s_col, x_col, s_col[:, 3:], x_col], axis=1).astype(index_dtype)
+            # (the entries GTSAM's sparse Jacobian leaves out, at most 1e-12: the same pattern)
+            keep = np.abs(data) > 1e-12
+            counts = np.column_stack([keep[:, :9].sum(axis=1), keep[:, 9:18].sum(axis=1), keep[:, 18:].sum(axis=1)])
+            indptr = np.r_[0, np.cumsum(counts.ravel())].astype(index_dtype)
+            blocks.append((sps.csr_matrix((data[keep], indices[keep], indptr), shape=(3 * n, cols.n)), b.ravel()))
+        if not blocks:
+            return sps.csr_matrix((0, cols.n)), np.zeros(0)
+        if len(blocks) == 1:
+            return blocks[0]
+        # (the prior's rows first: its arrays before the observations', no general stacking)
+        (A0, b0), (A1, b1_) = blocks
+        indptr = np.r_[A0.indptr, A1.indptr[1:] + A0.nnz].astype(A1.indptr.dtype)
+        return (sps.csr_matrix((np.r_[A0.data, A1.data], np.r_[A0.indices.astype(A1.indices.dtype), A1.indices],
+                                indptr), shape=(A0.shape[0] + A1.shape[0], cols.n)), np.r_[b0, b1_])
+
     def factor_rows(self) -> np.ndarray:
         """The start row of every factor of the block in its linearization, and the end: the
         head offset's prior (a Pose3's 6 rows) first when there is one, then 3 rows per
@@ -1151,16 +1231,19 @@ class ObservationRhs:
             prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))
             rows.append(-prior.whitenedError(self.values))
         if len(terms.sensor):
-            u_meas = terms.p_sensor / np.linalg.norm(terms.p_sensor, axis=1, keepdims=True)
-            x = np.sum(self.u_pred * u_meas, axis=1)
-            # theta / sin(theta) (1 where the directions agree, as GTSAM takes it)
-            y = np.where(x > 1.0 - 1e-9, 1.0,
-                         np.arccos(np.clip(x, -1.0, 1.0)) / np.sqrt(np.maximum(1.0 - x * x, 1e-300)))
-            v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
-            err = np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
-                                   self.range_pred - terms.range_m])
-            rows.append((-err / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())
+            rows.append((-self._errors(terms) / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())
         return np.concatenate(rows) if rows else np.zeros(0)
+
+    def _errors(self, terms: ObservationTerms) -> np.ndarray:
+        """(n, 3) each factor's unwhitened error for the measurements of ``terms``."""
+        u_meas = terms.p_sensor / np.linalg.norm(terms.p_sensor, axis=1, keepdims=True)
+        x = np.sum(self.u_pred * u_meas, axis=1)
+        # theta / sin(theta) (1 where the directions agree, as GTSAM takes it)
+        y = np.where(x > 1.0 - 1e-9, 1.0,
+                     np.arccos(np.clip(x, -1.0, 1.0)) / np.sqrt(np.maximum(1.0 - x * x, 1e-300)))
+        v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
+        return np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
+                                self.range_pred - terms.range_m])
 
 
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,
