@@ -12,7 +12,7 @@ import pytest
 from test_profile import shared_people_problem, solved_graph
 
 import pedcal.calib.factorgraph as fgm
-from pedcal.calib.graph import GraphRecipe, ObservationRhs, S, observation_block_terms, observation_graph
+from pedcal.calib.graph import GraphRecipe, MotionRhs, ObservationRhs, S, observation_block_terms
 from pedcal.calib.profile import Columns, sparse_system
 from pedcal.errors import DegenerateDataWarning
 from pedcal.sim import simulate_logs
@@ -95,21 +95,37 @@ def test_linearized_is_refused_where_gtsams_must_linearize(paper_robot):
         Columns.of(parts_p.values), p_terms) is None
 
 
-def _nuisances(sim, prob, parts, result, monkeypatch, gtsams: bool, **kw):
-    """_estimate_nuisances on copies, counting the observation blocks made; ``gtsams``: every
-    step's block made and linearized by GTSAM (the terms' own linearization refused)."""
+def _nuisances(sim, prob, parts, result, monkeypatch, gtsams: bool, motions: list | None = None, **kw):
+    """_estimate_nuisances on copies, counting the observation blocks made (and the odometry's
+    blocks, into ``motions``); ``gtsams``: every step's blocks made and linearized by GTSAM (the
+    terms' own linearization refused, the odometry's block built and linearized)."""
     prob, parts = copy.deepcopy(prob), copy.copy(parts)
     parts.blocks = dict(parts.blocks)
     made = []
-    build = fgm.observation_graph
+    build, build_motion = fgm.observation_graph, fgm.motion_block
 
     def counted(p, terms):
         made.append(terms)
         return build(p, terms)
 
+    def counted_motion(*args, **kw):
+        if motions is not None and "theta" not in kw:
+            motions.append(1)
+        return build_motion(*args, **kw)
+
     monkeypatch.setattr(fgm, "observation_graph", counted)
+    monkeypatch.setattr(fgm, "motion_block", counted_motion)
     if gtsams:
         monkeypatch.setattr(ObservationRhs, "linearized", lambda self, cols, terms: None)
+        init = MotionRhs.__init__
+
+        def keeping(self, log, p, values, **kw):
+            init(self, log, p, values, **kw)
+            self.kept_values = values
+
+        monkeypatch.setattr(MotionRhs, "__init__", keeping)
+        monkeypatch.setattr(MotionRhs, "linearized", lambda self, cols: sparse_system(
+            counted_motion(self.log, self.prob).linearize(self.kept_values), cols))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         shifts = fgm._estimate_nuisances(sim.calib, prob, parts, result, **kw)
@@ -120,12 +136,19 @@ def _nuisances(sim, prob, parts, result, monkeypatch, gtsams: bool, **kw):
 def test_profile_steps_without_the_blocks_factors_equal_gtsams(paper_robot, monkeypatch):
     sim, rec, prob, parts, result = paper_robot
     parts.colamd()              # (the solver's ordering kept, as the calibration keeps it: no block made for it)
-    ours, prob_ours, parts_ours, made = _nuisances(sim, prob, parts, result, monkeypatch, gtsams=False)
-    theirs, prob_theirs, _, made_gtsam = _nuisances(sim, prob, parts, result, monkeypatch, gtsams=True)
+    assert prob.odometry is not None and rec.estimate_odometry_errors    # (the odometry's corrections profiled)
+    motions, motions_gtsam = [], []
+    ours, prob_ours, parts_ours, made = _nuisances(sim, prob, parts, result, monkeypatch, gtsams=False,
+                                                   motions=motions, odometry=True)
+    theirs, prob_theirs, _, made_gtsam = _nuisances(sim, prob, parts, result, monkeypatch, gtsams=True,
+                                                    motions=motions_gtsam, odometry=True)
     assert ours.solves == theirs.solves >= 2
-    # the block made once, for the final graph (GTSAM's way: once per step, and the final one)
+    # the block made once, for the final graph (GTSAM's way: once per step, and the final one);
+    # the odometry's once, at the final corrections (GTSAM's: every step's)
     assert len(made) == 1 and len(made_gtsam) == ours.solves + 1
-    for name in ("ray_shift_m", "horizontal_shift_m"):
+    assert len(motions) == 1 and len(motions_gtsam) >= ours.solves + 1
+    assert prob_ours.odometry_scale_correction != 0.0
+    for name in ("ray_shift_m", "horizontal_shift_m", "odometry_scale_correction", "odometry_drift_rad_per_m"):
         assert getattr(prob_ours, name) == pytest.approx(getattr(prob_theirs, name), abs=1e-10)
     assert np.abs(ours.cov - theirs.cov).max() <= 1e-8 * np.abs(theirs.cov).max()
     for i in range(len(prob.sensor_ids)):
@@ -136,6 +159,24 @@ def test_profile_steps_without_the_blocks_factors_equal_gtsams(paper_robot, monk
     assert parts_ours.blocks["observations"].size() == block.size() > 1000
     assert parts_ours.blocks["observations"].error(ours.result) == pytest.approx(block.error(ours.result), rel=1e-12)
     assert ours.graph.size() == theirs.graph.size()
+    motion = fgm.motion_block(sim.calib, prob_ours)
+    assert parts_ours.blocks["motion"].size() == motion.size() > 100
+    assert parts_ours.blocks["motion"].error(ours.result) == pytest.approx(motion.error(ours.result), rel=1e-12)
+
+
+def test_motion_linearized_equals_gtsams_linearization_of_the_block(paper_robot):
+    sim, rec, prob, parts, result = paper_robot
+    prob = copy.copy(prob)
+    # the odometry's corrections away from 0 and the poses off the solution: large errors, turns
+    prob.odometry_scale_correction, prob.odometry_drift_rad_per_m = 0.02, np.radians(0.5)
+    values = result.retract(_random_delta(result, 0.02, seed=5))
+    cols = Columns.of(values)
+    A, b = sparse_system(fgm.motion_block(sim.calib, prob).linearize(values), cols)
+    A_ours, b_ours = MotionRhs(sim.calib, prob, values).linearized(cols)
+    assert A.shape == A_ours.shape and A.shape[0] > 600
+    assert np.array_equal(A.indptr, A_ours.indptr) and np.array_equal(A.indices, A_ours.indices)
+    assert np.abs(A.data - A_ours.data).max() <= 1e-9 * np.abs(A.data).max()
+    assert np.abs(b).max() > 1.0 and np.abs(b - b_ours).max() < 1e-9 * np.abs(b).max()
 
 
 def test_a_pass_whose_graph_is_rebuilt_leaves_the_block_empty_unmade(paper_robot, monkeypatch):

@@ -494,7 +494,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # take its linearization from the terms (ObservationRhs.linearized): the factors of a block
     # nobody asks for (60 000 at 1000 sensors, 0.14 s a block) are not made
     obs_terms = block_terms = observation_terms(log, prob, result)
-    built = None
+    built, motion_fresh = None, True
 
     def block() -> gtsam.NonlinearFactorGraph:
         """The observation block of ``block_terms``, made on the first call for them."""
@@ -502,6 +502,13 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         if built is not block_terms:
             parts.blocks["observations"], built = observation_graph(prob, block_terms), block_terms
         return parts.blocks["observations"]
+
+    def motion() -> gtsam.NonlinearFactorGraph:
+        """The odometry's block at the problem's present corrections, made when they moved."""
+        nonlocal motion_fresh
+        if not motion_fresh:
+            parts.blocks["motion"], motion_fresh = motion_block(log, prob), True
+        return parts.blocks["motion"]
     nuis = [Nuisance("ray_shift_m", rec.head_radius_m, rec.head_ray_shift_sigma_m, rec.head_ray_shift_step_m)]
     if rec.estimate_head_horizontal_shift and rec.head_horizontal_shift_sigma_m > 0.0:
         nuis.append(Nuisance("horizontal_shift_m", 0.0, rec.head_horizontal_shift_sigma_m, rec.head_ray_shift_step_m))
@@ -574,7 +581,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             motion_rhs = MotionRhs(log, prob, result)
             plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
                      [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
-                     lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))))
+                     lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))),
+                     # (the block's linearization made in numpy: it is not rebuilt between steps)
+                     lambda f=motion_rhs: f.linearized(cols))
         # B's columns in numpy, no factors rebuilt (what the block read at ``result`` taken from it)
         rhs = ObservationRhs(log, prob, result, terms=obs_terms)
         obs_terms = None
@@ -589,7 +598,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             np.r_[theta, theta_local], nuis + local_nuis, cols,
             obs0=parts.blocks["observations"] if built is block_terms else None, kernel=kernel,
             plain_leading=prior_factors, plain=plain,
-            plain0=parts.blocks["motion"] if odo else None, previous=full_step if chord else None,
+            plain0=parts.blocks["motion"] if odo and motion_fresh else None, previous=full_step if chord else None,
             # (the first step's fill-reducing order: the graph's COLAMD ordering, the solver's)
             order=fill_reducing_order(parts.colamd(), cols) if step is None else step.order,
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
@@ -629,7 +638,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             select_profile = False
             local = step.local
             # the rows of the profile's system: the fixed blocks', the observations', the motion's
-            graphs = [fixed, block()] + ([parts.blocks["motion"]] if odo else [])
+            graphs = [fixed, block()] + ([motion()] if odo else [])
             n_rows = 0 if step.rho0 is None else len(step.rho0)
             step, nuis, compared = select_head_profile(prob, step, nuis, folds=row_sensors(graphs, n_rows),
                                                        clusters=row_clusters(graphs, prob.pose_times, n_rows))
@@ -711,8 +720,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
             obs_terms = block_terms = observation_terms(log, prob, result)
-            if odo:
-                parts.blocks["motion"] = motion_block(log, prob)
+            motion_fresh = not odo          # (the odometry's block at the new corrections made when asked for)
         if converged:
             break
     else:
@@ -739,6 +747,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         cov[:k, :k] = step.covariance
         cov[np.arange(k, len(cov)), np.arange(k, len(cov))] = step.local.variance
         local = (local_sensors, step.local.Z)
+    motion()
     if final_graph:
         block()
     elif built is not block_terms:

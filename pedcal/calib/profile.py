@@ -394,7 +394,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
     for those nuisances alone, the observations for the others; ``plain0``: those factors at
     ``theta`` when already built. A third element ``residuals(theta)``, their linearization's
-    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds.
+    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds;
+    a fourth, ``linear()``, their linearization at ``values`` and ``theta`` as (A, b) in ``cols``
+    (:meth:`pedcal.calib.graph.MotionRhs.linearized`), is taken instead of ``plain0``'s (not
+    when the first step's order is computed here).
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
     its Hessian and sensitivity Z are kept and only the variables' step z0 and the gradient (B's
@@ -445,6 +448,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     chord = residuals is not None and takes_chord(previous, local)
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
+    plain_linear = plain[3] if plain is not None and len(plain) > 3 else None
     # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
     # Jacobian blocks are a few times A's size), but for the first step's fill-reducing order
     need_order = order is None or len(order) != cols.n
@@ -463,7 +467,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         obs0 = obs0 if obs0 is not None else observations(theta, None)
         A_o, b_o0 = linear(obs0)
     if plain_build is not None:
-        A_p, b_p0 = linear(plain0 if plain0 is not None else plain_build(theta))
+        A_p, b_p0 = (plain_linear() if plain_linear is not None and lin is None
+                     else linear(plain0 if plain0 is not None else plain_build(theta)))
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
     mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
