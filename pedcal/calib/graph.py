@@ -1027,6 +1027,12 @@ class MotionRhs:
     def __call__(self, theta: dict | None) -> np.ndarray:
         if len(self.times) < 2:
             return np.zeros(0)
+        err, sigmas = self._errors(theta)
+        return (-err / sigmas).ravel()
+
+    def _errors(self, theta: dict | None) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 6) each factor's error Log(Z^-1 X_k^-1 X_k+1) and its sigmas, at the corrections
+        ``theta`` overrides."""
         turn, tx, ty, sy, st = _odometry_steps(self.log, self.prob, self.times, theta)
         c, s_ = np.cos(turn), np.sin(turn)
         Rz_inv = np.zeros((len(turn), 3, 3))             # Z^-1's rotation, Rz(-turn)
@@ -1035,7 +1041,7 @@ class MotionRhs:
         Rz_inv[:, 2, 2] = 1.0
         dt = self.t_h - np.column_stack([tx, ty, np.zeros(len(tx))])
         err = pose3_log(Rz_inv @ self.R_h, np.einsum("nij,nj->ni", Rz_inv, dt))
-        return (-err / _motion_sigmas(_motion_sigma_keys(sy, st))).ravel()
+        return err, _motion_sigmas(_motion_sigma_keys(sy, st))
 
     def linearized(self, cols) -> tuple:
         """(A, b) of the odometry block at the problem's corrections (``motion_block(log,
@@ -1048,15 +1054,8 @@ class MotionRhs:
         n = len(self.times) - 1
         if n < 1:
             return sps.csr_matrix((0, cols.n)), np.zeros(0)
-        turn, tx, ty, sy, st = _odometry_steps(self.log, self.prob, self.times, None)
-        c, s_ = np.cos(turn), np.sin(turn)
-        Rz_inv = np.zeros((n, 3, 3))                      # Z^-1's rotation, Rz(-turn)
-        Rz_inv[:, 0, 0] = Rz_inv[:, 1, 1] = c
-        Rz_inv[:, 0, 1], Rz_inv[:, 1, 0] = s_, -s_
-        Rz_inv[:, 2, 2] = 1.0
-        dt = self.t_h - np.column_stack([tx, ty, np.zeros(n)])
-        err = pose3_log(Rz_inv @ self.R_h, np.einsum("nij,nj->ni", Rz_inv, dt))
-        inv_sigma = 1.0 / _motion_sigmas(_motion_sigma_keys(sy, st))        # (GTSAM whitens by 1 / sigma)
+        err, sigmas = self._errors(None)
+        inv_sigma = 1.0 / sigmas                           # (GTSAM whitens by 1 / sigma)
         J = pose3_logmap_derivative(err)
         # -Ad(T^-1), T^-1 = (R^T, -R^T t): [[-R^T, 0], [-hat(-R^T t) R^T, -R^T]]
         Rt = self.R_h.transpose(0, 2, 1)
