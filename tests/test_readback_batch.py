@@ -52,3 +52,8 @@ def test_observability_names_a_direction_the_data_left_to_the_prior():
     cov[5, 5] = (0.9 * p[5]) ** 2          # z left at 0.9 of its prior sigma
     names, bad = observability(T, cov, rec)
     assert names == ["z"] and bad.shape == (6, 1)
+
+
+def test_no_sensor_gives_empty_sigmas():
+    cov_pos, sp, sy = sensor_sigmas_world(np.zeros((0, 3, 3)), np.zeros((0, 6, 6)))
+    assert cov_pos.shape == (0, 3, 3) and sp.shape == (0, 3) and sy.shape == (0, 3)

@@ -173,10 +173,10 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
     # (hashed, not sorted: 400 000 id strings at a large site took 0.14 s to sort)
     obs_count = pd.Series(prob.obs_sensor).value_counts().to_dict() if rec.robot else {}
     ids = list(prob.sensor_ids)
-    covs = np.stack([cov_body[sid] if cov_body is not None else marginals.marginalCovariance(S(i))
-                     for i, sid in enumerate(ids)]).reshape(len(ids), 6, 6)
+    covs = np.array([cov_body[sid] if cov_body is not None else marginals.marginalCovariance(S(i))
+                     for i, sid in enumerate(ids)], float).reshape(len(ids), 6, 6)
     # (every sensor's eigen-decomposition, and below its sigmas, in one batch)
-    given = covs if cov_given is None else np.stack([cov_given[sid] for sid in ids]).reshape(len(ids), 6, 6)
+    given = covs if cov_given is None else np.array([cov_given[sid] for sid in ids], float).reshape(len(ids), 6, 6)
     evals, evecs = np.linalg.eigh(_whitened(given, rec))
     poses, kept = [], []
     for i, sid in enumerate(ids):
@@ -202,7 +202,8 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
                           "value is kept there", DegenerateDataWarning, stacklevel=2)
         poses.append(T)
         kept.append((n_obs, status, names))
-    cov_pos, sp, sy = sensor_sigmas_world(np.stack([T.rotation().matrix() for T in poses]).reshape(-1, 3, 3), covs)
+    cov_pos, sp, sy = sensor_sigmas_world(np.array([T.rotation().matrix() for T in poses], float).reshape(-1, 3, 3),
+                                          covs)
     out = []
     for i, (sid, T, what) in enumerate(zip(ids, poses, kept, strict=True)):
         if what is None:
