@@ -467,8 +467,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     profile's inverse Hessian and the variables' sensitivity to them carries it into the
     sensors' covariance: the marginal over the nuisances, not the conditional. ``parts`` gets
     the observation and motion blocks at the final values, and the result its graph, unless
-    ``final_graph`` is False (a pass whose graph the caller rebuilds: the blocks are left at the
-    last step's linearization point, the result's graph None); ``curvature=False`` leaves the
+    ``final_graph`` is False (a pass whose graph the caller rebuilds: the observation block is
+    left empty unless something made it, the result's graph None); ``curvature=False`` leaves the
     curvature out (a first, rough pass).
 
     Above ``clock_offsets_joint_max`` per-sensor clock offsets, they join the linear system as
