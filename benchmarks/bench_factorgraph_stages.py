@@ -55,6 +55,7 @@ STAGES = {
     "graph build": [("pedcal.calib.factorgraph", "build_parts"), ("pedcal.calib.factorgraph", "rebuild_parts"),
                     ("pedcal.calib.factorgraph", "observation_block"),
                     ("pedcal.calib.factorgraph", "observation_block_terms"),
+                    ("pedcal.calib.factorgraph", "observation_graph"),
                     ("pedcal.calib.factorgraph", "motion_block")],
     "Levenberg-Marquardt": [("pedcal.calib.factorgraph", "optimize_graph")],
     "profile steps": [("pedcal.calib.factorgraph", "profile_step")],

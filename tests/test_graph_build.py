@@ -620,7 +620,8 @@ def test_the_first_profile_step_takes_its_block_at_the_solution_it_is_linearized
 
     def both(*args, **kw):
         # (both before the loop moves the problem's nuisances: the blocks read them)
-        fresh = step_of(*args, **{**kw, "obs0": observation_block(sim.calib, prob, args[2])})
+        # (the fresh block linearized by GTSAM, not taken from the terms of the one held)
+        fresh = step_of(*args, **{**kw, "obs0": observation_block(sim.calib, prob, args[2]), "obs_linear": None})
         steps.append((step_of(*args, **kw), fresh))
         return steps[-1][0]
 

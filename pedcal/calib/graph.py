@@ -88,6 +88,7 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+import scipy.sparse as sps
 
 from pedcal import frames
 from pedcal.calib.amcl_model import (  # noqa: F401
@@ -971,6 +972,44 @@ def pose3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.column_stack([w, t - 0.5 * wt + c[:, None] * np.cross(w, wt)])
 
 
+def _hat(v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) the skew-symmetric matrices of vectors (..., 3): hat(v) x = v x x."""
+    W = np.zeros(v.shape[:-1] + (3, 3))
+    W[..., 0, 1], W[..., 0, 2], W[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    W[..., 1, 0], W[..., 2, 0], W[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return W
+
+
+def pose3_logmap_derivative(xi: np.ndarray) -> np.ndarray:
+    """(n, 6, 6) GTSAM's Pose3::LogmapDerivative at the tangents ``xi`` = Logmap(T) (n, 6):
+    [[J_w, 0], [-J_w Q J_w, J_w]], J_w SO(3)'s (I + W / 2 + (1 / theta^2 - (1 + cos theta) /
+    (2 theta sin theta)) W^2, the identity at theta^2 <= machine epsilon) and Q GTSAM's
+    computeQforExpmapDerivative (Barfoot & Furgale 2014, eq. 102; its series below 1e-5 rad)."""
+    w, v = xi[:, :3], xi[:, 3:]
+    W, V = _hat(w), _hat(v)
+    theta2 = np.sum(w * w, axis=1)
+    exact = theta2 > np.finfo(float).eps
+    th = np.sqrt(np.where(exact, theta2, 1.0))
+    c = np.where(exact, 1.0 / (th * th) - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th)), 0.0)
+    J_w = np.eye(3) + 0.5 * W + c[:, None, None] * (W @ W)
+    phi = np.sqrt(theta2)
+    big = phi > 1e-5
+    p = np.where(big, phi, 1.0)
+    s_, c_ = np.sin(p), np.cos(p)
+    p2 = p * p
+    p3, p4, p5 = p2 * p, p2 * p2, p2 * p2 * p
+    k1 = np.where(big, (p - s_) / p3, 1.0 / 6.0)
+    k2 = np.where(big, (1.0 - p2 / 2.0 - c_) / p4, -1.0 / 24.0)
+    k3 = np.where(big, -0.5 * ((1.0 - p2 / 2.0 - c_) / p4 - 3.0 * (p - s_ - p3 / 6.0) / p5), 1.0 / 120.0)
+    WVW = W @ V @ W
+    Q = (-0.5 * V + k1[:, None, None] * (W @ V + V @ W - WVW) + k2[:, None, None] * (W @ W @ V + V @ W @ W - 3.0 * WVW)
+         + k3[:, None, None] * (WVW @ W + W @ WVW))
+    J = np.zeros((len(xi), 6, 6))
+    J[:, :3, :3] = J[:, 3:, 3:] = J_w
+    J[:, 3:, :3] = -J_w @ Q @ J_w
+    return J
+
+
 class MotionRhs:
     """The right-hand side b of the odometry block's linearization at fixed ``values`` (b =
     -whitened error, what ``sparse_system(motion_block(..., theta=...).linearize(values))[1]``
@@ -988,6 +1027,12 @@ class MotionRhs:
     def __call__(self, theta: dict | None) -> np.ndarray:
         if len(self.times) < 2:
             return np.zeros(0)
+        err, sigmas = self._errors(theta)
+        return (-err / sigmas).ravel()
+
+    def _errors(self, theta: dict | None) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 6) each factor's error Log(Z^-1 X_k^-1 X_k+1) and its sigmas, at the corrections
+        ``theta`` overrides."""
         turn, tx, ty, sy, st = _odometry_steps(self.log, self.prob, self.times, theta)
         c, s_ = np.cos(turn), np.sin(turn)
         Rz_inv = np.zeros((len(turn), 3, 3))             # Z^-1's rotation, Rz(-turn)
@@ -996,7 +1041,36 @@ class MotionRhs:
         Rz_inv[:, 2, 2] = 1.0
         dt = self.t_h - np.column_stack([tx, ty, np.zeros(len(tx))])
         err = pose3_log(Rz_inv @ self.R_h, np.einsum("nij,nj->ni", Rz_inv, dt))
-        return (-err / _motion_sigmas(_motion_sigma_keys(sy, st))).ravel()
+        return err, _motion_sigmas(_motion_sigma_keys(sy, st))
+
+    def linearized(self, cols) -> tuple:
+        """(A, b) of the odometry block at the problem's corrections (``motion_block(log,
+        prob)``) linearized at the values, what ``sparse_system(block.linearize(values), cols)``
+        gives (``cols``: the system's :class:`pedcal.calib.profile.Columns`), to rounding, in
+        numpy without the block: a BetweenFactorPose3's Jacobians are GTSAM's, J (-Ad(T^-1)) and
+        J for T = X_k^-1 X_k+1, J the Pose3 Logmap's derivative at its error Log(Z^-1 T)
+        (:func:`pose3_logmap_derivative`), whitened by its sigmas; the entries GTSAM's sparse
+        Jacobian leaves out (at most 1e-12) are left out."""
+        n = len(self.times) - 1
+        if n < 1:
+            return sps.csr_matrix((0, cols.n)), np.zeros(0)
+        err, sigmas = self._errors(None)
+        inv_sigma = 1.0 / sigmas                           # (GTSAM whitens by 1 / sigma)
+        J = pose3_logmap_derivative(err)
+        # -Ad(T^-1), T^-1 = (R^T, -R^T t): [[-R^T, 0], [-hat(-R^T t) R^T, -R^T]]
+        Rt = self.R_h.transpose(0, 2, 1)
+        ad = np.zeros((n, 6, 6))
+        ad[:, :3, :3] = ad[:, 3:, 3:] = -Rt
+        ad[:, 3:, :3] = _hat(np.einsum("nij,nj->ni", Rt, self.t_h)) @ Rt
+        rows = np.concatenate([J @ ad, J], axis=2) * inv_sigma[:, :, None]          # (n, 6, 12)
+        x_col = cols.index(symbols("x", range(n + 1))).reshape(n + 1, 6)
+        index_dtype = np.int32 if max(72 * n, cols.n) < 2 ** 31 else np.int64
+        indices = np.concatenate([np.broadcast_to(x_col[:-1, None, :], (n, 6, 6)),
+                                  np.broadcast_to(x_col[1:, None, :], (n, 6, 6))], axis=2).astype(index_dtype)
+        keep = np.abs(rows) > 1e-12
+        indptr = np.r_[0, np.cumsum(keep.sum(axis=2).ravel())].astype(index_dtype)
+        b = (-err * inv_sigma).ravel()
+        return sps.csr_matrix((rows[keep], indices[keep], indptr), shape=(6 * n, cols.n)), b
 
 
 def observation_block(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
@@ -1026,12 +1100,18 @@ def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Va
     :class:`ObservationRhs` at the same values and shifts reads again otherwise)."""
     terms = observation_terms(log, prob, values, t_max=t_max, insert_values=insert_values, theta=theta,
                               robust=robust, sigma_scale=sigma_scale, predicted=predicted)
+    return observation_graph(prob, terms), terms
+
+
+def observation_graph(prob: FactorGraphProblem, terms: ObservationTerms) -> gtsam.NonlinearFactorGraph:
+    """The observation block's factors made from its :class:`ObservationTerms` (what
+    :func:`observation_block_terms` builds)."""
     graph = gtsam.NonlinearFactorGraph()
     if terms.prior is not None:
         graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
     n = len(terms.sensor)
     if not n:
-        return graph, terms
+        return graph
     cache = _NoiseCache.of(prob.recipe, robust=terms.robust)
     pairs, inverse = unique_rows(np.column_stack([cache.keys(terms.noise_range_m), terms.noise_scale]))
     models = cache.models(pairs[:, 0], pairs[:, 1])
@@ -1052,7 +1132,7 @@ def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Va
     for s_key, t_key, px, py, pz, r, pose, model in zip(s_keys, t_keys, x, y, z, terms.range_m.tolist(), is_pose,
                                                         model_of, strict=True):
         add((to_pose if pose else to_point)(s_key, t_key, unit3(px, py, pz), r, model))
-    return graph, terms
+    return graph
 
 
 def _unit3_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1128,6 +1208,79 @@ class ObservationRhs:
         self._robot_by_sensor = by_sensor
         self._robot_cuts = np.searchsorted(self.sensor[by_sensor], np.arange(int(self.sensor.max(initial=-1)) + 2))
 
+    def linearized(self, cols, terms: ObservationTerms) -> tuple | None:
+        """(A, b) of the block :func:`observation_block_terms` built from ``terms`` (read at these
+        values: its ObservationTerms) linearized at the values, what
+        ``sparse_system(block.linearize(values), cols)`` gives (``cols``: the system's
+        :class:`pedcal.calib.profile.Columns`), to rounding, in numpy without the block: a
+        bearing-range factor's Jacobians are GTSAM's (Pose3::bearing and range to a pose's
+        translation, in the predicted direction's Unit3 basis), whitened by its sigmas and, with
+        the robust kernel, reweighted by the square root of its weight at the whitened error's
+        norm (GTSAM's Robust::WhitenSystem). The head offset's prior, one factor, is GTSAM's. A's
+        pattern is the factors' own, whatever the values (an entry GTSAM's sparse Jacobian would
+        leave out as below 1e-12 is kept, as the zero or near-zero it is). None where the block
+        holds people's sightings or a kernel other than Huber's, Cauchy's or none: the caller
+        linearizes the block."""
+        from pedcal.calib.profile import sparse_system
+
+        rec = self.prob.recipe
+        n = len(terms.sensor)
+        kernel = rec.robust_kernel.lower() if terms.robust else "none"
+        if (terms.robot_points is None or terms.read_at is None or terms.read_at[0] is not self.values
+                or terms.read_at[1] != self.t_max or n != len(self.sensor) or not terms.is_pose.all()
+                or kernel not in ("none", "huber", "cauchy")):
+            return None
+        blocks = []
+        if terms.prior is not None:
+            prior = gtsam.NonlinearFactorGraph()
+            prior.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
+            blocks.append(sparse_system(prior.linearize(self.values), cols))
+        if n:
+            R_s = terms.robot_points[1]                          # each factor's sensor rotation
+            R_x = pose_arrays(self.values, symbols("x", terms.target))[0]
+            b1, b2, u = self.basis[0], self.basis[1], self.u_pred
+            inv_range = (1.0 / self.range_pred)[:, None]
+            # the bearing's rows b_r^T / |q| and the range's u^T times d q: d q / d(sensor tangent
+            # [w, v]) = [skew(q), -I] (b_r^T skew(q) / |q| = (b_r x u)^T: -b2, b1), d q / d(the
+            # target's tangent v) = R_s^T R_x, nothing for its rotation
+            rows_q = np.stack([b1 * inv_range, b2 * inv_range, u], axis=1)
+            target = np.matmul(np.matmul(rows_q, R_s.transpose(0, 2, 1)), R_x)
+            inv_sigma = 1.0 / terms.sigmas(rec, self._unscaled_sigmas)
+            b = -self._errors(terms) * inv_sigma
+            # GTSAM's robust weight at the whitened error's norm e (Huber: k / e beyond k; Cauchy:
+            # k^2 / (k^2 + e^2)), its root scaling the factor's rows
+            e, k = np.linalg.norm(b, axis=1), float(rec.robust_k)
+            if kernel == "none":
+                w = np.ones(n)
+            elif kernel == "huber":
+                w = np.where(e <= k, 1.0, k / np.maximum(e, 1e-300))
+            else:
+                w = k * k / (k * k + e * e)
+            w = np.sqrt(w)[:, None]
+            b *= w
+            scale = inv_sigma * w                               # (n, 3) each row's whitening and weight
+            data = np.concatenate([-b2, -rows_q[:, 0], target[:, 0], b1, -rows_q[:, 1], target[:, 1],
+                                   -u, target[:, 2]], axis=1)
+            data *= np.repeat(scale, [9, 9, 6], axis=1)
+            s_col = cols.index(symbols("s", terms.sensor)).reshape(n, 6)
+            x_col = cols.index(symbols("x", terms.target)).reshape(n, 6)[:, 3:]
+            index_dtype = np.int32 if max(24 * n, cols.n) < 2 ** 31 else np.int64
+            indices = np.concatenate([s_col, x_col, s_col, x_col, s_col[:, 3:], x_col], axis=1).astype(index_dtype)
+            # (the entries GTSAM's sparse Jacobian leaves out, at most 1e-12: the same pattern)
+            keep = np.abs(data) > 1e-12
+            counts = np.column_stack([keep[:, :9].sum(axis=1), keep[:, 9:18].sum(axis=1), keep[:, 18:].sum(axis=1)])
+            indptr = np.r_[0, np.cumsum(counts.ravel())].astype(index_dtype)
+            blocks.append((sps.csr_matrix((data[keep], indices[keep], indptr), shape=(3 * n, cols.n)), b.ravel()))
+        if not blocks:
+            return sps.csr_matrix((0, cols.n)), np.zeros(0)
+        if len(blocks) == 1:
+            return blocks[0]
+        # (the prior's rows first: its arrays before the observations', no general stacking)
+        (A0, b0), (A1, b1_) = blocks
+        indptr = np.r_[A0.indptr, A1.indptr[1:] + A0.nnz].astype(A1.indptr.dtype)
+        return (sps.csr_matrix((np.r_[A0.data, A1.data], np.r_[A0.indices.astype(A1.indices.dtype), A1.indices],
+                                indptr), shape=(A0.shape[0] + A1.shape[0], cols.n)), np.r_[b0, b1_])
+
     def factor_rows(self) -> np.ndarray:
         """The start row of every factor of the block in its linearization, and the end: the
         head offset's prior (a Pose3's 6 rows) first when there is one, then 3 rows per
@@ -1151,16 +1304,19 @@ class ObservationRhs:
             prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))
             rows.append(-prior.whitenedError(self.values))
         if len(terms.sensor):
-            u_meas = terms.p_sensor / np.linalg.norm(terms.p_sensor, axis=1, keepdims=True)
-            x = np.sum(self.u_pred * u_meas, axis=1)
-            # theta / sin(theta) (1 where the directions agree, as GTSAM takes it)
-            y = np.where(x > 1.0 - 1e-9, 1.0,
-                         np.arccos(np.clip(x, -1.0, 1.0)) / np.sqrt(np.maximum(1.0 - x * x, 1e-300)))
-            v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
-            err = np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
-                                   self.range_pred - terms.range_m])
-            rows.append((-err / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())
+            rows.append((-self._errors(terms) / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())
         return np.concatenate(rows) if rows else np.zeros(0)
+
+    def _errors(self, terms: ObservationTerms) -> np.ndarray:
+        """(n, 3) each factor's unwhitened error for the measurements of ``terms``."""
+        u_meas = terms.p_sensor / np.linalg.norm(terms.p_sensor, axis=1, keepdims=True)
+        x = np.sum(self.u_pred * u_meas, axis=1)
+        # theta / sin(theta) (1 where the directions agree, as GTSAM takes it)
+        y = np.where(x > 1.0 - 1e-9, 1.0,
+                     np.arccos(np.clip(x, -1.0, 1.0)) / np.sqrt(np.maximum(1.0 - x * x, 1e-300)))
+        v = y[:, None] * (u_meas - x[:, None] * self.u_pred)
+        return np.column_stack([-np.sum(self.basis[0] * v, axis=1), -np.sum(self.basis[1] * v, axis=1),
+                                self.range_pred - terms.range_m])
 
 
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,

@@ -377,7 +377,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
                  plain=None, plain0=None, previous: ProfileStep | None = None,
                  order: np.ndarray | None = None, residuals=None, footprint: dict | None = None,
-                 local: np.ndarray | None = None, factor_rows: np.ndarray | None = None) -> ProfileStep:
+                 local: np.ndarray | None = None, factor_rows: np.ndarray | None = None,
+                 obs_linear=None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -393,7 +394,10 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
     for those nuisances alone, the observations for the others; ``plain0``: those factors at
     ``theta`` when already built. A third element ``residuals(theta)``, their linearization's
-    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds.
+    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds;
+    a fourth, ``linear()``, their linearization at ``values`` and ``theta`` as (A, b) in ``cols``
+    (:meth:`pedcal.calib.graph.MotionRhs.linearized`), is taken instead of ``plain0``'s (not
+    when the first step's order is computed here).
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
     its Hessian and sensitivity Z are kept and only the variables' step z0 and the gradient (B's
@@ -430,6 +434,11 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     linearization and the end (:meth:`pedcal.calib.graph.ObservationRhs.factor_rows`), which is
     otherwise asked of each factor (taken only when its end is the block's row count).
 
+    ``obs_linear()``: optionally, the observation factors' linearization at ``values`` as (A, b)
+    in ``cols`` (:meth:`pedcal.calib.graph.ObservationRhs.linearized`: no factors made), taken
+    instead of ``obs0``'s, which may then be None; not asked when the first step's order is
+    computed here (from the linearized blocks).
+
     M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
     M^T r = Z^T A^T r - B^T r."""
     cols = cols or Columns.of(values)
@@ -439,6 +448,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     chord = residuals is not None and takes_chord(previous, local)
     plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
     plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
+    plain_linear = plain[3] if plain is not None and len(plain) > 3 else None
     # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
     # Jacobian blocks are a few times A's size), but for the first step's fill-reducing order
     need_order = order is None or len(order) != cols.n
@@ -451,10 +461,14 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         return sparse_system(g, cols)
 
     A_f, b_f = linear(fixed)
-    obs0 = obs0 if obs0 is not None else observations(theta, None)
-    A_o, b_o0 = linear(obs0)
+    if obs_linear is not None and lin is None:
+        A_o, b_o0 = obs_linear()
+    else:
+        obs0 = obs0 if obs0 is not None else observations(theta, None)
+        A_o, b_o0 = linear(obs0)
     if plain_build is not None:
-        A_p, b_p0 = linear(plain0 if plain0 is not None else plain_build(theta))
+        A_p, b_p0 = (plain_linear() if plain_linear is not None and lin is None
+                     else linear(plain0 if plain0 is not None else plain_build(theta)))
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
     mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
@@ -486,13 +500,15 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         solve = _normal_solver(A, order)
     theta = np.asarray(theta, float)
     # each factor's robust weight at theta (GTSAM reweights a factor's rows by sqrt(w))
-    given = factor_rows is not None and len(factor_rows) == obs0.size() + 1 and factor_rows[-1] == len(b_o0)
-    rows = np.asarray(factor_rows, np.int64) if given else _factor_rows(obs0)
+    given = (factor_rows is not None and (obs0 is None or len(factor_rows) == obs0.size() + 1)
+             and factor_rows[-1] == len(b_o0))
+    rows = (np.asarray(factor_rows, np.int64) if given
+            else _factor_rows(obs0 if obs0 is not None else observations(theta, None)))
     n_rob = np.sqrt(np.add.reduceat(b_o0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
     sqrt_w = sqrt_weights(n_rob, *kernel)
     if sqrt_w is None:
-        b_plain0 = (residuals(theta, np.ones(obs0.size())) if residuals is not None else
-                    sparse_system(observations(theta, np.ones(obs0.size())).linearize(values), cols)[1])
+        b_plain0 = (residuals(theta, np.ones(len(rows) - 1)) if residuals is not None else
+                    sparse_system(observations(theta, np.ones(len(rows) - 1)).linearize(values), cols)[1])
         n_plain = np.sqrt(np.add.reduceat(b_plain0 ** 2, rows[:-1])) if len(b_o0) else np.zeros(0)
         sqrt_w = np.where(n_plain > 1e-12, n_rob / np.maximum(n_plain, 1e-300), 1.0)
     sqrt_w[:plain_leading] = 1.0

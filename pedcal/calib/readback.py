@@ -33,19 +33,39 @@ from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World-axes position covariance and 1-sigma of position (m) and ypr (deg) from GTSAM's
     Pose3 marginal (body frame, rotation first)."""
-    R = T.rotation().matrix()
-    cov_pos_world = R @ cov_body[3:, 3:] @ R.T
-    ypr0 = frames.ypr_deg_from_rot(R)
-    J = np.zeros((3, 3))
+    cov, sp, sy = sensor_sigmas_world(T.rotation().matrix()[None], np.asarray(cov_body, float)[None])
+    return cov[0], sp[0], sy[0]
+
+
+def _ypr_deg(R: np.ndarray) -> np.ndarray:
+    """(m, 3) [yaw, pitch, roll] in degrees of rotation matrices (m, 3, 3), as
+    :func:`pedcal.frames.ypr_deg_from_rot` of each."""
+    pitch = np.arcsin(np.clip(-R[:, 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    roll = np.arctan2(R[:, 2, 1], R[:, 2, 2])
+    return np.degrees(np.column_stack([yaw, pitch, roll]))
+
+
+def sensor_sigmas_world(R: np.ndarray, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`sensor_sigma_world` of m sensors at once: their rotations R_world_sensor (m, 3, 3)
+    and Pose3 marginals (m, 6, 6) -> world-axes position covariances (m, 3, 3), position and ypr
+    sigmas (m, 3). The ypr's Jacobian by a forward difference of 1e-6 rad about each body axis."""
+    R, cov_body = np.asarray(R, float), np.asarray(cov_body, float)
+    Rt = R.transpose(0, 2, 1)
+    cov_pos_world = R @ cov_body[:, 3:, 3:] @ Rt
+    ypr0 = _ypr_deg(R)
+    J = np.zeros((len(R), 3, 3))
     eps = 1e-6
     for c in range(3):
         w = np.zeros(3)
         w[c] = eps
-        d = frames.ypr_deg_from_rot(R @ gtsam.Rot3.Expmap(w).matrix()) - ypr0
-        J[:, c] = (d + 180.0) % 360.0 - 180.0
+        d = _ypr_deg(R @ gtsam.Rot3.Expmap(w).matrix()) - ypr0
+        J[:, :, c] = (d + 180.0) % 360.0 - 180.0
     J /= eps
-    cov_ypr = J @ cov_body[:3, :3] @ J.T
-    return cov_pos_world, np.sqrt(np.diag(cov_pos_world)), np.sqrt(np.maximum(np.diag(cov_ypr), 0.0))
+    cov_ypr = J @ cov_body[:, :3, :3] @ J.transpose(0, 2, 1)
+    diag_pos = np.diagonal(cov_pos_world, axis1=1, axis2=2)
+    diag_ypr = np.diagonal(cov_ypr, axis1=1, axis2=2)
+    return cov_pos_world, np.sqrt(diag_pos), np.sqrt(np.maximum(diag_ypr, 0.0))
 
 
 def rotation_sigma_deg(cov_body: np.ndarray) -> np.ndarray:
@@ -64,12 +84,21 @@ def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, thr
     """Directions of a sensor pose the data left unconstrained: eigen-directions of the posterior
     covariance whitened by the installed prior whose variance the data reduced by less than
     ``threshold`` (posterior sigma > threshold x prior sigma). Returns (names, whitened basis)."""
+    evals, evecs = np.linalg.eigh(_whitened(np.asarray(cov_body, float)[None], recipe))
+    return _unconstrained(T.rotation().matrix(), evals[0], evecs[0], threshold)
+
+
+def _whitened(cov_body: np.ndarray, recipe: GraphRecipe) -> np.ndarray:
+    """(m, 6, 6) Pose3 covariances whitened by the installed prior's sigmas, symmetrized."""
     p = np.r_[[np.radians(recipe.sensor_prior_sigma_deg)] * 3, [recipe.sensor_prior_sigma_m] * 3]
     Cw = cov_body / np.outer(p, p)
-    evals, evecs = np.linalg.eigh(0.5 * (Cw + Cw.T))
+    return 0.5 * (Cw + Cw.transpose(0, 2, 1))
+
+
+def _unconstrained(R: np.ndarray, evals: np.ndarray, evecs: np.ndarray, threshold: float):
+    """:func:`observability` from the whitened covariance's eigen-decomposition."""
     bad = evecs[:, evals > threshold ** 2]
     names = []
-    R = T.rotation().matrix()
     for v in bad.T:     # whitened: rotation and translation parts are comparable
         if np.linalg.norm(v[:3]) >= np.linalg.norm(v[3:]):
             names.append(_DIRECTION_NAMES_ROT[int(np.argmax(np.abs(R @ v[:3])))])
@@ -143,21 +172,24 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
     # robot observations per sensor, counted once (not a comparison of every row per sensor)
     # (hashed, not sorted: 400 000 id strings at a large site took 0.14 s to sort)
     obs_count = pd.Series(prob.obs_sensor).value_counts().to_dict() if rec.robot else {}
-    out = []
-    for i, sid in enumerate(prob.sensor_ids):
+    ids = list(prob.sensor_ids)
+    covs = np.array([cov_body[sid] if cov_body is not None else marginals.marginalCovariance(S(i))
+                     for i, sid in enumerate(ids)], float).reshape(len(ids), 6, 6)
+    # (every sensor's eigen-decomposition, and below its sigmas, in one batch)
+    given = covs if cov_given is None else np.array([cov_given[sid] for sid in ids], float).reshape(len(ids), 6, 6)
+    evals, evecs = np.linalg.eigh(_whitened(given, rec))
+    poses, kept = [], []
+    for i, sid in enumerate(ids):
         installed = log.sensors[sid]
         n_obs = int(obs_count.get(sid, 0))
         T = result.atPose3(S(i))
-        cov = cov_body[sid] if cov_body is not None else marginals.marginalCovariance(S(i))
         if n_obs + people_count[sid] == 0:
             warnings.warn(f"sensor {sid}: no observation of the robot or of shared people; "
                           "its installed pose is kept", DegenerateDataWarning, stacklevel=2)
-            _, sp, sy = sensor_sigma_world(installed.T_world_sensor, cov)
-            out.append(SensorExtrinsics(sid, installed.position_m, installed.ypr_deg, sigma_position_m=sp,
-                                        sigma_ypr_deg=sy, sigma_rotation_deg=rotation_sigma_deg(cov),
-                                        observations=0, status="no-data"))
+            poses.append(installed.T_world_sensor)
+            kept.append(None)
             continue
-        names, bad = observability(T, cov if cov_given is None else cov_given[sid], rec)
+        names, bad = _unconstrained(T.rotation().matrix(), evals[i], evecs[i], 0.5)
         status = "ok"
         if names:
             status = "degenerate"
@@ -168,15 +200,27 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
             T = installed.T_world_sensor.retract(delta * p)
             warnings.warn(f"sensor {sid}: the data leave {', '.join(names)} unconstrained; the installed "
                           "value is kept there", DegenerateDataWarning, stacklevel=2)
-        cov_pos, sp, sy = sensor_sigma_world(T, cov)
+        poses.append(T)
+        kept.append((n_obs, status, names))
+    cov_pos, sp, sy = sensor_sigmas_world(np.array([T.rotation().matrix() for T in poses], float).reshape(-1, 3, 3),
+                                          covs)
+    out = []
+    for i, (sid, T, what) in enumerate(zip(ids, poses, kept, strict=True)):
+        if what is None:
+            installed = log.sensors[sid]
+            out.append(SensorExtrinsics(sid, installed.position_m, installed.ypr_deg, sigma_position_m=sp[i],
+                                        sigma_ypr_deg=sy[i], sigma_rotation_deg=rotation_sigma_deg(covs[i]),
+                                        observations=0, status="no-data"))
+            continue
+        n_obs, status, names = what
         if cov_out is not None:
-            cov_out[sid] = cov_pos
-        out.append(SensorExtrinsics.from_pose3(sid, T, sigma_position_m=sp, sigma_ypr_deg=sy,
-                                               sigma_rotation_deg=rotation_sigma_deg(cov),
+            cov_out[sid] = cov_pos[i]
+        out.append(SensorExtrinsics.from_pose3(sid, T, sigma_position_m=sp[i], sigma_ypr_deg=sy[i],
+                                               sigma_rotation_deg=rotation_sigma_deg(covs[i]),
                                                observations=n_obs, status=status,
                                                unobservable=names or None))
     return SensorNetwork(out, frame=log.sensors.frame)
 
 
-__all__ = ["sensor_sigma_world", "rotation_sigma_deg", "observability", "finish_network",
+__all__ = ["sensor_sigma_world", "sensor_sigmas_world", "rotation_sigma_deg", "observability", "finish_network",
            "JOINT_COV_MAX_SENSORS"]
