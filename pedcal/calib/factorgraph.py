@@ -493,6 +493,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # selection of the head profile, an ordering not kept, people, the final graph), the steps
     # take its linearization from the terms (ObservationRhs.linearized): the factors of a block
     # nobody asks for (60 000 at 1000 sensors, 0.14 s a block) are not made
+    # each sensor's clock offset (pedcal.calib.clocks), first: it sets the head's velocity at ``result``,
+    # which the observation terms' clock-shift regressors read (read after them, the first step of a second
+    # pass would take A, b and the robust weights at the pass before's velocity, its B at this one's)
+    clocks = clock_nuisances(prob, result)
     obs_terms = block_terms = observation_terms(log, prob, result)
     built, motion_fresh = None, True
 
@@ -519,7 +523,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         nuis += [Nuisance("odometry_scale_correction", 0.0, rec.odometry_scale_sigma, 1e-3),
                  Nuisance("odometry_drift_rad_per_m", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_m), 1e-4),
                  Nuisance("odometry_drift_rad_per_s", 0.0, np.radians(rec.odometry_drift_sigma_deg_per_s), 1e-5)]
-    clocks = clock_nuisances(prob, result)  # each sensor's clock offset (pedcal.calib.clocks)
     local_nuis = clocks if len(clocks) > rec.clock_offsets_joint_max else []
     if local_nuis:
         _log(progress, f"{len(clocks)} sensors' clock offsets (more than {rec.clock_offsets_joint_max}): each "
