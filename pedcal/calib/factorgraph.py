@@ -66,8 +66,8 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     observation_block,
     observation_block_terms,
     observation_graph,
-    observation_terms,
     observation_sigmas,
+    observation_terms,
     optimize_graph,
     pose_arrays,
     prepare,
@@ -607,7 +607,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
             footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows(),
             # (the block's linearization made from its terms; GTSAM's where they cannot make it)
-            obs_linear=lambda f=rhs, t=block_terms: _linearized(f, t, cols, block, result))
+            obs_linear=lambda f=rhs, t=block_terms, r=result: _linearized(f, t, cols, block, r))
         if not chord:
             full_step = step
         if considered and not chord:

@@ -11,7 +11,6 @@ import gtsam
 import numpy as np
 import pandas as pd
 
-from pedcal import frames
 from pedcal.calib.common import HeadModel, ModelMismatch
 from pedcal.calib.keys import S
 from pedcal.calib.problem import FactorGraphProblem
