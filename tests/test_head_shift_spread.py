@@ -135,9 +135,14 @@ def test_too_few_informed_sensors_keep_the_recipes_sigma_with_a_warning():
     H = step.hessian.copy()
     with pytest.warns(DegenerateDataWarning, match="determine 2 sensors' own shift"):
         step2, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
-    assert rec["estimate_m"] is None and rec["used_m"] == 0.02
+    assert rec["estimate_m"] is None and rec["used_m"] is None and not rec["applied"]
     assert nuis2 == nuis and np.array_equal(step2.hessian, H)
-    assert "not estimated (2 sensors'" in spread_note(rec)
+    assert "not estimated (2 sensors'" in spread_note(rec) and "prior sigma 20 mm" in spread_note(rec)
+    # only reported (the recipe's default): no warning
+    prob, step, nuis = _step(2, 6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)[2]["estimate_m"] is None
 
 
 def test_the_estimate_takes_the_departures_prior_and_the_step_is_the_new_optimum():
@@ -145,7 +150,7 @@ def test_the_estimate_takes_the_departures_prior_and_the_step_is_the_new_optimum
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         step, nuis, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
-    assert rec["sensors"] == 12
+    assert rec["sensors"] == 12 and rec["applied"]
     assert 0.015 < rec["estimate_m"] < 0.05 and rec["used_m"] >= rec["estimate_m"]
     assert all(n.prior_sigma == rec["used_m"] for n in nuis[1:]) and nuis[0].prior_sigma == 0.05
     # the Hessian's prior part is the new one: H - P(new) is the data's
@@ -154,5 +159,17 @@ def test_the_estimate_takes_the_departures_prior_and_the_step_is_the_new_optimum
     J = np.column_stack([np.ones(k), np.eye(k)])
     want = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / np.r_[0.05, np.full(k, rec["used_m"])] ** 2)
     np.testing.assert_allclose(step.hessian, want, rtol=1e-12)
-    assert f"{1000 * rec['estimate_m']:.1f} mm" in spread_note(rec)
+    assert f"{1000 * rec['estimate_m']:.1f} mm" in spread_note(rec) and "keeps" not in spread_note(rec)
     assert SPREAD_GRID[0] > 0.0
+
+
+def test_an_estimate_only_reported_leaves_the_step_and_the_prior_as_they_were():
+    prob, step, nuis = _step(12, 3)
+    H, dtheta = step.hessian.copy(), step.dtheta.copy()
+    step, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)
+    assert not rec["applied"] and 0.015 < rec["estimate_m"] < 0.05
+    assert nuis2 == nuis and np.array_equal(step.hessian, H) and np.array_equal(step.dtheta, dtheta)
+    # the same estimate as when used
+    used = estimate_departure_spread(*_step(12, 3), np.zeros(len(nuis)))[2]
+    assert rec["estimate_m"] == used["estimate_m"] and rec["used_m"] == used["used_m"]
+    assert "keeps the recipe's prior sigma 20 mm" in spread_note(rec)

@@ -517,7 +517,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # no candidates, and without a profile there is nothing to choose: no rows labelled for it)
     select_profile = bool(profile_nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
-    spread = bool(rec.head_shift_per_sensor_sigma_estimate and rec.head_shift_per_sensor_sigma_m > 0.0)
+    spread = rec.head_shift_per_sensor_sigma_m > 0.0      # (the spread's estimate, used or only reported)
     unmodelled = None
     considered = considered_nuisances(prob)    # (before the curvature, which stays last)
     nuis += considered
@@ -624,7 +624,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         if spread and not chord:
             # the departures' prior sigma from the data (pedcal.calib.headpoint), once per solve
             spread = False
-            step, nuis, spread_rec = estimate_departure_spread(prob, step, nuis, theta)
+            step, nuis, spread_rec = estimate_departure_spread(prob, step, nuis, theta,
+                                                               use=rec.head_shift_per_sensor_sigma_estimate)
             _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
             full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)

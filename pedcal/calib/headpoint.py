@@ -321,17 +321,20 @@ def spread_from_estimates(departure_m: np.ndarray, sigma_m: np.ndarray, grid_m: 
     return {**spread_summary(ll, grid_m), "sensors": k}
 
 
-def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], theta: np.ndarray):
-    """The departures' prior sigma tau estimated from the data (recipe
-    ``head_shift_per_sensor_sigma_estimate``): :func:`spread_log_likelihood` on the profile
-    ``step`` at ``theta`` (``nuis`` its nuisances, in order), its posterior summarised by
-    :func:`spread_summary`, and the step re-taken with the departures' prior 0 +- ``used_m``
-    (its Hessian's prior part exchanged, the Newton step re-solved). It counts the sensors
-    whose departure the data determine (seen from around: the data at least halve its prior
-    variance, the others held at their priors); with fewer than SPREAD_MIN_SENSORS it keeps
-    the recipe's ``head_shift_per_sensor_sigma_m`` with a DegenerateDataWarning. Returns (step,
-    nuisances, record): the record (estimate_m, used_m, upper_m, sensors, prior_m) also goes on
-    ``prob`` as ``_departure_spread`` for the head model."""
+def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], theta: np.ndarray, use: bool = True):
+    """The departures' prior sigma tau estimated from the data: :func:`spread_log_likelihood`
+    on the profile ``step`` at ``theta`` (``nuis`` its nuisances, in order), its posterior
+    summarised by :func:`spread_summary`. It counts the sensors whose departure the data
+    determine (seen from around: the data at least halve its prior variance, the others held at
+    their priors); with fewer than SPREAD_MIN_SENSORS there is no estimate. With ``use`` (recipe
+    ``head_shift_per_sensor_sigma_estimate``) the step is re-taken with the departures' prior 0
+    +- ``used_m`` (its Hessian's prior part exchanged, the Newton step re-solved), or, without an
+    estimate, the recipe's ``head_shift_per_sensor_sigma_m`` is kept with a
+    DegenerateDataWarning; without ``use`` the estimate is only reported and the step, the
+    nuisances and their prior stay as they were. Returns (step, nuisances, record): the record
+    (estimate_m, used_m, upper_m: None without an estimate; sensors, prior_m, applied: the
+    prior's sigma the departures keep is used_m) also goes on ``prob`` as ``_departure_spread``
+    for the head model's note (:func:`spread_note`)."""
     import warnings
 
     from pedcal.errors import DegenerateDataWarning
@@ -343,18 +346,23 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     p0 = np.array([1.0 / n.prior_sigma ** 2 for n in nuis])
     # a departure the data determine: its posterior variance at most half its prior's
     informed = int(np.sum(np.diag(np.linalg.inv(H))[own] <= 0.5 / p0[own]))
-    record = {"prior_m": sigma0, "sensors": informed}
+    record = {"prior_m": sigma0, "sensors": informed, "applied": False}
     if informed < SPREAD_MIN_SENSORS:
-        warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: the data "
-                      f"determine {informed} sensors' own shift (seen from around), fewer than "
-                      f"{SPREAD_MIN_SENSORS}; its prior sigma head_shift_per_sensor_sigma_m = "
-                      f"{1000 * sigma0:.0f} mm is kept", DegenerateDataWarning, stacklevel=3)
-        prob._departure_spread = {**record, "estimate_m": None, "used_m": sigma0, "upper_m": None}
+        if use:
+            warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: the data "
+                          f"determine {informed} sensors' own shift (seen from around), fewer than "
+                          f"{SPREAD_MIN_SENSORS}; its prior sigma head_shift_per_sensor_sigma_m = "
+                          f"{1000 * sigma0:.0f} mm is kept", DegenerateDataWarning, stacklevel=3)
+        prob._departure_spread = {**record, "estimate_m": None, "used_m": None, "upper_m": None}
         return step, nuis, prob._departure_spread
     g = -H @ step.dtheta
     mean = np.array([n.prior_mean for n in nuis])
     sigma = np.array([n.prior_sigma for n in nuis])
     record.update(spread_summary(spread_log_likelihood(H, g, theta, mean, sigma, own)))
+    prob._departure_spread = record
+    if not use:
+        return step, nuis, record
+    record["applied"] = True
     tau = record["used_m"]
     # the prior's part exchanged: H' = H + dP, g' = g + dP r, the Newton step -H'^-1 g'
     dp = np.zeros(len(nuis))
@@ -364,7 +372,6 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     step.hessian = H_new
     step.dtheta = -np.linalg.solve(H_new, g_new)
     nuis = [Nuisance(n.name, n.prior_mean, tau, n.step) if is_sensor_shift(n.name) else n for n in nuis]
-    prob._departure_spread = record
     return step, nuis, record
 
 
@@ -372,14 +379,17 @@ def spread_note(record: dict | None) -> str:
     """The head model's note on the departures' prior sigma (:func:`estimate_departure_spread`)."""
     if not record:
         return ""
+    recipe = f"the recipe's prior sigma {1000 * record['prior_m']:.0f} mm (head_shift_per_sensor_sigma_m)"
     if record.get("estimate_m") is None:
         return (f"The spread of the head point between the sensors' trackers was not estimated ({record['sensors']} "
-                f"sensors' own shift determined by the data): each sensor's own shift has the recipe's prior sigma "
-                f"{1000 * record['prior_m']:.0f} mm.")
-    return (f"The spread of the head point between the sensors' trackers, estimated from {record['sensors']} "
-            f"sensors' own shifts: {1000 * record['estimate_m']:.1f} mm (95 % below "
-            f"{1000 * record['upper_m']:.1f} mm); each sensor's own shift has prior sigma "
-            f"{1000 * record['used_m']:.1f} mm (the root of its mean square over what the data leave of it).")
+                f"sensors' own shift determined by the data): each sensor's own shift has {recipe}.")
+    found = (f"The spread of the head point between the sensors' trackers, estimated from {record['sensors']} "
+             f"sensors' own shifts: {1000 * record['estimate_m']:.1f} mm (95 % below {1000 * record['upper_m']:.1f} "
+             f"mm; the root of its mean square over what the data leave of it {1000 * record['used_m']:.1f} mm)")
+    if record.get("applied"):
+        return f"{found}, each sensor's own shift's prior sigma."
+    return (f"{found}; each sensor's own shift keeps {recipe} (head_shift_per_sensor_sigma_estimate = true "
+            "takes the estimate).")
 
 
 def is_sensor_shift(name: str) -> bool:
