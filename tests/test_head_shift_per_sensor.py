@@ -310,4 +310,8 @@ def test_the_spread_between_trackers_is_estimated_and_recorded(nadir, use, monke
     assert spread["estimate_m"] <= spread["used_m"] <= spread["upper_m"]
     own = [n for n in seen["shifts"].names if n.startswith(SENSOR_PREFIX)]
     assert len(own) == len(delta)
-    assert f"{1000 * spread['estimate_m']:.1f} mm" in res.network.extra[HEAD_MODEL_KEY]["note"]
+    hm = res.network.extra[HEAD_MODEL_KEY]
+    assert f"{1000 * spread['estimate_m']:.1f} mm" in hm["note"]
+    rec = hm["per_sensor_shift_spread"]
+    assert rec["estimate_m"] == round(spread["estimate_m"], 5) and rec["sensors"] == len(delta)
+    assert rec["prior_sigma_m"] == (round(spread["used_m"], 5) if use else SIGMA_M)

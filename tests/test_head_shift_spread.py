@@ -16,6 +16,7 @@ from pedcal.calib.headpoint import (
     spread_from_estimates,
     spread_log_likelihood,
     spread_note,
+    spread_record,
 )
 from pedcal.calib.profile import Nuisance
 from pedcal.errors import DegenerateDataWarning
@@ -173,3 +174,17 @@ def test_an_estimate_only_reported_leaves_the_step_and_the_prior_as_they_were():
     used = estimate_departure_spread(*_step(12, 3), np.zeros(len(nuis)))[2]
     assert rec["estimate_m"] == used["estimate_m"] and rec["used_m"] == used["used_m"]
     assert "keeps the recipe's prior sigma 20 mm" in spread_note(rec)
+
+
+def test_the_head_models_record_names_the_prior_the_departures_had():
+    prob, step, nuis = _step(12, 3)
+    rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)[2]
+    out = spread_record(rec)
+    assert out == {"estimate_m": round(rec["estimate_m"], 5), "upper_m": round(rec["upper_m"], 5),
+                   "rms_m": round(rec["used_m"], 5), "sensors": 12, "prior_sigma_m": 0.02}
+    used = spread_record({**rec, "applied": True})
+    assert used["prior_sigma_m"] == round(rec["used_m"], 5)
+    none = spread_record({"prior_m": 0.02, "sensors": 1, "applied": False, "estimate_m": None, "used_m": None,
+                          "upper_m": None})
+    assert none == {"estimate_m": None, "upper_m": None, "rms_m": None, "sensors": 1, "prior_sigma_m": 0.02}
+    assert spread_record(None) is None

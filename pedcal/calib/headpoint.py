@@ -375,6 +375,21 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     return step, nuis, record
 
 
+def spread_record(record: dict | None) -> dict | None:
+    """The head model's ``per_sensor_shift_spread`` (:func:`estimate_departure_spread`'s record):
+    estimate_m, upper_m (its 95 % quantile), rms_m (its posterior's root mean square; all None
+    without an estimate), sensors (those informing it), prior_sigma_m (the sigma the departures'
+    prior had: rms_m where the estimate was used, else the recipe's). None without departures."""
+    if not record:
+        return None
+
+    def metres(v):
+        return None if v is None else round(float(v), 5)
+    return {"estimate_m": metres(record.get("estimate_m")), "upper_m": metres(record.get("upper_m")),
+            "rms_m": metres(record.get("used_m")), "sensors": int(record["sensors"]),
+            "prior_sigma_m": metres(record["used_m"] if record.get("applied") else record["prior_m"])}
+
+
 def spread_note(record: dict | None) -> str:
     """The head model's note on the departures' prior sigma (:func:`estimate_departure_spread`)."""
     if not record:
@@ -808,9 +823,11 @@ def record_head_profile(head_model, prob, shifts) -> None:
         for note in (depth, PER_SENSOR_HEIGHT_NOTE):
             if note not in head_model.note:
                 head_model.note = f"{head_model.note} {note}"
-    spread = spread_note(getattr(prob, "_departure_spread", None))
+    record = getattr(prob, "_departure_spread", None)
+    spread = spread_note(record)
     if spread and spread not in head_model.note:
         head_model.note = f"{head_model.note} {spread}".strip()
+    head_model.per_sensor_shift_spread = spread_record(record)
     if shifts is None:
         return
     # (with the profile off, knots set by a line only considered at 0 are no profile)
@@ -844,4 +861,4 @@ __all__ = ["record_head_profile", "head_depth_note", "PER_SENSOR_HEIGHT_NOTE", "
            "line_of_knots", "shapes",
            "held_out_gain", "own_shift", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
            "knot_values", "sensor_shift_nuisances", "is_sensor_shift", "spread_log_likelihood", "spread_summary",
-           "spread_from_estimates", "estimate_departure_spread", "spread_note"]
+           "spread_from_estimates", "estimate_departure_spread", "spread_note", "spread_record"]
