@@ -95,10 +95,13 @@ class HeadModel:
     # they replace horizontal_shift_m for those sensors
     per_sensor_shift_m: dict | None = None
     sigma_per_sensor_shift_m: dict | None = None
+    # the spread of the head point between the sensors' trackers (the departures' prior sigma)
+    # as the data estimate it (pedcal.calib.headpoint.spread_record)
+    per_sensor_shift_spread: dict | None = None
 
     def to_dict(self) -> dict:
         out = plain(asdict(self))
-        for key in ("horizontal_profile", "per_sensor_shift_m", "sigma_per_sensor_shift_m"):
+        for key in ("horizontal_profile", "per_sensor_shift_m", "sigma_per_sensor_shift_m", "per_sensor_shift_spread"):
             if out.get(key) is None:
                 out.pop(key, None)
         return out

@@ -80,6 +80,7 @@ from pedcal.calib.headpoint import SENSOR_PREFIX as SHIFT_PREFIX
 from pedcal.calib.headpoint import (
     considered_nuisances,
     considered_rms,
+    estimate_departure_spread,
     head_depth_note,
     head_profile_nuisances,
     is_head_profile,
@@ -541,6 +542,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # no candidates, and without a profile there is nothing to choose: no rows labelled for it)
     select_profile = bool(profile_nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
+    spread = rec.head_shift_per_sensor_sigma_m > 0.0      # (the spread's estimate, used or only reported)
     unmodelled = None
     considered = considered_nuisances(prob)    # (before the curvature, which stays last)
     nuis += considered
@@ -651,6 +653,13 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             _log(progress, f"head point shift against distance: {compared}")
             names, full_step = [n.name for n in nuis], step
             theta = np.array([getattr(prob, n) for n in names], float)
+        if spread and not chord:
+            # the departures' prior sigma from the data (pedcal.calib.headpoint), once per solve
+            spread = False
+            step, nuis, spread_rec = estimate_departure_spread(prob, step, nuis, theta,
+                                                               use=rec.head_shift_per_sensor_sigma_estimate)
+            _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
+            full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
             reference = (step, theta.copy()) if step.rho0 is not None else None
         # converged when the steps still to come are below ``tolerance`` sigma: with this step's

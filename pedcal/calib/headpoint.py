@@ -246,6 +246,167 @@ def sensor_shift_nuisances(prob) -> list[Nuisance]:
     return _departures(prob, 1, sigma)
 
 
+SPREAD_MIN_SENSORS = 3                # fewer sensors whose departure the data determine: the recipe's sigma
+SPREAD_MAX_M = 0.1                    # the spread's grid reaches this far (a head's size)
+SPREAD_GRID = np.linspace(1e-4, SPREAD_MAX_M, 200)   # (m, ~0.5 mm apart; from 0.1 mm: the limit tau -> 0 is finite)
+
+
+def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior_mean: np.ndarray,
+                          prior_sigma: np.ndarray, own: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> np.ndarray:
+    """The log marginal likelihood of the departures' prior sigma tau at each of ``grid_m``, from
+    the profile's quadratic at ``theta`` (its Hessian ``H`` and gradient ``g``, both with the
+    nuisances' priors of ``prior_mean`` and ``prior_sigma`` in): the data's part is H_d = H - P_0
+    and g_d = g - P_0 r (r = theta - prior_mean, P_0 = diag(prior_sigma^-2)); with the departures
+    (indices ``own``) given prior 0 +- tau and the other nuisances their priors (P(tau)), every
+    nuisance is integrated out (the quadratic profile is exact for nuisances that enter
+    linearly): with A = H_d + P(tau) and b = g_d + P(tau) r,
+
+        l(tau) = 1/2 b^T A^-1 b - 1/2 r^T P(tau) r - 1/2 ln det A - k ln tau      (+ const),
+
+    k the departures' count (their prior's normalisation). With a diffuse shared shift this is
+    the restricted (REML) likelihood of a random effect's variance (Harville 1977): the shared
+    shift, their mean, is integrated out, not estimated."""
+    own = np.asarray(own, np.int64)
+    r = np.asarray(theta, float) - np.asarray(prior_mean, float)
+    p0 = 1.0 / np.asarray(prior_sigma, float) ** 2
+    H_d = np.asarray(H, float) - np.diag(p0)
+    g_d = np.asarray(g, float) - p0 * r
+    out = np.empty(len(grid_m))
+    for i, tau in enumerate(np.asarray(grid_m, float)):
+        p = p0.copy()
+        p[own] = 1.0 / tau ** 2
+        A = H_d + np.diag(p)
+        b = g_d + p * r
+        L = np.linalg.cholesky(A)
+        y = np.linalg.solve(L, b)
+        out[i] = 0.5 * y @ y - 0.5 * float(r @ (p * r)) - float(np.sum(np.log(np.diag(L)))) - len(own) * np.log(tau)
+    return out
+
+
+def spread_summary(loglik: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict:
+    """tau's estimate from its log likelihood on ``grid_m``: ``estimate_m`` the maximum's tau (0 at
+    the grid's first point) and,
+    under a flat prior on tau over the grid, ``used_m`` = sqrt(E[tau^2 | data]), the prior
+    sigma the departures take (a departure's variance averaged over what the data leave of
+    tau: its own uncertainty carried, not the point estimate's alone), and ``upper_m`` its
+    posterior's 95 % quantile."""
+    w = np.exp(loglik - np.max(loglik))
+    w /= w.sum()
+    cdf = np.cumsum(w)
+    best = int(np.argmax(loglik))
+    # (the maximum at the grid's first point: the limit tau -> 0, reported as 0)
+    return {"estimate_m": 0.0 if best == 0 else float(grid_m[best]),
+            "used_m": float(np.sqrt(np.sum(w * grid_m ** 2))),
+            "upper_m": float(grid_m[min(int(np.searchsorted(cdf, 0.95)), len(grid_m) - 1)])}
+
+
+def spread_from_estimates(departure_m: np.ndarray, sigma_m: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict:
+    """tau from independent per-sensor estimates y_s = mu + delta_s + e_s (e_s ~ N(0, sigma_s^2),
+    delta_s ~ N(0, tau^2), mu diffuse): :func:`spread_log_likelihood` on their quadratic,
+    parameters (mu, delta_1..k). Sensors with a non-finite estimate or sigma, or a sigma not
+    positive, are left out; fewer than two left: an estimate of nan ("sensors" says how many)."""
+    y, s = np.asarray(departure_m, float), np.asarray(sigma_m, float)
+    ok = np.isfinite(y) & np.isfinite(s) & (s > 0.0)
+    y, s = y[ok], s[ok]
+    k = len(y)
+    if k < 2:
+        return {"estimate_m": float("nan"), "used_m": float("nan"), "upper_m": float("nan"), "sensors": k}
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    W = 1.0 / s ** 2
+    mu_sigma = 1e3 * float(np.max(np.abs(y)) + np.max(s))      # diffuse
+    prior_sigma = np.r_[mu_sigma, np.full(k, 1.0)]
+    H = J.T @ (W[:, None] * J) + np.diag(1.0 / prior_sigma ** 2)
+    g = -J.T @ (W * y)                     # the gradient at theta = 0 (priors' part 0 there)
+    ll = spread_log_likelihood(H, g, np.zeros(k + 1), np.zeros(k + 1), prior_sigma, np.arange(1, k + 1), grid_m)
+    return {**spread_summary(ll, grid_m), "sensors": k}
+
+
+def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], theta: np.ndarray, use: bool = True):
+    """The departures' prior sigma tau estimated from the data: :func:`spread_log_likelihood`
+    on the profile ``step`` at ``theta`` (``nuis`` its nuisances, in order), its posterior
+    summarised by :func:`spread_summary`. It counts the sensors whose departure the data
+    determine (seen from around: the data at least halve its prior variance, the others held at
+    their priors); with fewer than SPREAD_MIN_SENSORS there is no estimate. With ``use`` (recipe
+    ``head_shift_per_sensor_sigma_estimate``) the step is re-taken with the departures' prior 0
+    +- ``used_m`` (its Hessian's prior part exchanged, the Newton step re-solved), or, without an
+    estimate, the recipe's ``head_shift_per_sensor_sigma_m`` is kept with a
+    DegenerateDataWarning; without ``use`` the estimate is only reported and the step, the
+    nuisances and their prior stay as they were. Returns (step, nuisances, record): the record
+    (estimate_m, used_m, upper_m: None without an estimate; sensors, prior_m, applied: the
+    prior's sigma the departures keep is used_m) also goes on ``prob`` as ``_departure_spread``
+    for the head model's note (:func:`spread_note`)."""
+    import warnings
+
+    from pedcal.errors import DegenerateDataWarning
+    own = np.array([j for j, n in enumerate(nuis) if is_sensor_shift(n.name)], np.int64)
+    sigma0 = prob.recipe.head_shift_per_sensor_sigma_m
+    if not len(own):
+        return step, nuis, None
+    H = step.hessian
+    p0 = np.array([1.0 / n.prior_sigma ** 2 for n in nuis])
+    # a departure the data determine: its posterior variance at most half its prior's
+    informed = int(np.sum(np.diag(np.linalg.inv(H))[own] <= 0.5 / p0[own]))
+    record = {"prior_m": sigma0, "sensors": informed, "applied": False}
+    if informed < SPREAD_MIN_SENSORS:
+        if use:
+            warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: the data "
+                          f"determine {informed} sensors' own shift (seen from around), fewer than "
+                          f"{SPREAD_MIN_SENSORS}; its prior sigma head_shift_per_sensor_sigma_m = "
+                          f"{1000 * sigma0:.0f} mm is kept", DegenerateDataWarning, stacklevel=3)
+        prob._departure_spread = {**record, "estimate_m": None, "used_m": None, "upper_m": None}
+        return step, nuis, prob._departure_spread
+    g = -H @ step.dtheta
+    mean = np.array([n.prior_mean for n in nuis])
+    sigma = np.array([n.prior_sigma for n in nuis])
+    record.update(spread_summary(spread_log_likelihood(H, g, theta, mean, sigma, own)))
+    prob._departure_spread = record
+    if not use:
+        return step, nuis, record
+    record["applied"] = True
+    tau = record["used_m"]
+    # the prior's part exchanged: H' = H + dP, g' = g + dP r, the Newton step -H'^-1 g'
+    dp = np.zeros(len(nuis))
+    dp[own] = 1.0 / tau ** 2 - p0[own]
+    H_new = H + np.diag(dp)
+    g_new = g + dp * (np.asarray(theta, float) - mean)
+    step.hessian = H_new
+    step.dtheta = -np.linalg.solve(H_new, g_new)
+    nuis = [Nuisance(n.name, n.prior_mean, tau, n.step) if is_sensor_shift(n.name) else n for n in nuis]
+    return step, nuis, record
+
+
+def spread_record(record: dict | None) -> dict | None:
+    """The head model's ``per_sensor_shift_spread`` (:func:`estimate_departure_spread`'s record):
+    estimate_m, upper_m (its 95 % quantile), rms_m (its posterior's root mean square; all None
+    without an estimate), sensors (those informing it), prior_sigma_m (the sigma the departures'
+    prior had: rms_m where the estimate was used, else the recipe's). None without departures."""
+    if not record:
+        return None
+
+    def metres(v):
+        return None if v is None else round(float(v), 5)
+    return {"estimate_m": metres(record.get("estimate_m")), "upper_m": metres(record.get("upper_m")),
+            "rms_m": metres(record.get("used_m")), "sensors": int(record["sensors"]),
+            "prior_sigma_m": metres(record["used_m"] if record.get("applied") else record["prior_m"])}
+
+
+def spread_note(record: dict | None) -> str:
+    """The head model's note on the departures' prior sigma (:func:`estimate_departure_spread`)."""
+    if not record:
+        return ""
+    recipe = f"the recipe's prior sigma {1000 * record['prior_m']:.0f} mm (head_shift_per_sensor_sigma_m)"
+    if record.get("estimate_m") is None:
+        return (f"The spread of the head point between the sensors' trackers was not estimated ({record['sensors']} "
+                f"sensors' own shift determined by the data): each sensor's own shift has {recipe}.")
+    found = (f"The spread of the head point between the sensors' trackers, estimated from {record['sensors']} "
+             f"sensors' own shifts: {1000 * record['estimate_m']:.1f} mm (95 % below {1000 * record['upper_m']:.1f} "
+             f"mm; the root of its mean square over what the data leave of it {1000 * record['used_m']:.1f} mm)")
+    if record.get("applied"):
+        return f"{found}, each sensor's own shift's prior sigma."
+    return (f"{found}; each sensor's own shift keeps {recipe} (head_shift_per_sensor_sigma_estimate = true "
+            "takes the estimate).")
+
+
 def is_sensor_shift(name: str) -> bool:
     """Whether ``name`` is a sensor's own departure of the horizontal shift."""
     return name.startswith(SENSOR_PREFIX)
@@ -662,6 +823,11 @@ def record_head_profile(head_model, prob, shifts) -> None:
         for note in (depth, PER_SENSOR_HEIGHT_NOTE):
             if note not in head_model.note:
                 head_model.note = f"{head_model.note} {note}"
+    record = getattr(prob, "_departure_spread", None)
+    spread = spread_note(record)
+    if spread and spread not in head_model.note:
+        head_model.note = f"{head_model.note} {spread}".strip()
+    head_model.per_sensor_shift_spread = spread_record(record)
     if shifts is None:
         return
     # (with the profile off, knots set by a line only considered at 0 are no profile)
@@ -694,4 +860,5 @@ __all__ = ["record_head_profile", "head_depth_note", "PER_SENSOR_HEIGHT_NOTE", "
            "profile_record", "departures_record", "is_head_profile", "hats", "horizontal_distance", "shift_at",
            "line_of_knots", "shapes",
            "held_out_gain", "own_shift", "overdispersion", "row_clusters", "row_sensors", "sensor_departures",
-           "knot_values", "sensor_shift_nuisances", "is_sensor_shift"]
+           "knot_values", "sensor_shift_nuisances", "is_sensor_shift", "spread_log_likelihood", "spread_summary",
+           "spread_from_estimates", "estimate_departure_spread", "spread_note", "spread_record"]

@@ -1,0 +1,190 @@
+"""The spread of the head point between the sensors' trackers, estimated from the data
+(pedcal.calib.headpoint.spread_log_likelihood, estimate_departure_spread; recipe
+head_shift_per_sensor_sigma_estimate): the departures' prior sigma tau by their marginal
+likelihood, its own uncertainty carried, the recipe's value kept when too few sensors inform it."""
+
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pedcal.calib.headpoint import (
+    SENSOR_PREFIX,
+    SPREAD_GRID,
+    estimate_departure_spread,
+    spread_from_estimates,
+    spread_log_likelihood,
+    spread_note,
+    spread_record,
+)
+from pedcal.calib.profile import Nuisance
+from pedcal.errors import DegenerateDataWarning
+
+
+def _draws(seed: int, k: int, tau: float, mu: float = 0.03):
+    """k sensors' own shift estimates y_s = mu + delta_s + e_s, delta_s ~ N(0, tau^2), e_s ~ N(0,
+    sigma_s^2), sigma_s uniform in 3-10 mm; (y, sigma, the true own shifts mu + delta)."""
+    rng = np.random.default_rng(seed)
+    sigma = rng.uniform(0.003, 0.010, k)
+    own = mu + rng.normal(0.0, tau, k)
+    return own + rng.normal(0.0, sigma), sigma, own
+
+
+@pytest.mark.parametrize("tau", [0.01, 0.02, 0.04])
+def test_a_known_spread_is_recovered(tau):
+    # 100 sensors: within 3 standard errors of tau (sqrt(2 / k) (tau^2 + mean sigma^2) / (2 tau),
+    # the delta method on var(tau^2 hat); 1.0, 1.5 and 2.9 mm here) and the grid's 0.5 mm spacing
+    k = 100
+    y, sigma, _ = _draws(7, k, tau)
+    est = spread_from_estimates(y, sigma)
+    assert est["sensors"] == k
+    se = np.sqrt(2.0 / k) * (tau ** 2 + np.mean(sigma ** 2)) / (2.0 * tau)
+    assert abs(est["estimate_m"] - tau) < 3.0 * se + 0.0005
+    # its posterior's root mean square and 95 % quantile lie above the estimate, not far
+    assert est["estimate_m"] <= est["used_m"] < est["upper_m"] < est["estimate_m"] + 0.01
+
+
+def test_the_likelihood_is_the_restricted_likelihood_of_independent_estimates():
+    # y_s ~ N(mu, sigma_s^2 + tau^2), mu integrated out (REML): -1/2 [sum ln(v_s) + ln(sum w) +
+    # sum w (y - mu_hat)^2], v_s = sigma_s^2 + tau^2, w = 1 / v, mu_hat = sum w y / sum w
+    y, sigma, _ = _draws(3, 6, 0.02)
+    k = len(y)
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    mu_sigma = 1e4
+    prior_sigma = np.r_[mu_sigma, np.full(k, 0.02)]
+    H = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / prior_sigma ** 2)
+    theta = np.r_[0.01, np.linspace(-0.01, 0.01, k)]      # any point: the quadratic is exact
+    g = J.T @ ((J @ theta - y) / sigma ** 2) + theta / prior_sigma ** 2
+    grid = np.array([0.002, 0.01, 0.03, 0.06])
+    ll = spread_log_likelihood(H, g, theta, np.zeros(k + 1), prior_sigma, np.arange(1, k + 1), grid)
+
+    def reml(tau):
+        w = 1.0 / (sigma ** 2 + tau ** 2)
+        mu = np.sum(w * y) / np.sum(w)
+        return -0.5 * (np.sum(np.log(1.0 / w)) + np.log(np.sum(w)) + np.sum(w * (y - mu) ** 2))
+    want = np.array([reml(t) for t in grid])
+    np.testing.assert_allclose(ll - ll[0], want - want[0], atol=1e-6)
+
+
+def test_equal_estimates_give_no_spread_but_a_used_sigma_within_what_they_allow():
+    est = spread_from_estimates(np.full(8, 0.02), np.full(8, 0.005))
+    assert est["estimate_m"] == 0.0
+    # what 8 sensors of 5 mm allow: a few mm, not the recipe's 20
+    assert 0.0 < est["used_m"] < 0.006
+
+
+def test_one_sensor_gives_no_estimate():
+    est = spread_from_estimates([0.03], [0.005])
+    assert est["sensors"] == 1 and np.isnan(est["estimate_m"]) and np.isnan(est["used_m"])
+
+
+def test_sensors_with_a_nan_or_zero_sigma_or_estimate_are_left_out():
+    y, sigma, _ = _draws(5, 10, 0.02)
+    base = spread_from_estimates(y, sigma)
+    bad = spread_from_estimates(np.r_[y, 0.5, np.nan, 0.2], np.r_[sigma, np.nan, 0.004, 0.0])
+    assert bad == base
+
+
+def _own_shift_sigma(y, sigma, tau):
+    """Each sensor's own shift mu + delta_s and its sigma with delta_s ~ N(0, tau^2), mu diffuse
+    (the graph's model reduced to independent estimates)."""
+    k = len(y)
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    H = J.T @ (J / sigma[:, None] ** 2) + np.diag(np.r_[1e-8, np.full(k, 1.0 / tau ** 2)])
+    cov = np.linalg.inv(H)
+    x = cov @ (J.T @ (y / sigma ** 2))
+    var = cov[0, 0] + np.diag(cov)[1:] + 2.0 * cov[0, 1:]
+    return x[0] + x[1:], np.sqrt(var)
+
+
+def test_a_wrong_assumed_spread_misstates_the_sigma_and_the_estimate_covers_it():
+    # true spread 30 mm, 10 sensors a log, 200 logs: error / sigma RMS of each sensor's own shift
+    tau = 0.03
+    ratios = {"5 mm": [], "20 mm": [], "estimated": [], "100 mm": []}
+    for seed in range(200):
+        y, sigma, own = _draws(seed, 10, tau)
+        used = spread_from_estimates(y, sigma)["used_m"]
+        for name, t in (("5 mm", 0.005), ("20 mm", 0.02), ("estimated", used), ("100 mm", 0.1)):
+            est, sd = _own_shift_sigma(y, sigma, t)
+            ratios[name].append((est - own) / sd)
+    rms = {name: float(np.sqrt(np.mean(np.square(r)))) for name, r in ratios.items()}
+    assert rms["5 mm"] > 1.5            # too small a spread: sigma far too narrow
+    assert rms["20 mm"] > 1.05          # the recipe's 20 mm: somewhat narrow
+    assert 0.9 < rms["estimated"] < 1.1
+    assert rms["100 mm"] < rms["estimated"]     # too wide a spread: sigma too wide
+
+
+def _step(informed: int, uninformed: int):
+    """A profile step over the shared shift and departures: ``informed`` sensors measured to 5 mm,
+    ``uninformed`` ones to 1 m (seen from one side), prior 20 mm each."""
+    k = informed + uninformed
+    sigma = np.r_[np.full(informed, 0.005), np.full(uninformed, 1.0)]
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    prior = np.r_[0.05, np.full(k, 0.02)]
+    H = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / prior ** 2)
+    y = 0.03 + np.random.default_rng(1).normal(0.0, 0.03, k)
+    g = -J.T @ (y / sigma ** 2)
+    nuis = [Nuisance("horizontal_shift_m", 0.0, 0.05, 0.02)] + [
+        Nuisance(SENSOR_PREFIX + f"s{i}", 0.0, 0.02, 0.01) for i in range(k)]
+    prob = SimpleNamespace(recipe=SimpleNamespace(head_shift_per_sensor_sigma_m=0.02))
+    return prob, SimpleNamespace(hessian=H, dtheta=-np.linalg.solve(H, g)), nuis
+
+
+def test_too_few_informed_sensors_keep_the_recipes_sigma_with_a_warning():
+    prob, step, nuis = _step(2, 6)
+    H = step.hessian.copy()
+    with pytest.warns(DegenerateDataWarning, match="determine 2 sensors' own shift"):
+        step2, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
+    assert rec["estimate_m"] is None and rec["used_m"] is None and not rec["applied"]
+    assert nuis2 == nuis and np.array_equal(step2.hessian, H)
+    assert "not estimated (2 sensors'" in spread_note(rec) and "prior sigma 20 mm" in spread_note(rec)
+    # only reported (the recipe's default): no warning
+    prob, step, nuis = _step(2, 6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)[2]["estimate_m"] is None
+
+
+def test_the_estimate_takes_the_departures_prior_and_the_step_is_the_new_optimum():
+    prob, step, nuis = _step(12, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        step, nuis, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
+    assert rec["sensors"] == 12 and rec["applied"]
+    assert 0.015 < rec["estimate_m"] < 0.05 and rec["used_m"] >= rec["estimate_m"]
+    assert all(n.prior_sigma == rec["used_m"] for n in nuis[1:]) and nuis[0].prior_sigma == 0.05
+    # the Hessian's prior part is the new one: H - P(new) is the data's
+    k = len(nuis) - 1
+    sigma = np.r_[np.full(12, 0.005), np.full(3, 1.0)]
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    want = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / np.r_[0.05, np.full(k, rec["used_m"])] ** 2)
+    np.testing.assert_allclose(step.hessian, want, rtol=1e-12)
+    assert f"{1000 * rec['estimate_m']:.1f} mm" in spread_note(rec) and "keeps" not in spread_note(rec)
+    assert SPREAD_GRID[0] > 0.0
+
+
+def test_an_estimate_only_reported_leaves_the_step_and_the_prior_as_they_were():
+    prob, step, nuis = _step(12, 3)
+    H, dtheta = step.hessian.copy(), step.dtheta.copy()
+    step, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)
+    assert not rec["applied"] and 0.015 < rec["estimate_m"] < 0.05
+    assert nuis2 == nuis and np.array_equal(step.hessian, H) and np.array_equal(step.dtheta, dtheta)
+    # the same estimate as when used
+    used = estimate_departure_spread(*_step(12, 3), np.zeros(len(nuis)))[2]
+    assert rec["estimate_m"] == used["estimate_m"] and rec["used_m"] == used["used_m"]
+    assert "keeps the recipe's prior sigma 20 mm" in spread_note(rec)
+
+
+def test_the_head_models_record_names_the_prior_the_departures_had():
+    prob, step, nuis = _step(12, 3)
+    rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)[2]
+    out = spread_record(rec)
+    assert out == {"estimate_m": round(rec["estimate_m"], 5), "upper_m": round(rec["upper_m"], 5),
+                   "rms_m": round(rec["used_m"], 5), "sensors": 12, "prior_sigma_m": 0.02}
+    used = spread_record({**rec, "applied": True})
+    assert used["prior_sigma_m"] == round(rec["used_m"], 5)
+    none = spread_record({"prior_m": 0.02, "sensors": 1, "applied": False, "estimate_m": None, "used_m": None,
+                          "upper_m": None})
+    assert none == {"estimate_m": None, "upper_m": None, "rms_m": None, "sensors": 1, "prior_sigma_m": 0.02}
+    assert spread_record(None) is None
