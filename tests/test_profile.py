@@ -557,27 +557,6 @@ def test_columns_index_of_many_keys_equals_key_by_key():
     assert len(cols.index([])) == 0
 
 
-def test_refactorizing_is_cheaper_by_the_flop_counts():
-    # a factorization's (sum of L's column counts squared, at least entries^2 / n) and one solve's
-    # flops against NEAR_SOLVE_ITERATIONS solves and products with A
-    import scipy.sparse as sps
-
-    from pedcal.calib.profile import NEAR_SOLVE_ITERATIONS, refactorizing_is_cheaper
-
-    n, nnz = 1000, 4000
-    A = sps.random(3000, n, density=nnz / (3000 * n), format="csr", random_state=0)
-    k = NEAR_SOLVE_ITERATIONS
-    # the break-even: entries^2 / n + 4 entries = k (4 entries + 4 nnz)
-    a, b, c = 1.0 / n, 4.0 - 4.0 * k, -4.0 * k * A.nnz
-    even = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
-    assert refactorizing_is_cheaper(int(np.floor(even)), A)
-    assert not refactorizing_is_cheaper(int(np.ceil(even)) + 1, A)
-    # short columns (the paper scene: 42 values a column) refactorize; 200 a column do not
-    assert refactorizing_is_cheaper(42 * n, A)
-    assert not refactorizing_is_cheaper(200 * n, A)
-    assert refactorizing_is_cheaper(0, sps.csr_matrix((0, 0)))
-
-
 def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper, monkeypatch):
     # a chord step solves z0 by conjugate gradients preconditioned with the full step's
     # factorization: the same step as with a factorization of its own
@@ -609,15 +588,8 @@ def test_chord_step_with_the_kept_factorization_equals_a_fresh_one(dome_paper, m
 
     factorized, real = [], profile_mod._normal_solver
     monkeypatch.setattr(profile_mod, "_normal_solver", lambda *a, **k: factorized.append(1) or real(*a, **k))
-    # (this graph's short columns make a factorization of its own the cheaper: taken, unless the
-    # cost model says otherwise)
-    refactorized = step_at(moved, theta, previous=full, order=full.order)
-    assert factorized == [1]
-    monkeypatch.setattr(profile_mod, "refactorizing_is_cheaper", lambda entries, A: False)
-    factorized.clear()
     kept = step_at(moved, theta, previous=full, order=full.order)
     assert factorized == []          # z0 from the kept factorization, none of its own
-    assert np.abs(kept.z0 - refactorized.z0).max() < 1e-9 * np.abs(refactorized.z0).max()
     # its B is its own point's (the exact gradient -B^T r), not the full step's
     assert kept.B.shape == full.B.shape and abs(kept.B - full.B).max() > 0.0
     monkeypatch.undo()

@@ -268,33 +268,6 @@ def _near_solve(A: sps.csr_matrix, y: np.ndarray, solve_near, rtol: float = 1e-1
     return None
 
 
-# the solves a chord step's conjugate gradients take (each with the kept factorization, one
-# iteration each, and two products with A): 11-13 to the 1e-10 residual on the paper, corridor
-# and cross scenarios (seeds 0-1)
-NEAR_SOLVE_ITERATIONS = 12
-
-
-def refactorizing_is_cheaper(factor_entries: int, A: sps.csr_matrix) -> bool:
-    """Whether a factorization of its own (:func:`_normal_solver`) and one solve cost fewer
-    floating-point operations than :func:`_near_solve` with a nearby point's factorization of
-    ``factor_entries`` values in L (the same graph: the new one's about as large), for the system
-    ``A`` (rows x n). Conjugate gradients: NEAR_SOLVE_ITERATIONS iterations of one solve (a
-    forward and a backward pass over L, a multiply-add per value each: 4 flops a value) and the
-    products A^T (A p) (4 flops an entry of A). The factorization: sum_j c_j^2 over L's column
-    counts c_j (a supernodal Cholesky's multiply-adds), at least (sum_j c_j)^2 / n (Cauchy-Schwarz),
-    which stands for it here. Small graphs, whose columns are short, refactorize: the paper
-    scenario (0.52 million values over 12 456 columns, 42 a column) in 10-11 ms against the
-    conjugate gradients' 14-16 ms; corridor and cross alike (15-17 against 20-22 ms, 11 against
-    14-16 ms). Long columns, where a factorization costs many solves, keep the conjugate
-    gradients."""
-    n = A.shape[1]
-    if n == 0:
-        return True
-    solve = 4.0 * factor_entries
-    factorization = float(factor_entries) ** 2 / n
-    return factorization + solve <= NEAR_SOLVE_ITERATIONS * (solve + 4.0 * A.nnz)
-
-
 @dataclass
 class LocalProfile:
     """Nuisances each entering the rows of one variable alone (a sensor's clock offset, its own
@@ -504,11 +477,9 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     b = np.r_[b_f, b_o0, b_p0]
     if chord:
         # z0 alone: by conjugate gradients preconditioned with the full step's factorization (a
-        # nearby point's normal matrix), or by a fresh factorization where that costs less (short
-        # columns: refactorizing_is_cheaper) or they do not converge
+        # nearby point's normal matrix), a fresh factorization only should they not converge
         y = A.T @ b
-        near = previous.__dict__.get("_normal_solve")
-        z0 = None if near is None or refactorizing_is_cheaper(near.factor_entries, A) else _near_solve(A, y, near)
+        z0 = _near_solve(A, y, previous.__dict__.get("_normal_solve"))
         if z0 is None:
             z0 = _normal_solver(A, order)(y)
         rho0 = A @ z0 - b
