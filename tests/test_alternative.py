@@ -197,6 +197,21 @@ def test_noisy_with_false_tracks_and_large_installed_errors():
         assert entry["residual_rms_mm"] < 80.0
 
 
+def test_tracks_from_handed_in_sensor_frame_points(noise_free):
+    # build_tracks takes the caller's log.observation_points_sensor() (read once per calibration):
+    # the same tracks as from its own reading; the points given are the ones used
+    log = noise_free[0]
+    p = log.observation_points_sensor()
+    own, given = build_tracks(log), build_tracks(log, p)
+    assert own.keys() == given.keys() and any(own.values())
+    for sid in own:
+        assert [(a.track, a.rows.tolist()) for a in own[sid]] == [(b.track, b.rows.tolist()) for b in given[sid]]
+        assert all(np.array_equal(a.p_sensor, b.p_sensor) for a, b in zip(own[sid], given[sid], strict=True))
+    shifted = build_tracks(log, p + 1.0)
+    sid = next(s for s in own if own[s])
+    assert np.allclose(shifted[sid][0].p_sensor, own[sid][0].p_sensor + 1.0)
+
+
 def test_people_side_by_side_are_ambiguous():
     """Two walkers 0.4 m apart: with installed errors either pairing is as consistent as the
     other, so none is accepted between their tracks."""

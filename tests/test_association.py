@@ -146,6 +146,18 @@ def busy():
     return log, extra, associate_robot(log)
 
 
+def test_sensor_frame_points_handed_in_give_the_same_association(busy):
+    # the caller's log.observation_points_sensor() (read once per calibration) in place of the
+    # association's own reading: the same robot observations and latency; other points are used
+    log, _, res = busy
+    p = log.observation_points_sensor()
+    given = associate_robot(log, p_sensor=p)
+    assert np.array_equal(given.is_robot, res.is_robot) and given.latency_s == res.latency_s
+    assert np.array_equal(p, log.observation_points_sensor())          # (read, not changed)
+    moved = associate_robot(log, p_sensor=p + np.array([0.0, 0.0, 5.0]))   # (every point 5 m off)
+    assert not np.array_equal(moved.is_robot, res.is_robot)
+
+
 def test_picks_out_the_robot_among_pedestrians_false_tracks_and_a_swap(busy):
     log, _, res = busy
     score = score_association(log, res.is_robot)

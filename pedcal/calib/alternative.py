@@ -136,11 +136,12 @@ def _check_observations(log: Log) -> None:
                                column="sensor")
 
 
-def build_tracks(log: Log) -> dict[str, list[Track]]:
+def build_tracks(log: Log, p_sensor: np.ndarray | None = None) -> dict[str, list[Track]]:
     """Tracks of every sensor (tracks with fewer than two distinct time stamps are dropped;
-    a repeated time stamp within a track keeps its first row)."""
+    a repeated time stamp within a track keeps its first row). ``p_sensor``:
+    ``log.observation_points_sensor()`` when the caller has it (read, not changed)."""
     obs = log.observations
-    p_sensor = log.observation_points_sensor()
+    p_sensor = log.observation_points_sensor() if p_sensor is None else np.asarray(p_sensor, float)
     t_all = obs["t"].to_numpy(float)
     sensor_col = obs["sensor"].astype(str).to_numpy()
     track_col = obs["track"].astype(str).to_numpy()

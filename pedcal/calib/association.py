@@ -412,10 +412,12 @@ def _validate(log: Log):
                                f"{', '.join(sorted(known))})", path=obs_path, row=row, column="sensor")
 
 
-def associate_robot(log: Log, *, progress: bool = False, **params) -> AssociationResult:
+def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | None = None,
+                    **params) -> AssociationResult:
     """Find the robot's observations in ``log.observations`` (see the module docstring).
 
-    ``params`` override :data:`DEFAULT_PARAMS`."""
+    ``params`` override :data:`DEFAULT_PARAMS`; ``p_sensor``: ``log.observation_points_sensor()``
+    when the caller has it (read, not changed)."""
     unknown = set(params) - set(DEFAULT_PARAMS)
     if unknown:
         raise TypeError(f"unknown association parameter(s): {', '.join(sorted(unknown))}")
@@ -428,7 +430,7 @@ def associate_robot(log: Log, *, progress: bool = False, **params) -> Associatio
         sensor_col = obs["sensor"].astype(str).to_numpy()
         track_col = obs["track"].astype(str).to_numpy()
         seg_codes, _ = pd.factorize(pd.Series(sensor_col) + "\x00" + pd.Series(track_col))
-        p_sensor = log.observation_points_sensor()
+        p_sensor = log.observation_points_sensor() if p_sensor is None else np.asarray(p_sensor, float)
         p_installed = obs[["x", "y", "z"]].to_numpy(float)
         robot_t = log.robot["t"].to_numpy(float)
         # observations the robot track covers at every latency considered (pass 1)

@@ -181,14 +181,17 @@ def _pose_grid(amcl_t: np.ndarray, max_gap_s: float) -> np.ndarray:
 
 
 
-def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork) -> list:
+def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network: SensorNetwork,
+                   points_sensor: np.ndarray | None = None) -> list:
     """Instants where two sensors see the same person, matched by the alternative's
     shared-observation matcher on tracks that hold no robot observation (``is_robot``; all of
     them when the graph leaves the robot's poses out and the robot is one more person).
+    ``points_sensor``: ``log.observation_points_sensor()`` when the caller has it.
     Returns [(t, [(sensor, p_sensor), ...]), ...]."""
     from pedcal.calib.alternative import build_tracks, match_shared_observations
 
-    tracks = {sid: [tr for tr in trs if not is_robot[tr.rows].any()] for sid, trs in build_tracks(log).items()}
+    tracks = {sid: [tr for tr in trs if not is_robot[tr.rows].any()]
+              for sid, trs in build_tracks(log, points_sensor).items()}
     report = match_shared_observations(tracks, network, sample_period_s=recipe.people_sample_s)
     out = []
     for m in report.matches:
@@ -237,6 +240,9 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     from pedcal.calib.association import associate_robot, estimate_latency
 
     latency = None
+    # (the head points in each sensor's frame, read once: the association, the initializer and
+    # the shared people's tracks take them too)
+    p_all = log.observation_points_sensor()
     if not recipe.robot:
         # Without the robot's observations the robot is one more unlocalized person, as in the
         # alternative (SNAPCAT-3D): its tracks are shared sightings like anyone's, and no
@@ -244,7 +250,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         is_robot, latency = np.zeros(len(log.observations), bool), 0.0
     elif is_robot is None:
         _log(progress, "picking out the robot's observations")
-        assoc = associate_robot(log)
+        assoc = associate_robot(log, p_sensor=p_all)
         is_robot, latency = assoc.is_robot, assoc.latency_s
     is_robot = np.asarray(is_robot, bool)
     if not recipe.estimate_latency:
@@ -253,7 +259,6 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         latency = estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s) if is_robot.sum() >= 12 else 0.0
     _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
-    p_all = log.observation_points_sensor()
     sensor_col = obs["sensor"].astype(str).to_numpy()
     t_all = obs["t"].to_numpy(float)
     rows = np.flatnonzero(is_robot)
@@ -307,7 +312,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     if recipe.people:
         net = SensorNetwork([SensorExtrinsics.from_pose3(sid, init[sid]) for sid in log.sensors.ids],
                             frame=log.sensors.frame)
-        prob.people = _shared_people(log, is_robot, recipe, net)
+        prob.people = _shared_people(log, is_robot, recipe, net, points_sensor=p_all)
     _log(progress, f"{len(rows)} robot observations, {len(pose_times)} robot poses, "
                    f"{len(prob.people)} shared person sightings")
     return prob

@@ -105,7 +105,8 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     ijs = gfg.sparseJacobian_()          # 3 x entries, (row, column, value), 1-based, b as a last column
     # (compact copies, the 3 x entries array dropped at once: it and its int64 copies were the
     # peak memory of a large graph's linearization)
-    i = ijs[0].astype(np.int32 if ijs.shape[1] and ijs[0].max() < 2 ** 31 else np.int64)
+    last_row = int(ijs[0].max()) if ijs.shape[1] else 0      # (1-based: the row count)
+    i = ijs[0].astype(np.int32 if last_row < 2 ** 31 else np.int64)
     j = ijs[1].astype(np.int32)
     v = ijs[2].copy()
     del ijs
@@ -116,7 +117,7 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     local = cols.index(own)
     n_local = len(local)
     rhs = j == n_local
-    m = int(i.max()) + 1
+    m = last_row
     b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
     keep = ~rhs
     index_dtype = np.int32 if max(len(v), cols.n) < 2 ** 31 else np.int64      # (scipy's own choice)
