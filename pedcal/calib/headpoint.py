@@ -271,16 +271,17 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
     p0 = 1.0 / np.asarray(prior_sigma, float) ** 2
     H_d = np.asarray(H, float) - np.diag(p0)
     g_d = np.asarray(g, float) - p0 * r
-    out = np.empty(len(grid_m))
-    for i, tau in enumerate(np.asarray(grid_m, float)):
-        p = p0.copy()
-        p[own] = 1.0 / tau ** 2
-        A = H_d + np.diag(p)
-        b = g_d + p * r
-        L = np.linalg.cholesky(A)
-        y = np.linalg.solve(L, b)
-        out[i] = 0.5 * y @ y - 0.5 * float(r @ (p * r)) - float(np.sum(np.log(np.diag(L)))) - len(own) * np.log(tau)
-    return out
+    tau = np.asarray(grid_m, float)
+    # every tau at once (one stacked factorization): P(tau) per row, A and b per slice
+    P = np.repeat(p0[None, :], len(tau), axis=0)
+    P[:, own] = (1.0 / tau ** 2)[:, None]
+    idx = np.arange(len(p0))
+    A = np.repeat(H_d[None], len(tau), axis=0)
+    A[:, idx, idx] += P
+    L = np.linalg.cholesky(A)
+    y = np.linalg.solve(L, (g_d + P * r)[..., None])[..., 0]
+    log_det_half = np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
+    return 0.5 * np.sum(y * y, axis=1) - 0.5 * (P * r) @ r - log_det_half - len(own) * np.log(tau)
 
 
 def spread_summary(loglik: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict:
