@@ -307,6 +307,7 @@ def test_the_spread_between_trackers_is_estimated_and_recorded(nadir, use, monke
     true = np.std(list(delta.values()))
     assert spread["sensors"] == len(delta)
     assert abs(spread["estimate_m"] - true) < 0.0175
+    assert abs(spread["estimate_m"] - true) < abs(SIGMA_M - true)      # nearer than the recipe's value
     assert spread["estimate_m"] <= spread["used_m"] <= spread["upper_m"]
     own = [n for n in seen["shifts"].names if n.startswith(SENSOR_PREFIX)]
     assert len(own) == len(delta)

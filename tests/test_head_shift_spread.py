@@ -128,7 +128,7 @@ def _step(informed: int, uninformed: int):
     nuis = [Nuisance("horizontal_shift_m", 0.0, 0.05, 0.02)] + [
         Nuisance(SENSOR_PREFIX + f"s{i}", 0.0, 0.02, 0.01) for i in range(k)]
     prob = SimpleNamespace(recipe=SimpleNamespace(head_shift_per_sensor_sigma_m=0.02))
-    return prob, SimpleNamespace(hessian=H, dtheta=-np.linalg.solve(H, g)), nuis
+    return prob, SimpleNamespace(hessian=H, dtheta=-np.linalg.solve(H, g), covariance=np.linalg.inv(H)), nuis
 
 
 def test_too_few_informed_sensors_keep_the_recipes_sigma_with_a_warning():
@@ -138,7 +138,8 @@ def test_too_few_informed_sensors_keep_the_recipes_sigma_with_a_warning():
         step2, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
     assert rec["estimate_m"] is None and rec["used_m"] is None and not rec["applied"]
     assert nuis2 == nuis and np.array_equal(step2.hessian, H)
-    assert "not estimated (2 sensors'" in spread_note(rec) and "prior sigma 20 mm" in spread_note(rec)
+    assert "not estimated (the data determine 2 sensors' own shift" in spread_note(rec)
+    assert "prior sigma 20 mm" in spread_note(rec)
     # only reported (the recipe's default): no warning
     prob, step, nuis = _step(2, 6)
     with warnings.catch_warnings():
@@ -188,3 +189,56 @@ def test_the_head_models_record_names_the_prior_the_departures_had():
                           "upper_m": None})
     assert none == {"estimate_m": None, "upper_m": None, "rms_m": None, "sensors": 1, "prior_sigma_m": 0.02}
     assert spread_record(None) is None
+
+
+def test_the_informed_sensors_are_those_whose_posterior_variance_is_at_most_half_the_prior():
+    # 15 sensors' own shifts measured to 2-60 mm against a 20 mm prior: the posterior variance (the
+    # shared shift integrated out) halves the prior's for the first 10 (a rule of 0.1 or 0.9 of the
+    # prior's variance would count 0 or 14)
+    k = 15
+    sigma = np.geomspace(0.002, 0.06, k)
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    prior = np.r_[0.05, np.full(k, 0.02)]
+    H = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / prior ** 2)
+    g = -J.T @ (0.03 / sigma ** 2)
+    nuis = [Nuisance("horizontal_shift_m", 0.0, 0.05, 0.02)] + [
+        Nuisance(SENSOR_PREFIX + f"s{i}", 0.0, 0.02, 0.01) for i in range(k)]
+    prob = SimpleNamespace(recipe=SimpleNamespace(head_shift_per_sensor_sigma_m=0.02))
+    step = SimpleNamespace(hessian=H, dtheta=-np.linalg.solve(H, g), covariance=np.linalg.inv(H))
+    post = np.diag(np.linalg.inv(H))[1:]
+    assert np.sum(post <= 0.5 * 0.02 ** 2) == 10
+    assert estimate_departure_spread(prob, step, nuis, np.zeros(k + 1), use=False)[2]["sensors"] == 10
+
+
+def test_the_step_from_a_point_away_from_zero_is_the_optimum_under_the_estimated_prior():
+    # the quadratic's optimum does not depend on where the step starts: from theta = 0 and from
+    # another point (the gradient there g0 + H theta) the new step lands on the same optimum,
+    # argmin of the data's quadratic plus the new prior
+    prob, step0, nuis = _step(12, 3)
+    H = step0.hessian
+    g0 = -H @ step0.dtheta
+    theta = np.linspace(-0.01, 0.02, len(nuis))
+    step = SimpleNamespace(hessian=H.copy(), dtheta=-np.linalg.solve(H, g0 + H @ theta), covariance=np.linalg.inv(H))
+    step, nuis2, rec = estimate_departure_spread(prob, step, nuis, theta)
+    tau = rec["used_m"]
+    p_old = 1.0 / np.array([n.prior_sigma for n in nuis]) ** 2
+    p_new = 1.0 / np.array([n.prior_sigma for n in nuis2]) ** 2
+    H_data, g_data = H - np.diag(p_old), g0          # (the priors' gradient at theta = 0 is 0)
+    optimum = -np.linalg.solve(H_data + np.diag(p_new), g_data)
+    np.testing.assert_allclose(theta + step.dtheta, optimum, rtol=0, atol=1e-12)
+    assert tau != 0.02 and np.all(p_new[1:] == 1.0 / tau ** 2)
+
+
+def test_departures_fitted_each_on_its_own_are_named_not_estimated():
+    # more sensors than clock_offsets_joint_max: the departures are local, none in the joint step;
+    # used, the recipe's sigma is kept with a warning that says why, and the note says it too
+    prob, step, nuis = _step(12, 3)
+    shared = nuis[:1]
+    setattr(prob, SENSOR_PREFIX + "s0", 0.0)          # a departure exists, fitted with the path
+    with pytest.warns(DegenerateDataWarning, match="fitted with the path on its own"):
+        _, _, rec = estimate_departure_spread(prob, step, shared, np.zeros(1))
+    assert rec["sensors"] == 0 and rec["estimate_m"] is None and not rec["applied"]
+    assert "fitted with the path on its own" in spread_note(rec)
+    # without any departure (their prior sigma 0): nothing to say
+    prob2 = SimpleNamespace(recipe=SimpleNamespace(head_shift_per_sensor_sigma_m=0.0))
+    assert estimate_departure_spread(prob2, step, shared, np.zeros(1))[2] is None

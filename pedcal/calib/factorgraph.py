@@ -542,7 +542,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # no candidates, and without a profile there is nothing to choose: no rows labelled for it)
     select_profile = bool(profile_nuis)
     select = curvature and rec.head_curvature in ("auto", "widen")
-    spread = rec.head_shift_per_sensor_sigma_m > 0.0      # (the spread's estimate, used or only reported)
+    # (the spread's estimate, used or only reported; not in the rough first pass, whose head model
+    # only serves AMCL's model)
+    spread = curvature and rec.head_shift_per_sensor_sigma_m > 0.0
     unmodelled = None
     considered = considered_nuisances(prob)    # (before the curvature, which stays last)
     nuis += considered

@@ -269,19 +269,28 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
     own = np.asarray(own, np.int64)
     r = np.asarray(theta, float) - np.asarray(prior_mean, float)
     p0 = 1.0 / np.asarray(prior_sigma, float) ** 2
-    H_d = np.asarray(H, float) - np.diag(p0)
-    g_d = np.asarray(g, float) - p0 * r
+    H, g = np.asarray(H, float), np.asarray(g, float)
+    # only the departures' diagonal moves with lam = tau^-2: with the other nuisances (N) at their
+    # priors and eliminated, A's departures' block is S + lam I (S = A_OO - C^T K^-1 C, K = A_NN,
+    # C = A_NO at lam = 0), and one eigen-decomposition S = U diag(s) U^T gives every tau:
+    # ln det A = ln det K + sum ln(s + lam) and b^T A^-1 b = b_N^T K^-1 b_N + sum c^2 / (s + lam),
+    # c = U^T (b_O - C^T K^-1 b_N); b_N = g_N (the priors' r cancels there), b_O = g_d,O + lam r_O.
+    # The terms without tau (K's) are left out: the likelihood is read by its differences.
+    other = np.setdiff1d(np.arange(len(p0)), own)
+    A0 = H.copy()
+    A0[own, own] -= p0[own]                          # H_d with the other nuisances' priors kept
+    K, C = A0[np.ix_(other, other)], A0[np.ix_(other, own)]
+    K_inv_C = np.linalg.solve(K, C) if len(other) else np.zeros((0, len(own)))
+    K_inv_g = np.linalg.solve(K, g[other]) if len(other) else np.zeros(0)
+    s_eig, U = np.linalg.eigh(A0[np.ix_(own, own)] - C.T @ K_inv_C)
+    c0 = U.T @ (g[own] - p0[own] * r[own] - C.T @ K_inv_g)
+    r_eig = U.T @ r[own]
     tau = np.asarray(grid_m, float)
-    # every tau at once (one stacked factorization): P(tau) per row, A and b per slice
-    P = np.repeat(p0[None, :], len(tau), axis=0)
-    P[:, own] = (1.0 / tau ** 2)[:, None]
-    idx = np.arange(len(p0))
-    A = np.repeat(H_d[None], len(tau), axis=0)
-    A[:, idx, idx] += P
-    L = np.linalg.cholesky(A)
-    y = np.linalg.solve(L, (g_d + P * r)[..., None])[..., 0]
-    log_det_half = np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
-    return 0.5 * np.sum(y * y, axis=1) - 0.5 * (P * r) @ r - log_det_half - len(own) * np.log(tau)
+    lam = 1.0 / tau ** 2
+    d = s_eig[None, :] + lam[:, None]
+    c = c0[None, :] + lam[:, None] * r_eig[None, :]
+    return (0.5 * np.sum(c * c / d, axis=1) - 0.5 * lam * float(r[own] @ r[own]) - 0.5 * np.sum(np.log(d), axis=1)
+            - len(own) * np.log(tau))
 
 
 def spread_summary(loglik: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict:
@@ -326,8 +335,9 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     """The departures' prior sigma tau estimated from the data: :func:`spread_log_likelihood`
     on the profile ``step`` at ``theta`` (``nuis`` its nuisances, in order), its posterior
     summarised by :func:`spread_summary`. It counts the sensors whose departure the data
-    determine (seen from around: the data at least halve its prior variance, the others held at
-    their priors); with fewer than SPREAD_MIN_SENSORS there is no estimate. With ``use`` (recipe
+    determine (seen from around: the data at least halve its prior variance, the other nuisances
+    integrated out); with fewer than SPREAD_MIN_SENSORS, or departures each fitted with the path on
+    its own (more sensors than ``clock_offsets_joint_max``), there is no estimate. With ``use`` (recipe
     ``head_shift_per_sensor_sigma_estimate``) the step is re-taken with the departures' prior 0
     +- ``used_m`` (its Hessian's prior part exchanged, the Newton step re-solved), or, without an
     estimate, the recipe's ``head_shift_per_sensor_sigma_m`` is kept with a
@@ -342,20 +352,27 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     own = np.array([j for j, n in enumerate(nuis) if is_sensor_shift(n.name)], np.int64)
     sigma0 = prob.recipe.head_shift_per_sensor_sigma_m
     if not len(own):
-        return step, nuis, None
-    H = step.hessian
-    p0 = np.array([1.0 / n.prior_sigma ** 2 for n in nuis])
-    # a departure the data determine: its posterior variance at most half its prior's
-    informed = int(np.sum(np.diag(np.linalg.inv(H))[own] <= 0.5 / p0[own]))
+        if not any(is_sensor_shift(name) for name in vars(prob)):
+            return step, nuis, None
+        # departures fitted with the path, each on its own (more sensors than clock_offsets_joint_max):
+        # no joint quadratic to read their spread from
+        informed, why = 0, "each sensor's own shift is fitted with the path on its own (clock_offsets_joint_max)"
+    else:
+        # a departure the data determine: its posterior variance (the others integrated out: the
+        # Hessian's inverse) at most half its prior's
+        p0 = np.array([1.0 / n.prior_sigma ** 2 for n in nuis])
+        informed = int(np.sum(np.diag(step.covariance)[own] <= 0.5 / p0[own]))
+        why = (f"the data determine {informed} sensors' own shift (seen from around), fewer than "
+               f"{SPREAD_MIN_SENSORS}")
     record = {"prior_m": sigma0, "sensors": informed, "applied": False}
     if informed < SPREAD_MIN_SENSORS:
         if use:
-            warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: the data "
-                          f"determine {informed} sensors' own shift (seen from around), fewer than "
-                          f"{SPREAD_MIN_SENSORS}; its prior sigma head_shift_per_sensor_sigma_m = "
-                          f"{1000 * sigma0:.0f} mm is kept", DegenerateDataWarning, stacklevel=3)
-        prob._departure_spread = {**record, "estimate_m": None, "used_m": None, "upper_m": None}
+            warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: {why}; "
+                          f"its prior sigma head_shift_per_sensor_sigma_m = {1000 * sigma0:.0f} mm is kept",
+                          DegenerateDataWarning, stacklevel=3)
+        prob._departure_spread = {**record, "estimate_m": None, "used_m": None, "upper_m": None, "why": why}
         return step, nuis, prob._departure_spread
+    H = step.hessian
     g = -H @ step.dtheta
     mean = np.array([n.prior_mean for n in nuis])
     sigma = np.array([n.prior_sigma for n in nuis])
@@ -397,8 +414,9 @@ def spread_note(record: dict | None) -> str:
         return ""
     recipe = f"the recipe's prior sigma {1000 * record['prior_m']:.0f} mm (head_shift_per_sensor_sigma_m)"
     if record.get("estimate_m") is None:
-        return (f"The spread of the head point between the sensors' trackers was not estimated ({record['sensors']} "
-                f"sensors' own shift determined by the data): each sensor's own shift has {recipe}.")
+        why = record.get("why") or f"the data determine {record['sensors']} sensors' own shift"
+        return f"The spread of the head point between the sensors' trackers was not estimated ({why}): each " \
+               f"sensor's own shift has {recipe}."
     found = (f"The spread of the head point between the sensors' trackers, estimated from {record['sensors']} "
              f"sensors' own shifts: {1000 * record['estimate_m']:.1f} mm (95 % below {1000 * record['upper_m']:.1f} "
              f"mm; the root of its mean square over what the data leave of it {1000 * record['used_m']:.1f} mm)")
