@@ -162,23 +162,25 @@ def test_sigma_consistency_of_a_consistent_and_an_overconfident_method(results_d
 
 
 def test_sigma_consistency_counts_a_sensor_left_uncalibrated_or_without_sigma_as_a_miss(results_dir):
-    """Two of eight sensors missed (one with no data, one ok without a sigma): the shares are over all
-    24 axes, so a method is not more consistent for dropping the sensors it fails; a degenerate
-    sensor with a sigma is scored; the median sits above the finite ratios' when misses are many."""
+    """Four of eight sensors missed (one with no data, one degenerate: its sigma the prior's, one ok
+    without a sigma, one with an infinite sigma): the shares are over all 24 axes, so a method is not
+    more consistent for dropping the sensors it fails; with half the axes missed the median is inf."""
     ratio = np.array([0.5, 0.5, 0.5, 0.5, 1.5, 1.5, 2.5, 0.5])
     status = ["ok", "ok", "ok", "degenerate", "ok", "ok", "no-data", "ok"]
     sigma = np.full(8, 10.0)
     sigma[7] = np.nan                                    # ok, but no sigma reported
+    sigma[5] = np.inf                                    # ok, an infinite sigma: no sigma either
     d = pd.DataFrame({"scenario": "x", "method": "m", "status": status,
                       **{f"err_{a}_mm": ratio * 10.0 for a in "xyz"}, **{f"sigma_{a}_mm": sigma for a in "xyz"}})
     res = load_results(results_dir)
     res.sensors = d
     res.config = SweepConfig(scenarios=[("x", 1)], methods=["m"])
     r = sigma_consistency(res, "x").iloc[0]
-    assert (r["axes"], r["missed"]) == (24, 6)
-    assert r.within_1 == pytest.approx(4 / 8)            # sensors 0-3 (3 is degenerate, scored)
-    assert r.within_2 == pytest.approx(6 / 8) and r.within_3 == pytest.approx(6 / 8)
-    assert r.median_ratio == pytest.approx(1.0)   # 12 of 0.5, 6 of 1.5, 6 misses: (0.5 + 1.5) / 2 (0.5 without misses)
+    assert (r["axes"], r["missed"]) == (24, 12)
+    assert r.within_1 == pytest.approx(3 / 8)            # sensors 0-2 (3, degenerate, is a miss)
+    assert r.within_2 == pytest.approx(4 / 8) and r.within_3 == pytest.approx(4 / 8)
+    assert r.median_ratio == np.inf        # 9 of 0.5, 3 of 1.5, 12 misses: (1.5 + inf) / 2 (0.5 without misses)
+
 
 
 def test_sigma_consistency_leaves_out_a_method_without_any_sigma(results_dir):
