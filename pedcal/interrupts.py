@@ -25,11 +25,14 @@ EXIT_INTERRUPTED = 130
 
 
 _announced = False        # "interrupted" is printed once, however often the handler must run
+_logging_disabled = None  # logging's disable level before the handler silenced it (for ``restore``)
 
 
 def _on_sigint(signum, frame):
-    global _announced
+    global _announced, _logging_disabled
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # a second Ctrl-C does not interrupt the clean-up
+    if _logging_disabled is None:
+        _logging_disabled = logging.root.manager.disable
     logging.disable(logging.CRITICAL)     # the shutdown's own messages (Dask killing its workers) are noise now
     if not _announced:
         _announced = True
@@ -47,9 +50,12 @@ def _on_unraisable(unraisable) -> None:
     if isinstance(exc, SystemExit) and exc.code == EXIT_INTERRUPTED and _announced:
         # not SIGINT now: its handler would run inside this hook (Python checks a signal sent to itself
         # at once), and be ignored again; an alarm a millisecond on finds ordinary code running
-        with contextlib.suppress(ValueError, OSError, AttributeError):     # (main thread; POSIX)
+        # (a plain try: no Python frame of a context manager runs after the alarm is set)
+        try:
             signal.signal(signal.SIGALRM, _on_sigint)
             signal.setitimer(signal.ITIMER_REAL, 0.001)
+        except (ValueError, OSError, AttributeError):      # (main thread only; POSIX only)
+            pass
         return
     _previous_unraisablehook(unraisable)
 
@@ -86,6 +92,13 @@ def install():
 
 
 def restore(previous) -> None:
+    """The SIGINT handler and unraisable hook as before ``install``; a caller that lives on after
+    a Ctrl-C (``main`` called from Python) gets its logging back and its next Ctrl-C announced."""
+    global _announced, _logging_disabled
+    _announced = False
+    if _logging_disabled is not None:
+        logging.disable(_logging_disabled)
+        _logging_disabled = None
     if previous is not None:
         with contextlib.suppress(ValueError):
             signal.signal(signal.SIGINT, previous)

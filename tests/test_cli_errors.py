@@ -256,6 +256,29 @@ def test_another_unraisable_error_still_reaches_the_hook_before_pedcals():
     assert proc.stdout.split() == ["['ValueError']", "<lambda>"]
 
 
+def test_a_caller_that_lives_on_after_a_ctrl_c_gets_its_logging_and_the_next_announcement_back(capsys):
+    """``main`` called from Python: after its Ctrl-C (the handler's SystemExit, caught by the
+    caller) ``restore`` gives logging back at the level it had and announces the next Ctrl-C."""
+    import logging
+
+    import pedcal.interrupts as interrupts
+
+    logging.disable(logging.DEBUG)           # the caller's own level, kept through
+    try:
+        for _ in range(2):
+            previous = interrupts.install()
+            try:
+                with pytest.raises(SystemExit):
+                    interrupts._on_sigint(signal.SIGINT, None)
+                assert logging.root.manager.disable == logging.CRITICAL
+            finally:
+                interrupts.restore(previous)
+            assert logging.root.manager.disable == logging.DEBUG
+            assert capsys.readouterr().err == "interrupted\n"
+    finally:
+        logging.disable(logging.NOTSET)
+
+
 def test_json_output_is_strict_json_without_nan():
     """--json output is RFC 8259 JSON: a figure with no value (a recall over no person) is null, not
     a bare NaN that jq and JavaScript refuse; NumPy values and paths are plain."""
