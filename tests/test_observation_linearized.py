@@ -12,8 +12,9 @@ import pytest
 from test_profile import shared_people_problem, solved_graph
 
 import pedcal.calib.factorgraph as fgm
+from pedcal.calib.clocks import is_clock_nuisance
 from pedcal.calib.graph import GraphRecipe, MotionRhs, ObservationRhs, S, observation_block_terms
-from pedcal.calib.profile import Columns, sparse_system
+from pedcal.calib.profile import Columns, sparse_system, sqrt_weights
 from pedcal.errors import DegenerateDataWarning
 from pedcal.sim import simulate_logs
 
@@ -198,3 +199,38 @@ def test_people_in_the_block_have_it_made_and_linearized_by_gtsam(monkeypatch):
         result, _ = fgm.optimize_graph(parts.graph(), parts.values, rec, max_iterations=3)
     shifts, _, _, made = _nuisances(sim, prob, parts, result, monkeypatch, gtsams=False, max_steps=2)
     assert len(made) == shifts.solves + 1
+
+
+def test_every_steps_linearization_and_its_residuals_agree_through_two_passes(monkeypatch):
+    # paper seed 5 with the default recipe: two nuisance passes (the AMCL model's re-solve between
+    # them) with every sensor's clock offset profiled; at each step, the b of the block's
+    # linearization (its robust weights in it) is the right-hand side its B's columns are
+    # differences of, at the same theta and weights (a clock offset's regressor read at another
+    # velocity than the linearization's would part them)
+    sim = simulate_logs("paper", seed=5)
+    step, passes, gaps = fgm.profile_step, [], []
+
+    def estimate(*args, **kw):
+        passes.append(len(gaps))
+        return nuisances(*args, **kw)
+
+    def checked(fixed, observations, values, theta, nuisances, cols, **kw):
+        A_o, b_o = kw["obs_linear"]()
+        rows = kw["factor_rows"]
+        assert rows[-1] == len(b_o) > 3000
+        sqrt_w = sqrt_weights(np.sqrt(np.add.reduceat(b_o ** 2, rows[:-1])), *kw["kernel"])
+        sqrt_w[:kw["plain_leading"]] = 1.0
+        b_ref = kw["residuals"](theta, 1.0 / np.maximum(sqrt_w, 1e-12))
+        gaps.append((np.abs(b_o - b_ref).max(), np.abs(b_o).max(), sum(is_clock_nuisance(n.name) for n in nuisances)))
+        return step(fixed, observations, values, theta, nuisances, cols, **kw)
+
+    nuisances = fgm._estimate_nuisances
+    monkeypatch.setattr(fgm, "_estimate_nuisances", estimate)
+    monkeypatch.setattr(fgm, "profile_step", checked)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fgm.calibrate_factorgraph(sim.calib, graph="default")
+    gaps = np.array(gaps)
+    # two passes, the second of several steps, each step with every clock offset
+    assert len(passes) == 2 and len(gaps) - passes[1] >= 2 and np.all(gaps[:, 2] == len(sim.calib.sensors.sensors))
+    assert gaps[:, 1].min() > 1.0 and gaps[:, 0].max() < 1e-9
