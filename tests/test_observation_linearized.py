@@ -176,7 +176,8 @@ def test_motion_linearized_equals_gtsams_linearization_of_the_block(paper_robot)
     A_ours, b_ours = MotionRhs(sim.calib, prob, values).linearized(cols)
     assert A.shape == A_ours.shape and A.shape[0] > 600
     assert np.array_equal(A.indptr, A_ours.indptr) and np.array_equal(A.indices, A_ours.indices)
-    assert np.abs(A.data - A_ours.data).max() <= 1e-9 * np.abs(A.data).max()
+    # (the Logmap's derivative GTSAM's own: its Jacobians to rounding)
+    assert np.abs(A.data - A_ours.data).max() <= 1e-13 * np.abs(A.data).max()
     assert np.abs(b).max() > 1.0 and np.abs(b - b_ours).max() < 1e-9 * np.abs(b).max()
 
 

@@ -980,36 +980,6 @@ def _hat(v: np.ndarray) -> np.ndarray:
     return W
 
 
-def pose3_logmap_derivative(xi: np.ndarray) -> np.ndarray:
-    """(n, 6, 6) GTSAM's Pose3::LogmapDerivative at the tangents ``xi`` = Logmap(T) (n, 6):
-    [[J_w, 0], [-J_w Q J_w, J_w]], J_w SO(3)'s (I + W / 2 + (1 / theta^2 - (1 + cos theta) /
-    (2 theta sin theta)) W^2, the identity at theta^2 <= machine epsilon) and Q GTSAM's
-    computeQforExpmapDerivative (Barfoot & Furgale 2014, eq. 102; its series below 1e-5 rad)."""
-    w, v = xi[:, :3], xi[:, 3:]
-    W, V = _hat(w), _hat(v)
-    theta2 = np.sum(w * w, axis=1)
-    exact = theta2 > np.finfo(float).eps
-    th = np.sqrt(np.where(exact, theta2, 1.0))
-    c = np.where(exact, 1.0 / (th * th) - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th)), 0.0)
-    J_w = np.eye(3) + 0.5 * W + c[:, None, None] * (W @ W)
-    phi = np.sqrt(theta2)
-    big = phi > 1e-5
-    p = np.where(big, phi, 1.0)
-    s_, c_ = np.sin(p), np.cos(p)
-    p2 = p * p
-    p3, p4, p5 = p2 * p, p2 * p2, p2 * p2 * p
-    k1 = np.where(big, (p - s_) / p3, 1.0 / 6.0)
-    k2 = np.where(big, (1.0 - p2 / 2.0 - c_) / p4, -1.0 / 24.0)
-    k3 = np.where(big, -0.5 * ((1.0 - p2 / 2.0 - c_) / p4 - 3.0 * (p - s_ - p3 / 6.0) / p5), 1.0 / 120.0)
-    WVW = W @ V @ W
-    Q = (-0.5 * V + k1[:, None, None] * (W @ V + V @ W - WVW) + k2[:, None, None] * (W @ W @ V + V @ W @ W - 3.0 * WVW)
-         + k3[:, None, None] * (WVW @ W + W @ WVW))
-    J = np.zeros((len(xi), 6, 6))
-    J[:, :3, :3] = J[:, 3:, 3:] = J_w
-    J[:, 3:, :3] = -J_w @ Q @ J_w
-    return J
-
-
 class MotionRhs:
     """The right-hand side b of the odometry block's linearization at fixed ``values`` (b =
     -whitened error, what ``sparse_system(motion_block(..., theta=...).linearize(values))[1]``
@@ -1049,14 +1019,15 @@ class MotionRhs:
         gives (``cols``: the system's :class:`pedcal.calib.profile.Columns`), to rounding, in
         numpy without the block: a BetweenFactorPose3's Jacobians are GTSAM's, J (-Ad(T^-1)) and
         J for T = X_k^-1 X_k+1, J the Pose3 Logmap's derivative at its error Log(Z^-1 T)
-        (:func:`pose3_logmap_derivative`), whitened by its sigmas; the entries GTSAM's sparse
+        (GTSAM's own, ``gtsam.Pose3.LogmapDerivative``), whitened by its sigmas; the entries GTSAM's sparse
         Jacobian leaves out (at most 1e-12) are left out."""
         n = len(self.times) - 1
         if n < 1:
             return sps.csr_matrix((0, cols.n)), np.zeros(0)
         err, sigmas = self._errors(None)
         inv_sigma = 1.0 / sigmas                           # (GTSAM whitens by 1 / sigma)
-        J = pose3_logmap_derivative(err)
+        # (GTSAM's derivative, one call per factor: its closed form, not a copy of it)
+        J = np.stack([gtsam.Pose3.LogmapDerivative(e) for e in err])
         # -Ad(T^-1), T^-1 = (R^T, -R^T t): [[-R^T, 0], [-hat(-R^T t) R^T, -R^T]]
         Rt = self.R_h.transpose(0, 2, 1)
         ad = np.zeros((n, 6, 6))
