@@ -13,7 +13,7 @@ from test_profile import shared_people_problem, solved_graph
 
 import pedcal.calib.factorgraph as fgm
 from pedcal.calib.clocks import is_clock_nuisance
-from pedcal.calib.graph import GraphRecipe, MotionRhs, ObservationRhs, S, observation_block_terms
+from pedcal.calib.graph import GraphRecipe, MotionRhs, ObservationRhs, S, build_parts, observation_block_terms, prepare
 from pedcal.calib.profile import Columns, sparse_system, sqrt_weights
 from pedcal.errors import DegenerateDataWarning
 from pedcal.sim import simulate_logs
@@ -34,7 +34,7 @@ def _both(log, prob, values):
     block, terms = observation_block_terms(log, prob, values)
     cols = Columns.of(values)
     gtsams = sparse_system(block.linearize(values), cols)
-    return gtsams, ObservationRhs(log, prob, values, terms=terms).linearized(cols, terms)
+    return gtsams, ObservationRhs(log, prob, values, terms=terms).linearized(cols)
 
 
 @pytest.mark.parametrize("kernel", ["huber", "cauchy", "none"])
@@ -75,25 +75,33 @@ def test_linearized_is_refused_where_gtsams_must_linearize(paper_robot):
     sim, rec, prob, parts, result = paper_robot
     cols = Columns.of(result)
     block, terms = observation_block_terms(sim.calib, prob, result)
-    rhs = ObservationRhs(sim.calib, prob, result, terms=terms)
-    assert rhs.linearized(cols, terms) is not None
-    # terms read at other values (a copy), or at the measured points (no reading at any values)
-    _, elsewhere = observation_block_terms(sim.calib, prob, gtsam.Values(result))
-    assert rhs.linearized(cols, elsewhere) is None
-    _, measured = observation_block_terms(sim.calib, prob, result, predicted=False)
-    assert rhs.linearized(cols, measured) is None
+    assert ObservationRhs(sim.calib, prob, result, terms=terms).linearized(cols) is not None
+    # (terms read at other values or at the measured points are refused when the rhs is made: test_reuse.py)
     # a kernel whose weights it does not make (Tukey's)
     tukey = copy.copy(prob)
     tukey.recipe = copy.copy(rec)
     tukey.recipe.robust_kernel = "tukey"
     _, t_terms = observation_block_terms(sim.calib, tukey, result)
-    assert ObservationRhs(sim.calib, tukey, result, terms=t_terms).linearized(cols, t_terms) is None
+    assert ObservationRhs(sim.calib, tukey, result, terms=t_terms).linearized(cols) is None
     # shared people's sightings (bearing-range factors to points)
     sim_p, prob_p, parts_p = shared_people_problem()
     _, p_terms = observation_block_terms(sim_p.calib, prob_p, parts_p.values)
     assert (~p_terms.is_pose).sum() > 100
     assert ObservationRhs(sim_p.calib, prob_p, parts_p.values, terms=p_terms).linearized(
-        Columns.of(parts_p.values), p_terms) is None
+        Columns.of(parts_p.values)) is None
+    # the robot's observations and people's sightings in one block (the robot's tracks before the
+    # median time, the later ones people's): the robot's terms are there, the people refuse it
+    sim_m = simulate_logs("paper", seed=0)
+    t = sim_m.calib.observations["t"].to_numpy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        prob_m = prepare(sim_m.calib, GraphRecipe.load("default"), is_robot=t < np.median(t))
+        parts_m = build_parts(sim_m.calib, prob_m)
+    _, m_terms = observation_block_terms(sim_m.calib, prob_m, parts_m.values)
+    assert m_terms.robot_points is not None and m_terms.is_pose.sum() > 1000 and (~m_terms.is_pose).sum() > 100
+    assert m_terms.robust and prob_m.recipe.robust_kernel.lower() == "huber"
+    assert ObservationRhs(sim_m.calib, prob_m, parts_m.values, terms=m_terms).linearized(
+        Columns.of(parts_m.values)) is None
 
 
 def _nuisances(sim, prob, parts, result, monkeypatch, gtsams: bool, motions: list | None = None, **kw):
@@ -117,7 +125,7 @@ def _nuisances(sim, prob, parts, result, monkeypatch, gtsams: bool, motions: lis
     monkeypatch.setattr(fgm, "observation_graph", counted)
     monkeypatch.setattr(fgm, "motion_block", counted_motion)
     if gtsams:
-        monkeypatch.setattr(ObservationRhs, "linearized", lambda self, cols, terms: None)
+        monkeypatch.setattr(ObservationRhs, "linearized", lambda self, cols: None)
         init = MotionRhs.__init__
 
         def keeping(self, log, p, values, **kw):

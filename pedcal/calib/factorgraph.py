@@ -609,7 +609,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
             footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows(),
             # (the block's linearization made from its terms; GTSAM's where they cannot make it)
-            obs_linear=lambda f=rhs, t=block_terms, r=result: _linearized(f, t, cols, block, r))
+            obs_linear=lambda f=rhs, r=result: _linearized(f, cols, block, r))
         if not chord:
             full_step = step
         if considered and not chord:
@@ -774,10 +774,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        ordering=parts.colamd() if final_graph else None)
 
 
-def _linearized(rhs: ObservationRhs, terms, cols, block, values: gtsam.Values):
-    """The observation block of ``terms`` linearized at ``values`` as (A, b) in ``cols``: made
-    from the terms (:meth:`ObservationRhs.linearized`), else GTSAM's linearization of ``block()``."""
-    made = rhs.linearized(cols, terms)
+def _linearized(rhs: ObservationRhs, cols, block, values: gtsam.Values):
+    """The observation block of ``rhs``'s terms linearized at ``values`` as (A, b) in ``cols``:
+    made from the terms (:meth:`ObservationRhs.linearized`), else GTSAM's linearization of
+    ``block()`` (made of the same terms)."""
+    made = rhs.linearized(cols)
     return made if made is not None else sparse_system(block().linearize(values), cols)
 
 

@@ -1130,7 +1130,8 @@ class ObservationRhs:
 
     ``terms``: the block's :class:`ObservationTerms` as :func:`observation_block_terms` made them
     at these ``values`` and ``t_max`` with the problem's present ray shift (what is read at the
-    values is taken from them, not read again; other terms raise ValueError)."""
+    values is taken from them, not read again; other terms raise ValueError). They, or those read
+    here without them, are kept (``terms``) for :meth:`linearized`."""
 
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None,
                  terms: ObservationTerms | None = None):
@@ -1170,6 +1171,7 @@ class ObservationRhs:
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
         self.basis = _unit3_basis(self.u_pred)
         self.sensor, self.is_pose = terms.sensor, terms.is_pose
+        self.terms = terms            # (read at these values: what :meth:`linearized` is made of)
         # (the noise's ranges do not move with theta: the sigmas before their scales taken once)
         self._unscaled_sigmas = terms.unscaled_sigmas(prob.recipe)
         self.first = int(terms.prior is not None)        # the prior leads the block
@@ -1179,9 +1181,9 @@ class ObservationRhs:
         self._robot_by_sensor = by_sensor
         self._robot_cuts = np.searchsorted(self.sensor[by_sensor], np.arange(int(self.sensor.max(initial=-1)) + 2))
 
-    def linearized(self, cols, terms: ObservationTerms) -> tuple | None:
-        """(A, b) of the block :func:`observation_block_terms` built from ``terms`` (read at these
-        values: its ObservationTerms) linearized at the values, what
+    def linearized(self, cols) -> tuple | None:
+        """(A, b) of the block :func:`observation_block_terms` builds from :attr:`terms` (the
+        block's ObservationTerms, read at these values) linearized at the values, what
         ``sparse_system(block.linearize(values), cols)`` gives (``cols``: the system's
         :class:`pedcal.calib.profile.Columns`), to rounding, in numpy without the block: a
         bearing-range factor's Jacobians are GTSAM's (Pose3::bearing and range to a pose's
@@ -1194,12 +1196,10 @@ class ObservationRhs:
         linearizes the block."""
         from pedcal.calib.profile import sparse_system
 
-        rec = self.prob.recipe
+        rec, terms = self.prob.recipe, self.terms
         n = len(terms.sensor)
         kernel = rec.robust_kernel.lower() if terms.robust else "none"
-        if (terms.robot_points is None or terms.read_at is None or terms.read_at[0] is not self.values
-                or terms.read_at[1] != self.t_max or n != len(self.sensor) or not terms.is_pose.all()
-                or kernel not in ("none", "huber", "cauchy")):
+        if terms.robot_points is None or not terms.is_pose.all() or kernel not in ("none", "huber", "cauchy"):
             return None
         blocks = []
         if terms.prior is not None:
