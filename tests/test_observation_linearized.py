@@ -14,6 +14,7 @@ from test_profile import shared_people_problem, solved_graph
 import pedcal.calib.factorgraph as fgm
 from pedcal.calib.clocks import is_clock_nuisance
 from pedcal.calib.graph import GraphRecipe, MotionRhs, ObservationRhs, S, build_parts, observation_block_terms, prepare
+from pedcal.calib.keys import symbols
 from pedcal.calib.profile import Columns, sparse_system, sqrt_weights
 from pedcal.errors import DegenerateDataWarning
 from pedcal.sim import simulate_logs
@@ -243,3 +244,42 @@ def test_every_steps_linearization_and_its_residuals_agree_through_two_passes(mo
     # two passes, the second of several steps, each step with every clock offset
     assert len(passes) == 2 and len(gaps) - passes[1] >= 2 and np.all(gaps[:, 2] == len(sim.calib.sensors.sensors))
     assert gaps[:, 1].min() > 1.0 and gaps[:, 0].max() < 1e-9
+
+
+def _tiny(jacobian: np.ndarray) -> int:
+    """How many entries of a factor's dense Jacobian GTSAM's sparse export leaves out as near-zero."""
+    return int(np.sum((np.abs(jacobian) > 0.0) & (np.abs(jacobian) <= 1e-12)))
+
+
+def test_the_near_zero_entries_gtsam_leaves_out_are_left_out(paper_robot):
+    sim, rec, prob, parts, result = paper_robot
+    # an observation's predicted point 1e-15 m off its sensor's y-z plane: its direction's Unit3
+    # basis (the x axis the smallest component's) has entries ~1e-15, as have its Jacobian's rows
+    values = gtsam.Values(result)
+    block, terms = observation_block_terms(sim.calib, prob, values)
+    i = 100
+    rhs = ObservationRhs(sim.calib, prob, values, terms=terms)
+    d = rhs.u_pred[i] * rhs.range_pred[i]
+    key = int(symbols("x", [terms.target[i]])[0])
+    X, R_s = values.atPose3(key), values.atPose3(S(int(terms.sensor[i]))).rotation().matrix()
+    values.update(key, gtsam.Pose3(X.rotation(), X.translation() - (d[0] - 1e-15) * R_s[:, 0]))
+    block, terms = observation_block_terms(sim.calib, prob, values)
+    assert _tiny(block.at(rhs.first + i).linearize(values).jacobian()[0]) >= 3
+    cols = Columns.of(values)
+    A, b = sparse_system(block.linearize(values), cols)
+    A_ours, b_ours = ObservationRhs(sim.calib, prob, values, terms=terms).linearized(cols)
+    assert np.array_equal(A.indptr, A_ours.indptr) and np.array_equal(A.indices, A_ours.indices)
+    assert np.abs(A.data - A_ours.data).max() <= 1e-11 * np.abs(A.data).max()
+    # the robot's poses level (roll 0, z 0), every other one pitched 3e-16 rad: the odometry's
+    # Jacobians hold entries ~1e-15 where a level pair's are 0
+    for k in range(len(prob.pose_times)):
+        key = int(symbols("x", [k])[0])
+        X = values.atPose3(key)
+        values.update(key, gtsam.Pose3(gtsam.Rot3.Ypr(X.rotation().yaw(), 3e-16 * (k % 2), 0.0),
+                                       np.r_[X.translation()[:2], 0.0]))
+    motion = fgm.motion_block(sim.calib, prob)
+    assert sum(_tiny(motion.at(j).linearize(values).jacobian()[0]) for j in range(motion.size())) > 1000
+    A, b = sparse_system(motion.linearize(values), cols)
+    A_ours, b_ours = MotionRhs(sim.calib, prob, values).linearized(cols)
+    assert np.array_equal(A.indptr, A_ours.indptr) and np.array_equal(A.indices, A_ours.indices)
+    assert np.abs(A.data - A_ours.data).max() <= 1e-11 * np.abs(A.data).max()

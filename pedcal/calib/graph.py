@@ -1190,8 +1190,8 @@ class ObservationRhs:
         translation, in the predicted direction's Unit3 basis), whitened by its sigmas and, with
         the robust kernel, reweighted by the square root of its weight at the whitened error's
         norm (GTSAM's Robust::WhitenSystem). The head offset's prior, one factor, is GTSAM's. A's
-        pattern is the factors' own, whatever the values (an entry GTSAM's sparse Jacobian would
-        leave out as below 1e-12 is kept, as the zero or near-zero it is). None where the block
+        pattern is GTSAM's sparse Jacobian's: the entries it leaves out (at most 1e-12 in size,
+        zeros and near-zeros at these values) are left out too. None where the block
         holds people's sightings or a kernel other than Huber's, Cauchy's or none: the caller
         linearizes the block."""
         from pedcal.calib.profile import sparse_system
