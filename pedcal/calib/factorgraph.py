@@ -600,10 +600,8 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             block()                 # (the whole graph's COLAMD ordering is computed from it)
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
-            np.r_[theta, theta_local], nuis + local_nuis, cols,
-            obs0=parts.blocks["observations"] if built is block_terms else None, kernel=kernel,
-            plain_leading=prior_factors, plain=plain,
-            plain0=parts.blocks["motion"] if odo and motion_fresh else None, previous=full_step if chord else None,
+            np.r_[theta, theta_local], nuis + local_nuis, cols, kernel=kernel,
+            plain_leading=prior_factors, plain=plain, previous=full_step if chord else None,
             # (the first step's fill-reducing order: the graph's COLAMD ordering, the solver's)
             order=fill_reducing_order(parts.colamd(), cols) if step is None else step.order,
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
