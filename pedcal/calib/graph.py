@@ -1246,11 +1246,8 @@ class ObservationRhs:
             return sps.csr_matrix((0, cols.n)), np.zeros(0)
         if len(blocks) == 1:
             return blocks[0]
-        # (the prior's rows first: its arrays before the observations', no general stacking)
-        (A0, b0), (A1, b1_) = blocks
-        indptr = np.r_[A0.indptr, A1.indptr[1:] + A0.nnz].astype(A1.indptr.dtype)
-        return (sps.csr_matrix((np.r_[A0.data, A1.data], np.r_[A0.indices.astype(A1.indices.dtype), A1.indices],
-                                indptr), shape=(A0.shape[0] + A1.shape[0], cols.n)), np.r_[b0, b1_])
+        (A0, b0), (A1, b1_) = blocks            # (the prior's rows first)
+        return sps.vstack([A0, A1], format="csr"), np.r_[b0, b1_]
 
     def factor_rows(self) -> np.ndarray:
         """The start row of every factor of the block in its linearization, and the end: the
