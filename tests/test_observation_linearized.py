@@ -283,3 +283,15 @@ def test_the_near_zero_entries_gtsam_leaves_out_are_left_out(paper_robot):
     A_ours, b_ours = MotionRhs(sim.calib, prob, values).linearized(cols)
     assert np.array_equal(A.indptr, A_ours.indptr) and np.array_equal(A.indices, A_ours.indices)
     assert np.abs(A.data - A_ours.data).max() <= 1e-11 * np.abs(A.data).max()
+
+
+def test_an_ordering_to_compute_is_computed_from_the_held_block(paper_robot, monkeypatch):
+    # no ordering kept, the block built before the solve held: its structure is the one the
+    # ordering needs, no block made at the solution for it (a pass whose graph is rebuilt: none)
+    sim, rec, prob, parts, result = paper_robot
+    parts = copy.copy(parts)
+    parts.ordering = None
+    assert parts.blocks["observations"].size() > 1000
+    shifts, _, parts_out, made = _nuisances(sim, prob, parts, result, monkeypatch, gtsams=False, max_steps=1,
+                                            final_graph=False)
+    assert made == [] and parts_out.ordering is not None

@@ -596,8 +596,10 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
                      if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
-        if step is None and parts.ordering is None:
-            block()                 # (the whole graph's COLAMD ordering is computed from it)
+        if step is None and parts.ordering is None and parts.blocks["observations"].size() == 0:
+            # (the whole graph's COLAMD ordering is computed with it; a held block, of the same
+            # structure, serves as well)
+            block()
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
             np.r_[theta, theta_local], nuis + local_nuis, cols, kernel=kernel,
