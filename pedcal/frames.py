@@ -31,12 +31,13 @@ def rot_from_ypr_deg(ypr_deg) -> np.ndarray:
 
 
 def ypr_deg_from_rot(R: np.ndarray) -> np.ndarray:
-    """[yaw, pitch, roll] in degrees from a rotation matrix (inverse of rot_from_ypr_deg)."""
+    """[yaw, pitch, roll] in degrees from a rotation matrix (inverse of rot_from_ypr_deg); of a
+    stack of them (..., 3, 3), (..., 3)."""
     R = np.asarray(R, dtype=float)
-    pitch = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))
-    yaw = np.arctan2(R[1, 0], R[0, 0])
-    roll = np.arctan2(R[2, 1], R[2, 2])
-    return np.degrees(np.array([yaw, pitch, roll]))
+    pitch = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    return np.degrees(np.stack([yaw, pitch, roll], -1))
 
 
 def pose3(position_m, ypr_deg) -> gtsam.Pose3:

@@ -1,11 +1,16 @@
 """The network's sigmas read back for every sensor at once against one sensor at a time."""
 
+import warnings
+from types import SimpleNamespace
+
 import gtsam
 import numpy as np
 
 from pedcal import frames
-from pedcal.calib.readback import observability, sensor_sigma_world, sensor_sigmas_world
+from pedcal.calib.keys import S
+from pedcal.calib.readback import _network_from_result, observability, sensor_sigma_world, sensor_sigmas_world
 from pedcal.calib.recipe import GraphRecipe
+from pedcal.model import SensorExtrinsics, SensorNetwork
 
 
 def _one_at_a_time(T: gtsam.Pose3, cov: np.ndarray):
@@ -57,3 +62,30 @@ def test_observability_names_a_direction_the_data_left_to_the_prior():
 def test_no_sensor_gives_empty_sigmas():
     cov_pos, sp, sy = sensor_sigmas_world(np.zeros((0, 3, 3)), np.zeros((0, 6, 6)))
     assert cov_pos.shape == (0, 3, 3) and sp.shape == (0, 3) and sy.shape == (0, 3)
+
+
+def test_each_sensor_is_read_with_its_own_decomposition():
+    # three sensors, the middle one's height left at its prior sigma: it alone is degenerate in z,
+    # its height put back to the installed one; the others (x the first one's least constrained
+    # direction, y the third's, far below their priors) are ok and keep their solution
+    rec = GraphRecipe.load("default")
+    p = np.r_[[np.radians(rec.sensor_prior_sigma_deg)] * 3, [rec.sensor_prior_sigma_m] * 3]
+    ids = ["s0", "s1", "s2"]
+    installed = SensorNetwork([SensorExtrinsics(sid, [float(i), 0.0, 2.5], [0.0, 0.0, 0.0])
+                               for i, sid in enumerate(ids)])
+    result, cov = gtsam.Values(), {}
+    for i, sid in enumerate(ids):
+        result.insert(S(i), gtsam.Pose3(gtsam.Rot3(), np.array([i + 0.01, 0.02, 2.53])))
+        sd = 0.01 * p
+        axis = (3, 5, 4)[i]                 # (x, z, y: rotation first in a Pose3's tangent)
+        sd[axis] = (0.05, 0.9, 0.07)[i] * p[axis]
+        cov[sid] = np.diag(sd ** 2)
+    prob = SimpleNamespace(recipe=rec, sensor_ids=ids, people=[], obs_sensor=np.repeat(ids, 10))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        net = _network_from_result(SimpleNamespace(sensors=installed), prob, None, result, False, cov_body=cov)
+    assert [s.status for s in net] == ["ok", "degenerate", "ok"]
+    assert net["s1"].unobservable == ["z"] and sum("unconstrained" in str(w.message) for w in caught) == 1
+    np.testing.assert_allclose(net["s1"].position_m, [1.01, 0.02, 2.5], atol=1e-9)
+    np.testing.assert_allclose(net["s0"].position_m, [0.01, 0.02, 2.53], atol=1e-12)
+    np.testing.assert_allclose(net["s2"].position_m, [2.01, 0.02, 2.53], atol=1e-12)

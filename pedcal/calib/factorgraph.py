@@ -598,20 +598,20 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
                      if (is_clock_nuisance(n) or is_sensor_shift(n)) and _sensor_of(n) in index}
-        if step is None and parts.ordering is None:
-            block()                 # (the whole graph's COLAMD ordering is computed from it)
+        if step is None and parts.ordering is None and parts.blocks["observations"].size() == 0:
+            # (the whole graph's COLAMD ordering is computed with it; a held block, of the same
+            # structure, serves as well)
+            block()
         step = profile_step(fixed, lambda th, scale, r=result, nm=every: observation_block(
             log, prob, r, theta=dict(zip(nm, th, strict=True)), sigma_scale=scale), result,
-            np.r_[theta, theta_local], nuis + local_nuis, cols,
-            obs0=parts.blocks["observations"] if built is block_terms else None, kernel=kernel,
-            plain_leading=prior_factors, plain=plain,
-            plain0=parts.blocks["motion"] if odo and motion_fresh else None, previous=full_step if chord else None,
+            np.r_[theta, theta_local], nuis + local_nuis, cols, kernel=kernel,
+            plain_leading=prior_factors, plain=plain, previous=full_step if chord else None,
             # (the first step's fill-reducing order: the graph's COLAMD ordering, the solver's)
             order=fill_reducing_order(parts.colamd(), cols) if step is None else step.order,
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
             footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows(),
             # (the block's linearization made from its terms; GTSAM's where they cannot make it)
-            obs_linear=lambda f=rhs, t=block_terms, r=result: _linearized(f, t, cols, block, r))
+            obs_linear=lambda f=rhs, r=result: _linearized(f, cols, block, r))
         if not chord:
             full_step = step
         if considered and not chord:
@@ -776,10 +776,11 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        ordering=parts.colamd() if final_graph else None)
 
 
-def _linearized(rhs: ObservationRhs, terms, cols, block, values: gtsam.Values):
-    """The observation block of ``terms`` linearized at ``values`` as (A, b) in ``cols``: made
-    from the terms (:meth:`ObservationRhs.linearized`), else GTSAM's linearization of ``block()``."""
-    made = rhs.linearized(cols, terms)
+def _linearized(rhs: ObservationRhs, cols, block, values: gtsam.Values):
+    """The observation block of ``rhs``'s terms linearized at ``values`` as (A, b) in ``cols``:
+    made from the terms (:meth:`ObservationRhs.linearized`), else GTSAM's linearization of
+    ``block()`` (made of the same terms)."""
+    made = rhs.linearized(cols)
     return made if made is not None else sparse_system(block().linearize(values), cols)
 
 

@@ -980,36 +980,6 @@ def _hat(v: np.ndarray) -> np.ndarray:
     return W
 
 
-def pose3_logmap_derivative(xi: np.ndarray) -> np.ndarray:
-    """(n, 6, 6) GTSAM's Pose3::LogmapDerivative at the tangents ``xi`` = Logmap(T) (n, 6):
-    [[J_w, 0], [-J_w Q J_w, J_w]], J_w SO(3)'s (I + W / 2 + (1 / theta^2 - (1 + cos theta) /
-    (2 theta sin theta)) W^2, the identity at theta^2 <= machine epsilon) and Q GTSAM's
-    computeQforExpmapDerivative (Barfoot & Furgale 2014, eq. 102; its series below 1e-5 rad)."""
-    w, v = xi[:, :3], xi[:, 3:]
-    W, V = _hat(w), _hat(v)
-    theta2 = np.sum(w * w, axis=1)
-    exact = theta2 > np.finfo(float).eps
-    th = np.sqrt(np.where(exact, theta2, 1.0))
-    c = np.where(exact, 1.0 / (th * th) - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th)), 0.0)
-    J_w = np.eye(3) + 0.5 * W + c[:, None, None] * (W @ W)
-    phi = np.sqrt(theta2)
-    big = phi > 1e-5
-    p = np.where(big, phi, 1.0)
-    s_, c_ = np.sin(p), np.cos(p)
-    p2 = p * p
-    p3, p4, p5 = p2 * p, p2 * p2, p2 * p2 * p
-    k1 = np.where(big, (p - s_) / p3, 1.0 / 6.0)
-    k2 = np.where(big, (1.0 - p2 / 2.0 - c_) / p4, -1.0 / 24.0)
-    k3 = np.where(big, -0.5 * ((1.0 - p2 / 2.0 - c_) / p4 - 3.0 * (p - s_ - p3 / 6.0) / p5), 1.0 / 120.0)
-    WVW = W @ V @ W
-    Q = (-0.5 * V + k1[:, None, None] * (W @ V + V @ W - WVW) + k2[:, None, None] * (W @ W @ V + V @ W @ W - 3.0 * WVW)
-         + k3[:, None, None] * (WVW @ W + W @ WVW))
-    J = np.zeros((len(xi), 6, 6))
-    J[:, :3, :3] = J[:, 3:, 3:] = J_w
-    J[:, 3:, :3] = -J_w @ Q @ J_w
-    return J
-
-
 class MotionRhs:
     """The right-hand side b of the odometry block's linearization at fixed ``values`` (b =
     -whitened error, what ``sparse_system(motion_block(..., theta=...).linearize(values))[1]``
@@ -1049,14 +1019,15 @@ class MotionRhs:
         gives (``cols``: the system's :class:`pedcal.calib.profile.Columns`), to rounding, in
         numpy without the block: a BetweenFactorPose3's Jacobians are GTSAM's, J (-Ad(T^-1)) and
         J for T = X_k^-1 X_k+1, J the Pose3 Logmap's derivative at its error Log(Z^-1 T)
-        (:func:`pose3_logmap_derivative`), whitened by its sigmas; the entries GTSAM's sparse
+        (GTSAM's own, ``gtsam.Pose3.LogmapDerivative``), whitened by its sigmas; the entries GTSAM's sparse
         Jacobian leaves out (at most 1e-12) are left out."""
         n = len(self.times) - 1
         if n < 1:
             return sps.csr_matrix((0, cols.n)), np.zeros(0)
         err, sigmas = self._errors(None)
         inv_sigma = 1.0 / sigmas                           # (GTSAM whitens by 1 / sigma)
-        J = pose3_logmap_derivative(err)
+        # (GTSAM's derivative, one call per factor: its closed form, not a copy of it)
+        J = np.stack([gtsam.Pose3.LogmapDerivative(e) for e in err])
         # -Ad(T^-1), T^-1 = (R^T, -R^T t): [[-R^T, 0], [-hat(-R^T t) R^T, -R^T]]
         Rt = self.R_h.transpose(0, 2, 1)
         ad = np.zeros((n, 6, 6))
@@ -1159,7 +1130,8 @@ class ObservationRhs:
 
     ``terms``: the block's :class:`ObservationTerms` as :func:`observation_block_terms` made them
     at these ``values`` and ``t_max`` with the problem's present ray shift (what is read at the
-    values is taken from them, not read again; other terms raise ValueError)."""
+    values is taken from them, not read again; other terms raise ValueError). They, or those read
+    here without them, are kept (``terms``) for :meth:`linearized`."""
 
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None,
                  terms: ObservationTerms | None = None):
@@ -1199,6 +1171,7 @@ class ObservationRhs:
         self.u_pred = d / np.maximum(self.range_pred, 1e-300)[:, None]
         self.basis = _unit3_basis(self.u_pred)
         self.sensor, self.is_pose = terms.sensor, terms.is_pose
+        self.terms = terms            # (read at these values: what :meth:`linearized` is made of)
         # (the noise's ranges do not move with theta: the sigmas before their scales taken once)
         self._unscaled_sigmas = terms.unscaled_sigmas(prob.recipe)
         self.first = int(terms.prior is not None)        # the prior leads the block
@@ -1208,27 +1181,25 @@ class ObservationRhs:
         self._robot_by_sensor = by_sensor
         self._robot_cuts = np.searchsorted(self.sensor[by_sensor], np.arange(int(self.sensor.max(initial=-1)) + 2))
 
-    def linearized(self, cols, terms: ObservationTerms) -> tuple | None:
-        """(A, b) of the block :func:`observation_block_terms` built from ``terms`` (read at these
-        values: its ObservationTerms) linearized at the values, what
+    def linearized(self, cols) -> tuple | None:
+        """(A, b) of the block :func:`observation_block_terms` builds from :attr:`terms` (the
+        block's ObservationTerms, read at these values) linearized at the values, what
         ``sparse_system(block.linearize(values), cols)`` gives (``cols``: the system's
         :class:`pedcal.calib.profile.Columns`), to rounding, in numpy without the block: a
         bearing-range factor's Jacobians are GTSAM's (Pose3::bearing and range to a pose's
         translation, in the predicted direction's Unit3 basis), whitened by its sigmas and, with
         the robust kernel, reweighted by the square root of its weight at the whitened error's
         norm (GTSAM's Robust::WhitenSystem). The head offset's prior, one factor, is GTSAM's. A's
-        pattern is the factors' own, whatever the values (an entry GTSAM's sparse Jacobian would
-        leave out as below 1e-12 is kept, as the zero or near-zero it is). None where the block
+        pattern is GTSAM's sparse Jacobian's: the entries it leaves out (at most 1e-12 in size,
+        zeros and near-zeros at these values) are left out too. None where the block
         holds people's sightings or a kernel other than Huber's, Cauchy's or none: the caller
         linearizes the block."""
         from pedcal.calib.profile import sparse_system
 
-        rec = self.prob.recipe
+        rec, terms = self.prob.recipe, self.terms
         n = len(terms.sensor)
         kernel = rec.robust_kernel.lower() if terms.robust else "none"
-        if (terms.robot_points is None or terms.read_at is None or terms.read_at[0] is not self.values
-                or terms.read_at[1] != self.t_max or n != len(self.sensor) or not terms.is_pose.all()
-                or kernel not in ("none", "huber", "cauchy")):
+        if terms.robot_points is None or not terms.is_pose.all() or kernel not in ("none", "huber", "cauchy"):
             return None
         blocks = []
         if terms.prior is not None:
@@ -1275,11 +1246,8 @@ class ObservationRhs:
             return sps.csr_matrix((0, cols.n)), np.zeros(0)
         if len(blocks) == 1:
             return blocks[0]
-        # (the prior's rows first: its arrays before the observations', no general stacking)
-        (A0, b0), (A1, b1_) = blocks
-        indptr = np.r_[A0.indptr, A1.indptr[1:] + A0.nnz].astype(A1.indptr.dtype)
-        return (sps.csr_matrix((np.r_[A0.data, A1.data], np.r_[A0.indices.astype(A1.indices.dtype), A1.indices],
-                                indptr), shape=(A0.shape[0] + A1.shape[0], cols.n)), np.r_[b0, b1_])
+        (A0, b0), (A1, b1_) = blocks            # (the prior's rows first)
+        return sps.vstack([A0, A1], format="csr"), np.r_[b0, b1_]
 
     def factor_rows(self) -> np.ndarray:
         """The start row of every factor of the block in its linearization, and the end: the

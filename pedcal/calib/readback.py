@@ -16,6 +16,7 @@ from pedcal.calib.keys import S
 from pedcal.calib.problem import FactorGraphProblem
 from pedcal.calib.recipe import GraphRecipe
 from pedcal.errors import DegenerateDataWarning
+from pedcal.frames import ypr_deg_from_rot
 from pedcal.io.sensors_yaml import flow_vector
 from pedcal.metrics import (
     AMCL_MODEL_KEY,
@@ -36,15 +37,6 @@ def sensor_sigma_world(T: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray
     return cov[0], sp[0], sy[0]
 
 
-def _ypr_deg(R: np.ndarray) -> np.ndarray:
-    """(m, 3) [yaw, pitch, roll] in degrees of rotation matrices (m, 3, 3), as
-    :func:`pedcal.frames.ypr_deg_from_rot` of each."""
-    pitch = np.arcsin(np.clip(-R[:, 2, 0], -1.0, 1.0))
-    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-    roll = np.arctan2(R[:, 2, 1], R[:, 2, 2])
-    return np.degrees(np.column_stack([yaw, pitch, roll]))
-
-
 def sensor_sigmas_world(R: np.ndarray, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`sensor_sigma_world` of m sensors at once: their rotations R_world_sensor (m, 3, 3)
     and Pose3 marginals (m, 6, 6) -> world-axes position covariances (m, 3, 3), position and ypr
@@ -52,13 +44,13 @@ def sensor_sigmas_world(R: np.ndarray, cov_body: np.ndarray) -> tuple[np.ndarray
     R, cov_body = np.asarray(R, float), np.asarray(cov_body, float)
     Rt = R.transpose(0, 2, 1)
     cov_pos_world = R @ cov_body[:, 3:, 3:] @ Rt
-    ypr0 = _ypr_deg(R)
+    ypr0 = ypr_deg_from_rot(R)
     J = np.zeros((len(R), 3, 3))
     eps = 1e-6
     for c in range(3):
         w = np.zeros(3)
         w[c] = eps
-        d = _ypr_deg(R @ gtsam.Rot3.Expmap(w).matrix()) - ypr0
+        d = ypr_deg_from_rot(R @ gtsam.Rot3.Expmap(w).matrix()) - ypr0
         J[:, :, c] = (d + 180.0) % 360.0 - 180.0
     J /= eps
     cov_ypr = J @ cov_body[:, :3, :3] @ J.transpose(0, 2, 1)
