@@ -51,8 +51,11 @@ def _on_unraisable(unraisable) -> None:
         # not SIGINT now: its handler would run inside this hook (Python checks a signal sent to itself
         # at once), and be ignored again; an alarm a millisecond on finds ordinary code running
         # (a plain try: no Python frame of a context manager runs after the alarm is set)
+        global _previous_alarm
         try:
-            signal.signal(signal.SIGALRM, _on_sigint)
+            previous = signal.signal(signal.SIGALRM, _on_sigint)
+            if previous is not _on_sigint:
+                _previous_alarm = previous
             signal.setitimer(signal.ITIMER_REAL, 0.001)
         except (ValueError, OSError, AttributeError):      # (main thread only; POSIX only)
             pass
@@ -61,6 +64,8 @@ def _on_unraisable(unraisable) -> None:
 
 
 _previous_unraisablehook = sys.unraisablehook
+_NO_ALARM = object()
+_previous_alarm = _NO_ALARM    # SIGALRM's handler before the hook took it (``restore`` gives it back)
 
 
 def caused_by_interrupt(error: BaseException) -> bool:
@@ -94,7 +99,12 @@ def install():
 def restore(previous) -> None:
     """The SIGINT handler and unraisable hook as before ``install``; a caller that lives on after
     a Ctrl-C (``main`` called from Python) gets its logging back and its next Ctrl-C announced."""
-    global _announced, _logging_disabled
+    global _announced, _logging_disabled, _previous_alarm
+    if _previous_alarm is not _NO_ALARM:      # the hook's alarm cancelled, SIGALRM's handler given back
+        with contextlib.suppress(ValueError, OSError, AttributeError):
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            signal.signal(signal.SIGALRM, _previous_alarm)
+        _previous_alarm = _NO_ALARM
     _announced = False
     if _logging_disabled is not None:
         logging.disable(_logging_disabled)

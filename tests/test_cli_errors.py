@@ -258,25 +258,39 @@ def test_another_unraisable_error_still_reaches_the_hook_before_pedcals():
 
 def test_a_caller_that_lives_on_after_a_ctrl_c_gets_its_logging_and_the_next_announcement_back(capsys):
     """``main`` called from Python: after its Ctrl-C (the handler's SystemExit, caught by the
-    caller) ``restore`` gives logging back at the level it had and announces the next Ctrl-C."""
+    caller; the handler run twice, as when the alarm re-fires it) ``restore`` gives logging back at
+    the level it had, announces the next Ctrl-C, and gives SIGALRM its handler back, the alarm off."""
     import logging
+    from types import SimpleNamespace
 
     import pedcal.interrupts as interrupts
 
-    logging.disable(logging.DEBUG)           # the caller's own level, kept through
+    def callers_alarm(signum, frame):
+        pass
+
+    old_alarm = signal.signal(signal.SIGALRM, callers_alarm)
     try:
-        for _ in range(2):
+        for level in (logging.DEBUG, logging.INFO):        # the caller's own level, kept through
+            logging.disable(level)
             previous = interrupts.install()
             try:
-                with pytest.raises(SystemExit):
-                    interrupts._on_sigint(signal.SIGINT, None)
-                assert logging.root.manager.disable == logging.CRITICAL
+                for _ in range(2):
+                    with pytest.raises(SystemExit):
+                        interrupts._on_sigint(signal.SIGINT, None)
+                    assert logging.root.manager.disable == logging.CRITICAL
+                # the hook answers the handler's SystemExit lost in a callback: an alarm, not yet fired
+                interrupts._on_unraisable(SimpleNamespace(exc_value=SystemExit(interrupts.EXIT_INTERRUPTED)))
+                assert signal.getsignal(signal.SIGALRM) is interrupts._on_sigint
             finally:
                 interrupts.restore(previous)
-            assert logging.root.manager.disable == logging.DEBUG
+            assert logging.root.manager.disable == level
             assert capsys.readouterr().err == "interrupted\n"
+            assert signal.getsignal(signal.SIGALRM) is callers_alarm
+            assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
     finally:
         logging.disable(logging.NOTSET)
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, old_alarm)
 
 
 def test_json_output_is_strict_json_without_nan():
