@@ -298,21 +298,21 @@ def test_a_bad_per_sensor_shift_in_a_yaml_is_refused_naming_it(tmp_path, key, ba
 def test_the_spread_between_trackers_is_estimated_and_recorded(nadir, use, monkeypatch):
     # every sensor's own shift 30 mm either way (their spread 30 mm), seen all around: the
     # departures' prior sigma estimated from the data (pedcal.calib.headpoint.estimate_departure_spread)
-    # within 2.5 of its standard errors (~7 mm at 10 sensors of ~6.5 mm sigma), not the recipe's 20 mm,
-    # reported whether used (recipe head_shift_per_sensor_sigma_estimate) or not
+    # nearer the truth than the recipe's 20 mm is (the binding bound, ~10 mm here; 2.5 of its standard
+    # errors, ~7 mm at 10 sensors of ~6.5 mm sigma, is looser), reported whether used (recipe
+    # head_shift_per_sensor_sigma_estimate) or not
     sim, delta = nadir
     res, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch, head_shift_per_sensor_sigma_estimate=use)
     spread = seen["prob"]._departure_spread
     assert spread["applied"] == use
     true = np.std(list(delta.values()))
     assert spread["sensors"] == len(delta)
-    assert abs(spread["estimate_m"] - true) < 0.0175
     assert abs(spread["estimate_m"] - true) < abs(SIGMA_M - true)      # nearer than the recipe's value
-    assert spread["estimate_m"] <= spread["used_m"] <= spread["upper_m"]
+    assert spread["estimate_m"] <= spread["rms_m"] <= spread["upper_m"]
     own = [n for n in seen["shifts"].names if n.startswith(SENSOR_PREFIX)]
     assert len(own) == len(delta)
     hm = res.network.extra[HEAD_MODEL_KEY]
     assert f"{1000 * spread['estimate_m']:.1f} mm" in hm["note"]
     rec = hm["per_sensor_shift_spread"]
     assert rec["estimate_m"] == round(spread["estimate_m"], 5) and rec["sensors"] == len(delta)
-    assert rec["prior_sigma_m"] == (round(spread["used_m"], 5) if use else SIGMA_M)
+    assert rec["prior_sigma_m"] == (round(spread["rms_m"], 5) if use else SIGMA_M)

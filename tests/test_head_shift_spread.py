@@ -17,6 +17,7 @@ from pedcal.calib.headpoint import (
     spread_log_likelihood,
     spread_note,
     spread_record,
+    spread_summary,
 )
 from pedcal.calib.profile import Nuisance
 from pedcal.errors import DegenerateDataWarning
@@ -42,7 +43,7 @@ def test_a_known_spread_is_recovered(tau):
     se = np.sqrt(2.0 / k) * (tau ** 2 + np.mean(sigma ** 2)) / (2.0 * tau)
     assert abs(est["estimate_m"] - tau) < 3.0 * se + 0.0005
     # its posterior's root mean square and 95 % quantile lie above the estimate, not far
-    assert est["estimate_m"] <= est["used_m"] < est["upper_m"] < est["estimate_m"] + 0.01
+    assert est["estimate_m"] <= est["rms_m"] < est["upper_m"] < est["estimate_m"] + 0.01
 
 
 def test_the_likelihood_is_the_restricted_likelihood_of_independent_estimates():
@@ -71,12 +72,12 @@ def test_equal_estimates_give_no_spread_but_a_used_sigma_within_what_they_allow(
     est = spread_from_estimates(np.full(8, 0.02), np.full(8, 0.005))
     assert est["estimate_m"] == 0.0
     # what 8 sensors of 5 mm allow: a few mm, not the recipe's 20
-    assert 0.0 < est["used_m"] < 0.006
+    assert 0.0 < est["rms_m"] < 0.006
 
 
 def test_one_sensor_gives_no_estimate():
     est = spread_from_estimates([0.03], [0.005])
-    assert est["sensors"] == 1 and np.isnan(est["estimate_m"]) and np.isnan(est["used_m"])
+    assert est["sensors"] == 1 and np.isnan(est["estimate_m"]) and np.isnan(est["rms_m"])
 
 
 def test_sensors_with_a_nan_or_zero_sigma_or_estimate_are_left_out():
@@ -104,7 +105,7 @@ def test_a_wrong_assumed_spread_misstates_the_sigma_and_the_estimate_covers_it()
     ratios = {"5 mm": [], "20 mm": [], "estimated": [], "100 mm": []}
     for seed in range(200):
         y, sigma, own = _draws(seed, 10, tau)
-        used = spread_from_estimates(y, sigma)["used_m"]
+        used = spread_from_estimates(y, sigma)["rms_m"]
         for name, t in (("5 mm", 0.005), ("20 mm", 0.02), ("estimated", used), ("100 mm", 0.1)):
             est, sd = _own_shift_sigma(y, sigma, t)
             ratios[name].append((est - own) / sd)
@@ -136,7 +137,7 @@ def test_too_few_informed_sensors_keep_the_recipes_sigma_with_a_warning():
     H = step.hessian.copy()
     with pytest.warns(DegenerateDataWarning, match="determine 2 sensors' own shift"):
         step2, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
-    assert rec["estimate_m"] is None and rec["used_m"] is None and not rec["applied"]
+    assert rec["estimate_m"] is None and rec["rms_m"] is None and not rec["applied"]
     assert nuis2 == nuis and np.array_equal(step2.hessian, H)
     assert "not estimated (the data determine 2 sensors' own shift" in spread_note(rec)
     assert "prior sigma 20 mm" in spread_note(rec)
@@ -153,13 +154,13 @@ def test_the_estimate_takes_the_departures_prior_and_the_step_is_the_new_optimum
         warnings.simplefilter("error")
         step, nuis, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
     assert rec["sensors"] == 12 and rec["applied"]
-    assert 0.015 < rec["estimate_m"] < 0.05 and rec["used_m"] >= rec["estimate_m"]
-    assert all(n.prior_sigma == rec["used_m"] for n in nuis[1:]) and nuis[0].prior_sigma == 0.05
+    assert 0.015 < rec["estimate_m"] < 0.05 and rec["rms_m"] >= rec["estimate_m"]
+    assert all(n.prior_sigma == rec["rms_m"] for n in nuis[1:]) and nuis[0].prior_sigma == 0.05
     # the Hessian's prior part is the new one: H - P(new) is the data's
     k = len(nuis) - 1
     sigma = np.r_[np.full(12, 0.005), np.full(3, 1.0)]
     J = np.column_stack([np.ones(k), np.eye(k)])
-    want = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / np.r_[0.05, np.full(k, rec["used_m"])] ** 2)
+    want = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / np.r_[0.05, np.full(k, rec["rms_m"])] ** 2)
     np.testing.assert_allclose(step.hessian, want, rtol=1e-12)
     assert f"{1000 * rec['estimate_m']:.1f} mm" in spread_note(rec) and "keeps" not in spread_note(rec)
     assert SPREAD_GRID[0] > 0.0
@@ -173,7 +174,7 @@ def test_an_estimate_only_reported_leaves_the_step_and_the_prior_as_they_were():
     assert nuis2 == nuis and np.array_equal(step.hessian, H) and np.array_equal(step.dtheta, dtheta)
     # the same estimate as when used
     used = estimate_departure_spread(*_step(12, 3), np.zeros(len(nuis)))[2]
-    assert rec["estimate_m"] == used["estimate_m"] and rec["used_m"] == used["used_m"]
+    assert rec["estimate_m"] == used["estimate_m"] and rec["rms_m"] == used["rms_m"]
     assert "keeps the recipe's prior sigma 20 mm" in spread_note(rec)
 
 
@@ -182,10 +183,10 @@ def test_the_head_models_record_names_the_prior_the_departures_had():
     rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)[2]
     out = spread_record(rec)
     assert out == {"estimate_m": round(rec["estimate_m"], 5), "upper_m": round(rec["upper_m"], 5),
-                   "rms_m": round(rec["used_m"], 5), "sensors": 12, "prior_sigma_m": 0.02}
+                   "rms_m": round(rec["rms_m"], 5), "sensors": 12, "prior_sigma_m": 0.02}
     used = spread_record({**rec, "applied": True})
-    assert used["prior_sigma_m"] == round(rec["used_m"], 5)
-    none = spread_record({"prior_m": 0.02, "sensors": 1, "applied": False, "estimate_m": None, "used_m": None,
+    assert used["prior_sigma_m"] == round(rec["rms_m"], 5)
+    none = spread_record({"prior_m": 0.02, "sensors": 1, "applied": False, "estimate_m": None, "rms_m": None,
                           "upper_m": None})
     assert none == {"estimate_m": None, "upper_m": None, "rms_m": None, "sensors": 1, "prior_sigma_m": 0.02}
     assert spread_record(None) is None
@@ -220,7 +221,7 @@ def test_the_step_from_a_point_away_from_zero_is_the_optimum_under_the_estimated
     theta = np.linspace(-0.01, 0.02, len(nuis))
     step = SimpleNamespace(hessian=H.copy(), dtheta=-np.linalg.solve(H, g0 + H @ theta), covariance=np.linalg.inv(H))
     step, nuis2, rec = estimate_departure_spread(prob, step, nuis, theta)
-    tau = rec["used_m"]
+    tau = rec["rms_m"]
     p_old = 1.0 / np.array([n.prior_sigma for n in nuis]) ** 2
     p_new = 1.0 / np.array([n.prior_sigma for n in nuis2]) ** 2
     H_data, g_data = H - np.diag(p_old), g0          # (the priors' gradient at theta = 0 is 0)
@@ -242,3 +243,25 @@ def test_departures_fitted_each_on_its_own_are_named_not_estimated():
     # without any departure (their prior sigma 0): nothing to say
     prob2 = SimpleNamespace(recipe=SimpleNamespace(head_shift_per_sensor_sigma_m=0.0))
     assert estimate_departure_spread(prob2, step, shared, np.zeros(1))[2] is None
+
+
+def test_the_summary_of_a_likelihood_on_four_points_is_its_maximum_rms_and_95_percent_quantile():
+    # weights 0.1, 0.4, 0.3, 0.2 on 10-40 mm: the maximum 20 mm, sqrt(E[tau^2]) = sqrt(7.6e-4) (the
+    # mean would be 26 mm), the 95 % quantile the last point (the 80 % one would be 30 mm)
+    out = spread_summary(np.log([0.1, 0.4, 0.3, 0.2]), np.array([0.01, 0.02, 0.03, 0.04]))
+    assert out["estimate_m"] == 0.02 and out["upper_m"] == 0.04
+    assert out["rms_m"] == pytest.approx(np.sqrt(7.6e-4), rel=1e-12)
+    # the maximum at the grid's first point is the limit tau -> 0
+    assert spread_summary(np.log([0.5, 0.3, 0.2]), np.array([1e-4, 0.01, 0.02]))["estimate_m"] == 0.0
+
+
+def test_a_likelihood_that_is_not_finite_keeps_the_recipes_sigma_with_a_warning(monkeypatch):
+    import pedcal.calib.headpoint as hp
+
+    prob, step, nuis = _step(12, 3)
+    H = step.hessian.copy()
+    monkeypatch.setattr(hp, "spread_log_likelihood", lambda *a, **k: np.full(len(SPREAD_GRID), np.nan))
+    with pytest.warns(DegenerateDataWarning, match="likelihood is not finite"):
+        step2, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
+    assert rec["estimate_m"] is None and not rec["applied"] and nuis2 == nuis
+    assert np.array_equal(step2.hessian, H)

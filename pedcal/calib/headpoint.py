@@ -257,7 +257,7 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
     the profile's quadratic at ``theta`` (its Hessian ``H`` and gradient ``g``, both with the
     nuisances' priors of ``prior_mean`` and ``prior_sigma`` in): the data's part is H_d = H - P_0
     and g_d = g - P_0 r (r = theta - prior_mean, P_0 = diag(prior_sigma^-2)); with the departures
-    (indices ``own``) given prior 0 +- tau and the other nuisances their priors (P(tau)), every
+    (indices ``own``) given their prior mean +- tau and the other nuisances their priors (P(tau)), every
     nuisance is integrated out (the quadratic profile is exact for nuisances that enter
     linearly): with A = H_d + P(tau) and b = g_d + P(tau) r,
 
@@ -271,7 +271,7 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
     p0 = 1.0 / np.asarray(prior_sigma, float) ** 2
     H, g = np.asarray(H, float), np.asarray(g, float)
     # only the departures' diagonal moves with lam = tau^-2: with the other nuisances (N) at their
-    # priors and eliminated, A's departures' block is S + lam I (S = A_OO - C^T K^-1 C, K = A_NN,
+    # priors and eliminated, A's Schur complement on the departures is S + lam I (S = A_OO - C^T K^-1 C, K = A_NN,
     # C = A_NO at lam = 0), and one eigen-decomposition S = U diag(s) U^T gives every tau:
     # ln det A = ln det K + sum ln(s + lam) and b^T A^-1 b = b_N^T K^-1 b_N + sum c^2 / (s + lam),
     # c = U^T (b_O - C^T K^-1 b_N); b_N = g_N (the priors' r cancels there), b_O = g_d,O + lam r_O.
@@ -283,6 +283,9 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
     K_inv_C = np.linalg.solve(K, C) if len(other) else np.zeros((0, len(own)))
     K_inv_g = np.linalg.solve(K, g[other]) if len(other) else np.zeros(0)
     s_eig, U = np.linalg.eigh(A0[np.ix_(own, own)] - C.T @ K_inv_C)
+    # (S is the data's part of a Gauss-Newton Hessian's Schur complement, positive semi-definite:
+    # an eigenvalue below 0 is rounding, which must not take log(s + lam) below its floor)
+    s_eig = np.maximum(s_eig, 0.0)
     c0 = U.T @ (g[own] - p0[own] * r[own] - C.T @ K_inv_g)
     r_eig = U.T @ r[own]
     tau = np.asarray(grid_m, float)
@@ -295,8 +298,8 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
 
 def spread_summary(loglik: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict:
     """tau's estimate from its log likelihood on ``grid_m``: ``estimate_m`` the maximum's tau (0 at
-    the grid's first point) and,
-    under a flat prior on tau over the grid, ``used_m`` = sqrt(E[tau^2 | data]), the prior
+    the grid's first point) and, under a flat prior on tau over the grid (its points evenly spaced,
+    as SPREAD_GRID's: the weights are the likelihood's alone), ``rms_m`` = sqrt(E[tau^2 | data]), the prior
     sigma the departures take (a departure's variance averaged over what the data leave of
     tau: its own uncertainty carried, not the point estimate's alone), and ``upper_m`` its
     posterior's 95 % quantile."""
@@ -306,21 +309,23 @@ def spread_summary(loglik: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict
     best = int(np.argmax(loglik))
     # (the maximum at the grid's first point: the limit tau -> 0, reported as 0)
     return {"estimate_m": 0.0 if best == 0 else float(grid_m[best]),
-            "used_m": float(np.sqrt(np.sum(w * grid_m ** 2))),
+            "rms_m": float(np.sqrt(np.sum(w * grid_m ** 2))),
             "upper_m": float(grid_m[min(int(np.searchsorted(cdf, 0.95)), len(grid_m) - 1)])}
 
 
 def spread_from_estimates(departure_m: np.ndarray, sigma_m: np.ndarray, grid_m: np.ndarray = SPREAD_GRID) -> dict:
     """tau from independent per-sensor estimates y_s = mu + delta_s + e_s (e_s ~ N(0, sigma_s^2),
     delta_s ~ N(0, tau^2), mu diffuse): :func:`spread_log_likelihood` on their quadratic,
-    parameters (mu, delta_1..k). Sensors with a non-finite estimate or sigma, or a sigma not
-    positive, are left out; fewer than two left: an estimate of nan ("sensors" says how many)."""
+    parameters (mu, delta_1..k). Public, for head points estimated elsewhere (one per sensor, with
+    their sigma); the factor graph reads its own departures jointly (:func:`estimate_departure_spread`).
+    Sensors with a non-finite estimate or sigma, or a sigma not positive, are left out; fewer than
+    two left: an estimate of nan ("sensors" says how many)."""
     y, s = np.asarray(departure_m, float), np.asarray(sigma_m, float)
     ok = np.isfinite(y) & np.isfinite(s) & (s > 0.0)
     y, s = y[ok], s[ok]
     k = len(y)
     if k < 2:
-        return {"estimate_m": float("nan"), "used_m": float("nan"), "upper_m": float("nan"), "sensors": k}
+        return {"estimate_m": float("nan"), "rms_m": float("nan"), "upper_m": float("nan"), "sensors": k}
     J = np.column_stack([np.ones(k), np.eye(k)])
     W = 1.0 / s ** 2
     mu_sigma = 1e3 * float(np.max(np.abs(y)) + np.max(s))      # diffuse
@@ -338,13 +343,13 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     determine (seen from around: the data at least halve its prior variance, the other nuisances
     integrated out); with fewer than SPREAD_MIN_SENSORS, or departures each fitted with the path on
     its own (more sensors than ``clock_offsets_joint_max``), there is no estimate. With ``use`` (recipe
-    ``head_shift_per_sensor_sigma_estimate``) the step is re-taken with the departures' prior 0
-    +- ``used_m`` (its Hessian's prior part exchanged, the Newton step re-solved), or, without an
+    ``head_shift_per_sensor_sigma_estimate``) the step is re-taken with the departures' prior
+    their prior mean +- ``rms_m`` (its Hessian's prior part exchanged, the Newton step re-solved), or, without an
     estimate, the recipe's ``head_shift_per_sensor_sigma_m`` is kept with a
     DegenerateDataWarning; without ``use`` the estimate is only reported and the step, the
     nuisances and their prior stay as they were. Returns (step, nuisances, record): the record
-    (estimate_m, used_m, upper_m: None without an estimate; sensors, prior_m, applied: the
-    prior's sigma the departures keep is used_m) also goes on ``prob`` as ``_departure_spread``
+    (estimate_m, rms_m, upper_m: None without an estimate; sensors, prior_m the recipe's sigma,
+    applied: the prior's sigma the departures keep is rms_m) also goes on ``prob`` as ``_departure_spread``
     for the head model's note (:func:`spread_note`)."""
     import warnings
 
@@ -365,23 +370,30 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
         why = (f"the data determine {informed} sensors' own shift (seen from around), fewer than "
                f"{SPREAD_MIN_SENSORS}")
     record = {"prior_m": sigma0, "sensors": informed, "applied": False}
-    if informed < SPREAD_MIN_SENSORS:
+
+    def not_estimated(why: str):
+        """The recipe's sigma kept (named in a warning where the estimate was to be used)."""
         if use:
             warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: {why}; "
                           f"its prior sigma head_shift_per_sensor_sigma_m = {1000 * sigma0:.0f} mm is kept",
-                          DegenerateDataWarning, stacklevel=3)
-        prob._departure_spread = {**record, "estimate_m": None, "used_m": None, "upper_m": None, "why": why}
+                          DegenerateDataWarning, stacklevel=4)
+        prob._departure_spread = {**record, "estimate_m": None, "rms_m": None, "upper_m": None, "why": why}
         return step, nuis, prob._departure_spread
+    if informed < SPREAD_MIN_SENSORS:
+        return not_estimated(why)
     H = step.hessian
     g = -H @ step.dtheta
     mean = np.array([n.prior_mean for n in nuis])
     sigma = np.array([n.prior_sigma for n in nuis])
-    record.update(spread_summary(spread_log_likelihood(H, g, theta, mean, sigma, own)))
+    summary = spread_summary(spread_log_likelihood(H, g, theta, mean, sigma, own))
+    if not np.isfinite(list(summary.values())).all():
+        return not_estimated("its likelihood is not finite on the Hessian the solve left")
+    record.update(summary)
     prob._departure_spread = record
     if not use:
         return step, nuis, record
     record["applied"] = True
-    tau = record["used_m"]
+    tau = record["rms_m"]
     # the prior's part exchanged: H' = H + dP, g' = g + dP r, the Newton step -H'^-1 g'
     dp = np.zeros(len(nuis))
     dp[own] = 1.0 / tau ** 2 - p0[own]
@@ -404,8 +416,8 @@ def spread_record(record: dict | None) -> dict | None:
     def metres(v):
         return None if v is None else round(float(v), 5)
     return {"estimate_m": metres(record.get("estimate_m")), "upper_m": metres(record.get("upper_m")),
-            "rms_m": metres(record.get("used_m")), "sensors": int(record["sensors"]),
-            "prior_sigma_m": metres(record["used_m"] if record.get("applied") else record["prior_m"])}
+            "rms_m": metres(record.get("rms_m")), "sensors": int(record["sensors"]),
+            "prior_sigma_m": metres(record["rms_m"] if record.get("applied") else record["prior_m"])}
 
 
 def spread_note(record: dict | None) -> str:
@@ -419,7 +431,7 @@ def spread_note(record: dict | None) -> str:
                f"sensor's own shift has {recipe}."
     found = (f"The spread of the head point between the sensors' trackers, estimated from {record['sensors']} "
              f"sensors' own shifts: {1000 * record['estimate_m']:.1f} mm (95 % below {1000 * record['upper_m']:.1f} "
-             f"mm; the root of its mean square over what the data leave of it {1000 * record['used_m']:.1f} mm)")
+             f"mm; the root of its mean square over what the data leave of it {1000 * record['rms_m']:.1f} mm)")
     if record.get("applied"):
         return f"{found}, each sensor's own shift's prior sigma."
     return (f"{found}; each sensor's own shift keeps {recipe} (head_shift_per_sensor_sigma_estimate = true "
