@@ -71,7 +71,16 @@ _DIRECTION_NAMES_ROT = ("rotation about world x", "rotation about world y", "yaw
 _DIRECTION_NAMES_POS = ("x", "y", "z")
 
 
-def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, threshold: float = 0.5):
+UNCONSTRAINED_THRESHOLD = 0.5   # a direction whose posterior sigma is above this share of its prior's
+
+
+def _prior_sigmas(recipe: GraphRecipe) -> np.ndarray:
+    """(6,) the installed pose's prior sigmas, rotation (rad) first, as a Pose3's tangent."""
+    return np.r_[[np.radians(recipe.sensor_prior_sigma_deg)] * 3, [recipe.sensor_prior_sigma_m] * 3]
+
+
+def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe,
+                  threshold: float = UNCONSTRAINED_THRESHOLD):
     """Directions of a sensor pose the data left unconstrained: eigen-directions of the posterior
     covariance whitened by the installed prior whose variance the data reduced by less than
     ``threshold`` (posterior sigma > threshold x prior sigma). Returns (names, whitened basis)."""
@@ -81,7 +90,7 @@ def observability(T: gtsam.Pose3, cov_body: np.ndarray, recipe: GraphRecipe, thr
 
 def _whitened(cov_body: np.ndarray, recipe: GraphRecipe) -> np.ndarray:
     """(m, 6, 6) Pose3 covariances whitened by the installed prior's sigmas, symmetrized."""
-    p = np.r_[[np.radians(recipe.sensor_prior_sigma_deg)] * 3, [recipe.sensor_prior_sigma_m] * 3]
+    p = _prior_sigmas(recipe)
     Cw = cov_body / np.outer(p, p)
     return 0.5 * (Cw + Cw.transpose(0, 2, 1))
 
@@ -180,12 +189,12 @@ def _network_from_result(log: Log, prob: FactorGraphProblem, fg, result, progres
             poses.append(installed.T_world_sensor)
             kept.append(None)
             continue
-        names, bad = _unconstrained(T.rotation().matrix(), evals[i], evecs[i], 0.5)
+        names, bad = _unconstrained(T.rotation().matrix(), evals[i], evecs[i], UNCONSTRAINED_THRESHOLD)
         status = "ok"
         if names:
             status = "degenerate"
             # keep the installed value along the unconstrained directions
-            p = np.r_[[np.radians(rec.sensor_prior_sigma_deg)] * 3, [rec.sensor_prior_sigma_m] * 3]
+            p = _prior_sigmas(rec)
             delta = installed.T_world_sensor.localCoordinates(T) / p
             delta -= bad @ (bad.T @ delta)
             T = installed.T_world_sensor.retract(delta * p)
