@@ -256,7 +256,8 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     if not recipe.estimate_latency:
         latency = 0.0
     elif latency is None:
-        latency = estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s) if is_robot.sum() >= 12 else 0.0
+        latency = (estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s, p_sensor=p_all)
+                   if is_robot.sum() >= 12 else 0.0)
     _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
     sensor_col = obs["sensor"].astype(str).to_numpy()
