@@ -4,6 +4,7 @@ the factor graph's solve and the precision of its Monte-Carlo null, on the simul
 
     nice -n 10 .venv/bin/python benchmarks/bench_clock_overdispersion.py \
         [--scenarios paper sparse corridor cross lhall] [--seeds 4] [--draws 32] [--no-exact]
+        [--parts [--repeats 5]]
 
 Per log: the offsets (k) and time blocks (C); the CPU time of widen_for_overdispersion inside
 ``calibrate`` (time.process_time, one run); the largest move of an offset's widening factor
@@ -17,6 +18,13 @@ sums of m^2, and tr(G K A N^-1 A^T K^T G) by k C solves through the step's facto
 CPU time is shown), against which the solve's null E V(e) - E V(H e) (the first term exact, the
 second, the projection's share, by the draws: a control variate at the plain mean's cost) is
 compared over four seeds of its draws.
+
+With ``--parts``, instead, where one call's CPU time goes (the fastest of ``--repeats`` calls on
+the captured system, after the calibration's own): how many times a calibration widens (once: a
+cache of anything across its calls would serve only a second calibration in the same process),
+whether the last full profile step kept its factorization (else the call makes one, shown as
+"factorization"), the seeded draws, A^T e, the 32-column solve, A s written into X, the block
+scores (:func:`pedcal.calib.clocks.block_scores`), the efficient weights and the whole call.
 """
 
 from __future__ import annotations
@@ -42,14 +50,87 @@ def captured_widening(scenario: str, seed: int) -> tuple[tuple, float]:
     def spy(*args):
         c0 = time.process_time()
         out = original(*args)
-        seen.update(args=args, cpu=time.process_time() - c0)
+        seen.update(args=args, cpu=time.process_time() - c0, calls=seen.get("calls", 0) + 1)
         return out
     fgmod.widen_for_overdispersion = spy
     try:
         calibrate(simulate_logs(scenario, seed=seed, vary_nuisances="zoo").calib, method="factorgraph")
     finally:
         fgmod.widen_for_overdispersion = original
-    return seen.get("args"), seen.get("cpu", 0.0)
+    return seen.get("args"), seen.get("cpu", 0.0), seen.get("calls", 0)
+
+
+def captured_system(scenario: str, seed: int) -> tuple[tuple | None, float, int]:
+    """((the profile step, the nuisances, the residuals at the estimate, the rows' time blocks) that
+    offset_overdispersion got in one calibration of the zoo log, or None without a widening; its
+    CPU s there; the widenings in the calibration), as widen_for_overdispersion makes them."""
+    captured, cpu, calls = captured_widening(scenario, seed)
+    if captured is None or captured[0] is None:
+        return None, cpu, calls
+    reference, nuis, theta, _cov, pose_times, node_times = captured
+    step, theta_ref = reference
+    d = np.asarray(theta, float) - np.asarray(theta_ref, float)
+    rho = step.rho0 + np.asarray(step.A @ (step.Z @ d)) - step.B @ d
+    return (step, nuis, rho, clocks.row_blocks(step, pose_times, node_times)), cpu, calls
+
+
+def captured_systems(args):
+    """(the log's label, captured_system's system, its CPU s, the widenings) of each scenario and
+    seed asked for, a log without a widening said in a table row and skipped."""
+    for scenario in args.scenarios:
+        for seed in range(args.seeds):
+            system, cpu, calls = captured_system(scenario, seed)
+            if system is None:
+                print(f"| {scenario} {seed} | no widening ({calls} widenings) |")
+                continue
+            yield f"{scenario} {seed}", system, cpu, calls
+
+
+def parts(step, nuis, rho: np.ndarray, blocks: np.ndarray, draws: int) -> dict:
+    """CPU s of each part of one offset_overdispersion call, its own steps taken in turn (the same
+    operations, in the same order)."""
+    from pedcal.calib.profile import _normal_solver
+
+    out, c0 = {}, time.process_time()
+
+    def mark(name):
+        nonlocal c0
+        out[name] = out.get(name, 0.0) + time.process_time() - c0
+        c0 = time.process_time()
+    weights = clocks.efficient_weights(step, nuis, blocks)
+    mark("weights")
+    solve = step.__dict__.get("_normal_solve")
+    if solve is None:
+        solve = _normal_solver(step.A, step.order)
+        mark("factorization")
+    e = np.random.default_rng(0).standard_normal((len(rho), draws))
+    mark("draws")
+    X = np.empty((len(rho), draws + 1))
+    X[:, 0] = rho
+    y = np.asarray(step.A.T @ e)
+    mark("A^T e")
+    s = solve(y)
+    mark("solve")
+    X[:, 1:] = step.A @ s
+    mark("A s")
+    clocks.block_scores(step, weights, X)
+    mark("block scores")
+    clocks.offset_overdispersion(step, nuis, rho, blocks, draws=draws)
+    mark("whole call")
+    return out
+
+
+def main_parts(args) -> None:
+    """The --parts table (see the module's text)."""
+    names = ["factorization", "draws", "A^T e", "solve", "A s", "block scores", "weights", "whole call"]
+    print("CPU ms; widenings: calls per calibration; in calibrate: the call inside it\n\n"
+          "| log | widenings | factorization kept | in calibrate | " + " | ".join(names) + " |\n|"
+          + "---|" * (len(names) + 4))
+    for label, (step, nuis, rho, blocks), cpu, calls in captured_systems(args):
+        runs = [parts(step, nuis, rho, blocks, args.draws) for _ in range(args.repeats)]
+        best = {k: min(r.get(k, 0.0) for r in runs) for k in names}
+        print(f"| {label} | {calls} | {'_normal_solve' in step.__dict__} | {1000 * cpu:.1f} | "
+              + " | ".join(f"{1000 * best[k]:.1f}" for k in names) + " |", flush=True)
 
 
 def block_operator(step, nuis, clusters: np.ndarray):
@@ -93,45 +174,41 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--draws", type=int, default=clocks.NULL_DRAWS)
     ap.add_argument("--no-exact", action="store_true")
+    ap.add_argument("--parts", action="store_true", help="one call's CPU time by part instead")
+    ap.add_argument("--repeats", type=int, default=5, help="--parts: calls timed, the fastest kept")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     load0 = os.getloadavg()
+    if args.parts:
+        main_parts(args)
+        print(f"load average (1 min) {load0[0]:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2 cores)")
+        return
     print("| log | k | C | widening CPU (ms) | sigma move, draws seeded 1-3 (%) | sigma move, exact null (%) "
           "| exact's solves CPU (ms) | control variate against exact, draws seeded 0-3 (%) |"
           "\n|---|---|---|---|---|---|---|---|")
     moves_seed, moves_exact, moves_cv = [], [], []
-    for scenario in args.scenarios:
-        for seed in range(args.seeds):
-            captured, cpu = captured_widening(scenario, seed)
-            if captured is None or captured[0] is None:
-                print(f"| {scenario} {seed} | no widening |")
-                continue
-            reference, nuis, theta, _cov, pose_times, node_times = captured
-            step, theta_ref = reference
-            d = np.asarray(theta, float) - np.asarray(theta_ref, float)
-            rho = step.rho0 + np.asarray(step.A @ (step.Z @ d)) - step.B @ d
-            blocks = clocks.row_blocks(step, pose_times, node_times)
-            phi = clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws)
-            on = np.isfinite(phi)
-            if not on.any():
-                print(f"| {scenario} {seed} | no offsets or too few blocks |")
-                continue
+    for label, (step, nuis, rho, blocks), cpu, _calls in captured_systems(args):
+        phi = clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws)
+        on = np.isfinite(phi)
+        if not on.any():
+            print(f"| {label} | no offsets or too few blocks |")
+            continue
 
-            def move(other, ref=phi, on=on):
-                return float(np.max(np.abs(np.sqrt(np.maximum(1.0, other[on]) / np.maximum(1.0, ref[on])) - 1.0)))
-            by_seed = max(move(clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws, seed=s))
-                          for s in (1, 2, 3))
-            moves_seed.append(by_seed)
-            cells = ["-", "-", "-"]
-            if not args.no_exact:
-                exact, exact_cpu = exact_overdispersion(step, nuis, rho, blocks)
-                moves_exact.append(move(exact))
-                moves_cv.append(max(move(clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws,
-                                                                      seed=s), ref=exact) for s in range(4)))
-                cells = [f"{100 * moves_exact[-1]:.1f}", f"{1000 * exact_cpu:.0f}", f"{100 * moves_cv[-1]:.1f}"]
-            C = int((np.bincount(blocks[blocks >= 0]) > 0).sum())
-            print(f"| {scenario} {seed} | {int(on.sum())} | {C} | {1000 * cpu:.0f} | {100 * by_seed:.1f} | "
-                  + " | ".join(cells) + " |", flush=True)
+        def move(other, ref=phi, on=on):
+            return float(np.max(np.abs(np.sqrt(np.maximum(1.0, other[on]) / np.maximum(1.0, ref[on])) - 1.0)))
+        by_seed = max(move(clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws, seed=s))
+                      for s in (1, 2, 3))
+        moves_seed.append(by_seed)
+        cells = ["-", "-", "-"]
+        if not args.no_exact:
+            exact, exact_cpu = exact_overdispersion(step, nuis, rho, blocks)
+            moves_exact.append(move(exact))
+            moves_cv.append(max(move(clocks.offset_overdispersion(step, nuis, rho, blocks, draws=args.draws,
+                                                                  seed=s), ref=exact) for s in range(4)))
+            cells = [f"{100 * moves_exact[-1]:.1f}", f"{1000 * exact_cpu:.0f}", f"{100 * moves_cv[-1]:.1f}"]
+        C = int((np.bincount(blocks[blocks >= 0]) > 0).sum())
+        print(f"| {label} | {int(on.sum())} | {C} | {1000 * cpu:.0f} | {100 * by_seed:.1f} | "
+              + " | ".join(cells) + " |", flush=True)
     if moves_seed:
         print(f"\nlargest move of a sigma over {len(moves_seed)} logs: draws reseeded {100 * max(moves_seed):.1f} %"
               + (f", exact null {100 * max(moves_exact):.1f} %, the control variate's from the exact "
