@@ -552,9 +552,9 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     if curvature and rec.head_curvature in ("on", "auto", "widen") and rec.head_curvature_sigma_m > 0.0:
         nuis.append(Nuisance("curvature_m", 0.0, rec.head_curvature_sigma_m, rec.head_ray_shift_step_m))
     fixed = gtsam.NonlinearFactorGraph()
-    fixed_names = [name for name in BLOCKS if name != "observations" and not (odo and name == "motion")]
-    for name in fixed_names:
-        fixed.push_back(parts.blocks[name])
+    for name in BLOCKS:
+        if name != "observations" and not (odo and name == "motion"):
+            fixed.push_back(parts.blocks[name])
     cols = Columns.of(result)
     kernel = (rec.robust_kernel, rec.robust_k)
     prior_factors = int(result.exists(H(0)) and rec.amcl)      # the head offset's prior leads the block
@@ -611,9 +611,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
             footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows(),
             # (the block's linearization made from its terms; GTSAM's where they cannot make it)
-            obs_linear=lambda f=rhs, r=result: _linearized(f, cols, block, r),
-            # (the sensors' and AMCL's blocks linearized from their kept arrays)
-            fixed_linear=lambda r=result, p=parts: p.linearized(fixed_names, r, cols))
+            obs_linear=lambda f=rhs, r=result: _linearized(f, cols, block, r))
         if not chord:
             full_step = step
         if considered and not chord:

@@ -84,7 +84,7 @@ track), so re-solving for it buys little.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -242,114 +242,6 @@ def _height_noise(T: gtsam.Pose3, sigma_m: float):
     return gtsam.noiseModel.Gaussian.Information(info)
 
 
-class Pose3Factors:
-    """A block's ``PriorFactorPose3`` and ``BetweenFactorPose3`` factors kept as arrays, in the
-    block's order, as they are added (:meth:`prior`, :meth:`between`): each factor's keys (a
-    prior's first none), its measurement Z and its noise's square-root information W (GTSAM's
-    whitening: 1 / sigma for a diagonal model, the upper Cholesky factor of the information for
-    a full one), so that the block's linearization is made in numpy (:meth:`linearized`)."""
-
-    def __init__(self):
-        self._parts: list = []
-        self._arrays: tuple | None = None
-
-    def prior(self, key, Z_R: np.ndarray, Z_t: np.ndarray, W: np.ndarray) -> None:
-        """Priors on the Pose3 variables ``key`` (n,) at Z (rotations (n, 3, 3) or (3, 3),
-        translations (n, 3) or (3,)), whitened by W ((n, 6, 6) or (6, 6))."""
-        self.between(None, key, Z_R, Z_t, W)
-
-    def between(self, first, second, Z_R: np.ndarray, Z_t: np.ndarray, W: np.ndarray) -> None:
-        """Between factors Log(Z^-1 X_first^-1 X_second) (``first`` None: priors)."""
-        second = np.atleast_1d(np.asarray(second, np.uint64))
-        n = len(second)
-        first = np.zeros(n, np.uint64) if first is None else np.atleast_1d(np.asarray(first, np.uint64))
-        self._parts.append((first, second, np.broadcast_to(Z_R, (n, 3, 3)), np.broadcast_to(Z_t, (n, 3)),
-                            np.broadcast_to(W, (n, 6, 6))))
-        self._arrays = None
-
-    def __len__(self) -> int:
-        return sum(len(p[1]) for p in self._parts)
-
-    def arrays(self) -> tuple:
-        """(first keys (0 for a prior), second keys, Z's rotations, translations, W), every
-        factor in order."""
-        if self._arrays is None:
-            if not self._parts:
-                self._arrays = (np.zeros(0, np.uint64), np.zeros(0, np.uint64), np.zeros((0, 3, 3)),
-                                np.zeros((0, 3)), np.zeros((0, 6, 6)))
-            else:
-                self._arrays = tuple(np.concatenate([p[i] for p in self._parts]) for i in range(5))
-                self._parts = [self._arrays]
-        return self._arrays
-
-    def linearized(self, values: gtsam.Values, cols) -> tuple:
-        """(A, b) of the factors linearized at ``values``, what ``sparse_system(block.linearize(
-        values), cols)`` gives for the block they were added with, to rounding (each row's entries
-        in another order, the same matrix): the error e = Log(Z^-1 T), T = X_first^-1 X_second
-        (a prior's X_first the identity); its Jacobians GTSAM's, J (-Ad(T^-1)) on the first and J
-        on the second, J the Pose3 Logmap's derivative at e (GTSAM's own,
-        ``gtsam.Pose3.LogmapDerivative``); rows whitened by W (b = -W e); the entries GTSAM's
-        sparse Jacobian leaves out (at most 1e-12) left out."""
-        first, second, Z_R, Z_t, W = self.arrays()
-        n = len(second)
-        if not n:
-            return sps.csr_matrix((0, cols.n)), np.zeros(0)
-        has = first != 0
-        # (every variable read in one pass over the values)
-        R, t = pose_arrays(values, np.r_[second, first[has]])
-        R2, t2 = R[:n], t[:n]
-        R1 = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        t1 = np.zeros((n, 3))
-        R1[has], t1[has] = R[n:], t[n:]
-        # T = X_1^-1 X_2 and E = Z^-1 T
-        Rt1 = R1.transpose(0, 2, 1)
-        R_T = Rt1 @ R2
-        t_T = (Rt1 @ (t2 - t1)[:, :, None])[:, :, 0]
-        Zt = Z_R.transpose(0, 2, 1)
-        err = pose3_log(Zt @ R_T, (Zt @ (t_T - Z_t)[:, :, None])[:, :, 0])
-        # (GTSAM's derivative, one call per factor: its closed form, not a copy of it)
-        J = np.array([gtsam.Pose3.LogmapDerivative(e) for e in err])
-        WJ = W @ J
-        # -Ad(T^-1), T^-1 = (R^T, -R^T t): [[-R^T, 0], [-hat(-R^T t) R^T, -R^T]]
-        Rt = R_T.transpose(0, 2, 1)
-        ad = np.zeros((n, 6, 6))
-        ad[:, :3, :3] = ad[:, 3:, 3:] = -Rt
-        ad[:, 3:, :3] = _hat((Rt @ t_T[:, :, None])[:, :, 0]) @ Rt
-        c2 = cols.index(second).reshape(n, 6)
-        c1 = c2.copy()
-        c1[has] = cols.index(first[has]).reshape(-1, 6)
-        # each row's entries in column order (the variable of the lower columns first), as GTSAM's
-        # sparse form has them: a stacked system in canonical form is factorized without a sorted copy
-        swap = (c1[:, 0] > c2[:, 0])[:, None, None]
-        first_J = WJ @ ad
-        first_J[~has] = 0.0                                # (a prior has no first variable)
-        rows = np.empty((n, 6, 12))
-        rows[:, :, :6] = np.where(swap, WJ, first_J)
-        rows[:, :, 6:] = np.where(swap, first_J, WJ)
-        # (the entries GTSAM's sparse Jacobian leaves out, at most 1e-12: zeroed, then dropped)
-        rows[np.abs(rows) <= 1e-12] = 0.0
-        index_dtype = np.int32 if max(72 * n, cols.n) < 2 ** 31 else np.int64
-        indices = np.empty((n, 6, 12), index_dtype)
-        indices[:, :, :6] = np.where(swap, c2[:, None, :], c1[:, None, :])
-        indices[:, :, 6:] = np.where(swap, c1[:, None, :], c2[:, None, :])
-        jac = sps.csr_matrix((rows.ravel(), indices.ravel(), np.arange(0, 72 * n + 1, 12, dtype=index_dtype)),
-                           shape=(6 * n, cols.n))
-        jac.eliminate_zeros()
-        b = -(W @ err[:, :, None]).ravel()
-        return jac, b
-
-
-def _diagonal_root(sigmas) -> np.ndarray:
-    """A diagonal noise model's whitening, diag(1 / sigma)."""
-    return np.diag(1.0 / np.asarray(sigmas, float))
-
-
-def _information_root(info: np.ndarray) -> np.ndarray:
-    """(..., 6, 6) the whitening of a Gaussian model of information ``info``: its upper Cholesky
-    factor R, R^T R = info (GTSAM's ``Gaussian.Information``)."""
-    return np.linalg.cholesky(info).swapaxes(-1, -2)
-
-
 BLOCKS = ("sensors", "amcl", "motion", "observations")
 
 
@@ -374,21 +266,6 @@ class GraphParts:
     # the ordering was kept by a rebuild that left the observation block for the caller to build
     # (of the structure it had): it holds for the graph once the block is back
     ordering_awaits_observations: bool = False
-    # the blocks' factors kept as arrays (:class:`Pose3Factors`) by name, for their linearization
-    # in numpy (:meth:`linearized`): the sensors' and AMCL's
-    linear: dict = field(default_factory=dict)
-
-    def linearized(self, names, values: gtsam.Values, cols) -> tuple | None:
-        """(A, b) of the blocks ``names`` (in that order) linearized at ``values`` in ``cols``,
-        made from their kept arrays (:meth:`Pose3Factors.linearized`); None when a block has
-        none, or holds other factors than they do (the caller linearizes the blocks)."""
-        kept = [self.linear.get(name) for name in names]
-        if any(k is None or len(k) != self.blocks[name].size() for k, name in zip(kept, names, strict=True)):
-            return None
-        made = [k.linearized(values, cols) for k in kept]
-        if len(made) == 1:
-            return made[0]
-        return sps.vstack([m for m, _ in made], format="csr"), np.concatenate([b for _, b in made])
 
     def colamd(self) -> gtsam.Ordering:
         """The whole graph's COLAMD ordering, computed on the first call and kept (the blocks
@@ -432,25 +309,18 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     # prior on the world height alone (the Pose3 tangent is body-frame: world z is R^T e_z there).
     g = blocks["sensors"]
     sig_rot = np.radians(rec.sensor_prior_sigma_deg)
-    prior_sigmas = np.r_[[sig_rot] * 3, [rec.sensor_prior_sigma_m] * 3]
-    sensor_prior = gtsam.noiseModel.Diagonal.Sigmas(prior_sigmas)
-    # (the same factors as arrays: key, Z's rotation and translation, whitening)
-    kept_sensors = ([], [], [], [])
+    sensor_prior = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sig_rot] * 3, [rec.sensor_prior_sigma_m] * 3])
     for i, sid in enumerate(prob.sensor_ids):
         T_inst = log.sensors[sid].T_world_sensor
         g.add(gtsam.PriorFactorPose3(S(i), T_inst, sensor_prior))
-        _keep(kept_sensors, S(i), T_inst, _diagonal_root(prior_sigmas))
         values.insert(S(i), prob.init_sensors[sid])
         if rec.sensor_height_sigma_m > 0.0:
             z_ref = rec.ceiling_height_m if rec.ceiling_height_m > 0.0 else float(T_inst.translation()[2])
             # about the initial pose (close to the solution: the Pose3 logmap couples the
             # horizontal offset into the height by the rotation difference)
             T0 = prob.init_sensors[sid]
-            height = _height_noise(T0, rec.sensor_height_sigma_m)
-            g.add(gtsam.PriorFactorPose3(S(i), _height_reference(T0, z_ref), height))
-            # (its whitening GTSAM's own: the information is ill-conditioned, 1e-9 on the rotation)
-            _keep(kept_sensors, S(i), _height_reference(T0, z_ref), height.R())
-    linear = {"sensors": _kept_priors(kept_sensors), "amcl": Pose3Factors()}
+            g.add(gtsam.PriorFactorPose3(S(i), _height_reference(T0, z_ref),
+                                         _height_noise(T0, rec.sensor_height_sigma_m)))
 
     times = _pose_times(prob, t_max)
     n_pose = len(times)
@@ -460,36 +330,17 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
     insert = values.insert
-    kept_planar = ([], [], [], [])
     for key, P in zip(symbols("x", range(n_pose)).tolist(), head_frames(init, head_m), strict=True):
         insert(key, P)
         if not rec.amcl:
             blocks["amcl"].add(gtsam.PriorFactorPose3(key, P, planar))
-            _keep(kept_planar, key, P, _diagonal_root(planar.sigmas()))
-    if not rec.amcl:
-        linear["amcl"] = _kept_priors(kept_planar)
-    amcl = (_amcl_block(blocks["amcl"], values, log, prob, times, linear["amcl"]) if rec.amcl and n_pose
-            else None)
+    amcl = _amcl_block(blocks["amcl"], values, log, prob, times) if rec.amcl and n_pose else None
     if n_pose > 1:
         blocks["motion"] = motion_block(log, prob, t_max=t_max)
     # (the regressors read at the measured points: the initial values are no solution)
     blocks["observations"] = observation_block(log, prob, values, t_max=t_max, insert_values=True, predicted=False)
     return GraphParts(blocks=blocks, values=values, motion_inputs=_motion_inputs(prob, t_max),
-                      structure=_structure(prob, t_max, amcl), linear=linear)
-
-
-def _keep(kept: tuple, key: int, T: gtsam.Pose3, W: np.ndarray) -> None:
-    """A prior's key, measurement (rotation, translation) and whitening appended to ``kept``."""
-    for into, item in zip(kept, (key, T.rotation().matrix(), np.asarray(T.translation(), float), W), strict=True):
-        into.append(item)
-
-
-def _kept_priors(kept: tuple) -> Pose3Factors:
-    """The priors :func:`_keep` gathered, as :class:`Pose3Factors`."""
-    out = Pose3Factors()
-    if kept[0]:
-        out.prior(np.array(kept[0], np.uint64), np.array(kept[1]), np.array(kept[2]), np.array(kept[3]))
-    return out
+                      structure=_structure(prob, t_max, amcl))
 
 
 def _structure(prob: FactorGraphProblem, t_max: float | None, amcl: tuple | None) -> tuple | None:
@@ -561,11 +412,9 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
     values = _kept_values(result, {"s": len(prob.sensor_ids), "x": n_pose}
                           | ({} if observations else {"l": len(prob.people)}))
     blocks = {"sensors": parts.blocks["sensors"], "amcl": gtsam.NonlinearFactorGraph()}
-    linear = {"amcl": Pose3Factors()} | ({"sensors": parts.linear["sensors"]} if "sensors" in parts.linear else {})
     amcl = None
     if n_pose:
-        # (inserts h(0) and the nodes a(j))
-        amcl = _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times, linear["amcl"])
+        amcl = _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
         if values.exists(H(0)) and result.exists(H(0)):
             values.update(H(0), result.atPose3(H(0)))
     inputs = _motion_inputs(prob, None)
@@ -581,13 +430,12 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
         # (the block the caller builds next would replace this one: 0.14 s at 1000 sensors)
         blocks["observations"] = gtsam.NonlinearFactorGraph()
         return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept,
-                          ordering_awaits_observations=kept is not None, linear=linear)
+                          ordering_awaits_observations=kept is not None)
     blocks["observations"] = observation_block(log, prob, values, insert_values=True)
     for m in range(len(prob.people)):
         if values.exists(L(m)) and result.exists(L(m)):
             values.update(L(m), result.atPoint3(L(m)))
-    return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept,
-                      linear=linear)
+    return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept)
 
 
 def _kept_values(values: gtsam.Values, kept: dict[str, int]) -> gtsam.Values:
@@ -638,8 +486,7 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
 
 def _amcl_measurements(log: Log, prob: FactorGraphProblem) -> tuple:
     """AMCL's estimates in time order as the AMCL block reads them: (t, yaw, the six covariance
-    columns (n, 6), each estimate's head frame, a Pose3 (:func:`head_frames`), and those frames'
-    rotations (n, 3, 3) and translations (n, 3)), read
+    columns (n, 6), each estimate's head frame, a Pose3 (:func:`head_frames`)), read
     once per robot table and head frame and kept on the problem: the block is built again under
     AMCL's estimated error model (:func:`rebuild_parts`) from the same estimates."""
     head_m = _head_m(log, prob.recipe)
@@ -652,29 +499,22 @@ def _amcl_measurements(log: Log, prob: FactorGraphProblem) -> tuple:
               amcl[["cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw"]].to_numpy(float, copy=True))
     for a in arrays:       # (kept for the rebuild: no caller may write into them)
         a.setflags(write=False)
-    frames = tuple(head_frames(np.column_stack([x, y, yaw]), head_m))
-    R = np.array([P.rotation().matrix() for P in frames]).reshape(-1, 3, 3)
-    t = np.array([P.translation() for P in frames], float).reshape(-1, 3)
-    for a in (R, t):
-        a.setflags(write=False)
-    read = (*arrays, frames, R, t)
+    read = (*arrays, tuple(head_frames(np.column_stack([x, y, yaw]), head_m)))
     prob.__dict__["_amcl_measurements"] = (log.robot, head_m, read)
     return read
 
 
-def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray,
-                kept: Pose3Factors | None = None) -> tuple:
+def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.ndarray) -> tuple:
     """AMCL as a measurement with a Gauss-Markov error (module docstring), under the problem's
     AMCL error model (:class:`pedcal.calib.amcl_model.AmclErrorModel`): each estimate tied to the
     nearest node of the error process with its white error and the process's change since the
     node; the process itself as the exact discretization of an Ornstein-Uhlenbeck process on the
     nodes; estimates the model marks as jumps left out. Returns what the block's structure is
     made from: (each estimate's pose index, its node, the nodes' count, whether the nodes are
-    chained, whether they are tied to h(0)). ``kept``: the factors are added to it as well, in
-    the same order."""
+    chained, whether they are tied to h(0))."""
     rec = prob.recipe
     model = prob.amcl_model
-    amcl_t, yaw_all, cov, frames, frame_R, frame_t = _amcl_measurements(log, prob)
+    amcl_t, yaw_all, cov, frames = _amcl_measurements(log, prob)
     n_pose = len(times)
     k_of = np.searchsorted(times, amcl_t)
     use = (k_of < n_pose) & (times[np.minimum(k_of, n_pose - 1)] == amcl_t)
@@ -710,10 +550,6 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     for a_key, x_key, u, C in zip(symbols("a", node_of).tolist(), symbols("x", k_of[use]).tolist(), use.tolist(), Cb,
                                   strict=True):
         add(between(a_key, x_key, frames[u], covariance(C)))
-    if kept is not None:
-        # (GTSAM's Gaussian.Covariance whitens by the information's upper Cholesky factor)
-        kept.between(symbols("a", node_of), symbols("x", k_of[use]), frame_R[use], frame_t[use],
-                     _information_root(np.linalg.inv(Cb)))
     # The error process on its nodes: the exact AR(1) of an OU process sampled every dn,
     # a = exp(-dn / tau), written as increments and per-node priors (module docstring).
     a = float(np.exp(-dn / tau))
@@ -745,21 +581,6 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
             add(between(node_keys[m - 1], key, identity, q))
         if free_z:
             add(between(h_key, key, identity, tie))
-    if kept is not None and n_nodes:
-        # each node's prior, its step from the one before, its tie to h(0), in that order
-        m = np.arange(n_nodes)
-        roots = {s: _diagonal_root(model.sigmas()) for s, model in by_sigma.items()}
-        slots = [(np.zeros(n_nodes, np.uint64), np.stack([roots[s] for s in prior_sig.tolist()]),
-                  np.ones(n_nodes, bool))]
-        slots.append((np.r_[0, symbols("a", m[:-1])].astype(np.uint64), _diagonal_root(q.sigmas()),
-                      (m > 0) & (a > 1e-9)))
-        slots.append((np.full(n_nodes, h_key, np.uint64), _diagonal_root(tie.sigmas()) if free_z else np.eye(6),
-                      np.full(n_nodes, free_z)))
-        first = np.stack([f for f, _, _ in slots], 1)
-        W = np.stack([np.broadcast_to(w, (n_nodes, 6, 6)) for _, w, _ in slots], 1)
-        on = np.stack([o for _, _, o in slots], 1)
-        second = np.broadcast_to(np.asarray(symbols("a", m), np.uint64)[:, None], on.shape)
-        kept.between(first[on], second[on], np.eye(3), np.zeros(3), W[on])
     return k_of[use], node_of, n_nodes, a > 1e-9, free_z
 
 

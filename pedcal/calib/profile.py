@@ -379,7 +379,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
                  plain=None, plain0=None, previous: ProfileStep | None = None,
                  order: np.ndarray | None = None, residuals=None, footprint: dict | None = None,
                  local: np.ndarray | None = None, factor_rows: np.ndarray | None = None,
-                 obs_linear=None, fixed_linear=None) -> ProfileStep:
+                 obs_linear=None) -> ProfileStep:
     """The profile of ``nuisances`` at ``theta`` around ``values``. ``fixed``: the factors theta
     does not enter; ``observations(theta, sigma_scale)``: the factors it enters, built at that
     theta with their robust kernels (``sigma_scale`` None) or with each factor's sigmas scaled
@@ -440,10 +440,6 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     instead of ``obs0``'s, which may then be None; not asked when the first step's order is
     computed here (from the linearized blocks).
 
-    ``fixed_linear()``: likewise, optionally, ``fixed``'s linearization at ``values`` as (A, b) in
-    ``cols`` (:meth:`pedcal.calib.graph.GraphParts.linearized`), or None where it cannot be made
-    (``fixed`` is then linearized).
-
     M = A Z - B (rows x k) is never formed: with N Z = A^T B, M^T M = B^T B - (A^T B)^T Z and
     M^T r = Z^T A^T r - B^T r."""
     cols = cols or Columns.of(values)
@@ -465,8 +461,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
             lin.push_back(g)
         return sparse_system(g, cols)
 
-    made = fixed_linear() if fixed_linear is not None and lin is None else None
-    A_f, b_f = made if made is not None else linear(fixed)
+    A_f, b_f = linear(fixed)
     if obs_linear is not None and lin is None:
         A_o, b_o0 = obs_linear()
     else:
