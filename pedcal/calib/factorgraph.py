@@ -482,22 +482,21 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     rec = prob.recipe
     if not _profiled(rec):
         return None
-    # the observation block at the solution the steps are linearized at: the one ``parts`` holds was
-    # built before the solve (build_parts: its noise ranges read at the measured points;
-    # rebuild_parts: at the solution before), while the right-hand sides (ObservationRhs) read them
-    # at the points ``result`` predicts, so the first step's A and b were whitened unlike its B
     if parts.blocks["observations"].size() == 0 and not parts.ordering_awaits_observations:
         # (a rebuild that left the block empty: an ordering kept from it would lack the people)
         parts.ordering = None
     parts.ordering_awaits_observations = False
-    # the block's terms at ``result``; its factors are made when asked for (``block()``: the
-    # selection of the head profile, an ordering not kept, people, the final graph), the steps
-    # take its linearization from the terms (ObservationRhs.linearized): the factors of a block
-    # nobody asks for (60 000 at 1000 sensors, 0.14 s a block) are not made
     # each sensor's clock offset (pedcal.calib.clocks), first: it sets the head's velocity at ``result``,
     # which the observation terms' clock-shift regressors read (read after them, the first step of a second
     # pass would take A, b and the robust weights at the pass before's velocity, its B at this one's)
     clocks = clock_nuisances(prob, result)
+    # the observation block's terms at the solution the steps are linearized at (the block ``parts``
+    # holds was built before the solve, its noise ranges read elsewhere: its A and b would be whitened
+    # unlike the right-hand sides' B, which ObservationRhs reads at the points ``result`` predicts);
+    # its factors are made when asked for (``block()``: the selection of the head profile, an ordering
+    # not kept whose block was not held, people, the final graph), the steps take its linearization
+    # from the terms (ObservationRhs.linearized): the factors of a block nobody asks for (60 000 at
+    # 1000 sensors, 0.14 s a block) are not made
     obs_terms = block_terms = observation_terms(log, prob, result)
     built, motion_fresh = None, True
 
@@ -611,7 +610,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             residuals=lambda th, scale, f=rhs, nm=every: f(dict(zip(nm, th, strict=True)), scale),
             footprint=footprint, local=local_cols, factor_rows=rhs.factor_rows(),
             # (the block's linearization made from its terms; GTSAM's where they cannot make it)
-            obs_linear=lambda f=rhs, r=result: _linearized(f, cols, block, r))
+            obs_linear=lambda f=rhs: _linearized(f, cols, block))
         if not chord:
             full_step = step
         if considered and not chord:
@@ -705,6 +704,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             zip(names, theta, step.dtheta, np.sqrt(np.diag(step.covariance)), strict=True)))
         for name, v in zip(names, theta, strict=True):
             setattr(prob, name, float(v))
+        motion_fresh = not odo          # (the odometry's block at the new corrections made when asked for)
         # the variables at the linearized optimum for the new shifts: z0 + Z dtheta
         delta = step.z0 + step.Z @ step.dtheta
         if step.local is not None:
@@ -734,7 +734,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
             obs_terms = block_terms = observation_terms(log, prob, result)
-            motion_fresh = not odo          # (the odometry's block at the new corrections made when asked for)
         if converged:
             break
     else:
@@ -776,12 +775,12 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                        ordering=parts.colamd() if final_graph else None)
 
 
-def _linearized(rhs: ObservationRhs, cols, block, values: gtsam.Values):
-    """The observation block of ``rhs``'s terms linearized at ``values`` as (A, b) in ``cols``:
-    made from the terms (:meth:`ObservationRhs.linearized`), else GTSAM's linearization of
-    ``block()`` (made of the same terms)."""
+def _linearized(rhs: ObservationRhs, cols, block):
+    """The observation block of ``rhs``'s terms linearized at ``rhs.values`` (those the terms were
+    read at) as (A, b) in ``cols``: made from the terms (:meth:`ObservationRhs.linearized`), else
+    GTSAM's linearization of ``block()`` (made of the same terms)."""
     made = rhs.linearized(cols)
-    return made if made is not None else sparse_system(block().linearize(values), cols)
+    return made if made is not None else sparse_system(block().linearize(rhs.values), cols)
 
 
 def _unmodelled_curvature(step, chi2: float):

@@ -1074,12 +1074,18 @@ def observation_block_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Va
     return observation_graph(prob, terms), terms
 
 
+def _head_prior(terms: ObservationTerms) -> gtsam.PriorFactorPose3:
+    """The head offset's prior factor the observation block leads with (``terms.prior``: its
+    mean and sigmas)."""
+    return gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))
+
+
 def observation_graph(prob: FactorGraphProblem, terms: ObservationTerms) -> gtsam.NonlinearFactorGraph:
     """The observation block's factors made from its :class:`ObservationTerms` (what
     :func:`observation_block_terms` builds)."""
     graph = gtsam.NonlinearFactorGraph()
     if terms.prior is not None:
-        graph.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
+        graph.add(_head_prior(terms))
     n = len(terms.sensor)
     if not n:
         return graph
@@ -1130,8 +1136,9 @@ class ObservationRhs:
 
     ``terms``: the block's :class:`ObservationTerms` as :func:`observation_block_terms` made them
     at these ``values`` and ``t_max`` with the problem's present ray shift (what is read at the
-    values is taken from them, not read again; other terms raise ValueError). They, or those read
-    here without them, are kept (``terms``) for :meth:`linearized`."""
+    values is taken from them, not read again; other terms raise ValueError). They are kept
+    (``terms``) for :meth:`linearized`; those read here without them lack the robot's predicted
+    points, so that :meth:`linearized` leaves such a block to GTSAM."""
 
     def __init__(self, log: Log, prob: FactorGraphProblem, values: gtsam.Values, *, t_max: float | None = None,
                  terms: ObservationTerms | None = None):
@@ -1204,7 +1211,7 @@ class ObservationRhs:
         blocks = []
         if terms.prior is not None:
             prior = gtsam.NonlinearFactorGraph()
-            prior.add(gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1])))
+            prior.add(_head_prior(terms))
             blocks.append(sparse_system(prior.linearize(self.values), cols))
         if n:
             R_s = terms.robot_points[1]                          # each factor's sensor rotation
@@ -1269,7 +1276,7 @@ class ObservationRhs:
                                   people_regressors=self.people_regressors)
         rows = []
         if terms.prior is not None:
-            prior = gtsam.PriorFactorPose3(H(0), terms.prior[0], gtsam.noiseModel.Diagonal.Sigmas(terms.prior[1]))
+            prior = _head_prior(terms)
             rows.append(-prior.whitenedError(self.values))
         if len(terms.sensor):
             rows.append((-self._errors(terms) / terms.sigmas(self.prob.recipe, self._unscaled_sigmas)).ravel())

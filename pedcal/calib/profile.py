@@ -376,7 +376,7 @@ def takes_chord(previous: ProfileStep | None, local) -> bool:
 def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.Values, theta: np.ndarray,
                  nuisances: list[Nuisance], cols: Columns | None = None, obs0=None,
                  kernel: tuple[str, float] = ("none", 0.0), plain_leading: int = 0,
-                 plain=None, plain0=None, previous: ProfileStep | None = None,
+                 plain=None, previous: ProfileStep | None = None,
                  order: np.ndarray | None = None, residuals=None, footprint: dict | None = None,
                  local: np.ndarray | None = None, factor_rows: np.ndarray | None = None,
                  obs_linear=None) -> ProfileStep:
@@ -393,12 +393,12 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
 
     ``plain``: optionally ``(build(theta), indices)``, factors without a robust kernel that only
     the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
-    for those nuisances alone, the observations for the others; ``plain0``: those factors at
-    ``theta`` when already built. A third element ``residuals(theta)``, their linearization's
-    right-hand side at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds;
-    a fourth, ``linear()``, their linearization at ``values`` and ``theta`` as (A, b) in ``cols``
-    (:meth:`pedcal.calib.graph.MotionRhs.linearized`), is taken instead of ``plain0``'s (not
-    when the first step's order is computed here).
+    for those nuisances alone, the observations for the others. A third element
+    ``residuals(theta)``, their linearization's right-hand side at ``values``
+    (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds; a fourth, ``linear()``, their
+    linearization at ``values`` and ``theta`` as (A, b) in ``cols``
+    (:meth:`pedcal.calib.graph.MotionRhs.linearized`), is taken instead of GTSAM's linearization
+    of ``build(theta)`` (not when the first step's order is computed here).
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
     its Hessian and sensitivity Z are kept and only the variables' step z0 and the gradient (B's
@@ -469,7 +469,7 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
         A_o, b_o0 = linear(obs0)
     if plain_build is not None:
         A_p, b_p0 = (plain_linear() if plain_linear is not None and lin is None
-                     else linear(plain0 if plain0 is not None else plain_build(theta)))
+                     else linear(plain_build(theta)))
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
     mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
