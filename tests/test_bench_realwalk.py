@@ -90,21 +90,23 @@ def test_a_log_in_two_saved_runs_is_refused(tmp_path):
 
 
 def test_the_split_pools_the_calibrated_sensors_with_an_error():
-    # four sensors of a network of five (s4 not evaluated), independent 10 mm per axis: s2 not
-    # calibrated and s3 without an error are left out, so the mean of s0 and s1 is the shared
-    # part, its sigma 10 / sqrt(2) mm, and each departure +-half their difference, its sigma
-    # 10 sqrt(1 - 1 / 2) mm
-    ids = ["s0", "s1", "s2", "s3", "s4"]
+    # four sensors of a network of five (s4 not evaluated): s2, first in the network, not
+    # calibrated and s3 without an error are left out, so the shared part is the mean of s0 and
+    # s1, which sit at the network's rows 1 and 2 (10 and 20 mm per axis, independent): its sigma
+    # sqrt(10^2 + 20^2) / 2 mm, and each departure +-half their difference, the same sigma; read
+    # from rows 0 and 1 (10 mm each) it would be 10 / sqrt(2) mm
+    ids = ["s2", "s0", "s1", "s3", "s4"]
     status = {"s0": "ok", "s1": None, "s2": "not_calibrated", "s3": "ok", "s4": "ok"}
     network = type("Net", (), {"ids": ids, "__getitem__": lambda self, k: SimpleNamespace(status=status[k])})()
     err_mm = {"s0": [30.0, -10.0, 5.0], "s1": [10.0, 10.0, 0.0], "s2": [900.0, 900.0, 0.0],
               "s3": [np.nan, 0.0, 0.0]}
     ev = SimpleNamespace(sensors=[SimpleNamespace(id=k, position_error_mm=np.array(v)) for k, v in err_mm.items()])
     cov = np.eye(15) * 0.01 ** 2
+    cov[6:9, 6:9] = np.eye(3) * 0.02 ** 2
+    sigma = np.sqrt(0.01 ** 2 + 0.02 ** 2) / 2.0
     shared, rest = shared_rest_parts(ev, network, cov)
-    np.testing.assert_allclose(shared, np.array([0.020, 0.0]) / (0.01 / np.sqrt(2.0)), rtol=1e-9, atol=1e-12)
-    half = 0.01 * np.sqrt(0.5)
-    np.testing.assert_allclose(rest, np.array([[0.010, -0.010], [-0.010, 0.010]]) / half, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(shared, np.array([0.020, 0.0]) / sigma, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(rest, np.array([[0.010, -0.010], [-0.010, 0.010]]) / sigma, rtol=1e-9, atol=1e-12)
     # without the joint covariance: nothing to split
     shared, rest = shared_rest_parts(ev, network, None)
     assert shared.shape == (0,) and rest.shape == (0, 2)
