@@ -11,7 +11,9 @@ in each scenario and seed, with the nuisance zoo drawn from the seed
         [--save FILE] [--from-results FILE ...] # keep the per-log results; print earlier runs' pooled
 
 Per recording and scenario, over the seeds: the sensors' horizontal position RMS (mm, on the
-evaluation log, ``pedcal.metrics.evaluate``) of the factor graph and of the grid search and their
+evaluation log, ``pedcal.metrics.evaluate``) of the factor graph and of the grid search, each with
+the sensors it left out of that RMS in brackets (not evaluated, or without a finite error: the
+RMS alone would reward a miss; '?' for runs saved before they were counted), and their
 ratio, and the share (%) of the factor graph's per-axis errors (x, y, z world axes, every sensor
 of every seed) within 1 reported sigma (a sensor not calibrated or without a sigma counts as a
 miss; the grid search reports no sigma) and, beside it, per axis the RMS of the finite
@@ -53,7 +55,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_factorgraph_nuisances import by_seed, recipe_overrides, shared_and_rest_z, sigma_ratios  # noqa: E402
+from bench_factorgraph_nuisances import (  # noqa: E402
+    by_seed,
+    missed_text,
+    recipe_overrides,
+    shared_and_rest_z,
+    sigma_ratios,
+)
 
 from pedcal.calib import calibrate  # noqa: E402
 from pedcal.calib.amcl_model import AmclErrorModel  # noqa: E402
@@ -102,7 +110,9 @@ def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None
         ev = evaluate(sim.eval, res.network)
         E = np.array([s.position_error_mm for s in ev.sensors], float).reshape(-1, 3)
         E = E[np.all(np.isfinite(E), axis=1)]
-        out[method] = dict(sq_xy=np.sum(E[:, :2] ** 2, axis=1), cpu_s=cpu)
+        # the sensors the RMS leaves out: not evaluated at all, or without a finite error
+        out[method] = dict(sq_xy=np.sum(E[:, :2] ** 2, axis=1), cpu_s=cpu,
+                           missed=len(ev.missing_sensors) + len(ev.sensors) - len(E))
         if method == "factorgraph":
             out["ratios"] = error_sigma_ratios(ev, res.network)
             out["z_shared"], out["z_rest"] = shared_rest_parts(ev, res.network, res.position_covariance_m2)
@@ -124,7 +134,9 @@ def _row(name: str, runs: list[dict]) -> str:
     # error across scenarios
     within, ratio_rms = sigma_honesty(by_seed(runs))
     return (f"| {name} | {len(runs)} ({within.logs}) | {within.rows} ({within.misses}) | "
-            f"{rms['factorgraph']:.1f} | {rms['gridsearch']:.1f} | {rms['factorgraph'] / rms['gridsearch']:.2f} | "
+            f"{rms['factorgraph']:.1f} ({missed_text(runs, 'factorgraph')}) | "
+            f"{rms['gridsearch']:.1f} ({missed_text(runs, 'gridsearch')}) | "
+            f"{rms['factorgraph'] / rms['gridsearch']:.2f} | "
             f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(ratio_rms, digits=2, unit='seeds')} | "
             f"{shared_rest_text(runs)} | {truth_z_text(runs)} |")
 
