@@ -33,8 +33,9 @@ AMCL's true run-mean error over the exact std of an OU mean with the simulator's
 (2 sigma^2 tau / T (1 - tau / T (1 - e^-T/tau))): the truth's own draw of what anchors the network
 to the map, whatever the graph (1 in RMS over many seeds; logs whose AMCL family is
 ``correlated`` only: a relocalization's or a jump's offset adds to the run mean beyond the OU,
-and the graph moves those back). A shared part over its sigma that follows the truth's draw is
-the draw, not the sigma. Then the graph's calibrate()
+and the graph moves those back), one value per scenario and seed: the recordings' logs of it
+share its AMCL draw, so "(draws)" counts independent draws, not logs. A shared part over its
+sigma that follows the truth's draw is the draw, not the sigma. Then the graph's calibrate()
 CPU time (s, time.process_time) summed, and the load average at the start and the end. A
 recording missing from the shared data folder is said and skipped (the simulator would fall back
 to built-in walkers).
@@ -156,9 +157,14 @@ def shared_rest_text(runs: list[dict]) -> str:
 
 
 def truth_z_text(runs: list[dict]) -> str:
-    """'x / y (n)': the RMS over ``runs``' logs of AMCL's true run mean over its exact OU std
-    (:func:`amcl_truth_z`), n the logs it has (family ``correlated``); '-' without any."""
-    z = np.array([r.get("amcl_truth_z", np.full(2, np.nan)) for r in runs], float).reshape(-1, 2)
+    """'x / y (n)': the RMS over ``runs`` of AMCL's true run mean over its exact OU std
+    (:func:`amcl_truth_z`), one value per (scenario, seed): the recordings' logs of a scenario and
+    seed share its AMCL draw (the walkers change the people seen, not the robot's path), so n
+    counts independent draws, not logs (family ``correlated`` only); '-' without any."""
+    draws = {}
+    for r in runs:
+        draws.setdefault((r["scenario"], r["seed"]), r.get("amcl_truth_z", np.full(2, np.nan)))
+    z = np.array(list(draws.values()), float).reshape(-1, 2)
     z = z[np.all(np.isfinite(z), axis=1)]
     return f"{_rms_xy(z)} ({len(z)})" if len(z) else "-"
 
