@@ -23,7 +23,8 @@ within 1 sigma alone would reward), each with its 90 % interval from a bootstrap
 it shares, much of it across scenarios, and the sensors of a log share it: a figure of few seeds
 is uncertain however many sensors it pools; "logs (seeds)" counts both; "sensors (missed)" counts
 the graph's sensors the ratios pool and, in brackets, those it missed, which the RMS leaves out:
-a method that drops sensors shows it there); a last row pools every log, and with
+a method that drops sensors shows it there); a last row pools every log (a row without logs, as
+when saved runs pooled do not cover every recording and scenario, is left out), and with
 ``--by-scenario`` rows pool each scenario over the recordings, with ``--by-seed`` each seed over
 the recordings and scenarios (a seed is one draw of what every sensor of its logs shares).
 Beside them, per axis x / y: the RMS of the horizontal error over its sigma split into the
@@ -242,22 +243,25 @@ def print_table(results: list[dict], recordings: list[str], scenarios: list[str]
                 by_seed: bool = False) -> None:
     """The table: a row per recording and scenario, per scenario (``by_scenario``), per seed
     (``by_seed``), all pooled."""
-    print("| recording / scenario | logs (seeds) | graph's sensors (missed) | graph xy RMS (mm) | "
-          "grid search xy RMS (mm) | graph / grid | "
+    print("| recording / scenario | logs (seeds) | graph's sensors (missed) | graph xy RMS (mm) (missed) | "
+          "grid search xy RMS (mm) (missed) | graph / grid | "
           "graph within 1 sigma x / y / z (%) [90 % over seeds] | "
           "graph error / sigma RMS x / y / z [90 % over seeds] | "
-          "graph error / sigma RMS, shared x / y ; rest x / y | AMCL's true run mean / exact OU std RMS x / y (logs) |")
+          "graph error / sigma RMS, shared x / y ; rest x / y | "
+          "AMCL's true run mean / exact OU std RMS x / y (draws) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for rec in recordings:
-        for sc in scenarios:
-            print(_row(f"{rec} / {sc}", [r for r in results if r["recording"] == rec and r["scenario"] == sc]))
+    rows = [(f"{rec} / {sc}", [r for r in results if r["recording"] == rec and r["scenario"] == sc])
+            for rec in recordings for sc in scenarios]
     if by_scenario:
-        for sc in scenarios:
-            print(_row(f"all / {sc}", [r for r in results if r["scenario"] == sc]))
+        rows += [(f"all / {sc}", [r for r in results if r["scenario"] == sc]) for sc in scenarios]
     if by_seed:
-        for seed in sorted({r["seed"] for r in results}):
-            print(_row(f"seed {seed}", [r for r in results if r["seed"] == seed]))
-    print(_row("all", results))
+        rows += [(f"seed {seed}", [r for r in results if r["seed"] == seed])
+                 for seed in sorted({r["seed"] for r in results})]
+    rows.append(("all", results))
+    # (saved runs pooled need not cover every recording x scenario: a row without logs is left out)
+    for name, runs in rows:
+        if runs:
+            print(_row(name, runs))
 
 
 if __name__ == "__main__":

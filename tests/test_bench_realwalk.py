@@ -15,8 +15,10 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from bench_realwalk import (  # noqa: E402
+    _row,
     amcl_truth_z,
     load_results,
+    print_table,
     shared_rest_parts,
     shared_rest_text,
     truth_z_text,
@@ -64,6 +66,34 @@ def test_the_truth_z_leaves_out_logs_without_it():
     runs = [_run(0, amcl_truth_z=np.array([2.0, -1.0])), _run(1, amcl_truth_z=np.full(2, np.nan)),
             _run(2, amcl_truth_z=np.array([0.0, 1.0]))]
     assert truth_z_text(runs) == f"{np.sqrt(2.0):.2f} / 1.00 (2)"
+
+
+def test_the_truth_z_counts_each_scenario_and_seeds_draw_once():
+    # the three recordings' logs of (paper, 0) share one AMCL draw: one value, not three
+    runs = [_run(0, rec=rec, amcl_truth_z=np.array([3.0, 0.0])) for rec in ("atc", "eth_ucy", "thor")]
+    runs += [_run(0, "cross", amcl_truth_z=np.array([1.0, 2.0])), _run(1, amcl_truth_z=np.array([0.0, 0.0]))]
+    assert truth_z_text(runs) == f"{np.sqrt(10.0 / 3.0):.2f} / {np.sqrt(4.0 / 3.0):.2f} (3)"
+
+
+def _full_run(seed: int, scenario: str = "paper", rec: str = "atc", missed: int | None = 0) -> dict:
+    # two sensors' squared horizontal errors 3^2 + 4^2 mm^2 for the graph, twice that for the grid
+    extra = {} if missed is None else {"missed": missed}
+    return _run(seed, scenario, rec, factorgraph=dict(sq_xy=np.array([25.0, 25.0]), cpu_s=1.0, **extra),
+                gridsearch=dict(sq_xy=np.array([100.0, 100.0]), cpu_s=1.0, **extra),
+                ratios=np.full((2, 3), 0.5), amcl_truth_z=np.full(2, np.nan))
+
+
+def test_each_rms_shows_the_sensors_it_left_out():
+    row = _row("all", [_full_run(0, missed=1), _full_run(1, missed=2)])
+    assert "| 5.0 (3) | 10.0 (3) | 0.50 |" in row
+    # runs saved before the misses were counted: '?', not 0
+    assert "| 5.0 (?) | 10.0 (?) | 0.50 |" in _row("all", [_full_run(0, missed=None), _full_run(1)])
+
+
+def test_pooled_runs_that_miss_a_recording_and_scenario_print_only_rows_with_logs(capsys):
+    print_table([_full_run(0), _full_run(1)], ["atc", "eth_ucy"], ["paper", "cross"], by_scenario=True, by_seed=True)
+    names = [line.split(" | ")[0].lstrip("| ") for line in capsys.readouterr().out.splitlines()[2:]]
+    assert names == ["atc / paper", "all / paper", "seed 0", "seed 1", "all"]
 
 
 def _save(path: Path, runs: list[dict], scenarios: list[str]) -> str:
