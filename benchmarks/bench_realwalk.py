@@ -164,7 +164,8 @@ def truth_z_text(runs: list[dict]) -> str:
     counts independent draws, not logs (family ``correlated`` only); '-' without any."""
     draws = {}
     for r in runs:
-        draws.setdefault((r["scenario"], r["seed"]), r.get("amcl_truth_z", np.full(2, np.nan)))
+        if "amcl_truth_z" in r:
+            draws.setdefault((r["scenario"], r["seed"]), r["amcl_truth_z"])
     z = np.array(list(draws.values()), float).reshape(-1, 2)
     z = z[np.all(np.isfinite(z), axis=1)]
     return f"{_rms_xy(z)} ({len(z)})" if len(z) else "-"
