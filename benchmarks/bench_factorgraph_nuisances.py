@@ -13,7 +13,9 @@ one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalization
         [--save FILE] [--from-results FILE]   # keep the per-log results; print an earlier run's
 
 Per scenario (means over seeds): sensor position RMS of the factor graph and of the grid search
-(3-D and horizontal, mm; evaluated on the evaluation log, pedcal.metrics.evaluate), their ratio;
+(3-D and horizontal, mm; evaluated on the evaluation log, pedcal.metrics.evaluate), each with the
+sensors it missed in brackets (not evaluated, or without a finite error: left out of its RMS,
+which alone would reward a miss; '?' for runs saved before they were counted), their ratio;
 the norm of AMCL's error averaged over the calibration run (the error every calibration anchored
 to AMCL shares, from the simulator's truth) and each method's horizontal RMS with it taken out,
 and with the best common 2-D rigid transform of the whole network taken out (Kabsch: the
@@ -27,7 +29,8 @@ part (which the robot cannot tell from the sensors' heights), its RMS over seeds
 seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time;
 the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <= 12 mm and
 <= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
-mounts, AMCL): logs, horizontal RMS mean and worst, graph / grid, and the per-sensor clock
+mounts, AMCL): logs, horizontal RMS mean and worst (the graph's sensors missed beside it), graph /
+grid (the grid search's sensors missed beside it), and the per-sensor clock
 offsets' error about their mean (RMS) and the share within 1 and 2 sigma (the sigma's honesty per
 family is in the table below).
 On the L-shaped hall, each wing's mean error along x and y over its sigma (the wings share no
@@ -535,7 +538,7 @@ def family_groups(results: list[dict]) -> list[tuple[str, list[dict]]]:
 def print_families(results: list[dict]) -> None:
     """The figures split by the family each zoo nuisance fell in (all scenarios pooled); the
     sigma's honesty per family is in :func:`print_honesty`'s table."""
-    print("\n| family | logs | graph xy RMS mean / worst (mm) | graph / grid xy | "
+    print("\n| family | logs | graph xy RMS mean / worst (mm) (missed) | graph / grid xy (grid's missed) | "
           "clock offsets: error RMS (ms), within 1 / 2 sigma (%) |")
     print("|---|---|---|---|---|")
     for name, rs in family_groups(results):
@@ -544,8 +547,9 @@ def print_families(results: list[dict]) -> None:
         err = np.concatenate([r.get("clock_err_s", np.zeros(0)) for r in rs])
         clock = (f"{1000 * np.sqrt(np.mean(err ** 2)):.1f}, {100 * np.mean(np.abs(z) <= 1):.0f} / "
                  f"{100 * np.mean(np.abs(z) <= 2):.0f}" if len(z) else "-")
-        print(f"| {name} | {len(rs)} | {xy[:, 0].mean():.1f} / {xy[:, 0].max():.1f} | "
-              f"{xy[:, 1].mean():.2f} | {clock} |")
+        print(f"| {name} | {len(rs)} | {xy[:, 0].mean():.1f} / {xy[:, 0].max():.1f} "
+              f"({missed_text(rs, 'factorgraph')}) | "
+              f"{xy[:, 1].mean():.2f} ({missed_text(rs, 'gridsearch')}) | {clock} |")
 
 
 def print_shared(groups: list[tuple[str, list[dict]]]) -> None:

@@ -11,7 +11,9 @@ in each scenario and seed, with the nuisance zoo drawn from the seed
         [--save FILE] [--from-results FILE ...] # keep the per-log results; print earlier runs' pooled
 
 Per recording and scenario, over the seeds: the sensors' horizontal position RMS (mm, on the
-evaluation log, ``pedcal.metrics.evaluate``) of the factor graph and of the grid search and their
+evaluation log, ``pedcal.metrics.evaluate``) of the factor graph and of the grid search, each with
+the sensors it left out of that RMS in brackets (not evaluated, or without a finite error: the
+RMS alone would reward a miss; '?' for runs saved before they were counted), and their
 ratio, and the share (%) of the factor graph's per-axis errors (x, y, z world axes, every sensor
 of every seed) within 1 reported sigma (a sensor not calibrated or without a sigma counts as a
 miss; the grid search reports no sigma) and, beside it, per axis the RMS of the finite
@@ -21,7 +23,8 @@ within 1 sigma alone would reward), each with its 90 % interval from a bootstrap
 it shares, much of it across scenarios, and the sensors of a log share it: a figure of few seeds
 is uncertain however many sensors it pools; "logs (seeds)" counts both; "sensors (missed)" counts
 the graph's sensors the ratios pool and, in brackets, those it missed, which the RMS leaves out:
-a method that drops sensors shows it there); a last row pools every log, and with
+a method that drops sensors shows it there); a last row pools every log (a row without logs, as
+when saved runs pooled do not cover every recording and scenario, is left out), and with
 ``--by-scenario`` rows pool each scenario over the recordings, with ``--by-seed`` each seed over
 the recordings and scenarios (a seed is one draw of what every sensor of its logs shares).
 Beside them, per axis x / y: the RMS of the horizontal error over its sigma split into the
@@ -31,8 +34,9 @@ AMCL's true run-mean error over the exact std of an OU mean with the simulator's
 (2 sigma^2 tau / T (1 - tau / T (1 - e^-T/tau))): the truth's own draw of what anchors the network
 to the map, whatever the graph (1 in RMS over many seeds; logs whose AMCL family is
 ``correlated`` only: a relocalization's or a jump's offset adds to the run mean beyond the OU,
-and the graph moves those back). A shared part over its sigma that follows the truth's draw is
-the draw, not the sigma. Then the graph's calibrate()
+and the graph moves those back), one value per scenario and seed: the recordings' logs of it
+share its AMCL draw, so "(draws)" counts independent draws, not logs. A shared part over its
+sigma that follows the truth's draw is the draw, not the sigma. Then the graph's calibrate()
 CPU time (s, time.process_time) summed, and the load average at the start and the end. A
 recording missing from the shared data folder is said and skipped (the simulator would fall back
 to built-in walkers).
@@ -53,7 +57,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_factorgraph_nuisances import by_seed, recipe_overrides, shared_and_rest_z, sigma_ratios  # noqa: E402
+from bench_factorgraph_nuisances import (  # noqa: E402
+    by_seed,
+    missed_text,
+    recipe_overrides,
+    shared_and_rest_z,
+    sigma_ratios,
+)
 
 from pedcal.calib import calibrate  # noqa: E402
 from pedcal.calib.amcl_model import AmclErrorModel  # noqa: E402
@@ -102,7 +112,9 @@ def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None
         ev = evaluate(sim.eval, res.network)
         E = np.array([s.position_error_mm for s in ev.sensors], float).reshape(-1, 3)
         E = E[np.all(np.isfinite(E), axis=1)]
-        out[method] = dict(sq_xy=np.sum(E[:, :2] ** 2, axis=1), cpu_s=cpu)
+        # the sensors the RMS leaves out: not evaluated at all, or without a finite error
+        out[method] = dict(sq_xy=np.sum(E[:, :2] ** 2, axis=1), cpu_s=cpu,
+                           missed=len(ev.missing_sensors) + len(ev.sensors) - len(E))
         if method == "factorgraph":
             out["ratios"] = error_sigma_ratios(ev, res.network)
             out["z_shared"], out["z_rest"] = shared_rest_parts(ev, res.network, res.position_covariance_m2)
@@ -124,7 +136,9 @@ def _row(name: str, runs: list[dict]) -> str:
     # error across scenarios
     within, ratio_rms = sigma_honesty(by_seed(runs))
     return (f"| {name} | {len(runs)} ({within.logs}) | {within.rows} ({within.misses}) | "
-            f"{rms['factorgraph']:.1f} | {rms['gridsearch']:.1f} | {rms['factorgraph'] / rms['gridsearch']:.2f} | "
+            f"{rms['factorgraph']:.1f} ({missed_text(runs, 'factorgraph')}) | "
+            f"{rms['gridsearch']:.1f} ({missed_text(runs, 'gridsearch')}) | "
+            f"{rms['factorgraph'] / rms['gridsearch']:.2f} | "
             f"{format_clustered(within, 100, unit='seeds')} | {format_clustered(ratio_rms, digits=2, unit='seeds')} | "
             f"{shared_rest_text(runs)} | {truth_z_text(runs)} |")
 
@@ -144,9 +158,15 @@ def shared_rest_text(runs: list[dict]) -> str:
 
 
 def truth_z_text(runs: list[dict]) -> str:
-    """'x / y (n)': the RMS over ``runs``' logs of AMCL's true run mean over its exact OU std
-    (:func:`amcl_truth_z`), n the logs it has (family ``correlated``); '-' without any."""
-    z = np.array([r.get("amcl_truth_z", np.full(2, np.nan)) for r in runs], float).reshape(-1, 2)
+    """'x / y (n)': the RMS over ``runs`` of AMCL's true run mean over its exact OU std
+    (:func:`amcl_truth_z`), one value per (scenario, seed): the recordings' logs of a scenario and
+    seed share its AMCL draw (the walkers change the people seen, not the robot's path), so n
+    counts independent draws, not logs (family ``correlated`` only); '-' without any."""
+    draws = {}
+    for r in runs:
+        if "amcl_truth_z" in r:
+            draws.setdefault((r["scenario"], r["seed"]), r["amcl_truth_z"])
+    z = np.array(list(draws.values()), float).reshape(-1, 2)
     z = z[np.all(np.isfinite(z), axis=1)]
     return f"{_rms_xy(z)} ({len(z)})" if len(z) else "-"
 
@@ -224,22 +244,25 @@ def print_table(results: list[dict], recordings: list[str], scenarios: list[str]
                 by_seed: bool = False) -> None:
     """The table: a row per recording and scenario, per scenario (``by_scenario``), per seed
     (``by_seed``), all pooled."""
-    print("| recording / scenario | logs (seeds) | graph's sensors (missed) | graph xy RMS (mm) | "
-          "grid search xy RMS (mm) | graph / grid | "
+    print("| recording / scenario | logs (seeds) | graph's sensors (missed) | graph xy RMS (mm) (missed) | "
+          "grid search xy RMS (mm) (missed) | graph / grid | "
           "graph within 1 sigma x / y / z (%) [90 % over seeds] | "
           "graph error / sigma RMS x / y / z [90 % over seeds] | "
-          "graph error / sigma RMS, shared x / y ; rest x / y | AMCL's true run mean / exact OU std RMS x / y (logs) |")
+          "graph error / sigma RMS, shared x / y ; rest x / y | "
+          "AMCL's true run mean / exact OU std RMS x / y (draws) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for rec in recordings:
-        for sc in scenarios:
-            print(_row(f"{rec} / {sc}", [r for r in results if r["recording"] == rec and r["scenario"] == sc]))
+    rows = [(f"{rec} / {sc}", [r for r in results if r["recording"] == rec and r["scenario"] == sc])
+            for rec in recordings for sc in scenarios]
     if by_scenario:
-        for sc in scenarios:
-            print(_row(f"all / {sc}", [r for r in results if r["scenario"] == sc]))
+        rows += [(f"all / {sc}", [r for r in results if r["scenario"] == sc]) for sc in scenarios]
     if by_seed:
-        for seed in sorted({r["seed"] for r in results}):
-            print(_row(f"seed {seed}", [r for r in results if r["seed"] == seed]))
-    print(_row("all", results))
+        rows += [(f"seed {seed}", [r for r in results if r["seed"] == seed])
+                 for seed in sorted({r["seed"] for r in results})]
+    rows.append(("all", results))
+    # (saved runs pooled need not cover every recording x scenario: a row without logs is left out)
+    for name, runs in rows:
+        if runs:
+            print(_row(name, runs))
 
 
 if __name__ == "__main__":

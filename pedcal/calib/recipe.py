@@ -97,10 +97,12 @@ class GraphRecipe:
     # departures' marginal likelihood over it, every nuisance integrated out, its posterior's
     # root mean square taken, so its own uncertainty is carried) where the data determine three
     # or more sensors' own shift (seen from around); else head_shift_per_sensor_sigma_m, with a
-    # warning. The estimate is always reported in the head model's note; off by default, it
-    # is not used: on the zoo (paper, corridor, cross, 18 seeds) it finds ~1 mm on a plain head
-    # top and 10-18 mm on per-sensor head models, yet moves no sigma-honesty figure by more than
-    # 0.02 nor the horizontal RMS by more than 1 mm (README)
+    # warning (so too above clock_offsets_joint_max sensors, where it is not estimated). The
+    # estimate is always reported in the head model's note; off by default, it is not used: on
+    # the zoo (paper, corridor, cross, seeds 0-5) it finds 0-1 mm on a plain head top and
+    # 11-17 mm on per-sensor head models, yet on seeds 0-5 and 6-17 it moves the pooled
+    # error/sigma RMS by at most 0.02, a pooled within-1-sigma share by up to 3 points (x 72 ->
+    # 75 %, seeds 0-5) and the horizontal RMS by under 1 mm (README)
     head_shift_per_sensor_sigma_estimate: bool = False
     # the head point's height curving with the sensor's elevation e, curvature_m x cos^2(e) up
     # (a centroid of the head's top sits lowest seen from straight above or the side): off, on,
