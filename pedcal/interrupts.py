@@ -54,7 +54,7 @@ def _on_unraisable(unraisable) -> None:
         global _previous_alarm
         try:
             previous = signal.signal(signal.SIGALRM, _on_sigint)
-            if previous is not _on_sigint:
+            if previous is not _on_sigint and previous is not None:    # (None: set from C, not ours to give back)
                 _previous_alarm = previous
             signal.setitimer(signal.ITIMER_REAL, 0.001)
         except (ValueError, OSError, AttributeError):      # (main thread only; POSIX only)
@@ -100,11 +100,12 @@ def restore(previous) -> None:
     """The SIGINT handler and unraisable hook as before ``install``; a caller that lives on after
     a Ctrl-C (``main`` called from Python) gets its logging back and its next Ctrl-C announced."""
     global _announced, _logging_disabled, _previous_alarm
-    if _previous_alarm is not _NO_ALARM:      # the hook's alarm cancelled, SIGALRM's handler given back
-        with contextlib.suppress(ValueError, OSError, AttributeError):
+    with contextlib.suppress(ValueError, OSError, AttributeError):      # (main thread only; POSIX only)
+        if signal.getsignal(signal.SIGALRM) is _on_sigint:       # the hook's alarm cancelled, its handler given back
             signal.setitimer(signal.ITIMER_REAL, 0.0)
-            signal.signal(signal.SIGALRM, _previous_alarm)
-        _previous_alarm = _NO_ALARM
+            if _previous_alarm is not _NO_ALARM:
+                signal.signal(signal.SIGALRM, _previous_alarm)
+    _previous_alarm = _NO_ALARM
     _announced = False
     if _logging_disabled is not None:
         logging.disable(_logging_disabled)
