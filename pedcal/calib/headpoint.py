@@ -283,9 +283,11 @@ def spread_log_likelihood(H: np.ndarray, g: np.ndarray, theta: np.ndarray, prior
     K_inv_C = np.linalg.solve(K, C) if len(other) else np.zeros((0, len(own)))
     K_inv_g = np.linalg.solve(K, g[other]) if len(other) else np.zeros(0)
     s_eig, U = np.linalg.eigh(A0[np.ix_(own, own)] - C.T @ K_inv_C)
-    # (S is the data's part of a Gauss-Newton Hessian's Schur complement, positive semi-definite:
-    # an eigenvalue below 0 is rounding, which must not take log(s + lam) below its floor)
-    s_eig = np.maximum(s_eig, 0.0)
+    # (S is the data's part of a Gauss-Newton Hessian's Schur complement, positive semi-definite: an
+    # eigenvalue below 0 by rounding is 0; one well below is no such Hessian, and its likelihood NaN,
+    # which estimate_departure_spread reports as not estimated)
+    floor = -1e-9 * float(np.max(np.abs(s_eig), initial=0.0))
+    s_eig = np.where(s_eig >= floor, np.maximum(s_eig, 0.0), np.nan)
     c0 = U.T @ (g[own] - p0[own] * r[own] - C.T @ K_inv_g)
     r_eig = U.T @ r[own]
     tau = np.asarray(grid_m, float)
