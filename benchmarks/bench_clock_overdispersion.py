@@ -42,8 +42,9 @@ from pedcal.calib import calibrate, clocks
 from pedcal.sim import simulate_logs
 
 
-def captured_widening(scenario: str, seed: int) -> tuple[tuple, float]:
-    """(the arguments widen_for_overdispersion got in one calibration of the zoo log, its CPU s)."""
+def captured_widening(scenario: str, seed: int) -> tuple[tuple | None, float, int]:
+    """(the arguments widen_for_overdispersion got in one calibration of the zoo log, or None
+    without a widening; its CPU s; the widenings in the calibration)."""
     seen: dict = {}
     original = fgmod.widen_for_overdispersion
 
@@ -86,9 +87,9 @@ def captured_systems(args):
             yield f"{scenario} {seed}", system, cpu, calls
 
 
-def parts(step, nuis, rho: np.ndarray, blocks: np.ndarray, draws: int) -> dict:
+def parts(step, nuis, rho: np.ndarray, blocks: np.ndarray, draws: int) -> dict | None:
     """CPU s of each part of one offset_overdispersion call, its own steps taken in turn (the same
-    operations, in the same order)."""
+    operations, in the same order); None without offsets to widen."""
     from pedcal.calib.profile import _normal_solver
 
     out, c0 = {}, time.process_time()
@@ -99,6 +100,8 @@ def parts(step, nuis, rho: np.ndarray, blocks: np.ndarray, draws: int) -> dict:
         c0 = time.process_time()
     weights = clocks.efficient_weights(step, nuis, blocks)
     mark("weights")
+    if weights is None:           # (no clock offsets, or too few time blocks: nothing is widened)
+        return None
     solve = step.__dict__.get("_normal_solve")
     if solve is None:
         solve = _normal_solver(step.A, step.order)
@@ -128,6 +131,9 @@ def main_parts(args) -> None:
           + "---|" * (len(names) + 4))
     for label, (step, nuis, rho, blocks), cpu, calls in captured_systems(args):
         runs = [parts(step, nuis, rho, blocks, args.draws) for _ in range(args.repeats)]
+        if runs[0] is None:
+            print(f"| {label} | {calls} | no offsets or too few blocks |", flush=True)
+            continue
         best = {k: min(r.get(k, 0.0) for r in runs) for k in names}
         print(f"| {label} | {calls} | {'_normal_solve' in step.__dict__} | {1000 * cpu:.1f} | "
               + " | ".join(f"{1000 * best[k]:.1f}" for k in names) + " |", flush=True)
