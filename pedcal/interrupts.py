@@ -44,8 +44,9 @@ def _on_sigint(signum, frame):
 
 
 def _on_unraisable(unraisable) -> None:
-    """Our SystemExit raised where it cannot propagate (a weakref callback, ``__del__``): raise the
-    signal again for the handler to answer outside; anything else goes to the hook before us."""
+    """Our SystemExit raised where it cannot propagate (a weakref callback, ``__del__``): the same
+    handler fired again by a SIGALRM a millisecond on, to answer outside; anything else goes to the
+    hook before us."""
     exc = unraisable.exc_value
     if isinstance(exc, SystemExit) and exc.code == EXIT_INTERRUPTED and _announced:
         # not SIGINT now: its handler would run inside this hook (Python checks a signal sent to itself
