@@ -235,6 +235,32 @@ def shared_and_rest_z(E_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None, rows)
     return projected_z(E_xy_m, joint_cov_m2, np.kron(np.ones((n, 1)), np.eye(2)), rows)
 
 
+def error_sigma_ratios(ev, network) -> np.ndarray:
+    """(n_sensors + missing, 3) each sensor's |error| on each world axis over its reported sigma
+    (:func:`sigma_ratios`: a miss is inf), from an evaluation ``ev`` of ``network``."""
+    return sigma_ratios(network, [s.id for s in ev.sensors],
+                        [np.asarray(s.position_error_mm, float) / 1000.0 for s in ev.sensors],
+                        missing=len(ev.missing_sensors))
+
+
+def calibrated_with_error(ev, network) -> tuple[list, list[int]]:
+    """The evaluated sensors ``network`` calibrated (status ok) whose error is finite, and each
+    one's row in the network (its place in the joint covariance)."""
+    row_of = {sid: r for r, sid in enumerate(network.ids)}
+    kept = [s for s in ev.sensors
+            if (network[s.id].status or "ok") == "ok" and np.all(np.isfinite(s.position_error_mm))]
+    return kept, [row_of[s.id] for s in kept]
+
+
+def shared_rest_parts(ev, network, joint_cov_m2) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`shared_and_rest_z` over the sensors :func:`calibrated_with_error` keeps: (2,) their
+    mean horizontal error over its sigma and each one's departure over its (flat, x y per
+    sensor); empty without the joint covariance or with fewer than 2."""
+    kept, rows = calibrated_with_error(ev, network)
+    return shared_and_rest_z(np.array([s.position_error_mm[:2] for s in kept], float).reshape(-1, 2) / 1000.0,
+                             joint_cov_m2, rows)
+
+
 def stretch_fit(E_xy_m: np.ndarray, true_xy_m: np.ndarray, joint_cov_m2: np.ndarray | None,
                 rows) -> tuple[np.ndarray, np.ndarray]:
     """The horizontal errors ``E`` (n, 2) fitted (least squares) by a common shift and a stretch
@@ -297,9 +323,7 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
                            # sensors left out of the RMS: not in the extrinsics, or without a finite error
                            missed=len(ev.missing_sensors) + len(ev.sensors) - len(finite))
         if method == "factorgraph":
-            out["ratios"] = sigma_ratios(res.network, [s.id for s in ev.sensors],
-                                         [np.asarray(s.position_error_mm) / 1000.0 for s in ev.sensors],
-                                         missing=len(ev.missing_sensors))
+            out["ratios"] = error_sigma_ratios(ev, res.network)
             # signed errors and sigma (m, world axes) for a diagnosis from --save's file
             out["error_m"] = np.array([s.position_error_mm for s in ev.sensors], float).reshape(-1, 3) / 1000.0
             out["sigma_m"] = np.array([res.network[s.id].sigma_position_m if res.network[s.id].sigma_position_m
@@ -315,16 +339,12 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
                                          floor_m=model.floor_sigma_m(float(t.max() - t.min())),
                                          duration_s=float(t.max() - t.min()))
             # only calibrated sensors with an error, each with its own block of the covariance
-            row_of = {sid: r for r, sid in enumerate(res.network.ids)}
-            kept = [s for s in ev.sensors if (res.network[s.id].status or "ok") == "ok"
-                    and np.all(np.isfinite(s.position_error_mm))]
-            out["z_shared"], out["z_rest"] = shared_and_rest_z(
-                np.array([s.position_error_mm[:2] for s in kept]).reshape(-1, 2) / 1000.0,
-                res.position_covariance_m2, [row_of[s.id] for s in kept])
+            out["z_shared"], out["z_rest"] = shared_rest_parts(ev, res.network, res.position_covariance_m2)
+            kept, rows = calibrated_with_error(ev, res.network)
             if res.position_covariance_m2 is not None and len(kept) >= 3:
                 out["stretch"] = stretch_fit(np.array([s.position_error_mm[:2] for s in kept]) / 1000.0,
                                              np.array([sim.eval.truth[s.id].position_m[:2] for s in kept]),
-                                             res.position_covariance_m2, [row_of[s.id] for s in kept])
+                                             res.position_covariance_m2, rows)
             out["head_shape_mm"], out["head_dz_mm"] = head_model_error_mm(sim, res.diagnostics.head_model)
             out["mismatch"] = len(res.diagnostics.model_mismatch.sensors)
             out["clock_z"], out["clock_err_s"] = clock_offset_errors(sim, res.network)

@@ -59,10 +59,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_factorgraph_nuisances import (  # noqa: E402
     by_seed,
+    error_sigma_ratios,
     missed_text,
     recipe_overrides,
-    shared_and_rest_z,
-    sigma_ratios,
+    shared_rest_parts,
 )
 
 from pedcal.calib import calibrate  # noqa: E402
@@ -73,32 +73,12 @@ from pedcal.sim.nuisances import zoo_families  # noqa: E402
 from pedcal.sim.walkers import RECORDINGS, SHARED_DATA  # noqa: E402
 
 
-def error_sigma_ratios(ev, network) -> np.ndarray:
-    """(n_sensors, 3) each sensor's |error| on each world axis over its reported sigma (a miss,
-    :func:`bench_factorgraph_nuisances.sigma_ratios`, is inf)."""
-    return sigma_ratios(network, [s.id for s in ev.sensors],
-                        [np.asarray(s.position_error_mm, float) / 1000.0 for s in ev.sensors],
-                        missing=len(ev.missing_sensors))
-
-
 def amcl_truth_z(run_mean_m, amcl_sigma_m: float, amcl_tau_s: float, duration_s: float) -> np.ndarray:
     """(2,) AMCL's true run-mean error (world x, y, m) over the exact std per axis of the mean of
     an Ornstein-Uhlenbeck process of std ``amcl_sigma_m`` and correlation time ``amcl_tau_s``
     over ``duration_s`` (:meth:`AmclErrorModel.floor_sigma_m`): N(0, 1) per axis over the
     simulator's draws of such a process, whatever the calibration."""
     return np.asarray(run_mean_m, float) / AmclErrorModel(0.0, amcl_sigma_m, amcl_tau_s).floor_sigma_m(duration_s)
-
-
-def shared_rest_parts(ev, network, joint_cov_m2) -> tuple[np.ndarray, np.ndarray]:
-    """(2,) the sensors' mean horizontal error over its sigma and (n, 2) each sensor's departure
-    from it over its sigma, x and y (``bench_factorgraph_nuisances.shared_and_rest_z``), over the
-    calibrated sensors with an error; empty without the joint covariance or with fewer than 2."""
-    row_of = {sid: r for r, sid in enumerate(network.ids)}
-    kept = [s for s in ev.sensors
-            if (network[s.id].status or "ok") == "ok" and np.all(np.isfinite(s.position_error_mm))]
-    shared, rest = shared_and_rest_z(np.array([s.position_error_mm[:2] for s in kept], float).reshape(-1, 2) / 1000.0,
-                                     joint_cov_m2, [row_of[s.id] for s in kept])
-    return shared, rest.reshape(-1, 2)
 
 
 def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None) -> dict:
@@ -117,7 +97,8 @@ def run_one(recording: str, scenario: str, seed: int, recipe: dict | None = None
                            missed=len(ev.missing_sensors) + len(ev.sensors) - len(E))
         if method == "factorgraph":
             out["ratios"] = error_sigma_ratios(ev, res.network)
-            out["z_shared"], out["z_rest"] = shared_rest_parts(ev, res.network, res.position_covariance_m2)
+            z_shared, z_rest = shared_rest_parts(ev, res.network, res.position_covariance_m2)
+            out["z_shared"], out["z_rest"] = z_shared, z_rest.reshape(-1, 2)
     t = sim.calib.robot["t"].to_numpy(float)
     sc = sim.scenario
     out["amcl_family"] = zoo_families(sc)["amcl"]
