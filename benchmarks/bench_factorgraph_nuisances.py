@@ -70,6 +70,7 @@ from pedcal.metrics import (
     format_clustered,
     robot_rows,
     sigma_honesty,
+    sigma_ratio_rms,
     within_sigma_share,
 )
 from pedcal.sim import load_scenario, simulate_logs
@@ -516,7 +517,10 @@ def _z_text(rs: list[dict]) -> str:
     into the sensors' mean and the departures from it (:func:`shared_and_rest_z`); '-' without."""
     zs = np.concatenate([r["z_shared"] for r in rs])
     zr = np.concatenate([r["z_rest"] for r in rs])
-    return f"{np.sqrt(np.mean(zs ** 2)):.2f} / {np.sqrt(np.mean(zr ** 2)):.2f}" if len(zs) else "-"
+    if not len(zs):
+        return "-"
+    # (pedcal.metrics.sigma_ratio_rms: a ratio that is not finite, a sigma of 0, is left out)
+    return f"{sigma_ratio_rms(zs.reshape(-1, 1))[0]:.2f} / {sigma_ratio_rms(zr.reshape(-1, 1))[0]:.2f}"
 
 
 def _xy(r: dict) -> tuple[float, float]:

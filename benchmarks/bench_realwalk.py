@@ -67,7 +67,13 @@ from bench_factorgraph_nuisances import (  # noqa: E402
 
 from pedcal.calib import calibrate  # noqa: E402
 from pedcal.calib.amcl_model import AmclErrorModel  # noqa: E402
-from pedcal.metrics import amcl_run_mean_error_m, evaluate, format_clustered, sigma_honesty  # noqa: E402
+from pedcal.metrics import (  # noqa: E402
+    amcl_run_mean_error_m,
+    evaluate,
+    format_clustered,
+    sigma_honesty,
+    sigma_ratio_rms,
+)
 from pedcal.sim import simulate_logs  # noqa: E402
 from pedcal.sim.nuisances import zoo_families  # noqa: E402
 from pedcal.sim.walkers import RECORDINGS, SHARED_DATA  # noqa: E402
@@ -125,7 +131,8 @@ def _row(name: str, runs: list[dict]) -> str:
 
 
 def _rms_xy(z: np.ndarray) -> str:
-    return f"{np.sqrt(np.mean(z[:, 0] ** 2)):.2f} / {np.sqrt(np.mean(z[:, 1] ** 2)):.2f}"
+    """'x / y': :func:`pedcal.metrics.sigma_ratio_rms` of the (n, 2) ratios ``z``."""
+    return " / ".join(f"{v:.2f}" for v in sigma_ratio_rms(z))
 
 
 def shared_rest_text(runs: list[dict]) -> str:
