@@ -197,7 +197,6 @@ def test_a_pass_whose_graph_is_rebuilt_leaves_the_block_empty_unmade(paper_robot
                                             final_graph=False)
     assert shifts.graph is None and made == []
     assert parts_out.blocks["observations"].size() == 0
-    assert parts_out.ordering_awaits_observations == (parts_out.ordering is not None)
 
 
 def test_people_in_the_block_have_it_made_and_linearized_by_gtsam(monkeypatch):

@@ -217,7 +217,7 @@ def test_a_rebuild_of_the_same_structure_keeps_the_colamd_ordering(solved):
     first = parts.colamd()
     for observations in (False, True):
         same = rebuild_parts(log, prob, parts, result, observations=observations)
-        assert same.ordering is first and same.ordering_awaits_observations is not observations
+        assert same.ordering is first
         if not observations:
             same.blocks["observations"] = observation_block(log, prob, same.values)
         # (the ordering COLAMD gives the rebuilt graph itself)
@@ -236,7 +236,7 @@ def test_a_rebuild_of_the_same_structure_keeps_the_colamd_ordering(solved):
     excluded[40:60] = True
     set_amcl_model(log, prob, dataclasses.replace(prob.amcl_model, excluded=excluded))
     other = rebuild_parts(log, prob, parts, result, observations=False)
-    assert other.ordering is None and not other.ordering_awaits_observations
+    assert other.ordering is None
     # and a problem whose factors were carried again (new tables) keeps nothing either
     prob.fac_key_index = prob.fac_key_index.copy()
     assert rebuild_parts(log, prob, other, result).ordering is None

@@ -482,10 +482,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     rec = prob.recipe
     if not _profiled(rec):
         return None
-    if parts.blocks["observations"].size() == 0 and not parts.ordering_awaits_observations:
-        # (a rebuild that left the block empty: an ordering kept from it would lack the people)
-        parts.ordering = None
-    parts.ordering_awaits_observations = False
     # each sensor's clock offset (pedcal.calib.clocks), first: it sets the head's velocity at ``result``,
     # which the observation terms' clock-shift regressors read (read after them, the first step of a second
     # pass would take A, b and the robust weights at the pass before's velocity, its B at this one's)
@@ -766,7 +762,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     elif built is not block_terms:
         # (a pass whose graph the caller rebuilds: the block left empty, not made)
         parts.blocks["observations"] = gtsam.NonlinearFactorGraph()
-        parts.ordering_awaits_observations = parts.ordering is not None
     return _Nuisances(parts.graph() if final_graph else None, result, cov, sens, n_step, names=names + local_names,
                        local=local,
                        unmodelled=None if unmodelled is None else (unmodelled[0], unmodelled[1][cols.index(keys)],

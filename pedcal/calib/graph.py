@@ -263,9 +263,6 @@ class GraphParts:
     # what the graph's structure (its factors' keys, in order) was made from (:func:`_structure`):
     # a rebuild of the same structure keeps the ordering
     structure: tuple | None = None
-    # the ordering was kept by a rebuild that left the observation block for the caller to build
-    # (of the structure it had): it holds for the graph once the block is back
-    ordering_awaits_observations: bool = False
 
     def colamd(self) -> gtsam.Ordering:
         """The whole graph's COLAMD ordering, computed on the first call and kept (the blocks
@@ -429,8 +426,9 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
     if not observations:
         # (the block the caller builds next would replace this one: 0.14 s at 1000 sensors)
         blocks["observations"] = gtsam.NonlinearFactorGraph()
-        return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept,
-                          ordering_awaits_observations=kept is not None)
+        # (a kept ordering holds for the graph once the caller's block is back: the same structure;
+        # with people, _structure gives None and no ordering is kept)
+        return GraphParts(blocks=blocks, values=values, motion_inputs=inputs, structure=structure, ordering=kept)
     blocks["observations"] = observation_block(log, prob, values, insert_values=True)
     for m in range(len(prob.people)):
         if values.exists(L(m)) and result.exists(L(m)):
