@@ -120,6 +120,16 @@ def test_closed_form_with_the_points_given_is_the_same():
     b = calibrate_closedform(log, is_robot=mask, latency_s=0.0, points_sensor=log.observation_points_sensor())
     for s, u in zip(a.network, b.network, strict=True):
         assert np.array_equal(s.position_m, u.position_m) and np.array_equal(s.ypr_deg, u.ypr_deg)
+    # the points given are the ones used: each sensor's points 0.1 m along its x move its estimate
+    moved = calibrate_closedform(log, is_robot=mask, latency_s=0.0,
+                                 points_sensor=log.observation_points_sensor() + [0.1, 0.0, 0.0])
+    assert all(np.linalg.norm(s.position_m - u.position_m) > 0.05 for s, u in zip(a.network, moved.network, strict=True)
+               if s.status == "ok")
+    # and the association and the latency take them too (no mask, no latency given)
+    c = calibrate_closedform(log)
+    d = calibrate_closedform(log, points_sensor=log.observation_points_sensor())
+    for s, u in zip(c.network, d.network, strict=True):
+        assert np.array_equal(s.position_m, u.position_m)
     with pytest.raises(ValueError, match="points_sensor"):
         calibrate_closedform(log, is_robot=mask, latency_s=0.0, points_sensor=np.zeros((3, 3)))
 

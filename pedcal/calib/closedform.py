@@ -87,10 +87,14 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
     ``log.observation_points_sensor()`` when the caller has it."""
     with Timer() as timer:
         diagnostics = ClosedFormDiagnostics()
+        # the head points in each sensor's frame, read once for the association, the latency and the fits
+        p_sensor_all = log.observation_points_sensor() if points_sensor is None else np.asarray(points_sensor, float)
+        if p_sensor_all.shape != (len(log.observations), 3):
+            raise ValueError(f"points_sensor must be (n_observations, 3), got {p_sensor_all.shape}")
         if is_robot is None:
             from pedcal.calib.association import associate_robot
 
-            assoc = associate_robot(log, progress=progress, **association_params)
+            assoc = associate_robot(log, progress=progress, p_sensor=p_sensor_all, **association_params)
             is_robot = assoc.is_robot
             diagnostics.association_runtime_s = assoc.runtime_s
             if latency_s is None:
@@ -104,13 +108,10 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         # (made after the association, whose error for a log without robot.csv is the clearer)
         head_at = head_interpolator(log)
         if latency_s is None:       # (a mask given: the association's estimate is not at hand)
-            latency_s = estimate_latency(log, is_robot, head_at=head_at)
+            latency_s = estimate_latency(log, is_robot, head_at=head_at, p_sensor=p_sensor_all)
         diagnostics.tracker_latency_s = float(latency_s)
 
         sensor_col = log.observations["sensor"].astype(str).to_numpy()
-        p_sensor_all = log.observation_points_sensor() if points_sensor is None else np.asarray(points_sensor, float)
-        if p_sensor_all.shape != (len(log.observations), 3):
-            raise ValueError(f"points_sensor must be (n_observations, 3), got {p_sensor_all.shape}")
         t_all = log.observations["t"].to_numpy(float)
         # robot observations past either end of robot.csv have no AMCL position to pair with
         robot_t = log.robot["t"].to_numpy(float)
