@@ -493,7 +493,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
     # not kept whose block was not held, people, the final graph), the steps take its linearization
     # from the terms (ObservationRhs.linearized): the factors of a block nobody asks for (60 000 at
     # 1000 sensors, 0.14 s a block) are not made
-    obs_terms = block_terms = observation_terms(log, prob, result)
+    block_terms = observation_terms(log, prob, result)
     built, motion_fresh = None, True
 
     def block() -> gtsam.NonlinearFactorGraph:
@@ -587,8 +587,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                      # (the block's linearization made in numpy: it is not rebuilt between steps)
                      lambda f=motion_rhs: f.linearized(cols))
         # B's columns in numpy, no factors rebuilt (what the block read at ``result`` taken from it)
-        rhs = ObservationRhs(log, prob, result, terms=obs_terms)
-        obs_terms = None
+        rhs = ObservationRhs(log, prob, result, terms=block_terms)
         # a sensor's clock offset enters its own robot observations alone (pedcal.calib.clocks),
         # and so does its own departure of the horizontal shift
         footprint = {j: rhs.robot_factors(index[_sensor_of(n)]) for j, n in enumerate(every)
@@ -729,7 +728,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                    f"{ratio[mine].max():.2f} sigma")
         result = retract_flat(result, delta, cols)
         if final_graph or not (converged or n_step == max_steps):
-            obs_terms = block_terms = observation_terms(log, prob, result)
+            block_terms = observation_terms(log, prob, result)
         if converged:
             break
     else:

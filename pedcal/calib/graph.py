@@ -1134,7 +1134,9 @@ class ObservationRhs:
 
     ``terms``: the block's :class:`ObservationTerms` as :func:`observation_block_terms` made them
     at these ``values`` and ``t_max`` with the problem's present ray shift (what is read at the
-    values is taken from them, not read again; other terms raise ValueError). They are kept
+    values is taken from them, not read again; other terms raise ValueError; the key does not hold
+    the other nuisances the head points were computed with, the horizontal shift, the profile, the
+    clock offsets: the caller reads the terms after setting them, as the profile steps do). They are kept
     (``terms``) for :meth:`linearized`; those read here without them lack the robot's predicted
     points, so that :meth:`linearized` leaves such a block to GTSAM."""
 
