@@ -6,6 +6,7 @@ a training set: do not tune pedcal to it.
 
     nice -n 5 .venv/bin/python benchmarks/bench_xgen.py [--seeds 2] [--first-seed 0] \
         [--families rooms lhall corridor openhall] [--methods factorgraph gridsearch] [--out DIR] [--jobs 1]
+        [--graph graphs/FILE.toml]
         [--max-time 600]
         [--ideal head noise clocks amcl people]   # diagnosis: the same worlds without these nuisances
         [--head-profiles per-sensor|shared]       # one tracker profile per sensor (default) or per log
@@ -96,9 +97,12 @@ def score(truth: dict, est: dict, installed: dict | None = None) -> dict:
     return {"sensors": rows}
 
 
-def run_calibrate_rusage(log: Path, method: str, out_yaml: Path) -> dict:
-    """pedcal calibrate as a subprocess, with its CPU time from os.wait4's rusage."""
+def run_calibrate_rusage(log: Path, method: str, out_yaml: Path, graph: Path | None = None) -> dict:
+    """pedcal calibrate as a subprocess, with its CPU time from os.wait4's rusage (``graph``: the
+    factor graph's recipe file, ``--graph``)."""
     cmd = [sys.executable, "-m", "pedcal.cli", "calibrate", str(log), "-o", str(out_yaml), "--method", method, "-q"]
+    if graph is not None and method == "factorgraph":
+        cmd += ["--graph", str(graph)]
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     err_path = out_yaml.with_suffix(".stderr.txt")
     t0 = time.perf_counter()
@@ -111,7 +115,8 @@ def run_calibrate_rusage(log: Path, method: str, out_yaml: Path) -> dict:
             "stderr": err_path.read_text()[-1500:]}
 
 
-def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal=(), head_profiles="per-sensor"):
+def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal=(), head_profiles="per-sensor",
+            graph: Path | None = None):
     d = out / f"{family}-{seed}"
     log = d / "log"
     info = generate(log, seed, family, max_time_s=max_time_s, ideal=ideal, head_profiles=head_profiles)
@@ -126,7 +131,7 @@ def one_log(family: str, seed: int, out: Path, methods, max_time_s: float, ideal
     results = [{**base, "method": "installed", **score(truth, installed), "rc": 0, "cpu_s": 0.0, "wall_s": 0.0}]
     for m in methods:
         y = d / f"{m}.yaml"
-        r = run_calibrate_rusage(log, m, y)
+        r = run_calibrate_rusage(log, m, y, graph)
         row = {**base, "method": m, **{k: r[k] for k in ("rc", "cpu_s", "wall_s")}}
         if r["rc"] == 0 and y.exists():
             row.update(score(truth, read_network(y), installed))
@@ -312,6 +317,8 @@ def main(argv=None):
                     help="switch these nuisances off (diagnosis: the same worlds without them)")
     ap.add_argument("--head-profiles", default="per-sensor", choices=HEAD_PROFILE_MODES,
                     help="each tracker its own head-point profile, or one shared by all sensors of a log")
+    ap.add_argument("--graph", type=Path, default=None,
+                    help="the factor graph's recipe file (pedcal calibrate --graph; default: graphs/default.toml)")
     ap.add_argument("--from-results", type=Path, default=None,
                     help="print the tables of an earlier run's DIR (its results.jsonl and logs) without running")
     args = ap.parse_args(argv)
@@ -324,11 +331,12 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     jobs = [(f, s) for f in args.families for s in range(args.first_seed, args.first_seed + args.seeds)]
     ideal = f", ideal: {' '.join(args.ideal)}" if args.ideal else ""
-    ideal += f", head profiles {args.head_profiles}"
+    ideal += f", head profiles {args.head_profiles}" + (f", graph {args.graph}" if args.graph else "")
     print(f"# xgen held-out exam: {len(jobs)} logs into {out}{ideal}; load {os.getloadavg()[0]:.2f}", flush=True)
     rows = []
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool, open(out / "results.jsonl", "w") as fh:
-        futures = [pool.submit(one_log, f, s, out, args.methods, args.max_time, args.ideal, args.head_profiles)
+        futures = [pool.submit(one_log, f, s, out, args.methods, args.max_time, args.ideal, args.head_profiles,
+                               args.graph)
                    for f, s in jobs]
         for fut in futures:
             res = fut.result()
