@@ -1294,6 +1294,20 @@ class ObservationRhs:
                                 self.range_pred - terms.range_m])
 
 
+# GTSAM's Gauss-Newton iteration eliminates the linearized graph sequentially (Cholesky, one
+# variable at a time) up to this many variables, multifrontally (dense frontal blocks) above: one
+# iteration at the final point, the same COLAMD ordering, one BLAS thread, CPU ms, fastest of 7
+# (of 3 at 1000 sensors): paper seed 0 (2076 variables) 19.1 sequentially against 22.3
+# multifrontally, corridor seed 1 (2532) 26.0 against 30.1, 40 synthetic sensors (1365) 16.4 against
+# 18.9, 160 (4959) 86.6 against 91.8, 1000 (29 181) 743-803 against 734-736
+SEQUENTIAL_MAX_VARIABLES = 10_000
+
+
+def _linear_solver(values: gtsam.Values) -> str:
+    """GTSAM's linear solver for a graph over ``values`` (SEQUENTIAL_MAX_VARIABLES)."""
+    return "SEQUENTIAL_CHOLESKY" if values.size() <= SEQUENTIAL_MAX_VARIABLES else "MULTIFRONTAL_CHOLESKY"
+
+
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,
                    gauss_newton_step: bool = True, relative_error_tol: float | None = None,
                    ordering: gtsam.Ordering | None = None, predicted_stop: bool = False):
@@ -1321,13 +1335,13 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
     # one COLAMD ordering computed once (the graph's structure does not change between
-    # iterations), eliminated multifrontally: per Gauss-Newton iteration as fast as sequentially
-    # on the paper and corridor scenes (17-23 ms), 12-20 % faster on 160-1000 synthetic sensors
-    # (0.70 -> 0.53-0.63 s at 1000: GTSAM's dense frontal blocks)
+    # iterations), eliminated sequentially up to SEQUENTIAL_MAX_VARIABLES variables and
+    # multifrontally above (the linear solver's choice, _linear_solver)
     if ordering is None:
         ordering = fg.orderingCOLAMD()      # symbolic: the same order as of its linearization
+    solver = _linear_solver(values)
     gn_params = gtsam.GaussNewtonParams()
-    gn_params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
+    gn_params.setLinearSolverType(solver)
     gn_params.setOrdering(ordering)
     gn = gtsam.GaussNewtonOptimizer(fg, values, gn_params)
     result, error, iterations = values, gn.error(), 0      # (the optimizer's own error at values: not again)
@@ -1356,7 +1370,7 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations - iterations)
         params.setRelativeErrorTol(relative_error_tol)
-        params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
+        params.setLinearSolverType(solver)
         params.setOrdering(ordering)
         opt = gtsam.LevenbergMarquardtOptimizer(fg, result, params)
         result = opt.optimize()
