@@ -284,14 +284,14 @@ def test_optimize_graph_takes_levenberg_marquardts_steps(first_solve):
 def test_optimize_graph_eliminates_sequentially_up_to_a_size_with_the_same_steps(first_solve, monkeypatch):
     # sequential elimination on a graph up to SEQUENTIAL_MAX_VARIABLES variables, multifrontal
     # above: the same iterations and the same solution to rounding
-    import pedcal.calib.graph as graph_mod
+    import pedcal.calib.profile as profile_mod
 
     log, rec, prob, parts, _ = first_solve
     fg = parts.graph()
-    assert graph_mod._linear_solver(parts.values) == "SEQUENTIAL_CHOLESKY"
+    assert profile_mod.linear_solver(parts.values.size()) == "SEQUENTIAL_CHOLESKY"
     sequential, n_seq = optimize_graph(fg, parts.values, rec, max_iterations=3, gauss_newton_step=False)
-    monkeypatch.setattr(graph_mod, "SEQUENTIAL_MAX_VARIABLES", parts.values.size() - 1)
-    assert graph_mod._linear_solver(parts.values) == "MULTIFRONTAL_CHOLESKY"
+    monkeypatch.setattr(profile_mod, "SEQUENTIAL_MAX_VARIABLES", parts.values.size() - 1)
+    assert profile_mod.linear_solver(parts.values.size()) == "MULTIFRONTAL_CHOLESKY"
     multifrontal, n_multi = optimize_graph(fg, parts.values, rec, max_iterations=3, gauss_newton_step=False)
     assert n_seq == n_multi > 0
     assert fg.error(sequential) == pytest.approx(fg.error(multifrontal), rel=1e-12)

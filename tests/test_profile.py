@@ -166,11 +166,17 @@ def test_gtsam_orders_a_linearized_graphs_columns_by_key():
     assert np.allclose(np.asarray(gfg.optimize().vector(cols.keys)).ravel(), x)
 
 
-def test_joint_marginal_covariance_equals_gtsams(dome_paper):
+@pytest.mark.parametrize("sequential", [True, False])
+def test_joint_marginal_covariance_equals_gtsams(dome_paper, sequential, monkeypatch):
+    # either elimination (sequential on a graph of this size, multifrontal above the threshold)
+    import pedcal.calib.profile as profile_mod
     from pedcal.calib.graph import H, S
     from pedcal.calib.profile import joint_marginal_covariance
 
     _, prob, parts, result = dome_paper
+    if not sequential:
+        monkeypatch.setattr(profile_mod, "SEQUENTIAL_MAX_VARIABLES", 0)
+    assert (profile_mod.linear_solver(result.size()) == "SEQUENTIAL_CHOLESKY") == sequential
     fg = parts.graph()
     keys = [S(2), H(0), S(0)]
     ours = joint_marginal_covariance(fg, result, keys)

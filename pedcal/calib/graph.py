@@ -119,7 +119,7 @@ from pedcal.calib.problem import (  # noqa: F401
     prepare,
     set_amcl_model,
 )
-from pedcal.calib.profile import steps_to_come_below
+from pedcal.calib.profile import linear_solver, steps_to_come_below
 from pedcal.calib.readback import (  # noqa: F401
     JOINT_COV_MAX_SENSORS,
     _network_from_result,
@@ -1294,20 +1294,6 @@ class ObservationRhs:
                                 self.range_pred - terms.range_m])
 
 
-# GTSAM's Gauss-Newton iteration eliminates the linearized graph sequentially (Cholesky, one
-# variable at a time) up to this many variables, multifrontally (dense frontal blocks) above: one
-# iteration at the final point, the same COLAMD ordering, one BLAS thread, CPU ms, fastest of 7
-# (of 3 at 1000 sensors): paper seed 0 (2076 variables) 19.1 sequentially against 22.3
-# multifrontally, corridor seed 1 (2532) 26.0 against 30.1, 40 synthetic sensors (1365) 16.4 against
-# 18.9, 160 (4959) 86.6 against 91.8, 1000 (29 181) 743-803 against 734-736
-SEQUENTIAL_MAX_VARIABLES = 10_000
-
-
-def _linear_solver(values: gtsam.Values) -> str:
-    """GTSAM's linear solver for a graph over ``values`` (SEQUENTIAL_MAX_VARIABLES)."""
-    return "SEQUENTIAL_CHOLESKY" if values.size() <= SEQUENTIAL_MAX_VARIABLES else "MULTIFRONTAL_CHOLESKY"
-
-
 def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None = None,
                    gauss_newton_step: bool = True, relative_error_tol: float | None = None,
                    ordering: gtsam.Ordering | None = None, predicted_stop: bool = False):
@@ -1336,10 +1322,10 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
     # one COLAMD ordering computed once (the graph's structure does not change between
     # iterations), eliminated sequentially up to SEQUENTIAL_MAX_VARIABLES variables and
-    # multifrontally above (the linear solver's choice, _linear_solver)
+    # multifrontally above (pedcal.calib.profile.linear_solver)
     if ordering is None:
         ordering = fg.orderingCOLAMD()      # symbolic: the same order as of its linearization
-    solver = _linear_solver(values)
+    solver = linear_solver(values.size())
     gn_params = gtsam.GaussNewtonParams()
     gn_params.setLinearSolverType(solver)
     gn_params.setOrdering(ordering)

@@ -784,20 +784,39 @@ def _disjoint_groups(indices: list[int], footprint: dict) -> list[list[int]]:
     return groups
 
 
+# GTSAM's eliminations of a linearized graph (a Gauss-Newton iteration's, the joint marginal's
+# partial one) run sequentially (Cholesky, one variable at a time) up to this many variables,
+# multifrontally (dense frontal blocks) above. One Gauss-Newton iteration at the final point, the
+# same COLAMD ordering, one BLAS thread, CPU ms, fastest of 7 (of 3 at 1000 sensors): paper seed 0
+# (2076 variables) 19.1 sequentially against 22.3 multifrontally, corridor seed 1 (2532) 26.0
+# against 30.1, 40 synthetic sensors (1365) 16.4 against 18.9, 160 (4959) 86.6 against 91.8, 1000
+# (29 181) 743-803 against 734-736; the joint marginal of the sensors, paper 19.3-19.9 against
+# 22.1-22.9, 160 synthetic sensors 177-181 against 183-188
+SEQUENTIAL_MAX_VARIABLES = 10_000
+
+
+def linear_solver(n_variables: int) -> str:
+    """GTSAM's linear solver for a graph of ``n_variables`` (SEQUENTIAL_MAX_VARIABLES)."""
+    return "SEQUENTIAL_CHOLESKY" if n_variables <= SEQUENTIAL_MAX_VARIABLES else "MULTIFRONTAL_CHOLESKY"
+
+
 def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
     """The joint covariance of the variables ``keys`` (their tangents, in the order given) at
-    ``values``: every other variable eliminated by GTSAM's partial multifrontal elimination (in
-    a COLAMD order with the kept ones constrained last), the Schur complement it leaves on the
-    kept ones (their marginal information) inverted by Cholesky. Equal to
-    ``gtsam.Marginals(...).jointMarginalCovariance(keys)`` and, for hundreds of sensors, several
-    times faster (500 sensors: 13 s -> 3 s)."""
+    ``values``: every other variable eliminated by GTSAM's partial elimination (in a COLAMD order
+    with the kept ones constrained last; sequential or multifrontal by the graph's size,
+    :func:`linear_solver`), the Schur complement it leaves on the kept ones (their marginal
+    information) inverted by Cholesky. Equal to ``gtsam.Marginals(...).jointMarginalCovariance(keys)``
+    and, for hundreds of sensors, several times faster (500 sensors: 13 s -> 3 s)."""
     from scipy.linalg import cho_factor, cho_solve
 
     gfg = graph.linearize(values)
     kept = set(keys)
     full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, gtsam.KeyVector(keys))
     others = gtsam.Ordering([k for k in map(full.at, range(full.size())) if k not in kept])
-    _, rest = gfg.eliminatePartialMultifrontal(others)
+    if linear_solver(values.size()) == "SEQUENTIAL_CHOLESKY":
+        _, rest = gfg.eliminatePartialSequential(others)
+    else:
+        _, rest = gfg.eliminatePartialMultifrontal(others)
     info, _ = rest.hessian()                 # columns: the kept keys in key order
     dims = values.dims()
     order = sorted(int(k) for k in rest.keyVector())
@@ -837,6 +856,6 @@ def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> 
     return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
 
 
-__all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
+__all__ = ["Nuisance", "Columns", "linear_solver", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
            "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order",
            "steps_to_come_below"]
