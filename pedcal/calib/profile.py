@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import scipy.sparse as sps
+from scipy.sparse import _sparsetools
 
 
 @dataclass
@@ -103,27 +104,35 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     if gfg.size() == 0:
         return sps.csr_matrix((0, cols.n)), np.zeros(0)
     ijs = gfg.sparseJacobian_()          # 3 x entries, (row, column, value), 1-based, b as a last column
-    # (compact copies, the 3 x entries array dropped at once: it and its int64 copies were the
-    # peak memory of a large graph's linearization)
-    last_row = int(ijs[0].max()) if ijs.shape[1] else 0      # (1-based: the row count)
-    i = ijs[0].astype(np.int32 if last_row < 2 ** 31 else np.int64)
-    j = ijs[1].astype(np.int32)
-    v = ijs[2].copy()
-    del ijs
-    i -= 1
-    j -= 1
+    m = int(ijs[0].max()) if ijs.shape[1] else 0      # (1-based: the row count)
     own = np.sort(np.asarray(gfg.keyVector(), np.uint64))
-    # the graph's own columns (its keys in order) -> the system's
+    # the graph's own columns (1-based, its keys in order) -> the system's, b's column -> cols.n
     local = cols.index(own)
-    n_local = len(local)
-    rhs = j == n_local
-    m = last_row
-    b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
+    index_dtype = np.int32 if max(ijs.shape[1], cols.n + 1) < 2 ** 31 else np.int64     # (scipy's own choice)
+    column = np.empty(len(local) + 2, index_dtype)
+    column[0], column[1:-1], column[-1] = -1, local, cols.n
+    # (compact arrays of the kept entries, the 3 x entries array dropped once they are taken: it and
+    # its copies were the peak memory of a large graph's linearization; no copy of its values first)
+    j = column[ijs[1].astype(np.int32)]
+    i = ijs[0].astype(np.int32 if m < 2 ** 31 else np.int64)
+    i -= 1
+    rhs = j == cols.n
+    b = np.bincount(i[rhs], weights=ijs[2][rhs], minlength=m)
     keep = ~rhs
-    index_dtype = np.int32 if max(len(v), cols.n) < 2 ** 31 else np.int64      # (scipy's own choice)
-    # (GTSAM lists a factor's entries variable by variable, so its rows are not in order: COO)
-    i, j, v = i[keep], local.astype(index_dtype)[j[keep]], v[keep]
-    return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
+    v = ijs[2][keep]
+    del ijs, rhs
+    i, j = i[keep], j[keep]
+    del keep
+    # (GTSAM lists a factor's entries variable by variable, so its rows are not in order: COO, made
+    # CSR by scipy's own conversion into arrays of the final size, then its entries' columns put in
+    # order in each row and duplicates summed, as csr_matrix((v, (i, j))) does)
+    indptr = np.empty(m + 1, index_dtype)
+    indices, data = np.empty(len(v), index_dtype), np.empty(len(v))
+    _sparsetools.coo_tocsr(m, cols.n, len(v), i, j, v, indptr, indices, data)
+    del i, j, v
+    A = sps.csr_matrix((data, indices, indptr), shape=(m, cols.n), copy=False)
+    A.sum_duplicates()
+    return A, b
 
 
 def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
