@@ -181,25 +181,6 @@ def test_a_large_system_is_factorized_in_supernodes_and_in_the_given_order():
     assert np.abs((A.T @ A) @ chol.solve(y) - y).max() < 1e-9 * np.abs(y).max()
 
 
-@pytest.mark.parametrize("layout", ["F", "C"])
-def test_many_columns_are_solved_in_chunks_the_same_bit_for_bit(layout):
-    # more columns than SOLVE_CHUNK (and a last, partial chunk): each column's solution the one
-    # a solve of 4 columns at a time gives (the width does not change the bits), whatever the
-    # right-hand sides' memory layout
-    rng = np.random.default_rng(12)
-    g = 30
-    D = sps.diags([-np.ones(g - 1), np.ones(g - 1)], [0, 1], shape=(g - 1, g))
-    A = sps.vstack([sps.kron(sps.eye(g), D), sps.kron(D, sps.eye(g)), 0.1 * sps.eye(g * g)], format="csr")
-    chol = NormalCholesky(A, rng.permutation(g * g))
-    assert cholmod._FactorHead.from_address(chol._factor).is_super == 1
-    k = 2 * cholmod.SOLVE_CHUNK + 4
-    Y = np.asarray(rng.normal(size=(g * g, k)), order=layout)
-    X = chol.solve(Y)
-    assert X.shape == (g * g, k)
-    assert np.array_equal(X, np.hstack([chol.solve(np.array(Y[:, lo:lo + 4], order="F")) for lo in range(0, k, 4)]))
-    assert np.abs((A.T @ A) @ X - Y).max() < 1e-9 * np.abs(Y).max()
-
-
 def test_repeated_entries_are_summed_as_scipy_sums_them():
     rng = np.random.default_rng(12)
     A = _system(120, 40, 8)

@@ -302,13 +302,6 @@ def _super_numeric(lib: _Library, n: int, m: int, indptr: np.ndarray, indices: n
     return lib.super_numeric(ctypes.byref(S), ctypes.byref(S_t), ctypes.byref(beta), factor, lib.common)
 
 
-# many right-hand sides are solved this many at a time: CHOLMOD's supernodal solve of the paper
-# scene's system took 0.25 ms a column in blocks of 16 against 0.29-0.32 ms in blocks of 24-32
-# (the blocks of the solve's dense columns stay in the processor's cache); a multiple of 4, which
-# OpenBLAS's kernels take in the same order whatever the block's width: the same solution, bit for bit
-SOLVE_CHUNK = 16
-
-
 class NormalCholesky:
     """CHOLMOD's supernodal Cholesky factorization L L^T = P A^T A P^T of a normal matrix, from A
     itself (CSR, its columns the variables), in the fill-reducing column ``order`` (P; without
@@ -369,25 +362,13 @@ class NormalCholesky:
         self.factor_entries = int(head.xsize if head.is_super else head.nzmax)
 
     def solve(self, y) -> np.ndarray:
-        """x with A^T A x = y (y of n rows, one column or many). Many columns are solved
-        SOLVE_CHUNK at a time, the same result bit for bit as in one call."""
+        """x with A^T A x = y (y of n rows, one column or many)."""
         y = np.asarray(y, float)
         if y.shape[0] != self.n:
             raise ValueError(f"a right-hand side of {y.shape[0]} rows for {self.n} columns")
         if y.size == 0:           # no column, or no right-hand side (before the reshape, which 0 rows cannot take)
             return np.zeros(y.shape)
-        Y = np.asfortranarray(y.reshape(self.n, -1))      # (its chunks of columns then contiguous views)
-        k = Y.shape[1]
-        if k <= SOLVE_CHUNK:
-            return self._solve(Y).T.reshape(y.shape)
-        x = np.empty((self.n, k), order="F")
-        for lo in range(0, k, SOLVE_CHUNK):
-            hi = min(lo + SOLVE_CHUNK, k)
-            x[:, lo:hi] = self._solve(Y[:, lo:hi]).T
-        return x.reshape(y.shape)
-
-    def _solve(self, Y: np.ndarray) -> np.ndarray:
-        """CHOLMOD's solve of the column-major n x k ``Y``: the solution as k x n (C order)."""
+        Y = np.asfortranarray(y.reshape(self.n, -1))
         k = Y.shape[1]
         B = _Dense(self.n, k, self.n * k, self.n, Y.ctypes.data, None, _REAL, _DOUBLE)
         lib = library()
@@ -396,11 +377,13 @@ class NormalCholesky:
             if not X:
                 raise MemoryError("CHOLMOD's solve failed")
             try:
-                # (CHOLMOD's column-major n x k: copied as it lies, k x n)
-                return np.ctypeslib.as_array(ctypes.cast(X.contents.x, ctypes.POINTER(ctypes.c_double)),
-                                             shape=(k, self.n)).copy()
+                # (CHOLMOD's column-major n x k: copied as it lies, k x n, and returned transposed,
+                # a column-major view, not transposed in the copy)
+                x = np.ctypeslib.as_array(ctypes.cast(X.contents.x, ctypes.POINTER(ctypes.c_double)),
+                                          shape=(k, self.n)).copy()
             finally:
                 lib.lib.cholmod_free_dense(ctypes.byref(X), lib.common)
+        return x.T.reshape(y.shape)
 
     def __del__(self):
         factor, self._factor = getattr(self, "_factor", None), None
