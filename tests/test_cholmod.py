@@ -181,25 +181,6 @@ def test_a_large_system_is_factorized_in_supernodes_and_in_the_given_order():
     assert np.abs((A.T @ A) @ chol.solve(y) - y).max() < 1e-9 * np.abs(y).max()
 
 
-def test_a_row_major_right_hand_side_is_copied_column_major_in_blocks(monkeypatch):
-    # any layout (row-major, column-major, a strided view) solves to the same bits; the blocked
-    # copy is the array itself, across block edges (a last, partial block)
-    monkeypatch.setattr(cholmod, "TRANSPOSE_ROWS", 7)
-    rng = np.random.default_rng(13)
-    A = _system(200, 60, 3)
-    chol = NormalCholesky(A, rng.permutation(60))
-    Y = rng.normal(size=(60, 5))
-    wide = np.zeros((60, 10))
-    wide[:, ::2] = Y
-    for layout in (np.ascontiguousarray(Y), np.asfortranarray(Y), wide[:, ::2]):
-        assert np.array_equal(layout, Y)
-        copied = cholmod._column_major(layout)
-        assert copied.flags.f_contiguous and np.array_equal(copied, Y)
-        assert np.array_equal(chol.solve(layout), chol.solve(np.asfortranarray(Y)))
-    F = np.asfortranarray(Y)
-    assert cholmod._column_major(F) is F
-
-
 def test_repeated_entries_are_summed_as_scipy_sums_them():
     rng = np.random.default_rng(12)
     A = _system(120, 40, 8)

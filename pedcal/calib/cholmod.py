@@ -302,24 +302,6 @@ def _super_numeric(lib: _Library, n: int, m: int, indptr: np.ndarray, indices: n
     return lib.super_numeric(ctypes.byref(S), ctypes.byref(S_t), ctypes.byref(beta), factor, lib.common)
 
 
-# a row-major right-hand side is copied column-major this many rows at a time: numpy's copy of a
-# transposed 12 456 x 32 array in one piece took 2.3 ms (each column gathered across the whole
-# array), in blocks of 256 rows 0.5 ms (each block's rows in cache)
-TRANSPOSE_ROWS = 256
-
-
-def _column_major(Y: np.ndarray) -> np.ndarray:
-    """``Y`` (n x k, floats) as a column-major array: itself when it is one, else a copy made
-    TRANSPOSE_ROWS rows at a time."""
-    if Y.flags.f_contiguous and Y.dtype == np.float64:
-        return Y
-    n, k = Y.shape
-    out = np.empty((k, n))
-    for lo in range(0, n, TRANSPOSE_ROWS):
-        out[:, lo:lo + TRANSPOSE_ROWS] = Y[lo:lo + TRANSPOSE_ROWS].T
-    return out.T
-
-
 class NormalCholesky:
     """CHOLMOD's supernodal Cholesky factorization L L^T = P A^T A P^T of a normal matrix, from A
     itself (CSR, its columns the variables), in the fill-reducing column ``order`` (P; without
@@ -386,7 +368,7 @@ class NormalCholesky:
             raise ValueError(f"a right-hand side of {y.shape[0]} rows for {self.n} columns")
         if y.size == 0:           # no column, or no right-hand side (before the reshape, which 0 rows cannot take)
             return np.zeros(y.shape)
-        Y = _column_major(y.reshape(self.n, -1))
+        Y = np.asfortranarray(y.reshape(self.n, -1))
         k = Y.shape[1]
         B = _Dense(self.n, k, self.n * k, self.n, Y.ctypes.data, None, _REAL, _DOUBLE)
         lib = library()
