@@ -736,18 +736,21 @@ def _local_profile(A: sps.csr_matrix, B: sps.csc_matrix, columns: np.ndarray,
     and the variables reduced to one). All m at once: batched d x d solves. (``dtheta`` is left
     at 0 for the caller.)"""
     m, d = columns.shape
-    # A's columns of the m variables (rows x m d), by a selection matrix: no copy of all of A
-    select = sps.csr_matrix((np.ones(m * d), (columns.ravel(), np.arange(m * d))), shape=(A.shape[1], m * d))
-    A_l = (A @ select).tocsc()
+    # the distinct variables (a sensor's clock offset and its own shift departure share its pose)
+    # and each nuisance's among them: each variable's columns taken once (scipy's column
+    # selection: no copy of all of A), its N_i formed once
+    variables, of = np.unique(columns, axis=0, return_inverse=True)
+    of = of.reshape(-1)
+    A_l = sps.csr_matrix(A)[:, variables.ravel()].tocsc()
     G = (A_l.T @ A_l).tocoo()
     own = G.row // d == G.col // d
-    N = np.zeros((m, d, d))
+    N = np.zeros((len(variables), d, d))
     N[G.row[own] // d, G.row[own] % d, G.col[own] % d] = G.data[own]
     C = (A_l.T @ B).tocoo()                                # A_i^T B_i: column i's own variable's rows
-    own = C.row // d == C.col
+    own = C.row // d == of[C.col]
     AtB = np.zeros((m, d))
     AtB[C.col[own], C.row[own] % d] = C.data[own]
-    Z = np.linalg.solve(N, AtB[:, :, None])[:, :, 0]
+    Z = np.linalg.solve(N[of], AtB[:, :, None])[:, :, 0]
     prior_info = np.array([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     hessian = np.asarray(B.multiply(B).sum(axis=0)).ravel() - np.einsum("id,id->i", AtB, Z) + prior_info
     return LocalProfile(dtheta=np.zeros(m), variance=1.0 / hessian, Z=Z, columns=columns)
