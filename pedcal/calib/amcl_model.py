@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from pedcal.model import Log
 
 VARIOGRAM_LAGS_S = np.array([0.2, 0.4, 0.8, 1.6, 3.2, 6.4, 12.8, 25.6, 51.2, 102.4])
 
@@ -143,7 +145,7 @@ def assumed_model(amcl, recipe, steps: np.ndarray | None = None) -> AmclErrorMod
     recipe's correlation time; the relocalization jumps that AMCL's track shows as steps out and
     back (:func:`detect_steps`, at the recipe's ``amcl_jump_threshold`` and ``amcl_min_jump_m``)
     left out, wherever the robot was. ``steps``: that mask (over ``amcl`` sorted by time, stable)
-    when the caller has it (:func:`jumps_moved_back` with ``return_steps``, on this track)."""
+    when the caller has it (:func:`jumps_moved_back`'s ``steps``, on this track)."""
     sig = reported_sigma_m(amcl)
     excess = max(amcl_white_sigma(amcl) ** 2 - recipe.amcl_white_fraction ** 2 * sig ** 2, 0.0)
     ordered = amcl.sort_values("t", kind="stable")
@@ -431,16 +433,24 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     return result()
 
 
-def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, return_steps: bool = False):
-    """(``log`` with AMCL's estimates inside the relocalization jumps its own track shows moved
-    back by the jumps' steps (:func:`detect_steps` with ``offsets``), the number of jumps): the
-    track as it would have been without them, within the steps' own error (AMCL's wander over
-    the steps' +-1 s windows and its jitter: 1-3 cm on 0.3-0.4 m jumps in a 5 cm wander,
-    tests/test_amcl_model.py). Jumps whose steps pair in doubt are not moved (the error model
-    leaves them out as before); AMCL's heading is not moved (the steps are measured in position).
-    ``log`` itself when the track shows none. ``return_steps``: also :func:`detect_steps`' mask of
-    the track as given (sorted by time, stable), every jump's, moved or not (what
-    :func:`assumed_model` takes of an unmoved track)."""
+class MovedJumps(NamedTuple):
+    """:func:`jumps_moved_back`'s result: the log (``log`` itself when nothing was moved), the
+    number of jumps moved back, and :func:`detect_steps`' mask of the track as given (sorted by
+    time, stable), every jump's, moved or not (what :func:`assumed_model` takes of an unmoved track)."""
+
+    log: Log
+    jumps: int
+    steps: np.ndarray
+
+
+def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1) -> MovedJumps:
+    """``log`` with AMCL's estimates inside the relocalization jumps its own track shows moved
+    back by the jumps' steps (:func:`detect_steps` with ``offsets``): the track as it would have
+    been without them, within the steps' own error (AMCL's wander over the steps' +-1 s windows
+    and its jitter: 1-3 cm on 0.3-0.4 m jumps in a 5 cm wander, tests/test_amcl_model.py). Jumps
+    whose steps pair in doubt are not moved (the error model leaves them out as before); AMCL's
+    heading is not moved (the steps are measured in position). Returns :class:`MovedJumps`: the
+    log (``log`` itself when the track shows none), the number of jumps moved and the steps' mask."""
     robot = log.robot
     order = np.argsort(robot["t"].to_numpy(float), kind="stable")
     xy = robot[["x", "y"]].to_numpy(float)[order]
@@ -449,7 +459,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, re
     steps = jump.copy()
     jump &= np.any(offset != 0.0, axis=1)       # (a jump whose steps pair in doubt is not moved)
     if not jump.any():
-        return (log, 0, steps) if return_steps else (log, 0)
+        return MovedJumps(log, 0, steps)
     moved = xy - offset
     out = copy.copy(log)
     out.robot = robot.copy()
@@ -457,7 +467,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, re
     out.robot.iloc[rows, out.robot.columns.get_loc("x")] = moved[jump, 0]
     out.robot.iloc[rows, out.robot.columns.get_loc("y")] = moved[jump, 1]
     n = _exclusion(jump, jump, robot["t"].to_numpy(float)[order])["jumps"]
-    return (out, n, steps) if return_steps else (out, n)
+    return MovedJumps(out, n, steps)
 
 
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,

@@ -140,8 +140,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
                                column="sensor_height_sigma_m")
     n_jumps, amcl_steps = 0, None
     if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
-        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m,
-                                                      return_steps=True)
+        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
         # (the steps of a track left as it was are the assumed AMCL model's, at the same
         # threshold: not looked for again; a moved track's are)
         amcl_steps, log = amcl_steps if moved is log else None, moved
