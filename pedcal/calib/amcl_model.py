@@ -133,6 +133,12 @@ def ar1_factor_sigmas(sigma: float, a: float, n_nodes: int) -> tuple[np.ndarray,
     return priors, float(sigma * np.sqrt((1.0 - a * a) / max(a, 1e-12)))
 
 
+def amcl_period_s(t: np.ndarray, default_s: float) -> float:
+    """AMCL's period, s: the median step between its stamps ``t`` (sorted), or ``default_s`` with
+    fewer than two of them."""
+    return float(np.median(np.diff(t))) if len(t) > 1 else float(default_s)
+
+
 def reported_sigma_m(amcl) -> float:
     """Median of AMCL's reported position std (m), at least 1 mm."""
     cov = amcl[["cov_xx", "cov_yy"]].to_numpy(float)
@@ -164,7 +170,7 @@ def _exclusion(excluded: np.ndarray, track_jumps: np.ndarray, t: np.ndarray) -> 
     """The model's fields for the estimates ``excluded`` (those of them ``track_jumps`` found in
     AMCL's track), over AMCL's rows at times ``t`` (sorted): the masks (None when empty), the
     number of runs left out and their time at AMCL's median period."""
-    period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    period = amcl_period_s(t, 1.0)
     starts = np.flatnonzero(np.diff(np.r_[0, excluded.astype(int)]) == 1)
     return dict(excluded=excluded if excluded.any() else None,
                 track_jumps=track_jumps if track_jumps.any() else None,
@@ -275,7 +281,7 @@ def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold
     if n < 10:
         return np.zeros(n, bool)
     # the window in samples at the median spacing (the estimates come at AMCL's rate)
-    size = int(2 * round(window_s / max(float(np.median(np.diff(t))), 1e-6)) + 1)
+    size = int(2 * round(window_s / max(amcl_period_s(t, 1.0), 1e-6)) + 1)
     med = running_median_nearest(e, min(size, 2 * (n // 2) - 1))
     dev = np.linalg.norm(e - med, axis=1)
     return dev > max(threshold * jump_scale(dev), min_jump_m)
@@ -501,7 +507,7 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     gamma, pairs = robust_variogram(t_amcl, series)
     # independent differences at a lag: every pair for a white error, about one per lag of the
     # sighted time for a wandering one (its increments over disjoint spans are independent)
-    period = float(np.median(np.diff(t_amcl))) if len(t_amcl) > 1 else 1.0
+    period = amcl_period_s(t_amcl, 1.0)
     sighted_s = float(sum(len(rows) for rows, _ in series)) * period
     n_eff = 0.5 * np.minimum(pairs, np.maximum(sighted_s / VARIOGRAM_LAGS_S, 1.0) * 2.0)
     # a correlation time beyond half the run cannot be told from a longer one: the run's mean error
@@ -555,4 +561,4 @@ def amcl_white_sigma(amcl: pd.DataFrame) -> float:
 
 __all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
            "robust_variogram", "fit_variogram", "node_drift_variance", "ar1_factor_sigmas",
-           "detect_jumps", "detect_steps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]
+           "detect_jumps", "detect_steps", "reported_sigma_m", "amcl_period_s", "VARIOGRAM_LAGS_S"]
