@@ -653,6 +653,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             spread = False
             step, nuis, spread_rec = estimate_departure_spread(prob, step, nuis, theta,
                                                                use=rec.head_shift_per_sensor_sigma_estimate)
+            prob.departure_spread = spread_rec
             _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
             full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)

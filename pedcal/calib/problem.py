@@ -82,6 +82,9 @@ class FactorGraphProblem:
     ray_shift_m: float = 0.0
     horizontal_shift_m: float = 0.0
     curvature_m: float = 0.0
+    # the spread of the sensors' own departures of the head point (headpoint.estimate_departure_spread's
+    # record, None without departures), for the head model's note
+    departure_spread: dict | None = None
     # corrections of the calibrated odometry the graph is built with (motion_block): distance
     # scale (-, 0: none), heading drift per metre driven (rad/m) and per second (rad/s)
     odometry_scale_correction: float = 0.0
