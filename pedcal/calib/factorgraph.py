@@ -140,8 +140,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
                                column="sensor_height_sigma_m")
     n_jumps, amcl_steps = 0, None
     if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
-        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m,
-                                                      return_steps=True)
+        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
         # (the steps of a track left as it was are the assumed AMCL model's, at the same
         # threshold: not looked for again; a moved track's are)
         amcl_steps, log = amcl_steps if moved is log else None, moved
@@ -654,6 +653,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             spread = False
             step, nuis, spread_rec = estimate_departure_spread(prob, step, nuis, theta,
                                                                use=rec.head_shift_per_sensor_sigma_estimate)
+            prob.departure_spread = spread_rec
             _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
             full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)

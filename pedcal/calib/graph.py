@@ -471,7 +471,7 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     c, s_ = np.cos(yaw_d), np.sin(yaw_d)
     tx = amcl["x"].to_numpy(float) - (c * odo[:, 0] - s_ * odo[:, 1])
     ty = amcl["y"].to_numpy(float) - (s_ * odo[:, 0] + c * odo[:, 1])
-    sig = smooth_s / max(float(np.median(np.diff(t_a))), 1e-3)
+    sig = smooth_s / max(amcl_period_s(t_a, 1.0), 1e-3)
     # the transform's components smoothed (the rotation through its sine and cosine)
     tx, ty, c, s_ = (gaussian_smooth_nearest(v, sig) for v in (tx, ty, c, s_))
     yaw_d = np.arctan2(s_, c)
@@ -519,7 +519,7 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     if model.excluded is not None:
         use &= ~model.excluded
     use = np.flatnonzero(use)
-    dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
+    dt_amcl = amcl_period_s(amcl_t, 1.0)
     nodes = prob.amcl_node_times
     dn = float(nodes[1] - nodes[0]) if len(nodes) > 1 else 1.0
     # white error (the model's share of the reported covariance and its own std) and the OU's

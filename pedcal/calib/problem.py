@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal import frames
-from pedcal.calib.amcl_model import AmclErrorModel, amcl_white_sigma, assumed_model
+from pedcal.calib.amcl_model import AmclErrorModel, amcl_period_s, amcl_white_sigma, assumed_model
 from pedcal.calib.clocks import clock_shift_sensor
 from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
@@ -82,6 +82,9 @@ class FactorGraphProblem:
     ray_shift_m: float = 0.0
     horizontal_shift_m: float = 0.0
     curvature_m: float = 0.0
+    # the spread of the sensors' own departures of the head point (headpoint.estimate_departure_spread's
+    # record, None without departures), for the head model's note
+    departure_spread: dict | None = None
     # corrections of the calibrated odometry the graph is built with (motion_block): distance
     # scale (-, 0: none), heading drift per metre driven (rad/m) and per second (rad/s)
     odometry_scale_correction: float = 0.0
@@ -381,12 +384,6 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         floor, k = float(np.average(s_bin, weights=w)), 0.0
     return {"range_sigma_floor_m": float(max(floor, 1e-3)), "range_sigma_k_per_m": float(k),
             "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i))}
-
-
-def amcl_period_s(t_unique: np.ndarray, default_s: float) -> float:
-    """AMCL's period, s: the median step between its distinct stamps ``t_unique`` (sorted), or
-    ``default_s`` with fewer than two of them."""
-    return float(np.median(np.diff(t_unique))) if len(t_unique) > 1 else float(default_s)
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
