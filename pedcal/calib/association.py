@@ -74,6 +74,9 @@ class AssociationResult:
     latency_s: float
     runtime_s: float = 0.0
     params: dict = field(default_factory=dict)
+    # the AMCL head's interpolator the association read (:func:`pedcal.calib.common.head_interpolator`
+    # of the log), for a caller that reads the same track next
+    head_at: object = field(default=None, repr=False, compare=False)
 
     def T_world_sensor(self, sensor_id: str) -> gtsam.Pose3:
         return self.extrinsics[sensor_id].T_world_sensor
@@ -512,7 +515,7 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
         logging.getLogger(__name__).info(f"association: {int(is_robot.sum())} of {n_obs} observations are the robot "
                                          f"({timer.elapsed_s:.2f} s)")
     return AssociationResult(is_robot, SensorNetwork(sensors_out, log.sensors.frame), segments, latency_s,
-                             timer.elapsed_s, params)
+                             timer.elapsed_s, params, head_at=head_at)
 
 
 SEGMENT_COLUMNS = ["sensor", "track", "n", "t_start", "t_end", "duration_s", "explained_fraction",

@@ -46,7 +46,9 @@ def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarra
     residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs."""
     index = {s.id: i for i, s in enumerate(log.sensors)}
     m = len(index)
-    code = pd.Series(sensor, dtype=object).map(index).to_numpy(float)
+    # (each distinct name looked up once: a lookup per pair took longer than the fits)
+    row_name, names = pd.factorize(np.asarray(sensor, dtype=object).ravel(), use_na_sentinel=False)
+    code = np.array([index.get(n, np.nan) for n in names], float)[row_name]
     keep = np.flatnonzero(np.isfinite(code))            # (a sensor the network does not hold: none of its fits)
     order = keep[np.argsort(code[keep], kind="stable")]
     code, p_sensor, p_world = code[order].astype(np.int64), p_sensor[order], p_world[order]
@@ -77,7 +79,8 @@ def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarra
 
 def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, latency_s: float | None = None,
                          min_pairs: int = MIN_PAIRS, collinear_spread_m: float = COLLINEAR_SPREAD_M,
-                         points_sensor: np.ndarray | None = None, **association_params) -> CalibrationResult:
+                         points_sensor: np.ndarray | None = None, head_at=None,
+                         **association_params) -> CalibrationResult:
     """Per-sensor Horn/Umeyama fit of the robot's observations to the AMCL head positions.
 
     ``is_robot``: bool mask over log.observations rows; None finds the robot with
@@ -95,7 +98,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             from pedcal.calib.association import associate_robot
 
             assoc = associate_robot(log, progress=progress, p_sensor=p_sensor_all, **association_params)
-            is_robot = assoc.is_robot
+            is_robot, head_at = assoc.is_robot, assoc.head_at
             diagnostics.association_runtime_s = assoc.runtime_s
             if latency_s is None:
                 latency_s = assoc.latency_s
@@ -106,7 +109,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                                        f"({len(log.observations)}), got dtype {is_robot.dtype} and shape "
                                        f"{is_robot.shape}", path=log.path)
         # (made after the association, whose error for a log without robot.csv is the clearer)
-        head_at = head_interpolator(log)
+        head_at = head_interpolator(log) if head_at is None else head_at
         if latency_s is None:       # (a mask given: the association's estimate is not at hand)
             latency_s = estimate_latency(log, is_robot, head_at=head_at, p_sensor=p_sensor_all)
         diagnostics.tracker_latency_s = float(latency_s)

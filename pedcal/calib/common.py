@@ -344,12 +344,21 @@ class Timer:
 def interpolate_pose2(track: pd.DataFrame, t: np.ndarray) -> np.ndarray:
     """Robot base (x, y, yaw) at times ``t`` by linear interpolation of a t/x/y/yaw table,
     yaw unwrapped before interpolating. Times outside the table are clamped to its ends."""
+    return pose2_interpolator(track)(t)
+
+
+def pose2_interpolator(track: pd.DataFrame):
+    """t -> :func:`interpolate_pose2` (``track``, t), the table sorted and its yaw unwrapped once
+    for every call (the robot's motion reads the odometry at three sets of times per call)."""
     track = track.sort_values("t")
     tt = track["t"].to_numpy(float)
-    x = np.interp(t, tt, track["x"].to_numpy(float))
-    y = np.interp(t, tt, track["y"].to_numpy(float))
-    yaw = np.interp(t, tt, np.unwrap(track["yaw"].to_numpy(float)))
-    return np.column_stack([x, y, yaw])
+    x, y = track["x"].to_numpy(float), track["y"].to_numpy(float)
+    yaw = np.unwrap(track["yaw"].to_numpy(float))
+
+    def at(t):
+        return np.column_stack([np.interp(t, tt, x), np.interp(t, tt, y), np.interp(t, tt, yaw)])
+
+    return at
 
 
 def gaussian_smooth_nearest(v: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:

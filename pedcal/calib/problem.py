@@ -17,6 +17,7 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.amcl_model import AmclErrorModel, amcl_period_s, amcl_white_sigma, assumed_model
 from pedcal.calib.clocks import clock_shift_sensor
+from pedcal.calib.common import head_interpolator
 from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
@@ -204,11 +205,12 @@ def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network:
 
 
 def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None
-                     ) -> dict[str, gtsam.Pose3]:
+                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None,
+                     head_at=None) -> dict[str, gtsam.Pose3]:
     """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
     ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
-    closed form reads too."""
+    closed form reads too, and ``head_at`` a function returning
+    :func:`pedcal.calib.common.head_interpolator` of ``log`` (called only by the closed form)."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -219,6 +221,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
                                                                                 latency_s=latency_s,
                                                                                 points_sensor=points_sensor)
+        if recipe.init == "closedform" and head_at is not None:
+            opts["head_at"] = head_at()
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
@@ -244,8 +248,15 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
 
     latency = None
     # (the head points in each sensor's frame, read once: the association, the initializer and
-    # the shared people's tracks take them too)
+    # the shared people's tracks take them too; so is AMCL's head spline, made by the association
+    # or on the first call, for the latency, the closed form and the robot's motion)
     p_all = log.observation_points_sensor()
+    heads: list = []
+
+    def head_at():
+        if not heads:
+            heads.append(head_interpolator(log))
+        return heads[0]
     if not recipe.robot:
         # Without the robot's observations the robot is one more unlocalized person, as in the
         # alternative (SNAPCAT-3D): its tracks are shared sightings like anyone's, and no
@@ -255,12 +266,13 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         _log(progress, "picking out the robot's observations")
         assoc = associate_robot(log, p_sensor=p_all)
         is_robot, latency = assoc.is_robot, assoc.latency_s
+        heads.append(assoc.head_at)
     is_robot = np.asarray(is_robot, bool)
     if not recipe.estimate_latency:
         latency = 0.0
     elif latency is None:
-        latency = (estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s, p_sensor=p_all)
-                   if is_robot.sum() >= 12 else 0.0)
+        latency = (estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s, p_sensor=p_all,
+                                    head_at=head_at()) if is_robot.sum() >= 12 else 0.0)
     _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
     sensor_col = obs["sensor"].astype(str).to_numpy()
@@ -287,14 +299,16 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         smooth = smoothed_track(log.robot, recipe.amcl_smooth_s)
         _log(progress, f"AMCL jitter {1000 * amcl_white_sigma(log.robot):.0f} mm: short-term motion from AMCL "
                        f"smoothed over {recipe.amcl_smooth_s:.1f} s")
-    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network, points_sensor=p_all)
+    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network, points_sensor=p_all,
+                            head_at=head_at)
     # robot poses only when something observes them (people-only graphs hold the sensors alone)
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
                               ray_shift_m=recipe.head_radius_m,
                               obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
-                              motion=RobotMotion(log, odometry if odometry is not None else smooth),
+                              motion=RobotMotion(log, odometry if odometry is not None else smooth,
+                                                 head_at=head_at()),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
     set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
