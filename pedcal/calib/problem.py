@@ -275,7 +275,10 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                                     head_at=head_at()) if is_robot.sum() >= 12 else 0.0)
     _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
-    sensor_col = obs["sensor"].astype(str).to_numpy()
+    # (each row's sensor by the column's codes: the names of the rows used taken from them, no
+    # Python string made per row, and their codes kept for the grouping by sensor)
+    sensor_code, sensor_names = pd.factorize(obs["sensor"], use_na_sentinel=False)
+    sensor_names = np.array([str(n) for n in sensor_names], dtype=object)
     t_all = obs["t"].to_numpy(float)
     rows = np.flatnonzero(is_robot)
     amcl_t = log.robot["t"].to_numpy(float)
@@ -305,12 +308,18 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
                               ray_shift_m=recipe.head_radius_m,
-                              obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
+                              obs_sensor=sensor_names[sensor_code[rows]], obs_p_raw=p_all[rows],
+                              obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
                               motion=RobotMotion(log, odometry if odometry is not None else smooth,
                                                  head_at=head_at()),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
+    if len(set(sensor_names.tolist())) == len(sensor_names):
+        # the rows' sensors numbered by first appearance (obs_sensor_codes) from their codes: the
+        # same numbering as the names' own, distinct names having distinct codes
+        codes, first = pd.factorize(sensor_code[rows])
+        prob.__dict__["_obs_sensor_codes"] = (prob.obs_sensor, (codes, sensor_names[first]))
     set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
@@ -354,10 +363,12 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     if rows is None or len(rows) < 2:
         return None
     obs_t = prob.obs_t_raw - prob.latency_s
-    # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
-    track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
+    # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the
+    # rest; the track column's codes taken of the column as it is, no Python string made per row)
+    track = pd.factorize(log.observations["track"], use_na_sentinel=False)[0][rows].astype(np.int64)
     sensor, sensor_ids = prob.obs_sensor_codes()
-    order = np.lexsort((obs_t, track, sensor))
+    # by sensor, then track, then time: (sensor, track) as one key, an order the same as three keys'
+    order = np.lexsort((obs_t, sensor.astype(np.int64) * (int(track.max(initial=0)) + 1) + track))
     s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
     nxt = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1]) & (dt > 0.0) & (dt <= max_gap_s)
@@ -372,9 +383,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     u = p_i / r[:, None]
     along = np.sum(d * u, axis=1)
     a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    b1 = np.cross(u, a)
+    b1 = _cross(u, a)
     b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-    b2 = np.cross(u, b1)
+    b2 = _cross(u, b1)
 
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
@@ -398,6 +409,14 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         floor, k = float(np.average(s_bin, weights=w)), 0.0
     return {"range_sigma_floor_m": float(max(floor, 1e-3)), "range_sigma_k_per_m": float(k),
             "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i))}
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of rows (n, 3) x (n, 3), to the bit (each component one product less another,
+    as NumPy takes it), without its moves of the axes (a third of the noise estimate's time)."""
+    a0, a1, a2 = a.T
+    b0, b1, b2 = b.T
+    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
