@@ -166,9 +166,13 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
     if (hit is not None and all(a is b for a, b in zip(hit[0], inputs, strict=True))
             and np.array_equal(hit[1], offsets) and np.array_equal(hit[2], use)):
         return hit[3]
-    delta = offsets[prob.fac_sensor_index[use]]
-    v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[use]] - 0.5 * delta)
-    shift = delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[use], v_world)
+    # (every factor, the usual ask: the tables read as they are, not gathered)
+    n = len(prob.fac_sensor_index)
+    rows = slice(None) if (use.dtype != bool and len(use) == n and n
+                           and np.array_equal(use, np.arange(n))) else use
+    delta = offsets[prob.fac_sensor_index[rows]]
+    v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[rows]] - 0.5 * delta)
+    shift = delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[rows], v_world)
     shift.setflags(write=False)       # (handed out again: no caller may write into it)
     prob.__dict__["_clock_shift_last"] = (inputs, offsets, use.copy(), shift)
     return shift

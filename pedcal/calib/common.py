@@ -349,7 +349,8 @@ def interpolate_pose2(track: pd.DataFrame, t: np.ndarray) -> np.ndarray:
 
 def pose2_interpolator(track: pd.DataFrame):
     """t -> :func:`interpolate_pose2` (``track``, t), the table sorted and its yaw unwrapped once
-    for every call (the robot's motion reads the odometry at three sets of times per call)."""
+    for every call (the robot's motion reads the odometry at three sets of times per call); its
+    ``yaw(t)`` the yaw column alone."""
     track = track.sort_values("t")
     tt = track["t"].to_numpy(float)
     x, y = track["x"].to_numpy(float), track["y"].to_numpy(float)
@@ -358,6 +359,7 @@ def pose2_interpolator(track: pd.DataFrame):
     def at(t):
         return np.column_stack([np.interp(t, tt, x), np.interp(t, tt, y), np.interp(t, tt, yaw)])
 
+    at.yaw = lambda t: np.interp(t, tt, yaw)        # (the third column alone)
     return at
 
 

@@ -167,7 +167,7 @@ class FactorGraphProblem:
         else:
             i = np.zeros(len(self.obs_t), int)
         self.obs_key_index = i
-        disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
+        disp = self.motion.displacement(self.obs_t, tk, to_index=i) if len(self.obs_t) else np.zeros((0, 3))
         R = per_row(self.obs_sensor, rotations.get, (3, 3), codes=self.obs_sensor_codes())
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
@@ -376,7 +376,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     if len(i) < min_pairs:
         return None
     R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])[sensor[i]]
-    disp = prob.motion.displacement(obs_t[j], obs_t[i])
+    disp = prob.motion.displacement(obs_t, obs_t, from_index=j, to_index=i)
     p_i = prob.obs_p_raw[i]
     d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
     r = np.linalg.norm(p_i, axis=1)
