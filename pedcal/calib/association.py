@@ -432,7 +432,15 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
         t_all = obs["t"].to_numpy(float)
         sensor_col = obs["sensor"].astype(str).to_numpy()
         track_col = obs["track"].astype(str).to_numpy()
-        seg_codes, _ = pd.factorize(pd.Series(sensor_col) + "\x00" + pd.Series(track_col))
+        # each (sensor, track) segment numbered by first appearance, from the columns' codes (as the
+        # joined texts' own numbering: distinct pairs, distinct codes), and each sensor's rows
+        sensor_code, sensor_names = pd.factorize(sensor_col)
+        track_code = pd.factorize(track_col)[0]
+        seg_codes = pd.factorize(sensor_code.astype(np.int64) * (int(track_code.max(initial=0)) + 1)
+                                 + track_code)[0]
+        by_sensor = np.argsort(sensor_code, kind="stable")
+        cuts = np.r_[0, np.cumsum(np.bincount(sensor_code, minlength=len(sensor_names)))]
+        rows_of = {str(sid): by_sensor[cuts[i]:cuts[i + 1]] for i, sid in enumerate(sensor_names)}
         p_sensor = log.observation_points_sensor() if p_sensor is None else np.asarray(p_sensor, float)
         p_installed = obs[["x", "y", "z"]].to_numpy(float)
         robot_t = log.robot["t"].to_numpy(float)
@@ -447,7 +455,7 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
 
         per_sensor = {}
         for s in log.sensors:
-            rows = np.flatnonzero(sensor_col == s.id)
+            rows = rows_of.get(s.id, np.zeros(0, np.int64))
             if len(rows):
                 per_sensor[s.id] = _SensorRows(s.id, rows, t_all[rows], seg_codes[rows], track_col[rows],
                                                p_sensor[rows], p_installed[rows], in_range[rows])

@@ -1009,8 +1009,8 @@ def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:
     n_amcl = _count_held(result, "a", len(prob.amcl_node_times))
     people = [m for m in range(len(prob.people)) if result.exists(L(m))]
     return GraphKeys(sensors={sid: S(i) for i, sid in enumerate(prob.sensor_ids)},
-                     robot_poses=[X(k) for k in range(n_pose)], robot_pose_times=prob.pose_times[:n_pose],
-                     amcl_errors=[A(k) for k in range(n_amcl)], amcl_error_times=prob.amcl_node_times[:n_amcl],
+                     robot_poses=symbols("x", range(n_pose)).tolist(), robot_pose_times=prob.pose_times[:n_pose],
+                     amcl_errors=symbols("a", range(n_amcl)).tolist(), amcl_error_times=prob.amcl_node_times[:n_amcl],
                      people=[L(m) for m in people], people_times=np.array([prob.people[m][0] for m in people]),
                      head_model=H(0) if result.exists(H(0)) else None)
 
