@@ -35,6 +35,7 @@ import logging
 import numpy as np
 import scipy.sparse as sps
 
+from pedcal.calib.common import rows_taken
 from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS, time_blocks
 from pedcal.calib.keys import symbol_parts, symbols
 from pedcal.calib.profile import Nuisance
@@ -167,9 +168,7 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
             and np.array_equal(hit[1], offsets) and np.array_equal(hit[2], use)):
         return hit[3]
     # (every factor, the usual ask: the tables read as they are, not gathered)
-    n = len(prob.fac_sensor_index)
-    rows = slice(None) if (use.dtype != bool and len(use) == n and n
-                           and np.array_equal(use, np.arange(n))) else use
+    rows = rows_taken(use, len(prob.fac_sensor_index))
     delta = offsets[prob.fac_sensor_index[rows]]
     v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[rows]] - 0.5 * delta)
     shift = delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[rows], v_world)

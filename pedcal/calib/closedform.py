@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
-from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator
+from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator, rows_taken
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
@@ -129,7 +129,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         robot_t = log.robot["t"].to_numpy(float)
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
         diagnostics.unpaired_robot_observations = int((is_robot & ~covered).sum())
-        use = np.flatnonzero(is_robot & covered)
+        use = rows_taken(np.flatnonzero(is_robot & covered), len(t_all))
         fits = _fits(log, None, p_sensor_all[use], head_at(t_all[use] - latency_s),
                      codes=(sensor_code[use], sensor_names))
         sensors_out = []

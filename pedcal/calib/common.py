@@ -341,6 +341,17 @@ class Timer:
         self.elapsed_s = time.perf_counter() - self.t0
 
 
+def rows_taken(index: np.ndarray, n: int):
+    """``index`` (integer rows of a table of ``n``), or ``slice(None)`` when it takes every row in
+    order: the table's own values then read as they are, not copied by a gather (at a large
+    network's hundreds of thousands of rows, fresh pages the kernel zeroes)."""
+    index = np.asarray(index)
+    if index.dtype != bool and len(index) == n and n and index[0] == 0 and index[-1] == n - 1 \
+            and np.array_equal(index, np.arange(n)):
+        return slice(None)
+    return index
+
+
 def interpolate_pose2(track: pd.DataFrame, t: np.ndarray) -> np.ndarray:
     """Robot base (x, y, yaw) at times ``t`` by linear interpolation of a t/x/y/yaw table,
     yaw unwrapped before interpolating. Times outside the table are clamped to its ends."""

@@ -102,7 +102,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import gaussian_smooth_nearest, head_world, interpolate_pose2
+from pedcal.calib.common import gaussian_smooth_nearest, head_world, interpolate_pose2, rows_taken
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
@@ -829,17 +829,18 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
                                           prob.fac_key_index[use], True, measured_regressors(prob, use),
                                           predicted=robot_points)
         reg = robot_regressors
-        p_obs = prob.fac_p_sensor[use] - hs * reg.toward_sensor - cv * reg.up_cos2
+        rows = rows_taken(use, len(prob.fac_key_index))     # (every factor: the tables as they are)
+        p_obs = prob.fac_p_sensor[rows] - hs * reg.toward_sensor - cv * reg.up_cos2
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
         # shift vs distance (pedcal.calib.headpoint)
         p_obs = p_obs + head_profile_shift_sensor(prob, theta, use, reg.toward_sensor, reg.distance_m)
-        sensor.append(prob.fac_sensor_index[use])
-        target.append(prob.fac_key_index[use])
+        sensor.append(prob.fac_sensor_index[rows])
+        target.append(prob.fac_key_index[rows])
         is_pose.append(np.ones(len(use), bool))
         p_all.append(p_obs)
         r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
         noise_r.append(reg.noise_range_m)
-        noise_count.append(np.asarray(prob.fac_count[use], int))
+        noise_count.append(np.asarray(prob.fac_count[rows], int))
     if rec.people:
         if people_regressors is None:
             people_regressors = people_sightings(prob, values if predicted and not insert_values else None, t_max)
