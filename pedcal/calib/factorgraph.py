@@ -342,9 +342,10 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
         share = np.where(n > 0, c2 / (c2 + w2 / np.maximum(n, 1)), 0.0)
         start = np.column_stack([-share * mean[:, 0], -share * mean[:, 1], np.full(len(nodes), z)])
         no_turn, exists, update = gtsam.Rot3(), values.exists, values.update
+        # (the Pose3 overload named: GTSAM's binding otherwise tries nine others first)
         for key, xyz in zip(symbols("a", range(len(nodes))).tolist(), start, strict=True):
             if exists(key):
-                update(key, gtsam.Pose3(no_turn, xyz))
+                update(key, pose3=gtsam.Pose3(no_turn, xyz))
     if not resolve:
         # Gauss-Newton steps follow, those of the nuisances' profile (each a joint step of the
         # variables, from a point one such step already settled under the first model): they
