@@ -300,6 +300,10 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
 # few logs is as uncertain as those few draws. The figures below take the log as the unit of
 # resampling.
 
+# fewer logs than this get no interval: a bootstrap over one or two logs only repeats them
+MIN_LOGS_FOR_INTERVAL = 3
+
+
 def _rows(a) -> np.ndarray:
     """``a`` as a float array of rows (n, axes): a flat one is one axis."""
     a = np.asarray(a, float)
@@ -389,14 +393,13 @@ def sigma_honesty(per_log_ratios: list[np.ndarray], n_boot: int = 2000, seed: in
             log_bootstrap(per_log_ratios, sigma_ratio_rms, n_boot, seed, level))
 
 
-def format_clustered(fig: ClusteredFigure, scale: float = 1.0, digits: int = 0, min_logs: int = 3,
-                     unit: str = "logs") -> str:
+def format_clustered(fig: ClusteredFigure, scale: float = 1.0, digits: int = 0, unit: str = "logs") -> str:
     """'a [lo-hi] / b [lo-hi] / ...' per axis, each value times ``scale``; with fewer than
-    ``min_logs`` logs (``unit`` names them) the estimates alone, 'a / b / ... (N logs: no
+    MIN_LOGS_FOR_INTERVAL logs (``unit`` names them) the estimates alone, 'a / b / ... (N logs: no
     interval)': a bootstrap over one or two logs only repeats them, a width of nothing."""
     def f(v):
         return "-" if not np.isfinite(v) else f"{scale * v:.{digits}f}"
 
-    if fig.logs < min_logs:
+    if fig.logs < MIN_LOGS_FOR_INTERVAL:
         return " / ".join(f(e) for e in fig.estimate) + f" ({fig.logs} {unit}: no interval)"
     return " / ".join(f"{f(e)} [{f(lo)}-{f(hi)}]" for e, lo, hi in zip(fig.estimate, fig.low, fig.high, strict=True))

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.gbt import GradientBoostedTrees
 from pedcal.errors import PedcalInputError
 
 
@@ -124,3 +125,22 @@ def test_sample_weights_are_the_initial_weights(depth):
     for bad in (np.zeros(400), np.ones(3), np.full(400, np.nan)):
         with pytest.raises(ValueError, match="sample_weight"):
             RealAdaBoost(n_rounds=2).fit(X, y, sample_weight=bad)
+
+
+@pytest.mark.parametrize("make", [lambda: RealAdaBoost(n_rounds=5), lambda: GradientBoostedTrees(n_estimators=5)],
+                         ids=["adaboost", "gbt"])
+def test_both_classifiers_refuse_scoring_untrained_or_on_other_features_and_move_their_threshold(make):
+    # (the person classifiers share these: pedcal.detect.adaboost.ScoreClassifier)
+    X, y = toy(6, n=300, F=12)
+    with pytest.raises(RuntimeError, match="not trained"):
+        make().decision_function(X)
+    m = make().fit(X, y)
+    with pytest.raises(ValueError, match="expected 12 features, got 5"):
+        m.predict(X[:, :5])
+    F = m.decision_function(X)
+    t = float(np.quantile(F, 0.7))
+    assert m.set_threshold(t) is m
+    np.testing.assert_allclose(m.decision_function(X), F - t, rtol=0, atol=1e-12)
+    assert np.array_equal(m.predict(X), (F - t > 0).astype(int)) and 0 < m.predict(X).sum() < len(X)
+    # a single row (1-D) is one sample
+    assert m.decision_function(X[0]).shape == (1,)

@@ -494,8 +494,8 @@ def test_jumps_moved_back_keeps_the_tables_rows_and_moves_only_the_jumps():
                                                                  "cov_yyaw", "cov_yawyaw")}})
     shuffled = robot.sample(frac=1.0, random_state=5).reset_index(drop=True)      # rows in any order
     log = Log(sensors=None, robot=shuffled, observations=pd.DataFrame())
-    moved, n_jumps = jumps_moved_back(log)
-    assert n_jumps == 1 and moved is not log and log.robot is shuffled
+    moved, n_jumps, steps = jumps_moved_back(log)
+    assert n_jumps == 1 and steps.sum() == 50 and moved is not log and log.robot is shuffled
     changed = (moved.robot[["x", "y"]].to_numpy() != shuffled[["x", "y"]].to_numpy()).any(axis=1)
     in_jump = (shuffled["t"].to_numpy() >= 80.0 - 1e-9) & (shuffled["t"].to_numpy() < 90.0 - 1e-9)
     assert np.array_equal(changed, in_jump)
@@ -504,7 +504,8 @@ def test_jumps_moved_back_keeps_the_tables_rows_and_moves_only_the_jumps():
     assert np.abs(moved.robot["x"].to_numpy()[in_jump] - (shuffled["x"].to_numpy()[in_jump] - 0.4)).max() < 0.03
     assert moved.robot.drop(columns=["x", "y"]).equals(shuffled.drop(columns=["x", "y"]))
     clean = Log(sensors=None, robot=robot.assign(x=robot["x"] - 0.4 * on), observations=pd.DataFrame())
-    assert jumps_moved_back(clean) == (clean, 0)
+    unmoved = jumps_moved_back(clean)
+    assert unmoved.log is clean and unmoved.jumps == 0 and not unmoved.steps.any()
 
 
 @pytest.mark.parametrize("later", ["jump out and back", "step that stays"])
@@ -527,7 +528,8 @@ def test_steps_that_pair_in_doubt_move_nothing(later):
     from pedcal.model import Log
 
     log = Log(sensors=None, robot=_robot_table(t, p), observations=pd.DataFrame())
-    assert jumps_moved_back(log) == (log, 0)
+    unmoved = jumps_moved_back(log)
+    assert unmoved.log is log and unmoved.jumps == 0 and unmoved.steps.any()     # found, not moved
     # while a jump well after the start, as long as it lasts, is moved back
     p2 = clean.copy()
     _jumped(p2, t, 60.0, 80.0, [0.4, 0.0])
@@ -602,10 +604,15 @@ def test_a_step_that_never_comes_back_does_not_hide_a_later_jump():
     assert np.array_equal(detect_steps(t, p), on)
 
 
-def test_amcls_period_is_the_median_step_of_its_distinct_stamps_or_the_default():
-    from pedcal.calib.problem import amcl_period_s
+def test_amcls_period_is_the_median_step_of_its_stamps_or_the_default():
+    from pedcal.calib import problem
+    from pedcal.calib.amcl_model import amcl_period_s
 
+    assert problem.amcl_period_s is amcl_period_s           # (the name the graph's modules import)
     # steps 0.1, 0.2, 0.2: the median 0.2 (the smallest 0.1, the mean 0.167)
     assert amcl_period_s(np.array([0.0, 0.1, 0.3, 0.5]), 5.0) == pytest.approx(0.2, abs=1e-15)
     assert amcl_period_s(np.array([3.0]), 5.0) == 5.0            # one stamp: no step to read
     assert amcl_period_s(np.zeros(0), 2.5) == 2.5
+    # the stamps as given: repeated ones are steps of 0 (distinct stamps are the caller's to pass)
+    assert amcl_period_s(np.array([0.0, 0.0, 0.0, 0.1]), 5.0) == 0.0
+    assert amcl_period_s(np.unique([0.0, 0.0, 0.0, 0.1]), 5.0) == pytest.approx(0.1, abs=1e-15)

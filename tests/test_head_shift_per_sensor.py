@@ -303,7 +303,7 @@ def test_the_spread_between_trackers_is_estimated_and_recorded(nadir, use, monke
     # head_shift_per_sensor_sigma_estimate) or not
     sim, delta = nadir
     res, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch, head_shift_per_sensor_sigma_estimate=use)
-    spread = seen["prob"]._departure_spread
+    spread = seen["prob"].departure_spread
     assert spread["applied"] == use
     true = np.std(list(delta.values()))
     assert spread["sensors"] == len(delta)

@@ -139,6 +139,7 @@ def test_too_few_informed_sensors_keep_the_recipes_sigma_with_a_warning():
         step2, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)))
     assert rec["estimate_m"] is None and rec["rms_m"] is None and not rec["applied"]
     assert nuis2 == nuis and np.array_equal(step2.hessian, H)
+    assert list(vars(prob)) == ["recipe"]           # the record is returned, the caller keeps it
     assert "not estimated (the data determine 2 sensors' own shift" in spread_note(rec)
     assert "prior sigma 20 mm" in spread_note(rec)
     # only reported (the recipe's default): no warning
@@ -171,6 +172,7 @@ def test_an_estimate_only_reported_leaves_the_step_and_the_prior_as_they_were():
     H, dtheta = step.hessian.copy(), step.dtheta.copy()
     step, nuis2, rec = estimate_departure_spread(prob, step, nuis, np.zeros(len(nuis)), use=False)
     assert not rec["applied"] and 0.015 < rec["estimate_m"] < 0.05
+    assert list(vars(prob)) == ["recipe"]           # the record is returned, the caller keeps it
     assert nuis2 == nuis and np.array_equal(step.hessian, H) and np.array_equal(step.dtheta, dtheta)
     # the same estimate as when used
     used = estimate_departure_spread(*_step(12, 3), np.zeros(len(nuis)))[2]

@@ -94,6 +94,24 @@ def test_bad_pedestrian_files(tmp_path, content, kind, match, row, column):
         assert (ei.value.row, ei.value.column) == (row, column)
 
 
+@pytest.mark.parametrize("kind", ["auto", "atc"])
+@pytest.mark.parametrize("what,match", [("missing", "pedestrian file not found"),
+                                        ("folder", "is a directory, expected a pedestrian file"),
+                                        ("fifo", "is a FIFO .*expected a regular pedestrian file")])
+def test_a_path_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, what, match, kind):
+    # (the layout's sniffing and the table's reading check the path alike: a FIFO is refused, not read)
+    import os
+
+    p = tmp_path / "people.csv"
+    if what == "folder":
+        p.mkdir()
+    elif what == "fifo":
+        os.mkfifo(p)
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_pedestrians(p, kind=kind)
+    assert ei.value.path == str(p)
+
+
 def test_import_people_fps_for_renamed_recordings(shared_data, tmp_path, capsys):
     """A renamed ETH/UCY file does not get a guessed rate: the command asks for --fps; with it,
     every real recording plays at walking speed."""

@@ -4,6 +4,7 @@ over the logs (a log's sensors share one draw of AMCL's error: the log is the un
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -129,6 +130,9 @@ def test_the_format_names_each_axis_estimate_and_interval():
     # two logs: a bootstrap only repeats them, so no interval is claimed
     two = log_bootstrap(logs, within_sigma_share, n_boot=400)
     assert format_clustered(two, 100, unit="seeds") == "50 / 50 / 100 (2 seeds: no interval)"
+    # three logs, the fewest that get one
+    three = log_bootstrap(logs + logs[:1], within_sigma_share, n_boot=400)
+    assert re.fullmatch(r"67 \[\d+-100\] / 33 \[0-\d+\] / 100 \[100-100\]", format_clustered(three, 100, unit="seeds"))
     rms = log_bootstrap([np.array([[INF]])] * 3, sigma_ratio_rms, n_boot=10)
     assert format_clustered(rms, digits=2) == "- [---]"          # no finite ratio
 

@@ -90,13 +90,12 @@ def test_assumed_model_takes_the_steps_jumps_moved_back_found():
     robot = _robot_table(t, p).sample(frac=1.0, random_state=2).reset_index(drop=True)
     log = Log(sensors=None, robot=robot, observations=pd.DataFrame())
     rec = GraphRecipe.load("default")
-    moved, n, steps = jumps_moved_back(log, rec.amcl_jump_threshold, rec.amcl_min_jump_m, return_steps=True)
+    moved, n, steps = jumps_moved_back(log, rec.amcl_jump_threshold, rec.amcl_min_jump_m)
     assert moved is log and n == 0
     order = np.argsort(robot["t"].to_numpy(), kind="stable")
     expected = detect_steps(robot["t"].to_numpy()[order], robot[["x", "y"]].to_numpy()[order],
                             threshold=rec.amcl_jump_threshold, min_jump_m=rec.amcl_min_jump_m)
     assert np.array_equal(steps, expected) and steps.sum() >= 100
-    assert jumps_moved_back(log, rec.amcl_jump_threshold, rec.amcl_min_jump_m) == (log, 0)
     a, b = assumed_model(robot, rec), assumed_model(robot, rec, steps=steps)
     assert a.excluded is not None and a.jumps >= 1
     for f in dataclasses.fields(a):
@@ -104,13 +103,15 @@ def test_assumed_model_takes_the_steps_jumps_moved_back_found():
         assert (x is None and y is None) or np.array_equal(x, y), f.name
     with pytest.raises(ValueError, match="step flags"):
         assumed_model(robot, rec, steps=steps[:-1])
-    # a moved track returns its steps too (the caller looks for them again on the moved one)
+    # a moved track returns its steps too (the caller looks for them again on the moved one), by
+    # name as by place
     p2 = _wandering_track(np.random.default_rng(4), t)
     _jumped(p2, t, 60.0, 80.0, [0.4, 0.0])
     log2 = Log(sensors=None, robot=_robot_table(t, p2), observations=pd.DataFrame())
-    moved2, n2, steps2 = jumps_moved_back(log2, return_steps=True)
+    res = jumps_moved_back(log2)
+    moved2, n2, steps2 = res
     assert moved2 is not log2 and n2 == 1 and steps2.sum() == 200
-    assert jumps_moved_back(log2)[1] == 1
+    assert res.log is moved2 and res.jumps == 1 and res.steps is steps2
 
 
 def test_closed_form_with_the_points_given_is_the_same():

@@ -44,9 +44,9 @@ import gtsam
 import numpy as np
 import pandas as pd
 
-from pedcal import frames
 from pedcal.calib.common import AlternativeDiagnostics, CalibrationResult, Timer
 from pedcal.calib.options import AlternativeOptions
+from pedcal.calib.readback import sensor_sigma_world
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
@@ -266,23 +266,6 @@ def coincidence_error(p_i_sensor: np.ndarray, p_j_sensor: np.ndarray, this: gtsa
     return err
 
 
-def _sigma_world(T_world_sensor: gtsam.Pose3, cov_body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """1-sigma position (world axes, m) and ypr (deg) from a Pose3 marginal covariance (body frame,
-    rotation then translation). ypr's Jacobian w.r.t. the body rotation is taken numerically."""
-    R = T_world_sensor.rotation().matrix()
-    cov_position = R @ cov_body[3:, 3:] @ R.T
-    h = 1e-6
-    J = np.empty((3, 3))
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = h
-        plus = frames.ypr_deg_from_rot(R @ gtsam.Rot3.Expmap(e).matrix())
-        minus = frames.ypr_deg_from_rot(R @ gtsam.Rot3.Expmap(-e).matrix())
-        J[:, k] = np.degrees(frames.wrap_angle_rad(np.radians(plus - minus))) / (2 * h)
-    cov_ypr = J @ cov_body[:3, :3] @ J.T
-    return np.sqrt(np.clip(np.diag(cov_position), 0, None)), np.sqrt(np.clip(np.diag(cov_ypr), 0, None))
-
-
 def _solve(installed: SensorNetwork, initial: SensorNetwork, matches: list[SharedPoints], params: dict,
            compute_sigma: bool):
     """Joint LM solve of the sensor poses that appear in ``matches``; returns
@@ -405,7 +388,7 @@ def calibrate_alternative(log: Log, *, progress: bool = False, **options) -> Cal
             est = current[s.id]
             sigma_p = sigma_ypr = None
             if covs is not None:
-                sigma_p, sigma_ypr = _sigma_world(est.T_world_sensor, covs[s.id])
+                _, sigma_p, sigma_ypr = sensor_sigma_world(est.T_world_sensor, covs[s.id])
             status, unobservable = "ok", None
             if _path_spread_m(pts) < params["min_path_spread_m"]:
                 status, unobservable = "degenerate", ["rotation about the shared path"]

@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from pedcal.model import Log
 
 VARIOGRAM_LAGS_S = np.array([0.2, 0.4, 0.8, 1.6, 3.2, 6.4, 12.8, 25.6, 51.2, 102.4])
 
@@ -131,6 +133,12 @@ def ar1_factor_sigmas(sigma: float, a: float, n_nodes: int) -> tuple[np.ndarray,
     return priors, float(sigma * np.sqrt((1.0 - a * a) / max(a, 1e-12)))
 
 
+def amcl_period_s(t: np.ndarray, default_s: float) -> float:
+    """AMCL's period, s: the median step between its stamps ``t`` (sorted), or ``default_s`` with
+    fewer than two of them."""
+    return float(np.median(np.diff(t))) if len(t) > 1 else float(default_s)
+
+
 def reported_sigma_m(amcl) -> float:
     """Median of AMCL's reported position std (m), at least 1 mm."""
     cov = amcl[["cov_xx", "cov_yy"]].to_numpy(float)
@@ -143,7 +151,7 @@ def assumed_model(amcl, recipe, steps: np.ndarray | None = None) -> AmclErrorMod
     recipe's correlation time; the relocalization jumps that AMCL's track shows as steps out and
     back (:func:`detect_steps`, at the recipe's ``amcl_jump_threshold`` and ``amcl_min_jump_m``)
     left out, wherever the robot was. ``steps``: that mask (over ``amcl`` sorted by time, stable)
-    when the caller has it (:func:`jumps_moved_back` with ``return_steps``, on this track)."""
+    when the caller has it (:func:`jumps_moved_back`'s ``steps``, on this track)."""
     sig = reported_sigma_m(amcl)
     excess = max(amcl_white_sigma(amcl) ** 2 - recipe.amcl_white_fraction ** 2 * sig ** 2, 0.0)
     ordered = amcl.sort_values("t", kind="stable")
@@ -162,7 +170,7 @@ def _exclusion(excluded: np.ndarray, track_jumps: np.ndarray, t: np.ndarray) -> 
     """The model's fields for the estimates ``excluded`` (those of them ``track_jumps`` found in
     AMCL's track), over AMCL's rows at times ``t`` (sorted): the masks (None when empty), the
     number of runs left out and their time at AMCL's median period."""
-    period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    period = amcl_period_s(t, 1.0)
     starts = np.flatnonzero(np.diff(np.r_[0, excluded.astype(int)]) == 1)
     return dict(excluded=excluded if excluded.any() else None,
                 track_jumps=track_jumps if track_jumps.any() else None,
@@ -273,7 +281,7 @@ def detect_jumps(t: np.ndarray, e: np.ndarray, window_s: float = 15.0, threshold
     if n < 10:
         return np.zeros(n, bool)
     # the window in samples at the median spacing (the estimates come at AMCL's rate)
-    size = int(2 * round(window_s / max(float(np.median(np.diff(t))), 1e-6)) + 1)
+    size = int(2 * round(window_s / max(amcl_period_s(t, 1.0), 1e-6)) + 1)
     med = running_median_nearest(e, min(size, 2 * (n // 2) - 1))
     dev = np.linalg.norm(e - med, axis=1)
     return dev > max(threshold * jump_scale(dev), min_jump_m)
@@ -431,16 +439,24 @@ def detect_steps(t: np.ndarray, p: np.ndarray, half_window_s: float = 1.0, thres
     return result()
 
 
-def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, return_steps: bool = False):
-    """(``log`` with AMCL's estimates inside the relocalization jumps its own track shows moved
-    back by the jumps' steps (:func:`detect_steps` with ``offsets``), the number of jumps): the
-    track as it would have been without them, within the steps' own error (AMCL's wander over
-    the steps' +-1 s windows and its jitter: 1-3 cm on 0.3-0.4 m jumps in a 5 cm wander,
-    tests/test_amcl_model.py). Jumps whose steps pair in doubt are not moved (the error model
-    leaves them out as before); AMCL's heading is not moved (the steps are measured in position).
-    ``log`` itself when the track shows none. ``return_steps``: also :func:`detect_steps`' mask of
-    the track as given (sorted by time, stable), every jump's, moved or not (what
-    :func:`assumed_model` takes of an unmoved track)."""
+class MovedJumps(NamedTuple):
+    """:func:`jumps_moved_back`'s result: the log (``log`` itself when nothing was moved), the
+    number of jumps moved back, and :func:`detect_steps`' mask of the track as given (sorted by
+    time, stable), every jump's, moved or not (what :func:`assumed_model` takes of an unmoved track)."""
+
+    log: Log
+    jumps: int
+    steps: np.ndarray
+
+
+def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1) -> MovedJumps:
+    """``log`` with AMCL's estimates inside the relocalization jumps its own track shows moved
+    back by the jumps' steps (:func:`detect_steps` with ``offsets``): the track as it would have
+    been without them, within the steps' own error (AMCL's wander over the steps' +-1 s windows
+    and its jitter: 1-3 cm on 0.3-0.4 m jumps in a 5 cm wander, tests/test_amcl_model.py). Jumps
+    whose steps pair in doubt are not moved (the error model leaves them out as before); AMCL's
+    heading is not moved (the steps are measured in position). Returns :class:`MovedJumps`: the
+    log (``log`` itself when the track shows none), the number of jumps moved and the steps' mask."""
     robot = log.robot
     order = np.argsort(robot["t"].to_numpy(float), kind="stable")
     xy = robot[["x", "y"]].to_numpy(float)[order]
@@ -449,7 +465,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, re
     steps = jump.copy()
     jump &= np.any(offset != 0.0, axis=1)       # (a jump whose steps pair in doubt is not moved)
     if not jump.any():
-        return (log, 0, steps) if return_steps else (log, 0)
+        return MovedJumps(log, 0, steps)
     moved = xy - offset
     out = copy.copy(log)
     out.robot = robot.copy()
@@ -457,7 +473,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1, *, re
     out.robot.iloc[rows, out.robot.columns.get_loc("x")] = moved[jump, 0]
     out.robot.iloc[rows, out.robot.columns.get_loc("y")] = moved[jump, 1]
     n = _exclusion(jump, jump, robot["t"].to_numpy(float)[order])["jumps"]
-    return (out, n, steps) if return_steps else (out, n)
+    return MovedJumps(out, n, steps)
 
 
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,
@@ -491,7 +507,7 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     gamma, pairs = robust_variogram(t_amcl, series)
     # independent differences at a lag: every pair for a white error, about one per lag of the
     # sighted time for a wandering one (its increments over disjoint spans are independent)
-    period = float(np.median(np.diff(t_amcl))) if len(t_amcl) > 1 else 1.0
+    period = amcl_period_s(t_amcl, 1.0)
     sighted_s = float(sum(len(rows) for rows, _ in series)) * period
     n_eff = 0.5 * np.minimum(pairs, np.maximum(sighted_s / VARIOGRAM_LAGS_S, 1.0) * 2.0)
     # a correlation time beyond half the run cannot be told from a longer one: the run's mean error
@@ -545,4 +561,4 @@ def amcl_white_sigma(amcl: pd.DataFrame) -> float:
 
 __all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
            "robust_variogram", "fit_variogram", "node_drift_variance", "ar1_factor_sigmas",
-           "detect_jumps", "detect_steps", "reported_sigma_m", "VARIOGRAM_LAGS_S"]
+           "detect_jumps", "detect_steps", "reported_sigma_m", "amcl_period_s", "VARIOGRAM_LAGS_S"]

@@ -74,6 +74,9 @@ class AssociationResult:
     latency_s: float
     runtime_s: float = 0.0
     params: dict = field(default_factory=dict)
+    # the AMCL head's interpolator the association read (:func:`pedcal.calib.common.head_interpolator`
+    # of the log), for a caller that reads the same track next
+    head_at: object = field(default=None, repr=False, compare=False)
 
     def T_world_sensor(self, sensor_id: str) -> gtsam.Pose3:
         return self.extrinsics[sensor_id].T_world_sensor
@@ -429,7 +432,15 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
         t_all = obs["t"].to_numpy(float)
         sensor_col = obs["sensor"].astype(str).to_numpy()
         track_col = obs["track"].astype(str).to_numpy()
-        seg_codes, _ = pd.factorize(pd.Series(sensor_col) + "\x00" + pd.Series(track_col))
+        # each (sensor, track) segment numbered by first appearance, from the columns' codes (as the
+        # joined texts' own numbering: distinct pairs, distinct codes), and each sensor's rows
+        sensor_code, sensor_names = pd.factorize(sensor_col)
+        track_code = pd.factorize(track_col)[0]
+        seg_codes = pd.factorize(sensor_code.astype(np.int64) * (int(track_code.max(initial=0)) + 1)
+                                 + track_code)[0]
+        by_sensor = np.argsort(sensor_code, kind="stable")
+        cuts = np.r_[0, np.cumsum(np.bincount(sensor_code, minlength=len(sensor_names)))]
+        rows_of = {str(sid): by_sensor[cuts[i]:cuts[i + 1]] for i, sid in enumerate(sensor_names)}
         p_sensor = log.observation_points_sensor() if p_sensor is None else np.asarray(p_sensor, float)
         p_installed = obs[["x", "y", "z"]].to_numpy(float)
         robot_t = log.robot["t"].to_numpy(float)
@@ -444,7 +455,7 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
 
         per_sensor = {}
         for s in log.sensors:
-            rows = np.flatnonzero(sensor_col == s.id)
+            rows = rows_of.get(s.id, np.zeros(0, np.int64))
             if len(rows):
                 per_sensor[s.id] = _SensorRows(s.id, rows, t_all[rows], seg_codes[rows], track_col[rows],
                                                p_sensor[rows], p_installed[rows], in_range[rows])
@@ -512,7 +523,7 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
         logging.getLogger(__name__).info(f"association: {int(is_robot.sum())} of {n_obs} observations are the robot "
                                          f"({timer.elapsed_s:.2f} s)")
     return AssociationResult(is_robot, SensorNetwork(sensors_out, log.sensors.frame), segments, latency_s,
-                             timer.elapsed_s, params)
+                             timer.elapsed_s, params, head_at=head_at)
 
 
 SEGMENT_COLUMNS = ["sensor", "track", "n", "t_start", "t_end", "duration_s", "explained_fraction",

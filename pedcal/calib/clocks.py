@@ -35,6 +35,7 @@ import logging
 import numpy as np
 import scipy.sparse as sps
 
+from pedcal.calib.common import rows_taken
 from pedcal.calib.headpoint import CLUSTER_S, MIN_CLUSTERS, time_blocks
 from pedcal.calib.keys import symbol_parts, symbols
 from pedcal.calib.profile import Nuisance
@@ -166,9 +167,11 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
     if (hit is not None and all(a is b for a, b in zip(hit[0], inputs, strict=True))
             and np.array_equal(hit[1], offsets) and np.array_equal(hit[2], use)):
         return hit[3]
-    delta = offsets[prob.fac_sensor_index[use]]
-    v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[use]] - 0.5 * delta)
-    shift = delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[use], v_world)
+    # (every factor, the usual ask: the tables read as they are, not gathered)
+    rows = rows_taken(use, len(prob.fac_sensor_index))
+    delta = offsets[prob.fac_sensor_index[rows]]
+    v_world = _velocity_world_at(prob, prob.pose_times[prob.fac_key_index[rows]] - 0.5 * delta)
+    shift = delta[:, None] * np.einsum("nji,nj->ni", _sensor_rotations(prob)[rows], v_world)
     shift.setflags(write=False)       # (handed out again: no caller may write into it)
     prob.__dict__["_clock_shift_last"] = (inputs, offsets, use.copy(), shift)
     return shift

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
-from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator
+from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator, rows_taken
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
@@ -38,15 +38,20 @@ def fit_rigid(p_sensor, p_world, weights=None) -> tuple[np.ndarray, np.ndarray]:
     return rigid_from_moments(*moments(p_sensor, p_world, weights))
 
 
-def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarray) -> list[tuple]:
+def _fits(log: Log, sensor: np.ndarray | None, p_sensor: np.ndarray, p_world: np.ndarray,
+          codes: tuple | None = None) -> list[tuple]:
     """Every sensor's fit at once (the pairs grouped by sensor by one sort, their sums by
     reduceat, the 3 x 3 eigen- and singular-value problems batched): per sensor of the network,
     (pairs n, the world points' second principal spread (m, the square root of their
     covariance's middle eigenvalue) and principal direction, R, t of :func:`fit_rigid`, RMS
-    residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs."""
+    residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs. ``sensor``:
+    each pair's sensor id, or None with ``codes`` (each pair's code, the names the codes number)."""
     index = {s.id: i for i, s in enumerate(log.sensors)}
     m = len(index)
-    code = pd.Series(sensor, dtype=object).map(index).to_numpy(float)
+    # (each distinct name looked up once: a lookup per pair took longer than the fits)
+    row_name, names = codes if codes is not None else pd.factorize(np.asarray(sensor, dtype=object).ravel(),
+                                                                   use_na_sentinel=False)
+    code = np.array([index.get(str(n), np.nan) for n in names], float)[row_name]
     keep = np.flatnonzero(np.isfinite(code))            # (a sensor the network does not hold: none of its fits)
     order = keep[np.argsort(code[keep], kind="stable")]
     code, p_sensor, p_world = code[order].astype(np.int64), p_sensor[order], p_world[order]
@@ -64,7 +69,12 @@ def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarra
     # spread and principal direction
     mean_w = sums(p_world) / np.maximum(n, 1)[:, None]
     d = p_world - mean_w[code]
-    cov = sums(d[:, :, None] * d[:, None, :]) / np.maximum(n - 1, 1)[:, None, None]
+    # (its six distinct products summed, the other three entries their mirror: the same sums)
+    upper = np.triu_indices(3)
+    cov = np.empty((m, 3, 3))
+    cov[:, upper[0], upper[1]] = sums(d[:, upper[0]] * d[:, upper[1]])
+    cov[:, upper[1], upper[0]] = cov[:, upper[0], upper[1]]
+    cov /= np.maximum(n - 1, 1)[:, None, None]
     evals, evecs = np.linalg.eigh(cov)
     spread = np.where(n >= 2, np.sqrt(np.maximum(evals[:, 1], 0.0)), np.nan)
     R, t = np.full((m, 3, 3), np.nan), np.full((m, 3), np.nan)
@@ -77,7 +87,8 @@ def _fits(log: Log, sensor: np.ndarray, p_sensor: np.ndarray, p_world: np.ndarra
 
 def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, latency_s: float | None = None,
                          min_pairs: int = MIN_PAIRS, collinear_spread_m: float = COLLINEAR_SPREAD_M,
-                         points_sensor: np.ndarray | None = None, **association_params) -> CalibrationResult:
+                         points_sensor: np.ndarray | None = None, head_at=None,
+                         **association_params) -> CalibrationResult:
     """Per-sensor Horn/Umeyama fit of the robot's observations to the AMCL head positions.
 
     ``is_robot``: bool mask over log.observations rows; None finds the robot with
@@ -95,7 +106,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
             from pedcal.calib.association import associate_robot
 
             assoc = associate_robot(log, progress=progress, p_sensor=p_sensor_all, **association_params)
-            is_robot = assoc.is_robot
+            is_robot, head_at = assoc.is_robot, assoc.head_at
             diagnostics.association_runtime_s = assoc.runtime_s
             if latency_s is None:
                 latency_s = assoc.latency_s
@@ -106,19 +117,21 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
                                        f"({len(log.observations)}), got dtype {is_robot.dtype} and shape "
                                        f"{is_robot.shape}", path=log.path)
         # (made after the association, whose error for a log without robot.csv is the clearer)
-        head_at = head_interpolator(log)
+        head_at = head_interpolator(log) if head_at is None else head_at
         if latency_s is None:       # (a mask given: the association's estimate is not at hand)
             latency_s = estimate_latency(log, is_robot, head_at=head_at, p_sensor=p_sensor_all)
         diagnostics.tracker_latency_s = float(latency_s)
 
-        sensor_col = log.observations["sensor"].astype(str).to_numpy()
+        # (each row's sensor by the column's codes: no Python string made per row)
+        sensor_code, sensor_names = pd.factorize(log.observations["sensor"], use_na_sentinel=False)
         t_all = log.observations["t"].to_numpy(float)
         # robot observations past either end of robot.csv have no AMCL position to pair with
         robot_t = log.robot["t"].to_numpy(float)
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
         diagnostics.unpaired_robot_observations = int((is_robot & ~covered).sum())
-        use = np.flatnonzero(is_robot & covered)
-        fits = _fits(log, sensor_col[use], p_sensor_all[use], head_at(t_all[use] - latency_s))
+        use = rows_taken(np.flatnonzero(is_robot & covered), len(t_all))
+        fits = _fits(log, None, p_sensor_all[use], head_at(t_all[use] - latency_s),
+                     codes=(sensor_code[use], sensor_names))
         sensors_out = []
         for i, s in enumerate(log.sensors):
             n, spread_m, direction, R, t, rms_m = fits[i]

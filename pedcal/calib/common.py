@@ -341,15 +341,37 @@ class Timer:
         self.elapsed_s = time.perf_counter() - self.t0
 
 
+def rows_taken(index: np.ndarray, n: int):
+    """``index`` (integer rows of a table of ``n``), or ``slice(None)`` when it takes every row in
+    order: the table's own values then read as they are, not copied by a gather (at a large
+    network's hundreds of thousands of rows, fresh pages the kernel zeroes)."""
+    index = np.asarray(index)
+    if index.dtype != bool and len(index) == n and n and index[0] == 0 and index[-1] == n - 1 \
+            and np.array_equal(index, np.arange(n)):
+        return slice(None)
+    return index
+
+
 def interpolate_pose2(track: pd.DataFrame, t: np.ndarray) -> np.ndarray:
     """Robot base (x, y, yaw) at times ``t`` by linear interpolation of a t/x/y/yaw table,
     yaw unwrapped before interpolating. Times outside the table are clamped to its ends."""
+    return pose2_interpolator(track)(t)
+
+
+def pose2_interpolator(track: pd.DataFrame):
+    """t -> :func:`interpolate_pose2` (``track``, t), the table sorted and its yaw unwrapped once
+    for every call (the robot's motion reads the odometry at three sets of times per call); its
+    ``yaw(t)`` the yaw column alone."""
     track = track.sort_values("t")
     tt = track["t"].to_numpy(float)
-    x = np.interp(t, tt, track["x"].to_numpy(float))
-    y = np.interp(t, tt, track["y"].to_numpy(float))
-    yaw = np.interp(t, tt, np.unwrap(track["yaw"].to_numpy(float)))
-    return np.column_stack([x, y, yaw])
+    x, y = track["x"].to_numpy(float), track["y"].to_numpy(float)
+    yaw = np.unwrap(track["yaw"].to_numpy(float))
+
+    def at(t):
+        return np.column_stack([np.interp(t, tt, x), np.interp(t, tt, y), np.interp(t, tt, yaw)])
+
+    at.yaw = lambda t: np.interp(t, tt, yaw)        # (the third column alone)
+    return at
 
 
 def gaussian_smooth_nearest(v: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:

@@ -140,8 +140,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
                                column="sensor_height_sigma_m")
     n_jumps, amcl_steps = 0, None
     if recipe.robot and recipe.amcl_jumps_moved_back and len(log.robot):
-        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m,
-                                                      return_steps=True)
+        moved, n_jumps, amcl_steps = jumps_moved_back(log, recipe.amcl_jump_threshold, recipe.amcl_min_jump_m)
         # (the steps of a track left as it was are the assumed AMCL model's, at the same
         # threshold: not looked for again; a moved track's are)
         amcl_steps, log = amcl_steps if moved is log else None, moved
@@ -343,9 +342,10 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
         share = np.where(n > 0, c2 / (c2 + w2 / np.maximum(n, 1)), 0.0)
         start = np.column_stack([-share * mean[:, 0], -share * mean[:, 1], np.full(len(nodes), z)])
         no_turn, exists, update = gtsam.Rot3(), values.exists, values.update
+        # (the Pose3 overload named: GTSAM's binding otherwise tries nine others first)
         for key, xyz in zip(symbols("a", range(len(nodes))).tolist(), start, strict=True):
             if exists(key):
-                update(key, gtsam.Pose3(no_turn, xyz))
+                update(key, pose3=gtsam.Pose3(no_turn, xyz))
     if not resolve:
         # Gauss-Newton steps follow, those of the nuisances' profile (each a joint step of the
         # variables, from a point one such step already settled under the first model): they
@@ -654,6 +654,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
             spread = False
             step, nuis, spread_rec = estimate_departure_spread(prob, step, nuis, theta,
                                                                use=rec.head_shift_per_sensor_sigma_estimate)
+            prob.departure_spread = spread_rec
             _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
             full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
@@ -1009,8 +1010,8 @@ def graph_keys(prob: FactorGraphProblem, result: gtsam.Values) -> GraphKeys:
     n_amcl = _count_held(result, "a", len(prob.amcl_node_times))
     people = [m for m in range(len(prob.people)) if result.exists(L(m))]
     return GraphKeys(sensors={sid: S(i) for i, sid in enumerate(prob.sensor_ids)},
-                     robot_poses=[X(k) for k in range(n_pose)], robot_pose_times=prob.pose_times[:n_pose],
-                     amcl_errors=[A(k) for k in range(n_amcl)], amcl_error_times=prob.amcl_node_times[:n_amcl],
+                     robot_poses=symbols("x", range(n_pose)).tolist(), robot_pose_times=prob.pose_times[:n_pose],
+                     amcl_errors=symbols("a", range(n_amcl)).tolist(), amcl_error_times=prob.amcl_node_times[:n_amcl],
                      people=[L(m) for m in people], people_times=np.array([prob.people[m][0] for m in people]),
                      head_model=H(0) if result.exists(H(0)) else None)
 

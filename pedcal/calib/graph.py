@@ -102,7 +102,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
 
 # (the graph layer's other names are re-exported from the modules that hold them: F401)
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import gaussian_smooth_nearest, head_world, interpolate_pose2
+from pedcal.calib.common import gaussian_smooth_nearest, head_world, interpolate_pose2, rows_taken
 from pedcal.calib.headpoint import head_profile_shift_sensor, horizontal_distance
 from pedcal.calib.keys import A, H, L, S, X, symbol_parts, symbols  # noqa: F401 (the graph's keys, re-exported)
 from pedcal.calib.motion import (  # noqa: F401
@@ -310,7 +310,7 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     for i, sid in enumerate(prob.sensor_ids):
         T_inst = log.sensors[sid].T_world_sensor
         g.add(gtsam.PriorFactorPose3(S(i), T_inst, sensor_prior))
-        values.insert(S(i), prob.init_sensors[sid])
+        values.insert(S(i), pose3=prob.init_sensors[sid])
         if rec.sensor_height_sigma_m > 0.0:
             z_ref = rec.ceiling_height_m if rec.ceiling_height_m > 0.0 else float(T_inst.translation()[2])
             # about the initial pose (close to the solution: the Pose3 logmap couples the
@@ -326,9 +326,10 @@ def build_parts(log: Log, prob: FactorGraphProblem, *, t_max: float | None = Non
     # own factor holds them when it is in the graph).
     planar = gtsam.noiseModel.Diagonal.Sigmas(np.array(
         [np.radians(rec.planar_sigma_deg)] * 2 + [1e3, 1e3, 1e3, rec.head_height_sigma_m]))
+    # (the Pose3 overload named: GTSAM's binding otherwise tries nine others first, a third of the call)
     insert = values.insert
     for key, P in zip(symbols("x", range(n_pose)).tolist(), head_frames(init, head_m), strict=True):
-        insert(key, P)
+        insert(key, pose3=P)
         if not rec.amcl:
             blocks["amcl"].add(gtsam.PriorFactorPose3(key, P, planar))
     amcl = _amcl_block(blocks["amcl"], values, log, prob, times) if rec.amcl and n_pose else None
@@ -413,7 +414,7 @@ def rebuild_parts(log: Log, prob: FactorGraphProblem, parts: GraphParts, result:
     if n_pose:
         amcl = _amcl_block(blocks["amcl"], values, log, prob, prob.pose_times)   # inserts h(0) and the nodes a(j)
         if values.exists(H(0)) and result.exists(H(0)):
-            values.update(H(0), result.atPose3(H(0)))
+            values.update(H(0), pose3=result.atPose3(H(0)))
     inputs = _motion_inputs(prob, None)
     if n_pose > 1:
         blocks["motion"] = (parts.blocks["motion"] if _same_inputs(parts.motion_inputs, inputs)
@@ -471,7 +472,7 @@ def initial_track(log: Log, prob: FactorGraphProblem, times: np.ndarray, smooth_
     c, s_ = np.cos(yaw_d), np.sin(yaw_d)
     tx = amcl["x"].to_numpy(float) - (c * odo[:, 0] - s_ * odo[:, 1])
     ty = amcl["y"].to_numpy(float) - (s_ * odo[:, 0] + c * odo[:, 1])
-    sig = smooth_s / max(float(np.median(np.diff(t_a))), 1e-3)
+    sig = smooth_s / max(amcl_period_s(t_a, 1.0), 1e-3)
     # the transform's components smoothed (the rotation through its sine and cosine)
     tx, ty, c, s_ = (gaussian_smooth_nearest(v, sig) for v in (tx, ty, c, s_))
     yaw_d = np.arctan2(s_, c)
@@ -519,7 +520,7 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
     if model.excluded is not None:
         use &= ~model.excluded
     use = np.flatnonzero(use)
-    dt_amcl = float(np.median(np.diff(amcl_t))) if len(amcl_t) > 1 else 1.0
+    dt_amcl = amcl_period_s(amcl_t, 1.0)
     nodes = prob.amcl_node_times
     dn = float(nodes[1] - nodes[0]) if len(nodes) > 1 else 1.0
     # white error (the model's share of the reported covariance and its own std) and the OU's
@@ -567,13 +568,13 @@ def _amcl_block(graph, values, log: Log, prob: FactorGraphProblem, times: np.nda
         # of the variable h (its prior is in the observation block: it depends on the ray shift):
         # every AMCL error node's height is tied to it, so every robot pose, and with it every
         # head point the sensors see, moves up or down with it alike.
-        values.insert(H(0), gtsam.Pose3())
+        values.insert(H(0), pose3=gtsam.Pose3())
         tie = gtsam.noiseModel.Diagonal.Sigmas(np.array([1.0, 1.0, 1.0, 1e3, 1e3, 1e-4]))
     # (one identity Pose3 and the keys made once: the factors keep copies)
     identity, node_keys, h_key = gtsam.Pose3(), symbols("a", range(n_nodes)).tolist(), H(0)
     prior_factor, insert = gtsam.PriorFactorPose3, values.insert
     for m, key in enumerate(node_keys):
-        insert(key, identity)
+        insert(key, pose3=identity)
         add(prior_factor(key, identity, priors[m]))
         if m and a > 1e-9:
             add(between(node_keys[m - 1], key, identity, q))
@@ -829,17 +830,18 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
                                           prob.fac_key_index[use], True, measured_regressors(prob, use),
                                           predicted=robot_points)
         reg = robot_regressors
-        p_obs = prob.fac_p_sensor[use] - hs * reg.toward_sensor - cv * reg.up_cos2
+        rows = rows_taken(use, len(prob.fac_key_index))     # (every factor: the tables as they are)
+        p_obs = prob.fac_p_sensor[rows] - hs * reg.toward_sensor - cv * reg.up_cos2
         p_obs = p_obs + clock_shift_sensor(prob, theta, use)      # the sensors' own clocks (pedcal.calib.clocks)
         # shift vs distance (pedcal.calib.headpoint)
         p_obs = p_obs + head_profile_shift_sensor(prob, theta, use, reg.toward_sensor, reg.distance_m)
-        sensor.append(prob.fac_sensor_index[use])
-        target.append(prob.fac_key_index[use])
+        sensor.append(prob.fac_sensor_index[rows])
+        target.append(prob.fac_key_index[rows])
         is_pose.append(np.ones(len(use), bool))
         p_all.append(p_obs)
         r_all.append(np.linalg.norm(p_obs, axis=1) + rho)
         noise_r.append(reg.noise_range_m)
-        noise_count.append(np.asarray(prob.fac_count[use], int))
+        noise_count.append(np.asarray(prob.fac_count[rows], int))
     if rec.people:
         if people_regressors is None:
             people_regressors = people_sightings(prob, values if predicted and not insert_values else None, t_max)

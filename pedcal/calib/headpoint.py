@@ -351,8 +351,8 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     DegenerateDataWarning; without ``use`` the estimate is only reported and the step, the
     nuisances and their prior stay as they were. Returns (step, nuisances, record): the record
     (estimate_m, rms_m, upper_m: None without an estimate; sensors, prior_m the recipe's sigma,
-    applied: the prior's sigma the departures keep is rms_m) also goes on ``prob`` as ``_departure_spread``
-    for the head model's note (:func:`spread_note`)."""
+    applied: the prior's sigma the departures keep is rms_m; None without departures) is what the
+    caller keeps as ``prob.departure_spread`` for the head model's note (:func:`spread_note`)."""
     import warnings
 
     from pedcal.errors import DegenerateDataWarning
@@ -379,8 +379,7 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
             warnings.warn(f"the spread of the head point between the sensors' trackers is not estimated: {why}; "
                           f"its prior sigma head_shift_per_sensor_sigma_m = {1000 * sigma0:.0f} mm is kept",
                           DegenerateDataWarning, stacklevel=4)
-        prob._departure_spread = {**record, "estimate_m": None, "rms_m": None, "upper_m": None, "why": why}
-        return step, nuis, prob._departure_spread
+        return step, nuis, {**record, "estimate_m": None, "rms_m": None, "upper_m": None, "why": why}
     if informed < SPREAD_MIN_SENSORS:
         return not_estimated(why)
     H = step.hessian
@@ -391,7 +390,6 @@ def estimate_departure_spread(prob, step: ProfileStep, nuis: list[Nuisance], the
     if not np.isfinite(list(summary.values())).all():
         return not_estimated("its likelihood is not finite on the Hessian the solve left")
     record.update(summary)
-    prob._departure_spread = record
     if not use:
         return step, nuis, record
     record["applied"] = True
@@ -856,7 +854,7 @@ def record_head_profile(head_model, prob, shifts) -> None:
         for note in (depth, PER_SENSOR_HEIGHT_NOTE):
             if note not in head_model.note:
                 head_model.note = f"{head_model.note} {note}"
-    record = getattr(prob, "_departure_spread", None)
+    record = prob.departure_spread
     spread = spread_note(record)
     if spread and spread not in head_model.note:
         head_model.note = f"{head_model.note} {spread}".strip()

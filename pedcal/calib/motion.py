@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 import pandas as pd
 
-from pedcal.calib.common import head_interpolator, head_world, interpolate_pose2
+from pedcal.calib.common import head_interpolator, head_world, pose2_interpolator
 from pedcal.model import Log
 
 
@@ -126,24 +126,36 @@ class RobotMotion:
     the (calibrated) wheel odometry rotated into the map by AMCL's heading, or from the AMCL
     spline when there is no odometry."""
 
-    def __init__(self, log: Log, odometry: pd.DataFrame | None):
+    def __init__(self, log: Log, odometry: pd.DataFrame | None, head_at=None):
+        """``head_at``: :func:`pedcal.calib.common.head_interpolator` of ``log`` when the caller has it."""
         self.head_offset = np.asarray(log.meta.head_offset_m, float)
-        self.amcl_head = head_interpolator(log)
+        self.amcl_head = head_interpolator(log) if head_at is None else head_at
         self.odo = odometry
         if odometry is not None:
             amcl = log.robot.sort_values("t")
             self.ta = amcl["t"].to_numpy(float)
             self.yaw_a = np.unwrap(amcl["yaw"].to_numpy(float))
+            self._odo_at = pose2_interpolator(odometry)     # (sorted and unwrapped once)
 
-    def displacement(self, t_from: np.ndarray, t_to: np.ndarray) -> np.ndarray:
-        """World displacement (N, 3) of the head top from ``t_from`` to ``t_to``."""
+    def displacement(self, t_from: np.ndarray, t_to: np.ndarray, from_index: np.ndarray | None = None,
+                     to_index: np.ndarray | None = None) -> np.ndarray:
+        """World displacement (N, 3) of the head top from ``t_from`` to ``t_to``; with
+        ``from_index`` (``to_index``), from ``t_from[from_index]`` (to ``t_to[to_index]``): each
+        time's head read once however many rows take it (the observations carried to the poses,
+        consecutive observations of a track), the same values as at the picked times."""
+        def pick(x, index):
+            return x if index is None else x[index]
+
+        same = t_from is t_to
         if self.odo is None:
-            return self.amcl_head(t_to) - self.amcl_head(t_from)
-        h0 = head_world(interpolate_pose2(self.odo, t_from), self.head_offset)
-        h1 = head_world(interpolate_pose2(self.odo, t_to), self.head_offset)
-        mid = 0.5 * (t_from + t_to)
+            h_from = self.amcl_head(t_from)
+            return pick(h_from if same else self.amcl_head(t_to), to_index) - pick(h_from, from_index)
+        h_from = head_world(self._odo_at(t_from), self.head_offset)
+        h0 = pick(h_from, from_index)
+        h1 = pick(h_from if same else head_world(self._odo_at(t_to), self.head_offset), to_index)
+        mid = 0.5 * (pick(t_from, from_index) + pick(t_to, to_index))
         # heading of the map relative to the odometry frame at that time (AMCL minus odometry)
-        rot = np.interp(mid, self.ta, self.yaw_a) - interpolate_pose2(self.odo, mid)[:, 2]
+        rot = np.interp(mid, self.ta, self.yaw_a) - self._odo_at.yaw(mid)
         c, s = np.cos(rot), np.sin(rot)
         d = h1 - h0
         return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]])

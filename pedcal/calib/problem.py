@@ -15,8 +15,9 @@ import numpy as np
 import pandas as pd
 
 from pedcal import frames
-from pedcal.calib.amcl_model import AmclErrorModel, amcl_white_sigma, assumed_model
+from pedcal.calib.amcl_model import AmclErrorModel, amcl_period_s, amcl_white_sigma, assumed_model
 from pedcal.calib.clocks import clock_shift_sensor
+from pedcal.calib.common import head_interpolator
 from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
@@ -82,6 +83,9 @@ class FactorGraphProblem:
     ray_shift_m: float = 0.0
     horizontal_shift_m: float = 0.0
     curvature_m: float = 0.0
+    # the spread of the sensors' own departures of the head point (headpoint.estimate_departure_spread's
+    # record, None without departures), for the head model's note
+    departure_spread: dict | None = None
     # corrections of the calibrated odometry the graph is built with (motion_block): distance
     # scale (-, 0: none), heading drift per metre driven (rad/m) and per second (rad/s)
     odometry_scale_correction: float = 0.0
@@ -163,7 +167,7 @@ class FactorGraphProblem:
         else:
             i = np.zeros(len(self.obs_t), int)
         self.obs_key_index = i
-        disp = self.motion.displacement(self.obs_t, tk[i]) if len(self.obs_t) else np.zeros((0, 3))
+        disp = self.motion.displacement(self.obs_t, tk, to_index=i) if len(self.obs_t) else np.zeros((0, 3))
         R = per_row(self.obs_sensor, rotations.get, (3, 3), codes=self.obs_sensor_codes())
         self.obs_p_sensor = self.obs_p_raw + np.einsum("nji,nj->ni", R, disp)
         del R              # (27 MB at 400 000 observations; merge_observations looks them up per factor)
@@ -201,11 +205,12 @@ def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network:
 
 
 def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None
-                     ) -> dict[str, gtsam.Pose3]:
+                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None,
+                     head_at=None) -> dict[str, gtsam.Pose3]:
     """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
     ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
-    closed form reads too."""
+    closed form reads too, and ``head_at`` a function returning
+    :func:`pedcal.calib.common.head_interpolator` of ``log`` (called only by the closed form)."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -216,6 +221,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
                                                                                 latency_s=latency_s,
                                                                                 points_sensor=points_sensor)
+        if recipe.init == "closedform" and head_at is not None:
+            opts["head_at"] = head_at()
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
@@ -241,8 +248,15 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
 
     latency = None
     # (the head points in each sensor's frame, read once: the association, the initializer and
-    # the shared people's tracks take them too)
+    # the shared people's tracks take them too; so is AMCL's head spline, made by the association
+    # or on the first call, for the latency, the closed form and the robot's motion)
     p_all = log.observation_points_sensor()
+    heads: list = []
+
+    def head_at():
+        if not heads:
+            heads.append(head_interpolator(log))
+        return heads[0]
     if not recipe.robot:
         # Without the robot's observations the robot is one more unlocalized person, as in the
         # alternative (SNAPCAT-3D): its tracks are shared sightings like anyone's, and no
@@ -252,15 +266,19 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         _log(progress, "picking out the robot's observations")
         assoc = associate_robot(log, p_sensor=p_all)
         is_robot, latency = assoc.is_robot, assoc.latency_s
+        heads.append(assoc.head_at)
     is_robot = np.asarray(is_robot, bool)
     if not recipe.estimate_latency:
         latency = 0.0
     elif latency is None:
-        latency = (estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s, p_sensor=p_all)
-                   if is_robot.sum() >= 12 else 0.0)
+        latency = (estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s, p_sensor=p_all,
+                                    head_at=head_at()) if is_robot.sum() >= 12 else 0.0)
     _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
-    sensor_col = obs["sensor"].astype(str).to_numpy()
+    # (each row's sensor by the column's codes: the names of the rows used taken from them, no
+    # Python string made per row, and their codes kept for the grouping by sensor)
+    sensor_code, sensor_names = pd.factorize(obs["sensor"], use_na_sentinel=False)
+    sensor_names = np.array([str(n) for n in sensor_names], dtype=object)
     t_all = obs["t"].to_numpy(float)
     rows = np.flatnonzero(is_robot)
     amcl_t = log.robot["t"].to_numpy(float)
@@ -284,16 +302,24 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
         smooth = smoothed_track(log.robot, recipe.amcl_smooth_s)
         _log(progress, f"AMCL jitter {1000 * amcl_white_sigma(log.robot):.0f} mm: short-term motion from AMCL "
                        f"smoothed over {recipe.amcl_smooth_s:.1f} s")
-    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network, points_sensor=p_all)
+    init = _initial_sensors(log, recipe, is_robot, latency, progress, init_network, points_sensor=p_all,
+                            head_at=head_at)
     # robot poses only when something observes them (people-only graphs hold the sensors alone)
     pose_times = _pose_grid(amcl_t, recipe.max_pose_gap_s) if recipe.robot else np.zeros(0)
     prob = FactorGraphProblem(recipe=recipe, latency_s=float(latency), sensor_ids=log.sensors.ids,
                               ray_shift_m=recipe.head_radius_m,
-                              obs_sensor=sensor_col[rows], obs_p_raw=p_all[rows], obs_t_raw=t_all[rows],
+                              obs_sensor=sensor_names[sensor_code[rows]], obs_p_raw=p_all[rows],
+                              obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
-                              motion=RobotMotion(log, odometry if odometry is not None else smooth),
+                              motion=RobotMotion(log, odometry if odometry is not None else smooth,
+                                                 head_at=head_at()),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
+    if len(set(sensor_names.tolist())) == len(sensor_names):
+        # the rows' sensors numbered by first appearance (obs_sensor_codes) from their codes: the
+        # same numbering as the names' own, distinct names having distinct codes
+        codes, first = pd.factorize(sensor_code[rows])
+        prob.__dict__["_obs_sensor_codes"] = (prob.obs_sensor, (codes, sensor_names[first]))
     set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
@@ -337,10 +363,12 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     if rows is None or len(rows) < 2:
         return None
     obs_t = prob.obs_t_raw - prob.latency_s
-    # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the rest)
-    track = pd.factorize(log.observations["track"].astype(str).to_numpy()[rows], use_na_sentinel=False)[0]
+    # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the
+    # rest; the track column's codes taken of the column as it is, no Python string made per row)
+    track = pd.factorize(log.observations["track"], use_na_sentinel=False)[0][rows].astype(np.int64)
     sensor, sensor_ids = prob.obs_sensor_codes()
-    order = np.lexsort((obs_t, track, sensor))
+    # by sensor, then track, then time: (sensor, track) as one key, an order the same as three keys'
+    order = np.lexsort((obs_t, sensor.astype(np.int64) * (int(track.max(initial=0)) + 1) + track))
     s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
     nxt = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1]) & (dt > 0.0) & (dt <= max_gap_s)
@@ -348,16 +376,16 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     if len(i) < min_pairs:
         return None
     R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])[sensor[i]]
-    disp = prob.motion.displacement(obs_t[j], obs_t[i])
+    disp = prob.motion.displacement(obs_t, obs_t, from_index=j, to_index=i)
     p_i = prob.obs_p_raw[i]
     d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
     r = np.linalg.norm(p_i, axis=1)
     u = p_i / r[:, None]
     along = np.sum(d * u, axis=1)
     a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    b1 = np.cross(u, a)
+    b1 = _cross(u, a)
     b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-    b2 = np.cross(u, b1)
+    b2 = _cross(u, b1)
 
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
@@ -383,10 +411,12 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
             "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i))}
 
 
-def amcl_period_s(t_unique: np.ndarray, default_s: float) -> float:
-    """AMCL's period, s: the median step between its distinct stamps ``t_unique`` (sorted), or
-    ``default_s`` with fewer than two of them."""
-    return float(np.median(np.diff(t_unique))) if len(t_unique) > 1 else float(default_s)
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of rows (n, 3) x (n, 3), to the bit (each component one product less another,
+    as NumPy takes it), without its moves of the axes (a third of the noise estimate's time)."""
+    a0, a1, a2 = a.T
+    b0, b1, b2 = b.T
+    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,

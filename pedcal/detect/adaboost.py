@@ -36,14 +36,47 @@ import logging
 import zipfile
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from pedcal.errors import PedcalInputError
 from pedcal.io.atomic import atomic_path
 
+_Classifier = TypeVar("_Classifier", bound="ScoreClassifier")
 
-class RealAdaBoost:
+
+class ScoreClassifier:
+    """What the person classifiers share: a score F(x) (:meth:`decision_function`) whose sign is the
+    class (:meth:`predict`), with the offset ``bias_`` that :meth:`set_threshold` moves, over the
+    ``n_features_`` features the model was trained on."""
+
+    n_features_: int
+    bias_: float
+
+    def decision_function(self, X: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _rows(self, X: np.ndarray, trained: bool) -> np.ndarray:
+        """``X`` as float rows (n, n_features_) for a ``trained`` model; else RuntimeError, and
+        ValueError for another number of features."""
+        if not trained:
+            raise RuntimeError("the classifier is not trained")
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if X.shape[1] != self.n_features_:
+            raise ValueError(f"expected {self.n_features_} features, got {X.shape[1]}")
+        return X
+
+    def set_threshold(self: _Classifier, decision_value: float) -> _Classifier:
+        """Make ``decision_value`` (of the current F) the class boundary: F = 0, P = 0.5 there."""
+        self.bias_ = float(self.bias_ - decision_value)
+        return self
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        return (self.decision_function(X) > 0).astype(int)
+
+
+class RealAdaBoost(ScoreClassifier):
     """Binary Real AdaBoost; labels are {0, 1} or {-1, +1} (1 = person)."""
 
     def __init__(self, n_rounds: int = 200, n_bins: int = 32, seed: int = 0, max_edge_samples: int = 20000,
@@ -173,11 +206,7 @@ class RealAdaBoost:
     # ---------------------------------------------------------------------------------- prediction
     def decision_function(self, X: np.ndarray) -> np.ndarray:
         """F(x) = sum_t h_t(x) + b for each row of X."""
-        if self.feature_ is None:
-            raise RuntimeError("the classifier is not trained")
-        X = np.atleast_2d(np.asarray(X, dtype=float))
-        if X.shape[1] != self.n_features_:
-            raise ValueError(f"expected {self.n_features_} features, got {X.shape[1]}")
+        X = self._rows(X, trained=self.feature_ is not None)
         if self.tree_depth > 0:
             # every sample down every round's tree at once, one level at a time (heap order)
             rounds = np.arange(len(self.feature_))[None, :]
@@ -191,17 +220,9 @@ class RealAdaBoost:
         bins = (vals[:, :, None] >= self.edges_[None, :, :]).sum(axis=2)
         return self.h_[np.arange(len(self.feature_))[None, :], bins].sum(axis=1) + self.bias_
 
-    def set_threshold(self, decision_value: float) -> RealAdaBoost:
-        """Make ``decision_value`` (of the current F) the class boundary: F = 0, P = 0.5 there."""
-        self.bias_ = float(self.bias_ - decision_value)
-        return self
-
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         """P(person | x) = 1 / (1 + exp(-2 F(x)))."""
         return 1.0 / (1.0 + np.exp(-2.0 * self.decision_function(X)))
-
-    def predict(self, X: np.ndarray) -> np.ndarray:
-        return (self.decision_function(X) > 0).astype(int)
 
     # ---------------------------------------------------------------------------------------- I/O
     def save(self, path: str | Path) -> None:

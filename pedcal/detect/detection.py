@@ -423,17 +423,24 @@ def top_occluded(pts: np.ndarray, groups: list[np.ndarray], scan_steps, sensor_x
     return out
 
 
+def _cluster_height_map(pts: np.ndarray, idx: np.ndarray, cell_size_m: float) -> tuple[np.ndarray, ...]:
+    """(xyz of the cluster's points ``idx``, each point's cell (row, col) on a ``cell_size_m`` grid
+    from the cluster's least x and y, the highest z in each cell: (rows, cols), -inf when empty)."""
+    xyz = pts[idx, :3]
+    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
+    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
+    z_hi = np.full(shape, -np.inf)
+    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    return xyz, ij, z_hi
+
+
 def split_low(pts: np.ndarray, idx: np.ndarray, cell_size_m: float = CELL_SIZE_M) -> list[np.ndarray]:
     """A wide cluster with one head cut free of the low objects it touches (a pram or trolley
     pushed by the handle, a chair or box beside a person): its cells whose highest point is below
     ``LOW_CUT_SHARE`` of the cluster's height are dropped and the rest is clustered again (8-connected
     cells); each part of at least MIN_CLUSTER_POINTS points keeps all the points of its cells. An
     empty list when nothing is dropped (a wall, a car: nothing to cut)."""
-    xyz = pts[idx, :3]
-    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
-    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
-    z_hi = np.full(shape, -np.inf)
-    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    xyz, ij, z_hi = _cluster_height_map(pts, idx, cell_size_m)
     high = z_hi >= LOW_CUT_SHARE * xyz[:, 2].max()
     if high.sum() == np.isfinite(z_hi).sum():
         return []
@@ -452,11 +459,7 @@ def split_by_heads(pts: np.ndarray, idx: np.ndarray, cell_size_m: float = CELL_S
     them (a neck and shoulders, not one person's flat top). Each point goes to the nearest kept
     head, the heads then moved to their points' centroids a few times (k-means). Fewer than two
     heads: no split (an empty list)."""
-    xyz = pts[idx, :3]
-    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
-    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
-    z_hi = np.full(shape, -np.inf)
-    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    xyz, _, z_hi = _cluster_height_map(pts, idx, cell_size_m)
     peak = (z_hi == ndimage.maximum_filter(z_hi, size=3, mode="constant", cval=-np.inf))
     peak &= z_hi >= HEAD_MIN_SHARE * xyz[:, 2].max()
     r, c = np.nonzero(peak)

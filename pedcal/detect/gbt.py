@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pedcal.detect.adaboost import open_model_npz, read_metadata, write_npz
+from pedcal.detect.adaboost import ScoreClassifier, open_model_npz, read_metadata, write_npz
 from pedcal.errors import PedcalInputError
 
 
-class GradientBoostedTrees:
+class GradientBoostedTrees(ScoreClassifier):
     """Binary gradient-boosted trees (LightGBM); labels {0, 1} (1 = person)."""
 
     def __init__(self, n_estimators: int = 300, num_leaves: int = 15, learning_rate: float = 0.05,
@@ -66,26 +66,14 @@ class GradientBoostedTrees:
 
     def decision_function(self, X: np.ndarray) -> np.ndarray:
         """F(x): the trees' raw score (log-odds) plus the offset ``bias_``."""
-        if self.booster_ is None:
-            raise RuntimeError("the classifier is not trained")
-        X = np.atleast_2d(np.asarray(X, dtype=float))
-        if X.shape[1] != self.n_features_:
-            raise ValueError(f"expected {self.n_features_} features, got {X.shape[1]}")
+        X = self._rows(X, trained=self.booster_ is not None)
         if len(X) == 0:
             return np.zeros(0)
         return self.booster_.predict(X, raw_score=True, num_threads=1) + self.bias_
 
-    def set_threshold(self, decision_value: float) -> GradientBoostedTrees:
-        """Make ``decision_value`` (of the current F) the class boundary: F = 0, P = 0.5 there."""
-        self.bias_ = float(self.bias_ - decision_value)
-        return self
-
     def predict_proba(self, X: np.ndarray) -> np.ndarray:
         """P(person | x) = 1 / (1 + exp(-F(x)))."""
         return 1.0 / (1.0 + np.exp(-self.decision_function(X)))
-
-    def predict(self, X: np.ndarray) -> np.ndarray:
-        return (self.decision_function(X) > 0).astype(int)
 
     def save(self, path: str | Path) -> None:
         text = self.booster_.model_to_string(num_iteration=-1)

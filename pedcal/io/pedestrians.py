@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
+from pedcal.io.inputs import regular_file
 from pedcal.io.logdir import parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
@@ -39,10 +40,7 @@ MAX_PLAUSIBLE_M = 1000.0
 
 
 def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: bool) -> pd.DataFrame:
-    if path.is_dir():
-        raise PedcalInputError("is a directory, expected a pedestrian file", path=path)
-    if not path.is_file():
-        raise PedcalInputError("file not found", path=path)
+    regular_file(path, "pedestrian file")
     try:
         raw = pd.read_csv(path, sep=sep, header=0 if header else None, dtype=str, keep_default_na=False,
                           skipinitialspace=True, engine="python" if sep == r"\s+" else "c")
@@ -130,10 +128,7 @@ def _has_header(path: Path) -> bool:
 
 
 def _first_line(path: Path) -> str:
-    if path.is_dir():
-        raise PedcalInputError("is a directory, expected a pedestrian file", path=path)
-    if not path.is_file():
-        raise PedcalInputError("file not found", path=path)
+    regular_file(path, "pedestrian file")
     try:
         head = path.read_bytes()[:4096] if path.stat().st_size else b""
         try:
