@@ -124,7 +124,8 @@ def test_local_offsets_are_logged_as_fitted_given_the_path(caplog):
         assert any("head shift departures" in r.getMessage() for r in caplog.records) == named
 
 
-def test_local_profile_equals_the_dense_profile_of_each_variable():
+@pytest.mark.parametrize("shared", [False, True])
+def test_local_profile_equals_the_dense_profile_of_each_variable(shared):
     """Each nuisance's variance and sensitivity against the dense formulas: with only its own
     variable's columns A_i free, Z_i = (A_i^T A_i)^-1 A_i^T B_i and 1 / variance =
     |A_i Z_i - B_i|^2 + 1 / sigma^2."""
@@ -140,8 +141,15 @@ def test_local_profile_equals_the_dense_profile_of_each_variable():
         B[r, i] = rng.normal(size=rows_each)
     A[m * rows_each:] = np.eye(n) * 0.5          # priors on every column
     columns = np.arange(m * d).reshape(m, d)
+    if shared:
+        # the variables listed out of order, and a fourth nuisance on the second one's rows (a
+        # sensor's clock offset and its own shift departure: one pose, two nuisances)
+        columns = columns[[2, 0, 1, 1]]
+        B = np.c_[B[:, [2, 0, 1]], np.where(B[:, 1] != 0.0, rng.normal(size=len(B)), 0.0)]
+        m = 4
     nuis = [Nuisance(f"c{i}", 0.0, 0.1 * (i + 1), 0.01) for i in range(m)]
     loc = _local_profile(sps.csr_matrix(A), sps.csc_matrix(B), columns, nuis)
+    assert loc.Z.shape == (m, d) and loc.variance.shape == (m,)
     for i in range(m):
         Ai = A[:, columns[i]]
         Zi = np.linalg.solve(Ai.T @ Ai, Ai.T @ B[:, i])

@@ -281,6 +281,24 @@ def test_optimize_graph_takes_levenberg_marquardts_steps(first_solve):
             assert np.linalg.norm(ours.atPose3(key).translation() - lm.atPose3(key).translation()) < 1e-6
 
 
+def test_optimize_graph_eliminates_sequentially_up_to_a_size_with_the_same_steps(first_solve, monkeypatch):
+    # sequential elimination on a graph up to SEQUENTIAL_MAX_VARIABLES variables, multifrontal
+    # above: the same iterations and the same solution to rounding
+    import pedcal.calib.profile as profile_mod
+
+    log, rec, prob, parts, _ = first_solve
+    fg = parts.graph()
+    assert profile_mod.linear_solver(parts.values.size()) == "SEQUENTIAL_CHOLESKY"
+    sequential, n_seq = optimize_graph(fg, parts.values, rec, max_iterations=3, gauss_newton_step=False)
+    monkeypatch.setattr(profile_mod, "SEQUENTIAL_MAX_VARIABLES", parts.values.size() - 1)
+    assert profile_mod.linear_solver(parts.values.size()) == "MULTIFRONTAL_CHOLESKY"
+    multifrontal, n_multi = optimize_graph(fg, parts.values, rec, max_iterations=3, gauss_newton_step=False)
+    assert n_seq == n_multi > 0
+    assert fg.error(sequential) == pytest.approx(fg.error(multifrontal), rel=1e-12)
+    for key in [S(i) for i in range(len(prob.sensor_ids))] + [X(0), X(len(prob.pose_times) - 1)]:
+        assert np.linalg.norm(sequential.atPose3(key).translation() - multifrontal.atPose3(key).translation()) < 1e-9
+
+
 def test_optimize_graph_stops_on_the_predicted_remaining_decrease(first_solve):
     # with predicted_stop, the iterations stop once theta / (1 - theta) of the last decrease
     # (theta: its ratio to the one before) is below the tolerance, where LM's test, on the last

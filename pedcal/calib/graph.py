@@ -119,7 +119,7 @@ from pedcal.calib.problem import (  # noqa: F401
     prepare,
     set_amcl_model,
 )
-from pedcal.calib.profile import steps_to_come_below
+from pedcal.calib.profile import linear_solver, steps_to_come_below
 from pedcal.calib.readback import (  # noqa: F401
     JOINT_COV_MAX_SENSORS,
     _network_from_result,
@@ -1323,13 +1323,13 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
     max_iterations = recipe.max_iterations if max_iterations is None else max_iterations
     relative_error_tol = recipe.relative_error_tol if relative_error_tol is None else relative_error_tol
     # one COLAMD ordering computed once (the graph's structure does not change between
-    # iterations), eliminated multifrontally: per Gauss-Newton iteration as fast as sequentially
-    # on the paper and corridor scenes (17-23 ms), 12-20 % faster on 160-1000 synthetic sensors
-    # (0.70 -> 0.53-0.63 s at 1000: GTSAM's dense frontal blocks)
+    # iterations), eliminated sequentially up to SEQUENTIAL_MAX_VARIABLES variables and
+    # multifrontally above (pedcal.calib.profile.linear_solver)
     if ordering is None:
         ordering = fg.orderingCOLAMD()      # symbolic: the same order as of its linearization
+    solver = linear_solver(values.size())
     gn_params = gtsam.GaussNewtonParams()
-    gn_params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
+    gn_params.setLinearSolverType(solver)
     gn_params.setOrdering(ordering)
     gn = gtsam.GaussNewtonOptimizer(fg, values, gn_params)
     result, error, iterations = values, gn.error(), 0      # (the optimizer's own error at values: not again)
@@ -1358,7 +1358,7 @@ def optimize_graph(fg, values, recipe: GraphRecipe, max_iterations: int | None =
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations - iterations)
         params.setRelativeErrorTol(relative_error_tol)
-        params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
+        params.setLinearSolverType(solver)
         params.setOrdering(ordering)
         opt = gtsam.LevenbergMarquardtOptimizer(fg, result, params)
         result = opt.optimize()

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 import scipy.sparse as sps
+from scipy.sparse import _sparsetools
 
 
 @dataclass
@@ -103,27 +104,35 @@ def sparse_system(gfg: gtsam.GaussianFactorGraph, cols: Columns) -> tuple[sps.cs
     if gfg.size() == 0:
         return sps.csr_matrix((0, cols.n)), np.zeros(0)
     ijs = gfg.sparseJacobian_()          # 3 x entries, (row, column, value), 1-based, b as a last column
-    # (compact copies, the 3 x entries array dropped at once: it and its int64 copies were the
-    # peak memory of a large graph's linearization)
-    last_row = int(ijs[0].max()) if ijs.shape[1] else 0      # (1-based: the row count)
-    i = ijs[0].astype(np.int32 if last_row < 2 ** 31 else np.int64)
-    j = ijs[1].astype(np.int32)
-    v = ijs[2].copy()
-    del ijs
-    i -= 1
-    j -= 1
+    m = int(ijs[0].max()) if ijs.shape[1] else 0      # (1-based: the row count)
     own = np.sort(np.asarray(gfg.keyVector(), np.uint64))
-    # the graph's own columns (its keys in order) -> the system's
+    # the graph's own columns (1-based, its keys in order) -> the system's, b's column -> cols.n
     local = cols.index(own)
-    n_local = len(local)
-    rhs = j == n_local
-    m = last_row
-    b = np.bincount(i[rhs], weights=v[rhs], minlength=m)
+    index_dtype = np.int32 if max(ijs.shape[1], cols.n + 1) < 2 ** 31 else np.int64     # (scipy's own choice)
+    column = np.empty(len(local) + 2, index_dtype)
+    column[0], column[1:-1], column[-1] = -1, local, cols.n
+    # (compact arrays of the kept entries, the 3 x entries array dropped once they are taken: it and
+    # its copies were the peak memory of a large graph's linearization; no copy of its values first)
+    j = column[ijs[1].astype(np.int32)]
+    i = ijs[0].astype(np.int32 if m < 2 ** 31 else np.int64)
+    i -= 1
+    rhs = j == cols.n
+    b = np.bincount(i[rhs], weights=ijs[2][rhs], minlength=m)
     keep = ~rhs
-    index_dtype = np.int32 if max(len(v), cols.n) < 2 ** 31 else np.int64      # (scipy's own choice)
-    # (GTSAM lists a factor's entries variable by variable, so its rows are not in order: COO)
-    i, j, v = i[keep], local.astype(index_dtype)[j[keep]], v[keep]
-    return sps.csr_matrix((v, (i, j)), shape=(m, cols.n)), b
+    v = ijs[2][keep]
+    del ijs, rhs
+    i, j = i[keep], j[keep]
+    del keep
+    # (GTSAM lists a factor's entries variable by variable, so its rows are not in order: COO, made
+    # CSR by scipy's own conversion into arrays of the final size, then its entries' columns put in
+    # order in each row and duplicates summed, as csr_matrix((v, (i, j))) does)
+    indptr = np.empty(m + 1, index_dtype)
+    indices, data = np.empty(len(v), index_dtype), np.empty(len(v))
+    _sparsetools.coo_tocsr(m, cols.n, len(v), i, j, v, indptr, indices, data)
+    del i, j, v
+    A = sps.csr_matrix((data, indices, indptr), shape=(m, cols.n), copy=False)
+    A.sum_duplicates()
+    return A, b
 
 
 def fill_reducing_order(gfg, cols: Columns) -> np.ndarray:
@@ -237,7 +246,14 @@ def _normal_solver(A: sps.csr_matrix, order: np.ndarray | None = None):
 KEEP_FACTOR_ENTRIES = 5_000_000
 
 
-def _near_solve(A: sps.csr_matrix, y: np.ndarray, solve_near, rtol: float = 1e-10,
+# a chord step's z0 by conjugate gradients to this relative residual: from the nearby factorization
+# (residual ~5e-2) each iteration gains ~5x; at 1e-6 the calibration moves by nanometres against
+# 1e-10's (paper, sparse, corridor, cross and the L-shaped hall: sensors within 4e-9 m, sigmas
+# within 2e-8 relative), with 7-9 preconditioner solves instead of 12-13
+CHORD_RTOL = 1e-6
+
+
+def _near_solve(A: sps.csr_matrix, y: np.ndarray, solve_near, rtol: float = CHORD_RTOL,
                 max_iterations: int = 30) -> np.ndarray | None:
     """x with A^T A x = y by conjugate gradients on the normal equations preconditioned with
     ``solve_near`` (:func:`_normal_solver` of a nearby point's system, the same graph: its
@@ -720,18 +736,21 @@ def _local_profile(A: sps.csr_matrix, B: sps.csc_matrix, columns: np.ndarray,
     and the variables reduced to one). All m at once: batched d x d solves. (``dtheta`` is left
     at 0 for the caller.)"""
     m, d = columns.shape
-    # A's columns of the m variables (rows x m d), by a selection matrix: no copy of all of A
-    select = sps.csr_matrix((np.ones(m * d), (columns.ravel(), np.arange(m * d))), shape=(A.shape[1], m * d))
-    A_l = (A @ select).tocsc()
+    # the distinct variables (a sensor's clock offset and its own shift departure share its pose)
+    # and each nuisance's among them: each variable's columns taken once (scipy's column
+    # selection: no copy of all of A), its N_i formed once
+    variables, of = np.unique(columns, axis=0, return_inverse=True)
+    of = of.reshape(-1)
+    A_l = sps.csr_matrix(A)[:, variables.ravel()].tocsc()
     G = (A_l.T @ A_l).tocoo()
     own = G.row // d == G.col // d
-    N = np.zeros((m, d, d))
+    N = np.zeros((len(variables), d, d))
     N[G.row[own] // d, G.row[own] % d, G.col[own] % d] = G.data[own]
     C = (A_l.T @ B).tocoo()                                # A_i^T B_i: column i's own variable's rows
-    own = C.row // d == C.col
+    own = C.row // d == of[C.col]
     AtB = np.zeros((m, d))
     AtB[C.col[own], C.row[own] % d] = C.data[own]
-    Z = np.linalg.solve(N, AtB[:, :, None])[:, :, 0]
+    Z = np.linalg.solve(N[of], AtB[:, :, None])[:, :, 0]
     prior_info = np.array([1.0 / nu.prior_sigma ** 2 for nu in nuisances])
     hessian = np.asarray(B.multiply(B).sum(axis=0)).ravel() - np.einsum("id,id->i", AtB, Z) + prior_info
     return LocalProfile(dtheta=np.zeros(m), variance=1.0 / hessian, Z=Z, columns=columns)
@@ -777,20 +796,39 @@ def _disjoint_groups(indices: list[int], footprint: dict) -> list[list[int]]:
     return groups
 
 
+# GTSAM's eliminations of a linearized graph (a Gauss-Newton iteration's, the joint marginal's
+# partial one) run sequentially (Cholesky, one variable at a time) up to this many variables,
+# multifrontally (dense frontal blocks) above. One Gauss-Newton iteration at the final point, the
+# same COLAMD ordering, one BLAS thread, CPU ms, fastest of 7 (of 3 at 1000 sensors): paper seed 0
+# (2076 variables) 19.1 sequentially against 22.3 multifrontally, corridor seed 1 (2532) 26.0
+# against 30.1, 40 synthetic sensors (1365) 16.4 against 18.9, 160 (4959) 86.6 against 91.8, 1000
+# (29 181) 743-803 against 734-736; the joint marginal of the sensors, paper 19.3-19.9 against
+# 22.1-22.9, 160 synthetic sensors 177-181 against 183-188
+SEQUENTIAL_MAX_VARIABLES = 10_000
+
+
+def linear_solver(n_variables: int) -> str:
+    """GTSAM's linear solver for a graph of ``n_variables`` (SEQUENTIAL_MAX_VARIABLES)."""
+    return "SEQUENTIAL_CHOLESKY" if n_variables <= SEQUENTIAL_MAX_VARIABLES else "MULTIFRONTAL_CHOLESKY"
+
+
 def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
     """The joint covariance of the variables ``keys`` (their tangents, in the order given) at
-    ``values``: every other variable eliminated by GTSAM's partial multifrontal elimination (in
-    a COLAMD order with the kept ones constrained last), the Schur complement it leaves on the
-    kept ones (their marginal information) inverted by Cholesky. Equal to
-    ``gtsam.Marginals(...).jointMarginalCovariance(keys)`` and, for hundreds of sensors, several
-    times faster (500 sensors: 13 s -> 3 s)."""
+    ``values``: every other variable eliminated by GTSAM's partial elimination (in a COLAMD order
+    with the kept ones constrained last; sequential or multifrontal by the graph's size,
+    :func:`linear_solver`), the Schur complement it leaves on the kept ones (their marginal
+    information) inverted by Cholesky. Equal to ``gtsam.Marginals(...).jointMarginalCovariance(keys)``
+    and, for hundreds of sensors, several times faster (500 sensors: 13 s -> 3 s)."""
     from scipy.linalg import cho_factor, cho_solve
 
     gfg = graph.linearize(values)
     kept = set(keys)
     full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, gtsam.KeyVector(keys))
     others = gtsam.Ordering([k for k in map(full.at, range(full.size())) if k not in kept])
-    _, rest = gfg.eliminatePartialMultifrontal(others)
+    if linear_solver(values.size()) == "SEQUENTIAL_CHOLESKY":
+        _, rest = gfg.eliminatePartialSequential(others)
+    else:
+        _, rest = gfg.eliminatePartialMultifrontal(others)
     info, _ = rest.hessian()                 # columns: the kept keys in key order
     dims = values.dims()
     order = sorted(int(k) for k in rest.keyVector())
@@ -830,6 +868,6 @@ def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> 
     return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
 
 
-__all__ = ["Nuisance", "Columns", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
+__all__ = ["Nuisance", "Columns", "linear_solver", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
            "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order",
            "steps_to_come_below"]
