@@ -868,6 +868,6 @@ def steps_to_come_below(u: np.ndarray, rate: float | None, tolerance: float) -> 
     return bool(np.all(rate / (1.0 - rate) * u <= tolerance))
 
 
-__all__ = ["Nuisance", "Columns", "linear_solver", "ProfileStep", "LocalProfile", "profile_step", "sparse_system", "gauss_newton_step",
-           "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order",
+__all__ = ["Nuisance", "Columns", "linear_solver", "ProfileStep", "LocalProfile", "profile_step", "sparse_system",
+           "gauss_newton_step", "retract_flat", "sqrt_weights", "joint_marginal_covariance", "fill_reducing_order",
            "steps_to_come_below"]
