@@ -106,7 +106,7 @@ def parts(step, nuis, rho: np.ndarray, blocks: np.ndarray, draws: int) -> dict |
     if solve is None:
         solve = _normal_solver(step.A, step.order)
         mark("factorization")
-    e = np.random.default_rng(0).standard_normal((len(rho), draws))
+    e = clocks.null_draws(len(rho), draws, 0)
     mark("draws")
     X = np.empty((len(rho), draws + 1))
     X[:, 0] = rho

@@ -15,6 +15,7 @@ from pedcal.calib.clocks import (
     block_scores,
     centered_offsets,
     efficient_weights,
+    null_draws,
     offset_overdispersion,
     row_blocks,
     widen_for_overdispersion,
@@ -59,7 +60,7 @@ def test_the_overdispersion_is_the_scores_block_scatter_over_its_scatter_under_t
     # the null: white unit errors e under the model, the variables fitted, leave (I - H) e,
     # H = A N^-1 A^T; E V((I - H) e) = sum of m^2 over the blocks' rows - E V(H e), the second
     # term over the draws
-    e = np.random.default_rng(3).standard_normal((M.shape[0], 16))
+    e = null_draws(M.shape[0], 16, 3)
     he = A @ np.linalg.solve(A.T @ A, A.T @ e)
     kept = clusters >= 0
     for j in (1, 2):
@@ -70,6 +71,30 @@ def test_the_overdispersion_is_the_scores_block_scatter_over_its_scatter_under_t
         assert phi[j] == pytest.approx(_scatter(m * rho, clusters, 12) / null, rel=1e-9)
     # too few blocks (fewer than 8): no estimate, no widening
     assert np.all(np.isnan(offset_overdispersion(step, _nuisances(), rho, np.repeat(np.arange(6), 40))))
+
+
+@pytest.mark.parametrize("rows, draws", [(45, 7), (240, 8), (1, 1)])
+def test_the_null_draws_are_seeded_signs_of_every_shape(rows, draws):
+    # (rows x draws not a multiple of 8 too: the bytes' last bits are left unused)
+    e = null_draws(rows, draws, 5)
+    assert e.shape == (rows, draws) and e.dtype == np.float64
+    assert set(np.unique(e)) <= {-1.0, 1.0}
+    np.testing.assert_array_equal(e, null_draws(rows, draws, 5))
+    if rows * draws > 100:
+        assert not np.array_equal(e, null_draws(rows, draws, 6))
+
+
+def test_the_null_draws_estimate_a_quadratic_forms_trace_without_bias_and_with_less_variance_than_gaussians():
+    # E e^T K e = tr K for signs; their variance 2 (tr K^2 - sum K_ii^2), a Gaussian's 2 tr K^2
+    rng = np.random.default_rng(4)
+    G = rng.normal(size=(30, 30))
+    K = G @ G.T + np.diag(rng.uniform(1.0, 5.0, 30))
+    e = null_draws(30, 20000, 1)
+    q = np.einsum("id,ij,jd->d", e, K, e)
+    want_var = 2.0 * (np.sum(K ** 2) - np.sum(np.diag(K) ** 2))
+    assert q.mean() == pytest.approx(np.trace(K), abs=4.0 * np.sqrt(want_var / q.size))
+    assert q.var() == pytest.approx(want_var, rel=0.05)
+    assert want_var < 0.8 * 2.0 * np.sum(K ** 2)
 
 
 def test_where_the_draws_put_the_projections_share_above_the_whole_the_plain_mean_is_the_null():
@@ -89,7 +114,7 @@ def test_where_the_draws_put_the_projections_share_above_the_whole_the_plain_mea
     o = [0, 2]
     m = M[:, 1] - M[:, o] @ np.linalg.solve(H[np.ix_(o, o)], H[o, 1])
     for seed in range(50):
-        e = np.random.default_rng(seed).standard_normal((rows, 8))
+        e = null_draws(rows, 8, seed)
         he = Ad @ np.linalg.solve(Ad.T @ Ad, Ad.T @ e)
         if np.sum(m ** 2) - np.mean([_scatter(m * he[:, d], clusters, 12) for d in range(8)]) <= 0.0:
             break

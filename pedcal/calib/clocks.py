@@ -57,9 +57,11 @@ VELOCITY_HALF_WINDOW_S = 0.5
 # (:func:`offset_overdispersion`) are headpoint's CLUSTER_S: about one pass of the robot under a
 # sensor at its 0.3 m/s, and AMCL's wander's correlation time, so that errors shared within a pass
 # count as one.
-# The null's white-error draws: they estimate the projection's share of the scatter (the rest is
-# exact, a control variate); reseeded, a widened sigma moves by up to 7.6 % on the zoo's seeds 0-1
-# of five scenarios (18 % with the draws' plain mean; benchmarks/bench_clock_overdispersion.py)
+# The null's white-error draws (signs, :func:`null_draws`): they estimate the projection's share of
+# the scatter (the rest is exact, a control variate); reseeded, a widened sigma moved by up to 7.6 %
+# on the zoo's seeds 0-1 of five scenarios with Gaussian draws (18 % with the draws' plain mean), and
+# on paper, corridor and cross seeds 0-1 by up to 3.2 % with signs, 3.6 % with Gaussian draws
+# (benchmarks/bench_clock_overdispersion.py)
 NULL_DRAWS = 32
 # the efficient rows (rows x offsets) :func:`block_scores` holds at once: 32 MB
 SCORE_CHUNK_ENTRIES = 4_000_000
@@ -177,6 +179,16 @@ def clock_shift_sensor(prob, theta: dict, use: np.ndarray) -> np.ndarray | float
     return shift
 
 
+def null_draws(rows: int, draws: int, seed: int) -> np.ndarray:
+    """(rows, draws) the null's white errors: independent signs +-1 (Rademacher), seeded. Any e
+    with E e e^T = I gives E e^T K e = tr K, which is all the null asks of them (its V(H e) and
+    V(e - H e) are such quadratic forms); signs estimate it with less variance than Gaussian
+    draws, 2 (tr K^2 - sum_i K_ii^2) against 2 tr K^2 per draw (Hutchinson's trace estimator),
+    and are drawn from random bytes, a bit each: 2 against 14 ms for 45 000 rows x 32 draws."""
+    bits = np.unpackbits(np.frombuffer(np.random.default_rng(seed).bytes(-(-rows * draws // 8)), np.uint8))
+    return bits[:rows * draws].reshape(rows, draws) * 2.0 - 1.0
+
+
 def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters: np.ndarray,
                           draws: int = NULL_DRAWS, seed: int = 0) -> np.ndarray:
     """(k,) each clock offset's overdispersion phi_j (NaN for the other nuisances, and where there
@@ -192,9 +204,9 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
     (each block's robot poses, AMCL's error nodes) take up part of each block's errors, so V(r)
     is below sum m_i^2: its expectation tr(Q P) (V(x) = x^T Q x, P = I - H, H = A N^-1 A^T a
     projection) is tr(Q) - tr(Q H), where tr(Q) = sum over the blocks' rows of m_i^2 exactly and
-    only the projection's share E V(H e) is taken over ``draws`` seeded draws (``seed``; a fresh
-    factorization of N when the step kept none), a control variate at the plain mean's cost whose
-    Monte-Carlo noise is the share's alone:
+    only the projection's share E V(H e) is taken over ``draws`` seeded draws (``seed``;
+    :func:`null_draws`; a fresh factorization of N when the step kept none), a control variate at
+    the plain mean's cost whose Monte-Carlo noise is the share's alone:
 
         phi_j = V(rho) / (sum_i m_i^2 - mean_d V(H e_d)),
 
@@ -214,7 +226,7 @@ def offset_overdispersion(step, nuis: list[Nuisance], rho: np.ndarray, clusters:
         from pedcal.calib.profile import _normal_solver
         solve = _normal_solver(step.A, step.order)
     # X = [rho, H e_1 .. H e_draws], H e_d = A N^-1 A^T e_d
-    e = np.random.default_rng(seed).standard_normal((len(rho), draws))
+    e = null_draws(len(rho), draws, seed)
     X = np.empty((len(rho), draws + 1))
     X[:, 0] = rho
     X[:, 1:] = step.A @ solve(np.asarray(step.A.T @ e))
@@ -409,5 +421,5 @@ def record_clocks(network, prob, shifts) -> None:
 
 
 __all__ = ["clock_nuisances", "clock_offsets", "clock_shift_sensor", "record_clocks", "is_clock_nuisance",
-           "centered_offsets", "offset_overdispersion", "efficient_weights", "block_scores", "widened_covariance",
-           "widen_for_overdispersion", "row_blocks"]
+           "centered_offsets", "null_draws", "offset_overdispersion", "efficient_weights", "block_scores",
+           "widened_covariance", "widen_for_overdispersion", "row_blocks"]
