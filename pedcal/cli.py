@@ -201,16 +201,36 @@ def _into_folder(args, name: str, run) -> int:
     text = io.StringIO()
     with atomic_dir(target) as tmp:
         setattr(args, name, tmp)
+        handlers = logging.getLogger("pedcal").handlers
+        renamer = _RenameInMessages(str(tmp), str(target))
+        for h in handlers:       # warnings and progress name the folder too
+            h.addFilter(renamer)
         try:
             with contextlib.redirect_stdout(text):
                 code = run(args)
         finally:
+            for h in handlers:
+                h.removeFilter(renamer)
             setattr(args, name, target)
             sys.stdout.write(text.getvalue().replace(str(tmp), str(target)))
         if code:
             raise _Failed(code)
         _rename_in_texts(tmp, str(tmp), str(target))
     return code
+
+
+class _RenameInMessages(logging.Filter):
+    """A log record naming the temporary folder of ``_into_folder`` names the folder the user gave."""
+
+    def __init__(self, old: str, new: str):
+        super().__init__()
+        self.old, self.new = old, new
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if self.old in text:
+            record.msg, record.args = text.replace(self.old, self.new), None
+        return True
 
 
 def _rename_in_texts(folder: Path, old: str, new: str) -> None:

@@ -388,3 +388,14 @@ def test_command_line_process_that_fails_leaves_the_exit_s_collection_alone(tmp_
             "print(rc, len(calls))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == f"{EXIT_BAD_INPUT} 1"
+
+
+def test_warnings_of_a_folder_written_all_at_once_name_the_folder(tmp_path, capsys, shared_data):
+    """import-bag writes into a temporary sibling that takes the folder's place: its warning (no
+    sensors.yaml) names the folder the user gave, not the temporary."""
+    out = tmp_path / "amcl"
+    code = main(["import-bag", str(shared_data / "amcl_uf_retail" / "amcldata.txt"), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0 and (out / "robot.csv").is_file()
+    assert f"{out} has no sensors.yaml" in err
+    assert ".tmpdir" not in err
