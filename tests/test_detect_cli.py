@@ -64,6 +64,21 @@ def test_detect_cli_json_output(tmp_path, capsys):
     assert "is_person" in capsys.readouterr().out
 
 
+def test_detect_cli_json_counts_the_points_it_dropped(tmp_path, capsys):
+    """--json's warnings say how many points without a valid return were dropped, as the log line does."""
+    rng = np.random.default_rng(2)
+    cloud = person_cloud(rng).astype("<f4")
+    cloud[:7, :3] = np.nan
+    cloud[7:10, 0] = np.inf
+    path = tmp_path / "f.bin"
+    cloud.tofile(path)
+    capsys.readouterr()
+    assert main(["detect", str(path), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["warnings"][0] == f"{len(cloud)} points in the file; 10 points without a valid return (NaN or infinite) dropped"
+    assert len(res["detections"]) == 1
+
+
 @pytest.mark.parametrize("content,suffix", [(b"\x00" * 17, ".bin"), (b"garbage", ".pcd"), (b"x", ".xyz")])
 def test_bad_file_exits_2(tmp_path, capsys, content, suffix):
     path = tmp_path / f"bad{suffix}"
