@@ -80,8 +80,36 @@ def _expanded_size(root: yaml.Node) -> int:
     return size[id(root)]
 
 
+def _refuse_repeated_keys(root: yaml.Node | None, path: Path) -> None:
+    """A mapping that names a key twice (PyYAML keeps the last silently, so a second
+    ``head_offset:`` or ``position:`` would override the first unseen) raises PedcalInputError
+    naming the key and both lines."""
+    seen: set[int] = set()
+    stack = [root] if root is not None else []
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            first: dict[str, yaml.Mark] = {}
+            for k, v in node.value:
+                if isinstance(k, yaml.ScalarNode) and k.tag != "tag:yaml.org,2002:merge":
+                    if k.value in first:
+                        a, b = first[k.value], k.start_mark
+                        where = (f"line {a.line + 1}, columns {a.column + 1} and {b.column + 1}" if a.line == b.line
+                                 else f"line {a.line + 1} and line {b.line + 1}")
+                        raise PedcalInputError(f"key {show(k.value)} appears twice in one mapping ({where}); "
+                                               "keep one", path=path)
+                    first[k.value] = k.start_mark
+                stack.extend((k, v))
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
+
+
 def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
-    """Parse a YAML file; returns (data, node tree). Syntax errors become PedcalInputError."""
+    """Parse a YAML file; returns (data, node tree). Syntax errors and a key repeated in one
+    mapping become PedcalInputError."""
     path = Path(path)
     text = read_text_file(path)
     try:
@@ -91,6 +119,7 @@ def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
             if node is not None and _expanded_size(node) > MAX_YAML_NODES:
                 raise PedcalInputError(f"YAML aliases expand to more than {MAX_YAML_NODES} values (an alias bomb?)",
                                        path=path)
+            _refuse_repeated_keys(node, path)
             data = loader.construct_document(node) if node is not None else None
         finally:
             loader.dispose()
