@@ -217,3 +217,22 @@ def test_a_model_of_another_feature_set_is_an_input_error(tmp_path, capsys):
     assert main(["detect", str(path), "--model", str(tmp_path / "old.npz")]) == 2
     err = capsys.readouterr().err
     assert "old.npz" in err and "213" in err and "train-detector" in err and "Traceback" not in err
+
+
+def test_a_model_or_labelled_file_that_is_no_npz_is_named_without_numpy_s_advice(tmp_path, capsys):
+    """np.load reads a .npy array (whose use as an archive raised a TypeError traceback) and calls any
+    other file pickled data, advising allow_pickle; both are refused as not an .npz archive."""
+    arr, text = tmp_path / "a.npy", tmp_path / "people.csv"
+    np.save(arr, np.zeros((4, 4), np.float32))
+    text.write_text("t,person,x,y\n0,1,0,0\n")
+    cloud = tmp_path / "f.bin"
+    person_cloud(np.random.default_rng(3)).astype("<f4").tofile(cloud)
+    for argv in (["train-detector", "--labelled", str(arr), "-o", str(tmp_path / "m.npz")],
+                 ["train-detector", "--labelled", str(text), "-o", str(tmp_path / "m.npz")],
+                 ["detect", str(cloud), "--model", str(arr)], ["detect", str(cloud), "--model", str(text)]):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "not an .npz archive" in err and argv[2 if argv[0] == "train-detector" else 3] in err
+        assert "pickle" not in err and "Traceback" not in err
+    assert not (tmp_path / "m.npz").exists()

@@ -585,8 +585,12 @@ def load_classifier(path: str | Path):
     """A RealAdaBoost or a GradientBoostedTrees model from its .npz, whichever the file holds."""
     from pedcal.detect.gbt import GradientBoostedTrees
 
+    import zipfile
+
     p = Path(path)
     try:
+        if not zipfile.is_zipfile(p):
+            raise ValueError("not an .npz")
         with np.load(p, allow_pickle=False) as d:
             trees = "lightgbm_model" in d.files
     except (OSError, ValueError):

@@ -46,6 +46,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -305,6 +306,9 @@ def _read_cluster(path: Path) -> np.ndarray:
             pts = np.load(path, allow_pickle=False)
         except (OSError, ValueError) as e:
             raise PedcalInputError(f"not a .npy array: {e}", path=path) from None
+        if not isinstance(pts, np.ndarray):     # an .npz archive named .npy
+            pts.close()
+            raise PedcalInputError("an .npz archive, expected a .npy array", path=path)
         if pts.ndim != 2 or pts.shape[1] not in (3, 4) or len(pts) == 0 or not np.isfinite(pts).all():
             raise PedcalInputError(f"a cluster .npy is a finite (N, 4) x, y, z, intensity array, got {pts.shape}",
                                    path=path)
@@ -328,6 +332,9 @@ def read_labelled(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         return features_matrix(clusters), np.asarray(labels, dtype=np.int64)
     if not path.is_file():
         raise PedcalInputError("no such labelled-cluster file or directory", path=path)
+    if not zipfile.is_zipfile(path):    # np.load would read a .npy array, or suggest unpickling anything else
+        raise PedcalInputError(f"not an .npz archive with 'features' (n, {N_FEATURES}) and 'labels' (n,), nor a "
+                               "folder of person/ and other/ clusters", path=path)
     try:
         with np.load(path, allow_pickle=False) as d:
             X, y = np.asarray(d["features"], dtype=float), np.asarray(d["labels"])
