@@ -68,3 +68,19 @@ def test_summary_worst_episode_is_the_minimum_of_several():
     assert row.robot_contacts == 3 and row.contact_frames == pytest.approx(4 / 500)
     assert row.contacts_per_min == pytest.approx(3 / (500 / 4.0 / 60.0))
     assert row.min_clearance_m == pytest.approx(-0.1)
+
+
+def test_a_bench_with_no_eligible_target_says_so(tmp_path):
+    """Nobody present long enough in any recording: the empty bench is written with a warning naming
+    each recording's longest presence, not in silence."""
+    from pedcal.errors import DegenerateDataWarning
+    from pedcal.track.follow_bench import run_follow_bench
+
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "people.csv").write_text("t,person,x,y\n0,a,0,0\n12.5,a,1,0\n0,b,2,0\n3,b,2,1\n")
+    with pytest.warns(DegenerateDataWarning, match=r"no episode to run: no person is present for --min-duration "
+                                                   r"45 s in any recording \(longest: people.csv 12.5 s\)"):
+        path = run_follow_bench(data, tmp_path / "out", files=["people.csv"], trackers=["paper"], seeds=1,
+                                progress=False)
+    assert "| people.csv | 2 | 0 | 12.5 |" in path.read_text()
