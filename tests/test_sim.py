@@ -258,6 +258,30 @@ def test_scenario_files_reject_unknown_keys_and_bad_values(tmp_path):
     assert sparse.sensor_ids == ["s04", "s05", "s06", "s07", "s08"] and sparse.area_m == [8.2, 4.5]
 
 
+@pytest.mark.parametrize("line,column,match", [
+    ("robot_speed_mps: .nan", "robot_speed_mps", "expected a finite number > 0, got nan"),   # a ValueError traceback
+    ("robot_speed_mps: -1", "robot_speed_mps", "expected a finite number > 0, got -1.0"),   # an IndexError one
+    ("area_m: [8.2, 0]", "area_m", r"expected a finite number > 0, got 0.0 \(item 1 of the list\)"),
+    ("miss_prob: 1.5", "miss_prob", r"expected a share within \[0, 1\], got 1.5"),
+    ("amcl_sigma_m: -0.05", "amcl_sigma_m", "expected a finite number >= 0, got -0.05"),
+    ("latency_s: .inf", "latency_s", "expected a finite number, got inf"),
+    ('odometry: "false"', "odometry", "expected a value like True, got 'false'"),      # bool("false") was True
+    ("duration_s: long", "duration_s", "expected a number, got 'long'"),
+])
+def test_scenario_values_outside_their_domain_are_refused_by_name(tmp_path, line, column, match):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(f"base: paper\n{line}\n")
+    with pytest.raises(PedcalInputError, match=match) as exc:
+        load_scenario(bad)
+    assert (exc.value.path, exc.value.column) == (str(bad), column)
+
+
+def test_signed_scenario_values_may_be_negative():
+    sc = Scenario().resolve(head_vertical_bias_m=-0.02, odom_scale_error=-0.01, clock_offset_s=-0.1,
+                            head_offset_m=[-0.1, 0.0, 1.3])
+    assert sc.head_vertical_bias_m == -0.02 and sc.head_offset_m == [-0.1, 0.0, 1.3]
+
+
 def test_noise_free_turns_every_nuisance_off():
     clean = Scenario().resolve(noise_free=True)
     for name, off in Scenario.nuisances().items():
