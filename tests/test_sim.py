@@ -341,3 +341,13 @@ def test_companion_swaps_replace_the_stated_share_in_short_stretches():
     assert (who == "companion-beside").sum() > 20
     plain = simulate_logs("paper", seed=3, duration_s=30.0).calib.truth_observations["who"].astype(str)
     assert not plain.str.startswith("companion").any()
+
+
+def test_a_scenario_whose_sensors_never_see_the_robot_says_so():
+    from pedcal.errors import DegenerateDataWarning
+
+    with pytest.warns(DegenerateDataWarning, match="the calib log holds no observation of the robot") as rec:
+        res = simulate_logs("paper", seed=0, max_range_m=0.1)
+    assert len(res.calib.observations) == 0 and len(rec) == 2
+    with pytest.raises(PedcalInputError, match=r"expected an angle > 0 and <= 180 deg, got 400.0"):
+        Scenario().resolve(hfov_deg=400)

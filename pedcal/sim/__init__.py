@@ -9,6 +9,7 @@ same route driven twice with independent noise, the same sensors and installed e
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import pandas as pd
 import yaml
 
 from pedcal.calib.common import head_world, interpolate_pose2
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, Meta, SensorNetwork
 from pedcal.options import check
@@ -232,6 +233,12 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     calib = _run(true_net, installed, sc, poses, t0_calib, ss_calib, 0, progress, "calib")
     t0_eval = float(calib.truth_robot["t"].iloc[-1]) + sc.eval_gap_s
     evaluation = _run(true_net, installed, sc, poses, t0_eval, ss_eval, 1, progress, "eval")
+    for name, log in (("calib", calib), ("eval", evaluation)):
+        if log_summary(log)["robot"] == 0:      # a log calibrate and evaluate will refuse
+            warnings.warn(f"scenario {sc.name}, seed {sc.seed}: the {name} log holds no observation of the robot "
+                          f"({len(log.observations)} observations in all): no sensor sees its head on the route "
+                          "(check max_range_m, min_range_m, the fields of view, sensor_height_m, robot_speed_mps); "
+                          "it cannot be calibrated or evaluated", DegenerateDataWarning, stacklevel=2)
     return SimulationResult(calib=calib, eval=evaluation, scenario=sc)
 
 

@@ -334,6 +334,7 @@ _POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "hfov_deg", 
              "reliable_range_m", "frame_rate_hz", "corridor_width_m", "corridor_sensors", "robot_speed_mps",
              "lane_spacing_m", "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz",
              "amcl_tau_s", "walker_speed_mps", "person_height_m", "head_ramp_m")
+_ANGLES_DEG = ("hfov_deg", "vfov_deg")      # > 0 and at most 180
 _SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction")
 _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
            "head_offset_m", "start_time_s", "odom_scale_error", "odom_yaw_drift_deg_per_m", "odom_gyro_bias_dps",
@@ -344,11 +345,11 @@ def _check_domain(key: str, value, source) -> None:
     items = value if isinstance(value, list) else [value]
     if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
         return
-    lo, lo_open, hi = ((0.0, True, math.inf) if key in _POSITIVE else (0.0, False, 1.0) if key in _SHARES
+    lo, lo_open, hi = ((0.0, True, 180.0) if key in _ANGLES_DEG else (0.0, True, math.inf) if key in _POSITIVE else (0.0, False, 1.0) if key in _SHARES
                        else (-math.inf, False, math.inf) if key in _SIGNED else (0.0, False, math.inf))
     for i, v in enumerate(items):
         if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
-            want = ("a finite number > 0" if key in _POSITIVE else "a share within [0, 1]" if key in _SHARES
+            want = ("an angle > 0 and <= 180 deg" if key in _ANGLES_DEG else "a finite number > 0" if key in _POSITIVE else "a share within [0, 1]" if key in _SHARES
                     else "a finite number" if key in _SIGNED else "a finite number >= 0")
             item = f" (item {i} of the list)" if isinstance(value, list) else ""
             raise PedcalInputError(f"expected {want}, got {show(v)}{item}", path=source, column=key)
