@@ -343,11 +343,13 @@ def test_companion_swaps_replace_the_stated_share_in_short_stretches():
     assert not plain.str.startswith("companion").any()
 
 
-def test_a_scenario_whose_sensors_never_see_the_robot_says_so():
+def test_a_scenario_whose_sensors_never_see_the_robot_says_so(tmp_path):
+    """simulate writes logs that calibrate would refuse as empty: not in silence."""
     from pedcal.errors import DegenerateDataWarning
+    from pedcal.sim import simulate
 
-    with pytest.warns(DegenerateDataWarning, match="the calib log holds no observation of the robot") as rec:
-        res = simulate_logs("paper", seed=0, max_range_m=0.1)
+    with pytest.warns(DegenerateDataWarning, match="the (calib|eval) log holds no observation of the robot") as rec:
+        res = simulate("paper", tmp_path / "run", seed=0, max_range_m=0.1)
     assert len(res.calib.observations) == 0 and len(rec) == 2
     with pytest.raises(PedcalInputError, match=r"expected an angle > 0 and <= 180 deg, got 400.0"):
         Scenario().resolve(hfov_deg=400)

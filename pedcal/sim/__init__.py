@@ -233,12 +233,6 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     calib = _run(true_net, installed, sc, poses, t0_calib, ss_calib, 0, progress, "calib")
     t0_eval = float(calib.truth_robot["t"].iloc[-1]) + sc.eval_gap_s
     evaluation = _run(true_net, installed, sc, poses, t0_eval, ss_eval, 1, progress, "eval")
-    for name, log in (("calib", calib), ("eval", evaluation)):
-        if log_summary(log)["robot"] == 0:      # a log calibrate and evaluate will refuse
-            warnings.warn(f"scenario {sc.name}, seed {sc.seed}: the {name} log holds no observation of the robot "
-                          f"({len(log.observations)} observations in all): no sensor sees its head on the route "
-                          "(check max_range_m, min_range_m, the fields of view, sensor_height_m, robot_speed_mps); "
-                          "it cannot be calibrated or evaluated", DegenerateDataWarning, stacklevel=2)
     return SimulationResult(calib=calib, eval=evaluation, scenario=sc)
 
 
@@ -257,6 +251,12 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
                                    "calib/, eval/); keep it elsewhere or choose another output", path=scenario)
     result = simulate_logs(scenario, seed=seed, progress=progress, **overrides)
     for name, log in (("calib", result.calib), ("eval", result.eval)):
+        if log_summary(log)["robot"] == 0:      # a log calibrate and evaluate will refuse
+            sc = result.scenario
+            warnings.warn(f"scenario {sc.name}, seed {sc.seed}: the {name} log holds no observation of the robot "
+                          f"({len(log.observations)} observations in all): no sensor sees its head on the route "
+                          "(check duration_s, max_range_m, min_range_m, the fields of view, sensor_height_m, "
+                          "robot_speed_mps); it cannot be calibrated or evaluated", DegenerateDataWarning, stacklevel=2)
         log.path = out_dir / name
         write_log(log, log.path)
         _progress(progress, f"wrote {log.path}")
