@@ -48,6 +48,10 @@ def cmd_evaluate(args) -> int:
     log = read_log(args.log)
     ext = read_sensors_yaml(args.extrinsics)
     res = evaluate(log, ext)
+    if log.truth is None:      # a real log: the table's position and orientation columns stay empty
+        logging.getLogger("pedcal").warning(
+            f"{args.log} has no truth.yaml: sensor position and orientation errors cannot be computed (left "
+            f"empty); the head tracking RMS is against {res.head_reference}")
     if args.json:
         _print_json(res.to_dict())
     else:

@@ -399,3 +399,12 @@ def test_warnings_of_a_folder_written_all_at_once_name_the_folder(tmp_path, caps
     assert code == 0 and (out / "robot.csv").is_file()
     assert f"{out} has no sensors.yaml" in err
     assert ".tmpdir" not in err
+
+
+def test_evaluate_on_a_log_without_truth_says_what_it_cannot_compute(tmp_path, capsys):
+    log_dir = tmp_path / "log"
+    write_log(small_log(), log_dir)
+    assert not (log_dir / "truth.yaml").exists()
+    code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(log_dir / "sensors.yaml")])
+    assert code == 0
+    assert f"{log_dir} has no truth.yaml: sensor position and orientation errors cannot be computed (left empty)" in err
