@@ -186,3 +186,18 @@ def test_a_person_placed_twice_at_one_time(tmp_path):
     assert (ei.value.row, ei.value.column) == (9, "t")
     with pytest.raises(PedcalInputError, match="placed twice"):
         write_people_csv(pd.concat([people, people.iloc[[2]].assign(y=7.0)]), tmp_path / "out.csv")
+
+
+def test_a_people_table_written_as_parquet_reads_back(tmp_path, capsys):
+    """import-people -o people.parquet wrote a file that import-people and follow --people then
+    sniffed as text and refused as not UTF-8."""
+    from pedcal.cli import main
+
+    src = tmp_path / "thor.csv"
+    src.write_text(THOR_HEADER + thor_rows(12, seed=4))
+    pq = tmp_path / "people.parquet"
+    assert main(["import-people", str(src), "-o", str(pq)]) == 0
+    pd.testing.assert_frame_equal(read_pedestrians(pq), read_pedestrians(src))
+    capsys.readouterr()
+    assert main(["follow", "--people", str(pq)]) == 0
+    assert f"{pq}: 3 people" in capsys.readouterr().out

@@ -197,8 +197,8 @@ def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = N
     or people (pedcal's own CSV). ``fps``: the frame rate of a frame-numbered (ETH/UCY) file,
     needed when its name does not identify the recording; the other layouts carry seconds."""
     path = require_path(path, "path")
-    if kind == "auto":
-        kind = detect_kind(path)
+    if kind == "auto":          # a people table import-people wrote as Parquet, or a text layout to sniff
+        kind = "people" if path.suffix.lower() == ".parquet" else detect_kind(path)
     readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}
     if kind not in readers:
         raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)
