@@ -329,11 +329,14 @@ def cmd_follow_bench(args) -> int:
     check_sensing(args.sensing, args.lidar)   # the options first, then the file system
     check_output(args.out, inputs=[args.data_dir or SHARED_DATA], directory=True)
 
-    path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
-                            min_duration_s=args.min_duration, max_targets=args.max_targets,
-                            files=args.files, progress=not args.quiet, sensing=args.sensing, lidar=args.lidar)
-    print(f"wrote {path}")
-    return 0
+    def run(args) -> int:
+        path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
+                                min_duration_s=args.min_duration, max_targets=args.max_targets,
+                                files=args.files, progress=not args.quiet, sensing=args.sensing, lidar=args.lidar)
+        print(f"wrote {path}")
+        return 0
+
+    return _into_folder(args, "out", run)   # bench.md, the tables and figures change all at once
 
 
 # ------------------------------------------------------------------------------------------ parser
