@@ -157,7 +157,8 @@ def cmd_demo(args) -> int:
     from pedcal.io.atomic import check_output
 
     check_output(args.output, directory=True)
-    return run_demo(args.output, seed=args.seed, scenario=args.scenario, seeds=args.seeds)
+    # the logs, calibrated YAMLs and results.json of one seed change all at once
+    return _into_folder(args, "output", lambda a: run_demo(a.output, seed=a.seed, scenario=a.scenario, seeds=a.seeds))
 
 
 ALL_REAL = Path("<every labelled folder>")  # detect-eval --real without a folder
