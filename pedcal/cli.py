@@ -34,11 +34,19 @@ def cmd_simulate(args) -> int:
     from pedcal.sim import simulate
 
     check_output(args.output, inputs=[args.scenario if Path(args.scenario).exists() else None], directory=True)
-    result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
-                      **({"vary_nuisances": True if args.vary_nuisances == "classic" else "zoo"}
-                         if getattr(args, "vary_nuisances", None) else {}))
-    print(result.summary())
-    return 0
+    if Path(args.scenario).is_file():       # refused before the folder is copied aside
+        from pedcal.sim import check_scenario_outside
+
+        check_scenario_outside(args.scenario, args.output)
+
+    def run(args) -> int:
+        result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
+                          **({"vary_nuisances": True if args.vary_nuisances == "classic" else "zoo"}
+                             if getattr(args, "vary_nuisances", None) else {}))
+        print(result.summary())
+        return 0
+
+    return _into_folder(args, "output", run)   # calib/, eval/ and scenario.yaml of one seed, all at once
 
 
 def cmd_evaluate(args) -> int:
@@ -213,6 +221,9 @@ def _into_folder(args, name: str, run) -> int:
         try:
             with contextlib.redirect_stdout(text):
                 code = run(args)
+        except (PedcalInputError, OSError) as e:    # its message names the folder too
+            _rename_in_error(e, str(tmp), str(target))
+            raise
         finally:
             for h in handlers:
                 h.removeFilter(renamer)
@@ -222,6 +233,21 @@ def _into_folder(args, name: str, run) -> int:
             raise _Failed(code)
         _rename_in_texts(tmp, str(tmp), str(target))
     return code
+
+
+def _rename_in_error(e: Exception, old: str, new: str) -> None:
+    """An input or file-system error raised inside ``_into_folder`` names the folder the user gave,
+    not its temporary sibling (in place: the traceback's chain is kept)."""
+    if isinstance(e, OSError):
+        for name in ("filename", "filename2"):
+            value = getattr(e, name, None)
+            if isinstance(value, str) and old in value:
+                setattr(e, name, value.replace(old, new))
+    elif isinstance(e, PedcalInputError):
+        e.args = tuple(a.replace(old, new) if isinstance(a, str) else a for a in e.args)
+        e.detail = e.detail.replace(old, new)
+        if e.path is not None:
+            e.path = e.path.replace(old, new)
 
 
 class _RenameInMessages(logging.Filter):

@@ -408,3 +408,25 @@ def test_evaluate_on_a_log_without_truth_says_what_it_cannot_compute(tmp_path, c
     code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(log_dir / "sensors.yaml")])
     assert code == 0
     assert f"{log_dir} has no truth.yaml: sensor position and orientation errors cannot be computed (left empty)" in err
+
+
+def test_a_simulation_that_fails_at_the_end_leaves_the_previous_run(tmp_path, capsys, monkeypatch):
+    """calib/, eval/ and scenario.yaml are written in turn: a failure at scenario.yaml (or a Ctrl-C
+    after calib/) left the new seed's calib/ beside the previous seed's eval/."""
+    import pedcal.sim
+
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text("base: paper\nduration_s: 20\n")
+    out = tmp_path / "run"
+    assert main(["simulate", str(scenario), "-o", str(out), "--seed", "0", "-q"]) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def refuse(path, text):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(pedcal.sim, "write_text_atomic", refuse)
+    capsys.readouterr()
+    assert main(["simulate", str(scenario), "-o", str(out), "--seed", "1", "-q"]) == 2
+    assert f"{out / 'scenario.yaml'}: Permission denied" in capsys.readouterr().err
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "short.yaml"]

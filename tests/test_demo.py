@@ -73,6 +73,6 @@ def test_a_demo_that_fails_at_the_end_leaves_its_folder_as_it_was(tmp_path, caps
 
     monkeypatch.setattr(pedcal.demo, "write_text_atomic", refuse)
     assert main(["demo", "-o", str(out), "--seeds", "1"]) == 2
-    assert "results.json: Permission denied" in capsys.readouterr().err
+    assert f"{out / 'results.json'}: Permission denied" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["paper"]

@@ -111,6 +111,6 @@ def test_a_bench_that_fails_while_writing_leaves_the_previous_folder(tmp_path, c
 
     monkeypatch.setattr(fb, "write_text_atomic", refuse)
     assert main([*argv, "--seeds", "2"]) == 2
-    assert "bench.md: Permission denied" in capsys.readouterr().err
+    assert f"{out / 'bench.md'}: Permission denied" in capsys.readouterr().err
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bench", "data"]

@@ -236,6 +236,17 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     return SimulationResult(calib=calib, eval=evaluation, scenario=sc)
 
 
+def check_scenario_outside(scenario: str | Path, out_dir: str | Path) -> None:
+    """The scenario file ``scenario`` is none of what simulate writes into ``out_dir``
+    (scenario.yaml, calib/, eval/), else PedcalInputError."""
+    out_dir = Path(out_dir)
+    src = Path(scenario).resolve()
+    written = [(out_dir / "scenario.yaml").resolve(), (out_dir / "calib").resolve(), (out_dir / "eval").resolve()]
+    if src == written[0] or any(d in src.parents for d in written[1:]):
+        raise PedcalInputError(f"the scenario file is among what simulate writes into {out_dir} (scenario.yaml, "
+                               "calib/, eval/); keep it elsewhere or choose another output", path=scenario)
+
+
 def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0, progress: bool = False,
              **overrides) -> SimulationResult:
     """``simulate_logs`` and write ``out_dir/calib/``, ``out_dir/eval/`` (log directories with
@@ -244,11 +255,7 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
 
     out_dir = Path(out_dir)
     if isinstance(scenario, (str, Path)) and Path(scenario).is_file():
-        src = Path(scenario).resolve()
-        written = [(out_dir / "scenario.yaml").resolve(), (out_dir / "calib").resolve(), (out_dir / "eval").resolve()]
-        if src == written[0] or any(d in src.parents for d in written[1:]):
-            raise PedcalInputError(f"the scenario file is among what simulate writes into {out_dir} (scenario.yaml, "
-                                   "calib/, eval/); keep it elsewhere or choose another output", path=scenario)
+        check_scenario_outside(scenario, out_dir)
     result = simulate_logs(scenario, seed=seed, progress=progress, **overrides)
     for name, log in (("calib", result.calib), ("eval", result.eval)):
         if log_summary(log)["robot"] == 0:      # a log calibrate and evaluate will refuse
@@ -264,5 +271,5 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
     return result
 
 
-__all__ = ["simulate", "simulate_logs", "SimulationResult", "Scenario", "load_scenario", "log_summary",
+__all__ = ["simulate", "simulate_logs", "check_scenario_outside", "SimulationResult", "Scenario", "load_scenario", "log_summary",
            "networks"]
