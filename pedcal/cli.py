@@ -321,7 +321,11 @@ def cmd_follow(args) -> int:
         from pedcal.io.atomic import atomic_dir
 
         with atomic_dir(args.output) as tmp:       # follow.json and follow_log.parquet change together
-            res.save(tmp)
+            try:
+                res.save(tmp)
+            except (PedcalInputError, OSError) as e:
+                _rename_in_error(e, str(tmp), str(args.output))
+                raise
     if args.json:
         _print_json(res.to_dict())
     else:
