@@ -56,6 +56,11 @@ def cmd_evaluate(args) -> int:
     log = read_log(args.log)
     ext = read_sensors_yaml(args.extrinsics)
     res = evaluate(log, ext)
+    foreign = [s.id for s in ext if s.id not in {t.id for t in log.sensors}]
+    if foreign:                # a file of another site, or sensors renamed: not scored, not in silence
+        logging.getLogger("pedcal").warning(
+            f"{args.extrinsics}: {len(foreign)} sensor(s) not in the log's sensors.yaml, not scored: "
+            f"{', '.join(foreign[:10])}{', ...' if len(foreign) > 10 else ''}")
     if log.truth is None:      # a real log: the table's position and orientation columns stay empty
         logging.getLogger("pedcal").warning(
             f"{args.log} has no truth.yaml: sensor position and orientation errors cannot be computed (left "

@@ -430,3 +430,13 @@ def test_a_simulation_that_fails_at_the_end_leaves_the_previous_run(tmp_path, ca
     assert f"{out / 'scenario.yaml'}: Permission denied" in capsys.readouterr().err
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "short.yaml"]
+
+
+def test_evaluate_names_the_extrinsics_sensors_the_log_does_not_have(tmp_path, capsys):
+    log_dir = tmp_path / "log"
+    write_log(small_log(), log_dir)
+    ext = tmp_path / "ext.yaml"
+    ext.write_text((log_dir / "sensors.yaml").read_text().replace("id: s02", "id: s99"))
+    code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(ext)])
+    assert code == 0
+    assert f"{ext}: 1 sensor(s) not in the log's sensors.yaml, not scored: s99" in err
