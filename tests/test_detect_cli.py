@@ -236,3 +236,11 @@ def test_a_model_or_labelled_file_that_is_no_npz_is_named_without_numpy_s_advice
         assert "not an .npz archive" in err and argv[2 if argv[0] == "train-detector" else 3] in err
         assert "pickle" not in err and "Traceback" not in err
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_train_detector_with_a_data_dir_that_is_no_folder_exits_2(tmp_path, capsys):
+    """A mistyped --data-dir trained the general model on simulated frames alone (a warning, exit 0)."""
+    out = tmp_path / "m.npz"
+    assert main(["train-detector", "--data-dir", str(tmp_path / "nowhere"), "--frames", "4", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'nowhere'}: no folder of real recordings here (--data-dir)" in err and not out.exists()

@@ -434,8 +434,9 @@ def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "
     """The classifier of a model ``family`` with a Config (``MODEL_FAMILIES``), trained on
     ``frames`` simulated frames and every labelled real frame under ``data_dir`` (default
     ``pedcal.detect.real_eval.default_data_dir``) with ``real_copies`` augmented copies each
-    (``pedcal.detect.lodo``); see ``fit_with_real``. Without real frames a DegenerateDataWarning
-    says the model is trained on simulated frames alone. Deterministic given the arguments and
+    (``pedcal.detect.lodo``); see ``fit_with_real``. A ``data_dir`` given that is no folder is an
+    input error; without the default folder a DegenerateDataWarning says the model is trained on
+    simulated frames alone. Deterministic given the arguments and
     the data."""
     from pedcal.detect import lodo
     from pedcal.detect.real_eval import default_data_dir
@@ -443,6 +444,9 @@ def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "
     fam = MODEL_FAMILIES[family]
     n_sim = fam.frames if frames is None else int(frames)
     root = Path(data_dir) if data_dir is not None else default_data_dir()
+    if data_dir is not None and not root.is_dir():     # a folder named on purpose: a typo is no reason to go on
+        raise PedcalInputError("no folder of real recordings here (--data-dir); without it the detector would be "
+                               "trained on simulated frames alone", path=root)
     records = []
     if root.is_dir():
         records = lodo.real_clusters(root, real_copies, seed, progress=progress)
