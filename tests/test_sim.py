@@ -267,6 +267,7 @@ def test_scenario_files_reject_unknown_keys_and_bad_values(tmp_path):
     ("latency_s: .inf", "latency_s", "expected a finite number, got inf"),
     ('odometry: "false"', "odometry", "expected a value like True, got 'false'"),      # bool("false") was True
     ("duration_s: long", "duration_s", "expected a number, got 'long'"),
+    ("grid_rows: 3", "row_y_m", r"2 entries for 3 rows \(grid_rows\)"),     # was raised without the file
 ])
 def test_scenario_values_outside_their_domain_are_refused_by_name(tmp_path, line, column, match):
     bad = tmp_path / "bad.yaml"

@@ -404,6 +404,9 @@ def _typed(values: dict, source) -> Scenario:
             out["row_y_m"] = [float(v) for v in out["row_y_m"]]
         except (TypeError, ValueError):
             raise PedcalInputError("expected a list of numbers", path=source, column="row_y_m") from None
+        if out["layout"] == "grid" and len(out["row_y_m"]) != out["grid_rows"]:   # named here, with the file
+            raise PedcalInputError(f"{len(out['row_y_m'])} entries for {out['grid_rows']} rows (grid_rows)",
+                                   path=source, column="row_y_m")
     if out["sensor_height_range_m"] is not None:
         try:
             lo, hi = (float(v) for v in out["sensor_height_range_m"])
