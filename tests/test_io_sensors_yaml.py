@@ -261,3 +261,17 @@ def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
     scenario.write_text("base: paper\nseed_note: 1\nbase: sparse\n")
     with pytest.raises(PedcalInputError, match=r"key 'base' appears twice .*line 1 and line 3"):
         load_scenario(scenario)
+
+
+@pytest.mark.parametrize("value,shown", [("[abc, 45, 0]", "['abc', 45, 0]"), ("[.nan, 0.5, 1]", "[nan, 0.5, 1]"),
+                                         ("[0, 45]", "[0, 45]"), ("7", "7"),
+                                         ("[[1], 2, 3, 4, 5, 6, 7]", "[..., 2, 3, 4, 5, 6, ...]")])
+def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):
+    """A list was quoted as the text of its Python form, its strings' quotes escaped: '[\\'abc\\', ...]'."""
+    from pedcal.errors import PedcalInputError
+
+    p = tmp_path / "sensors.yaml"
+    p.write_text(f"sensors:\n- id: a\n  position: [0, 0, 2.6]\n  ypr_deg: {value}\n")
+    with pytest.raises(PedcalInputError) as ei:
+        read_sensors_yaml(p)
+    assert str(ei.value).endswith(f"ypr_deg: expected a list of 3 finite numbers, got {shown}")
