@@ -673,6 +673,17 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
         prepared[name] = df
     if tables.observations is not None:
         prepared["observations"] = tables.observations
+    for name, df in prepared.items():     # a tracker's lost track, a message of NaNs: dropped, counted
+        numeric = df.select_dtypes("number").to_numpy(dtype=float)
+        bad = ~np.isfinite(numeric).all(axis=1)
+        if bad.any():
+            if bad.all():
+                raise PedcalInputError(f"every one of the {len(df)} {name} rows from {tables.sources.get(name)} holds a "
+                                       "NaN or infinite value", path=bag)
+            logging.getLogger(__name__).warning(
+                f"{int(bad.sum())} of {len(df)} {name} rows from {tables.sources.get(name)} dropped: a NaN or infinite "
+                f"value (the first at t = {float(df['t'].to_numpy()[np.flatnonzero(bad)[0]])!r} s)")
+            prepared[name] = df[~bad].reset_index(drop=True)
     written: dict[Path, int] = {}
     for name, df in prepared.items():   # validate everything before writing anything
         p = write_table(df, out_dir / f"{name}.csv")
