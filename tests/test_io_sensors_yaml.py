@@ -218,26 +218,6 @@ def test_each_part_of_the_libyaml_guard_sends_its_case_to_pyyaml(data):
     assert dump_yaml(data) == _pyyaml_text(data)
 
 
-SENSOR_TEXT = "sensors:\n- id: a\n  position: [0, 0, 2.6]\n  ypr_deg: [0, 45, 0]\n"
-
-
-@pytest.mark.parametrize("text,key,lines", [
-    (SENSOR_TEXT + "  position: [1, 0, 2.6]\n", "position", (3, 5)),          # the second would win unseen
-    ("frame: map\n" + SENSOR_TEXT + "frame: odom\n", "frame", (1, 6)),
-    (SENSOR_TEXT.replace("  ypr_deg", "  sigma: {position_m: [0, 0, 0], position_m: [1, 1, 1]}\n  ypr_deg"),
-     "position_m", (4, "columns 11 and 34")),
-])
-def test_a_key_given_twice_is_refused_naming_both_lines(tmp_path, text, key, lines):
-    from pedcal.errors import PedcalInputError
-
-    p = tmp_path / "sensors.yaml"
-    p.write_text(text)
-    where = f"line {lines[0]}, {lines[1]}" if isinstance(lines[1], str) else f"line {lines[0]} and line {lines[1]}"
-    with pytest.raises(PedcalInputError, match=rf"key '{key}' appears twice in one mapping \({where}\)") as ei:
-        read_sensors_yaml(p)
-    assert ei.value.path == str(p)
-
-
 def test_merge_keys_and_aliases_are_no_repeated_keys(tmp_path):
     """``<<: *base`` then a key of the base's: YAML's override, not a key given twice."""
     p = tmp_path / "sensors.yaml"
