@@ -75,7 +75,8 @@ def test_detect_cli_json_counts_the_points_it_dropped(tmp_path, capsys):
     capsys.readouterr()
     assert main(["detect", str(path), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["warnings"][0] == f"{len(cloud)} points in the file; 10 points without a valid return (NaN or infinite) dropped"
+    assert res["warnings"][0] == (f"{len(cloud)} points in the file; 10 points without a valid return (NaN or "
+                                  "infinite) dropped")
     assert len(res["detections"]) == 1
 
 

@@ -201,3 +201,14 @@ def test_a_people_table_written_as_parquet_reads_back(tmp_path, capsys):
     capsys.readouterr()
     assert main(["follow", "--people", str(pq)]) == 0
     assert f"{pq}: 3 people" in capsys.readouterr().out
+
+
+def test_a_renamed_eth_file_given_to_follow_says_how_to_give_its_rate(tmp_path, capsys):
+    """follow has no --fps: the message says how to give the rate (through import-people)."""
+    from pedcal.cli import main
+
+    p = tmp_path / "myrecording.txt"
+    p.write_text("0\t1.0\t1.0\t2.0\n10\t1.0\t1.5\t2.0\n")
+    assert main(["follow", "--people", str(p)]) == 2
+    assert "give its frame rate with --fps (frames per second of the frame numbers): pedcal import-people FILE " \
+           "--fps F -o people.csv, then follow --people people.csv" in capsys.readouterr().err

@@ -583,9 +583,9 @@ def model_family(sensor: str | None = None, scan_steps: tuple[float, float] | No
 
 def load_classifier(path: str | Path):
     """A RealAdaBoost or a GradientBoostedTrees model from its .npz, whichever the file holds."""
-    from pedcal.detect.gbt import GradientBoostedTrees
-
     import zipfile
+
+    from pedcal.detect.gbt import GradientBoostedTrees
 
     p = Path(path)
     try:

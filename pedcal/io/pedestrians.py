@@ -114,7 +114,8 @@ def eth_ucy_frames_per_s(path: Path, frames_per_s: float | None = None) -> float
     if path.stem not in ETH_UCY_FRAMES_PER_S_BY_NAME:
         raise PedcalInputError(f"frame-numbered (ETH/UCY) file whose name does not identify the recording "
                                f"(known: {', '.join(sorted(ETH_UCY_FRAMES_PER_S_BY_NAME))}); give its frame rate "
-                               f"with --fps (frames per second of the frame numbers)", path=path)
+                               "with --fps (frames per second of the frame numbers): pedcal import-people FILE --fps "
+                               "F -o people.csv, then follow --people people.csv", path=path)
     return ETH_UCY_FRAMES_PER_S_BY_NAME[path.stem]
 
 

@@ -45,9 +45,10 @@ def _repeated_samples(people: pd.DataFrame, where, drop: bool) -> pd.DataFrame:
         row = int(conflict[0])
         person, t = people["person"].iloc[row], float(people["t"].iloc[row])
         first = int(np.flatnonzero((people["person"] == person).to_numpy() & (people["t"] == t).to_numpy())[0])
-        raise PedcalInputError(f"person {show(person)} at t = {t!r} s is placed twice, at ({people['x'].iloc[first]:g}, "
-                               f"{people['y'].iloc[first]:g}) in row {first} and ({people['x'].iloc[row]:g}, "
-                               f"{people['y'].iloc[row]:g}) here; keep one", path=where, row=row, column="t")
+        x, y = people["x"].to_numpy(), people["y"].to_numpy()
+        raise PedcalInputError(f"person {show(person)} at t = {t!r} s is placed twice, at ({x[first]:g}, {y[first]:g}) "
+                               f"in row {first} and ({x[row]:g}, {y[row]:g}) here; keep one", path=where, row=row,
+                               column="t")
     if not drop:
         return people
     warnings.warn(f"{where}: {int(whole.sum())} row(s) repeating an earlier row whole (person, t, x, y) dropped "

@@ -678,8 +678,8 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
         bad = ~np.isfinite(numeric).all(axis=1)
         if bad.any():
             if bad.all():
-                raise PedcalInputError(f"every one of the {len(df)} {name} rows from {tables.sources.get(name)} holds a "
-                                       "NaN or infinite value", path=bag)
+                raise PedcalInputError(f"every one of the {len(df)} {name} rows from {tables.sources.get(name)} "
+                                       "holds a NaN or infinite value", path=bag)
             logging.getLogger(__name__).warning(
                 f"{int(bad.sum())} of {len(df)} {name} rows from {tables.sources.get(name)} dropped: a NaN or infinite "
                 f"value (the first at t = {float(df['t'].to_numpy()[np.flatnonzero(bad)[0]])!r} s)")

@@ -271,5 +271,5 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
     return result
 
 
-__all__ = ["simulate", "simulate_logs", "check_scenario_outside", "SimulationResult", "Scenario", "load_scenario", "log_summary",
-           "networks"]
+__all__ = ["simulate", "simulate_logs", "check_scenario_outside", "SimulationResult", "Scenario", "load_scenario",
+           "log_summary", "networks"]

@@ -341,16 +341,23 @@ _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shi
            "latency_s")
 
 
+# (lowest, lowest excluded, highest, what the message asks for) of each kind of parameter
+_DOMAINS = {"angle": (0.0, True, 180.0, "an angle > 0 and <= 180 deg"),
+            "positive": (0.0, True, math.inf, "a finite number > 0"),
+            "share": (0.0, False, 1.0, "a share within [0, 1]"),
+            "signed": (-math.inf, False, math.inf, "a finite number"),
+            "nonnegative": (0.0, False, math.inf, "a finite number >= 0")}
+
+
 def _check_domain(key: str, value, source) -> None:
     items = value if isinstance(value, list) else [value]
     if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
         return
-    lo, lo_open, hi = ((0.0, True, 180.0) if key in _ANGLES_DEG else (0.0, True, math.inf) if key in _POSITIVE else (0.0, False, 1.0) if key in _SHARES
-                       else (-math.inf, False, math.inf) if key in _SIGNED else (0.0, False, math.inf))
+    kind = ("angle" if key in _ANGLES_DEG else "positive" if key in _POSITIVE else "share" if key in _SHARES
+            else "signed" if key in _SIGNED else "nonnegative")
+    lo, lo_open, hi, want = _DOMAINS[kind]
     for i, v in enumerate(items):
         if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
-            want = ("an angle > 0 and <= 180 deg" if key in _ANGLES_DEG else "a finite number > 0" if key in _POSITIVE else "a share within [0, 1]" if key in _SHARES
-                    else "a finite number" if key in _SIGNED else "a finite number >= 0")
             item = f" (item {i} of the list)" if isinstance(value, list) else ""
             raise PedcalInputError(f"expected {want}, got {show(v)}{item}", path=source, column=key)
 
@@ -390,7 +397,8 @@ def _typed(values: dict, source) -> Scenario:
         except (TypeError, ValueError, OverflowError):
             like = {float: "a number", list: "a list"}.get(_OPTIONAL_TYPES.get(key)) if default is None else \
                 f"a value like {default!r}"
-            raise PedcalInputError(f"expected {like or 'a value'}, got {show(value)}", path=source, column=key) from None
+            raise PedcalInputError(f"expected {like or 'a value'}, got {show(value)}", path=source,
+                                   column=key) from None
         _check_domain(key, out[key], source)
     for key, allowed in CHOICES.items():
         if out[key] not in allowed:
