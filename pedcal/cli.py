@@ -34,11 +34,19 @@ def cmd_simulate(args) -> int:
     from pedcal.sim import simulate
 
     check_output(args.output, inputs=[args.scenario if Path(args.scenario).exists() else None], directory=True)
-    result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
-                      **({"vary_nuisances": True if args.vary_nuisances == "classic" else "zoo"}
-                         if getattr(args, "vary_nuisances", None) else {}))
-    print(result.summary())
-    return 0
+    if Path(args.scenario).is_file():       # refused before the folder is copied aside
+        from pedcal.sim import check_scenario_outside
+
+        check_scenario_outside(args.scenario, args.output)
+
+    def run(args) -> int:
+        result = simulate(args.scenario, args.output, seed=args.seed, progress=not args.quiet,
+                          **({"vary_nuisances": True if args.vary_nuisances == "classic" else "zoo"}
+                             if getattr(args, "vary_nuisances", None) else {}))
+        print(result.summary())
+        return 0
+
+    return _into_folder(args, "output", run)   # calib/, eval/ and scenario.yaml of one seed, all at once
 
 
 def cmd_evaluate(args) -> int:
@@ -48,6 +56,15 @@ def cmd_evaluate(args) -> int:
     log = read_log(args.log)
     ext = read_sensors_yaml(args.extrinsics)
     res = evaluate(log, ext)
+    foreign = [s.id for s in ext if s.id not in {t.id for t in log.sensors}]
+    if foreign:                # a file of another site, or sensors renamed: not scored, not in silence
+        logging.getLogger("pedcal").warning(
+            f"{args.extrinsics}: {len(foreign)} sensor(s) not in the log's sensors.yaml, not scored: "
+            f"{', '.join(foreign[:10])}{', ...' if len(foreign) > 10 else ''}")
+    if log.truth is None:      # a real log: the table's position and orientation columns stay empty
+        logging.getLogger("pedcal").warning(
+            f"{args.log} has no truth.yaml: sensor position and orientation errors cannot be computed (left "
+            f"empty); the head tracking RMS is against {res.head_reference}")
     if args.json:
         _print_json(res.to_dict())
     else:
@@ -153,7 +170,8 @@ def cmd_demo(args) -> int:
     from pedcal.io.atomic import check_output
 
     check_output(args.output, directory=True)
-    return run_demo(args.output, seed=args.seed, scenario=args.scenario, seeds=args.seeds)
+    # the logs, calibrated YAMLs and results.json of one seed change all at once
+    return _into_folder(args, "output", lambda a: run_demo(a.output, seed=a.seed, scenario=a.scenario, seeds=a.seeds))
 
 
 ALL_REAL = Path("<every labelled folder>")  # detect-eval --real without a folder
@@ -201,16 +219,54 @@ def _into_folder(args, name: str, run) -> int:
     text = io.StringIO()
     with atomic_dir(target) as tmp:
         setattr(args, name, tmp)
+        handlers = logging.getLogger("pedcal").handlers
+        renamer = _RenameInMessages(str(tmp), str(target))
+        for h in handlers:       # warnings and progress name the folder too
+            h.addFilter(renamer)
         try:
             with contextlib.redirect_stdout(text):
                 code = run(args)
+        except (PedcalInputError, OSError) as e:    # its message names the folder too
+            _rename_in_error(e, str(tmp), str(target))
+            raise
         finally:
+            for h in handlers:
+                h.removeFilter(renamer)
             setattr(args, name, target)
             sys.stdout.write(text.getvalue().replace(str(tmp), str(target)))
         if code:
             raise _Failed(code)
         _rename_in_texts(tmp, str(tmp), str(target))
     return code
+
+
+def _rename_in_error(e: Exception, old: str, new: str) -> None:
+    """An input or file-system error raised inside ``_into_folder`` names the folder the user gave,
+    not its temporary sibling (in place: the traceback's chain is kept)."""
+    if isinstance(e, OSError):
+        for name in ("filename", "filename2"):
+            value = getattr(e, name, None)
+            if isinstance(value, str) and old in value:
+                setattr(e, name, value.replace(old, new))
+    elif isinstance(e, PedcalInputError):
+        e.args = tuple(a.replace(old, new) if isinstance(a, str) else a for a in e.args)
+        e.detail = e.detail.replace(old, new)
+        if e.path is not None:
+            e.path = e.path.replace(old, new)
+
+
+class _RenameInMessages(logging.Filter):
+    """A log record naming the temporary folder of ``_into_folder`` names the folder the user gave."""
+
+    def __init__(self, old: str, new: str):
+        super().__init__()
+        self.old, self.new = old, new
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if self.old in text:
+            record.msg, record.args = text.replace(self.old, self.new), None
+        return True
 
 
 def _rename_in_texts(folder: Path, old: str, new: str) -> None:
@@ -270,7 +326,11 @@ def cmd_follow(args) -> int:
         from pedcal.io.atomic import atomic_dir
 
         with atomic_dir(args.output) as tmp:       # follow.json and follow_log.parquet change together
-            res.save(tmp)
+            try:
+                res.save(tmp)
+            except (PedcalInputError, OSError) as e:
+                _rename_in_error(e, str(tmp), str(args.output))
+                raise
     if args.json:
         _print_json(res.to_dict())
     else:
@@ -305,11 +365,14 @@ def cmd_follow_bench(args) -> int:
     check_sensing(args.sensing, args.lidar)   # the options first, then the file system
     check_output(args.out, inputs=[args.data_dir or SHARED_DATA], directory=True)
 
-    path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
-                            min_duration_s=args.min_duration, max_targets=args.max_targets,
-                            files=args.files, progress=not args.quiet, sensing=args.sensing, lidar=args.lidar)
-    print(f"wrote {path}")
-    return 0
+    def run(args) -> int:
+        path = run_follow_bench(args.data_dir, args.out, trackers=args.trackers, seeds=args.seeds,
+                                min_duration_s=args.min_duration, max_targets=args.max_targets,
+                                files=args.files, progress=not args.quiet, sensing=args.sensing, lidar=args.lidar)
+        print(f"wrote {path}")
+        return 0
+
+    return _into_folder(args, "out", run)   # bench.md, the tables and figures change all at once
 
 
 # ------------------------------------------------------------------------------------------ parser

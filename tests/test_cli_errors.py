@@ -388,3 +388,55 @@ def test_command_line_process_that_fails_leaves_the_exit_s_collection_alone(tmp_
             "print(rc, len(calls))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == f"{EXIT_BAD_INPUT} 1"
+
+
+def test_warnings_of_a_folder_written_all_at_once_name_the_folder(tmp_path, capsys, shared_data):
+    """import-bag writes into a temporary sibling that takes the folder's place: its warning (no
+    sensors.yaml) names the folder the user gave, not the temporary."""
+    out = tmp_path / "amcl"
+    code = main(["import-bag", str(shared_data / "amcl_uf_retail" / "amcldata.txt"), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0 and (out / "robot.csv").is_file()
+    assert f"{out} has no sensors.yaml" in err
+    assert ".tmpdir" not in err
+
+
+def test_evaluate_on_a_log_without_truth_says_what_it_cannot_compute(tmp_path, capsys):
+    log_dir = tmp_path / "log"
+    write_log(small_log(), log_dir)
+    assert not (log_dir / "truth.yaml").exists()
+    code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(log_dir / "sensors.yaml")])
+    assert code == 0
+    assert f"{log_dir} has no truth.yaml: sensor position and orientation errors cannot be computed (left empty)" in err
+
+
+def test_a_simulation_that_fails_at_the_end_leaves_the_previous_run(tmp_path, capsys, monkeypatch):
+    """calib/, eval/ and scenario.yaml are written in turn: a failure at scenario.yaml (or a Ctrl-C
+    after calib/) left the new seed's calib/ beside the previous seed's eval/."""
+    import pedcal.sim
+
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text("base: paper\nduration_s: 20\n")
+    out = tmp_path / "run"
+    assert main(["simulate", str(scenario), "-o", str(out), "--seed", "0", "-q"]) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def refuse(path, text):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(pedcal.sim, "write_text_atomic", refuse)
+    capsys.readouterr()
+    assert main(["simulate", str(scenario), "-o", str(out), "--seed", "1", "-q"]) == 2
+    assert f"{out / 'scenario.yaml'}: Permission denied" in capsys.readouterr().err
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "short.yaml"]
+
+
+def test_evaluate_names_the_extrinsics_sensors_the_log_does_not_have(tmp_path, capsys):
+    log_dir = tmp_path / "log"
+    write_log(small_log(), log_dir)
+    ext = tmp_path / "ext.yaml"
+    ext.write_text((log_dir / "sensors.yaml").read_text().replace("id: s02", "id: s99"))
+    code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(ext)])
+    assert code == 0
+    assert f"{ext}: 1 sensor(s) not in the log's sensors.yaml, not scored: s99" in err

@@ -57,3 +57,22 @@ def test_demo_refuses_fewer_than_one_seed(tmp_path, capsys):
     assert main(["demo", "-o", str(tmp_path / "paper"), "--seeds", "0"]) == 2
     assert "argument --seeds" in (err := capsys.readouterr().err) and "1 <= value" in err
     assert not (tmp_path / "paper").exists()
+
+
+def test_a_demo_that_fails_at_the_end_leaves_its_folder_as_it_was(tmp_path, capsys, monkeypatch):
+    """The logs and calibrated YAMLs are written before results.json: a failure there (or a Ctrl-C)
+    left a folder of one seed's logs beside another run's results."""
+    import pedcal.demo
+
+    out = tmp_path / "paper"
+    out.mkdir()
+    (out / "mine.txt").write_text("kept")
+
+    def refuse(path, text):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(pedcal.demo, "write_text_atomic", refuse)
+    assert main(["demo", "-o", str(out), "--seeds", "1"]) == 2
+    assert f"{out / 'results.json'}: Permission denied" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["paper"]

@@ -64,6 +64,22 @@ def test_detect_cli_json_output(tmp_path, capsys):
     assert "is_person" in capsys.readouterr().out
 
 
+def test_detect_cli_json_counts_the_points_it_dropped(tmp_path, capsys):
+    """--json's warnings say how many points without a valid return were dropped, as the log line does."""
+    rng = np.random.default_rng(2)
+    cloud = person_cloud(rng).astype("<f4")
+    cloud[:7, :3] = np.nan
+    cloud[7:10, 0] = np.inf
+    path = tmp_path / "f.bin"
+    cloud.tofile(path)
+    capsys.readouterr()
+    assert main(["detect", str(path), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["warnings"][0] == (f"{len(cloud)} points in the file; 10 points without a valid return (NaN or "
+                                  "infinite) dropped")
+    assert len(res["detections"]) == 1
+
+
 @pytest.mark.parametrize("content,suffix", [(b"\x00" * 17, ".bin"), (b"garbage", ".pcd"), (b"x", ".xyz")])
 def test_bad_file_exits_2(tmp_path, capsys, content, suffix):
     path = tmp_path / f"bad{suffix}"
@@ -202,3 +218,30 @@ def test_a_model_of_another_feature_set_is_an_input_error(tmp_path, capsys):
     assert main(["detect", str(path), "--model", str(tmp_path / "old.npz")]) == 2
     err = capsys.readouterr().err
     assert "old.npz" in err and "213" in err and "train-detector" in err and "Traceback" not in err
+
+
+def test_a_model_or_labelled_file_that_is_no_npz_is_named_without_numpy_s_advice(tmp_path, capsys):
+    """np.load reads a .npy array (whose use as an archive raised a TypeError traceback) and calls any
+    other file pickled data, advising allow_pickle; both are refused as not an .npz archive."""
+    arr, text = tmp_path / "a.npy", tmp_path / "people.csv"
+    np.save(arr, np.zeros((4, 4), np.float32))
+    text.write_text("t,person,x,y\n0,1,0,0\n")
+    cloud = tmp_path / "f.bin"
+    person_cloud(np.random.default_rng(3)).astype("<f4").tofile(cloud)
+    for argv in (["train-detector", "--labelled", str(arr), "-o", str(tmp_path / "m.npz")],
+                 ["train-detector", "--labelled", str(text), "-o", str(tmp_path / "m.npz")],
+                 ["detect", str(cloud), "--model", str(arr)], ["detect", str(cloud), "--model", str(text)]):
+        capsys.readouterr()
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "not an .npz archive" in err and argv[2 if argv[0] == "train-detector" else 3] in err
+        assert "pickle" not in err and "Traceback" not in err
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_train_detector_with_a_data_dir_that_is_no_folder_exits_2(tmp_path, capsys):
+    """A mistyped --data-dir trained the general model on simulated frames alone (a warning, exit 0)."""
+    out = tmp_path / "m.npz"
+    assert main(["train-detector", "--data-dir", str(tmp_path / "nowhere"), "--frames", "4", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'nowhere'}: no folder of real recordings here (--data-dir)" in err and not out.exists()

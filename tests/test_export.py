@@ -235,3 +235,17 @@ def test_tum_head_points_read_back_the_identity_quaternion_and_latency_is_applie
     np.testing.assert_allclose(late_head["t"], head["t"] - 0.25, atol=1e-9)
     np.testing.assert_allclose(late_head[["x", "y", "z"]], head[["x", "y", "z"]], atol=0)
     assert "latency 0.25 s" in written["head_late"].read_text().splitlines()[0]
+
+
+@pytest.mark.parametrize("fmt,out,argv", [("tf-launch", "t.launch", ["--prefix", "site 1/"]),
+                                          ("tf-launch", "t.launch.py", ["--prefix", "a\tb"]),
+                                          ("urdf", "t.urdf", ["--prefix", "x\n"])])
+def test_frame_names_a_launch_file_would_split_are_refused(network, tmp_path, capsys, fmt, out, argv):
+    """A launch file's args are split at spaces: 'site 1/s01' became two arguments, the rest shifted."""
+    cal = tmp_path / "cal.yaml"
+    write_sensors_yaml(network, cal)
+    assert main(["export", str(cal), "--format", fmt, "-o", str(tmp_path / out), *argv]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert f"{cal}: a sensor's frame (--prefix + id) {(argv[1] + network.ids[0])!r} is empty or holds whitespace" in err
+    assert not (tmp_path / out).exists()
+    assert main(["export", str(cal), "--format", "json", "-o", str(tmp_path / "t.json"), *argv]) == 0   # JSON: any text

@@ -68,3 +68,49 @@ def test_summary_worst_episode_is_the_minimum_of_several():
     assert row.robot_contacts == 3 and row.contact_frames == pytest.approx(4 / 500)
     assert row.contacts_per_min == pytest.approx(3 / (500 / 4.0 / 60.0))
     assert row.min_clearance_m == pytest.approx(-0.1)
+
+
+def test_a_bench_with_no_eligible_target_says_so(tmp_path):
+    """Nobody present long enough in any recording: the empty bench is written with a warning naming
+    each recording's longest presence, not in silence."""
+    from pedcal.errors import DegenerateDataWarning
+    from pedcal.track.follow_bench import run_follow_bench
+
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "people.csv").write_text("t,person,x,y\n0,a,0,0\n12.5,a,1,0\n0,b,2,0\n3,b,2,1\n")
+    with pytest.warns(DegenerateDataWarning, match=r"no episode to run: no person is present for --min-duration "
+                                                   r"45 s in any recording \(longest: people.csv 12.5 s\)"):
+        path = run_follow_bench(data, tmp_path / "out", files=["people.csv"], trackers=["paper"], seeds=1,
+                                progress=False)
+    assert "| people.csv | 2 | 0 | 12.5 |" in path.read_text()
+
+
+def test_a_bench_that_fails_while_writing_leaves_the_previous_folder(tmp_path, capsys, monkeypatch):
+    """bench.md, the tables and the figures change together: a failure after the tables and figures
+    were written (bench.md refused) leaves the folder of the previous run, nothing of the new one."""
+    import numpy as np
+
+    import pedcal.track.follow_bench as fb
+
+    data = tmp_path / "data"
+    data.mkdir()
+    t = np.arange(0.0, 12.0, 0.4)
+    rows = [f"{ti:.1f},{p},{x0 + 1.0 * ti:.3f},{y0}\n" for p, x0, y0 in (("a", 0.0, 0.0), ("b", 3.0, 2.0))
+            for ti in t]
+    (data / "people.csv").write_text("t,person,x,y\n" + "".join(rows))
+    out = tmp_path / "bench"
+    argv = ["follow-bench", "--data-dir", str(data), "--files", "people.csv", "--trackers", "paper", "--seeds", "1",
+            "--min-duration", "5", "--max-targets", "1", "-o", str(out), "-q"]
+    assert main(argv) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert (out / "bench.md").is_file() and (out / "episodes.parquet").is_file()
+
+    def refuse(path, text):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(fb, "write_text_atomic", refuse)
+    assert main([*argv, "--seeds", "2"]) == 2
+    assert f"{out / 'bench.md'}: Permission denied" in capsys.readouterr().err
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bench", "data"]

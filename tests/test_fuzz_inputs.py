@@ -1328,6 +1328,7 @@ def test_folder_output_changes_all_at_once(case, monkeypatch):
     monkeypatch.setattr(FollowResult, "save", save_then_fail)
     code, _, err = run_cli(["follow", "--people", case / "people.csv", "--target", "1", "-o", out, "--json"], case)
     assert code == EXIT_BAD_INPUT, err
+    assert f"{out / 'follow_log.parquet'}: Permission denied" in err      # the folder given, not its temporary
     assert checksums(out) == {**before, "mine.txt": checksums(out)["mine.txt"]}
     assert sorted(p.name for p in out.parent.iterdir()) == ["f"]
     monkeypatch.setattr(FollowResult, "save", real_save)

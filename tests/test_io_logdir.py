@@ -290,6 +290,9 @@ def test_negative_variance(tmp_path):
     expect_error(tmp_path, "negative variance", row=5, column="cov_yawyaw")
 
 
+SENSOR_TEXT = "sensors:\n- id: a\n  position: [0, 0, 2.6]\n  ypr_deg: [0, 45, 0]\n"
+
+
 @pytest.mark.parametrize("text,match", [
     ("frame: map\n", "'sensors' list"),
     ("sensors:\n  - {id: a, ypr_deg: [0, 45, 0]}\n", "missing 'position'"),
@@ -298,6 +301,11 @@ def test_negative_variance(tmp_path):
     ("sensors:\n  - {id: a, position: [0, 0, 2.6], ypr_deg: [0, x, 0]}\n", "ypr_deg: expected a list of 3"),
     ("sensors:\n  - {id: a, position: [0, 0, 2.6], ypr_deg: [0, 45, 0], status: fine}\n", "status"),
     ("sensors: [\n", "not valid YAML"),
+    # a key given twice: PyYAML kept the last one silently
+    (SENSOR_TEXT + "  position: [1, 0, 2.6]\n", r"key 'position' appears twice in one mapping \(line 3 and line 5\)"),
+    ("frame: map\n" + SENSOR_TEXT + "frame: odom\n", r"key 'frame' appears twice in one mapping \(line 1 and line 6\)"),
+    (SENSOR_TEXT.replace("  ypr_deg", "  sigma: {position_m: [0, 0, 0], position_m: [1, 1, 1]}\n  ypr_deg"),
+     r"key 'position_m' appears twice in one mapping \(line 4, columns 11 and 34\)"),
 ])
 def test_bad_sensors_yaml(tmp_path, text, match):
     p = tmp_path / "sensors.yaml"

@@ -133,3 +133,82 @@ def test_import_people_fps_for_renamed_recordings(shared_data, tmp_path, capsys)
     code = main(["import-people", str(shared_data / "thor" / "exp-1-run-2.csv"),
                  "-o", str(tmp_path / "t.csv"), "--fps", "10"])
     assert code == EXIT_BAD_INPUT and "--fps applies to frame-numbered" in capsys.readouterr().err
+
+
+THOR_HEADER = "time,person_id,x,y,velocity,motion_angle\n"
+
+
+def thor_rows(n: int, seed: int = 0) -> str:
+    rng = np.random.default_rng(seed)
+    xy = np.cumsum(rng.normal(scale=0.3, size=(n, 2)), axis=0)
+    return "".join(f"{0.4 * i:.2f},{12000 + i % 3},{x:.3f},{y:.3f},1.0,0.0\n" for i, (x, y) in enumerate(xy))
+
+
+def test_a_column_named_twice_in_the_header_is_refused(tmp_path):
+    """pandas renames a repeated name (x, x.1): the file would be read with whichever x came first."""
+    p = tmp_path / "thor.csv"
+    p.write_text("time,person_id,x,x,y,motion_angle\n" + thor_rows(5))
+    with pytest.raises(PedcalInputError, match="column 'x' appears 2 times in the header") as ei:
+        read_pedestrians(p)
+    assert (ei.value.path, ei.value.column) == (str(p), "x")
+
+
+@pytest.mark.parametrize("kind,line", [("thor", 3), ("thor", 400), ("eth_ucy", 400)])
+def test_a_byte_that_is_not_utf8_is_located_by_line_and_file_offset(tmp_path, kind, line):
+    """Past the first 4 kB pandas' decoding error gave an offset within its buffer, not the file's."""
+    if kind == "thor":
+        lines = (THOR_HEADER + thor_rows(600)).encode().splitlines(keepends=True)
+    else:
+        lines = [f"{10 * i}\t{i % 4}.0\t{i * 0.1:.2f}\t1.5\n".encode() for i in range(600)]
+    lines[line - 1] = lines[line - 1].replace(b",", b"\xe9,", 1).replace(b"\t", b"\xe9\t", 1)
+    data = b"".join(lines)
+    p = tmp_path / ("biwi_hotel.txt" if kind == "eth_ucy" else "thor.csv")
+    p.write_bytes(data)
+    offset = data.index(b"\xe9")
+    with pytest.raises(PedcalInputError, match=rf"not UTF-8 text \(byte 0xe9 on line {line}, at offset {offset}\)"):
+        read_pedestrians(p, kind=kind)
+
+
+def test_a_person_placed_twice_at_one_time(tmp_path):
+    """Two places at one time: refused naming both rows; a whole row repeated: dropped and counted."""
+    rows = thor_rows(9).splitlines(keepends=True)
+    p = tmp_path / "thor.csv"
+    p.write_text(THOR_HEADER + "".join(rows) + rows[4] + rows[7])
+    with pytest.warns(UserWarning, match=r"2 row\(s\) repeating an earlier row whole .* dropped \(the first: row 9\)"):
+        people = read_pedestrians(p)
+    assert len(people) == 9
+    t, pid, x = rows[4].split(",")[:3]
+    moved = rows[4].replace(f",{x},", f",{float(x) + 0.5:.3f},", 1)
+    p.write_text(THOR_HEADER + "".join(rows) + moved)
+    with pytest.raises(PedcalInputError, match=rf"person '{pid}' at t = {float(t)!r} s is placed twice, at "
+                                               rf"\({float(x):g}, .*\) in row 4 and \({float(x) + 0.5:g}, ") as ei:
+        read_pedestrians(p)
+    assert (ei.value.row, ei.value.column) == (9, "t")
+    with pytest.raises(PedcalInputError, match="placed twice"):
+        write_people_csv(pd.concat([people, people.iloc[[2]].assign(y=7.0)]), tmp_path / "out.csv")
+
+
+def test_a_people_table_written_as_parquet_reads_back(tmp_path, capsys):
+    """import-people -o people.parquet wrote a file that import-people and follow --people then
+    sniffed as text and refused as not UTF-8."""
+    from pedcal.cli import main
+
+    src = tmp_path / "thor.csv"
+    src.write_text(THOR_HEADER + thor_rows(12, seed=4))
+    pq = tmp_path / "people.parquet"
+    assert main(["import-people", str(src), "-o", str(pq)]) == 0
+    pd.testing.assert_frame_equal(read_pedestrians(pq), read_pedestrians(src))
+    capsys.readouterr()
+    assert main(["follow", "--people", str(pq)]) == 0
+    assert f"{pq}: 3 people" in capsys.readouterr().out
+
+
+def test_a_renamed_eth_file_given_to_follow_says_how_to_give_its_rate(tmp_path, capsys):
+    """follow has no --fps: the message says how to give the rate (through import-people)."""
+    from pedcal.cli import main
+
+    p = tmp_path / "myrecording.txt"
+    p.write_text("0\t1.0\t1.0\t2.0\n10\t1.0\t1.5\t2.0\n")
+    assert main(["follow", "--people", str(p)]) == 2
+    assert "give its frame rate with --fps (frames per second of the frame numbers): pedcal import-people FILE " \
+           "--fps F -o people.csv, then follow --people people.csv" in capsys.readouterr().err

@@ -146,3 +146,19 @@ def test_ros1_bag_ambiguous_and_missing(tmp_path):
     (tmp_path / "junk.bag").write_bytes(b"not a bag")
     with pytest.raises(PedcalInputError, match="cannot open"):
         read_bag(tmp_path / "junk.bag")
+
+
+def test_rostopic_csv_not_utf8_and_empty_file_are_named(tmp_path):
+    rows = [b"%time,field.header.seq,field.pose.pose.position.x\n"] + \
+        [f"{1616790898126369607 + i * 10 ** 8},{i},{0.1 * i}\n".encode() for i in range(3000)]
+    rows[2500] = rows[2500].replace(b",", b",\xe9", 1)
+    data = b"".join(rows)
+    p = tmp_path / "amcl.txt"
+    p.write_bytes(data)
+    with pytest.raises(PedcalInputError, match=rf"not UTF-8 text \(byte 0xe9 on line 2501, at offset "
+                                               rf"{data.index(bytes([0xe9]))}\): not a rostopic echo -p CSV"):
+        import_bag(p, tmp_path / "log")
+    p.write_bytes(b"")
+    with pytest.raises(PedcalInputError, match="empty file, expected a ROS bag or a rostopic echo -p CSV"):
+        import_bag(p, tmp_path / "log")
+    assert not (tmp_path / "log").exists()

@@ -216,3 +216,42 @@ def test_factor_graph_s_calibrated_file_written_by_libyaml(tmp_path, monkeypatch
 def test_each_part_of_the_libyaml_guard_sends_its_case_to_pyyaml(data):
     # each input writes otherwise through libyaml; each is caught by one part of the guard alone
     assert dump_yaml(data) == _pyyaml_text(data)
+
+
+def test_merge_keys_and_aliases_are_no_repeated_keys(tmp_path):
+    """``<<: *base`` then a key of the base's: YAML's override, not a key given twice."""
+    p = tmp_path / "sensors.yaml"
+    p.write_text("base: &b {position: [0, 0, 2.6], ypr_deg: [0, 45, 0]}\n"
+                 "sensors:\n- {<<: *b, id: a}\n- {<<: *b, id: b, position: [1, 0, 2.6]}\n- {<<: *b, id: c}\n")
+    net = read_sensors_yaml(p)
+    assert [s.id for s in net] == ["a", "b", "c"]
+    np.testing.assert_array_equal(net["b"].position_m, [1, 0, 2.6])
+
+
+def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
+    from pedcal.errors import PedcalInputError
+    from pedcal.io.logdir import read_meta
+    from pedcal.sim.scenario import load_scenario
+
+    meta = tmp_path / "meta.yaml"
+    meta.write_text("head_offset: [0, 0, 1.35]\nhead_offset: [0, 0, 1.2]\n")
+    with pytest.raises(PedcalInputError, match=r"key 'head_offset' appears twice .*line 1 and line 2"):
+        read_meta(meta)
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("base: paper\nseed_note: 1\nbase: sparse\n")
+    with pytest.raises(PedcalInputError, match=r"key 'base' appears twice .*line 1 and line 3"):
+        load_scenario(scenario)
+
+
+@pytest.mark.parametrize("value,shown", [("[abc, 45, 0]", "['abc', 45, 0]"), ("[.nan, 0.5, 1]", "[nan, 0.5, 1]"),
+                                         ("[0, 45]", "[0, 45]"), ("7", "7"),
+                                         ("[[1], 2, 3, 4, 5, 6, 7]", "[..., 2, 3, 4, 5, 6, ...]")])
+def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):
+    """A list was quoted as the text of its Python form, its strings' quotes escaped: '[\\'abc\\', ...]'."""
+    from pedcal.errors import PedcalInputError
+
+    p = tmp_path / "sensors.yaml"
+    p.write_text(f"sensors:\n- id: a\n  position: [0, 0, 2.6]\n  ypr_deg: {value}\n")
+    with pytest.raises(PedcalInputError) as ei:
+        read_sensors_yaml(p)
+    assert str(ei.value).endswith(f"ypr_deg: expected a list of 3 finite numbers, got {shown}")

@@ -234,3 +234,16 @@ def test_sustech_frames_read(shared_data):
         assert 60000 < len(res.points) == res.n_in_file < 70000
         r = np.hypot(res.points[:, 0], res.points[:, 1])
         assert 100 < r.max() < 300 and 0.5 < res.points[:, 3].max() <= 1.0  # 8-bit intensities rescaled
+
+
+@pytest.mark.parametrize("suffix,match", [(".pcd", "empty file, expected a PCD point cloud"),
+                                          (".bin", "its 0 bytes are not a positive multiple of 16"),
+                                          (".ply", "not a readable PLY point cloud"),
+                                          (".npy", "not a readable .npy array")])
+def test_an_empty_file_of_each_format_is_named_as_such(tmp_path, suffix, match):
+    """An empty .pcd read 'no DATA line in the first 0 bytes'."""
+    path = tmp_path / f"empty{suffix}"
+    path.write_bytes(b"")
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_point_cloud(path)
+    assert ei.value.path == str(path)

@@ -94,3 +94,20 @@ def test_sustech_frames_every_pedestrian_accounted_for(shared_data):
     assert res["recall_near"] >= RECALL_NEAR_FLOOR
     assert res["false_positives_near_per_frame"] <= FP_NEAR_CEILING
     assert res["recall"] >= RECALL_ALL_FLOOR
+
+
+def test_frames_without_their_pair_are_named_not_silently_left_out(tmp_path):
+    from pedcal.detect.real_eval import frame_pairs
+    from pedcal.errors import DegenerateDataWarning, PedcalInputError
+
+    folder = _labelled_folder(tmp_path, np.random.default_rng(0))
+    (folder / "000002.bin").write_bytes((folder / "000001.bin").read_bytes())
+    (folder / "000003.json").write_text("[]")
+    with pytest.warns(DegenerateDataWarning) as rec:
+        pairs = frame_pairs(folder)
+    assert [c.name for c, _ in pairs] == ["000001.bin"]
+    assert sorted(str(w.message) for w in rec) == [
+        f"{folder}: 1 label file(s) without a NAME.pcd|.bin|.ply|.npy cloud left out: 000003.json",
+        f"{folder}: 1 point cloud(s) without a NAME.json label file left out: 000002.bin"]
+    with pytest.raises(PedcalInputError, match="is a file, expected a folder of labelled frames"):
+        frame_pairs(folder / "000001.bin")

@@ -324,3 +324,21 @@ def test_rerun_tracking_replaces_only_the_tracking_table(results_dir, tmp_path):
     pd.testing.assert_frame_equal(after.runs, load_results(results_dir).runs)
     pd.testing.assert_frame_equal(after.tracking, load_results(results_dir).tracking)
     assert (out / "report.md").read_text(encoding="utf-8") == (results_dir / "report.md").read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("damage", ["truncated", "other columns"])
+@pytest.mark.parametrize("table", ["runs", "sensors", "heads", "robot", "bounds"])
+def test_from_results_with_a_damaged_table_exits_2_naming_it(results_dir, tmp_path, capsys, table, damage):
+    """A cut Parquet file raised pyarrow's error and a table of other columns a KeyError: tracebacks."""
+    copy = tmp_path / "results"
+    shutil.copytree(results_dir, copy)
+    p = copy / f"{table}.parquet"
+    if damage == "truncated":
+        p.write_bytes(p.read_bytes()[:200])
+    else:
+        pd.DataFrame({"a": [1.0]}).to_parquet(p)
+    assert main(["report", "--from-results", str(copy), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert f"{p}: cannot read the Parquet table" in err if damage == "truncated" else \
+        f"{p}, column 'scenario': not a table `pedcal report` writes: missing column(s) scenario" in err
+    assert "Traceback" not in err and not (tmp_path / "out").exists()

@@ -307,3 +307,30 @@ def test_simulated_log_through_a_bag_calibrates_alike(tmp_path, version):
     for s in direct:
         assert np.linalg.norm(via_bag[s.id].position_m - s.position_m) < 1e-3, s.id
         assert via_bag[s.id].status == s.status
+
+
+def test_detections_and_poses_holding_nan_are_dropped_and_counted(tmp_path, caplog):
+    """A tracker's message with a NaN position went into observations.csv as an empty cell: the
+    import succeeded and the log it wrote could not be read."""
+    path = tmp_path / "nan_ros2"
+    with BagWriter(path, 2) as w:
+        ts = w.ts
+        for k in range(20):
+            t = T0 + 0.5 * k
+            cov = np.zeros(36)
+            cov[[0, 7, 35]] = (0.01, 0.02, 0.003)
+            xy = (0.1 * k, 0.0, 0.0) if k != 11 else (np.nan, 0.0, 0.0)
+            w.write("/amcl_pose", AMCL_MSGTYPE, t, make(ts, AMCL_MSGTYPE, header=header(ts, t, "map"), pose=make(
+                ts, "geometry_msgs/msg/PoseWithCovariance", pose=pose(ts, xy), covariance=cov)))
+            p = (0.1 * k, 1.0, 1.7) if k not in (3, 7) else (np.inf if k == 7 else np.nan, 1.0, 1.7)
+            w.write("/people", PEOPLE_MSGTYPE, t, make(ts, PEOPLE_MSGTYPE, header=header(ts, t, "map"), people=[
+                make(ts, "people_msgs/msg/Person", name="a", position=point(ts, p))]))
+    out = tmp_path / "log"
+    with caplog.at_level("WARNING"):
+        written = import_bag(path, out, people=["/people=s01"], sensors=SENSORS)
+    assert written[out / "robot.csv"] == 19 and written[out / "observations.csv"] == 18
+    assert f"1 of 20 robot rows from /amcl_pose ({AMCL_MSGTYPE}) dropped: a NaN or infinite value (the first at " \
+           f"t = {T0 + 5.5!r} s)" in caplog.text
+    assert f"2 of 20 observations rows from /people ({PEOPLE_MSGTYPE}) as sensor s01 dropped" in caplog.text
+    log = read_log(out)
+    assert np.isfinite(log.observations[["x", "y", "z"]].to_numpy()).all() and len(log.robot) == 19

@@ -258,6 +258,31 @@ def test_scenario_files_reject_unknown_keys_and_bad_values(tmp_path):
     assert sparse.sensor_ids == ["s04", "s05", "s06", "s07", "s08"] and sparse.area_m == [8.2, 4.5]
 
 
+@pytest.mark.parametrize("line,column,match", [
+    ("robot_speed_mps: .nan", "robot_speed_mps", "expected a finite number > 0, got nan"),   # a ValueError traceback
+    ("robot_speed_mps: -1", "robot_speed_mps", "expected a finite number > 0, got -1.0"),   # an IndexError one
+    ("area_m: [8.2, 0]", "area_m", r"expected a finite number > 0, got 0.0 \(item 1 of the list\)"),
+    ("miss_prob: 1.5", "miss_prob", r"expected a share within \[0, 1\], got 1.5"),
+    ("amcl_sigma_m: -0.05", "amcl_sigma_m", "expected a finite number >= 0, got -0.05"),
+    ("latency_s: .inf", "latency_s", "expected a finite number, got inf"),
+    ('odometry: "false"', "odometry", "expected a value like True, got 'false'"),      # bool("false") was True
+    ("duration_s: long", "duration_s", "expected a number, got 'long'"),
+    ("grid_rows: 3", "row_y_m", r"2 entries for 3 rows \(grid_rows\)"),     # was raised without the file
+])
+def test_scenario_values_outside_their_domain_are_refused_by_name(tmp_path, line, column, match):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(f"base: paper\n{line}\n")
+    with pytest.raises(PedcalInputError, match=match) as exc:
+        load_scenario(bad)
+    assert (exc.value.path, exc.value.column) == (str(bad), column)
+
+
+def test_signed_scenario_values_may_be_negative():
+    sc = Scenario().resolve(head_vertical_bias_m=-0.02, odom_scale_error=-0.01, clock_offset_s=-0.1,
+                            head_offset_m=[-0.1, 0.0, 1.3])
+    assert sc.head_vertical_bias_m == -0.02 and sc.head_offset_m == [-0.1, 0.0, 1.3]
+
+
 def test_noise_free_turns_every_nuisance_off():
     clean = Scenario().resolve(noise_free=True)
     for name, off in Scenario.nuisances().items():
@@ -317,3 +342,15 @@ def test_companion_swaps_replace_the_stated_share_in_short_stretches():
     assert (who == "companion-beside").sum() > 20
     plain = simulate_logs("paper", seed=3, duration_s=30.0).calib.truth_observations["who"].astype(str)
     assert not plain.str.startswith("companion").any()
+
+
+def test_a_scenario_whose_sensors_never_see_the_robot_says_so(tmp_path):
+    """simulate writes logs that calibrate would refuse as empty: not in silence."""
+    from pedcal.errors import DegenerateDataWarning
+    from pedcal.sim import simulate
+
+    with pytest.warns(DegenerateDataWarning, match="the (calib|eval) log holds no observation of the robot") as rec:
+        res = simulate("paper", tmp_path / "run", seed=0, max_range_m=0.1)
+    assert len(res.calib.observations) == 0 and len(rec) == 2
+    with pytest.raises(PedcalInputError, match=r"expected an angle > 0 and <= 180 deg, got 400.0"):
+        Scenario().resolve(hfov_deg=400)

@@ -259,6 +259,8 @@ def open_model_npz(path: str | Path, what: str, errors: tuple = ()):
     path = Path(path)
     if not path.is_file():
         raise PedcalInputError("no such model file", path=path)
+    if not zipfile.is_zipfile(path):    # np.load would read a .npy array, or suggest unpickling anything else
+        raise PedcalInputError(f"not {what}: not an .npz archive (a zip of .npy arrays)", path=path)
     try:
         with np.load(path, allow_pickle=False) as d:
             yield d

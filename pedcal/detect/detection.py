@@ -583,10 +583,14 @@ def model_family(sensor: str | None = None, scan_steps: tuple[float, float] | No
 
 def load_classifier(path: str | Path):
     """A RealAdaBoost or a GradientBoostedTrees model from its .npz, whichever the file holds."""
+    import zipfile
+
     from pedcal.detect.gbt import GradientBoostedTrees
 
     p = Path(path)
     try:
+        if not zipfile.is_zipfile(p):
+            raise ValueError("not an .npz")
         with np.load(p, allow_pickle=False) as d:
             trees = "lightgbm_model" in d.files
     except (OSError, ValueError):

@@ -31,8 +31,10 @@ class FileDetections:
 
     @property
     def warnings(self) -> list[str]:
-        """What the ground estimate found implausible (``pedcal.detect.ground``)."""
-        return list(self.ground.warnings) if self.ground is not None else []
+        """The points dropped while reading (``CloudRead.summary``), then what the ground estimate
+        found implausible (``pedcal.detect.ground``)."""
+        dropped = [self.read.summary()] if self.read.summary() else []
+        return dropped + (list(self.ground.warnings) if self.ground is not None else [])
 
 
 def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sensor_pose: str | None = None,

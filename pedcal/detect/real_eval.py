@@ -17,13 +17,14 @@ every labelled pedestrian is accounted for. With ``out_dir``, a bird's-eye pictu
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pedcal import jsontext
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.io.inputs import check_records, read_json
 
 GROW_M = 0.3
@@ -85,14 +86,23 @@ def band_of(range_m: np.ndarray) -> np.ndarray:
 
 
 def frame_pairs(folder: Path) -> list[tuple[Path, Path]]:
+    """(cloud, label) of every frame in ``folder``: NAME.pcd|.bin|.ply|.npy beside NAME.json. A
+    cloud without its label, or a label without its cloud, is left out with a warning naming it."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise PedcalInputError("no such folder of labelled frames", path=folder)
-    pairs = []
+        raise PedcalInputError("is a file, expected a folder of labelled frames (NAME.pcd beside NAME.json)"
+                               if folder.exists() else "no such folder of labelled frames", path=folder)
+    pairs, unlabelled = [], []
     for cloud in sorted(p for p in folder.iterdir() if p.suffix.lower() in CLOUD_SUFFIXES):
         label = cloud.with_suffix(".json")
-        if label.is_file():
-            pairs.append((cloud, label))
+        (pairs.append((cloud, label)) if label.is_file() else unlabelled.append(cloud.name))
+    paired = {label.name for _, label in pairs}
+    cloudless = sorted(p.name for p in folder.glob("*.json") if p.name not in paired)
+    for names, what in ((unlabelled, "point cloud(s) without a NAME.json label file"),
+                        (cloudless, "label file(s) without a NAME.pcd|.bin|.ply|.npy cloud")):
+        if names and pairs:
+            warnings.warn(f"{folder}: {len(names)} {what} left out: {', '.join(names[:5])}"
+                          f"{', ...' if len(names) > 5 else ''}", DegenerateDataWarning, stacklevel=2)
     if not pairs:
         raise PedcalInputError("no frame with a label file (NAME.pcd|.bin|.ply|.npy beside NAME.json)", path=folder)
     return pairs

@@ -46,6 +46,7 @@ from __future__ import annotations
 import logging
 import time
 import warnings
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -305,6 +306,9 @@ def _read_cluster(path: Path) -> np.ndarray:
             pts = np.load(path, allow_pickle=False)
         except (OSError, ValueError) as e:
             raise PedcalInputError(f"not a .npy array: {e}", path=path) from None
+        if not isinstance(pts, np.ndarray):     # an .npz archive named .npy
+            pts.close()
+            raise PedcalInputError("an .npz archive, expected a .npy array", path=path)
         if pts.ndim != 2 or pts.shape[1] not in (3, 4) or len(pts) == 0 or not np.isfinite(pts).all():
             raise PedcalInputError(f"a cluster .npy is a finite (N, 4) x, y, z, intensity array, got {pts.shape}",
                                    path=path)
@@ -328,6 +332,9 @@ def read_labelled(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         return features_matrix(clusters), np.asarray(labels, dtype=np.int64)
     if not path.is_file():
         raise PedcalInputError("no such labelled-cluster file or directory", path=path)
+    if not zipfile.is_zipfile(path):    # np.load would read a .npy array, or suggest unpickling anything else
+        raise PedcalInputError(f"not an .npz archive with 'features' (n, {N_FEATURES}) and 'labels' (n,), nor a "
+                               "folder of person/ and other/ clusters", path=path)
     try:
         with np.load(path, allow_pickle=False) as d:
             X, y = np.asarray(d["features"], dtype=float), np.asarray(d["labels"])
@@ -427,8 +434,9 @@ def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "
     """The classifier of a model ``family`` with a Config (``MODEL_FAMILIES``), trained on
     ``frames`` simulated frames and every labelled real frame under ``data_dir`` (default
     ``pedcal.detect.real_eval.default_data_dir``) with ``real_copies`` augmented copies each
-    (``pedcal.detect.lodo``); see ``fit_with_real``. Without real frames a DegenerateDataWarning
-    says the model is trained on simulated frames alone. Deterministic given the arguments and
+    (``pedcal.detect.lodo``); see ``fit_with_real``. A ``data_dir`` given that is no folder is an
+    input error; without the default folder a DegenerateDataWarning says the model is trained on
+    simulated frames alone. Deterministic given the arguments and
     the data."""
     from pedcal.detect import lodo
     from pedcal.detect.real_eval import default_data_dir
@@ -436,6 +444,9 @@ def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "
     fam = MODEL_FAMILIES[family]
     n_sim = fam.frames if frames is None else int(frames)
     root = Path(data_dir) if data_dir is not None else default_data_dir()
+    if data_dir is not None and not root.is_dir():     # a folder named on purpose: a typo is no reason to go on
+        raise PedcalInputError("no folder of real recordings here (--data-dir); without it the detector would be "
+                               "trained on simulated frames alone", path=root)
     records = []
     if root.is_dir():
         records = lodo.real_clusters(root, real_copies, seed, progress=progress)

@@ -165,6 +165,17 @@ def _launch_kind(path: Path, ros_version: int | None) -> tuple[str, int]:
 
 
 @warnings_at_caller
+def _check_frame_names(network: SensorNetwork, prefix: str, source) -> None:
+    """Frame names a launch file or URDF can carry: no whitespace or control character (a launch
+    file's ``args`` are split at spaces, so ``x y`` would become two arguments and shift the rest)."""
+    for name in (network.frame, *(prefix + s.id for s in network)):
+        if not name or any(c.isspace() or not c.isprintable() for c in name):
+            what = "the parent frame" if name == network.frame else "a sensor's frame (--prefix + id)"
+            raise PedcalInputError(f"{what} {name!r} is empty or holds whitespace or a control character, which a "
+                                   "launch file's args or a URDF link name cannot carry; rename it (sensors' ids, "
+                                   "'frame', --prefix)", path=source)
+
+
 def export_extrinsics(network: SensorNetwork | str | Path, path: str | Path, fmt: str = "tf-launch", *,
                       ros_version: int | None = None, prefix: str = "", optical: bool = False) -> Path:
     """Write ``network`` (a SensorNetwork or a sensors YAML path) as ``fmt`` (FORMATS) to ``path``,
@@ -174,6 +185,7 @@ def export_extrinsics(network: SensorNetwork | str | Path, path: str | Path, fmt
     sensor whose status is not ``ok``. Returns the path."""
     from pedcal.io.sensors_yaml import read_sensors_yaml
 
+    source = None if isinstance(network, SensorNetwork) else network
     if not isinstance(network, SensorNetwork):
         network = read_sensors_yaml(network)
     if fmt not in FORMATS:
@@ -181,6 +193,8 @@ def export_extrinsics(network: SensorNetwork | str | Path, path: str | Path, fmt
     if ros_version not in (None, 1, 2):
         raise PedcalInputError(f"ROS version must be 1 or 2, got {ros_version!r}")
     path = Path(path)
+    if fmt in ("tf-launch", "urdf"):
+        _check_frame_names(network, prefix, source)
     if fmt == "tf-launch":
         kind, ros_version = _launch_kind(path, ros_version)
         if kind == "py":

@@ -46,6 +46,30 @@ def read_bytes_capped(path: str | Path, what: str = "file", max_bytes: int = MAX
     return data
 
 
+def not_utf8_text(path: str | Path, chunk_bytes: int = 1 << 20) -> str | None:
+    """Where a text file stops being UTF-8, as a message's words ("byte 0xe9 on line 500, at
+    offset 18391"), or None when all of it is (a parser's own decoding error gives an offset within
+    its buffer, not the file)."""
+    base, line, carry = 0, 1, b""
+    with open(path, "rb") as f:
+        while True:
+            chunk = f.read(chunk_bytes)
+            data = carry + chunk
+            try:
+                data.decode("utf-8")
+                good, carry = data, b""
+            except UnicodeDecodeError as e:
+                if chunk and e.end == len(data) and e.reason == "unexpected end of data":
+                    good, carry = data[: e.start], data[e.start:]     # a character cut at the chunk's end
+                else:
+                    line += data[: e.start].count(b"\n")
+                    return f"byte 0x{data[e.start]:02x} on line {line}, at offset {base + e.start}"
+            if not chunk:
+                return None
+            line += good.count(b"\n")
+            base += len(good)
+
+
 def read_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_TEXT_BYTES):
     """A JSON file's value; a file that is no regular file, too large, not UTF-8, not JSON, nested
     beyond the parser's recursion limit or holding an integer of thousands of digits raises

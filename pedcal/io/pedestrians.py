@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.inputs import regular_file
+from pedcal.io.inputs import not_utf8_text, regular_file
 from pedcal.io.logdir import parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
@@ -46,9 +46,10 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
                           skipinitialspace=True, engine="python" if sep == r"\s+" else "c")
     except pd.errors.EmptyDataError:
         raise PedcalInputError("empty file, expected pedestrian rows", path=path) from None
-    except UnicodeDecodeError as e:
-        raise PedcalInputError(f"not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}): a binary "
-                               "file, or a file saved in another encoding", path=path) from None
+    except UnicodeDecodeError as e:     # its offset is within the parser's buffer: find the byte in the file
+        where = not_utf8_text(path) or f"byte 0x{e.object[e.start]:02x}"
+        raise PedcalInputError(f"not UTF-8 text ({where}): a binary file, or a file saved in another encoding",
+                               path=path) from None
     except PermissionError:
         raise PedcalInputError("cannot read: permission denied", path=path) from None
     except (pd.errors.ParserError, OSError, ValueError) as e:
@@ -56,6 +57,11 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
         raise PedcalInputError(f"cannot read: {show(first, 160)[1:-1]}", path=path) from None
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
+        names = [c.strip() for c in _first_line(path).split(sep)]   # as written: pandas renames a repeat x.1
+        repeated = [c for c in columns[:4] if names.count(c) > 1]
+        if repeated:                # which of them is meant?
+            raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times in the "
+                                   "header; keep one", path=path, column=repeated[0])
         missing = [c for c in columns[:4] if c not in raw.columns]
         if missing:
             raise PedcalInputError(f"missing column(s) {', '.join(missing)}; expected header "
@@ -108,7 +114,8 @@ def eth_ucy_frames_per_s(path: Path, frames_per_s: float | None = None) -> float
     if path.stem not in ETH_UCY_FRAMES_PER_S_BY_NAME:
         raise PedcalInputError(f"frame-numbered (ETH/UCY) file whose name does not identify the recording "
                                f"(known: {', '.join(sorted(ETH_UCY_FRAMES_PER_S_BY_NAME))}); give its frame rate "
-                               f"with --fps (frames per second of the frame numbers)", path=path)
+                               "with --fps (frames per second of the frame numbers): pedcal import-people FILE --fps "
+                               "F -o people.csv, then follow --people people.csv", path=path)
     return ETH_UCY_FRAMES_PER_S_BY_NAME[path.stem]
 
 
@@ -135,8 +142,8 @@ def _first_line(path: Path) -> str:
             head.decode("utf-8")
         except UnicodeDecodeError as e:
             if e.start < len(head) - 4:     # not a character cut at the 4 KB boundary
-                raise PedcalInputError(f"not UTF-8 text (byte 0x{head[e.start]:02x} at offset {e.start}): a binary "
-                                       "file, or a file saved in another encoding", path=path) from None
+                raise PedcalInputError(f"not UTF-8 text ({not_utf8_text(path)}): a binary file, or a file saved "
+                                       "in another encoding", path=path) from None
         if b"\x00" in head:
             raise PedcalInputError("not a text file (NUL bytes): expected pedestrian rows", path=path)
         with path.open("r", encoding="utf-8", errors="replace") as f:
@@ -191,8 +198,8 @@ def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = N
     or people (pedcal's own CSV). ``fps``: the frame rate of a frame-numbered (ETH/UCY) file,
     needed when its name does not identify the recording; the other layouts carry seconds."""
     path = require_path(path, "path")
-    if kind == "auto":
-        kind = detect_kind(path)
+    if kind == "auto":          # a people table import-people wrote as Parquet, or a text layout to sniff
+        kind = "people" if path.suffix.lower() == ".parquet" else detect_kind(path)
     readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}
     if kind not in readers:
         raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)

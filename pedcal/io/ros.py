@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from pedcal.errors import PedcalInputError, show
 from pedcal.io.atomic import write_text_atomic
+from pedcal.io.inputs import not_utf8_text
 from pedcal.io.logdir import meta_yaml_text, parse_float_column, write_table
 from pedcal.model import OBSERVATION_COLUMNS, ODOMETRY_COLUMNS, ROBOT_COLUMNS, Meta, SensorNetwork
 from pedcal.options import check
@@ -79,8 +80,11 @@ def read_rostopic_amcl_csv(path: str | Path) -> pd.DataFrame:
         raise PedcalInputError("file not found", path=path)
     try:
         raw = pd.read_csv(path, dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise PedcalInputError(f"cannot read rostopic CSV: {e}", path=path) from None
+    except UnicodeDecodeError:
+        raise PedcalInputError(f"not UTF-8 text ({not_utf8_text(path)}): not a rostopic echo -p CSV",
+                               path=path) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        raise PedcalInputError(f"cannot read rostopic CSV: {show(str(e).strip(), 160)[1:-1]}", path=path) from None
     raw.columns = [c.strip() for c in raw.columns]
     stamp_col = next((c for c in ("field.header.stamp", "%time") if c in raw.columns), None)
     pose = "field.pose.pose."
@@ -640,6 +644,8 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
     bag = Path(bag)
     _check_import_options(out_dir, head_offset_m, options.get("pose_sigma"))
     network = read_sensors_yaml(sensors) if isinstance(sensors, (str, Path)) else sensors
+    if bag.is_file() and bag.stat().st_size == 0:
+        raise PedcalInputError("empty file, expected a ROS bag or a rostopic echo -p CSV", path=bag)
     if _is_rostopic_csv(bag):
         robot = read_rostopic_amcl_csv(bag)
         if not (robot[["cov_xx", "cov_yy", "cov_yawyaw"]].to_numpy() > 0).all():
@@ -667,6 +673,17 @@ def import_bag(bag: str | Path, out_dir: str | Path, amcl_topic: str | None = No
         prepared[name] = df
     if tables.observations is not None:
         prepared["observations"] = tables.observations
+    for name, df in prepared.items():     # a tracker's lost track, a message of NaNs: dropped, counted
+        numeric = df.select_dtypes("number").to_numpy(dtype=float)
+        bad = ~np.isfinite(numeric).all(axis=1)
+        if bad.any():
+            if bad.all():
+                raise PedcalInputError(f"every one of the {len(df)} {name} rows from {tables.sources.get(name)} "
+                                       "holds a NaN or infinite value", path=bag)
+            logging.getLogger(__name__).warning(
+                f"{int(bad.sum())} of {len(df)} {name} rows from {tables.sources.get(name)} dropped: a NaN or infinite "
+                f"value (the first at t = {float(df['t'].to_numpy()[np.flatnonzero(bad)[0]])!r} s)")
+            prepared[name] = df[~bad].reset_index(drop=True)
     written: dict[Path, int] = {}
     for name, df in prepared.items():   # validate everything before writing anything
         p = write_table(df, out_dir / f"{name}.csv")

@@ -115,5 +115,27 @@ def load_results(results_dir: str | Path) -> SweepResults:
             continue
         if not p.is_file():
             raise PedcalInputError(f"missing {p.name}, which `pedcal report` writes beside results.json", path=p)
-        tables[name] = pd.read_parquet(p)
+        tables[name] = _read_table(p, KEY_COLUMNS.get(name, ()))
     return SweepResults(config=config, path=results_dir, **tables)
+
+
+# The columns that say which run a row of a results table belongs to (every table save_results
+# writes with rows has them).
+KEY_COLUMNS = {"runs": ("scenario", "seed", "method"), "sensors": ("scenario", "seed", "method", "sensor"),
+               "heads": ("scenario", "seed", "method", "sensor"), "robot": ("scenario", "seed"),
+               "bounds": ("scenario", "seed", "sensor")}
+
+
+def _read_table(path: Path, key_columns: tuple[str, ...]) -> pd.DataFrame:
+    """A results table; a damaged file or one without its key columns raises PedcalInputError."""
+    try:
+        df = pd.read_parquet(path)
+    except Exception as exc:      # pyarrow's errors for a damaged file, OSError
+        if not (isinstance(exc, (OSError, ValueError)) or type(exc).__module__.startswith("pyarrow")):
+            raise
+        raise PedcalInputError(f"cannot read the Parquet table: {str(exc).splitlines()[0][:160]}", path=path) from None
+    missing = [c for c in key_columns if c not in df.columns]
+    if len(df) and missing:
+        raise PedcalInputError(f"not a table `pedcal report` writes: missing column(s) {', '.join(missing)}",
+                               path=path, column=missing[0])
+    return df

@@ -9,6 +9,7 @@ same route driven twice with independent noise, the same sensors and installed e
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import pandas as pd
 import yaml
 
 from pedcal.calib.common import head_world, interpolate_pose2
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.io.atomic import write_text_atomic
 from pedcal.model import Log, Meta, SensorNetwork
 from pedcal.options import check
@@ -235,6 +236,17 @@ def simulate_logs(scenario: str | Path | Scenario = "paper", seed: int = 0, prog
     return SimulationResult(calib=calib, eval=evaluation, scenario=sc)
 
 
+def check_scenario_outside(scenario: str | Path, out_dir: str | Path) -> None:
+    """The scenario file ``scenario`` is none of what simulate writes into ``out_dir``
+    (scenario.yaml, calib/, eval/), else PedcalInputError."""
+    out_dir = Path(out_dir)
+    src = Path(scenario).resolve()
+    written = [(out_dir / "scenario.yaml").resolve(), (out_dir / "calib").resolve(), (out_dir / "eval").resolve()]
+    if src == written[0] or any(d in src.parents for d in written[1:]):
+        raise PedcalInputError(f"the scenario file is among what simulate writes into {out_dir} (scenario.yaml, "
+                               "calib/, eval/); keep it elsewhere or choose another output", path=scenario)
+
+
 def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0, progress: bool = False,
              **overrides) -> SimulationResult:
     """``simulate_logs`` and write ``out_dir/calib/``, ``out_dir/eval/`` (log directories with
@@ -243,13 +255,15 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
 
     out_dir = Path(out_dir)
     if isinstance(scenario, (str, Path)) and Path(scenario).is_file():
-        src = Path(scenario).resolve()
-        written = [(out_dir / "scenario.yaml").resolve(), (out_dir / "calib").resolve(), (out_dir / "eval").resolve()]
-        if src == written[0] or any(d in src.parents for d in written[1:]):
-            raise PedcalInputError(f"the scenario file is among what simulate writes into {out_dir} (scenario.yaml, "
-                                   "calib/, eval/); keep it elsewhere or choose another output", path=scenario)
+        check_scenario_outside(scenario, out_dir)
     result = simulate_logs(scenario, seed=seed, progress=progress, **overrides)
     for name, log in (("calib", result.calib), ("eval", result.eval)):
+        if log_summary(log)["robot"] == 0:      # a log calibrate and evaluate will refuse
+            sc = result.scenario
+            warnings.warn(f"scenario {sc.name}, seed {sc.seed}: the {name} log holds no observation of the robot "
+                          f"({len(log.observations)} observations in all): no sensor sees its head on the route "
+                          "(check duration_s, max_range_m, min_range_m, the fields of view, sensor_height_m, "
+                          "robot_speed_mps); it cannot be calibrated or evaluated", DegenerateDataWarning, stacklevel=2)
         log.path = out_dir / name
         write_log(log, log.path)
         _progress(progress, f"wrote {log.path}")
@@ -257,5 +271,5 @@ def simulate(scenario: str | Path | Scenario, out_dir: str | Path, seed: int = 0
     return result
 
 
-__all__ = ["simulate", "simulate_logs", "SimulationResult", "Scenario", "load_scenario", "log_summary",
-           "networks"]
+__all__ = ["simulate", "simulate_logs", "check_scenario_outside", "SimulationResult", "Scenario", "load_scenario",
+           "log_summary", "networks"]

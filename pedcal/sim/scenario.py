@@ -12,13 +12,12 @@ extrinsics, which are what a calibration estimates) carry ``metadata={"off": val
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
-from pedcal.errors import PedcalInputError
-from pedcal.io.sensors_yaml import read_text_file
+from pedcal.errors import PedcalInputError, show
+from pedcal.io.sensors_yaml import load_yaml_file, read_text_file
 
 DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
@@ -328,6 +327,39 @@ class Scenario:
 
 _OPTIONAL_TYPES = {"duration_s": float, "sensor_ids": list, "row_y_m": list, "sensor_height_range_m": list}
 _VARIABLE_LISTS = ("pitch_deg",)
+# Domains of the numeric parameters (each value, or each item of a list): a rate, size, speed or
+# count is > 0, a probability or share within [0, 1], these may take either sign, every other
+# number (sigmas, noises, durations, margins) is >= 0. Every value is finite.
+_POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "hfov_deg", "vfov_deg", "max_range_m",
+             "reliable_range_m", "frame_rate_hz", "corridor_width_m", "corridor_sensors", "robot_speed_mps",
+             "lane_spacing_m", "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz",
+             "amcl_tau_s", "walker_speed_mps", "person_height_m", "head_ramp_m")
+_ANGLES_DEG = ("hfov_deg", "vfov_deg")      # > 0 and at most 180
+_SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction")
+_SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
+           "head_offset_m", "start_time_s", "odom_scale_error", "odom_yaw_drift_deg_per_m", "odom_gyro_bias_dps",
+           "latency_s")
+
+
+# (lowest, lowest excluded, highest, what the message asks for) of each kind of parameter
+_DOMAINS = {"angle": (0.0, True, 180.0, "an angle > 0 and <= 180 deg"),
+            "positive": (0.0, True, math.inf, "a finite number > 0"),
+            "share": (0.0, False, 1.0, "a share within [0, 1]"),
+            "signed": (-math.inf, False, math.inf, "a finite number"),
+            "nonnegative": (0.0, False, math.inf, "a finite number >= 0")}
+
+
+def _check_domain(key: str, value, source) -> None:
+    items = value if isinstance(value, list) else [value]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
+        return
+    kind = ("angle" if key in _ANGLES_DEG else "positive" if key in _POSITIVE else "share" if key in _SHARES
+            else "signed" if key in _SIGNED else "nonnegative")
+    lo, lo_open, hi, want = _DOMAINS[kind]
+    for i, v in enumerate(items):
+        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+            item = f" (item {i} of the list)" if isinstance(value, list) else ""
+            raise PedcalInputError(f"expected {want}, got {show(v)}{item}", path=source, column=key)
 
 
 def _typed(values: dict, source) -> Scenario:
@@ -342,7 +374,9 @@ def _typed(values: dict, source) -> Scenario:
             elif default is None:
                 out[key] = _OPTIONAL_TYPES[key](value)
             elif isinstance(default, bool):
-                out[key] = bool(value)
+                if not isinstance(value, bool):     # bool("false") is True
+                    raise ValueError
+                out[key] = value
             elif isinstance(default, int) and not isinstance(default, bool):
                 if float(value) != int(value):
                     raise ValueError
@@ -360,9 +394,12 @@ def _typed(values: dict, source) -> Scenario:
                 out[key] = value
             else:
                 out[key] = value
-        except (TypeError, ValueError):
-            raise PedcalInputError(f"expected a value like {default!r}, got {value!r}",
-                                   path=source, column=key) from None
+        except (TypeError, ValueError, OverflowError):
+            like = {float: "a number", list: "a list"}.get(_OPTIONAL_TYPES.get(key)) if default is None else \
+                f"a value like {default!r}"
+            raise PedcalInputError(f"expected {like or 'a value'}, got {show(value)}", path=source,
+                                   column=key) from None
+        _check_domain(key, out[key], source)
     for key, allowed in CHOICES.items():
         if out[key] not in allowed:
             raise PedcalInputError(f"expected one of {', '.join(allowed)}, got {out[key]!r}",
@@ -375,6 +412,9 @@ def _typed(values: dict, source) -> Scenario:
             out["row_y_m"] = [float(v) for v in out["row_y_m"]]
         except (TypeError, ValueError):
             raise PedcalInputError("expected a list of numbers", path=source, column="row_y_m") from None
+        if out["layout"] == "grid" and len(out["row_y_m"]) != out["grid_rows"]:   # named here, with the file
+            raise PedcalInputError(f"{len(out['row_y_m'])} entries for {out['grid_rows']} rows (grid_rows)",
+                                   path=source, column="row_y_m")
     if out["sensor_height_range_m"] is not None:
         try:
             lo, hi = (float(v) for v in out["sensor_height_range_m"])
@@ -419,10 +459,8 @@ def load_scenario(name_or_path: str | Path | Scenario, *, _seen: tuple = ()) -> 
     path = scenario_path(name_or_path)
     if path.resolve() in _seen:
         raise PedcalInputError("scenario files include each other in a loop", path=path)
-    try:
-        data = yaml.safe_load(read_text_file(path, "scenario file")) or {}   # a regular file, size capped
-    except yaml.YAMLError as exc:
-        raise PedcalInputError(f"not valid YAML ({exc})", path=path) from None
+    read_text_file(path, "scenario file")      # a regular file, size capped, UTF-8
+    data = load_yaml_file(path)[0] or {}       # one-line syntax errors; a key given twice refused
     if not isinstance(data, dict):
         raise PedcalInputError("expected a mapping of scenario parameters", path=path)
     base = Scenario()

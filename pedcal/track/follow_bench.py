@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.options import check
 from pedcal.sim.follow import FRAME_HZ
@@ -228,6 +228,11 @@ def run_follow_bench(data_dir: str | Path | None = None, out_dir: str | Path = "
     files = list(files or RECORDINGS)
     cases, tables, recordings = bench_cases(data_dir, files, trackers, seeds, min_duration_s, max_targets)
     cases = [replace(c, sensing=sensing, lidar=lidar) for c in cases]
+    if not cases:       # an empty bench is written, but not in silence
+        warnings.warn(f"no episode to run: no person is present for --min-duration {min_duration_s:g} s in any "
+                      "recording (longest: " + ", ".join(f"{r.recording} {r.longest_s:.1f} s"
+                                                         for r in recordings.itertuples()) + ")",
+                      DegenerateDataWarning, stacklevel=2)
     out = Path(out_dir)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     rows, worst = [], {}
