@@ -248,6 +248,26 @@ def test_completely_empty_file(tmp_path):
     expect_error(tmp_path, "missing required column", file="robot.csv")
 
 
+@pytest.mark.parametrize("repeat", ["x", " x"])
+def test_column_named_twice_in_csv_header(tmp_path, repeat):
+    """pandas renames a CSV header's repeated x to x.1: the file was read with the first x."""
+    write_good(tmp_path)
+    p = tmp_path / "observations.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + "," + repeat] + [line + ",99" for line in lines[1:]]) + "\n")
+    e = expect_error(tmp_path, "column 'x' appears 2 times in the header; keep one", column="x",
+                     file="observations.csv")
+    assert e.row is None
+
+
+def test_extra_column_named_twice_is_ignored(tmp_path):
+    write_good(tmp_path)
+    p = tmp_path / "robot.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + ",note,note"] + [line + ",a,b" for line in lines[1:]]) + "\n")
+    assert len(read_log(tmp_path).robot) == 50
+
+
 def test_repeated_time_within_a_track(tmp_path):
     write_good(tmp_path)
     obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import PedcalInputError, show
 from pedcal.io.atomic import special_kind
 
 # sensors.yaml of 10 000 sensors is ~2 MB, a graph recipe or a label file a few kB.
@@ -68,6 +68,15 @@ def not_utf8_text(path: str | Path, chunk_bytes: int = 1 << 20) -> str | None:
                 return None
             line += good.count(b"\n")
             base += len(good)
+
+
+def refuse_repeated_columns(names: list[str], columns, path, *, in_header: bool = True) -> None:
+    """A column of ``columns`` named twice in ``names`` (as written, stripped: pandas renames a
+    CSV header's repeat ``x`` to ``x.1``) raises PedcalInputError naming it: which one is meant?"""
+    repeated = [c for c in columns if names.count(c) > 1]
+    if repeated:
+        raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times"
+                               f"{' in the header' if in_header else ''}; keep one", path=path, column=repeated[0])
 
 
 def read_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_TEXT_BYTES):

@@ -22,6 +22,7 @@ import pandas as pd
 from pedcal.errors import PedcalInputError, show
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
+from pedcal.io.inputs import refuse_repeated_columns
 from pedcal.io.sensors_yaml import (
     dump_yaml,
     flow_vector,
@@ -82,13 +83,17 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
             return pd.read_parquet(path, engine="pyarrow")
         # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
         options = {"na_filter": False}
-        names = pd.read_csv(path, nrows=0, **options).columns
+        # the header as written: pandas' own header renames a repeated x to x.1, which would pass unseen
+        names = [str(n) for n in pd.read_csv(path, header=None, nrows=1, dtype=str, **options).iloc[0]]
+        refuse_repeated_columns([n.strip() for n in names], columns, path)
         wanted = {str(n).strip() for n in columns}
         use = [n for n in names if str(n).strip() in wanted] if columns else None
         if use is not None and len(use) == len(names):
             use = None       # usecols turns off the C reader's parallel conversion: only for extra columns
         dtype = {n: str for n in names if str(n).strip() in text_columns}
         return pd.read_csv(path, usecols=use, dtype=dtype, **options)
+    except PedcalInputError:
+        raise
     except pd.errors.EmptyDataError:
         return pd.DataFrame()
     except UnicodeDecodeError as e:
@@ -183,10 +188,7 @@ def typed_table(raw: pd.DataFrame, columns: tuple[str, ...], text_columns: tuple
                                path=where, column=missing[0])
     if required and len(raw) == 0:
         raise PedcalInputError("table has no data rows", path=where)
-    repeated = [c for c in columns if names.count(c) > 1]
-    if repeated:                 # which of them is meant? (a file's repeated header, a DataFrame's columns)
-        raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times; keep one",
-                               path=where, column=repeated[0])
+    refuse_repeated_columns(names, columns, where, in_header=False)    # a DataFrame's (or Parquet file's) columns
     position = {n: i for i, n in reversed(list(enumerate(names)))}   # the first of repeated names
     out = {}
     for c in columns:
