@@ -268,6 +268,20 @@ def test_extra_column_named_twice_is_ignored(tmp_path):
     assert len(read_log(tmp_path).robot) == 50
 
 
+@pytest.mark.parametrize("line", [2, 50, 121])
+def test_not_utf8_names_the_line_and_file_offset(tmp_path, line):
+    """A cp1252 'é' (0xe9) on a line of observations.csv: the line and the byte's offset in the file
+    (pandas' own error gives the offset within its buffer)."""
+    write_good(tmp_path)
+    p = tmp_path / "observations.csv"
+    data = p.read_bytes()
+    starts = [0] + [i + 1 for i, b in enumerate(data) if b == ord("\n")]
+    offset = starts[line - 1] + 3             # within the time stamp
+    p.write_bytes(data[:offset] + b"\xe9" + data[offset + 1:])
+    expect_error(tmp_path, rf"not UTF-8 text \(byte 0xe9 on line {line}, at offset {offset}\)",
+                 file="observations.csv")
+
+
 def test_repeated_time_within_a_track(tmp_path):
     write_good(tmp_path)
     obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)
