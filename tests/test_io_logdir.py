@@ -242,10 +242,21 @@ def test_empty_required_table(tmp_path, name):
     expect_error(tmp_path, "no data rows", file=name)
 
 
-def test_completely_empty_file(tmp_path):
+@pytest.mark.parametrize("name", ["robot.csv", "observations.csv", "odometry.csv", "truth_observations.csv"])
+@pytest.mark.parametrize("content", ["", "\n\n  \n"])
+def test_completely_empty_file(tmp_path, name, content):
     write_good(tmp_path)
-    (tmp_path / "robot.csv").write_text("")
-    expect_error(tmp_path, "missing required column", file="robot.csv")
+    (tmp_path / name).write_text(content)
+    columns = pd.read_csv(write_good(tmp_path / "good") / name, nrows=0).columns
+    e = expect_error(tmp_path, "empty file, expected a CSV with header ", file=name)
+    assert str(e).endswith(f"header {','.join(columns)}") and e.row is None and e.column is None
+
+
+def test_empty_parquet_file(tmp_path):
+    write_log(make_log(5), tmp_path, fmt="parquet")
+    (tmp_path / "robot.parquet").write_bytes(b"")
+    expect_error(tmp_path, "empty file, expected a Parquet table with columns t, x, y, yaw, cov_xx",
+                 file="robot.parquet")
 
 
 @pytest.mark.parametrize("repeat", ["x", " x"])

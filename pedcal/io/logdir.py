@@ -79,6 +79,8 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
     pandas' C reader (correctly rounded, so CSV round trips exactly), ``text_columns`` as text; a
     column holding a cell that is not a number comes back as text for parse_float_column to locate."""
     try:
+        if path.stat().st_size == 0:
+            raise pd.errors.EmptyDataError
         if path.suffix == ".parquet":
             return pd.read_parquet(path, engine="pyarrow")
         # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
@@ -94,8 +96,11 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
         return pd.read_csv(path, usecols=use, dtype=dtype, **options)
     except PedcalInputError:
         raise
-    except pd.errors.EmptyDataError:
-        return pd.DataFrame()
+    except pd.errors.EmptyDataError:      # no bytes, or only blank lines
+        header = f"header {','.join(columns)}" if columns else "a header line"
+        expected = (f"a Parquet table with columns {', '.join(columns)}" if path.suffix == ".parquet" else
+                    f"a CSV with {header}")
+        raise PedcalInputError(f"empty file, expected {expected}", path=path) from None
     except UnicodeDecodeError as e:     # its offset is within pandas' buffer: find the byte in the file
         where = not_utf8_text(path) or f"byte 0x{e.object[e.start]:02x}"
         raise PedcalInputError(f"not UTF-8 text ({where}): a binary file, or a CSV saved in another encoding",
