@@ -397,6 +397,27 @@ def test_bad_meta(tmp_path):
     expect_error(tmp_path, "head_offset", file="meta.yaml")
 
 
+@pytest.mark.parametrize("key", ["head_ofset", "headoffset", "Head_Offset", "head_offset_m"])
+def test_misspelled_meta_key_warns(tmp_path, key):
+    """A misspelled head_offset would silently leave the default offset: kept as a note (the format
+    accepts any key), with a warning naming the file, the key and the key it resembles."""
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text(f"{key}: [0, 0, 1.2]\nseed: 3\n")
+    with pytest.warns(UserWarning, match=rf"meta\.yaml: key '{key}' is not one meta\.yaml defines and is kept as "
+                      r"a note: did you mean 'head_offset'\? \(the head offset used is \[0, 0, 1\.35\] m\)") as rec:
+        log = read_log(tmp_path)
+    assert len(rec) == 1 and str(tmp_path / "meta.yaml") in str(rec[0].message)
+    assert log.meta.notes == {key: [0, 0, 1.2], "seed": 3} and log.meta.head_offset_m.tolist() == [0, 0, 1.35]
+
+
+def test_meta_notes_unlike_a_key_do_not_warn(tmp_path, recwarn):
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text("head_offset: [0, 0, 1.2]\nrobot: sim\nseed: 3\nheading: north\n"
+                                        "simulated: {scenario: paper}\n")
+    assert read_log(tmp_path).meta.head_offset_m.tolist() == [0, 0, 1.2]
+    assert not [w for w in recwarn if "meta.yaml" in str(w.message)]
+
+
 def test_failed_write_leaves_previous_file(tmp_path):
     log = make_log(7)
     write_log(log, tmp_path)

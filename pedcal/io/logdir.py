@@ -13,13 +13,15 @@ DataFrames gets the same checks and messages, naming the table (``Log.robot``) i
 
 from __future__ import annotations
 
+import difflib
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pedcal.errors import PedcalInputError, show
+from pedcal.errors import PedcalInputError, show, warnings_at_caller
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
 from pedcal.io.inputs import not_utf8_text, refuse_repeated_columns
@@ -54,6 +56,8 @@ TABLES = {
     "truth_observations": (TRUTH_OBSERVATION_COLUMNS, ("who",)),
 }
 INTEGER_COLUMNS = {"row"}
+# The keys meta.yaml defines (LOG_FORMAT.md); any other key is a free-form note.
+META_KEYS = ("head_offset",)
 
 
 # ------------------------------------------------------------------------------------ table reading
@@ -405,11 +409,17 @@ def read_meta(path: Path) -> Meta:
         return Meta()
     if not isinstance(data, dict):
         raise PedcalInputError("expected a mapping (head_offset: [x, y, z], notes...)", path=path)
-    notes = {k: v for k, v in data.items() if k != "head_offset"}
-    if data.get("head_offset") is None:
-        return Meta(notes=notes)
-    return Meta(head_offset_m=read_vector(data["head_offset"], 3, "head_offset", path,
-                                          max_abs=plausible.MAX_HEAD_OFFSET_M, unit="m"), notes=notes)
+    notes = {k: v for k, v in data.items() if k not in META_KEYS}
+    meta = Meta(notes=notes) if data.get("head_offset") is None else Meta(
+        head_offset_m=read_vector(data["head_offset"], 3, "head_offset", path, max_abs=plausible.MAX_HEAD_OFFSET_M,
+                                  unit="m"), notes=notes)
+    for key in notes:            # any other key is a free-form note (LOG_FORMAT.md), unless it is a misspelling
+        like = difflib.get_close_matches(str(key).lower(), META_KEYS, n=1)
+        if like:
+            offset = ", ".join(f"{v:g}" for v in meta.head_offset_m)
+            warnings.warn(f"{path}: key {show(key)} is not one meta.yaml defines and is kept as a note: did you mean "
+                          f"{show(like[0])}? (the head offset used is [{offset}] m)", UserWarning, stacklevel=3)
+    return meta
 
 
 def meta_yaml_text(meta: Meta) -> str:
@@ -419,6 +429,7 @@ def meta_yaml_text(meta: Meta) -> str:
 
 
 # ---------------------------------------------------------------------------------------- log dirs
+@warnings_at_caller
 def read_log(path: str | Path) -> Log:
     """Read and validate a log directory (LOG_FORMAT.md). Bad input raises PedcalInputError."""
     directory = require_path(path, "path")
