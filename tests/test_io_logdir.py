@@ -10,7 +10,15 @@ import pytest
 import yaml
 
 from pedcal.errors import PedcalInputError
-from pedcal.io import read_log, read_people_csv, read_sensors_yaml, write_log, write_people_csv, write_sensors_yaml
+from pedcal.io import (
+    read_log,
+    read_people_csv,
+    read_sensors_yaml,
+    validate,
+    write_log,
+    write_people_csv,
+    write_sensors_yaml,
+)
 from pedcal.model import Log, Meta, SensorExtrinsics, SensorNetwork
 
 
@@ -159,6 +167,14 @@ def test_people_csv_round_trip(tmp_path):
     assert_tables_equal(df, read_people_csv(tmp_path / "p.csv"))
 
 
+def test_people_csv_bad_cell_names_row_and_line(tmp_path):
+    df = pd.DataFrame({"t": np.arange(6.0), "person": ["1"] * 6, "x": np.zeros(6), "y": np.zeros(6)})
+    write_people_csv(df, tmp_path / "p.csv")
+    edit_csv(tmp_path / "p.csv", set_cell(3, "x", "abc"))
+    with pytest.raises(PedcalInputError, match=r"p\.csv, row 3 \(line 5\), column 'x': expected a number, got 'abc'"):
+        read_people_csv(tmp_path / "p.csv")
+
+
 # ------------------------------------------------------------------------------------ bad input
 def write_good(tmp_path: Path) -> Path:
     log = make_log(5)
@@ -178,8 +194,10 @@ def expect_error(tmp_path, match, row=None, column=None, file=None):
     e = ei.value
     if file is not None:
         assert e.path is not None and Path(e.path).name == file
-    if row is not None:
-        assert e.row == row and f"row {row}" in str(e)
+    if row is not None:         # a CSV written by write_log: one header line, no blank lines
+        line = row + 2 if e.path.endswith(".csv") else None
+        assert e.row == row and e.line == line
+        assert f"row {row}, " in str(e) if line is None else f"row {row} (line {line}), " in str(e)
     if column is not None:
         assert e.column == column and f"'{column}'" in str(e)
     return e
@@ -204,6 +222,31 @@ def test_bad_cell(tmp_path, value, match):
     write_good(tmp_path)
     edit_csv(tmp_path / "observations.csv", set_cell(17, "x", value))
     expect_error(tmp_path, match, row=17, column="x", file="observations.csv")
+
+
+def test_row_line_counts_blank_lines_and_quoted_line_breaks(tmp_path):
+    """A data row's line as pandas read it: blank (or blank-looking) lines skipped, a quoted cell
+    spanning two lines; the row keeps its 0-based data-row number."""
+    write_good(tmp_path)
+    p = tmp_path / "observations.csv"
+    lines = p.read_text().splitlines()
+    t, sensor, _, *rest = lines[2].split(",")
+    lines[2] = ",".join([t, sensor, '"walker\nnine"', *rest])            # data row 1 over lines 3-4
+    bad = lines[6].split(",")
+    bad[3] = "north"                                                     # data row 5, x
+    lines[6] = ",".join(bad)
+    p.write_text("\n".join(["", lines[0], "  ", *lines[1:3], "", *lines[3:]]) + "\n")
+    #  line 1 blank, 2 header, 3 blank, 4 row 0, 5-6 row 1, 7 blank, 8.. rows 2.. : row 5 on line 11
+    e = expect_error(tmp_path, "expected a number, got 'north'", column="x", file="observations.csv")
+    assert e.row == 5 and e.line == 11 and "row 5 (line 11), column 'x'" in str(e)
+
+
+def test_row_line_of_a_table_from_dataframes_or_parquet_is_not_given(tmp_path):
+    log = make_log(5)
+    log.observations.loc[4, "x"] = np.nan
+    with pytest.raises(PedcalInputError, match=r"^Log\.observations, row 4, column 'x': ") as ei:
+        validate(log)
+    assert ei.value.line is None
 
 
 def test_bad_cell_in_parquet(tmp_path):

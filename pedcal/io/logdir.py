@@ -24,7 +24,7 @@ import pandas as pd
 from pedcal.errors import PedcalInputError, show, warnings_at_caller
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
-from pedcal.io.inputs import not_utf8_text, refuse_repeated_columns
+from pedcal.io.inputs import CsvTable, not_utf8_text, refuse_repeated_columns
 from pedcal.io.sensors_yaml import (
     dump_yaml,
     flow_vector,
@@ -222,7 +222,8 @@ def read_table(path: Path, columns: tuple[str, ...], text_columns: tuple[str, ..
     path = Path(path)
     if path.is_dir():
         raise PedcalInputError("is a directory, expected a table file", path=path)
-    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, path, required=required)
+    where = CsvTable(path) if path.suffix != ".parquet" else path        # errors name a CSV row's line
+    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, where, required=required)
 
 
 # ---------------------------------------------------------------------------------------- checks
@@ -446,8 +447,8 @@ def read_log(path: str | Path) -> Log:
     for name, (columns, text_columns) in TABLES.items():
         p = find_table(directory, name, required=name in ("robot", "observations"))
         tables[name] = None if p is None else _raw_table(p, columns, text_columns)
-        if p is not None:
-            sources[name] = p
+        if p is not None:          # errors name a CSV row's line too (validate keeps file order until they are checked)
+            sources[name] = CsvTable(p) if p.suffix == ".csv" else p
     meta_path = directory / "meta.yaml"
     meta = Meta()
     if meta_path.exists():
