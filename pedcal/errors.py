@@ -15,6 +15,8 @@ class PedcalInputError(ValueError):
     """Bad input: names the file, and where known the row and column, and what was expected.
 
     ``row`` is the 0-based data row (the header is not counted), as in truth_observations.csv.
+    Where ``path`` can tell the row's line in the file (a CSV table, pedcal.io.inputs.CsvTable,
+    has ``line_of_row``), ``line`` is that 1-based line and the message says "row 8 (line 10)".
     """
 
     def __init__(self, message: str, *, path: str | Path | None = None, row: int | None = None,
@@ -22,11 +24,13 @@ class PedcalInputError(ValueError):
         self.path = None if path is None else str(path)
         self.row = row
         self.column = column
+        line_of_row = getattr(path, "line_of_row", None)
+        self.line = None if row is None or line_of_row is None else line_of_row(row)
         where = []
         if self.path is not None:
             where.append(self.path)
         if row is not None:
-            where.append(f"row {row}")
+            where.append(f"row {row}" if self.line is None else f"row {row} (line {self.line})")
         if column is not None:
             where.append(f"column '{column}'")
         self.detail = message

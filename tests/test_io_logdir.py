@@ -10,7 +10,15 @@ import pytest
 import yaml
 
 from pedcal.errors import PedcalInputError
-from pedcal.io import read_log, read_people_csv, read_sensors_yaml, write_log, write_people_csv, write_sensors_yaml
+from pedcal.io import (
+    read_log,
+    read_people_csv,
+    read_sensors_yaml,
+    validate,
+    write_log,
+    write_people_csv,
+    write_sensors_yaml,
+)
 from pedcal.model import Log, Meta, SensorExtrinsics, SensorNetwork
 
 
@@ -159,6 +167,14 @@ def test_people_csv_round_trip(tmp_path):
     assert_tables_equal(df, read_people_csv(tmp_path / "p.csv"))
 
 
+def test_people_csv_bad_cell_names_row_and_line(tmp_path):
+    df = pd.DataFrame({"t": np.arange(6.0), "person": ["1"] * 6, "x": np.zeros(6), "y": np.zeros(6)})
+    write_people_csv(df, tmp_path / "p.csv")
+    edit_csv(tmp_path / "p.csv", set_cell(3, "x", "abc"))
+    with pytest.raises(PedcalInputError, match=r"p\.csv, row 3 \(line 5\), column 'x': expected a number, got 'abc'"):
+        read_people_csv(tmp_path / "p.csv")
+
+
 # ------------------------------------------------------------------------------------ bad input
 def write_good(tmp_path: Path) -> Path:
     log = make_log(5)
@@ -178,8 +194,10 @@ def expect_error(tmp_path, match, row=None, column=None, file=None):
     e = ei.value
     if file is not None:
         assert e.path is not None and Path(e.path).name == file
-    if row is not None:
-        assert e.row == row and f"row {row}" in str(e)
+    if row is not None:         # a CSV written by write_log: one header line, no blank lines
+        line = row + 2 if e.path.endswith(".csv") else None
+        assert e.row == row and e.line == line
+        assert f"row {row}, " in str(e) if line is None else f"row {row} (line {line}), " in str(e)
     if column is not None:
         assert e.column == column and f"'{column}'" in str(e)
     return e
@@ -204,6 +222,31 @@ def test_bad_cell(tmp_path, value, match):
     write_good(tmp_path)
     edit_csv(tmp_path / "observations.csv", set_cell(17, "x", value))
     expect_error(tmp_path, match, row=17, column="x", file="observations.csv")
+
+
+def test_row_line_counts_blank_lines_and_quoted_line_breaks(tmp_path):
+    """A data row's line as pandas read it: blank (or blank-looking) lines skipped, a quoted cell
+    spanning two lines; the row keeps its 0-based data-row number."""
+    write_good(tmp_path)
+    p = tmp_path / "observations.csv"
+    lines = p.read_text().splitlines()
+    t, sensor, _, *rest = lines[2].split(",")
+    lines[2] = ",".join([t, sensor, '"walker\nnine"', *rest])            # data row 1 over lines 3-4
+    bad = lines[6].split(",")
+    bad[3] = "north"                                                     # data row 5, x
+    lines[6] = ",".join(bad)
+    p.write_text("\n".join(["", lines[0], "  ", *lines[1:3], "", *lines[3:]]) + "\n")
+    #  line 1 blank, 2 header, 3 blank, 4 row 0, 5-6 row 1, 7 blank, 8.. rows 2.. : row 5 on line 11
+    e = expect_error(tmp_path, "expected a number, got 'north'", column="x", file="observations.csv")
+    assert e.row == 5 and e.line == 11 and "row 5 (line 11), column 'x'" in str(e)
+
+
+def test_row_line_of_a_table_from_dataframes_or_parquet_is_not_given(tmp_path):
+    log = make_log(5)
+    log.observations.loc[4, "x"] = np.nan
+    with pytest.raises(PedcalInputError, match=r"^Log\.observations, row 4, column 'x': ") as ei:
+        validate(log)
+    assert ei.value.line is None
 
 
 def test_bad_cell_in_parquet(tmp_path):
@@ -242,10 +285,55 @@ def test_empty_required_table(tmp_path, name):
     expect_error(tmp_path, "no data rows", file=name)
 
 
-def test_completely_empty_file(tmp_path):
+@pytest.mark.parametrize("name", ["robot.csv", "observations.csv", "odometry.csv", "truth_observations.csv"])
+@pytest.mark.parametrize("content", ["", "\n\n  \n"])
+def test_completely_empty_file(tmp_path, name, content):
     write_good(tmp_path)
-    (tmp_path / "robot.csv").write_text("")
-    expect_error(tmp_path, "missing required column", file="robot.csv")
+    (tmp_path / name).write_text(content)
+    columns = pd.read_csv(write_good(tmp_path / "good") / name, nrows=0).columns
+    e = expect_error(tmp_path, "empty file, expected a CSV with header ", file=name)
+    assert str(e).endswith(f"header {','.join(columns)}") and e.row is None and e.column is None
+
+
+def test_empty_parquet_file(tmp_path):
+    write_log(make_log(5), tmp_path, fmt="parquet")
+    (tmp_path / "robot.parquet").write_bytes(b"")
+    expect_error(tmp_path, "empty file, expected a Parquet table with columns t, x, y, yaw, cov_xx",
+                 file="robot.parquet")
+
+
+@pytest.mark.parametrize("repeat", ["x", " x"])
+def test_column_named_twice_in_csv_header(tmp_path, repeat):
+    """pandas renames a CSV header's repeated x to x.1: the file was read with the first x."""
+    write_good(tmp_path)
+    p = tmp_path / "observations.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + "," + repeat] + [line + ",99" for line in lines[1:]]) + "\n")
+    e = expect_error(tmp_path, "column 'x' appears 2 times in the header; keep one", column="x",
+                     file="observations.csv")
+    assert e.row is None
+
+
+def test_extra_column_named_twice_is_ignored(tmp_path):
+    write_good(tmp_path)
+    p = tmp_path / "robot.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + ",note,note"] + [line + ",a,b" for line in lines[1:]]) + "\n")
+    assert len(read_log(tmp_path).robot) == 50
+
+
+@pytest.mark.parametrize("line", [2, 50, 121])
+def test_not_utf8_names_the_line_and_file_offset(tmp_path, line):
+    """A cp1252 'é' (0xe9) on a line of observations.csv: the line and the byte's offset in the file
+    (pandas' own error gives the offset within its buffer)."""
+    write_good(tmp_path)
+    p = tmp_path / "observations.csv"
+    data = p.read_bytes()
+    starts = [0] + [i + 1 for i, b in enumerate(data) if b == ord("\n")]
+    offset = starts[line - 1] + 3             # within the time stamp
+    p.write_bytes(data[:offset] + b"\xe9" + data[offset + 1:])
+    expect_error(tmp_path, rf"not UTF-8 text \(byte 0xe9 on line {line}, at offset {offset}\)",
+                 file="observations.csv")
 
 
 def test_repeated_time_within_a_track(tmp_path):
@@ -350,6 +438,27 @@ def test_bad_meta(tmp_path):
     write_good(tmp_path)
     (tmp_path / "meta.yaml").write_text(yaml.safe_dump({"head_offset": [0, 1.35]}))
     expect_error(tmp_path, "head_offset", file="meta.yaml")
+
+
+@pytest.mark.parametrize("key", ["head_ofset", "headoffset", "Head_Offset", "head_offset_m"])
+def test_misspelled_meta_key_warns(tmp_path, key):
+    """A misspelled head_offset would silently leave the default offset: kept as a note (the format
+    accepts any key), with a warning naming the file, the key and the key it resembles."""
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text(f"{key}: [0, 0, 1.2]\nseed: 3\n")
+    with pytest.warns(UserWarning, match=rf"meta\.yaml: key '{key}' is not one meta\.yaml defines and is kept as "
+                      r"a note: did you mean 'head_offset'\? \(the head offset used is \[0, 0, 1\.35\] m\)") as rec:
+        log = read_log(tmp_path)
+    assert len(rec) == 1 and str(tmp_path / "meta.yaml") in str(rec[0].message)
+    assert log.meta.notes == {key: [0, 0, 1.2], "seed": 3} and log.meta.head_offset_m.tolist() == [0, 0, 1.35]
+
+
+def test_meta_notes_unlike_a_key_do_not_warn(tmp_path, recwarn):
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text("head_offset: [0, 0, 1.2]\nrobot: sim\nseed: 3\nheading: north\n"
+                                        "simulated: {scenario: paper}\n")
+    assert read_log(tmp_path).meta.head_offset_m.tolist() == [0, 0, 1.2]
+    assert not [w for w in recwarn if "meta.yaml" in str(w.message)]
 
 
 def test_failed_write_leaves_previous_file(tmp_path):

@@ -6,9 +6,10 @@ table readers share this check.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-from pedcal.errors import PedcalInputError
+from pedcal.errors import PedcalInputError, show
 from pedcal.io.atomic import special_kind
 
 # sensors.yaml of 10 000 sensors is ~2 MB, a graph recipe or a label file a few kB.
@@ -68,6 +69,52 @@ def not_utf8_text(path: str | Path, chunk_bytes: int = 1 << 20) -> str | None:
                 return None
             line += good.count(b"\n")
             base += len(good)
+
+
+class CsvTable(os.PathLike):
+    """A CSV table's file, for errors: a PedcalInputError given it as ``path`` and a 0-based data
+    ``row`` also names the row's line in the file, as pandas read it (one header line, blank lines
+    skipped, a quoted cell may span lines). Reads as the path it holds (``str``, ``os.fspath``)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def __repr__(self) -> str:
+        return f"CsvTable({str(self.path)!r})"
+
+    def line_of_row(self, row: int) -> int | None:
+        """The 1-based line on which data row ``row`` starts, or None if the file no longer has it."""
+        import csv
+
+        record, end = -1, 0                 # record 0 is the header
+        try:
+            with open(self.path, encoding="utf-8-sig", errors="replace", newline="") as f:
+                reader = csv.reader(f)
+                for cells in reader:
+                    start, end = end + 1, reader.line_num
+                    if not cells or (len(cells) == 1 and not cells[0].strip()):
+                        continue            # a blank line, which pandas skips
+                    record += 1
+                    if record == row + 1:
+                        return start
+        except (OSError, csv.Error):
+            return None
+        return None
+
+
+def refuse_repeated_columns(names: list[str], columns, path, *, in_header: bool = True) -> None:
+    """A column of ``columns`` named twice in ``names`` (as written, stripped: pandas renames a
+    CSV header's repeat ``x`` to ``x.1``) raises PedcalInputError naming it: which one is meant?"""
+    repeated = [c for c in columns if names.count(c) > 1]
+    if repeated:
+        raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times"
+                               f"{' in the header' if in_header else ''}; keep one", path=path, column=repeated[0])
 
 
 def read_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_TEXT_BYTES):

@@ -13,15 +13,18 @@ DataFrames gets the same checks and messages, naming the table (``Log.robot``) i
 
 from __future__ import annotations
 
+import difflib
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pedcal.errors import PedcalInputError, show
+from pedcal.errors import PedcalInputError, show, warnings_at_caller
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
+from pedcal.io.inputs import CsvTable, not_utf8_text, refuse_repeated_columns
 from pedcal.io.sensors_yaml import (
     dump_yaml,
     flow_vector,
@@ -53,6 +56,8 @@ TABLES = {
     "truth_observations": (TRUTH_OBSERVATION_COLUMNS, ("who",)),
 }
 INTEGER_COLUMNS = {"row"}
+# The keys meta.yaml defines (LOG_FORMAT.md); any other key is a free-form note.
+META_KEYS = ("head_offset",)
 
 
 # ------------------------------------------------------------------------------------ table reading
@@ -78,22 +83,32 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
     pandas' C reader (correctly rounded, so CSV round trips exactly), ``text_columns`` as text; a
     column holding a cell that is not a number comes back as text for parse_float_column to locate."""
     try:
+        if path.stat().st_size == 0:
+            raise pd.errors.EmptyDataError
         if path.suffix == ".parquet":
             return pd.read_parquet(path, engine="pyarrow")
         # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
         options = {"na_filter": False}
-        names = pd.read_csv(path, nrows=0, **options).columns
+        # the header as written: pandas' own header renames a repeated x to x.1, which would pass unseen
+        names = [str(n) for n in pd.read_csv(path, header=None, nrows=1, dtype=str, **options).iloc[0]]
+        refuse_repeated_columns([n.strip() for n in names], columns, path)
         wanted = {str(n).strip() for n in columns}
         use = [n for n in names if str(n).strip() in wanted] if columns else None
         if use is not None and len(use) == len(names):
             use = None       # usecols turns off the C reader's parallel conversion: only for extra columns
         dtype = {n: str for n in names if str(n).strip() in text_columns}
         return pd.read_csv(path, usecols=use, dtype=dtype, **options)
-    except pd.errors.EmptyDataError:
-        return pd.DataFrame()
-    except UnicodeDecodeError as e:
-        raise PedcalInputError(f"not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}): "
-                               "a binary file, or a CSV saved in another encoding", path=path) from None
+    except PedcalInputError:
+        raise
+    except pd.errors.EmptyDataError:      # no bytes, or only blank lines
+        header = f"header {','.join(columns)}" if columns else "a header line"
+        expected = (f"a Parquet table with columns {', '.join(columns)}" if path.suffix == ".parquet" else
+                    f"a CSV with {header}")
+        raise PedcalInputError(f"empty file, expected {expected}", path=path) from None
+    except UnicodeDecodeError as e:     # its offset is within pandas' buffer: find the byte in the file
+        where = not_utf8_text(path) or f"byte 0x{e.object[e.start]:02x}"
+        raise PedcalInputError(f"not UTF-8 text ({where}): a binary file, or a CSV saved in another encoding",
+                               path=path) from None
     except PermissionError:
         raise PedcalInputError("cannot read: permission denied", path=path) from None
     except (pd.errors.ParserError, OSError, ValueError, OverflowError) as e:
@@ -183,10 +198,7 @@ def typed_table(raw: pd.DataFrame, columns: tuple[str, ...], text_columns: tuple
                                path=where, column=missing[0])
     if required and len(raw) == 0:
         raise PedcalInputError("table has no data rows", path=where)
-    repeated = [c for c in columns if names.count(c) > 1]
-    if repeated:                 # which of them is meant? (a file's repeated header, a DataFrame's columns)
-        raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times; keep one",
-                               path=where, column=repeated[0])
+    refuse_repeated_columns(names, columns, where, in_header=False)    # a DataFrame's (or Parquet file's) columns
     position = {n: i for i, n in reversed(list(enumerate(names)))}   # the first of repeated names
     out = {}
     for c in columns:
@@ -210,7 +222,8 @@ def read_table(path: Path, columns: tuple[str, ...], text_columns: tuple[str, ..
     path = Path(path)
     if path.is_dir():
         raise PedcalInputError("is a directory, expected a table file", path=path)
-    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, path, required=required)
+    where = CsvTable(path) if path.suffix != ".parquet" else path        # errors name a CSV row's line
+    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, where, required=required)
 
 
 # ---------------------------------------------------------------------------------------- checks
@@ -397,11 +410,17 @@ def read_meta(path: Path) -> Meta:
         return Meta()
     if not isinstance(data, dict):
         raise PedcalInputError("expected a mapping (head_offset: [x, y, z], notes...)", path=path)
-    notes = {k: v for k, v in data.items() if k != "head_offset"}
-    if data.get("head_offset") is None:
-        return Meta(notes=notes)
-    return Meta(head_offset_m=read_vector(data["head_offset"], 3, "head_offset", path,
-                                          max_abs=plausible.MAX_HEAD_OFFSET_M, unit="m"), notes=notes)
+    notes = {k: v for k, v in data.items() if k not in META_KEYS}
+    meta = Meta(notes=notes) if data.get("head_offset") is None else Meta(
+        head_offset_m=read_vector(data["head_offset"], 3, "head_offset", path, max_abs=plausible.MAX_HEAD_OFFSET_M,
+                                  unit="m"), notes=notes)
+    for key in notes:            # any other key is a free-form note (LOG_FORMAT.md), unless it is a misspelling
+        like = difflib.get_close_matches(str(key).lower(), META_KEYS, n=1)
+        if like:
+            offset = ", ".join(f"{v:g}" for v in meta.head_offset_m)
+            warnings.warn(f"{path}: key {show(key)} is not one meta.yaml defines and is kept as a note: did you mean "
+                          f"{show(like[0])}? (the head offset used is [{offset}] m)", UserWarning, stacklevel=3)
+    return meta
 
 
 def meta_yaml_text(meta: Meta) -> str:
@@ -411,6 +430,7 @@ def meta_yaml_text(meta: Meta) -> str:
 
 
 # ---------------------------------------------------------------------------------------- log dirs
+@warnings_at_caller
 def read_log(path: str | Path) -> Log:
     """Read and validate a log directory (LOG_FORMAT.md). Bad input raises PedcalInputError."""
     directory = require_path(path, "path")
@@ -427,8 +447,8 @@ def read_log(path: str | Path) -> Log:
     for name, (columns, text_columns) in TABLES.items():
         p = find_table(directory, name, required=name in ("robot", "observations"))
         tables[name] = None if p is None else _raw_table(p, columns, text_columns)
-        if p is not None:
-            sources[name] = p
+        if p is not None:          # errors name a CSV row's line too (validate keeps file order until they are checked)
+            sources[name] = CsvTable(p) if p.suffix == ".csv" else p
     meta_path = directory / "meta.yaml"
     meta = Meta()
     if meta_path.exists():

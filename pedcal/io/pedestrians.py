@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.inputs import not_utf8_text, regular_file
+from pedcal.io.inputs import not_utf8_text, refuse_repeated_columns, regular_file
 from pedcal.io.logdir import parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
@@ -58,10 +58,7 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
         names = [c.strip() for c in _first_line(path).split(sep)]   # as written: pandas renames a repeat x.1
-        repeated = [c for c in columns[:4] if names.count(c) > 1]
-        if repeated:                # which of them is meant?
-            raise PedcalInputError(f"column {show(repeated[0])} appears {names.count(repeated[0])} times in the "
-                                   "header; keep one", path=path, column=repeated[0])
+        refuse_repeated_columns(names, columns[:4], path)
         missing = [c for c in columns[:4] if c not in raw.columns]
         if missing:
             raise PedcalInputError(f"missing column(s) {', '.join(missing)}; expected header "
