@@ -427,10 +427,8 @@ def _cluster_height_map(pts: np.ndarray, idx: np.ndarray, cell_size_m: float) ->
     """(xyz of the cluster's points ``idx``, each point's cell (row, col) on a ``cell_size_m`` grid
     from the cluster's least x and y, the highest z in each cell: (rows, cols), -inf when empty)."""
     xyz = pts[idx, :3]
-    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
-    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
-    z_hi = np.full(shape, -np.inf)
-    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    ij, shape, _ = grid_cells(xyz, cell_size_m)
+    z_hi, _ = cell_z_range(ij, xyz[:, 2], shape)
     return xyz, ij, z_hi
 
 
