@@ -36,7 +36,7 @@ from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
-from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.adaboost import RealAdaBoost, open_model_npz
 from pedcal.detect.features import (
     DEFAULT_SENSOR_HEIGHT_M,
     N_FEATURES,
@@ -581,18 +581,11 @@ def model_family(sensor: str | None = None, scan_steps: tuple[float, float] | No
 
 def load_classifier(path: str | Path):
     """A RealAdaBoost or a GradientBoostedTrees model from its .npz, whichever the file holds."""
-    import zipfile
-
     from pedcal.detect.gbt import GradientBoostedTrees
 
     p = Path(path)
-    try:
-        if not zipfile.is_zipfile(p):
-            raise ValueError("not an .npz")
-        with np.load(p, allow_pickle=False) as d:
-            trees = "lightgbm_model" in d.files
-    except (OSError, ValueError):
-        trees = False  # RealAdaBoost.load names the problem
+    with open_model_npz(p, "a detector model .npz (RealAdaBoost or gradient-boosted trees)") as d:
+        trees = "lightgbm_model" in d.files
     return GradientBoostedTrees.load(p) if trees else RealAdaBoost.load(p)
 
 
