@@ -246,4 +246,5 @@ def test_train_detector_with_a_data_dir_that_is_no_folder_exits_2(tmp_path, caps
     out = tmp_path / "m.npz"
     assert main(["train-detector", "--data-dir", str(tmp_path / "nowhere"), "--frames", "4", "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"{tmp_path / 'nowhere'}: no folder of real recordings here (--data-dir)" in err and not out.exists()
+    assert (f"{tmp_path / 'nowhere'}: no folder of real recordings here (give the folder with --data-dir)" in err
+            and not out.exists())

@@ -442,11 +442,8 @@ def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "
     fam = MODEL_FAMILIES[family]
     n_sim = fam.frames if frames is None else int(frames)
     root = Path(data_dir) if data_dir is not None else default_data_dir()
-    if data_dir is not None and not root.is_dir():     # a folder named on purpose: a typo is no reason to go on
-        raise PedcalInputError("no folder of real recordings here (--data-dir); without it the detector would be "
-                               "trained on simulated frames alone", path=root)
     records = []
-    if root.is_dir():
+    if data_dir is not None or root.is_dir():   # a --data-dir that is no folder: labelled_folders refuses it
         records = lodo.real_clusters(root, real_copies, seed, progress=progress)
     else:
         warnings.warn(f"no real recordings at {root}: the detector is trained on simulated frames alone and "
