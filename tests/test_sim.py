@@ -258,6 +258,20 @@ def test_scenario_files_reject_unknown_keys_and_bad_values(tmp_path):
     assert sparse.sensor_ids == ["s04", "s05", "s06", "s07", "s08"] and sparse.area_m == [8.2, 4.5]
 
 
+def test_a_scenario_file_is_read_once(tmp_path, monkeypatch):
+    """load_scenario read each file twice: once to check it, again to parse it."""
+    import pedcal.io.sensors_yaml as sensors_yaml
+
+    reads = []
+    read = sensors_yaml.read_bytes_capped
+    monkeypatch.setattr(sensors_yaml, "read_bytes_capped",
+                        lambda path, *a, **k: reads.append(path) or read(path, *a, **k))
+    path = tmp_path / "fast.yaml"
+    path.write_text("base: paper\nframe_rate_hz: 30\n")
+    assert load_scenario(path).frame_rate_hz == 30.0
+    assert sorted(p.name for p in reads) == ["fast.yaml", "paper.yaml"]
+
+
 @pytest.mark.parametrize("line,column,match", [
     ("robot_speed_mps: .nan", "robot_speed_mps", "expected a finite number > 0, got nan"),   # a ValueError traceback
     ("robot_speed_mps: -1", "robot_speed_mps", "expected a finite number > 0, got -1.0"),   # an IndexError one

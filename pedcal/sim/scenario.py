@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.sensors_yaml import load_yaml_file, read_text_file
+from pedcal.io.sensors_yaml import load_yaml_file
 
 DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
@@ -459,8 +459,7 @@ def load_scenario(name_or_path: str | Path | Scenario, *, _seen: tuple = ()) -> 
     path = scenario_path(name_or_path)
     if path.resolve() in _seen:
         raise PedcalInputError("scenario files include each other in a loop", path=path)
-    read_text_file(path, "scenario file")      # a regular file, size capped, UTF-8
-    data = load_yaml_file(path)[0] or {}       # one-line syntax errors; a key given twice refused
+    data = load_yaml_file(path)[0] or {}  # size capped, UTF-8; one-line syntax errors; a key given twice refused
     if not isinstance(data, dict):
         raise PedcalInputError("expected a mapping of scenario parameters", path=path)
     base = Scenario()
