@@ -330,10 +330,10 @@ _VARIABLE_LISTS = ("pitch_deg",)
 # Domains of the numeric parameters (each value, or each item of a list): a rate, size, speed or
 # count is > 0, a probability or share within [0, 1], these may take either sign, every other
 # number (sigmas, noises, durations, margins) is >= 0. Every value is finite.
-_POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "hfov_deg", "vfov_deg", "max_range_m",
-             "reliable_range_m", "frame_rate_hz", "corridor_width_m", "corridor_sensors", "robot_speed_mps",
-             "lane_spacing_m", "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz",
-             "amcl_tau_s", "walker_speed_mps", "person_height_m", "head_ramp_m")
+_POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "max_range_m", "reliable_range_m",
+             "frame_rate_hz", "corridor_width_m", "corridor_sensors", "robot_speed_mps", "lane_spacing_m",
+             "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz", "amcl_tau_s",
+             "walker_speed_mps", "person_height_m", "head_ramp_m")
 _ANGLES_DEG = ("hfov_deg", "vfov_deg")      # > 0 and at most 180
 _SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction")
 _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
@@ -429,9 +429,6 @@ def _typed(values: dict, source) -> Scenario:
         lo, hi = out[key]
         if not 0.0 < lo <= hi:
             raise PedcalInputError(f"expected 0 < min <= max, got [{lo}, {hi}]", path=source, column=key)
-    if not 0.0 <= out["wall_mounted_fraction"] <= 1.0:
-        raise PedcalInputError(f"expected a share in [0, 1], got {out['wall_mounted_fraction']}", path=source,
-                               column="wall_mounted_fraction")
     if out["sensor_ids"] is not None:
         out["sensor_ids"] = [str(s) for s in out["sensor_ids"]]
     return Scenario(**out)
