@@ -235,6 +235,8 @@ def test_a_model_or_labelled_file_that_is_no_npz_is_named_without_numpy_s_advice
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert "not an .npz archive" in err and argv[2 if argv[0] == "train-detector" else 3] in err
+        assert ("not labelled clusters (an .npz with 'features'" if argv[0] == "train-detector"
+                else "not a detector model .npz (RealAdaBoost or gradient-boosted trees)") in err
         assert "pickle" not in err and "Traceback" not in err
     assert not (tmp_path / "m.npz").exists()
 
@@ -244,4 +246,5 @@ def test_train_detector_with_a_data_dir_that_is_no_folder_exits_2(tmp_path, caps
     out = tmp_path / "m.npz"
     assert main(["train-detector", "--data-dir", str(tmp_path / "nowhere"), "--frames", "4", "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"{tmp_path / 'nowhere'}: no folder of real recordings here (--data-dir)" in err and not out.exists()
+    assert (f"{tmp_path / 'nowhere'}: no folder of real recordings here (give the folder with --data-dir)" in err
+            and not out.exists())

@@ -111,3 +111,18 @@ def test_frames_without_their_pair_are_named_not_silently_left_out(tmp_path):
         f"{folder}: 1 point cloud(s) without a NAME.json label file left out: 000002.bin"]
     with pytest.raises(PedcalInputError, match="is a file, expected a folder of labelled frames"):
         frame_pairs(folder / "000001.bin")
+
+
+def test_every_dataset_warns_of_its_unpaired_files_once(tmp_path):
+    """``evaluate_all_real`` lists each folder's frames once: the unpaired files' warning is not
+    repeated by the per-dataset evaluations."""
+    from pedcal.detect.real_eval import evaluate_all_real
+    from pedcal.errors import DegenerateDataWarning
+
+    folder = _labelled_folder(tmp_path, np.random.default_rng(0))
+    (folder / "000002.bin").write_bytes((folder / "000001.bin").read_bytes())
+    with pytest.warns(DegenerateDataWarning) as rec:
+        res = evaluate_all_real(tmp_path)
+    assert [str(w.message) for w in rec] == [
+        f"{folder}: 1 point cloud(s) without a NAME.json label file left out: 000002.bin"]
+    assert list(res) == [folder.name] and [f["frame"] for f in res[folder.name]["frames"]] == ["000001"]

@@ -258,6 +258,20 @@ def test_scenario_files_reject_unknown_keys_and_bad_values(tmp_path):
     assert sparse.sensor_ids == ["s04", "s05", "s06", "s07", "s08"] and sparse.area_m == [8.2, 4.5]
 
 
+def test_a_scenario_file_is_read_once(tmp_path, monkeypatch):
+    """load_scenario read each file twice: once to check it, again to parse it."""
+    import pedcal.io.sensors_yaml as sensors_yaml
+
+    reads = []
+    read = sensors_yaml.read_bytes_capped
+    monkeypatch.setattr(sensors_yaml, "read_bytes_capped",
+                        lambda path, *a, **k: reads.append(path) or read(path, *a, **k))
+    path = tmp_path / "fast.yaml"
+    path.write_text("base: paper\nframe_rate_hz: 30\n")
+    assert load_scenario(path).frame_rate_hz == 30.0
+    assert sorted(p.name for p in reads) == ["fast.yaml", "paper.yaml"]
+
+
 @pytest.mark.parametrize("line,column,match", [
     ("robot_speed_mps: .nan", "robot_speed_mps", "expected a finite number > 0, got nan"),   # a ValueError traceback
     ("robot_speed_mps: -1", "robot_speed_mps", "expected a finite number > 0, got -1.0"),   # an IndexError one
@@ -281,6 +295,21 @@ def test_signed_scenario_values_may_be_negative():
     sc = Scenario().resolve(head_vertical_bias_m=-0.02, odom_scale_error=-0.01, clock_offset_s=-0.1,
                             head_offset_m=[-0.1, 0.0, 1.3])
     assert sc.head_vertical_bias_m == -0.02 and sc.head_offset_m == [-0.1, 0.0, 1.3]
+
+
+def test_walker_speed_std_may_be_zero_and_the_companion_may_walk_on_the_right():
+    """walker_speed_mps is [mean, std]: a std of 0 (every walker at the mean) was refused as not > 0;
+    companion_offset_m is signed (negative: to the robot's right) but was refused when negative."""
+    sc = Scenario().resolve(walker_speed_mps=[1.2, 0.0], companion_offset_m=-0.7, companion_fraction=1.0)
+    assert sc.walker_speed_mps == [1.2, 0.0] and sc.companion_offset_m == -0.7
+    truth = pd.DataFrame({"t": [0.0, 1.0], "x": [1.0, 2.0], "y": [3.0, 3.0], "yaw": [0.0, 0.0]})
+    beside = walkers.companion(sc, truth, np.random.default_rng(0))
+    np.testing.assert_allclose(beside[["x", "y"]].to_numpy(), [[1.0, 2.3], [2.0, 2.3]])   # heading +x: right is -y
+    for bad, match in (([0.0, 0.2], r"> 0, got 0.0 \(item 0 of the list\)"),
+                       ([1.2, -0.1], r">= 0, got -0.1 \(item 1 of the list\)")):
+        with pytest.raises(PedcalInputError, match=match) as exc:
+            Scenario().resolve(walker_speed_mps=bad)
+        assert exc.value.column == "walker_speed_mps"
 
 
 def test_noise_free_turns_every_nuisance_off():

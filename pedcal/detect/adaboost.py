@@ -250,6 +250,13 @@ class RealAdaBoost(ScoreClassifier):
         return m
 
 
+def require_npz(path: Path, what: str) -> None:
+    """Refuse ``path`` unless it is a zip (an .npz), naming ``what`` it should be: np.load would
+    read a .npy array, or suggest unpickling anything else."""
+    if not zipfile.is_zipfile(path):
+        raise PedcalInputError(f"not {what}: not an .npz archive (a zip of .npy arrays)", path=path)
+
+
 @contextmanager
 def open_model_npz(path: str | Path, what: str, errors: tuple = ()):
     """The model file ``path`` opened as an .npz (no pickles) for the ``with`` body to read; a
@@ -259,8 +266,7 @@ def open_model_npz(path: str | Path, what: str, errors: tuple = ()):
     path = Path(path)
     if not path.is_file():
         raise PedcalInputError("no such model file", path=path)
-    if not zipfile.is_zipfile(path):    # np.load would read a .npy array, or suggest unpickling anything else
-        raise PedcalInputError(f"not {what}: not an .npz archive (a zip of .npy arrays)", path=path)
+    require_npz(path, what)
     try:
         with np.load(path, allow_pickle=False) as d:
             yield d

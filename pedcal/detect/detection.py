@@ -36,7 +36,7 @@ from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
-from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.adaboost import RealAdaBoost, open_model_npz
 from pedcal.detect.features import (
     DEFAULT_SENSOR_HEIGHT_M,
     N_FEATURES,
@@ -427,10 +427,8 @@ def _cluster_height_map(pts: np.ndarray, idx: np.ndarray, cell_size_m: float) ->
     """(xyz of the cluster's points ``idx``, each point's cell (row, col) on a ``cell_size_m`` grid
     from the cluster's least x and y, the highest z in each cell: (rows, cols), -inf when empty)."""
     xyz = pts[idx, :3]
-    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / cell_size_m).astype(np.int64)
-    shape = tuple(int(v) for v in ij.max(axis=0) + 1)
-    z_hi = np.full(shape, -np.inf)
-    np.maximum.at(z_hi, (ij[:, 0], ij[:, 1]), xyz[:, 2])
+    ij, shape, _ = grid_cells(xyz, cell_size_m)
+    z_hi, _ = cell_z_range(ij, xyz[:, 2], shape)
     return xyz, ij, z_hi
 
 
@@ -583,18 +581,11 @@ def model_family(sensor: str | None = None, scan_steps: tuple[float, float] | No
 
 def load_classifier(path: str | Path):
     """A RealAdaBoost or a GradientBoostedTrees model from its .npz, whichever the file holds."""
-    import zipfile
-
     from pedcal.detect.gbt import GradientBoostedTrees
 
     p = Path(path)
-    try:
-        if not zipfile.is_zipfile(p):
-            raise ValueError("not an .npz")
-        with np.load(p, allow_pickle=False) as d:
-            trees = "lightgbm_model" in d.files
-    except (OSError, ValueError):
-        trees = False  # RealAdaBoost.load names the problem
+    with open_model_npz(p, "a detector model .npz (RealAdaBoost or gradient-boosted trees)") as d:
+        trees = "lightgbm_model" in d.files
     return GradientBoostedTrees.load(p) if trees else RealAdaBoost.load(p)
 
 

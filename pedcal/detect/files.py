@@ -33,8 +33,8 @@ class FileDetections:
     def warnings(self) -> list[str]:
         """The points dropped while reading (``CloudRead.summary``), then what the ground estimate
         found implausible (``pedcal.detect.ground``)."""
-        dropped = [self.read.summary()] if self.read.summary() else []
-        return dropped + (list(self.ground.warnings) if self.ground is not None else [])
+        summary = self.read.summary()
+        return ([summary] if summary else []) + (list(self.ground.warnings) if self.ground is not None else [])
 
 
 def detect_file(path: str | Path, model=None, *, sensor: str | None = None, sensor_pose: str | None = None,

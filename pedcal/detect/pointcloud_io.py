@@ -105,13 +105,13 @@ class PcdHeader:
 
 def _pcd_header(raw: bytes, path: Path) -> PcdHeader:
     """Parse the header lines up to and including ``DATA``; every inconsistency is an input error."""
+    if not raw:
+        raise PedcalInputError("empty file, expected a PCD point cloud", path=path)
     entries: dict[str, list[str]] = {}
     pos = 0
     line_no = 0
     while True:
         end = raw.find(b"\n", pos)
-        if not raw:
-            raise PedcalInputError("empty file, expected a PCD point cloud", path=path)
         if end < 0 or end > MAX_HEADER_BYTES:
             raise PedcalInputError("no 'DATA ascii|binary|binary_compressed' line in the first "
                                    f"{min(len(raw), MAX_HEADER_BYTES)} bytes: not a PCD file", path=path)

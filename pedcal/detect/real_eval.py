@@ -109,15 +109,18 @@ def frame_pairs(folder: Path) -> list[tuple[Path, Path]]:
 
 
 def evaluate_real(folder: str | Path, model=None, out_dir: str | Path | None = None, *, detect_options=None,
-                  frames: list[str] | None = None) -> dict:
+                  frames: list[str] | None = None, pairs: list[tuple[Path, Path]] | None = None) -> dict:
     """Per frame and per range band: pedestrians, found, person detections, false positives.
 
     ``detect_options`` go to ``pedcal.detect.files.detect_file`` (sensor, pose, floor);
-    ``frames`` restricts the evaluation to these frame names (file stems).
+    ``frames`` restricts the evaluation to these frame names (file stems); ``pairs`` are the
+    (cloud, label) files to evaluate when the caller has listed them already (``frame_pairs`` of
+    ``folder`` otherwise, which warns of the unpaired files again).
     """
     from pedcal.detect.files import detect_file
 
-    pairs = frame_pairs(Path(folder))
+    if pairs is None:
+        pairs = frame_pairs(Path(folder))
     if frames is not None:
         pairs = [p for p in pairs if p[0].stem in set(frames)]
     n_bands = len(RANGE_BANDS_M)
@@ -274,11 +277,11 @@ def evaluate_all_real(data_dir: str | Path | None = None, model=None, *, detect_
     dataset (``dataset_of``): {dataset: result}."""
     out = {}
     for folder in labelled_folders(data_dir):
-        by_set: dict[str, list[str]] = {}
-        for cloud, _ in frame_pairs(folder):
-            by_set.setdefault(dataset_of(cloud), []).append(cloud.stem)
-        for name, stems in sorted(by_set.items()):
-            out[name] = evaluate_real(folder, model, detect_options=detect_options, frames=stems)
+        by_set: dict[str, list[tuple[Path, Path]]] = {}
+        for pair in frame_pairs(folder):
+            by_set.setdefault(dataset_of(pair[0]), []).append(pair)
+        for name, pairs in sorted(by_set.items()):
+            out[name] = evaluate_real(folder, model, detect_options=detect_options, pairs=pairs)
     return out
 
 

@@ -46,13 +46,12 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pedcal.detect.adaboost import RealAdaBoost
+from pedcal.detect.adaboost import RealAdaBoost, require_npz
 from pedcal.detect.detection import (
     FAMILY_CUT_LOW,
     FAMILY_OCCLUDED_LOW,
@@ -332,9 +331,8 @@ def read_labelled(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         return features_matrix(clusters), np.asarray(labels, dtype=np.int64)
     if not path.is_file():
         raise PedcalInputError("no such labelled-cluster file or directory", path=path)
-    if not zipfile.is_zipfile(path):    # np.load would read a .npy array, or suggest unpickling anything else
-        raise PedcalInputError(f"not an .npz archive with 'features' (n, {N_FEATURES}) and 'labels' (n,), nor a "
-                               "folder of person/ and other/ clusters", path=path)
+    require_npz(path, f"labelled clusters (an .npz with 'features' (n, {N_FEATURES}) and 'labels' (n,), or a "
+                      "folder of person/ and other/ clusters)")
     try:
         with np.load(path, allow_pickle=False) as d:
             X, y = np.asarray(d["features"], dtype=float), np.asarray(d["labels"])
@@ -444,11 +442,8 @@ def train_with_real(frames: int | None = None, seed: int = 0, *, family: str = "
     fam = MODEL_FAMILIES[family]
     n_sim = fam.frames if frames is None else int(frames)
     root = Path(data_dir) if data_dir is not None else default_data_dir()
-    if data_dir is not None and not root.is_dir():     # a folder named on purpose: a typo is no reason to go on
-        raise PedcalInputError("no folder of real recordings here (--data-dir); without it the detector would be "
-                               "trained on simulated frames alone", path=root)
     records = []
-    if root.is_dir():
+    if data_dir is not None or root.is_dir():   # a --data-dir that is no folder: labelled_folders refuses it
         records = lodo.real_clusters(root, real_copies, seed, progress=progress)
     else:
         warnings.warn(f"no real recordings at {root}: the detector is trained on simulated frames alone and "

@@ -128,11 +128,11 @@ KEY_COLUMNS = {"runs": ("scenario", "seed", "method"), "sensors": ("scenario", "
 
 def _read_table(path: Path, key_columns: tuple[str, ...]) -> pd.DataFrame:
     """A results table; a damaged file or one without its key columns raises PedcalInputError."""
+    import pyarrow as pa  # imported by read_parquet anyway
+
     try:
         df = pd.read_parquet(path)
-    except Exception as exc:      # pyarrow's errors for a damaged file, OSError
-        if not (isinstance(exc, (OSError, ValueError)) or type(exc).__module__.startswith("pyarrow")):
-            raise
+    except (OSError, ValueError, pa.ArrowException) as exc:      # every pyarrow error is an ArrowException
         raise PedcalInputError(f"cannot read the Parquet table: {str(exc).splitlines()[0][:160]}", path=path) from None
     missing = [c for c in key_columns if c not in df.columns]
     if len(df) and missing:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.sensors_yaml import load_yaml_file, read_text_file
+from pedcal.io.sensors_yaml import load_yaml_file
 
 DATASETS_DIR = Path(__file__).resolve().parents[2] / "datasets"
 WALKER_SOURCES = ("builtin", "atc", "eth_ucy", "thor", "none")
@@ -189,13 +189,14 @@ class Scenario:
     walker_rate_hz: float = _nuisance(1.0 / 30.0)
     """Builtin walkers: arrival rate of new pedestrians in the area (1/s)."""
     walker_speed_mps: list = field(default_factory=lambda: [1.2, 0.2])
-    """Builtin walkers: mean and std of the walking speed (m/s), typical indoor walking."""
+    """Builtin walkers: mean (> 0) and std (>= 0; 0: all at the mean) of the walking speed (m/s),
+    typical indoor walking."""
     person_height_m: list = field(default_factory=lambda: [1.5, 1.9])
     """Range [min, max] of pedestrians' head-top heights (m), drawn uniformly."""
     companion_fraction: float = _nuisance(0.0)
     """Fraction of the run during which a pedestrian walks beside the robot (-), default 0."""
     companion_offset_m: float = 0.7
-    """Lateral distance of that companion from the robot's centre (m)."""
+    """Lateral offset of that companion from the robot's centre, to its left (m; negative: to its right)."""
     companion_replaces_robot: bool = False
     """While the companion walks beside the robot the ceiling trackers report the companion's
     head instead of the robot's (the robot occluded, the tracker locked on the person): that
@@ -329,16 +330,18 @@ _OPTIONAL_TYPES = {"duration_s": float, "sensor_ids": list, "row_y_m": list, "se
 _VARIABLE_LISTS = ("pitch_deg",)
 # Domains of the numeric parameters (each value, or each item of a list): a rate, size, speed or
 # count is > 0, a probability or share within [0, 1], these may take either sign, every other
-# number (sigmas, noises, durations, margins) is >= 0. Every value is finite.
-_POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "hfov_deg", "vfov_deg", "max_range_m",
-             "reliable_range_m", "frame_rate_hz", "corridor_width_m", "corridor_sensors", "robot_speed_mps",
-             "lane_spacing_m", "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz",
-             "amcl_tau_s", "walker_speed_mps", "person_height_m", "head_ramp_m")
+# number (sigmas, noises, durations, margins) is >= 0; a list of [mean, std] has its own per item
+# (_ITEM_KINDS). Every value is finite.
+_POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "max_range_m", "reliable_range_m",
+             "frame_rate_hz", "corridor_width_m", "corridor_sensors", "robot_speed_mps", "lane_spacing_m",
+             "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz", "amcl_tau_s",
+             "person_height_m", "head_ramp_m")
 _ANGLES_DEG = ("hfov_deg", "vfov_deg")      # > 0 and at most 180
 _SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction")
 _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
            "head_offset_m", "start_time_s", "odom_scale_error", "odom_yaw_drift_deg_per_m", "odom_gyro_bias_dps",
-           "latency_s")
+           "latency_s", "companion_offset_m")
+_ITEM_KINDS = {"walker_speed_mps": ("positive", "nonnegative")}     # a list whose items differ: [mean, std]
 
 
 # (lowest, lowest excluded, highest, what the message asks for) of each kind of parameter
@@ -355,8 +358,8 @@ def _check_domain(key: str, value, source) -> None:
         return
     kind = ("angle" if key in _ANGLES_DEG else "positive" if key in _POSITIVE else "share" if key in _SHARES
             else "signed" if key in _SIGNED else "nonnegative")
-    lo, lo_open, hi, want = _DOMAINS[kind]
-    for i, v in enumerate(items):
+    for i, (v, kind_i) in enumerate(zip(items, _ITEM_KINDS.get(key, [kind] * len(items)), strict=True)):
+        lo, lo_open, hi, want = _DOMAINS[kind_i]
         if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
             item = f" (item {i} of the list)" if isinstance(value, list) else ""
             raise PedcalInputError(f"expected {want}, got {show(v)}{item}", path=source, column=key)
@@ -429,9 +432,6 @@ def _typed(values: dict, source) -> Scenario:
         lo, hi = out[key]
         if not 0.0 < lo <= hi:
             raise PedcalInputError(f"expected 0 < min <= max, got [{lo}, {hi}]", path=source, column=key)
-    if not 0.0 <= out["wall_mounted_fraction"] <= 1.0:
-        raise PedcalInputError(f"expected a share in [0, 1], got {out['wall_mounted_fraction']}", path=source,
-                               column="wall_mounted_fraction")
     if out["sensor_ids"] is not None:
         out["sensor_ids"] = [str(s) for s in out["sensor_ids"]]
     return Scenario(**out)
@@ -459,8 +459,7 @@ def load_scenario(name_or_path: str | Path | Scenario, *, _seen: tuple = ()) -> 
     path = scenario_path(name_or_path)
     if path.resolve() in _seen:
         raise PedcalInputError("scenario files include each other in a loop", path=path)
-    read_text_file(path, "scenario file")      # a regular file, size capped, UTF-8
-    data = load_yaml_file(path)[0] or {}       # one-line syntax errors; a key given twice refused
+    data = load_yaml_file(path)[0] or {}  # size capped, UTF-8; one-line syntax errors; a key given twice refused
     if not isinstance(data, dict):
         raise PedcalInputError("expected a mapping of scenario parameters", path=path)
     base = Scenario()
