@@ -453,11 +453,24 @@ def test_misspelled_meta_key_warns(tmp_path, key):
     assert log.meta.notes == {key: [0, 0, 1.2], "seed": 3} and log.meta.head_offset_m.tolist() == [0, 0, 1.35]
 
 
-def test_meta_notes_unlike_a_key_do_not_warn(tmp_path, recwarn):
+@pytest.mark.parametrize("head_offset", ["head_offset: [0, 0, 1.2]\n", ""])
+def test_meta_notes_unlike_a_key_do_not_warn(tmp_path, recwarn, head_offset):
     write_good(tmp_path)
-    (tmp_path / "meta.yaml").write_text("head_offset: [0, 0, 1.2]\nrobot: sim\nseed: 3\nheading: north\n"
-                                        "simulated: {scenario: paper}\n")
-    assert read_log(tmp_path).meta.head_offset_m.tolist() == [0, 0, 1.2]
+    (tmp_path / "meta.yaml").write_text(f"{head_offset}robot: sim\nseed: 3\nheading: north\n"
+                                        "simulated: {scenario: paper}\ncamera_offset: [0, 0, 0.1]\n")
+    assert read_log(tmp_path).meta.head_offset_m.tolist() == [0, 0, 1.2 if head_offset else 1.35]
+    assert not [w for w in recwarn if "meta.yaml" in str(w.message)]
+
+
+def test_meta_note_like_head_offset_beside_head_offset_does_not_warn(tmp_path, recwarn):
+    """With head_offset given, a note named like it (head_offset_source, head_offset_m) is no
+    misspelling: the offset is read, nothing is left at its default."""
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text("head_offset: [0, 0, 1.2]\nhead_offset_source: tape measure\n"
+                                        "head_offset_m: [0, 0, 1.2]\n")
+    log = read_log(tmp_path)
+    assert log.meta.head_offset_m.tolist() == [0, 0, 1.2]
+    assert log.meta.notes == {"head_offset_source": "tape measure", "head_offset_m": [0, 0, 1.2]}
     assert not [w for w in recwarn if "meta.yaml" in str(w.message)]
 
 

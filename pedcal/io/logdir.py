@@ -414,8 +414,11 @@ def read_meta(path: Path) -> Meta:
     meta = Meta(notes=notes) if data.get("head_offset") is None else Meta(
         head_offset_m=read_vector(data["head_offset"], 3, "head_offset", path, max_abs=plausible.MAX_HEAD_OFFSET_M,
                                   unit="m"), notes=notes)
-    for key in notes:            # any other key is a free-form note (LOG_FORMAT.md), unless it is a misspelling
-        like = difflib.get_close_matches(str(key).lower(), META_KEYS, n=1)
+    # any other key is a free-form note (LOG_FORMAT.md), unless it is a misspelling of a key the file lacks:
+    # a close match only (cutoff 0.85: head_ofset, head_offset_m; not camera_offset or head_offset_source)
+    absent = [k for k in META_KEYS if k not in data]
+    for key in notes:
+        like = difflib.get_close_matches(str(key).lower(), absent, n=1, cutoff=0.85)
         if like:
             offset = ", ".join(f"{v:g}" for v in meta.head_offset_m)
             warnings.warn(f"{path}: key {show(key)} is not one meta.yaml defines and is kept as a note: did you mean "
