@@ -144,10 +144,12 @@ def thor_rows(n: int, seed: int = 0) -> str:
     return "".join(f"{0.4 * i:.2f},{12000 + i % 3},{x:.3f},{y:.3f},1.0,0.0\n" for i, (x, y) in enumerate(xy))
 
 
-def test_a_column_named_twice_in_the_header_is_refused(tmp_path):
-    """pandas renames a repeated name (x, x.1): the file would be read with whichever x came first."""
+@pytest.mark.parametrize("header", ["time,person_id,x,x,y,motion_angle", 'time,person_id,x,y,"x",motion_angle'])
+def test_a_column_named_twice_in_the_header_is_refused(tmp_path, header):
+    """pandas renames a repeated name (x, x.1): the file would be read with whichever x came first.
+    The header is read as pandas reads the table: a quoted "x" is the column x."""
     p = tmp_path / "thor.csv"
-    p.write_text("time,person_id,x,x,y,motion_angle\n" + thor_rows(5))
+    p.write_text(header + "\n" + thor_rows(5))
     with pytest.raises(PedcalInputError, match="column 'x' appears 2 times in the header") as ei:
         read_pedestrians(p)
     assert (ei.value.path, ei.value.column) == (str(p), "x")

@@ -24,7 +24,7 @@ import pandas as pd
 from pedcal.errors import PedcalInputError, show, warnings_at_caller
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
-from pedcal.io.inputs import CsvTable, not_utf8_text, refuse_repeated_columns
+from pedcal.io.inputs import CsvTable, header_cells, not_utf8_text, refuse_repeated_columns
 from pedcal.io.sensors_yaml import (
     dump_yaml,
     flow_vector,
@@ -89,8 +89,7 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
             return pd.read_parquet(path, engine="pyarrow")
         # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
         options = {"na_filter": False}
-        # the header as written: pandas' own header renames a repeated x to x.1, which would pass unseen
-        names = [str(n) for n in pd.read_csv(path, header=None, nrows=1, dtype=str, **options).iloc[0]]
+        names = header_cells(path)
         refuse_repeated_columns([n.strip() for n in names], columns, path)
         wanted = {str(n).strip() for n in columns}
         use = [n for n in names if str(n).strip() in wanted] if columns else None

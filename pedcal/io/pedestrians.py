@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.inputs import not_utf8_text, refuse_repeated_columns, regular_file
+from pedcal.io.inputs import header_cells, not_utf8_text, refuse_repeated_columns, regular_file
 from pedcal.io.logdir import parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
@@ -57,7 +57,7 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
         raise PedcalInputError(f"cannot read: {show(first, 160)[1:-1]}", path=path) from None
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
-        names = [c.strip() for c in _first_line(path).split(sep)]   # as written: pandas renames a repeat x.1
+        names = [c.strip() for c in header_cells(path, sep)]
         refuse_repeated_columns(names, columns[:4], path)
         missing = [c for c in columns[:4] if c not in raw.columns]
         if missing:
@@ -134,7 +134,8 @@ def _has_header(path: Path) -> bool:
 def _first_line(path: Path) -> str:
     regular_file(path, "pedestrian file")
     try:
-        head = path.read_bytes()[:4096] if path.stat().st_size else b""
+        with path.open("rb") as f:
+            head = f.read(4096)
         try:
             head.decode("utf-8")
         except UnicodeDecodeError as e:
