@@ -245,7 +245,8 @@ def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
 
 @pytest.mark.parametrize("value,shown", [("[abc, 45, 0]", "['abc', 45, 0]"), ("[.nan, 0.5, 1]", "[nan, 0.5, 1]"),
                                          ("[0, 45]", "[0, 45]"), ("7", "7"),
-                                         ("[[1], 2, 3, 4, 5, 6, 7]", "[..., 2, 3, 4, 5, 6, ...]")])
+                                         ("[[1], 2, 3, 4, 5, 6, 7]", "[[1], 2, 3, 4, 5, 6, ...]"),
+                                         ("[[[1]], x]", "[[[...]], 'x']")])
 def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):
     """A list was quoted as the text of its Python form, its strings' quotes escaped: '[\\'abc\\', ...]'."""
     from pedcal.errors import PedcalInputError
@@ -255,3 +256,33 @@ def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):
     with pytest.raises(PedcalInputError) as ei:
         read_sensors_yaml(p)
     assert str(ei.value).endswith(f"ypr_deg: expected a list of 3 finite numbers, got {shown}")
+
+
+@pytest.mark.parametrize("extra,message", [
+    ("clock_offset_s: [0.1, 0.2]", "'clock_offset_s' must be a mapping of sensor id to seconds, got [0.1, 0.2]"),
+    ("head_model: [a, 1]", "'head_model' must be a mapping of vertical_offset_m, ray_shift_m, horizontal_shift_m, "
+                           "curvature_m, got ['a', 1]"),
+    ("head_model: {per_sensor_shift_m: [0.01, x]}",
+     "'head_model.per_sensor_shift_m' must be a mapping of sensor id to metres, got [0.01, 'x']"),
+    ("head_model: {horizontal_profile: {distance_m: 1}}",
+     "'head_model.horizontal_profile' must be a mapping with lists distance_m and shift_m, got {'distance_m': 1}"),
+    ("head_model: {horizontal_profile: {distance_m: [2.0, 1.0], shift_m: [0, 0]}}",
+     "'head_model.horizontal_profile.distance_m' must increase, got [2.0, 1.0]")])
+def test_a_bad_calibration_key_quotes_its_value_item_by_item(tmp_path, extra, message):
+    """A list or mapping in a message reads as YAML wrote it, not as the quoted text of its Python form."""
+    from pedcal.errors import PedcalInputError
+
+    p = tmp_path / "sensors.yaml"
+    p.write_text(f"sensors:\n- id: a\n  position: [0, 0, 2.6]\n  ypr_deg: [0, 45, 0]\n{extra}\n")
+    with pytest.raises(PedcalInputError) as ei:
+        read_sensors_yaml(p)
+    assert str(ei.value) == f"{p}: {message}"
+
+
+def test_writing_a_network_with_a_nan_pose_quotes_the_pose(tmp_path):
+    from pedcal.errors import PedcalInputError
+
+    net = SensorNetwork([SensorExtrinsics("a", [0.0, np.nan, 2.6], [0.0, 45.0, 0.0])])
+    with pytest.raises(PedcalInputError) as ei:
+        sensors_yaml.write_sensors_yaml(net, tmp_path / "s.yaml")
+    assert str(ei.value) == "network: sensor 'a' position [0.0, nan, 2.6]: expected finite values within +-1e+06 m"

@@ -141,15 +141,6 @@ def _mapping_value_node(node: yaml.Node | None, key: str) -> yaml.Node | None:
     return None
 
 
-def _show_value(value) -> str:
-    """A YAML value as a message quotes it: a list item by item ([0, 'abc', nan]), not as the
-    quoted text of its Python form ('[0, \\'abc\\', nan]'); anything else by ``show``."""
-    if isinstance(value, (list, tuple)):
-        items = [show(v, 20) if not isinstance(v, (list, tuple, dict)) else "..." for v in value[:6]]
-        return "[" + ", ".join(items + (["..."] if len(value) > 6 else [])) + "]"
-    return show(value, 80)
-
-
 def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = False,
                 max_abs: float | None = None, unit: str = "") -> np.ndarray:
     """A list of ``n`` finite numbers (bool is not a number), else PedcalInputError; with ``max_abs``
@@ -164,7 +155,7 @@ def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = Fal
         ok = bool(np.isfinite(arr).all()) and (not nonnegative or bool((arr >= 0).all()))
     if not ok:
         sign = "non-negative " if nonnegative else ""
-        raise PedcalInputError(f"{what}: expected a list of {n} finite {sign}numbers, got {_show_value(value)}",
+        raise PedcalInputError(f"{what}: expected a list of {n} finite {sign}numbers, got {show(value, 80)}",
                                path=path)
     if max_abs is not None and (np.abs(arr) > max_abs).any():
         big = float(arr[np.argmax(np.abs(arr))])
