@@ -214,3 +214,24 @@ def test_a_renamed_eth_file_given_to_follow_says_how_to_give_its_rate(tmp_path, 
     assert main(["follow", "--people", str(p)]) == 2
     assert "give its frame rate with --fps (frames per second of the frame numbers): pedcal import-people FILE " \
            "--fps F -o people.csv, then follow --people people.csv" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad,match", [
+    ("4.0,b,1e7,0.0", r"row 3 \(line 6\), column 'x': .*"),                      # check_coordinates
+    ("1e12,b,1.0,0.0", r"row 3 \(line 6\), column 't': .*"),                     # check_times
+    ("1.0,a,9.0,0.0", r"row 3 \(line 6\), column 't': person 'a' at t = 1.0 s is placed twice")])
+def test_every_people_csv_row_error_names_its_line(tmp_path, bad, match):
+    """Cell errors named the row's line (row 3 (line 6), the blank line counted) while the checks
+    of the typed table (times, coordinates, a person placed twice) named the row alone."""
+    from pedcal.io import read_people_csv
+
+    p = tmp_path / "people.csv"
+    p.write_text(f"t,person,x,y\n0.0,a,0.0,0.0\n\n1.0,a,1.0,0.0\n2.0,a,2.0,0.0\n{bad}\n")
+    with pytest.raises(PedcalInputError, match=rf"{p}, {match}") as ei:
+        read_people_csv(p)
+    assert (ei.value.row, ei.value.line) == (3, 6)
+    q = tmp_path / "people.parquet"                     # a Parquet table has no lines
+    pd.read_csv(p, dtype={"person": str}).to_parquet(q)
+    with pytest.raises(PedcalInputError, match=rf"{q}, row 3, column") as ei:
+        read_people_csv(q)
+    assert ei.value.line is None

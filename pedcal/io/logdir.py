@@ -221,8 +221,13 @@ def read_table(path: Path, columns: tuple[str, ...], text_columns: tuple[str, ..
     path = Path(path)
     if path.is_dir():
         raise PedcalInputError("is a directory, expected a table file", path=path)
-    where = CsvTable(path) if path.suffix != ".parquet" else path        # errors name a CSV row's line
-    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, where, required=required)
+    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, table_source(path),
+                       required=required)
+
+
+def table_source(path: Path) -> CsvTable | Path:
+    """``path`` as errors about its rows name it: a CSV table names a row's line, a Parquet one cannot."""
+    return CsvTable(path) if path.suffix != ".parquet" else path
 
 
 # ---------------------------------------------------------------------------------------- checks
