@@ -336,6 +336,37 @@ def test_not_utf8_names_the_line_and_file_offset(tmp_path, line):
                  file="observations.csv")
 
 
+MULTIBYTE = "t,note\n1.0,café\n2.0,€ 5\n\n3.0,😀 ok\n".encode() * 3     # 2, 3 and 4 bytes a character
+
+
+@pytest.mark.parametrize("chunk_bytes", [1, 2, 3, 4, 5, 7, 1 << 20])
+def test_not_utf8_text_reads_a_character_cut_between_chunks(tmp_path, chunk_bytes):
+    """A character cut at a chunk's end is carried into the next chunk: UTF-8 text is UTF-8 at any
+    chunk size (3 bytes cut every one of é, € and 😀 somewhere)."""
+    from pedcal.io.inputs import not_utf8_text
+
+    p = tmp_path / "t.csv"
+    p.write_bytes(MULTIBYTE)
+    assert not_utf8_text(p, chunk_bytes=chunk_bytes) is None
+
+
+@pytest.mark.parametrize("bad", [b"\xe9", b"\xf0\x9f", b"\xff"])
+@pytest.mark.parametrize("at", ["inside", "end"])
+def test_not_utf8_text_locates_a_bad_byte_at_any_chunk_size(tmp_path, bad, at):
+    """A bad byte after multi-byte characters (or a character cut by the file's end) is named at
+    the same line and offset whatever the chunk size: the offset in the file, lines counted."""
+    from pedcal.io.inputs import not_utf8_text
+
+    offset = MULTIBYTE.index("😀".encode(), 40) + 4 if at == "inside" else len(MULTIBYTE)
+    data = MULTIBYTE[:offset] + bad + (MULTIBYTE[offset:] if at == "inside" else b"")
+    line = data[:offset].count(b"\n") + 1
+    p = tmp_path / "t.csv"
+    p.write_bytes(data)
+    expected = f"byte 0x{bad[0]:02x} on line {line}, at offset {offset}"
+    assert not_utf8_text(p) == expected
+    assert [not_utf8_text(p, chunk_bytes=n) for n in (1, 2, 3, 4, 5, 7)] == [expected] * 6
+
+
 def test_repeated_time_within_a_track(tmp_path):
     write_good(tmp_path)
     obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)
