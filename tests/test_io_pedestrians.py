@@ -235,3 +235,18 @@ def test_every_people_csv_row_error_names_its_line(tmp_path, bad, match):
     with pytest.raises(PedcalInputError, match=rf"{q}, row 3, column") as ei:
         read_people_csv(q)
     assert ei.value.line is None
+
+
+def test_a_parquet_people_table_named_in_capitals_is_read_and_written_as_parquet(tmp_path):
+    """read_pedestrians sent people.PARQUET to the people reader, which compared the suffix case-
+    sensitively and read the Parquet bytes as CSV (not UTF-8); the writer wrote CSV into it."""
+    src = tmp_path / "thor.csv"
+    src.write_text(THOR_HEADER + thor_rows(12, seed=4))
+    people = read_pedestrians(src)
+    q = tmp_path / "people.PARQUET"
+    people.to_parquet(q)
+    pd.testing.assert_frame_equal(read_pedestrians(q), people)
+    w = tmp_path / "written.Parquet"
+    write_people_csv(people, w)
+    assert w.read_bytes()[:4] == b"PAR1"
+    pd.testing.assert_frame_equal(pd.read_parquet(w), people)

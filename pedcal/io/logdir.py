@@ -85,7 +85,7 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
     try:
         if path.stat().st_size == 0:
             raise pd.errors.EmptyDataError
-        if path.suffix == ".parquet":
+        if is_parquet(path):
             return pd.read_parquet(path, engine="pyarrow")
         # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
         options = {"na_filter": False}
@@ -101,7 +101,7 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
         raise
     except pd.errors.EmptyDataError:      # no bytes, or only blank lines
         header = f"header {','.join(columns)}" if columns else "a header line"
-        expected = (f"a Parquet table with columns {', '.join(columns)}" if path.suffix == ".parquet" else
+        expected = (f"a Parquet table with columns {', '.join(columns)}" if is_parquet(path) else
                     f"a CSV with {header}")
         raise PedcalInputError(f"empty file, expected {expected}", path=path) from None
     except UnicodeDecodeError as e:     # its offset is within pandas' buffer: find the byte in the file
@@ -227,7 +227,12 @@ def read_table(path: Path, columns: tuple[str, ...], text_columns: tuple[str, ..
 
 def table_source(path: Path) -> CsvTable | Path:
     """``path`` as errors about its rows name it: a CSV table names a row's line, a Parquet one cannot."""
-    return CsvTable(path) if path.suffix != ".parquet" else path
+    return path if is_parquet(path) else CsvTable(path)
+
+
+def is_parquet(path: Path) -> bool:
+    """A table file read and written as Parquet: named .parquet, in any case (.PARQUET); any other is CSV."""
+    return Path(path).suffix.lower() == ".parquet"
 
 
 # ---------------------------------------------------------------------------------------- checks
@@ -481,7 +486,7 @@ def table_for_writing(df: pd.DataFrame, name: str) -> pd.DataFrame:
 def write_table(df: pd.DataFrame, path: Path) -> Path:
     """One table, atomically; CSV floats use the shortest exact representation (round trip exact)."""
     with atomic_path(path) as tmp:
-        if path.suffix == ".parquet":
+        if is_parquet(path):
             df.to_parquet(tmp, engine="pyarrow", index=False)
         else:
             _write_csv(df, tmp)

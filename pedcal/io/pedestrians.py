@@ -15,7 +15,7 @@ import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
 from pedcal.io.inputs import header_cells, not_utf8_text, refuse_repeated_columns, regular_file
-from pedcal.io.logdir import parse_float_column, parse_text_column
+from pedcal.io.logdir import is_parquet, parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
 from pedcal.options import require_path
@@ -197,7 +197,7 @@ def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = N
     needed when its name does not identify the recording; the other layouts carry seconds."""
     path = require_path(path, "path")
     if kind == "auto":          # a people table import-people wrote as Parquet, or a text layout to sniff
-        kind = "people" if path.suffix.lower() == ".parquet" else detect_kind(path)
+        kind = "people" if is_parquet(path) else detect_kind(path)
     readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}
     if kind not in readers:
         raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)
