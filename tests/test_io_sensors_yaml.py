@@ -228,6 +228,21 @@ def test_merge_keys_and_aliases_are_no_repeated_keys(tmp_path):
     np.testing.assert_array_equal(net["b"].position_m, [1, 0, 2.6])
 
 
+def test_two_merge_keys_merge_both_as_pyyaml_does(tmp_path):
+    """``{<<: *p, <<: *o}`` is read as PyYAML reads it, the merge of both, as ``<<: [*p, *o]`` is:
+    a merge key is no key given twice. (Which one's value wins where both give a key is PyYAML's
+    choice, not pinned here.)"""
+    p = tmp_path / "sensors.yaml"
+    anchors = "p: &p {position: [0, 0, 2.6]}\no: &o {ypr_deg: [0, 45, 0]}\n"
+    p.write_text(anchors + "sensors:\n- {<<: *p, <<: *o, id: a}\n")
+    net = read_sensors_yaml(p)
+    np.testing.assert_array_equal(net["a"].position_m, [0, 0, 2.6])
+    np.testing.assert_array_equal(net["a"].ypr_deg, [0, 45, 0])
+    q = tmp_path / "list.yaml"
+    q.write_text(anchors + "sensors:\n- {<<: [*p, *o], id: a}\n")
+    assert read_sensors_yaml(q)["a"].to_dict() == net["a"].to_dict()
+
+
 def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
     from pedcal.errors import PedcalInputError
     from pedcal.io.logdir import read_meta
