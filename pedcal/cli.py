@@ -56,7 +56,7 @@ def cmd_evaluate(args) -> int:
     log = read_log(args.log)
     ext = read_sensors_yaml(args.extrinsics)
     res = evaluate(log, ext)
-    foreign = [s.id for s in ext if s.id not in {t.id for t in log.sensors}]
+    foreign = res.foreign_sensors
     if foreign:                # a file of another site, or sensors renamed: not scored, not in silence
         logging.getLogger("pedcal").warning(
             f"{args.extrinsics}: {len(foreign)} sensor(s) not in the log's sensors.yaml, not scored: "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import reprlib
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -61,7 +62,9 @@ def warnings_at_caller(func: F) -> F:
 def show(value, limit: int = 40) -> str:
     """A value as a message quotes it: plain numbers (never ``np.float64(...)``), text quoted and
     cut to ``limit`` characters with unprintable characters escaped (a binary file's bytes are
-    not dumped into a message)."""
+    not dumped into a message). A list, tuple, dict or set is shown item by item, each item so
+    (``[0, 'abc', nan]``, not the quoted text of its Python form), within reprlib's bounds: two
+    levels, 6 items of a list, 4 of a dict, items cut to 20 characters (a YAML alias bomb prints small)."""
     import numbers
 
     if isinstance(value, bool):
@@ -70,13 +73,27 @@ def show(value, limit: int = 40) -> str:
         return str(int(value))
     if isinstance(value, numbers.Real):
         return repr(float(value))
-    if isinstance(value, (list, tuple, dict, set)):      # bounded: a YAML alias bomb prints small
-        import reprlib
-
-        brief = reprlib.Repr()
-        brief.maxlevel, brief.maxlist, brief.maxdict, brief.maxstring, brief.maxother = 2, 6, 4, limit, limit
-        value = brief.repr(value)
+    if isinstance(value, _CONTAINERS):
+        return _Brief(min(limit, 20)).repr(value)
     text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
     escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
     cut = len(escaped) > limit
     return f"'{escaped[:limit]}'" + ("..." if cut else "")
+
+
+_CONTAINERS = (list, tuple, dict, set, frozenset)
+
+
+class _Brief(reprlib.Repr):
+    """reprlib's bounded rendering of containers, with every item that is no container by ``show``."""
+
+    def __init__(self, item_limit: int):
+        super().__init__()
+        self.maxlevel, self.maxlist, self.maxtuple, self.maxdict, self.maxset = 2, 6, 6, 4, 6
+        self.maxfrozenset = 6
+        self.item_limit = item_limit
+
+    def repr1(self, x, level):
+        if isinstance(x, _CONTAINERS):
+            return super().repr1(x, level)
+        return show(x, self.item_limit)

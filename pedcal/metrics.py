@@ -118,7 +118,9 @@ class EvaluationResult:
     head_observations: int
     robot_rows: str                               # how the robot's observations were picked
     sensors: list[SensorError] = field(default_factory=list)
-    missing_sensors: list[str] = field(default_factory=list)
+    missing_sensors: list[str] = field(default_factory=list)      # in the log, not in the extrinsics
+    # in the extrinsics, not in the log's sensors.yaml (a file of another site, sensors renamed): not scored
+    foreign_sensors: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """The figures as nested plain values (``pedcal evaluate --json``); ``to_dataframe()``
@@ -156,6 +158,8 @@ class EvaluationResult:
                        f"{head:>14s} {s.head_observations:6d}")
         if self.missing_sensors:
             out.append(f"not in the extrinsics file (not scored): {', '.join(self.missing_sensors)}")
+        if self.foreign_sensors:
+            out.append(f"not in the log's sensors.yaml (not scored): {', '.join(self.foreign_sensors)}")
         return "\n".join(out)
 
 
@@ -235,6 +239,7 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     require(log, "log", Log, "a pedcal.Log (pedcal.read_log(PATH))")
     require(extrinsics, "extrinsics", SensorNetwork, "a pedcal.SensorNetwork (pedcal.read_sensors_yaml(PATH))")
     missing = [sid for sid in log.sensors.ids if sid not in extrinsics]
+    foreign = [s.id for s in extrinsics if s.id not in log.sensors]
     per_sensor: dict[str, dict] = {}
 
     pos_rms = orient_rms = None
@@ -291,7 +296,7 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     return EvaluationResult(sensor_position_rms_mm=pos_rms, orientation_rms_deg=orient_rms,
                             head_tracking_rms_mm=head_rms, head_reference=reference,
                             head_observations=n_head, robot_rows=how, sensors=sensors,
-                            missing_sensors=missing)
+                            missing_sensors=missing, foreign_sensors=foreign)
 
 
 # --- the reported sigma's honesty over many logs -------------------------------------------------

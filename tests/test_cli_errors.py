@@ -432,6 +432,33 @@ def test_a_simulation_that_fails_at_the_end_leaves_the_previous_run(tmp_path, ca
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "short.yaml"]
 
 
+def test_an_input_error_inside_a_folder_written_all_at_once_names_the_folder(tmp_path, capsys, monkeypatch):
+    """A PedcalInputError raised while simulate writes into its temporary sibling names the
+    folder the user gave, in its message, path and detail, never the temporary."""
+    from pathlib import Path
+
+    import pedcal.sim
+    from pedcal.cli import _rename_in_error
+    from pedcal.errors import PedcalInputError
+
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text("base: paper\nduration_s: 20\n")
+    out = tmp_path / "run"
+
+    def refuse(path, text):
+        assert ".tmpdir" in str(path)                   # the writer is given the temporary's path
+        raise PedcalInputError(f"refused, beside {Path(path).parent}/calib", path=path, row=2)
+
+    monkeypatch.setattr(pedcal.sim, "write_text_atomic", refuse)
+    assert main(["simulate", str(scenario), "-o", str(out), "--seed", "1", "-q"]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert f"{out / 'scenario.yaml'}, row 2: refused, beside {out}/calib" in err and ".tmpdir" not in err
+    e = PedcalInputError(f"refused, beside {tmp_path}/x.tmpdir/calib", path=tmp_path / "x.tmpdir" / "s.yaml", row=2)
+    _rename_in_error(e, str(tmp_path / "x.tmpdir"), str(tmp_path / "x"))
+    assert (e.path, e.detail, str(e)) == (str(tmp_path / "x" / "s.yaml"), f"refused, beside {tmp_path}/x/calib",
+                                          f"{tmp_path / 'x' / 's.yaml'}, row 2: refused, beside {tmp_path}/x/calib")
+
+
 def test_evaluate_names_the_extrinsics_sensors_the_log_does_not_have(tmp_path, capsys):
     log_dir = tmp_path / "log"
     write_log(small_log(), log_dir)

@@ -189,6 +189,27 @@ def test_every_sensor_not_ok_warns_once(network, tmp_path):
     assert "s04" in texts[1] and all(w.filename == __file__ for w in caught)
 
 
+def test_a_warning_from_inside_the_export_points_at_the_callers_line(network, tmp_path, monkeypatch):
+    """export_extrinsics is a public entry point (warnings_at_caller): a warning raised by the code
+    it calls is re-raised at the caller's line, not at the line in pedcal/io/export.py."""
+    import inspect
+    import warnings
+
+    import pedcal.io.export as export
+
+    def warning_json_text(net, *, prefix=""):
+        warnings.warn("from inside the export", UserWarning, stacklevel=2)    # export.py's line
+        return "{}\n"
+
+    monkeypatch.setattr(export, "json_text", warning_json_text)
+    ok = SensorNetwork([s for s in network if s.status == "ok"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        line = inspect.currentframe().f_lineno + 1
+        pedcal.export_extrinsics(ok, tmp_path / "s.json", "json")
+    assert [(str(w.message), w.filename, w.lineno) for w in caught] == [("from inside the export", __file__, line)]
+
+
 def test_optical_frames_are_z_forward_x_right_y_down(network, tmp_path):
     from pedcal import frames
     from pedcal.io.ros import optical_to_sensor

@@ -336,6 +336,37 @@ def test_not_utf8_names_the_line_and_file_offset(tmp_path, line):
                  file="observations.csv")
 
 
+MULTIBYTE = "t,note\n1.0,café\n2.0,€ 5\n\n3.0,😀 ok\n".encode() * 3     # 2, 3 and 4 bytes a character
+
+
+@pytest.mark.parametrize("chunk_bytes", [1, 2, 3, 4, 5, 7, 1 << 20])
+def test_not_utf8_text_reads_a_character_cut_between_chunks(tmp_path, chunk_bytes):
+    """A character cut at a chunk's end is carried into the next chunk: UTF-8 text is UTF-8 at any
+    chunk size (3 bytes cut every one of é, € and 😀 somewhere)."""
+    from pedcal.io.inputs import not_utf8_text
+
+    p = tmp_path / "t.csv"
+    p.write_bytes(MULTIBYTE)
+    assert not_utf8_text(p, chunk_bytes=chunk_bytes) is None
+
+
+@pytest.mark.parametrize("bad", [b"\xe9", b"\xf0\x9f", b"\xff"])
+@pytest.mark.parametrize("at", ["inside", "end"])
+def test_not_utf8_text_locates_a_bad_byte_at_any_chunk_size(tmp_path, bad, at):
+    """A bad byte after multi-byte characters (or a character cut by the file's end) is named at
+    the same line and offset whatever the chunk size: the offset in the file, lines counted."""
+    from pedcal.io.inputs import not_utf8_text
+
+    offset = MULTIBYTE.index("😀".encode(), 40) + 4 if at == "inside" else len(MULTIBYTE)
+    data = MULTIBYTE[:offset] + bad + (MULTIBYTE[offset:] if at == "inside" else b"")
+    line = data[:offset].count(b"\n") + 1
+    p = tmp_path / "t.csv"
+    p.write_bytes(data)
+    expected = f"byte 0x{bad[0]:02x} on line {line}, at offset {offset}"
+    assert not_utf8_text(p) == expected
+    assert [not_utf8_text(p, chunk_bytes=n) for n in (1, 2, 3, 4, 5, 7)] == [expected] * 6
+
+
 def test_repeated_time_within_a_track(tmp_path):
     write_good(tmp_path)
     obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)
@@ -453,11 +484,24 @@ def test_misspelled_meta_key_warns(tmp_path, key):
     assert log.meta.notes == {key: [0, 0, 1.2], "seed": 3} and log.meta.head_offset_m.tolist() == [0, 0, 1.35]
 
 
-def test_meta_notes_unlike_a_key_do_not_warn(tmp_path, recwarn):
+@pytest.mark.parametrize("head_offset", ["head_offset: [0, 0, 1.2]\n", ""])
+def test_meta_notes_unlike_a_key_do_not_warn(tmp_path, recwarn, head_offset):
     write_good(tmp_path)
-    (tmp_path / "meta.yaml").write_text("head_offset: [0, 0, 1.2]\nrobot: sim\nseed: 3\nheading: north\n"
-                                        "simulated: {scenario: paper}\n")
-    assert read_log(tmp_path).meta.head_offset_m.tolist() == [0, 0, 1.2]
+    (tmp_path / "meta.yaml").write_text(f"{head_offset}robot: sim\nseed: 3\nheading: north\n"
+                                        "simulated: {scenario: paper}\ncamera_offset: [0, 0, 0.1]\n")
+    assert read_log(tmp_path).meta.head_offset_m.tolist() == [0, 0, 1.2 if head_offset else 1.35]
+    assert not [w for w in recwarn if "meta.yaml" in str(w.message)]
+
+
+def test_meta_note_like_head_offset_beside_head_offset_does_not_warn(tmp_path, recwarn):
+    """With head_offset given, a note named like it (head_offset_source, head_offset_m) is no
+    misspelling: the offset is read, nothing is left at its default."""
+    write_good(tmp_path)
+    (tmp_path / "meta.yaml").write_text("head_offset: [0, 0, 1.2]\nhead_offset_source: tape measure\n"
+                                        "head_offset_m: [0, 0, 1.2]\n")
+    log = read_log(tmp_path)
+    assert log.meta.head_offset_m.tolist() == [0, 0, 1.2]
+    assert log.meta.notes == {"head_offset_source": "tape measure", "head_offset_m": [0, 0, 1.2]}
     assert not [w for w in recwarn if "meta.yaml" in str(w.message)]
 
 

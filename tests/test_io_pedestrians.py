@@ -144,10 +144,12 @@ def thor_rows(n: int, seed: int = 0) -> str:
     return "".join(f"{0.4 * i:.2f},{12000 + i % 3},{x:.3f},{y:.3f},1.0,0.0\n" for i, (x, y) in enumerate(xy))
 
 
-def test_a_column_named_twice_in_the_header_is_refused(tmp_path):
-    """pandas renames a repeated name (x, x.1): the file would be read with whichever x came first."""
+@pytest.mark.parametrize("header", ["time,person_id,x,x,y,motion_angle", 'time,person_id,x,y,"x",motion_angle'])
+def test_a_column_named_twice_in_the_header_is_refused(tmp_path, header):
+    """pandas renames a repeated name (x, x.1): the file would be read with whichever x came first.
+    The header is read as pandas reads the table: a quoted "x" is the column x."""
     p = tmp_path / "thor.csv"
-    p.write_text("time,person_id,x,x,y,motion_angle\n" + thor_rows(5))
+    p.write_text(header + "\n" + thor_rows(5))
     with pytest.raises(PedcalInputError, match="column 'x' appears 2 times in the header") as ei:
         read_pedestrians(p)
     assert (ei.value.path, ei.value.column) == (str(p), "x")
@@ -212,3 +214,39 @@ def test_a_renamed_eth_file_given_to_follow_says_how_to_give_its_rate(tmp_path, 
     assert main(["follow", "--people", str(p)]) == 2
     assert "give its frame rate with --fps (frames per second of the frame numbers): pedcal import-people FILE " \
            "--fps F -o people.csv, then follow --people people.csv" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad,match", [
+    ("4.0,b,1e7,0.0", r"row 3 \(line 6\), column 'x': .*"),                      # check_coordinates
+    ("1e12,b,1.0,0.0", r"row 3 \(line 6\), column 't': .*"),                     # check_times
+    ("1.0,a,9.0,0.0", r"row 3 \(line 6\), column 't': person 'a' at t = 1.0 s is placed twice")])
+def test_every_people_csv_row_error_names_its_line(tmp_path, bad, match):
+    """Cell errors named the row's line (row 3 (line 6), the blank line counted) while the checks
+    of the typed table (times, coordinates, a person placed twice) named the row alone."""
+    from pedcal.io import read_people_csv
+
+    p = tmp_path / "people.csv"
+    p.write_text(f"t,person,x,y\n0.0,a,0.0,0.0\n\n1.0,a,1.0,0.0\n2.0,a,2.0,0.0\n{bad}\n")
+    with pytest.raises(PedcalInputError, match=rf"{p}, {match}") as ei:
+        read_people_csv(p)
+    assert (ei.value.row, ei.value.line) == (3, 6)
+    q = tmp_path / "people.parquet"                     # a Parquet table has no lines
+    pd.read_csv(p, dtype={"person": str}).to_parquet(q)
+    with pytest.raises(PedcalInputError, match=rf"{q}, row 3, column") as ei:
+        read_people_csv(q)
+    assert ei.value.line is None
+
+
+def test_a_parquet_people_table_named_in_capitals_is_read_and_written_as_parquet(tmp_path):
+    """read_pedestrians sent people.PARQUET to the people reader, which compared the suffix case-
+    sensitively and read the Parquet bytes as CSV (not UTF-8); the writer wrote CSV into it."""
+    src = tmp_path / "thor.csv"
+    src.write_text(THOR_HEADER + thor_rows(12, seed=4))
+    people = read_pedestrians(src)
+    q = tmp_path / "people.PARQUET"
+    people.to_parquet(q)
+    pd.testing.assert_frame_equal(read_pedestrians(q), people)
+    w = tmp_path / "written.Parquet"
+    write_people_csv(people, w)
+    assert w.read_bytes()[:4] == b"PAR1"
+    pd.testing.assert_frame_equal(pd.read_parquet(w), people)

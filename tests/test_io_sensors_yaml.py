@@ -228,6 +228,21 @@ def test_merge_keys_and_aliases_are_no_repeated_keys(tmp_path):
     np.testing.assert_array_equal(net["b"].position_m, [1, 0, 2.6])
 
 
+def test_two_merge_keys_merge_both_as_pyyaml_does(tmp_path):
+    """``{<<: *p, <<: *o}`` is read as PyYAML reads it, the merge of both, as ``<<: [*p, *o]`` is:
+    a merge key is no key given twice. (Which one's value wins where both give a key is PyYAML's
+    choice, not pinned here.)"""
+    p = tmp_path / "sensors.yaml"
+    anchors = "p: &p {position: [0, 0, 2.6]}\no: &o {ypr_deg: [0, 45, 0]}\n"
+    p.write_text(anchors + "sensors:\n- {<<: *p, <<: *o, id: a}\n")
+    net = read_sensors_yaml(p)
+    np.testing.assert_array_equal(net["a"].position_m, [0, 0, 2.6])
+    np.testing.assert_array_equal(net["a"].ypr_deg, [0, 45, 0])
+    q = tmp_path / "list.yaml"
+    q.write_text(anchors + "sensors:\n- {<<: [*p, *o], id: a}\n")
+    assert read_sensors_yaml(q)["a"].to_dict() == net["a"].to_dict()
+
+
 def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
     from pedcal.errors import PedcalInputError
     from pedcal.io.logdir import read_meta
@@ -245,7 +260,8 @@ def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
 
 @pytest.mark.parametrize("value,shown", [("[abc, 45, 0]", "['abc', 45, 0]"), ("[.nan, 0.5, 1]", "[nan, 0.5, 1]"),
                                          ("[0, 45]", "[0, 45]"), ("7", "7"),
-                                         ("[[1], 2, 3, 4, 5, 6, 7]", "[..., 2, 3, 4, 5, 6, ...]")])
+                                         ("[[1], 2, 3, 4, 5, 6, 7]", "[[1], 2, 3, 4, 5, 6, ...]"),
+                                         ("[[[1]], x]", "[[[...]], 'x']")])
 def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):
     """A list was quoted as the text of its Python form, its strings' quotes escaped: '[\\'abc\\', ...]'."""
     from pedcal.errors import PedcalInputError
@@ -255,3 +271,33 @@ def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):
     with pytest.raises(PedcalInputError) as ei:
         read_sensors_yaml(p)
     assert str(ei.value).endswith(f"ypr_deg: expected a list of 3 finite numbers, got {shown}")
+
+
+@pytest.mark.parametrize("extra,message", [
+    ("clock_offset_s: [0.1, 0.2]", "'clock_offset_s' must be a mapping of sensor id to seconds, got [0.1, 0.2]"),
+    ("head_model: [a, 1]", "'head_model' must be a mapping of vertical_offset_m, ray_shift_m, horizontal_shift_m, "
+                           "curvature_m, got ['a', 1]"),
+    ("head_model: {per_sensor_shift_m: [0.01, x]}",
+     "'head_model.per_sensor_shift_m' must be a mapping of sensor id to metres, got [0.01, 'x']"),
+    ("head_model: {horizontal_profile: {distance_m: 1}}",
+     "'head_model.horizontal_profile' must be a mapping with lists distance_m and shift_m, got {'distance_m': 1}"),
+    ("head_model: {horizontal_profile: {distance_m: [2.0, 1.0], shift_m: [0, 0]}}",
+     "'head_model.horizontal_profile.distance_m' must increase, got [2.0, 1.0]")])
+def test_a_bad_calibration_key_quotes_its_value_item_by_item(tmp_path, extra, message):
+    """A list or mapping in a message reads as YAML wrote it, not as the quoted text of its Python form."""
+    from pedcal.errors import PedcalInputError
+
+    p = tmp_path / "sensors.yaml"
+    p.write_text(f"sensors:\n- id: a\n  position: [0, 0, 2.6]\n  ypr_deg: [0, 45, 0]\n{extra}\n")
+    with pytest.raises(PedcalInputError) as ei:
+        read_sensors_yaml(p)
+    assert str(ei.value) == f"{p}: {message}"
+
+
+def test_writing_a_network_with_a_nan_pose_quotes_the_pose(tmp_path):
+    from pedcal.errors import PedcalInputError
+
+    net = SensorNetwork([SensorExtrinsics("a", [0.0, np.nan, 2.6], [0.0, 45.0, 0.0])])
+    with pytest.raises(PedcalInputError) as ei:
+        sensors_yaml.write_sensors_yaml(net, tmp_path / "s.yaml")
+    assert str(ei.value) == "network: sensor 'a' position [0.0, nan, 2.6]: expected finite values within +-1e+06 m"

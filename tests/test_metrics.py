@@ -84,3 +84,16 @@ def test_horizontal_shift_of_the_head_model_is_undone():
     assert evaluate(log, ext).head_tracking_rms_mm == pytest.approx(0.0, abs=1e-6)
     ext.extra[HEAD_MODEL_KEY]["horizontal_shift_m"] = 0.0
     assert evaluate(log, ext).head_tracking_rms_mm == pytest.approx(40.0, abs=1e-6)
+
+
+def test_extrinsics_sensors_the_log_lacks_are_named_not_scored():
+    """A sensor of the extrinsics that the log's sensors.yaml lacks (another site's file, a renamed
+    sensor) is listed apart, as a log sensor the extrinsics lack is, so neither passes in silence."""
+    log = _tiny_log()
+    ext = SensorNetwork([log.sensors["s1"], SensorExtrinsics("s9", [5.0, 0.0, 3.0], [0.0, 90.0, 0.0])])
+    res = evaluate(log, ext)
+    assert res.missing_sensors == ["s2"] and res.foreign_sensors == ["s9"]
+    assert res.to_dict()["foreign_sensors"] == ["s9"]
+    assert res.format_table().splitlines()[-2:] == ["not in the extrinsics file (not scored): s2",
+                                                     "not in the log's sensors.yaml (not scored): s9"]
+    assert evaluate(log, log.sensors.copy()).foreign_sensors == []

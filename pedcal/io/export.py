@@ -164,7 +164,6 @@ def _launch_kind(path: Path, ros_version: int | None) -> tuple[str, int]:
                            "(XML launch)", path=path)
 
 
-@warnings_at_caller
 def _check_frame_names(network: SensorNetwork, prefix: str, source) -> None:
     """Frame names a launch file or URDF can carry: no whitespace or control character (a launch
     file's ``args`` are split at spaces, so ``x y`` would become two arguments and shift the rest)."""
@@ -176,6 +175,7 @@ def _check_frame_names(network: SensorNetwork, prefix: str, source) -> None:
                                    "'frame', --prefix)", path=source)
 
 
+@warnings_at_caller
 def export_extrinsics(network: SensorNetwork | str | Path, path: str | Path, fmt: str = "tf-launch", *,
                       ros_version: int | None = None, prefix: str = "", optical: bool = False) -> Path:
     """Write ``network`` (a SensorNetwork or a sensors YAML path) as ``fmt`` (FORMATS) to ``path``,

@@ -108,6 +108,17 @@ class CsvTable(os.PathLike):
         return None
 
 
+def header_cells(path: str | Path, sep: str = ",") -> list[str]:
+    """A CSV table's header as written: the cells of its first non-blank line, unstripped, read by
+    pandas as the table itself is read (quotes, the separator, a regex one such as ``\\s+``, a
+    BOM). pandas' own header renames a repeated ``x`` to ``x.1``, which would pass unseen."""
+    import pandas as pd
+
+    first = pd.read_csv(path, sep=sep, header=None, nrows=1, dtype=str, na_filter=False,
+                        engine="c" if len(sep) == 1 else "python")
+    return [str(n) for n in first.iloc[0]]
+
+
 def refuse_repeated_columns(names: list[str], columns, path, *, in_header: bool = True) -> None:
     """A column of ``columns`` named twice in ``names`` (as written, stripped: pandas renames a
     CSV header's repeat ``x`` to ``x.1``) raises PedcalInputError naming it: which one is meant?"""

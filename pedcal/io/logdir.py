@@ -24,7 +24,7 @@ import pandas as pd
 from pedcal.errors import PedcalInputError, show, warnings_at_caller
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
-from pedcal.io.inputs import CsvTable, not_utf8_text, refuse_repeated_columns
+from pedcal.io.inputs import CsvTable, header_cells, not_utf8_text, refuse_repeated_columns
 from pedcal.io.sensors_yaml import (
     dump_yaml,
     flow_vector,
@@ -85,12 +85,11 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
     try:
         if path.stat().st_size == 0:
             raise pd.errors.EmptyDataError
-        if path.suffix == ".parquet":
+        if is_parquet(path):
             return pd.read_parquet(path, engine="pyarrow")
         # no NA filter: an empty cell stays "" for the locator; numbers may carry spaces, ids are stripped later
         options = {"na_filter": False}
-        # the header as written: pandas' own header renames a repeated x to x.1, which would pass unseen
-        names = [str(n) for n in pd.read_csv(path, header=None, nrows=1, dtype=str, **options).iloc[0]]
+        names = header_cells(path)
         refuse_repeated_columns([n.strip() for n in names], columns, path)
         wanted = {str(n).strip() for n in columns}
         use = [n for n in names if str(n).strip() in wanted] if columns else None
@@ -102,7 +101,7 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
         raise
     except pd.errors.EmptyDataError:      # no bytes, or only blank lines
         header = f"header {','.join(columns)}" if columns else "a header line"
-        expected = (f"a Parquet table with columns {', '.join(columns)}" if path.suffix == ".parquet" else
+        expected = (f"a Parquet table with columns {', '.join(columns)}" if is_parquet(path) else
                     f"a CSV with {header}")
         raise PedcalInputError(f"empty file, expected {expected}", path=path) from None
     except UnicodeDecodeError as e:     # its offset is within pandas' buffer: find the byte in the file
@@ -222,8 +221,18 @@ def read_table(path: Path, columns: tuple[str, ...], text_columns: tuple[str, ..
     path = Path(path)
     if path.is_dir():
         raise PedcalInputError("is a directory, expected a table file", path=path)
-    where = CsvTable(path) if path.suffix != ".parquet" else path        # errors name a CSV row's line
-    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, where, required=required)
+    return typed_table(_raw_table(path, columns, text_columns), columns, text_columns, table_source(path),
+                       required=required)
+
+
+def table_source(path: Path) -> CsvTable | Path:
+    """``path`` as errors about its rows name it: a CSV table names a row's line, a Parquet one cannot."""
+    return path if is_parquet(path) else CsvTable(path)
+
+
+def is_parquet(path: Path) -> bool:
+    """A table file read and written as Parquet: named .parquet, in any case (.PARQUET); any other is CSV."""
+    return Path(path).suffix.lower() == ".parquet"
 
 
 # ---------------------------------------------------------------------------------------- checks
@@ -414,8 +423,11 @@ def read_meta(path: Path) -> Meta:
     meta = Meta(notes=notes) if data.get("head_offset") is None else Meta(
         head_offset_m=read_vector(data["head_offset"], 3, "head_offset", path, max_abs=plausible.MAX_HEAD_OFFSET_M,
                                   unit="m"), notes=notes)
-    for key in notes:            # any other key is a free-form note (LOG_FORMAT.md), unless it is a misspelling
-        like = difflib.get_close_matches(str(key).lower(), META_KEYS, n=1)
+    # any other key is a free-form note (LOG_FORMAT.md), unless it is a misspelling of a key the file lacks:
+    # a close match only (cutoff 0.85: head_ofset, head_offset_m; not camera_offset or head_offset_source)
+    absent = [k for k in META_KEYS if k not in data]
+    for key in notes:
+        like = difflib.get_close_matches(str(key).lower(), absent, n=1, cutoff=0.85)
         if like:
             offset = ", ".join(f"{v:g}" for v in meta.head_offset_m)
             warnings.warn(f"{path}: key {show(key)} is not one meta.yaml defines and is kept as a note: did you mean "
@@ -474,7 +486,7 @@ def table_for_writing(df: pd.DataFrame, name: str) -> pd.DataFrame:
 def write_table(df: pd.DataFrame, path: Path) -> Path:
     """One table, atomically; CSV floats use the shortest exact representation (round trip exact)."""
     with atomic_path(path) as tmp:
-        if path.suffix == ".parquet":
+        if is_parquet(path):
             df.to_parquet(tmp, engine="pyarrow", index=False)
         else:
             _write_csv(df, tmp)

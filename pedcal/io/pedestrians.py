@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.inputs import not_utf8_text, refuse_repeated_columns, regular_file
-from pedcal.io.logdir import parse_float_column, parse_text_column
+from pedcal.io.inputs import header_cells, not_utf8_text, refuse_repeated_columns, regular_file
+from pedcal.io.logdir import is_parquet, parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
 from pedcal.options import require_path
@@ -57,7 +57,7 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
         raise PedcalInputError(f"cannot read: {show(first, 160)[1:-1]}", path=path) from None
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
-        names = [c.strip() for c in _first_line(path).split(sep)]   # as written: pandas renames a repeat x.1
+        names = [c.strip() for c in header_cells(path, sep)]
         refuse_repeated_columns(names, columns[:4], path)
         missing = [c for c in columns[:4] if c not in raw.columns]
         if missing:
@@ -134,7 +134,8 @@ def _has_header(path: Path) -> bool:
 def _first_line(path: Path) -> str:
     regular_file(path, "pedestrian file")
     try:
-        head = path.read_bytes()[:4096] if path.stat().st_size else b""
+        with path.open("rb") as f:
+            head = f.read(4096)
         try:
             head.decode("utf-8")
         except UnicodeDecodeError as e:
@@ -196,7 +197,7 @@ def read_pedestrians(path: str | Path, kind: str = "auto", fps: float | None = N
     needed when its name does not identify the recording; the other layouts carry seconds."""
     path = require_path(path, "path")
     if kind == "auto":          # a people table import-people wrote as Parquet, or a text layout to sniff
-        kind = "people" if path.suffix.lower() == ".parquet" else detect_kind(path)
+        kind = "people" if is_parquet(path) else detect_kind(path)
     readers = {"atc": read_atc, "eth_ucy": read_eth_ucy, "thor": read_thor, "people": read_people_csv}
     if kind not in readers:
         raise PedcalInputError(f"unknown kind {kind!r}, expected auto or one of {', '.join(KINDS)}", path=path)

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import DegenerateDataWarning, PedcalInputError, show
-from pedcal.io.logdir import check_coordinates, check_times, read_table, typed_table, write_table
+from pedcal.io.logdir import check_coordinates, check_times, read_table, table_source, typed_table, write_table
 from pedcal.model import PEOPLE_COLUMNS
 from pedcal.options import require_path
 
@@ -21,7 +21,7 @@ def read_people_csv(path: str | Path) -> pd.DataFrame:
         raise PedcalInputError("file not found", path=path)
     if path.is_dir():
         raise PedcalInputError("is a directory, expected a people CSV file", path=path)
-    return validate_people(read_table(path, PEOPLE_COLUMNS, ("person",)), path)
+    return validate_people(read_table(path, PEOPLE_COLUMNS, ("person",)), table_source(path))
 
 
 def validate_people(people: pd.DataFrame, where="people table", *, drop_repeats: bool = True) -> pd.DataFrame:

@@ -60,8 +60,9 @@ def _yaml_error_text(e: yaml.YAMLError) -> str:
 MAX_YAML_NODES = 2_000_000
 
 
-def _expanded_size(root: yaml.Node) -> int:
-    """Number of values the node tree stands for with every alias expanded (memoized, iterative)."""
+def _expanded_size(root: yaml.Node, path: Path) -> int:
+    """Number of values the node tree stands for with every alias expanded (memoized, iterative).
+    The walk meets every mapping once, and refuses one that names a key twice (_refuse_repeated_key)."""
     size: dict[int, int] = {}
     pending: set[int] = set()      # expanded, children not yet summed (its ancestors on the stack)
     stack = [(root, False)]
@@ -69,6 +70,8 @@ def _expanded_size(root: yaml.Node) -> int:
         node, done = stack.pop()
         if id(node) in size or (not done and id(node) in pending):
             continue
+        if not done and isinstance(node, yaml.MappingNode):
+            _refuse_repeated_key(node, path)
         children = ([c for kv in node.value for c in kv] if isinstance(node, yaml.MappingNode)
                     else node.value if isinstance(node, yaml.SequenceNode) else [])
         if done or not children:     # children first; a recursive alias (its own ancestor) counts 0
@@ -80,31 +83,20 @@ def _expanded_size(root: yaml.Node) -> int:
     return size[id(root)]
 
 
-def _refuse_repeated_keys(root: yaml.Node | None, path: Path) -> None:
+def _refuse_repeated_key(node: yaml.MappingNode, path: Path) -> None:
     """A mapping that names a key twice (PyYAML keeps the last silently, so a second
     ``head_offset:`` or ``position:`` would override the first unseen) raises PedcalInputError
-    naming the key and both lines."""
-    seen: set[int] = set()
-    stack = [root] if root is not None else []
-    while stack:
-        node = stack.pop()
-        if id(node) in seen:
-            continue
-        seen.add(id(node))
-        if isinstance(node, yaml.MappingNode):
-            first: dict[str, yaml.Mark] = {}
-            for k, v in node.value:
-                if isinstance(k, yaml.ScalarNode) and k.tag != "tag:yaml.org,2002:merge":
-                    if k.value in first:
-                        a, b = first[k.value], k.start_mark
-                        where = (f"line {a.line + 1}, columns {a.column + 1} and {b.column + 1}" if a.line == b.line
-                                 else f"line {a.line + 1} and line {b.line + 1}")
-                        raise PedcalInputError(f"key {show(k.value)} appears twice in one mapping ({where}); "
-                                               "keep one", path=path)
-                    first[k.value] = k.start_mark
-                stack.extend((k, v))
-        elif isinstance(node, yaml.SequenceNode):
-            stack.extend(node.value)
+    naming the key and both lines. Merge keys (``<<: *a``) are no keys: two of them merge both."""
+    first: dict[str, yaml.Mark] = {}
+    for k, _ in node.value:
+        if isinstance(k, yaml.ScalarNode) and k.tag != "tag:yaml.org,2002:merge":
+            if k.value in first:
+                a, b = first[k.value], k.start_mark
+                where = (f"line {a.line + 1}, columns {a.column + 1} and {b.column + 1}" if a.line == b.line
+                         else f"line {a.line + 1} and line {b.line + 1}")
+                raise PedcalInputError(f"key {show(k.value)} appears twice in one mapping ({where}); keep one",
+                                       path=path)
+            first[k.value] = k.start_mark
 
 
 def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
@@ -116,10 +108,9 @@ def load_yaml_file(path: str | Path) -> tuple[object, yaml.Node | None]:
         loader = yaml.SafeLoader(text)
         try:
             node = loader.get_single_node()
-            if node is not None and _expanded_size(node) > MAX_YAML_NODES:
+            if node is not None and _expanded_size(node, path) > MAX_YAML_NODES:
                 raise PedcalInputError(f"YAML aliases expand to more than {MAX_YAML_NODES} values (an alias bomb?)",
                                        path=path)
-            _refuse_repeated_keys(node, path)
             data = loader.construct_document(node) if node is not None else None
         finally:
             loader.dispose()
@@ -141,15 +132,6 @@ def _mapping_value_node(node: yaml.Node | None, key: str) -> yaml.Node | None:
     return None
 
 
-def _show_value(value) -> str:
-    """A YAML value as a message quotes it: a list item by item ([0, 'abc', nan]), not as the
-    quoted text of its Python form ('[0, \\'abc\\', nan]'); anything else by ``show``."""
-    if isinstance(value, (list, tuple)):
-        items = [show(v, 20) if not isinstance(v, (list, tuple, dict)) else "..." for v in value[:6]]
-        return "[" + ", ".join(items + (["..."] if len(value) > 6 else [])) + "]"
-    return show(value, 80)
-
-
 def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = False,
                 max_abs: float | None = None, unit: str = "") -> np.ndarray:
     """A list of ``n`` finite numbers (bool is not a number), else PedcalInputError; with ``max_abs``
@@ -164,7 +146,7 @@ def read_vector(value, n: int, what: str, path: Path, *, nonnegative: bool = Fal
         ok = bool(np.isfinite(arr).all()) and (not nonnegative or bool((arr >= 0).all()))
     if not ok:
         sign = "non-negative " if nonnegative else ""
-        raise PedcalInputError(f"{what}: expected a list of {n} finite {sign}numbers, got {_show_value(value)}",
+        raise PedcalInputError(f"{what}: expected a list of {n} finite {sign}numbers, got {show(value, 80)}",
                                path=path)
     if max_abs is not None and (np.abs(arr) > max_abs).any():
         big = float(arr[np.argmax(np.abs(arr))])
