@@ -95,7 +95,9 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
     :func:`pedcal.calib.association.associate_robot` (``association_params`` go to it).
     ``latency_s``: tracker latency (observation stamp minus the robot's time); None takes the
     association's estimate, or estimates it from the given ``is_robot``. ``points_sensor``:
-    ``log.observation_points_sensor()`` when the caller has it."""
+    ``log.observation_points_sensor()`` when the caller has it. ``head_at``:
+    :func:`pedcal.calib.common.head_interpolator` of ``log`` (t -> the robot's head top in the
+    world, from AMCL) when the caller has it, made when None; the association's when it runs."""
     with Timer() as timer:
         diagnostics = ClosedFormDiagnostics()
         # the head points in each sensor's frame, read once for the association, the latency and the fits
