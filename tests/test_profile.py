@@ -176,11 +176,17 @@ def test_joint_marginal_covariance_equals_gtsams(dome_paper, monkeypatch):
 
     _, prob, parts, result = dome_paper
     ran = []
+
+    def spy(name):
+        method = getattr(gtsam.GaussianFactorGraph, name)
+
+        def eliminate(self, ordering):
+            ran.append(name)
+            return method(self, ordering)
+        return eliminate
+
     for name in ("eliminatePartialSequential", "eliminatePartialMultifrontal"):
-        def spy(self, ordering, _name=name, _method=getattr(gtsam.GaussianFactorGraph, name)):
-            ran.append(_name)
-            return _method(self, ordering)
-        monkeypatch.setattr(gtsam.GaussianFactorGraph, name, spy)
+        monkeypatch.setattr(gtsam.GaussianFactorGraph, name, spy(name))
     fg = parts.graph()
     keys = [S(2), H(0), S(0)]
     theirs = gtsam.Marginals(fg, result).jointMarginalCovariance(gtsam.KeyVector(keys)).fullMatrix()
