@@ -9,7 +9,6 @@ import pandas as pd
 import pytest
 
 from pedcal.calib.association import associate_robot
-from pedcal.calib.closedform import _fits
 from pedcal.calib.common import head_interpolator, interpolate_pose2, pose2_interpolator, rows_taken
 from pedcal.calib.motion import RobotMotion
 from pedcal.errors import PedcalInputError
@@ -84,21 +83,6 @@ def test_observation_points_by_codes_are_each_sensors_own(log):
     for s in log.sensors:
         rows = np.flatnonzero(sensor == s.id)
         assert np.array_equal(p[rows], s.to_sensor(xyz[rows]))
-
-
-def test_closed_form_fits_from_codes_are_the_fits_from_names(log):
-    rng = np.random.default_rng(3)
-    n = 2000
-    names = np.array([s.id for s in log.sensors] + ["not-installed"], dtype=object)
-    code = rng.integers(0, len(names), n)
-    p_sensor, p_world = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
-    by_name = _fits(log, names[code], p_sensor, p_world)
-    by_code = _fits(log, None, p_sensor, p_world, codes=(code, names))
-    assert len(by_name) == len(by_code) == len(log.sensors)
-    for a, b in zip(by_name, by_code, strict=True):
-        assert a[0] == b[0] and a[0] > 0
-        for x, y in zip(a[1:], b[1:], strict=True):
-            assert np.array_equal(x, y, equal_nan=True)
 
 
 def test_sensor_codes_are_the_text_columns_factorization():
