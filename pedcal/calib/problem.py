@@ -442,4 +442,4 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
 
 
 
-__all__ = ["FactorGraphProblem", "amcl_period_s", "prepare", "estimate_observation_noise", "set_amcl_model"]
+__all__ = ["FactorGraphProblem", "prepare", "estimate_observation_noise", "set_amcl_model"]
