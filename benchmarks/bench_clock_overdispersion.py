@@ -4,7 +4,7 @@ the factor graph's solve and the precision of its Monte-Carlo null, on the simul
 
     nice -n 10 .venv/bin/python benchmarks/bench_clock_overdispersion.py \
         [--scenarios paper sparse corridor cross lhall] [--seeds 4] [--draws 32] [--no-exact]
-        [--parts [--repeats 5]]
+        [--gaussian] [--parts [--repeats 5]]
 
 Per log: the offsets (k) and time blocks (C); the CPU time of widen_for_overdispersion inside
 ``calibrate`` (time.process_time, one run); the largest move of an offset's widening factor
@@ -18,6 +18,13 @@ sums of m^2, and tr(G K A N^-1 A^T K^T G) by k C solves through the step's facto
 CPU time is shown), against which the solve's null E V(e) - E V(H e) (the first term exact, the
 second, the projection's share, by the draws: a control variate at the plain mean's cost) is
 compared over four seeds of its draws.
+
+With ``--gaussian``, the null's draws are standard normal (``default_rng(seed).standard_normal``,
+the same seeds) instead of :func:`pedcal.calib.clocks.null_draws`' signs, everywhere in the run
+(the calibrations' own widenings too): the comparison behind NULL_DRAWS' comment in clocks.py,
+
+    nice -n 10 .venv/bin/python benchmarks/bench_clock_overdispersion.py \
+        --scenarios paper corridor cross --seeds 2 --no-exact [--gaussian]
 
 With ``--parts``, instead, where one call's CPU time goes (the fastest of ``--repeats`` calls on
 the captured system, after the calibration's own): how many times a calibration widens (once: a
@@ -40,6 +47,11 @@ import scipy.sparse as sps
 import pedcal.calib.factorgraph as fgmod
 from pedcal.calib import calibrate, clocks
 from pedcal.sim import simulate_logs
+
+
+def gaussian_draws(rows: int, draws: int, seed: int) -> np.ndarray:
+    """(rows, draws) standard normal errors, seeded: the null's draws under ``--gaussian``."""
+    return np.random.default_rng(seed).standard_normal((rows, draws))
 
 
 def captured_widening(scenario: str, seed: int) -> tuple[tuple | None, float, int]:
@@ -180,10 +192,15 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--draws", type=int, default=clocks.NULL_DRAWS)
     ap.add_argument("--no-exact", action="store_true")
+    ap.add_argument("--gaussian", action="store_true",
+                    help="the null's draws standard normal instead of clocks.null_draws' signs")
     ap.add_argument("--parts", action="store_true", help="one call's CPU time by part instead")
     ap.add_argument("--repeats", type=int, default=5, help="--parts: calls timed, the fastest kept")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
+    if args.gaussian:
+        clocks.null_draws = gaussian_draws        # (offset_overdispersion reads the module's name)
+        print("null draws: standard normal (--gaussian)")
     load0 = os.getloadavg()
     if args.parts:
         main_parts(args)

@@ -46,6 +46,28 @@ def plain(value):
     return value
 
 
+def sensor_codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's sensor as a code and the sensors' names (str, numbered by first appearance): the
+    factorization of the values' texts (``str`` of each, a missing value 'nan') without a Python
+    string made per row (one per distinct value; values whose texts agree, the number 3 and the
+    text '3', share a code)."""
+    codes, values = pd.factorize(column, use_na_sentinel=False)
+    names = np.array([str(v) for v in values], dtype=object)
+    if len(set(names.tolist())) < len(names):
+        merged, names = pd.factorize(names)
+        codes = merged[codes]
+    return codes, names
+
+
+def rows_by_code(codes: np.ndarray, n_codes: int) -> list[np.ndarray]:
+    """The rows of each code 0 .. ``n_codes`` - 1, ascending, from one stable sort of the codes
+    (one pass over the rows, not one per code); negative codes (pandas' NA sentinel) in none."""
+    codes = np.asarray(codes)
+    order = np.argsort(codes, kind="stable")
+    bounds = np.r_[0, np.cumsum(np.bincount(codes[codes >= 0], minlength=n_codes))] + np.sum(codes < 0)
+    return [order[bounds[i]:bounds[i + 1]] for i in range(n_codes)]
+
+
 @dataclass
 class SensorExtrinsics:
     """One ceiling sensor's pose T_world_sensor, plus what a calibration says of it."""
@@ -222,13 +244,10 @@ class Log:
         (p_sensor = R_installed^T (p_world - position_installed), LOG_FORMAT.md)."""
         out = np.empty((len(self.observations), 3))
         xyz = self.observations[["x", "y", "z"]].to_numpy(dtype=float)
-        # each sensor's rows (ascending) by one stable sort of the column's codes: one pass over
-        # the rows, not one per sensor, and no Python string made per row
+        # each sensor's rows from the column's codes: no Python string made per row
         codes, names = pd.factorize(self.observations["sensor"])
-        order = np.argsort(codes, kind="stable")
-        bounds = np.r_[0, np.cumsum(np.bincount(codes[codes >= 0], minlength=len(names)))] + np.sum(codes < 0)
-        for i, name in enumerate(names):
+        for name, rows in zip(names, rows_by_code(codes, len(names)), strict=True):
             sid = str(name)
             if sid in self.sensors:
-                out[order[bounds[i]:bounds[i + 1]]] = self.sensors[sid].to_sensor(xyz[order[bounds[i]:bounds[i + 1]]])
+                out[rows] = self.sensors[sid].to_sensor(xyz[rows])
         return out

@@ -605,10 +605,8 @@ def test_a_step_that_never_comes_back_does_not_hide_a_later_jump():
 
 
 def test_amcls_period_is_the_median_step_of_its_stamps_or_the_default():
-    from pedcal.calib import problem
     from pedcal.calib.amcl_model import amcl_period_s
 
-    assert problem.amcl_period_s is amcl_period_s           # (the name the graph's modules import)
     # steps 0.1, 0.2, 0.2: the median 0.2 (the smallest 0.1, the mean 0.167)
     assert amcl_period_s(np.array([0.0, 0.1, 0.3, 0.5]), 5.0) == pytest.approx(0.2, abs=1e-15)
     assert amcl_period_s(np.array([3.0]), 5.0) == 5.0            # one stamp: no step to read

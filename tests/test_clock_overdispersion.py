@@ -94,7 +94,27 @@ def test_the_null_draws_estimate_a_quadratic_forms_trace_without_bias_and_with_l
     want_var = 2.0 * (np.sum(K ** 2) - np.sum(np.diag(K) ** 2))
     assert q.mean() == pytest.approx(np.trace(K), abs=4.0 * np.sqrt(want_var / q.size))
     assert q.var() == pytest.approx(want_var, rel=0.05)
-    assert want_var < 0.8 * 2.0 * np.sum(K ** 2)
+
+
+def test_the_null_draws_vary_less_than_gaussians_on_the_solves_quadratic_form():
+    # the form the null's draws estimate, V(H e) = e^T H Q H e (H = A (A^T A)^-1 A^T the fitted
+    # part, Q = C / (C - 1) M^T G M the block scores' scatter, M each block's sums of m, G the
+    # centring): signs' variance 2 (tr K^2 - sum K_ii^2) is 0.91 of Gaussians' 2 tr K^2 here, and
+    # 100 000 draws of each measure theirs to ~1 % (0.90-0.914 over seeds 0-7)
+    rng = np.random.default_rng(7)
+    rows, C = 60, 10
+    A = rng.normal(size=(rows, 6))
+    H = A @ np.linalg.solve(A.T @ A, A.T)
+    M = np.zeros((C, rows))
+    M[np.repeat(np.arange(C), rows // C), np.arange(rows)] = rng.normal(size=rows)
+    Q = C / (C - 1) * M.T @ (np.eye(C) - 1.0 / C) @ M
+    K = H @ Q @ H
+    signs, gaussians = null_draws(rows, 100_000, 0), np.random.default_rng(0).standard_normal((rows, 100_000))
+    q_signs = np.einsum("id,ij,jd->d", signs, K, signs)
+    q_gaussians = np.einsum("id,ij,jd->d", gaussians, K, gaussians)
+    assert q_signs.var() == pytest.approx(2.0 * (np.sum(K ** 2) - np.sum(np.diag(K) ** 2)), rel=0.03)
+    assert q_gaussians.var() == pytest.approx(2.0 * np.sum(K ** 2), rel=0.03)
+    assert q_signs.var() < q_gaussians.var()
 
 
 def test_where_the_draws_put_the_projections_share_above_the_whole_the_plain_mean_is_the_null():

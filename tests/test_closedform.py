@@ -3,6 +3,7 @@
 import warnings
 
 import numpy as np
+import pandas as pd
 import pytest
 from test_association import make_log
 
@@ -156,7 +157,7 @@ def test_every_sensor_fitted_at_once_equals_its_own_fit_and_ignores_unknown_sens
     n = 400
     sensor = rng.choice(ids[:-1] + ["stranger"], size=n)
     p_sensor, p_world = rng.normal(0, 2, (n, 3)), rng.normal(0, 2, (n, 3))
-    fits = _fits(log, sensor.astype(str), p_sensor, p_world)
+    fits = _fits(log, *pd.factorize(sensor, use_na_sentinel=False), p_sensor, p_world)
     assert len(fits) == len(ids)
     for sid, (count, spread, direction, R, t, rms) in zip(ids, fits, strict=True):
         mine = sensor == sid

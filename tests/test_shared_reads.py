@@ -2,17 +2,19 @@
 each time's head, a column's codes, every row taken as it is) gives, to the bit, what reading it
 again where it is used gave."""
 
+import dataclasses
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from pedcal.calib.association import associate_robot
-from pedcal.calib.closedform import _fits
 from pedcal.calib.common import head_interpolator, interpolate_pose2, pose2_interpolator, rows_taken
 from pedcal.calib.motion import RobotMotion
 from pedcal.errors import PedcalInputError
 from pedcal.io.logdir import parse_text_column
 from pedcal.io.preflight import check_calibration
+from pedcal.model import rows_by_code, sensor_codes
 from pedcal.sim import simulate_logs
 
 
@@ -83,16 +85,30 @@ def test_observation_points_by_codes_are_each_sensors_own(log):
         assert np.array_equal(p[rows], s.to_sensor(xyz[rows]))
 
 
-def test_closed_form_fits_from_codes_are_the_fits_from_names(log):
-    rng = np.random.default_rng(3)
-    n = 2000
-    names = np.array([s.id for s in log.sensors] + ["not-installed"], dtype=object)
-    code = rng.integers(0, len(names), n)
-    p_sensor, p_world = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
-    by_name = _fits(log, names[code], p_sensor, p_world)
-    by_code = _fits(log, None, p_sensor, p_world, codes=(code, names))
-    assert len(by_name) == len(by_code) == len(log.sensors)
-    for a, b in zip(by_name, by_code, strict=True):
-        assert a[0] == b[0] and a[0] > 0
-        for x, y in zip(a[1:], b[1:], strict=True):
-            assert np.array_equal(x, y, equal_nan=True)
+def test_sensor_codes_are_the_text_columns_factorization():
+    # a number and its text share a code, as they share a text; a missing value is the text 'nan'
+    column = pd.Series(["b", 3, "a", np.nan, "3", "b", "a", np.nan, 3], dtype=object)
+    codes, names = sensor_codes(column)
+    want_codes, want_names = pd.factorize(np.array([str(v) for v in column], dtype=object))
+    assert np.array_equal(codes, want_codes)
+    assert list(names) == list(want_names) == ["b", "3", "a", "nan"]
+    codes, names = sensor_codes(pd.Series(["s2", "s1", "s2"]))
+    assert codes.tolist() == [0, 1, 0] and list(names) == ["s2", "s1"]
+
+
+def test_rows_by_code_are_each_codes_rows_in_order():
+    codes = np.random.default_rng(2).integers(-1, 5, 200)     # -1: pandas' missing-value code
+    groups = rows_by_code(codes, 6)
+    assert len(groups) == 6
+    for code, rows in enumerate(groups):
+        assert np.array_equal(rows, np.flatnonzero(codes == code))
+    assert len(groups[5]) == 0
+    assert rows_by_code(np.zeros(0, np.int64), 2)[1].tolist() == []
+
+
+def test_association_names_the_first_row_of_an_unknown_sensor(log):
+    obs = log.observations.copy()
+    obs.loc[[7, 3], "sensor"] = "ghost"
+    with pytest.raises(PedcalInputError, match="sensor 'ghost' is not in sensors.yaml") as err:
+        associate_robot(dataclasses.replace(log, observations=obs))
+    assert err.value.row == 3 and err.value.column == "sensor"

@@ -32,7 +32,7 @@ from scipy.optimize import minimize_scalar
 
 from pedcal.calib.common import Timer, head_interpolator
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
-from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork, rows_by_code, sensor_codes
 
 DEFAULT_PARAMS = {
     "gate_m": 2.5,            # installed-world head within this of the AMCL head (~1 m + 15 deg at ~4 m)
@@ -400,18 +400,18 @@ def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0
 # --------------------------------------------------------------------------- public API
 
 
-def _validate(log: Log):
+def _validate(log: Log, sensor_code: np.ndarray, sensor_names: np.ndarray):
+    """``sensor_code``, ``sensor_names``: :func:`pedcal.model.sensor_codes` of the sensor column."""
     obs_path = None if log.path is None else log.path / "observations.csv"
     robot_path = None if log.path is None else log.path / "robot.csv"
     if log.robot is None or len(log.robot) < 2:
         raise PedcalInputError("the robot's localization needs at least 2 rows to find the robot's "
                                "observations", path=robot_path)
     known = set(log.sensors.ids)
-    sensor_col = log.observations["sensor"].astype(str).to_numpy()
-    unknown = ~np.isin(sensor_col, list(known))
+    unknown = ~np.isin(sensor_names.astype(str), list(known))
     if unknown.any():
-        row = int(np.flatnonzero(unknown)[0])
-        raise PedcalInputError(f"sensor '{sensor_col[row]}' is not in sensors.yaml (expected one of "
+        row = int(np.flatnonzero(unknown[sensor_code])[0])
+        raise PedcalInputError(f"sensor '{sensor_names[sensor_code[row]]}' is not in sensors.yaml (expected one of "
                                f"{', '.join(sorted(known))})", path=obs_path, row=row, column="sensor")
 
 
@@ -425,22 +425,19 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
     if unknown:
         raise TypeError(f"unknown association parameter(s): {', '.join(sorted(unknown))}")
     params = {**DEFAULT_PARAMS, **params}
-    _validate(log)
+    sensor_code, sensor_names = sensor_codes(log.observations["sensor"])
+    _validate(log, sensor_code, sensor_names)
     with Timer() as timer:
         obs = log.observations
         n_obs = len(obs)
         t_all = obs["t"].to_numpy(float)
-        sensor_col = obs["sensor"].astype(str).to_numpy()
         track_col = obs["track"].astype(str).to_numpy()
         # each (sensor, track) segment numbered by first appearance, from the columns' codes (as the
         # joined texts' own numbering: distinct pairs, distinct codes), and each sensor's rows
-        sensor_code, sensor_names = pd.factorize(sensor_col)
         track_code = pd.factorize(track_col)[0]
         seg_codes = pd.factorize(sensor_code.astype(np.int64) * (int(track_code.max(initial=0)) + 1)
                                  + track_code)[0]
-        by_sensor = np.argsort(sensor_code, kind="stable")
-        cuts = np.r_[0, np.cumsum(np.bincount(sensor_code, minlength=len(sensor_names)))]
-        rows_of = {str(sid): by_sensor[cuts[i]:cuts[i + 1]] for i, sid in enumerate(sensor_names)}
+        rows_of = dict(zip(sensor_names, rows_by_code(sensor_code, len(sensor_names)), strict=True))
         p_sensor = log.observation_points_sensor() if p_sensor is None else np.asarray(p_sensor, float)
         p_installed = obs[["x", "y", "z"]].to_numpy(float)
         robot_t = log.robot["t"].to_numpy(float)

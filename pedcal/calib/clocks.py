@@ -61,7 +61,8 @@ VELOCITY_HALF_WINDOW_S = 0.5
 # the scatter (the rest is exact, a control variate); reseeded, a widened sigma moved by up to 7.6 %
 # on the zoo's seeds 0-1 of five scenarios with Gaussian draws (18 % with the draws' plain mean), and
 # on paper, corridor and cross seeds 0-1 by up to 3.2 % with signs, 3.6 % with Gaussian draws
-# (benchmarks/bench_clock_overdispersion.py)
+# (benchmarks/bench_clock_overdispersion.py --scenarios paper corridor cross --seeds 2 --no-exact,
+# and with --gaussian)
 NULL_DRAWS = 32
 # the efficient rows (rows x offsets) :func:`block_scores` holds at once: 32 MB
 SCORE_CHUNK_ENTRIES = 4_000_000

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
-from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator, rows_taken
+from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import LATENCY_KEY
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
@@ -38,20 +38,18 @@ def fit_rigid(p_sensor, p_world, weights=None) -> tuple[np.ndarray, np.ndarray]:
     return rigid_from_moments(*moments(p_sensor, p_world, weights))
 
 
-def _fits(log: Log, sensor: np.ndarray | None, p_sensor: np.ndarray, p_world: np.ndarray,
-          codes: tuple | None = None) -> list[tuple]:
+def _fits(log: Log, row_code: np.ndarray, names, p_sensor: np.ndarray, p_world: np.ndarray) -> list[tuple]:
     """Every sensor's fit at once (the pairs grouped by sensor by one sort, their sums by
     reduceat, the 3 x 3 eigen- and singular-value problems batched): per sensor of the network,
     (pairs n, the world points' second principal spread (m, the square root of their
     covariance's middle eigenvalue) and principal direction, R, t of :func:`fit_rigid`, RMS
-    residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs. ``sensor``:
-    each pair's sensor id, or None with ``codes`` (each pair's code, the names the codes number)."""
+    residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs.
+    ``row_code``: each pair's sensor as a code into ``names``, the sensor ids (a name the network
+    does not hold: no fit; ``pd.factorize`` of the ids gives both)."""
     index = {s.id: i for i, s in enumerate(log.sensors)}
     m = len(index)
     # (each distinct name looked up once: a lookup per pair took longer than the fits)
-    row_name, names = codes if codes is not None else pd.factorize(np.asarray(sensor, dtype=object).ravel(),
-                                                                   use_na_sentinel=False)
-    code = np.array([index.get(str(n), np.nan) for n in names], float)[row_name]
+    code = np.array([index.get(str(n), np.nan) for n in names], float)[row_code]
     keep = np.flatnonzero(np.isfinite(code))            # (a sensor the network does not hold: none of its fits)
     order = keep[np.argsort(code[keep], kind="stable")]
     code, p_sensor, p_world = code[order].astype(np.int64), p_sensor[order], p_world[order]
@@ -95,7 +93,9 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
     :func:`pedcal.calib.association.associate_robot` (``association_params`` go to it).
     ``latency_s``: tracker latency (observation stamp minus the robot's time); None takes the
     association's estimate, or estimates it from the given ``is_robot``. ``points_sensor``:
-    ``log.observation_points_sensor()`` when the caller has it."""
+    ``log.observation_points_sensor()`` when the caller has it. ``head_at``:
+    :func:`pedcal.calib.common.head_interpolator` of ``log`` (t -> the robot's head top in the
+    world, from AMCL) when the caller has it, made when None; the association's when it runs."""
     with Timer() as timer:
         diagnostics = ClosedFormDiagnostics()
         # the head points in each sensor's frame, read once for the association, the latency and the fits
@@ -129,9 +129,8 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         robot_t = log.robot["t"].to_numpy(float)
         covered = (t_all - latency_s >= robot_t.min()) & (t_all - latency_s <= robot_t.max())
         diagnostics.unpaired_robot_observations = int((is_robot & ~covered).sum())
-        use = rows_taken(np.flatnonzero(is_robot & covered), len(t_all))
-        fits = _fits(log, None, p_sensor_all[use], head_at(t_all[use] - latency_s),
-                     codes=(sensor_code[use], sensor_names))
+        use = np.flatnonzero(is_robot & covered)
+        fits = _fits(log, sensor_code[use], sensor_names, p_sensor_all[use], head_at(t_all[use] - latency_s))
         sensors_out = []
         for i, s in enumerate(log.sensors):
             n, spread_m, direction, R, t, rms_m = fits[i]

@@ -71,7 +71,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from pedcal.calib.amcl_model import AmclErrorModel
+from pedcal.calib.amcl_model import AmclErrorModel, amcl_period_s
 from pedcal.calib.common import interpolate_pose2
 from pedcal.calib.graph import (
     A,
@@ -84,7 +84,6 @@ from pedcal.calib.graph import (
     sensor_sigma_world,
     set_amcl_model,
 )
-from pedcal.calib.problem import amcl_period_s
 from pedcal.deprecation import renamed_fields
 from pedcal.errors import PedcalInputError
 from pedcal.model import Log

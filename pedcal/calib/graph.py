@@ -94,6 +94,7 @@ from pedcal import frames
 from pedcal.calib.amcl_model import (  # noqa: F401
     AmclErrorModel,
     amcl_cov_body,
+    amcl_period_s,
     amcl_white_sigma,
     ar1_factor_sigmas,
     assumed_model,
@@ -114,7 +115,6 @@ from pedcal.calib.motion import (  # noqa: F401
 )
 from pedcal.calib.problem import (  # noqa: F401
     FactorGraphProblem,
-    amcl_period_s,
     estimate_observation_noise,
     prepare,
     set_amcl_model,

@@ -209,8 +209,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
                      head_at=None) -> dict[str, gtsam.Pose3]:
     """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
     ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
-    closed form reads too, and ``head_at`` a function returning
-    :func:`pedcal.calib.common.head_interpolator` of ``log`` (called only by the closed form)."""
+    closed form reads too, and ``head_at`` :func:`pedcal.calib.common.head_interpolator` of ``log``
+    (for the closed form, which makes its own when None)."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -222,7 +222,7 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
                                                                                 latency_s=latency_s,
                                                                                 points_sensor=points_sensor)
         if recipe.init == "closedform" and head_at is not None:
-            opts["head_at"] = head_at()
+            opts["head_at"] = head_at
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
@@ -248,15 +248,10 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
 
     latency = None
     # (the head points in each sensor's frame, read once: the association, the initializer and
-    # the shared people's tracks take them too; so is AMCL's head spline, made by the association
-    # or on the first call, for the latency, the closed form and the robot's motion)
+    # the shared people's tracks take them too; so is AMCL's head spline, the association's or made
+    # here, for the latency, the closed form and the robot's motion)
     p_all = log.observation_points_sensor()
-    heads: list = []
-
-    def head_at():
-        if not heads:
-            heads.append(head_interpolator(log))
-        return heads[0]
+    head_at = None
     if not recipe.robot:
         # Without the robot's observations the robot is one more unlocalized person, as in the
         # alternative (SNAPCAT-3D): its tracks are shared sightings like anyone's, and no
@@ -265,14 +260,15 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     elif is_robot is None:
         _log(progress, "picking out the robot's observations")
         assoc = associate_robot(log, p_sensor=p_all)
-        is_robot, latency = assoc.is_robot, assoc.latency_s
-        heads.append(assoc.head_at)
+        is_robot, latency, head_at = assoc.is_robot, assoc.latency_s, assoc.head_at
+    if head_at is None:
+        head_at = head_interpolator(log)
     is_robot = np.asarray(is_robot, bool)
     if not recipe.estimate_latency:
         latency = 0.0
     elif latency is None:
         latency = (estimate_latency(log, is_robot, max_latency_s=recipe.latency_max_s, p_sensor=p_all,
-                                    head_at=head_at()) if is_robot.sum() >= 12 else 0.0)
+                                    head_at=head_at) if is_robot.sum() >= 12 else 0.0)
     _log(progress, f"tracker latency from the association: {1000 * latency:.0f} ms")
     obs = log.observations
     # (each row's sensor by the column's codes: the names of the rows used taken from them, no
@@ -312,7 +308,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                               obs_t_raw=t_all[rows],
                               pose_times=pose_times, init_sensors=init,
                               motion=RobotMotion(log, odometry if odometry is not None else smooth,
-                                                 head_at=head_at()),
+                                                 head_at=head_at),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
     if len(set(sensor_names.tolist())) == len(sensor_names):
@@ -446,4 +442,4 @@ def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *,
 
 
 
-__all__ = ["FactorGraphProblem", "amcl_period_s", "prepare", "estimate_observation_noise", "set_amcl_model"]
+__all__ = ["FactorGraphProblem", "prepare", "estimate_observation_noise", "set_amcl_model"]
