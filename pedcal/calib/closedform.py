@@ -44,7 +44,9 @@ def _fits(log: Log, row_code: np.ndarray, names, p_sensor: np.ndarray, p_world: 
     covariance's middle eigenvalue) and principal direction, R, t of :func:`fit_rigid`, RMS
     residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs.
     ``row_code``: each pair's sensor as a code into ``names``, the sensor ids (a name the network
-    does not hold: no fit; ``pd.factorize`` of the ids gives both)."""
+    does not hold: no fit): :func:`pedcal.model.sensor_codes` of the sensor column gives both
+    (every code a valid index, a missing id named, where plain ``pd.factorize`` codes it -1,
+    which would index the last name)."""
     index = {s.id: i for i, s in enumerate(log.sensors)}
     m = len(index)
     # (each distinct name looked up once: a lookup per pair took longer than the fits)
