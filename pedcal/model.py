@@ -252,9 +252,8 @@ class Log:
         out = np.empty((len(self.observations), 3))
         xyz = self.observations[["x", "y", "z"]].to_numpy(dtype=float)
         # each sensor's rows from the column's codes: no Python string made per row
-        codes, names = pd.factorize(self.observations["sensor"])
-        for name, rows in zip(names, rows_by_code(codes, len(names)), strict=True):
-            sid = str(name)
+        codes, names = sensor_codes(self.observations["sensor"])
+        for sid, rows in zip(names, rows_by_code(codes, len(names)), strict=True):
             if sid in self.sensors:
                 out[rows] = self.sensors[sid].to_sensor(xyz[rows])
         return out
