@@ -205,12 +205,12 @@ def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network:
 
 
 def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None,
-                     head_at=None) -> dict[str, gtsam.Pose3]:
+                     init_network: SensorNetwork | None, *, points_sensor: np.ndarray | None = None,
+                     head_at) -> dict[str, gtsam.Pose3]:
     """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
     ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
     closed form reads too, and ``head_at`` :func:`pedcal.calib.common.head_interpolator` of ``log``
-    (for the closed form, which makes its own when None)."""
+    (the association's or prepare's), which the closed form takes rather than making its own."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -220,9 +220,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
 
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
                                                                                 latency_s=latency_s,
-                                                                                points_sensor=points_sensor)
-        if recipe.init == "closedform" and head_at is not None:
-            opts["head_at"] = head_at
+                                                                                points_sensor=points_sensor,
+                                                                                head_at=head_at)
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
