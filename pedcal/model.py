@@ -48,12 +48,19 @@ def plain(value):
 
 def sensor_codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
     """Each row's sensor as a code and the sensors' names (str, numbered by first appearance): the
-    factorization of the values' texts (``str`` of each, a missing value 'nan') without a Python
-    string made per row (one per distinct value; values whose texts agree, the number 3 and the
-    text '3', share a code)."""
+    factorization of ``str`` of each value, every code a valid index (a missing value named by
+    its text: NaN 'nan', None 'None', a string column's pd.NA '<NA>'). An object column is
+    factorized by its values' texts (pandas' own factorization would merge 1, 1.0 and True, and
+    name the code of 1.0 and 1 after the first); any other column (str, string, numbers) by its
+    values, a Python string made per distinct value only, values whose texts agree then merged
+    (the one exception: a float column's 0.0 and -0.0, one value to pandas, share a code, named
+    after the first)."""
+    if column.dtype == object:
+        codes, names = pd.factorize(column.map(str))
+        return codes, np.asarray(names, dtype=object)
     codes, values = pd.factorize(column, use_na_sentinel=False)
     names = np.array([str(v) for v in values], dtype=object)
-    if len(set(names.tolist())) < len(names):
+    if len(set(names.tolist())) < len(names):     # (a categorical of 3 and '3', say)
         merged, names = pd.factorize(names)
         codes = merged[codes]
     return codes, names
@@ -245,9 +252,8 @@ class Log:
         out = np.empty((len(self.observations), 3))
         xyz = self.observations[["x", "y", "z"]].to_numpy(dtype=float)
         # each sensor's rows from the column's codes: no Python string made per row
-        codes, names = pd.factorize(self.observations["sensor"])
-        for name, rows in zip(names, rows_by_code(codes, len(names)), strict=True):
-            sid = str(name)
+        codes, names = sensor_codes(self.observations["sensor"])
+        for sid, rows in zip(names, rows_by_code(codes, len(names)), strict=True):
             if sid in self.sensors:
                 out[rows] = self.sensors[sid].to_sensor(xyz[rows])
         return out

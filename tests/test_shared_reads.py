@@ -96,6 +96,25 @@ def test_sensor_codes_are_the_text_columns_factorization():
     assert codes.tolist() == [0, 1, 0] and list(names) == ["s2", "s1"]
 
 
+def test_sensor_codes_keep_apart_the_numbers_whose_texts_differ_in_an_object_column():
+    # pandas' factorization merges 1, 1.0 and True (and names them after the first): by their
+    # texts they are three sensors, and the text '1' is the number 1's
+    column = pd.Series([1, 1.0, "1", True, None, 1.0], dtype=object)
+    codes, names = sensor_codes(column)
+    want_codes, want_names = pd.factorize(np.array([str(v) for v in column], dtype=object))
+    assert np.array_equal(codes, want_codes) and list(names) == list(want_names)
+    assert codes.tolist() == [0, 1, 0, 2, 3, 1] and list(names) == ["1", "1.0", "True", "None"]
+    assert all(type(n) is str for n in names)
+
+
+def test_sensor_codes_name_a_string_columns_missing_value_by_its_text():
+    # a string column's pd.NA is a sensor named '<NA>' (its text), coded like any other
+    column = pd.Series(["s2", pd.NA, "s1", pd.NA, "s2"], dtype="string")
+    codes, names = sensor_codes(column)
+    assert codes.tolist() == [0, 1, 2, 1, 0] and list(names) == ["s2", "<NA>", "s1"]
+    assert list(names) == list(pd.factorize(np.array([str(v) for v in column], dtype=object))[1])
+
+
 def test_rows_by_code_are_each_codes_rows_in_order():
     codes = np.random.default_rng(2).integers(-1, 5, 200)     # -1: pandas' missing-value code
     groups = rows_by_code(codes, 6)

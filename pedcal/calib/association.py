@@ -408,7 +408,7 @@ def _validate(log: Log, sensor_code: np.ndarray, sensor_names: np.ndarray):
         raise PedcalInputError("the robot's localization needs at least 2 rows to find the robot's "
                                "observations", path=robot_path)
     known = set(log.sensors.ids)
-    unknown = ~np.isin(sensor_names.astype(str), list(known))
+    unknown = ~np.isin(sensor_names, list(known))
     if unknown.any():
         row = int(np.flatnonzero(unknown[sensor_code])[0])
         raise PedcalInputError(f"sensor '{sensor_names[sensor_code[row]]}' is not in sensors.yaml (expected one of "

@@ -15,13 +15,12 @@ import warnings
 
 import gtsam
 import numpy as np
-import pandas as pd
 
 from pedcal.calib.association import estimate_latency, moments, rigid_from_moments
 from pedcal.calib.common import CalibrationResult, ClosedFormDiagnostics, Timer, head_interpolator
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.metrics import LATENCY_KEY
-from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork, sensor_codes
 
 MIN_PAIRS = 5
 COLLINEAR_SPREAD_M = 0.1   # second principal spread (1 sigma) of the pairs below which they are a line
@@ -45,11 +44,13 @@ def _fits(log: Log, row_code: np.ndarray, names, p_sensor: np.ndarray, p_world: 
     covariance's middle eigenvalue) and principal direction, R, t of :func:`fit_rigid`, RMS
     residual of the fit (m)); the spread is NaN below 2 pairs, R and t without pairs.
     ``row_code``: each pair's sensor as a code into ``names``, the sensor ids (a name the network
-    does not hold: no fit; ``pd.factorize`` of the ids gives both)."""
+    does not hold: no fit): :func:`pedcal.model.sensor_codes` of the sensor column gives both
+    (every code a valid index, a missing id named, where plain ``pd.factorize`` codes it -1,
+    which would index the last name)."""
     index = {s.id: i for i, s in enumerate(log.sensors)}
     m = len(index)
     # (each distinct name looked up once: a lookup per pair took longer than the fits)
-    code = np.array([index.get(str(n), np.nan) for n in names], float)[row_code]
+    code = np.array([index.get(n, np.nan) for n in names], float)[row_code]
     keep = np.flatnonzero(np.isfinite(code))            # (a sensor the network does not hold: none of its fits)
     order = keep[np.argsort(code[keep], kind="stable")]
     code, p_sensor, p_world = code[order].astype(np.int64), p_sensor[order], p_world[order]
@@ -123,7 +124,7 @@ def calibrate_closedform(log: Log, *, progress: bool = False, is_robot=None, lat
         diagnostics.tracker_latency_s = float(latency_s)
 
         # (each row's sensor by the column's codes: no Python string made per row)
-        sensor_code, sensor_names = pd.factorize(log.observations["sensor"], use_na_sentinel=False)
+        sensor_code, sensor_names = sensor_codes(log.observations["sensor"])
         t_all = log.observations["t"].to_numpy(float)
         # robot observations past either end of robot.csv have no AMCL position to pair with
         robot_t = log.robot["t"].to_numpy(float)

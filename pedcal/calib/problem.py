@@ -23,7 +23,7 @@ from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 from pedcal.frames import toward_sensor_horizontal
-from pedcal.model import Log, SensorExtrinsics, SensorNetwork
+from pedcal.model import Log, SensorExtrinsics, SensorNetwork, sensor_codes
 
 
 def factorized(names: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -205,12 +205,12 @@ def _shared_people(log: Log, is_robot: np.ndarray, recipe: GraphRecipe, network:
 
 
 def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progress,
-                     init_network: SensorNetwork | None, points_sensor: np.ndarray | None = None,
-                     head_at=None) -> dict[str, gtsam.Pose3]:
+                     init_network: SensorNetwork | None, *, points_sensor: np.ndarray | None = None,
+                     head_at) -> dict[str, gtsam.Pose3]:
     """The sensors' initial poses: ``init_network``'s, or the recipe's initializer's, the installed
     ones where it has none. ``points_sensor``: ``log.observation_points_sensor()``, which the
     closed form reads too, and ``head_at`` :func:`pedcal.calib.common.head_interpolator` of ``log``
-    (for the closed form, which makes its own when None)."""
+    (the association's or prepare's), which the closed form takes rather than making its own."""
     if init_network is not None:
         init = {s.id: s.T_world_sensor for s in init_network}
     elif recipe.init in ("gridsearch", "closedform") and recipe.robot:
@@ -220,9 +220,8 @@ def _initial_sensors(log: Log, recipe: GraphRecipe, is_robot, latency_s, progres
 
         opts = dict(is_robot=is_robot) if recipe.init == "gridsearch" else dict(is_robot=is_robot,
                                                                                 latency_s=latency_s,
-                                                                                points_sensor=points_sensor)
-        if recipe.init == "closedform" and head_at is not None:
-            opts["head_at"] = head_at
+                                                                                points_sensor=points_sensor,
+                                                                                head_at=head_at)
         module, func = METHODS[recipe.init]      # the method itself: the log is validated already
         with warnings.catch_warnings():     # the graph reports degenerate sensors itself
             warnings.simplefilter("ignore", DegenerateDataWarning)
@@ -273,8 +272,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     obs = log.observations
     # (each row's sensor by the column's codes: the names of the rows used taken from them, no
     # Python string made per row, and their codes kept for the grouping by sensor)
-    sensor_code, sensor_names = pd.factorize(obs["sensor"], use_na_sentinel=False)
-    sensor_names = np.array([str(n) for n in sensor_names], dtype=object)
+    sensor_code, sensor_names = sensor_codes(obs["sensor"])
     t_all = obs["t"].to_numpy(float)
     rows = np.flatnonzero(is_robot)
     amcl_t = log.robot["t"].to_numpy(float)
@@ -311,11 +309,10 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                                                  head_at=head_at),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
-    if len(set(sensor_names.tolist())) == len(sensor_names):
-        # the rows' sensors numbered by first appearance (obs_sensor_codes) from their codes: the
-        # same numbering as the names' own, distinct names having distinct codes
-        codes, first = pd.factorize(sensor_code[rows])
-        prob.__dict__["_obs_sensor_codes"] = (prob.obs_sensor, (codes, sensor_names[first]))
+    # the rows' sensors numbered by first appearance (obs_sensor_codes) from their codes: the
+    # same numbering as the names' own, sensor_codes' names being distinct
+    codes, first = pd.factorize(sensor_code[rows])
+    prob.__dict__["_obs_sensor_codes"] = (prob.obs_sensor, (codes, sensor_names[first]))
     set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
