@@ -238,15 +238,19 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     """The papers' figures of ``extrinsics`` on ``log`` (see the module docstring)."""
     require(log, "log", Log, "a pedcal.Log (pedcal.read_log(PATH))")
     require(extrinsics, "extrinsics", SensorNetwork, "a pedcal.SensorNetwork (pedcal.read_sensors_yaml(PATH))")
-    missing = [sid for sid in log.sensors.ids if sid not in extrinsics]
-    foreign = [s.id for s in extrinsics if s.id not in log.sensors]
+    # sets of ids: a network's look-up rebuilds its index on a miss (it cannot tell an absent id
+    # from one added since), so a miss per sensor would be quadratic
+    log_ids, extrinsics_ids = set(log.sensors.ids), set(extrinsics.ids)
+    missing = [sid for sid in log.sensors.ids if sid not in extrinsics_ids]
+    foreign = [s.id for s in extrinsics if s.id not in log_ids]
     per_sensor: dict[str, dict] = {}
 
     pos_rms = orient_rms = None
     if log.truth is not None:
         errs, angs = [], []
+        truth_ids = set(log.truth.ids)
         for s in extrinsics:
-            if s.id not in log.truth:
+            if s.id not in truth_ids:
                 continue
             true = log.truth[s.id]
             e_mm = 1000.0 * (s.position_m - true.position_m)
