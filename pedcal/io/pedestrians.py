@@ -57,7 +57,7 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
         raise PedcalInputError(f"cannot read: {show(first, 160)[1:-1]}", path=path) from None
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
-        names = [c.strip() for c in header_cells(path, sep)]
+        names = [c.strip() for c in header_cells(path)]     # (a headed layout is comma-separated: THÖR)
         refuse_repeated_columns(names, columns[:4], path)
         missing = [c for c in columns[:4] if c not in raw.columns]
         if missing:
