@@ -157,10 +157,16 @@ class EvaluationResult:
             out.append(f"{s.id:>8s} {s.position_error_norm_mm:14.1f} {s.orientation_error_deg:13.3f} "
                        f"{head:>14s} {s.head_observations:6d}")
         if self.missing_sensors:
-            out.append(f"not in the extrinsics file (not scored): {', '.join(self.missing_sensors)}")
+            out.append(f"not in the extrinsics file (not scored): {id_listing(self.missing_sensors)}")
         if self.foreign_sensors:
-            out.append(f"not in the log's sensors.yaml (not scored): {', '.join(self.foreign_sensors)}")
+            out.append(f"not in the log's sensors.yaml (not scored): {id_listing(self.foreign_sensors)}")
         return "\n".join(out)
+
+
+def id_listing(ids: list[str], first: int = 10) -> str:
+    """Sensor ids on one line: the first ``first``, then how many in all (a file of another site
+    can name hundreds); the whole list is in the result (``to_dict``)."""
+    return ", ".join(ids[:first]) + (f", ... ({len(ids)} in all)" if len(ids) > first else "")
 
 
 def robot_rows(log: Log) -> tuple[np.ndarray, str]:
