@@ -51,7 +51,7 @@ def cmd_simulate(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from pedcal.io import read_log, read_sensors_yaml
-    from pedcal.metrics import evaluate
+    from pedcal.metrics import evaluate, id_listing
 
     log = read_log(args.log)
     ext = read_sensors_yaml(args.extrinsics)
@@ -60,7 +60,7 @@ def cmd_evaluate(args) -> int:
     if foreign:                # a file of another site, or sensors renamed: not scored, not in silence
         logging.getLogger("pedcal").warning(
             f"{args.extrinsics}: {len(foreign)} sensor(s) not in the log's sensors.yaml, not scored: "
-            f"{', '.join(foreign[:10])}{', ...' if len(foreign) > 10 else ''}")
+            f"{id_listing(foreign)}")
     if log.truth is None:      # a real log: the table's position and orientation columns stay empty
         logging.getLogger("pedcal").warning(
             f"{args.log} has no truth.yaml: sensor position and orientation errors cannot be computed (left "

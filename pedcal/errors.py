@@ -64,7 +64,8 @@ def show(value, limit: int = 40) -> str:
     cut to ``limit`` characters with unprintable characters escaped (a binary file's bytes are
     not dumped into a message). A list, tuple, dict or set is shown item by item, each item so
     (``[0, 'abc', nan]``, not the quoted text of its Python form), within reprlib's bounds: two
-    levels, 6 items of a list, 4 of a dict, items cut to 20 characters (a YAML alias bomb prints small)."""
+    levels, 6 items of a list, 4 of a dict, items cut to 20 characters, None as None, and the whole cut
+    to ``4 * limit`` characters (a YAML alias bomb, a nest of long strings, prints small)."""
     import numbers
 
     if isinstance(value, bool):
@@ -74,7 +75,8 @@ def show(value, limit: int = 40) -> str:
     if isinstance(value, numbers.Real):
         return repr(float(value))
     if isinstance(value, _CONTAINERS):
-        return _Brief(min(limit, 20)).repr(value)
+        text = _Brief(min(limit, 20)).repr(value)
+        return text if len(text) <= 4 * limit else text[: 4 * limit] + "..."
     text = value.decode("latin-1") if isinstance(value, bytes) else str(value)
     escaped = text.encode("unicode_escape").decode("ascii").replace("'", "\\'")
     cut = len(escaped) > limit
@@ -96,4 +98,6 @@ class _Brief(reprlib.Repr):
     def repr1(self, x, level):
         if isinstance(x, _CONTAINERS):
             return super().repr1(x, level)
+        if x is None:       # a YAML null, not the text 'None'
+            return "None"
         return show(x, self.item_limit)

@@ -157,10 +157,16 @@ class EvaluationResult:
             out.append(f"{s.id:>8s} {s.position_error_norm_mm:14.1f} {s.orientation_error_deg:13.3f} "
                        f"{head:>14s} {s.head_observations:6d}")
         if self.missing_sensors:
-            out.append(f"not in the extrinsics file (not scored): {', '.join(self.missing_sensors)}")
+            out.append(f"not in the extrinsics file (not scored): {id_listing(self.missing_sensors)}")
         if self.foreign_sensors:
-            out.append(f"not in the log's sensors.yaml (not scored): {', '.join(self.foreign_sensors)}")
+            out.append(f"not in the log's sensors.yaml (not scored): {id_listing(self.foreign_sensors)}")
         return "\n".join(out)
+
+
+def id_listing(ids: list[str], first: int = 10) -> str:
+    """Sensor ids on one line: the first ``first``, then how many in all (a file of another site
+    can name hundreds); the whole list is in the result (``to_dict``)."""
+    return ", ".join(ids[:first]) + (f", ... ({len(ids)} in all)" if len(ids) > first else "")
 
 
 def robot_rows(log: Log) -> tuple[np.ndarray, str]:
@@ -238,15 +244,19 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
     """The papers' figures of ``extrinsics`` on ``log`` (see the module docstring)."""
     require(log, "log", Log, "a pedcal.Log (pedcal.read_log(PATH))")
     require(extrinsics, "extrinsics", SensorNetwork, "a pedcal.SensorNetwork (pedcal.read_sensors_yaml(PATH))")
-    missing = [sid for sid in log.sensors.ids if sid not in extrinsics]
-    foreign = [s.id for s in extrinsics if s.id not in log.sensors]
+    # sets of ids: a network's look-up rebuilds its index on a miss (it cannot tell an absent id
+    # from one added since), so a miss per sensor would be quadratic
+    log_ids, extrinsics_ids = set(log.sensors.ids), set(extrinsics.ids)
+    missing = [sid for sid in log.sensors.ids if sid not in extrinsics_ids]
+    foreign = [s.id for s in extrinsics if s.id not in log_ids]
     per_sensor: dict[str, dict] = {}
 
     pos_rms = orient_rms = None
     if log.truth is not None:
         errs, angs = [], []
+        truth_ids = set(log.truth.ids)
         for s in extrinsics:
-            if s.id not in log.truth:
+            if s.id not in truth_ids:
                 continue
             true = log.truth[s.id]
             e_mm = 1000.0 * (s.position_m - true.position_m)

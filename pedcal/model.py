@@ -156,7 +156,8 @@ class SensorNetwork:
     def _find(self, sensor_id) -> SensorExtrinsics | None:
         """The sensor of that id, or None: by an id -> position index, checked on every use and
         rebuilt when the list changed under it (a sensor replaced, added or removed), instead of
-        a scan of the list per look-up (quadratic over a network's sensors)."""
+        a scan of the list per look-up (quadratic over a network's sensors). A miss rebuilds it (an
+        absent id and one added to the list since look alike): to test many ids, use a set of ``ids``."""
         sid = str(sensor_id)
         index = self.__dict__.get("_index")
         i = None if index is None else index.get(sid)

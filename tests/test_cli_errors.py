@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from pedcal.cli import EXIT_BAD_INPUT, main
-from pedcal.io import write_log
+from pedcal.io import write_log, write_sensors_yaml
 from pedcal.model import Log, SensorExtrinsics, SensorNetwork
 
 
@@ -467,3 +467,20 @@ def test_evaluate_names_the_extrinsics_sensors_the_log_does_not_have(tmp_path, c
     code, err = run(capsys, ["evaluate", str(log_dir), "--extrinsics", str(ext)])
     assert code == 0
     assert f"{ext}: 1 sensor(s) not in the log's sensors.yaml, not scored: s99" in err
+
+
+def test_evaluate_lists_at_most_ten_foreign_sensors_in_its_warning_and_its_table(tmp_path, capsys):
+    """The warning named the first 10 of a file of another site's sensors, and the table under it
+    all of them again on one line; both now show the first 10 and how many in all."""
+    log_dir = tmp_path / "log"
+    write_log(small_log(), log_dir)
+    ext = tmp_path / "ext.yaml"
+    foreign = [f"x{i:02d}" for i in range(14)]
+    write_sensors_yaml(SensorNetwork([SensorExtrinsics(sid, [i, 0, 2.6], [0, 45, 0]) for i, sid in enumerate(foreign)]
+                                     + [small_log().sensors["s01"]]), ext)
+    assert main(["evaluate", str(log_dir), "--extrinsics", str(ext)]) == 0
+    out, err = capsys.readouterr()
+    shown = "x00, x01, x02, x03, x04, x05, x06, x07, x08, x09, ... (14 in all)"
+    assert f"{ext}: 14 sensor(s) not in the log's sensors.yaml, not scored: {shown}\n" in err
+    assert f"not in the log's sensors.yaml (not scored): {shown}" in out.splitlines()
+    assert "x10" not in out + err

@@ -250,3 +250,49 @@ def test_a_parquet_people_table_named_in_capitals_is_read_and_written_as_parquet
     write_people_csv(people, w)
     assert w.read_bytes()[:4] == b"PAR1"
     pd.testing.assert_frame_equal(pd.read_parquet(w), people)
+
+
+BOM = "\ufeff"
+
+
+@pytest.mark.parametrize("header,kind", [
+    ("t,person,x,y\n", "people"), ('"t","person","x","y"\n', "people"),
+    (THOR_HEADER, "thor"), ('"time","person_id","x","y","velocity","motion_angle"\n', "thor")])
+@pytest.mark.parametrize("bom", ["", BOM])
+def test_a_header_with_a_bom_or_quoted_names_is_recognised(tmp_path, header, kind, bom):
+    """The layout was sniffed from the first line split at commas and read without the BOM removed:
+    a BOM or quoted names (as spreadsheets write them) made the header unrecognised, though the
+    people and THÖR readers read the same file."""
+    rows = "0.0,a,1.0,2.0\n0.4,a,1.2,2.1\n" if kind == "people" else thor_rows(5, seed=2)
+    p = tmp_path / "walk.csv"
+    p.write_text(bom + header + rows, encoding="utf-8")
+    assert detect_kind(p) == kind
+    plain = tmp_path / "plain.csv"
+    plain.write_text(header.replace('"', "") + rows)
+    people = read_pedestrians(p)
+    pd.testing.assert_frame_equal(people, read_pedestrians(plain, kind=kind))
+    assert len(people) == rows.count("\n")
+
+
+@pytest.mark.parametrize("name,content,kind", [
+    ("biwi_hotel.txt", "780\t1.0\t8.46\t3.59\n790\t1.0\t8.50\t3.79\n", "eth_ucy"),
+    ("thor.csv", "0.02,12001,-0.046,-3.443,0.141,2.356\n0.43,12001,-0.077,-3.491,0.1,-1.571\n", "thor"),
+    ("atc.csv", "1351040437.965,10003800,-25.397,1.0,2.007,0.45\n1351040438.0,10003800,-25.3,1.1,2.0,0.4\n", "atc")])
+def test_a_headerless_file_starting_with_a_bom_is_taken_as_headerless(tmp_path, name, content, kind):
+    """The BOM is no character of the first line: it made a numeric first line look like a header."""
+    p = tmp_path / name
+    p.write_text(BOM + content, encoding="utf-8")
+    assert detect_kind(p) == kind
+    plain = tmp_path / ("plain_" + name)
+    plain.write_text(content)
+    people = read_pedestrians(p, fps=25.0 if kind == "eth_ucy" else None)
+    pd.testing.assert_frame_equal(people, read_pedestrians(plain, kind=kind, fps=25.0 if kind == "eth_ucy" else None))
+    assert len(people) == 2
+
+
+def test_a_header_pandas_cannot_split_is_an_input_error(tmp_path):
+    p = tmp_path / "walk.csv"
+    p.write_text('"t,person,x,y\n0.0,a,1.0,2.0\n')
+    with pytest.raises(PedcalInputError, match=r"cannot read the header '\"t,person,x,y': .*EOF inside string") as ei:
+        read_pedestrians(p)
+    assert ei.value.path == str(p)

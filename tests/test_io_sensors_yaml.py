@@ -259,7 +259,7 @@ def test_meta_and_scenario_files_refuse_a_key_given_twice(tmp_path):
 
 
 @pytest.mark.parametrize("value,shown", [("[abc, 45, 0]", "['abc', 45, 0]"), ("[.nan, 0.5, 1]", "[nan, 0.5, 1]"),
-                                         ("[0, 45]", "[0, 45]"), ("7", "7"),
+                                         ("[0, 45]", "[0, 45]"), ("7", "7"), ("[~, 45, 0]", "[None, 45, 0]"),
                                          ("[[1], 2, 3, 4, 5, 6, 7]", "[[1], 2, 3, 4, 5, 6, ...]"),
                                          ("[[[1]], x]", "[[[...]], 'x']")])
 def test_a_bad_vector_is_quoted_item_by_item(tmp_path, value, shown):

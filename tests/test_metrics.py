@@ -97,3 +97,40 @@ def test_extrinsics_sensors_the_log_lacks_are_named_not_scored():
     assert res.format_table().splitlines()[-2:] == ["not in the extrinsics file (not scored): s2",
                                                      "not in the log's sensors.yaml (not scored): s9"]
     assert evaluate(log, log.sensors.copy()).foreign_sensors == []
+
+
+def test_evaluate_tests_membership_on_sets_not_by_a_network_look_up_per_sensor(monkeypatch):
+    """A network's look-up rebuilds its whole id index on a miss (it cannot tell an absent id from
+    one added to the list since): evaluate asked it once per sensor of each side, a rebuild per
+    foreign or missing sensor, quadratic over a large file of another site. It now looks up only
+    ids it knows are there."""
+    log = _tiny_log()
+    foreign = [SensorExtrinsics(f"f{i}", [5.0 + i, 0.0, 3.0], [0.0, 90.0, 0.0]) for i in range(50)]
+    ext = SensorNetwork([log.sensors["s1"], *foreign])
+    misses = []
+    find = SensorNetwork._find
+
+    def spy(self, sensor_id):
+        found = find(self, sensor_id)
+        if found is None:
+            misses.append(sensor_id)
+        return found
+
+    monkeypatch.setattr(SensorNetwork, "_find", spy)
+    res = evaluate(log, ext)
+    assert misses == []
+    assert res.missing_sensors == ["s2"] and res.foreign_sensors == [f"f{i}" for i in range(50)]
+    assert res.sensor_position_rms_mm.combined == 0.0         # s1 alone scored, against its truth
+
+
+def test_the_table_lists_at_most_ten_sensors_missing_or_foreign_and_says_how_many():
+    log = _tiny_log()
+    ext = SensorNetwork([log.sensors["s1"], *(SensorExtrinsics(f"f{i}", [5.0 + i, 0.0, 3.0], [0.0, 90.0, 0.0])
+                                              for i in range(12))])
+    res = evaluate(log, ext)
+    assert res.foreign_sensors == [f"f{i}" for i in range(12)]            # the result keeps them all
+    assert res.format_table().splitlines()[-1] == ("not in the log's sensors.yaml (not scored): "
+                                                   "f0, f1, f2, f3, f4, f5, f6, f7, f8, f9, ... (12 in all)")
+    res.missing_sensors = [f"m{i}" for i in range(10)]                  # ten: all shown, no count
+    assert res.format_table().splitlines()[-2] == ("not in the extrinsics file (not scored): "
+                                                   "m0, m1, m2, m3, m4, m5, m6, m7, m8, m9")

@@ -108,14 +108,13 @@ class CsvTable(os.PathLike):
         return None
 
 
-def header_cells(path: str | Path, sep: str = ",") -> list[str]:
-    """A CSV table's header as written: the cells of its first non-blank line, unstripped, read by
-    pandas as the table itself is read (quotes, the separator, a regex one such as ``\\s+``, a
-    BOM). pandas' own header renames a repeated ``x`` to ``x.1``, which would pass unseen."""
+def header_cells(path: str | Path) -> list[str]:
+    """A comma-separated table's header as written: the cells of its first non-blank line,
+    unstripped, read by pandas as the table itself is read (quotes, a BOM). pandas' own header
+    renames a repeated ``x`` to ``x.1``, which would pass unseen."""
     import pandas as pd
 
-    first = pd.read_csv(path, sep=sep, header=None, nrows=1, dtype=str, na_filter=False,
-                        engine="c" if len(sep) == 1 else "python")
+    first = pd.read_csv(path, header=None, nrows=1, dtype=str, na_filter=False)
     return [str(n) for n in first.iloc[0]]
 
 

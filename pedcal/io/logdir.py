@@ -460,7 +460,7 @@ def read_log(path: str | Path) -> Log:
         p = find_table(directory, name, required=name in ("robot", "observations"))
         tables[name] = None if p is None else _raw_table(p, columns, text_columns)
         if p is not None:          # errors name a CSV row's line too (validate keeps file order until they are checked)
-            sources[name] = CsvTable(p) if p.suffix == ".csv" else p
+            sources[name] = table_source(p)
     meta_path = directory / "meta.yaml"
     meta = Meta()
     if meta_path.exists():

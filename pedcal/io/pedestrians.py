@@ -57,7 +57,7 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
         raise PedcalInputError(f"cannot read: {show(first, 160)[1:-1]}", path=path) from None
     if header:
         raw.columns = [str(c).strip() for c in raw.columns]
-        names = [c.strip() for c in header_cells(path, sep)]
+        names = [c.strip() for c in header_cells(path)]     # (a headed layout is comma-separated: THÖR)
         refuse_repeated_columns(names, columns[:4], path)
         missing = [c for c in columns[:4] if c not in raw.columns]
         if missing:
@@ -144,7 +144,7 @@ def _first_line(path: Path) -> str:
                                        "in another encoding", path=path) from None
         if b"\x00" in head:
             raise PedcalInputError("not a text file (NUL bytes): expected pedestrian rows", path=path)
-        with path.open("r", encoding="utf-8", errors="replace") as f:
+        with path.open("r", encoding="utf-8-sig", errors="replace") as f:     # a BOM is no character of the line
             for line in f:
                 if line.strip():
                     return line.strip()
@@ -170,7 +170,11 @@ def detect_kind(path: str | Path) -> str:
     if not first:
         raise PedcalInputError("empty file, expected pedestrian rows", path=path)
     if _has_header(path):
-        names = [c.strip() for c in first.split(",")]
+        try:        # read as the table will be: quoted names, a BOM
+            names = [c.strip() for c in header_cells(path)]
+        except (pd.errors.ParserError, ValueError) as e:
+            raise PedcalInputError(f"cannot read the header {show(first, 80)}: "
+                                   f"{show(str(e).strip() or type(e).__name__, 120)[1:-1]}", path=path) from None
         if set(PEOPLE_COLUMNS) <= set(names):
             return "people"
         if set(THOR_COLUMNS[:4]) <= set(names):
