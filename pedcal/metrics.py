@@ -21,7 +21,7 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.common import robot_head_at
 from pedcal.errors import warnings_at_caller
-from pedcal.model import Log, SensorNetwork
+from pedcal.model import Log, SensorNetwork, rows_by_code, sensor_codes
 from pedcal.options import require
 
 # Extra top-level key of a calibrated YAML: the tracker latency the calibration estimated (s).
@@ -289,12 +289,18 @@ def evaluate(log: Log, extrinsics: SensorNetwork) -> EvaluationResult:
         n_head = int(use.sum())
         if n_head:
             head_rms = float(1000.0 * np.sqrt(np.mean(d2[use])))
+        # each sensor's rows from the column's codes (not a comparison of every row per sensor)
+        codes, names = sensor_codes(log.observations["sensor"])
+        rows_of = dict(zip(names.tolist(), rows_by_code(codes, len(names)), strict=True))
         for s in extrinsics:
-            m = use & (sensor_col == s.id)
+            if s.id not in log_ids:       # another site's sensor: listed in foreign_sensors, not scored
+                continue
+            rows = rows_of.get(s.id, np.zeros(0, np.int64))
+            rows = rows[use[rows]]
             per_sensor.setdefault(s.id, dict(position_error_mm=[np.nan] * 3, position_error_norm_mm=np.nan,
                                              orientation_error_deg=np.nan))
-            per_sensor[s.id]["head_rms_mm"] = float(1000.0 * np.sqrt(np.mean(d2[m]))) if m.any() else None
-            per_sensor[s.id]["head_observations"] = int(m.sum())
+            per_sensor[s.id]["head_rms_mm"] = float(1000.0 * np.sqrt(np.mean(d2[rows]))) if len(rows) else None
+            per_sensor[s.id]["head_observations"] = int(len(rows))
     else:
         reference = "none: no robot observations"
 

@@ -94,6 +94,7 @@ def test_extrinsics_sensors_the_log_lacks_are_named_not_scored():
     res = evaluate(log, ext)
     assert res.missing_sensors == ["s2"] and res.foreign_sensors == ["s9"]
     assert res.to_dict()["foreign_sensors"] == ["s9"]
+    assert [s.id for s in res.sensors] == ["s1"]          # no row of NaN errors for s9
     assert res.format_table().splitlines()[-2:] == ["not in the extrinsics file (not scored): s2",
                                                      "not in the log's sensors.yaml (not scored): s9"]
     assert evaluate(log, log.sensors.copy()).foreign_sensors == []
