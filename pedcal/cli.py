@@ -644,8 +644,10 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if not interrupts.running_the_command_line():   # a Ctrl-C while the process exits is one line too
             interrupts.restore(previous)
-        elif code == 0:      # (after a failure the exit's collection still finalizes what the command left)
-            _spare_the_last_collection()
+        else:
+            interrupts.command_ended()       # (a Ctrl-C during the interpreter's exit changes nothing)
+            if code == 0:      # (after a failure the exit's collection still finalizes what the command left)
+                _spare_the_last_collection()
 
 
 @contextlib.contextmanager

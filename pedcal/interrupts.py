@@ -9,6 +9,9 @@ callback, a finalizer: the exception is "ignored" and printed with a traceback, 
 is not lost: the unraisable hook installed beside the handler swallows that SystemExit and sets an
 alarm a millisecond on, which the same handler answers in ordinary code.
 
+``command_ended()`` (the command line's ``main``, at its end) ignores a Ctrl-C while the
+interpreter shuts down: the command's own exit code stands.
+
 ``children_ignore()`` starts helper processes (Dask workers) with SIGINT
 ignored: the terminal sends Ctrl-C to the whole process group, and the parent alone answers it,
 by shutting its workers down.
@@ -116,6 +119,15 @@ def restore(previous) -> None:
             signal.signal(signal.SIGINT, previous)
         if sys.unraisablehook is _on_unraisable:
             sys.unraisablehook = _previous_unraisablehook
+
+
+def command_ended() -> None:
+    """The command line's work is over (its outputs written, its exit code set): a Ctrl-C from now
+    on, while the interpreter shuts down, is ignored. The handler would not run there (the
+    interpreter's finalization gives SIGINT its default back, which ended the process by the
+    signal, its outputs complete, without a word); the command's own code stands instead."""
+    with contextlib.suppress(ValueError):        # (main thread only)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 @contextlib.contextmanager

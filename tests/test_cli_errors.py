@@ -241,6 +241,21 @@ def test_ctrl_c_whose_handler_runs_in_a_weakref_callback_still_ends_the_command(
     assert proc.stderr == "interrupted\n"
 
 
+def test_a_ctrl_c_after_the_command_line_ended_changes_nothing():
+    """Once the command has ended (its outputs written, its code set) the interpreter shuts down,
+    and its finalization gives SIGINT its default back: a Ctrl-C there ended the process by the
+    signal without a word. The command line now ignores a Ctrl-C from its end on: its code stands."""
+    code = ("import os, signal, sys, time\nimport pedcal.interrupts as interrupts\n"
+            "interrupts.running_the_command_line = lambda: True\n"       # (as `python -m pedcal.cli` is)
+            "from pedcal.cli import main\n"
+            "code = main(['calibrate', '--help'])\n"
+            "os.kill(os.getpid(), signal.SIGINT)\ntime.sleep(0.2)\n"
+            "print('ended with', code, file=sys.stderr)\nsys.exit(code)\n")
+    proc = _run_script(code)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == "ended with 0\n"
+
+
 def test_another_unraisable_error_still_reaches_the_hook_before_pedcals():
     """The hook that rescues the lost Ctrl-C passes any other ignored exception on unchanged."""
     code = ("import sys, weakref\nimport pedcal.interrupts as interrupts\n"
