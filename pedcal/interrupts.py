@@ -125,9 +125,14 @@ def command_ended() -> None:
     """The command line's work is over (its outputs written, its exit code set): a Ctrl-C from now
     on, while the interpreter shuts down, is ignored. The handler would not run there (the
     interpreter's finalization gives SIGINT its default back, which ended the process by the
-    signal, its outputs complete, without a word); the command's own code stands instead."""
+    signal, its outputs complete, without a word); the command's own code stands instead. A Ctrl-C
+    that came before, whose handler ran in a finalizer and left the hook's alarm pending, ends the
+    command here (130, as announced): the alarm, left to the shutdown, would kill the process."""
     with contextlib.suppress(ValueError):        # (main thread only)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if signal.getsignal(signal.SIGALRM) is _on_sigint:     # the hook's alarm, still pending
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            raise SystemExit(EXIT_INTERRUPTED)
 
 
 @contextlib.contextmanager

@@ -256,6 +256,17 @@ def test_a_ctrl_c_after_the_command_line_ended_changes_nothing():
     assert proc.stderr == "ended with 0\n"
 
 
+def test_a_ctrl_c_rescued_by_the_alarm_just_before_the_end_still_ends_in_130():
+    """A Ctrl-C whose handler ran in a finalizer as the command ended leaves the hook's alarm
+    pending: the end cancels it and exits 130, as 'interrupted' announced, instead of leaving the
+    alarm to kill the process during the shutdown (142, 'Alarm clock')."""
+    code = _CTRL_C_IN_A_CALLBACK.replace("time.sleep(5)\n", "interrupts.command_ended()\nsys.exit(0)\n")
+    assert code != _CTRL_C_IN_A_CALLBACK
+    proc = _run_script(code)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr == "interrupted\n"
+
+
 def test_another_unraisable_error_still_reaches_the_hook_before_pedcals():
     """The hook that rescues the lost Ctrl-C passes any other ignored exception on unchanged."""
     code = ("import sys, weakref\nimport pedcal.interrupts as interrupts\n"
