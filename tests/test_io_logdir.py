@@ -367,6 +367,37 @@ def test_not_utf8_text_locates_a_bad_byte_at_any_chunk_size(tmp_path, bad, at):
     assert [not_utf8_text(p, chunk_bytes=n) for n in (1, 2, 3, 4, 5, 7)] == [expected] * 6
 
 
+@pytest.mark.parametrize("reader", ["read_json", "read_text_file"])
+@pytest.mark.parametrize("bom", [b"", b"\xef\xbb\xbf"])
+def test_whole_file_readers_name_the_bad_byte_in_the_file_after_a_bom(tmp_path, reader, bom):
+    """The JSON and YAML/TOML readers decode with utf-8-sig, whose error offset counts from after a
+    BOM: the byte, its line and offset named are the file's (0xe9 on line 2, 8 bytes after the BOM), not the
+    BOM's last byte 0xbf three bytes before."""
+    from pedcal.io.inputs import read_json
+    from pedcal.io.sensors_yaml import read_text_file
+
+    p = tmp_path / "f.txt"
+    body = b'{"a":\n "\xe9"}\n'
+    p.write_bytes(bom + body)
+    offset = len(bom) + body.index(b"\xe9")
+    with pytest.raises(PedcalInputError, match=rf"^{p}: not UTF-8 text \(byte 0xe9 on line 2, at offset {offset}\): "):
+        dict(read_json=read_json, read_text_file=read_text_file)[reader](p)
+
+
+def test_not_utf8_error_falls_back_on_the_decoding_errors_byte(tmp_path):
+    """A file that is UTF-8 again when located (rewritten meanwhile) is named by the decoding
+    error's own byte, without a line; the reader's advice follows."""
+    from pedcal.io.inputs import not_utf8_error
+
+    p = tmp_path / "t.csv"
+    p.write_bytes(MULTIBYTE)
+    try:
+        b"ab\xfecd".decode("utf-8")
+    except UnicodeDecodeError as e:
+        err = not_utf8_error(p, e, "a binary file")
+    assert str(err) == f"{p}: not UTF-8 text (byte 0xfe): a binary file"
+
+
 def test_repeated_time_within_a_track(tmp_path):
     write_good(tmp_path)
     obs = pd.read_csv(tmp_path / "observations.csv", dtype=str, keep_default_na=False)

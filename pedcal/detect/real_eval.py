@@ -109,11 +109,10 @@ def frame_pairs(folder: Path) -> list[tuple[Path, Path]]:
 
 
 def evaluate_real(folder: str | Path, model=None, out_dir: str | Path | None = None, *, detect_options=None,
-                  frames: list[str] | None = None, pairs: list[tuple[Path, Path]] | None = None) -> dict:
+                  pairs: list[tuple[Path, Path]] | None = None) -> dict:
     """Per frame and per range band: pedestrians, found, person detections, false positives.
 
-    ``detect_options`` go to ``pedcal.detect.files.detect_file`` (sensor, pose, floor);
-    ``frames`` restricts the evaluation to these frame names (file stems); ``pairs`` are the
+    ``detect_options`` go to ``pedcal.detect.files.detect_file`` (sensor, pose, floor); ``pairs`` are the
     (cloud, label) files to evaluate when the caller has listed them already (``frame_pairs`` of
     ``folder`` otherwise, which warns of the unpaired files again).
     """
@@ -121,8 +120,6 @@ def evaluate_real(folder: str | Path, model=None, out_dir: str | Path | None = N
 
     if pairs is None:
         pairs = frame_pairs(Path(folder))
-    if frames is not None:
-        pairs = [p for p in pairs if p[0].stem in set(frames)]
     n_bands = len(RANGE_BANDS_M)
     people, found = np.zeros(n_bands, int), np.zeros(n_bands, int)
     dets_band, fp_band = np.zeros(n_bands, int), np.zeros(n_bands, int)

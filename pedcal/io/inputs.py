@@ -71,6 +71,15 @@ def not_utf8_text(path: str | Path, chunk_bytes: int = 1 << 20) -> str | None:
             base += len(good)
 
 
+def not_utf8_error(path: str | Path, error: UnicodeDecodeError, advice: str) -> PedcalInputError:
+    """The error of a text file that is not UTF-8: "not UTF-8 text (byte 0xe9 on line 500, at offset
+    18391): ``advice``", the byte located in the file itself (a parser's or the utf-8-sig codec's
+    offset is within its buffer, after a BOM), or only the decoding error's byte when the file no
+    longer holds one that is not UTF-8."""
+    where = not_utf8_text(path) or f"byte 0x{error.object[error.start]:02x}"
+    return PedcalInputError(f"not UTF-8 text ({where}): {advice}", path=path)
+
+
 class CsvTable(os.PathLike):
     """A CSV table's file, for errors: a PedcalInputError given it as ``path`` and a 0-based data
     ``row`` also names the row's line in the file, as pandas read it (one header line, blank lines
@@ -137,7 +146,7 @@ def read_json(path: str | Path, what: str = "JSON file", max_bytes: int = MAX_TE
     try:
         return json.loads(data.decode("utf-8-sig"))
     except UnicodeDecodeError as e:
-        raise PedcalInputError(f"not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start})", path=path) from None
+        raise not_utf8_error(path, e, f"a binary file, or a {what} saved in another encoding") from None
     except json.JSONDecodeError as e:
         raise PedcalInputError(f"not valid JSON: {e.msg} at line {e.lineno}, column {e.colno}", path=path) from None
     except RecursionError:

@@ -24,7 +24,7 @@ import pandas as pd
 from pedcal.errors import PedcalInputError, show, warnings_at_caller
 from pedcal.io import plausible
 from pedcal.io.atomic import atomic_path, write_text_atomic
-from pedcal.io.inputs import CsvTable, header_cells, not_utf8_text, refuse_repeated_columns
+from pedcal.io.inputs import CsvTable, header_cells, not_utf8_error, refuse_repeated_columns
 from pedcal.io.sensors_yaml import (
     dump_yaml,
     flow_vector,
@@ -105,9 +105,7 @@ def _raw_table(path: Path, columns: tuple[str, ...] = (), text_columns: tuple[st
                     f"a CSV with {header}")
         raise PedcalInputError(f"empty file, expected {expected}", path=path) from None
     except UnicodeDecodeError as e:     # its offset is within pandas' buffer: find the byte in the file
-        where = not_utf8_text(path) or f"byte 0x{e.object[e.start]:02x}"
-        raise PedcalInputError(f"not UTF-8 text ({where}): a binary file, or a CSV saved in another encoding",
-                               path=path) from None
+        raise not_utf8_error(path, e, "a binary file, or a CSV saved in another encoding") from None
     except PermissionError:
         raise PedcalInputError("cannot read: permission denied", path=path) from None
     except (pd.errors.ParserError, OSError, ValueError, OverflowError) as e:

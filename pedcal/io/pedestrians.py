@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import PedcalInputError, show
-from pedcal.io.inputs import header_cells, not_utf8_text, refuse_repeated_columns, regular_file
+from pedcal.io.inputs import header_cells, not_utf8_error, refuse_repeated_columns, regular_file
 from pedcal.io.logdir import is_parquet, parse_float_column, parse_text_column
 from pedcal.io.people import read_people_csv, validate_people
 from pedcal.model import PEOPLE_COLUMNS
@@ -35,6 +35,7 @@ KINDS = ("atc", "eth_ucy", "thor", "people")
 ETH_UCY_FRAMES_PER_S = 25.0
 ETH_UCY_FRAMES_PER_S_BY_NAME = {"biwi_eth": 15.0, **{name: ETH_UCY_FRAMES_PER_S for name in (
     "biwi_hotel", "crowds_zara01", "crowds_zara02", "crowds_zara03", "students001", "students003", "uni_examples")}}
+ADVICE_NOT_UTF8 = "a binary file, or a file saved in another encoding"
 # Positions larger than this (in absolute value) cannot be metres in one building: millimetres.
 MAX_PLAUSIBLE_M = 1000.0
 
@@ -47,9 +48,7 @@ def _read_text_table(path: Path, columns: tuple[str, ...], sep: str, header: boo
     except pd.errors.EmptyDataError:
         raise PedcalInputError("empty file, expected pedestrian rows", path=path) from None
     except UnicodeDecodeError as e:     # its offset is within the parser's buffer: find the byte in the file
-        where = not_utf8_text(path) or f"byte 0x{e.object[e.start]:02x}"
-        raise PedcalInputError(f"not UTF-8 text ({where}): a binary file, or a file saved in another encoding",
-                               path=path) from None
+        raise not_utf8_error(path, e, ADVICE_NOT_UTF8) from None
     except PermissionError:
         raise PedcalInputError("cannot read: permission denied", path=path) from None
     except (pd.errors.ParserError, OSError, ValueError) as e:
@@ -140,8 +139,7 @@ def _first_line(path: Path) -> str:
             head.decode("utf-8")
         except UnicodeDecodeError as e:
             if e.start < len(head) - 4:     # not a character cut at the 4 KB boundary
-                raise PedcalInputError(f"not UTF-8 text ({not_utf8_text(path)}): a binary file, or a file saved "
-                                       "in another encoding", path=path) from None
+                raise not_utf8_error(path, e, ADVICE_NOT_UTF8) from None
         if b"\x00" in head:
             raise PedcalInputError("not a text file (NUL bytes): expected pedestrian rows", path=path)
         with path.open("r", encoding="utf-8-sig", errors="replace") as f:     # a BOM is no character of the line

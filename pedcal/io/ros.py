@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from pedcal.errors import PedcalInputError, show
 from pedcal.io.atomic import write_text_atomic
-from pedcal.io.inputs import not_utf8_text
+from pedcal.io.inputs import not_utf8_error
 from pedcal.io.logdir import meta_yaml_text, parse_float_column, write_table
 from pedcal.model import OBSERVATION_COLUMNS, ODOMETRY_COLUMNS, ROBOT_COLUMNS, Meta, SensorNetwork
 from pedcal.options import check
@@ -80,9 +80,8 @@ def read_rostopic_amcl_csv(path: str | Path) -> pd.DataFrame:
         raise PedcalInputError("file not found", path=path)
     try:
         raw = pd.read_csv(path, dtype=str, keep_default_na=False)
-    except UnicodeDecodeError:
-        raise PedcalInputError(f"not UTF-8 text ({not_utf8_text(path)}): not a rostopic echo -p CSV",
-                               path=path) from None
+    except UnicodeDecodeError as e:
+        raise not_utf8_error(path, e, "not a rostopic echo -p CSV") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as e:
         raise PedcalInputError(f"cannot read rostopic CSV: {show(str(e).strip(), 160)[1:-1]}", path=path) from None
     raw.columns = [c.strip() for c in raw.columns]

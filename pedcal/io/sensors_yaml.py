@@ -25,7 +25,7 @@ import yaml
 from pedcal.errors import PedcalInputError, show
 from pedcal.io import plausible
 from pedcal.io.atomic import write_text_atomic
-from pedcal.io.inputs import read_bytes_capped
+from pedcal.io.inputs import not_utf8_error, read_bytes_capped
 from pedcal.model import SENSOR_STATUSES, SensorExtrinsics, SensorNetwork
 from pedcal.options import require_path
 
@@ -42,9 +42,8 @@ def read_text_file(path: str | Path, what: str = "file") -> str:
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
-        line = data[: e.start].count(b"\n") + 1
-        raise PedcalInputError(f"not UTF-8 text: byte 0x{data[e.start]:02x} on line {line} (save the file as "
-                               "UTF-8; a binary file or another encoding such as cp1252)", path=path) from None
+        raise not_utf8_error(path, e, "save the file as UTF-8 (a binary file, or another encoding such as "
+                                      "cp1252)") from None
 
 
 def _yaml_error_text(e: yaml.YAMLError) -> str:
