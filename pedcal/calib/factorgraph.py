@@ -656,7 +656,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                                                use=rec.head_shift_per_sensor_sigma_estimate)
             prob.departure_spread = spread_rec
             _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
-            full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
             reference = (step, theta.copy()) if step.rho0 is not None else None
         # converged when the steps still to come are below ``tolerance`` sigma: with this step's
