@@ -295,10 +295,11 @@ def test_a_likelihood_that_is_not_finite_keeps_the_recipes_sigma_with_a_warning(
 
 
 def test_a_hessian_whose_data_part_is_not_positive_gives_no_likelihood_but_rounding_does():
-    # the departures' data part -1e4 (no Gauss-Newton Hessian): NaN, which is "not estimated"; a
-    # data part of -1e-12 beside 1e6 is rounding, floored at 0: a finite likelihood
+    # the departures' data part -1e-2 beside 1e6 (1e-8 relative, above the 1e-9 rounding floor: no
+    # Gauss-Newton Hessian): NaN, which is "not estimated"; a data part of -1e-12 beside 1e6 is
+    # rounding, floored at 0: a finite likelihood
     prior = np.array([0.05, 0.02, 0.02])
-    for data, finite in ((np.diag([1e6, -1e4, 1e6]), False), (np.diag([1e6, -1e-12, 1e6]), True)):
+    for data, finite in ((np.diag([1e6, -1e-2, 1e6]), False), (np.diag([1e6, -1e-12, 1e6]), True)):
         H = data + np.diag(1.0 / prior ** 2)
         ll = spread_log_likelihood(H, np.zeros(3), np.zeros(3), np.zeros(3), prior, np.array([1, 2]))
         assert np.isfinite(ll).all() == finite and (finite or np.isnan(ll).all())
