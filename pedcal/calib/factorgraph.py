@@ -581,8 +581,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         plain = None
         if odo:
             motion_rhs = MotionRhs(log, prob, result)
-            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
+            plain = ([j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
                      lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))),
                      # (the block's linearization made in numpy: it is not rebuilt between steps)
                      lambda f=motion_rhs: f.linearized(cols))
