@@ -316,3 +316,22 @@ def test_the_spread_between_trackers_is_estimated_and_recorded(nadir, use, monke
     rec = hm["per_sensor_shift_spread"]
     assert rec["estimate_m"] == round(spread["estimate_m"], 5) and rec["sensors"] == len(delta)
     assert rec["prior_sigma_m"] == (round(spread["rms_m"], 5) if use else SIGMA_M)
+
+
+def test_the_estimated_spread_used_widens_every_departures_prior_and_so_its_sigma(nadir, monkeypatch):
+    # the trackers' spread here (30 mm) above the recipe's 20 mm: with the estimate used
+    # (head_shift_per_sensor_sigma_estimate), the departures' prior is its rms (estimate_departure_spread's
+    # step and nuisances carried on), so each departure's profile variance is larger than with the recipe's
+    sim, _ = nadir
+    variances = {}
+    for use in (False, True):
+        _, seen = _calibrate(sim.calib, SIGMA_M, monkeypatch, head_shift_per_sensor_sigma_estimate=use)
+        shifts = seen["shifts"]
+        k = shifts.cov.shape[0]
+        own = [j for j, name in enumerate(shifts.names[:k]) if name.startswith(SENSOR_PREFIX)]
+        variances[use] = {shifts.names[j]: shifts.cov[j, j] for j in own}
+        spread = seen["prob"].departure_spread
+    assert spread["rms_m"] > SIGMA_M
+    assert variances[True].keys() == variances[False].keys() and len(variances[True]) == len(sim.calib.truth.ids)
+    for name, var in variances[True].items():
+        assert var > variances[False][name], name

@@ -68,6 +68,31 @@ def test_the_likelihood_is_the_restricted_likelihood_of_independent_estimates():
     np.testing.assert_allclose(ll - ll[0], want - want[0], atol=1e-6)
 
 
+def test_with_an_informative_shared_prior_the_likelihood_is_the_exact_gaussian_marginal():
+    # the shared shift's prior N(m0, s0^2) informative (m0 20 mm, s0 10 mm), not diffuse: y =
+    # 1 mu + delta + e integrates to N(m0 1, V), V = diag(sigma^2 + tau^2) + s0^2 1 1^T, whose log
+    # density is -1/2 [ln det V + d^T V^-1 d], d = y - m0 1 (the prior's part kept in K, the
+    # other nuisances' block of spread_log_likelihood)
+    y, sigma, _ = _draws(5, 6, 0.02)
+    k = len(y)
+    J = np.column_stack([np.ones(k), np.eye(k)])
+    m0, s0 = 0.02, 0.01
+    prior_mean = np.r_[m0, np.zeros(k)]
+    prior_sigma = np.r_[s0, np.full(k, 0.02)]
+    theta = np.r_[0.015, np.linspace(-0.02, 0.01, k)]      # away from 0 and from the prior's mean
+    H = J.T @ (J / sigma[:, None] ** 2) + np.diag(1.0 / prior_sigma ** 2)
+    g = J.T @ ((J @ theta - y) / sigma ** 2) + (theta - prior_mean) / prior_sigma ** 2
+    grid = np.array([0.002, 0.01, 0.03, 0.06])
+    ll = spread_log_likelihood(H, g, theta, prior_mean, prior_sigma, np.arange(1, k + 1), grid)
+
+    def marginal(tau):
+        V = np.diag(sigma ** 2 + tau ** 2) + s0 ** 2 * np.ones((k, k))
+        d = y - m0
+        return -0.5 * (np.linalg.slogdet(V)[1] + d @ np.linalg.solve(V, d))
+    want = np.array([marginal(t) for t in grid])
+    np.testing.assert_allclose(ll - ll[0], want - want[0], atol=1e-6)
+
+
 def test_equal_estimates_give_no_spread_but_a_used_sigma_within_what_they_allow():
     est = spread_from_estimates(np.full(8, 0.02), np.full(8, 0.005))
     assert est["estimate_m"] == 0.0
@@ -270,10 +295,11 @@ def test_a_likelihood_that_is_not_finite_keeps_the_recipes_sigma_with_a_warning(
 
 
 def test_a_hessian_whose_data_part_is_not_positive_gives_no_likelihood_but_rounding_does():
-    # the departures' data part -1e4 (no Gauss-Newton Hessian): NaN, which is "not estimated"; a
-    # data part of -1e-12 beside 1e6 is rounding, floored at 0: a finite likelihood
+    # the departures' data part -1e-2 beside 1e6 (1e-8 relative, above the 1e-9 rounding floor: no
+    # Gauss-Newton Hessian): NaN, which is "not estimated"; a data part of -1e-12 beside 1e6 is
+    # rounding, floored at 0: a finite likelihood
     prior = np.array([0.05, 0.02, 0.02])
-    for data, finite in ((np.diag([1e6, -1e4, 1e6]), False), (np.diag([1e6, -1e-12, 1e6]), True)):
+    for data, finite in ((np.diag([1e6, -1e-2, 1e6]), False), (np.diag([1e6, -1e-12, 1e6]), True)):
         H = data + np.diag(1.0 / prior ** 2)
         ll = spread_log_likelihood(H, np.zeros(3), np.zeros(3), np.zeros(3), prior, np.array([1, 2]))
         assert np.isfinite(ll).all() == finite and (finite or np.isnan(ll).all())

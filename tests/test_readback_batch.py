@@ -89,3 +89,12 @@ def test_each_sensor_is_read_with_its_own_decomposition():
     np.testing.assert_allclose(net["s1"].position_m, [1.01, 0.02, 2.5], atol=1e-9)
     np.testing.assert_allclose(net["s0"].position_m, [0.01, 0.02, 2.53], atol=1e-12)
     np.testing.assert_allclose(net["s2"].position_m, [2.01, 0.02, 2.53], atol=1e-12)
+
+
+def test_a_position_variance_below_zero_by_rounding_gives_a_zero_sigma_not_nan():
+    # identity rotation: the world position covariance is the body's; its x variance -1e-20 (a
+    # round-off below 0) is read as 0, the others' sigmas their square roots
+    cov = np.diag([1e-4, 1e-4, 1e-4, -1e-20, 4e-6, 9e-6])[None]
+    _, pos_sigma, ypr_sigma = sensor_sigmas_world(np.eye(3)[None], cov)
+    assert np.isfinite(pos_sigma).all() and np.isfinite(ypr_sigma).all()
+    np.testing.assert_array_equal(pos_sigma[0], [0.0, 2e-3, 3e-3])

@@ -581,8 +581,7 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
         plain = None
         if odo:
             motion_rhs = MotionRhs(log, prob, result)
-            plain = (lambda th, nm=every: motion_block(log, prob, theta=dict(zip(nm, th, strict=True))),
-                     [j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
+            plain = ([j for j, n in enumerate(names) if n in ODOMETRY_NUISANCES],
                      lambda th, f=motion_rhs, nm=every: f(dict(zip(nm, th, strict=True))),
                      # (the block's linearization made in numpy: it is not rebuilt between steps)
                      lambda f=motion_rhs: f.linearized(cols))
@@ -656,7 +655,6 @@ def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progr
                                                                use=rec.head_shift_per_sensor_sigma_estimate)
             prob.departure_spread = spread_rec
             _log(progress, f"head point spread between the sensors' trackers: {spread_rec}")
-            full_step = step
         if not chord:       # the residuals the clock offsets' overdispersion is taken from (pedcal.calib.clocks)
             reference = (step, theta.copy()) if step.rho0 is not None else None
         # converged when the steps still to come are below ``tolerance`` sigma: with this step's

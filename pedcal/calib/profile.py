@@ -408,14 +408,14 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     ``plain_leading`` of which have no kernel), or, for a kernel that cannot be undone, from the
     factors built once more without it.
 
-    ``plain``: optionally ``(build(theta), indices)``, factors without a robust kernel that only
-    the nuisances at ``indices`` enter (the odometry, whose calibration they correct): rebuilt
-    for those nuisances alone, the observations for the others. A third element
-    ``residuals(theta)``, their linearization's right-hand side at ``values``
-    (:class:`pedcal.calib.graph.MotionRhs`), spares the rebuilds; a fourth, ``linear()``, their
-    linearization at ``values`` and ``theta`` as (A, b) in ``cols``
-    (:meth:`pedcal.calib.graph.MotionRhs.linearized`), is taken instead of GTSAM's linearization
-    of ``build(theta)`` (not when the first step's order is computed here).
+    ``plain``: optionally ``(indices, residuals(theta), linear())``, factors without a robust
+    kernel that only the nuisances at ``indices`` enter (the odometry, whose calibration they
+    correct): B's columns of those nuisances are taken from these factors alone, the
+    observations' for the others. ``residuals(theta)`` is their linearization's right-hand side
+    at ``values`` (:class:`pedcal.calib.graph.MotionRhs`), ``linear()`` their linearization at
+    ``values`` and ``theta`` as (A, b) in ``cols`` (:meth:`pedcal.calib.graph.MotionRhs.linearized`);
+    no factors are built, so ``order`` must be given with it (the first step's order is
+    computed from GTSAM's linearized blocks).
 
     ``previous``: a step taken at a nearby point (the one before, a few of theta's sigma away):
     its Hessian and sensitivity Z are kept and only the variables' step z0 and the gradient (B's
@@ -464,12 +464,11 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     m_local = 0 if local is None else len(local)
     k_exact = k - m_local                 # the nuisances profiled exactly lead
     chord = residuals is not None and takes_chord(previous, local)
-    plain_build, plain_idx = plain[:2] if plain is not None else (None, ())
-    plain_residuals = plain[2] if plain is not None and len(plain) > 2 else None
-    plain_linear = plain[3] if plain is not None and len(plain) > 3 else None
+    plain_idx, plain_residuals, plain_linear = plain if plain is not None else ((), None, None)
     # the blocks linearized one at a time, each graph dropped once in its (A, b) (its dense
     # Jacobian blocks are a few times A's size), but for the first step's fill-reducing order
     need_order = order is None or len(order) != cols.n
+    assert plain is None or not need_order, "plain factors are not built: the order must be given"
     lin = gtsam.GaussianFactorGraph() if need_order else None
 
     def linear(graph):
@@ -484,9 +483,8 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     else:
         obs0 = obs0 if obs0 is not None else observations(theta, None)
         A_o, b_o0 = linear(obs0)
-    if plain_build is not None:
-        A_p, b_p0 = (plain_linear() if plain_linear is not None and lin is None
-                     else linear(plain_build(theta)))
+    if plain is not None:
+        A_p, b_p0 = plain_linear()
     else:
         A_p, b_p0 = sps.csr_matrix((0, cols.n)), np.zeros(0)
     mean = np.array([nu.prior_mean for nu in nuisances[:k_exact]])
@@ -543,13 +541,11 @@ def profile_step(fixed: gtsam.NonlinearFactorGraph, observations, values: gtsam.
     # b0 + h B_j
     columns: list = [(np.zeros(0, np.int64), np.zeros(0))] * k
     moved = [j for j in range(k) if j not in plain_idx]
-    b_p_ref = plain_residuals(theta) if plain_residuals is not None and len(plain_idx) else b_p0
+    b_p_ref = plain_residuals(theta) if len(plain_idx) else b_p0
     for j in plain_idx:
         th = np.array(theta, float)
         th[j] += nuisances[j].step
-        b_p = (plain_residuals(th) if plain_residuals is not None
-               else sparse_system(plain_build(th).linearize(values), cols)[1])
-        d = (b_p - b_p_ref) / nuisances[j].step
+        d = (plain_residuals(th) - b_p_ref) / nuisances[j].step
         columns[j] = (np.flatnonzero(d) + len(b_o0), d[d != 0.0])
     if residuals is not None:
         for group in _disjoint_groups(moved, footprint or {}):

@@ -56,7 +56,8 @@ def sensor_sigmas_world(R: np.ndarray, cov_body: np.ndarray) -> tuple[np.ndarray
     cov_ypr = J @ cov_body[:, :3, :3] @ J.transpose(0, 2, 1)
     diag_pos = np.diagonal(cov_pos_world, axis1=1, axis2=2)
     diag_ypr = np.diagonal(cov_ypr, axis1=1, axis2=2)
-    return cov_pos_world, np.sqrt(diag_pos), np.sqrt(np.maximum(diag_ypr, 0.0))
+    # (a variance below 0 by rounding is 0: its sigma 0, not NaN)
+    return cov_pos_world, np.sqrt(np.maximum(diag_pos, 0.0)), np.sqrt(np.maximum(diag_ypr, 0.0))
 
 
 def rotation_sigma_deg(cov_body: np.ndarray) -> np.ndarray:
