@@ -192,6 +192,22 @@ def test_sigma_consistency_leaves_out_a_method_without_any_sigma(results_dir):
     assert sigma_consistency(res, "x").empty
 
 
+def test_sigma_consistency_shows_a_method_that_gave_up_on_every_sensor_of_one_scenario(results_dir):
+    """A method with sigmas in scenario "a" that gave up on both sensors of scenario "b" (not ok, no
+    sigma) is a row of "b" with its 6 misses and 0 %, not left out as a method without a sigma."""
+    d = pd.DataFrame({"scenario": ["a", "a", "b", "b"], "method": "m",
+                      "status": ["ok", "ok", "degenerate", "no-data"],
+                      **{f"err_{a}_mm": [1.0, 2.0, np.nan, np.nan] for a in "xyz"},
+                      **{f"sigma_{a}_mm": [10.0, 10.0, np.nan, np.nan] for a in "xyz"}})
+    res = load_results(results_dir)
+    res.sensors = d
+    res.config = SweepConfig(scenarios=[("a", 1), ("b", 1)], methods=["m"])
+    assert sigma_consistency(res, "a").iloc[0]["within_1"] == 1.0
+    r = sigma_consistency(res, "b").iloc[0]
+    assert (r["method"], r["axes"], r["missed"]) == ("m", 6, 6)
+    assert (r.within_1, r.within_2, r.within_3) == (0.0, 0.0, 0.0) and r.median_ratio == np.inf
+
+
 @pytest.fixture(scope="module")
 def sim_log(tmp_path_factory) -> Path:
     from pedcal.calib import calibrate
