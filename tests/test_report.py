@@ -358,3 +358,31 @@ def test_from_results_with_a_damaged_table_exits_2_naming_it(results_dir, tmp_pa
     assert f"{p}: cannot read the Parquet table" in err if damage == "truncated" else \
         f"{p}, column 'scenario': not a table `pedcal report` writes: missing column(s) scenario" in err
     assert "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir):
+    """The method returned sensor "a" only; "b" of the log is a row with status "missing" and NaN
+    errors and sigmas, so the sigma consistency counts its 3 axes among the misses."""
+    from types import SimpleNamespace
+
+    from pedcal.report.sweep import _sensor_records
+
+    truth = {sid: SimpleNamespace(position_m=np.array([x, 0.0, 3.0]), ypr_deg=np.zeros(3))
+             for sid, x in (("a", 0.0), ("b", 2.0))}
+    net = [SimpleNamespace(id="a", status="ok", observations=5, position_m=np.array([0.01, 0.0, 3.0]),
+                           sigma_position_m=np.full(3, 0.02), sigma_ypr_deg=np.ones(3))]
+    ev = SimpleNamespace(sensors=[SimpleNamespace(id="a", position_error_mm=[10.0, 0.0, 0.0],
+                                                  orientation_error_deg=0.5, head_rms_mm=3.0,
+                                                  head_observations=5)],
+                         missing_sensors=["b"])
+    recs = pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev))
+    assert list(recs["sensor"]) == ["a", "b"] and list(recs["status"]) == ["ok", "missing"]
+    b = recs.iloc[1]
+    assert b["true_x_m"] == 2.0 and b["observations"] == 0
+    assert np.isnan(b[["err_x_mm", "err_mm", "sigma_x_mm", "sigma_z_mm", "est_x_m"]].to_numpy(float)).all()
+    res = load_results(results_dir)
+    assert set(recs.columns) == set(res.sensors.columns)
+    res.sensors = recs
+    res.config = SweepConfig(scenarios=[("x", 1)], methods=["m"])
+    r = sigma_consistency(res, "x").iloc[0]
+    assert (r["axes"], r["missed"]) == (6, 3)
