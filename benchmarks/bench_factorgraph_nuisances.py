@@ -512,15 +512,25 @@ def missed_text(rs: list[dict], method: str) -> str:
     return "?" if None in counts else str(sum(counts))
 
 
+def pooled_text(rs: list[dict]) -> str:
+    """'(n of N logs)': how many of the logs ``rs`` have a finite shared part (at least 2
+    calibrated sensors and a joint covariance); the others are not in the shared / rest RMS, and
+    the count shows it instead of a figure over fewer logs than the row's."""
+    n = sum(bool(len(r["z_shared"])) and bool(np.all(np.isfinite(r["z_shared"]))) for r in rs)
+    return f"({n} of {len(rs)} logs)"
+
+
 def _z_text(rs: list[dict]) -> str:
-    """'shared / rest': the RMS over ``rs``'s sensors of the horizontal error over its sigma, split
-    into the sensors' mean and the departures from it (:func:`shared_and_rest_z`); '-' without."""
+    """'shared / rest (n of N logs)': the RMS over ``rs``'s sensors of the horizontal error over
+    its sigma, split into the sensors' mean and the departures from it (:func:`shared_and_rest_z`),
+    with the logs pooled (:func:`pooled_text`); '-' without."""
     zs = np.concatenate([r["z_shared"] for r in rs])
     zr = np.concatenate([r["z_rest"] for r in rs])
     if not len(zs):
-        return "-"
+        return f"- {pooled_text(rs)}"
     # (pedcal.metrics.sigma_ratio_rms: a ratio that is not finite, a sigma of 0, is left out)
-    return f"{sigma_ratio_rms(zs.reshape(-1, 1))[0]:.2f} / {sigma_ratio_rms(zr.reshape(-1, 1))[0]:.2f}"
+    return (f"{sigma_ratio_rms(zs.reshape(-1, 1))[0]:.2f} / {sigma_ratio_rms(zr.reshape(-1, 1))[0]:.2f} "
+            f"{pooled_text(rs)}")
 
 
 def _xy(r: dict) -> tuple[float, float]:

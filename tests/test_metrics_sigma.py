@@ -294,8 +294,10 @@ def test_the_shared_and_rest_text_is_the_rms_of_each_over_the_logs_sensors():
 
     rs = [dict(z_shared=np.array([3.0, 0.0]), z_rest=np.array([1.0, -1.0, 2.0])),
           dict(z_shared=np.array([4.0, 0.0]), z_rest=np.array([0.0]))]
-    assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f}" == "2.50 / 1.22"
-    assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "-"      # no joint covariance
+    assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f} (2 of 2 logs)" == "2.50 / 1.22 (2 of 2 logs)"
+    assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "- (0 of 1 logs)"  # no joint covariance
+    # a log with a NaN joint covariance (NaN ratios) is not pooled, and the count says so
+    assert _z_text(rs + [dict(z_shared=np.full(2, np.nan), z_rest=np.full(3, np.nan))]) == "2.50 / 1.22 (2 of 3 logs)"
 
 
 @pytest.mark.parametrize("zoo", [False, True])
