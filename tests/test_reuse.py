@@ -145,7 +145,7 @@ def test_the_sensor_codes_are_pandas_factorize_computed_once(solved):
     first = prob.obs_sensor_codes()
     assert prob.obs_sensor_codes() is first
     assert np.array_equal(first[0], pd.factorize(prob.obs_sensor)[0])
-    # (the names prepare seeded beside the codes: the ones they number)
+    # (the names beside the codes: the ones they number)
     assert list(first[1]) == list(pd.factorize(prob.obs_sensor)[1])
     other = dataclasses.replace(prob)
     other.obs_sensor_codes()

@@ -309,10 +309,6 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                                                  head_at=head_at),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
-    # the rows' sensors numbered by first appearance (obs_sensor_codes) from their codes: the
-    # same numbering as the names' own, sensor_codes' names being distinct
-    codes, first = pd.factorize(sensor_code[rows])
-    prob.__dict__["_obs_sensor_codes"] = (prob.obs_sensor, (codes, sensor_names[first]))
     set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
