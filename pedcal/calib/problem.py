@@ -353,8 +353,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         return None
     obs_t = prob.obs_t_raw - prob.latency_s
     # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the
-    # rest; the track column's codes taken of the column as it is, no Python string made per row)
-    track = pd.factorize(log.observations["track"], use_na_sentinel=False)[0][rows].astype(np.int64)
+    # rest; the track column's codes by its values' texts, as association numbers them: an object
+    # column's 1, 1.0 and True are distinct tracks, no Python string made per row otherwise)
+    track = sensor_codes(log.observations["track"])[0][rows].astype(np.int64)
     sensor, sensor_ids = prob.obs_sensor_codes()
     # by sensor, then track, then time: (sensor, track) as one key, an order the same as three keys'
     order = np.lexsort((obs_t, sensor.astype(np.int64) * (int(track.max(initial=0)) + 1) + track))
