@@ -127,6 +127,14 @@ def head_model_error_mm(sim, head) -> tuple[float, float]:
     return float(1000 * np.sqrt(np.mean(np.sum(d ** 2, axis=1)))), 1000 * dz
 
 
+def finite_rms(x: np.ndarray) -> float:
+    """The RMS of the finite values of ``x`` (a miss, NaN, is counted by the shares within sigma
+    instead); NaN without any."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan")
+
+
 def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
     """Each estimated clock offset's error (s) about the offsets' mean, the truth's taken about
     its own mean, and that error over its sigma; empty when the log or the calibration has none.
@@ -147,10 +155,13 @@ def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
     est, sigma = network.extra.get(CLOCK_OFFSET_KEY) or {}, network.extra.get(SIGMA_CLOCK_OFFSET_KEY) or {}
     if not np.any(offset) or not est:
         return np.zeros(0), np.zeros(0)
-    index = {sid: k for k, sid in enumerate(sim.calib.truth.ids)}
-    ids = [sid for sid in est if sid in index]
-    truth = np.array([offset[index[sid]] for sid in ids])
-    err = np.array([est[sid] for sid in ids]) - (truth - truth.mean())
+    # every sensor of the truth: one whose offset was not estimated is a NaN error, a miss (never
+    # within any sigma, left out of the error RMS), so that a method does not look better for
+    # dropping the clocks it cannot fit; the truth is taken about its mean over the estimated ones
+    ids = list(sim.calib.truth.ids)
+    est_s = np.array([est.get(sid, np.nan) for sid in ids], float)
+    known = np.isfinite(est_s)
+    err = est_s - (offset - (offset[known].mean() if known.any() else 0.0))
     # (an offset without its sigma is a miss: NaN, never within any sigma)
     return err / np.maximum([sigma.get(sid, np.nan) for sid in ids], 1e-9), err
 
@@ -512,15 +523,25 @@ def missed_text(rs: list[dict], method: str) -> str:
     return "?" if None in counts else str(sum(counts))
 
 
+def pooled_text(rs: list[dict]) -> str:
+    """'(n of N logs)': how many of the logs ``rs`` have a finite shared part (at least 2
+    calibrated sensors and a joint covariance); the others are not in the shared / rest RMS, and
+    the count shows it instead of a figure over fewer logs than the row's."""
+    n = sum(bool(len(r["z_shared"])) and bool(np.all(np.isfinite(r["z_shared"]))) for r in rs)
+    return f"({n} of {len(rs)} logs)"
+
+
 def _z_text(rs: list[dict]) -> str:
-    """'shared / rest': the RMS over ``rs``'s sensors of the horizontal error over its sigma, split
-    into the sensors' mean and the departures from it (:func:`shared_and_rest_z`); '-' without."""
+    """'shared / rest (n of N logs)': the RMS over ``rs``'s sensors of the horizontal error over
+    its sigma, split into the sensors' mean and the departures from it (:func:`shared_and_rest_z`),
+    with the logs pooled (:func:`pooled_text`); '-' without."""
     zs = np.concatenate([r["z_shared"] for r in rs])
     zr = np.concatenate([r["z_rest"] for r in rs])
     if not len(zs):
-        return "-"
+        return f"- {pooled_text(rs)}"
     # (pedcal.metrics.sigma_ratio_rms: a ratio that is not finite, a sigma of 0, is left out)
-    return f"{sigma_ratio_rms(zs.reshape(-1, 1))[0]:.2f} / {sigma_ratio_rms(zr.reshape(-1, 1))[0]:.2f}"
+    return (f"{sigma_ratio_rms(zs.reshape(-1, 1))[0]:.2f} / {sigma_ratio_rms(zr.reshape(-1, 1))[0]:.2f} "
+            f"{pooled_text(rs)}")
 
 
 def _xy(r: dict) -> tuple[float, float]:
@@ -569,7 +590,7 @@ def print_families(results: list[dict]) -> None:
         xy = np.array([_xy(r) for r in rs])
         z = np.concatenate([r.get("clock_z", np.zeros(0)) for r in rs])
         err = np.concatenate([r.get("clock_err_s", np.zeros(0)) for r in rs])
-        clock = (f"{1000 * np.sqrt(np.mean(err ** 2)):.1f}, {100 * np.mean(np.abs(z) <= 1):.0f} / "
+        clock = (f"{finite_rms(1000 * err):.1f}, {100 * np.mean(np.abs(z) <= 1):.0f} / "
                  f"{100 * np.mean(np.abs(z) <= 2):.0f}" if len(z) else "-")
         print(f"| {name} | {len(rs)} | {xy[:, 0].mean():.1f} / {xy[:, 0].max():.1f} "
               f"({missed_text(rs, 'factorgraph')}) | "

@@ -37,24 +37,29 @@ def tracks() -> dict[str, tuple[np.ndarray, np.ndarray]]:
         out["amcl_uf_retail (AMCL)"] = read_rostopic_amcl_csv(amcl)
     if bag.is_dir():
         out["turtlebot4_ros2_bag (odometry)"] = read_bag(bag, localization="odometry", map_frame="odom").robot
-    return {name: (df.sort_values("t", kind="stable")["t"].to_numpy(float),
-                   df.sort_values("t", kind="stable")[["x", "y"]].to_numpy(float)) for name, df in out.items()}
+    out = {name: df.sort_values("t", kind="stable") for name, df in out.items()}     # each sorted once
+    return {name: (df["t"].to_numpy(float), df[["x", "y"]].to_numpy(float)) for name, df in out.items()}
 
 
 def recall(t: np.ndarray, xy: np.ndarray, size_m: float, hold_s: float, draws: int, seed: int = 0):
     """(each draw's share of the jump's estimates flagged, estimates flagged outside the jumps,
-    estimates outside them) for ``draws`` seeded jumps of ``size_m`` held ``hold_s``."""
+    estimates outside them, draws whose jump held no estimate) for ``draws`` seeded jumps of
+    ``size_m`` held ``hold_s``. A jump falling in a gap of the track holds no estimate: it has no
+    share (a NaN would spoil the row's mean), is counted apart, and its estimates are all outside."""
     rng = np.random.default_rng(seed)
-    shares, false, outside = [], 0, 0
+    shares, false, outside, empty = [], 0, 0, 0
     for _ in range(draws):
         t0 = rng.uniform(t.min() + 8.0, t.max() - 8.0 - hold_s)
         angle = rng.uniform(0.0, 2.0 * np.pi)
         inside = (t >= t0) & (t < t0 + hold_s)
         flagged = detect_steps(t, xy + inside[:, None] * size_m * np.array([np.cos(angle), np.sin(angle)]))
-        shares.append(float(flagged[inside].mean()))
+        if inside.any():
+            shares.append(float(flagged[inside].mean()))
+        else:
+            empty += 1
         false += int(flagged[~inside].sum())
         outside += int((~inside).sum())
-    return np.array(shares), false, outside
+    return np.array(shares), false, outside, empty
 
 
 def main() -> None:
@@ -72,9 +77,12 @@ def main() -> None:
     for name, (t, xy) in found.items():
         given = int(detect_steps(t, xy).sum())
         for size in args.sizes:
-            shares, false, outside = recall(t, xy, size, args.hold, args.draws)
+            shares, false, outside, empty = recall(t, xy, size, args.hold, args.draws)
+            rec = f"{shares.mean():.2f} / {shares.min():.2f}" if len(shares) else "-"
+            if empty:
+                rec += f" ({empty} of {args.draws} draws in a gap: no estimate)"
             print(f"| {name} | {len(t)}, {t.max() - t.min():.0f} s | {given} | {size:.2f} | "
-                  f"{shares.mean():.2f} / {shares.min():.2f} | {false} of {outside} |")
+                  f"{rec} | {false} of {outside} |")
 
 
 if __name__ == "__main__":

@@ -61,6 +61,7 @@ from bench_factorgraph_nuisances import (  # noqa: E402
     by_seed,
     error_sigma_ratios,
     missed_text,
+    pooled_text,
     recipe_overrides,
     shared_rest_parts,
 )
@@ -136,13 +137,15 @@ def _rms_xy(z: np.ndarray) -> str:
 
 
 def shared_rest_text(runs: list[dict]) -> str:
-    """'x / y ; x / y': the RMS over ``runs`` of the shared part over its sigma (one value per log)
-    and of the rest (one per sensor), per horizontal axis; '-' for runs saved without them."""
+    """'x / y ; x / y (n of N logs)': the RMS over ``runs`` of the shared part over its sigma (one
+    value per log) and of the rest (one per sensor), per horizontal axis, with the logs pooled (a
+    log with fewer than 2 calibrated sensors or no finite joint covariance has none:
+    :func:`bench_factorgraph_nuisances.pooled_text`); '-' for runs saved without them."""
     if not all("z_shared" in r for r in runs):
         return "-"
     zs = np.array([r["z_shared"] for r in runs if len(r["z_shared"])]).reshape(-1, 2)
     zr = np.concatenate([r["z_rest"] for r in runs]).reshape(-1, 2)
-    return f"{_rms_xy(zs) if len(zs) else '-'} ; {_rms_xy(zr) if len(zr) else '-'}"
+    return f"{_rms_xy(zs) if len(zs) else '-'} ; {_rms_xy(zr) if len(zr) else '-'} {pooled_text(runs)}"
 
 
 def truth_z_text(runs: list[dict]) -> str:

@@ -147,10 +147,20 @@ def _errs(rows):
     return [x for r in rows for x in r.get("sensors", [])]
 
 
-def summarize(rows, method):
+def reports_sigma(rows, method) -> tuple[bool, bool]:
+    """Whether ``method`` reports a position sigma and a rotation sigma, decided over all its
+    ``rows``: a group of logs where it failed everywhere (no sigma) still shows its coverage (0 %),
+    not '-' like a method that reports none."""
+    s = _errs(r for r in rows if r["method"] == method)
+    return (any(x["sigma_p"] is not None for x in s), any(x["sigma_rot_deg"] is not None for x in s))
+
+
+def summarize(rows, method, reports: tuple[bool, bool] | None = None):
     """A method's figures over every log it was run on: a failed log counts at its installed
     poses (:func:`score`), and the sigma's coverage counts a sensor the method did not calibrate
-    (status other than ok, or no sigma) as outside."""
+    (status other than ok, or no sigma) as outside. ``reports``: :func:`reports_sigma` over all the
+    method's rows (default: over ``rows``), whether its position / rotation coverage is shown."""
+    reports = reports_sigma(rows, method) if reports is None else reports
     rr = [r for r in rows if r["method"] == method and r.get("sensors")]
     failed = sum(1 for r in rr if r["rc"] != 0 or r.get("failed"))
     s = _errs(rr)
@@ -166,11 +176,11 @@ def summarize(rows, method):
            "not_ok": sum(1 for x in s if x["status"] != "ok"),
            "cpu_s": float(np.mean([r["cpu_s"] for r in rr])), "wall_s": float(np.mean([r["wall_s"] for r in rr]))}
     # (a sensor left at its prior has a sigma wide enough to hold any error: a miss, not evidence)
-    if any(x["sigma_p"] is not None for x in s):
+    if reports[0]:
         ratios = sensor_ratios(s)
         out["cov1"] = (100 * within_sigma_share(ratios, 1.0)).tolist()
         out["cov2"] = (100 * within_sigma_share(ratios, 2.0)).tolist()
-    if any(x["sigma_rot_deg"] is not None for x in s):
+    if reports[1]:
         ratios = sensor_ratios(s, "sigma_rot_deg").reshape(-1, 1)        # the three axes pooled
         out["rot1"] = float(100 * within_sigma_share(ratios, 1.0)[0])
         out["rot2"] = float(100 * within_sigma_share(ratios, 2.0)[0])
@@ -275,9 +285,10 @@ def table(rows, methods, title, groups=None, label="family"):
             " | " + " | ".join(f"{m} within 2 sigma x, y, z / rot (%)" for m in methods) +
             " | worst log xy (mm) | not ok | " + " | ".join(f"{m} CPU / wall (s)" for m in methods) + " |")
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
+    reports = {m: reports_sigma(rows, m) for m in methods}      # once per method, over every group
     for name, g in groups:
         inst = summarize(g, "installed")
-        sm = {m: summarize(g, m) for m in methods}
+        sm = {m: summarize(g, m, reports[m]) for m in methods}
         amcl = float(np.sqrt(np.mean([r["amcl_mean_mm"] ** 2 for r in g if r["method"] == "installed"])))
         cells = [name, str(inst["logs"]), str(inst["n"]), f"{inst['xy_mm']:.0f}", f"{amcl:.1f}"]
         for m in methods:

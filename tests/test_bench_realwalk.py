@@ -54,7 +54,17 @@ def test_shared_and_rest_rms_per_axis():
     runs = [_run(0, z_shared=np.array([3.0, 0.0]), z_rest=np.array([[1.0, 2.0], [1.0, 0.0]])),
             _run(1, z_shared=np.array([4.0, 1.0]), z_rest=np.zeros((0, 2)))]
     # shared: x sqrt((9 + 16) / 2), y sqrt(1 / 2); rest: x 1, y sqrt(4 / 2)
-    assert shared_rest_text(runs) == (f"{np.sqrt(12.5):.2f} / {np.sqrt(0.5):.2f} ; 1.00 / {np.sqrt(2.0):.2f}")
+    assert shared_rest_text(runs) == (f"{np.sqrt(12.5):.2f} / {np.sqrt(0.5):.2f} ; 1.00 / {np.sqrt(2.0):.2f}"
+                                      " (2 of 2 logs)")
+
+
+def test_the_shared_and_rest_text_counts_the_logs_it_pooled():
+    """A log with a single calibrated sensor (no shared part) and one with a NaN joint covariance
+    are not in the RMS: the text says 1 of 3 logs were pooled."""
+    runs = [_run(0, z_shared=np.array([3.0, 4.0]), z_rest=np.array([[1.0, 1.0], [-1.0, -1.0]])),
+            _run(1, z_shared=np.zeros(0), z_rest=np.zeros((0, 2))),
+            _run(2, z_shared=np.array([np.nan, np.nan]), z_rest=np.full((2, 2), np.nan))]
+    assert shared_rest_text(runs) == "3.00 / 4.00 ; 1.00 / 1.00 (1 of 3 logs)"
 
 
 def test_runs_saved_without_the_split_print_a_dash():

@@ -294,8 +294,10 @@ def test_the_shared_and_rest_text_is_the_rms_of_each_over_the_logs_sensors():
 
     rs = [dict(z_shared=np.array([3.0, 0.0]), z_rest=np.array([1.0, -1.0, 2.0])),
           dict(z_shared=np.array([4.0, 0.0]), z_rest=np.array([0.0]))]
-    assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f}" == "2.50 / 1.22"
-    assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "-"      # no joint covariance
+    assert _z_text(rs) == f"{np.sqrt(25 / 4):.2f} / {np.sqrt(6 / 4):.2f} (2 of 2 logs)" == "2.50 / 1.22 (2 of 2 logs)"
+    assert _z_text([dict(z_shared=np.zeros(0), z_rest=np.zeros(0))]) == "- (0 of 1 logs)"  # no joint covariance
+    # a log with a NaN joint covariance (NaN ratios) is not pooled, and the count says so
+    assert _z_text(rs + [dict(z_shared=np.full(2, np.nan), z_rest=np.full(3, np.nan))]) == "2.50 / 1.22 (2 of 3 logs)"
 
 
 @pytest.mark.parametrize("zoo", [False, True])
@@ -326,3 +328,32 @@ def test_the_bench_simulates_the_seeds_draw_when_nothing_is_switched_off(monkeyp
         pedcal.sim.simulate_logs("paper", seed=0, vary_nuisances="zoo" if zoo else True)
     assert direct.value.args[0].latency_s > 0.0
     assert off.value.args[0] == switch_off(direct.value.args[0], ("latency",))
+
+
+def test_a_clock_offset_not_estimated_is_a_miss_and_the_rms_is_over_the_finite_errors(monkeypatch):
+    """Three sensors, "c"'s offset not estimated: it is a NaN error (outside every sigma), the
+    others' errors are about the mean of the estimated ones' truth; the RMS leaves the NaN out."""
+    from types import SimpleNamespace
+
+    import bench_factorgraph_nuisances as bfn
+    import pandas as pd
+
+    monkeypatch.setattr(bfn, "sensor_clocks", lambda sc, n: (np.array([0.10, 0.00, 0.05]), np.zeros(n)))
+    monkeypatch.setattr(bfn, "robot_rows", lambda log: (np.ones(len(log.observations), bool), None))
+    class Truth(list):
+        ids = property(list)
+
+    log = SimpleNamespace(truth=Truth(["a", "b", "c"]),
+                          observations=pd.DataFrame({"t": [1.0, 2.0], "sensor": ["a", "b"]}),
+                          robot=pd.DataFrame({"t": [0.0, 3.0]}))
+    sim = SimpleNamespace(calib=log, scenario=SimpleNamespace(start_time_s=0.0))
+    net = SimpleNamespace(extra={bfn.CLOCK_OFFSET_KEY: {"a": 0.06, "b": -0.05},
+                                 bfn.SIGMA_CLOCK_OFFSET_KEY: {"a": 0.02, "b": 0.02}})
+    z, err = bfn.clock_offset_errors(sim, net)
+    # truth about the estimated ones' mean 0.05: a 0.05, b -0.05
+    np.testing.assert_allclose(err[:2], [0.01, 0.0], atol=1e-12)
+    assert np.isnan(err[2]) and np.isnan(z[2])
+    np.testing.assert_allclose(z[:2], [0.5, 0.0], atol=1e-9)
+    assert np.mean(np.abs(z) <= 1) == pytest.approx(2 / 3)         # c counts as outside
+    assert bfn.finite_rms(err) == pytest.approx(np.sqrt(0.01 ** 2 / 2))
+    assert np.isnan(bfn.finite_rms(np.full(2, np.nan)))

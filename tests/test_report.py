@@ -192,6 +192,22 @@ def test_sigma_consistency_leaves_out_a_method_without_any_sigma(results_dir):
     assert sigma_consistency(res, "x").empty
 
 
+def test_sigma_consistency_shows_a_method_that_gave_up_on_every_sensor_of_one_scenario(results_dir):
+    """A method with sigmas in scenario "a" that gave up on both sensors of scenario "b" (not ok, no
+    sigma) is a row of "b" with its 6 misses and 0 %, not left out as a method without a sigma."""
+    d = pd.DataFrame({"scenario": ["a", "a", "b", "b"], "method": "m",
+                      "status": ["ok", "ok", "degenerate", "no-data"],
+                      **{f"err_{a}_mm": [1.0, 2.0, np.nan, np.nan] for a in "xyz"},
+                      **{f"sigma_{a}_mm": [10.0, 10.0, np.nan, np.nan] for a in "xyz"}})
+    res = load_results(results_dir)
+    res.sensors = d
+    res.config = SweepConfig(scenarios=[("a", 1), ("b", 1)], methods=["m"])
+    assert sigma_consistency(res, "a").iloc[0]["within_1"] == 1.0
+    r = sigma_consistency(res, "b").iloc[0]
+    assert (r["method"], r["axes"], r["missed"]) == ("m", 6, 6)
+    assert (r.within_1, r.within_2, r.within_3) == (0.0, 0.0, 0.0) and r.median_ratio == np.inf
+
+
 @pytest.fixture(scope="module")
 def sim_log(tmp_path_factory) -> Path:
     from pedcal.calib import calibrate
@@ -342,3 +358,31 @@ def test_from_results_with_a_damaged_table_exits_2_naming_it(results_dir, tmp_pa
     assert f"{p}: cannot read the Parquet table" in err if damage == "truncated" else \
         f"{p}, column 'scenario': not a table `pedcal report` writes: missing column(s) scenario" in err
     assert "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir):
+    """The method returned sensor "a" only; "b" of the log is a row with status "missing" and NaN
+    errors and sigmas, so the sigma consistency counts its 3 axes among the misses."""
+    from types import SimpleNamespace
+
+    from pedcal.report.sweep import _sensor_records
+
+    truth = {sid: SimpleNamespace(position_m=np.array([x, 0.0, 3.0]), ypr_deg=np.zeros(3))
+             for sid, x in (("a", 0.0), ("b", 2.0))}
+    net = [SimpleNamespace(id="a", status="ok", observations=5, position_m=np.array([0.01, 0.0, 3.0]),
+                           sigma_position_m=np.full(3, 0.02), sigma_ypr_deg=np.ones(3))]
+    ev = SimpleNamespace(sensors=[SimpleNamespace(id="a", position_error_mm=[10.0, 0.0, 0.0],
+                                                  orientation_error_deg=0.5, head_rms_mm=3.0,
+                                                  head_observations=5)],
+                         missing_sensors=["b"])
+    recs = pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev))
+    assert list(recs["sensor"]) == ["a", "b"] and list(recs["status"]) == ["ok", "missing"]
+    b = recs.iloc[1]
+    assert b["true_x_m"] == 2.0 and b["observations"] == 0
+    assert np.isnan(b[["err_x_mm", "err_mm", "sigma_x_mm", "sigma_z_mm", "est_x_m"]].to_numpy(float)).all()
+    res = load_results(results_dir)
+    assert set(recs.columns) == set(res.sensors.columns)
+    res.sensors = recs
+    res.config = SweepConfig(scenarios=[("x", 1)], methods=["m"])
+    r = sigma_consistency(res, "x").iloc[0]
+    assert (r["axes"], r["missed"]) == (6, 3)

@@ -145,7 +145,7 @@ def test_the_sensor_codes_are_pandas_factorize_computed_once(solved):
     first = prob.obs_sensor_codes()
     assert prob.obs_sensor_codes() is first
     assert np.array_equal(first[0], pd.factorize(prob.obs_sensor)[0])
-    # (the names prepare seeded beside the codes: the ones they number)
+    # (the names beside the codes: the ones they number)
     assert list(first[1]) == list(pd.factorize(prob.obs_sensor)[1])
     other = dataclasses.replace(prob)
     other.obs_sensor_codes()
@@ -315,3 +315,27 @@ def test_amcl_residuals_per_sensor_are_each_sensors_own_means(solved):
         mean = np.column_stack([np.bincount(inv, d[:, c], minlength=len(u)) for c in (0, 1)])
         mean = mean / np.bincount(inv, minlength=len(u))[:, None]
         assert np.array_equal(per_sensor[i][0], u) and np.array_equal(per_sensor[i][1], mean.reshape(-1, 2))
+
+
+def test_the_noise_estimate_numbers_tracks_by_their_texts(solved):
+    """An object track column whose tracks 7 and 7.0 alternate row by row: two tracks by their
+    texts (as association numbers them), never one as pandas' factorization of the values would
+    merge them; the estimate equals that of the same texts as strings, and differs from the
+    one-track column's (its consecutive pairs are other pairs)."""
+    from pedcal.calib.problem import estimate_observation_noise
+
+    log, prob, _ = solved
+
+    def with_tracks(values):
+        other = copy.copy(log)
+        other.observations = log.observations.copy()
+        other.observations["track"] = pd.Series(values, index=log.observations.index, dtype=object)
+        return other
+
+    n = len(log.observations)
+    mixed = [7 if k % 2 == 0 else 7.0 for k in range(n)]
+    as_obj = estimate_observation_noise(with_tracks(mixed), prob)
+    as_str = estimate_observation_noise(with_tracks([str(v) for v in mixed]), prob)
+    one = estimate_observation_noise(with_tracks([7] * n), prob)
+    assert as_obj is not None and as_obj == as_str
+    assert one is None or one != as_obj

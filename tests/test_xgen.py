@@ -193,17 +193,24 @@ def test_shared_head_profiles_give_every_sensor_one_profile(tmp_path):
         generate(tmp_path / "x", seed=0, family="rooms", head_profiles="random")
 
 
-def test_the_exam_scores_a_failed_calibration_on_the_installed_poses_and_a_prior_sigma_as_a_miss():
-    # a method that gives up (no YAML, or a sensor left out, or a sensor at its prior) must not
-    # leave the figures: it is scored on what the user is left with, its sigma's coverage a miss
-    from bench_xgen import score, shared_shift_removed, summarize
-
+def _exam_world():
+    """Two sensors "a", "b" at the origin: their truth, their installed poses (0.5 m off, no
+    sigma) and a good calibration of one (10 mm off, 20 mm and 1 deg sigmas)."""
     eye = np.eye(3)
     truth = {s: {"p": np.zeros(3), "R": eye} for s in ("a", "b")}
     installed = {s: {"p": np.array([0.3, 0.4, 0.0]), "R": eye, "sigma_p": None, "sigma_rot_deg": None,
                      "status": "ok"} for s in ("a", "b")}
     good = {"p": np.array([0.01, 0.0, 0.0]), "R": eye, "sigma_p": np.array([0.02] * 3),
             "sigma_rot_deg": np.array([1.0] * 3), "status": "ok"}
+    return truth, installed, good
+
+
+def test_the_exam_scores_a_failed_calibration_on_the_installed_poses_and_a_prior_sigma_as_a_miss():
+    # a method that gives up (no YAML, or a sensor left out, or a sensor at its prior) must not
+    # leave the figures: it is scored on what the user is left with, its sigma's coverage a miss
+    from bench_xgen import score, shared_shift_removed, summarize
+
+    truth, installed, good = _exam_world()
     prior = {**good, "p": np.array([0.2, 0.0, 0.0]), "sigma_p": np.array([0.5] * 3), "status": "no-data"}
     t = {"cpu_s": 1.0, "wall_s": 1.0}
     rows = [{"method": "m", "rc": 0, **t, **score(truth, {"a": good, "b": prior}, installed)},
@@ -218,3 +225,27 @@ def test_the_exam_scores_a_failed_calibration_on_the_installed_poses_and_a_prior
     assert out["worst_log_xy_mm"] == pytest.approx(500.0)
     assert out["cov1"][0] == pytest.approx(100 * 2 / 6)      # the two calibrated sensors only
     assert out["not_ok"] == 4
+
+
+def test_a_family_where_every_log_failed_shows_0_percent_coverage_not_a_dash():
+    """Whether a method reports a sigma is decided over all its rows: in a family where it failed
+    on every log (installed poses, no sigma) its coverage is 0 %, not left out as for a method
+    without any sigma."""
+    from bench_xgen import reports_sigma, score, shared_shift_removed, summarize, table
+
+    truth, installed, good = _exam_world()
+    t = {"cpu_s": 1.0, "wall_s": 1.0, "amcl_mean_mm": 1.0}
+    rows = [{"family": "fine", "method": "m", "rc": 0, **t, **score(truth, {"a": good, "b": good}, installed)},
+            {"family": "hard", "method": "m", "rc": 1, "failed": True, **t, **score(truth, {}, installed)}]
+    rows += [{**r, "method": "installed", "rc": 0, "failed": False, **score(truth, installed, installed)}
+             for r in rows[:2]]
+    for r in rows:
+        shared_shift_removed(r)
+    hard = [r for r in rows if r["family"] == "hard"]
+    assert reports_sigma(rows, "m") == (True, True) and reports_sigma(hard, "m") == (False, False)
+    out = summarize(hard, "m", reports_sigma(rows, "m"))
+    assert out["cov1"] == [0.0, 0.0, 0.0] and out["rot1"] == 0.0
+    assert "cov1" not in summarize(hard, "m")        # alone, the group cannot tell
+    text = table(rows, ["m"], "t", groups=[("fine", rows[0::2]), ("hard", hard)])
+    hard_line = next(line for line in text.splitlines() if line.startswith("| hard "))
+    assert "0, 0, 0 / 0" in hard_line

@@ -431,10 +431,10 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
         obs = log.observations
         n_obs = len(obs)
         t_all = obs["t"].to_numpy(float)
-        track_col = obs["track"].astype(str).to_numpy()
         # each (sensor, track) segment numbered by first appearance, from the columns' codes (as the
-        # joined texts' own numbering: distinct pairs, distinct codes), and each sensor's rows
-        track_code = pd.factorize(track_col)[0]
+        # joined texts' own numbering: distinct pairs, distinct codes), and each sensor's rows; the
+        # track texts (sensor_codes: by the values' texts) made per distinct track, not per row
+        track_code, track_names = sensor_codes(obs["track"])
         seg_codes = pd.factorize(sensor_code.astype(np.int64) * (int(track_code.max(initial=0)) + 1)
                                  + track_code)[0]
         rows_of = dict(zip(sensor_names, rows_by_code(sensor_code, len(sensor_names)), strict=True))
@@ -454,7 +454,7 @@ def associate_robot(log: Log, *, progress: bool = False, p_sensor: np.ndarray | 
         for s in log.sensors:
             rows = rows_of.get(s.id, np.zeros(0, np.int64))
             if len(rows):
-                per_sensor[s.id] = _SensorRows(s.id, rows, t_all[rows], seg_codes[rows], track_col[rows],
+                per_sensor[s.id] = _SensorRows(s.id, rows, t_all[rows], seg_codes[rows], track_names[track_code[rows]],
                                                p_sensor[rows], p_installed[rows], in_range[rows])
 
         # pass 1: consensus per sensor over a coarse latency grid

@@ -309,10 +309,6 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
                                                  head_at=head_at),
                               odometry=odometry, smoothed_amcl=smooth,
                               odometry_estimates=odo_est, rows_used=rows)
-    # the rows' sensors numbered by first appearance (obs_sensor_codes) from their codes: the
-    # same numbering as the names' own, sensor_codes' names being distinct
-    codes, first = pd.factorize(sensor_code[rows])
-    prob.__dict__["_obs_sensor_codes"] = (prob.obs_sensor, (codes, sensor_names[first]))
     set_amcl_model(log, prob, assumed_model(log.robot, recipe, steps=amcl_steps), carry=False)
     if recipe.estimate_observation_noise and recipe.robot:
         noise = estimate_observation_noise(log, prob)
@@ -357,8 +353,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         return None
     obs_t = prob.obs_t_raw - prob.latency_s
     # (the tracks and sensors by integer codes: a sort of 400 000 id strings took longer than the
-    # rest; the track column's codes taken of the column as it is, no Python string made per row)
-    track = pd.factorize(log.observations["track"], use_na_sentinel=False)[0][rows].astype(np.int64)
+    # rest; the track column's codes by its values' texts, as association numbers them: an object
+    # column's 1, 1.0 and True are distinct tracks, no Python string made per row otherwise)
+    track = sensor_codes(log.observations["track"])[0][rows].astype(np.int64)
     sensor, sensor_ids = prob.obs_sensor_codes()
     # by sensor, then track, then time: (sensor, track) as one key, an order the same as three keys'
     order = np.lexsort((obs_t, sensor.astype(np.int64) * (int(track.max(initial=0)) + 1) + track))

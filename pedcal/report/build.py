@@ -106,14 +106,18 @@ def sigma_consistency(results: SweepResults, scenario: str) -> pd.DataFrame:
     sigma is its prior's, wide enough to hold any error) or gave no finite sigma is a miss
     (``missed`` of the ``axes``): in the denominator, never within, above the median's every
     ratio, so that a method does not look consistent by dropping the sensors it fails."""
+    sig_cols = ["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"]
     s = results.sensors[results.sensors["scenario"] == scenario]
     rows = []
     for m in results.config.methods:
+        # whether the method reports a sigma is decided over all its rows (every scenario): a
+        # method that gave up on every sensor of this scenario still shows its misses and 0 %
+        every = results.sensors.loc[results.sensors["method"] == m, sig_cols].to_numpy(float)
+        if not (np.isfinite(every) & (every > 0)).any():    # the method reports no sigma
+            continue
         d = s[s["method"] == m]
         err = d[["err_x_mm", "err_y_mm", "err_z_mm"]].to_numpy(float)
-        sig = d[["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"]].to_numpy(float)
-        if not (np.isfinite(sig) & (sig > 0)).any():        # the method reports no sigma
-            continue
+        sig = d[sig_cols].to_numpy(float)
         calibrated = (d["status"] == "ok").to_numpy()
         with np.errstate(divide="ignore", invalid="ignore"):
             z = np.abs(err) / sig
