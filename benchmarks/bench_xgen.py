@@ -34,6 +34,10 @@ bootstrap over the logs (seeded;
 ``pedcal.metrics.sigma_honesty``: a log's sensors share its AMCL draw, so a share pooled over a
 few logs is uncertain however many sensors it holds); a sensor not calibrated is a miss,
 counted beside them ("sensors (missed)": outside for the share, left out of the RMS).
+Then the network's shape per family and pooled (:func:`network_shape`): each log's horizontal
+errors split by least squares into a shared shift, a common turn and a common scale of the whole
+network about its sensors' centre, and the rest (mm RMS, pooled over every sensor of the family's
+logs), with the scale in mm per m (mean / sd over the logs).
 Results are also written to OUT/results.jsonl; the tables are printed per family and pooled.
 """
 
@@ -80,7 +84,8 @@ def read_network(path: Path) -> dict:
 def score(truth: dict, est: dict, installed: dict | None = None) -> dict:
     """Per-sensor errors of est against truth (every sensor of the truth). A sensor est lacks is
     scored at its installed pose (``installed``), status "missing" and no sigma: a method that
-    gives a sensor up is scored on what the user is left with, never dropped."""
+    gives a sensor up is scored on what the user is left with, never dropped. Each row holds the
+    sensor's true horizontal position ``true_xy_m`` (map frame, m) for :func:`network_shape`."""
     rows = []
     for sid, t in truth.items():
         e = est.get(sid)
@@ -89,7 +94,8 @@ def score(truth: dict, est: dict, installed: dict | None = None) -> dict:
         d = e["p"] - t["p"]
         yaw_err = Rotation.from_matrix(e["R"] @ t["R"].T).as_rotvec()[2]
         rot_s = Rotation.from_matrix(t["R"].T @ e["R"]).as_rotvec()
-        rows.append({"id": sid, "dx": d[0], "dy": d[1], "dz": d[2], "yaw_deg": math.degrees(yaw_err),
+        rows.append({"id": sid, "true_xy_m": t["p"][:2].tolist(),
+                     "dx": d[0], "dy": d[1], "dz": d[2], "yaw_deg": math.degrees(yaw_err),
                      "rot_deg": np.degrees(rot_s).tolist(),
                      "sigma_p": None if e["sigma_p"] is None else e["sigma_p"].tolist(),
                      "sigma_rot_deg": None if e["sigma_rot_deg"] is None else e["sigma_rot_deg"].tolist(),
@@ -257,6 +263,145 @@ def shared_shift_removed(row) -> None:
             x["dx_rel"], x["dy_rel"] = x["dx"] - mean_xy[0], x["dy"] - mean_xy[1]
 
 
+# 90-degree rotation in the horizontal plane: J q is q turned by +90 deg (a small turn w moves q by w J q)
+_J = np.array([[0.0, -1.0], [1.0, 0.0]])
+# below this RMS distance of the sensors from their centre (m) a turn and a scale are not determined
+_MIN_SPREAD_M = 1e-6
+
+
+def network_shape(true_xy_m, err_xy_m) -> dict:
+    """One log's horizontal errors split into the network's shared shift, common turn, common
+    scale and the rest: the least-squares fit of
+
+        d_i = t + w J q_i + s q_i + r_i
+
+    over the log's scored sensors i (every one, as :func:`score` scores them), where d_i is the
+    sensor's horizontal error (estimate less truth, m), q_i its true horizontal position less the
+    mean of the log's true positions (m), J the 90-degree rotation [[0, -1], [1, 0]], t the shared
+    shift (m), w the common turn (rad, small-angle), s the common scale (dimensionless: the network
+    stretched, s > 0, or shrunk about its centre) and r_i the rest.
+
+    As q is centred and J q_i is perpendicular to q_i, the regressors (the two axes of t, J q and
+    q, stacked over the sensors) are mutually orthogonal: the fit is t = mean d_i,
+    w = sum (J q_i . d_i) / sum |q_i|^2, s = sum (q_i . d_i) / sum |q_i|^2, and the parts' mean
+    squares add up to the total's (up to rounding). t is the shared shift that
+    :func:`shared_shift_removed` takes out, so "xy less shared shift" is the RMS of turn, scale
+    and rest together.
+
+    ``true_xy_m``, ``err_xy_m``: (n, 2). Returns ``n``; ``t_mm`` (2); ``turn_rad``;
+    ``scale_mm_per_m`` (1000 s); the RMS over the sensors of each part's contribution in mm:
+    ``shift_mm`` (|t|), ``turn_mm`` (|w| times the RMS of |q_i|), ``scale_mm`` (|s| times the same),
+    ``rest_mm`` and ``total_mm`` (the RMS of |d_i|). With fewer than 3 sensors (or sensors within
+    a micrometre RMS of their centre) the turn and scale are not determined (with 2 they would
+    take up every error but the shift): they are NaN and everything not shift is in the rest.
+    With no sensor every figure is NaN."""
+    p = np.asarray(true_xy_m, float).reshape(-1, 2)
+    d = np.asarray(err_xy_m, float).reshape(-1, 2)
+    if p.shape != d.shape:
+        raise ValueError(f"network_shape: {len(p)} true positions for {len(d)} errors")
+    n = len(p)
+    nan = float("nan")
+    if n == 0:
+        return {"n": 0, "t_mm": [nan, nan], "turn_rad": nan, "scale_mm_per_m": nan, "shift_mm": nan,
+                "turn_mm": nan, "scale_mm": nan, "rest_mm": nan, "total_mm": nan}
+    t = d.mean(axis=0)
+    q = p - p.mean(axis=0)
+    sum_q2 = float(np.sum(q ** 2))
+    rest = d - t
+    w = s = nan
+    if n >= 3 and sum_q2 > n * _MIN_SPREAD_M ** 2:
+        jq = q @ _J.T
+        w = float(np.sum(jq * d)) / sum_q2
+        s = float(np.sum(q * d)) / sum_q2
+        rest = rest - w * jq - s * q
+    rms_q = math.sqrt(sum_q2 / n)
+    return {"n": n, "t_mm": (1000 * t).tolist(), "turn_rad": w, "scale_mm_per_m": 1000 * s,
+            "shift_mm": 1000 * float(np.linalg.norm(t)), "turn_mm": 1000 * abs(w) * rms_q,
+            "scale_mm": 1000 * abs(s) * rms_q, "rest_mm": 1000 * math.sqrt(np.mean(np.sum(rest ** 2, axis=1))),
+            "total_mm": 1000 * math.sqrt(np.mean(np.sum(d ** 2, axis=1)))}
+
+
+def row_shape(row) -> dict | None:
+    """:func:`network_shape` of one result row's scored sensors; None when it has none or a
+    sensor lacks its true position (a row of an older results.jsonl whose log is gone)."""
+    scored = row.get("sensors") or []
+    if not scored or any(x.get("true_xy_m") is None for x in scored):
+        return None
+    return network_shape([x["true_xy_m"] for x in scored], [[x["dx"], x["dy"]] for x in scored])
+
+
+SHAPE_PARTS = ("shift", "turn", "scale", "rest")
+
+
+def pooled_shape(rows) -> dict | None:
+    """The shape split of a group of result rows (one method's): each part's RMS pooled over every
+    sensor of every log that has it, sqrt(sum_logs n_log ms_log / sum_logs n_log) with ms_log the
+    log's mean square of that part (the pooling of the xy RMS); a log whose turn and scale are not
+    determined adds 0 to them (its error is in its rest). The scale's mean and sd (ddof 1, NaN
+    for one log) over the logs where it is determined (mm per m); ``logs`` with a split, of
+    ``of`` with sensors. None when no log has a split."""
+    scored = [r for r in rows if r.get("sensors")]
+    shapes = [sh for sh in map(row_shape, scored) if sh is not None]
+    if not shapes:
+        return None
+    n = np.array([sh["n"] for sh in shapes], float)
+    out = {"logs": len(shapes), "of": len(scored)}
+    for part in SHAPE_PARTS:
+        ms = np.array([sh[f"{part}_mm"] ** 2 for sh in shapes])
+        out[f"{part}_mm"] = math.sqrt(np.sum(n * np.nan_to_num(ms, nan=0.0)) / n.sum())
+    scales = np.array([sh["scale_mm_per_m"] for sh in shapes if math.isfinite(sh["scale_mm_per_m"])])
+    out["scale_mean_mm_per_m"] = float(np.mean(scales)) if len(scales) else float("nan")
+    out["scale_sd_mm_per_m"] = float(np.std(scales, ddof=1)) if len(scales) > 1 else float("nan")
+    return out
+
+
+def shape_table(rows, methods, groups=None, label="family"):
+    """Per group (default: per family and pooled) and method, :func:`pooled_shape`: shift / turn /
+    scale / rest (mm RMS) and the scale (mm per m) mean / sd over the logs; '-' where no log has
+    its sensors' true positions, "(k of N logs)" where only some have."""
+    groups = by_family(rows) if groups is None else groups
+    lines = ["### the network's shape: horizontal error split into shared shift, common turn, common scale "
+             "and the rest", ""]
+    head = (f"| {label} | logs | " + " | ".join(f"{m} shift / turn / scale / rest (mm RMS) | "
+                                                f"{m} scale (mm/m) mean / sd over logs" for m in methods) + " |")
+    lines += [head, "|" + "---|" * (head.count("|") - 1)]
+
+    def num(v, fmt):
+        return "-" if not math.isfinite(v) else format(v, fmt)
+
+    for name, g in groups:
+        logs = sum(1 for r in g if r["method"] == "installed" and r.get("sensors"))
+        cells = [name, str(logs)]
+        for m in methods:
+            x = pooled_shape([r for r in g if r["method"] == m])
+            if x is None:
+                cells += ["-", "-"]
+                continue
+            some = f" ({x['logs']} of {x['of']} logs)" if x["logs"] < x["of"] else ""
+            cells.append(" / ".join(f"{x[f'{p}_mm']:.1f}" for p in SHAPE_PARTS) + some)
+            cells.append(f"{num(x['scale_mean_mm_per_m'], '+.2f')} / {num(x['scale_sd_mm_per_m'], '.2f')}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def attach_true_positions(rows, out: Path) -> None:
+    """A scored sensor of an older results.jsonl (no ``true_xy_m``) gets its true horizontal
+    position from its log's truth.yaml in ``out`` when that log is there; otherwise it stays
+    without, and its row's shape split is '-'."""
+    cache = {}
+    for r in rows:
+        missing = [x for x in r.get("sensors", []) if x.get("true_xy_m") is None]
+        if not missing:
+            continue
+        key = (r["family"], r["seed"])
+        if key not in cache:
+            path = out / f"{r['family']}-{r['seed']}" / "log" / "truth.yaml"
+            cache[key] = read_network(path) if path.is_file() else {}
+        for x in missing:
+            if x["id"] in cache[key]:
+                x["true_xy_m"] = cache[key][x["id"]]["p"][:2].tolist()
+
+
 def attach_sensor_info(rows, out: Path):
     """Each scored sensor gets its mount and head profile (from the log's xgen.json), each row
     its AMCL jumps."""
@@ -372,6 +517,9 @@ def print_tables(rows, methods, out: Path, title: str):
     attach_sensor_info(rows, out)
     print()
     print(table(rows, methods, title))
+    print()
+    attach_true_positions(rows, out)
+    print(shape_table(rows, methods))
     print()
     print(table(rows, methods, "by what the log drew (pooled over families)", by_log_nuisance(rows), "logs with"))
     print()

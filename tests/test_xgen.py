@@ -249,3 +249,130 @@ def test_a_family_where_every_log_failed_shows_0_percent_coverage_not_a_dash():
     text = table(rows, ["m"], "t", groups=[("fine", rows[0::2]), ("hard", hard)])
     hard_line = next(line for line in text.splitlines() if line.startswith("| hard "))
     assert "0, 0, 0 / 0" in hard_line
+
+
+def _square_network():
+    """Four sensors at (10 +- 3, 20 +- 4) m (each 5 m from their centre) and one at the centre."""
+    return np.array([[13.0, 24.0], [7.0, 24.0], [7.0, 16.0], [13.0, 16.0], [10.0, 20.0]])
+
+
+def test_network_shape_recovers_a_known_shift_turn_and_scale():
+    # noise-free errors t + w J q + s q: the fit returns them, and each part's RMS is |t|, |w| and
+    # |s| times the RMS of |q| (sqrt(4 * 25 / 5) = sqrt(20) m), the rest 0
+    from bench_xgen import network_shape
+
+    p = _square_network()
+    q = p - p.mean(axis=0)
+    t, w, s = np.array([0.012, -0.005]), 0.002, 0.003
+    d = t + w * np.column_stack([-q[:, 1], q[:, 0]]) + s * q
+    out = network_shape(p, d)
+    assert out["n"] == 5
+    assert out["t_mm"] == pytest.approx([12.0, -5.0], abs=1e-9)
+    assert out["turn_rad"] == pytest.approx(0.002, abs=1e-12)
+    assert out["scale_mm_per_m"] == pytest.approx(3.0, abs=1e-9)
+    assert out["shift_mm"] == pytest.approx(13.0)
+    assert out["turn_mm"] == pytest.approx(2.0 * math.sqrt(20.0))
+    assert out["scale_mm"] == pytest.approx(3.0 * math.sqrt(20.0))
+    assert out["rest_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert out["total_mm"] == pytest.approx(math.sqrt(169.0 + 20 * 4.0 + 20 * 9.0))
+    # a shrink and a turn the other way are signed so
+    out = network_shape(p, -s * q - w * np.column_stack([-q[:, 1], q[:, 0]]))
+    assert out["scale_mm_per_m"] == pytest.approx(-3.0) and out["turn_rad"] == pytest.approx(-0.002)
+
+
+def test_network_shape_parts_are_orthogonal_so_their_mean_squares_add_up():
+    # with q centred the regressors (t's two axes, J q, q) are orthogonal: on any errors the parts'
+    # mean squares sum to the total's, and the rest is orthogonal to each regressor
+    from bench_xgen import network_shape
+
+    rng = np.random.default_rng(7)
+    p = rng.uniform(0.0, 12.0, (9, 2))
+    d = rng.normal(0.0, 0.03, (9, 2))
+    out = network_shape(p, d)
+    parts = sum(out[f"{k}_mm"] ** 2 for k in ("shift", "turn", "scale", "rest"))
+    assert parts == pytest.approx(out["total_mm"] ** 2, rel=1e-12)
+    q = p - p.mean(axis=0)
+    jq = np.column_stack([-q[:, 1], q[:, 0]])
+    rest = d - np.asarray(out["t_mm"]) / 1000 - out["turn_rad"] * jq - out["scale_mm_per_m"] / 1000 * q
+    assert 1000 * math.sqrt(np.mean(np.sum(rest ** 2, axis=1))) == pytest.approx(out["rest_mm"])
+    assert np.allclose(rest.sum(axis=0), 0.0, atol=1e-15)
+    assert abs(np.sum(jq * rest)) < 1e-14 and abs(np.sum(q * rest)) < 1e-14
+    # about its centre: the same network moved by 100 m splits its errors the same way
+    moved = network_shape(p + 100.0, d)
+    assert all(moved[k] == pytest.approx(out[k]) for k in ("turn_rad", "scale_mm_per_m", "rest_mm"))
+
+
+def test_network_shape_with_fewer_than_3_sensors_puts_all_but_the_shift_in_the_rest():
+    from bench_xgen import network_shape
+
+    two = network_shape([[0.0, 0.0], [4.0, 0.0]], [[0.01, 0.0], [0.03, 0.0]])   # a 5 mm/m stretch
+    assert math.isnan(two["turn_rad"]) and math.isnan(two["scale_mm_per_m"])
+    assert math.isnan(two["turn_mm"]) and math.isnan(two["scale_mm"])
+    assert two["t_mm"] == pytest.approx([20.0, 0.0]) and two["shift_mm"] == pytest.approx(20.0)
+    assert two["rest_mm"] == pytest.approx(10.0)
+    assert two["shift_mm"] ** 2 + two["rest_mm"] ** 2 == pytest.approx(two["total_mm"] ** 2)
+    one = network_shape([[1.0, 2.0]], [[0.0, 0.004]])
+    assert one["shift_mm"] == pytest.approx(4.0) and one["rest_mm"] == 0.0 and math.isnan(one["scale_mm"])
+    # three sensors at one spot: no spread, neither turn nor scale
+    same = network_shape([[1.0, 2.0]] * 3, [[0.0, 0.004], [0.002, 0.0], [0.0, 0.0]])
+    assert math.isnan(same["turn_rad"]) and same["rest_mm"] > 0
+    assert network_shape(np.zeros((0, 2)), np.zeros((0, 2)))["n"] == 0
+    with pytest.raises(ValueError, match="2 true positions for 3 errors"):
+        network_shape(np.zeros((2, 2)), np.zeros((3, 2)))
+
+
+def _shape_rows():
+    """One log of five sensors (:func:`_square_network`) calibrated with a 3 mm/m stretch and a
+    20 mm shift, its installed row and the same log's rows as an older results.jsonl holds them."""
+    from bench_xgen import score
+
+    p = _square_network()
+    truth = {f"s{k}": {"p": np.array([x, y, 3.0]), "R": np.eye(3)} for k, (x, y) in enumerate(p)}
+    installed = {sid: {**t, "sigma_p": None, "sigma_rot_deg": None, "status": "ok"} for sid, t in truth.items()}
+    est = {sid: {**t, "p": t["p"] + np.r_[0.003 * (t["p"][:2] - [10.0, 20.0]) + [0.02, 0.0], 0.0]}
+           for sid, t in installed.items()}
+    base = {"family": "rooms", "seed": 0, "rc": 0}
+    rows = [{**base, "method": "installed", **score(truth, installed)}, {**base, "method": "m", **score(truth, est)}]
+    old = json.loads(json.dumps(rows))
+    for r in old:
+        for x in r["sensors"]:
+            del x["true_xy_m"]
+    return truth, rows, old
+
+
+def test_shape_table_pools_the_split_and_shows_a_dash_for_old_rows(tmp_path):
+    from bench_xgen import attach_true_positions, shape_table
+
+    truth, rows, old = _shape_rows()
+    line = next(x for x in shape_table(rows, ["m"]).splitlines() if x.startswith("| rooms "))
+    s20 = 3.0 * math.sqrt(20.0)
+    assert line == f"| rooms | 1 | 20.0 / 0.0 / {s20:.1f} / 0.0 | +3.00 / - |"
+    # an older row without true positions, its log gone: '-', no error
+    attach_true_positions(old, tmp_path)
+    assert "| rooms | 1 | - | - |" in shape_table(old, ["m"])
+    # mixed with a row that has them: pooled over the logs that do, and said so
+    mixed = rows + [{**old[1], "seed": 1}, {**old[0], "seed": 1}]
+    assert f"20.0 / 0.0 / {s20:.1f} / 0.0 (1 of 2 logs)" in shape_table(mixed, ["m"])
+    # the log's truth.yaml where --from-results finds it: the positions are read back
+    log = tmp_path / "rooms-0" / "log"
+    log.mkdir(parents=True)
+    log.joinpath("truth.yaml").write_text(yaml.safe_dump({"sensors": [
+        {"id": sid, "position": t["p"].tolist(), "ypr_deg": [0.0, 0.0, 0.0]} for sid, t in truth.items()]}))
+    attach_true_positions(old, tmp_path)
+    assert shape_table(old, ["m"]) == shape_table(rows, ["m"])
+
+
+def test_shape_pooling_weights_each_log_by_its_sensors():
+    # pooled part = sqrt(sum n_log ms_log / sum n_log); a log with 2 sensors adds 0 to turn / scale
+    from bench_xgen import pooled_shape, score
+
+    _, rows, _ = _shape_rows()
+    two = {f"t{k}": {"p": np.array([x, 0.0, 3.0]), "R": np.eye(3)} for k, x in enumerate((0.0, 4.0))}
+    est2 = {sid: {**t, "p": t["p"] + [0.0, 0.01 * k, 0.0], "sigma_p": None, "sigma_rot_deg": None,
+                  "status": "ok"} for k, (sid, t) in enumerate(two.items())}
+    out = pooled_shape([rows[1], {"method": "m", **score(two, est2)}])
+    assert out["logs"] == out["of"] == 2
+    assert out["shift_mm"] == pytest.approx(math.sqrt((5 * 20.0 ** 2 + 2 * 5.0 ** 2) / 7))
+    assert out["scale_mm"] == pytest.approx(math.sqrt(5 * 9.0 * 20.0 / 7))
+    assert out["rest_mm"] == pytest.approx(math.sqrt(2 * 5.0 ** 2 / 7))
+    assert out["scale_mean_mm_per_m"] == pytest.approx(3.0) and math.isnan(out["scale_sd_mm_per_m"])
