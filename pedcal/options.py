@@ -133,13 +133,14 @@ def check(**values):
             raise PedcalInputError(f"{name} = {show(value)}: expected {domain.describe()}")
 
 
-def check_recipe_numbers(values: dict, defaults, path=None) -> None:
+def check_recipe_numbers(values: dict, defaults, path=None, zero_off=()) -> None:
     """The numbers of a recipe file (``graphs/*.toml``): each finite, >= 0 and within 1e6; a sigma
-    (a key naming one) > 0 unless its default is 0, which switches its factor off."""
+    (a key naming one) > 0 unless its default is 0 or it is one of ``zero_off``, whose 0 switches
+    its factor or random effect off."""
     for key, value in values.items():
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
             continue
-        off_allowed = not ("sigma" in key and getattr(defaults, key, 0) != 0)
+        off_allowed = key in zero_off or not ("sigma" in key and getattr(defaults, key, 0) != 0)
         domain = Domain(float, 0.0, 1e6, lo_open=not off_allowed)
         if domain.problem(value) is not None:
             raise PedcalInputError(f"key '{key}' = {show(value)}: expected {domain.describe()}"

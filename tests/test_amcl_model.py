@@ -614,3 +614,67 @@ def test_amcls_period_is_the_median_step_of_its_stamps_or_the_default():
     # the stamps as given: repeated ones are steps of 0 (distinct stamps are the caller's to pass)
     assert amcl_period_s(np.array([0.0, 0.0, 0.0, 0.1]), 5.0) == 0.0
     assert amcl_period_s(np.unique([0.0, 0.0, 0.0, 0.1]), 5.0) == pytest.approx(0.1, abs=1e-15)
+
+
+def test_the_sensors_noise_in_the_residuals_is_not_counted_as_amcls():
+    """A residual is AMCL's error less what the sensor saw, its noise included; the graph's
+    observation factors carry that noise, so the white part of AMCL's model is the variogram's
+    nugget less the noise's variance per axis: sqrt(w^2 - noise_m2), pinned on the same data
+    (the fit itself does not move), and near the AMCL's own 20 mm where the sensors add 30 mm."""
+    rng = np.random.default_rng(11)
+    t = np.arange(0.0, 600.0, 0.2)
+    groups = _visits(rng, t)
+    e = rng.normal(0.0, 0.02, (len(t), 2)) + rng.normal(0.0, 0.03, (len(t), 2))
+    series = [(g, e[g]) for g in groups]
+    assumed = AmclErrorModel(white_sigma_m=0.01, correlated_sigma_m=0.05, correlation_s=20.0)
+    both = estimate_model(t, series, assumed)
+    amcl = estimate_model(t, series, assumed, noise_m2=0.03 ** 2)
+    assert both.correlated_sigma_m == amcl.correlated_sigma_m == 0.0
+    assert both.white_sigma_m == pytest.approx(np.hypot(0.02, 0.03), rel=0.1)
+    assert amcl.white_sigma_m == pytest.approx(np.sqrt(both.white_sigma_m ** 2 - 0.03 ** 2), rel=1e-12)
+    assert amcl.white_sigma_m == pytest.approx(0.02, rel=0.2)
+
+
+def test_noise_beyond_the_nugget_leaves_amcls_white_part_at_its_floor():
+    rng = np.random.default_rng(12)
+    t = np.arange(0.0, 600.0, 0.2)
+    groups = _visits(rng, t)
+    e = rng.normal(0.0, 0.01, (len(t), 2))
+    assumed = AmclErrorModel(white_sigma_m=0.01, correlated_sigma_m=0.05, correlation_s=20.0)
+    model = estimate_model(t, [(g, e[g]) for g in groups], assumed, noise_m2=0.02 ** 2, min_white_m=0.002)
+    assert model.white_sigma_m == 0.002
+
+
+def test_the_residuals_noise_is_the_sensors_horizontal_variance_per_axis():
+    """residual_noise_m2: a point straight below its sensor has only the lateral noise
+    horizontally (lateral^2 per axis); one seen horizontally along the world x has its depth
+    noise along x and its lateral noise along y ((range^2 + lateral^2) / 2 per axis); a factor
+    merging n observations has 1/n of it; factors without a pose variable are left out."""
+    from types import SimpleNamespace
+
+    import gtsam
+
+    from pedcal.calib.factorgraph import residual_noise_m2
+    from pedcal.calib.keys import S
+    from pedcal.calib.recipe import GraphRecipe
+
+    rec = GraphRecipe(range_sigma_floor_m=0.01, range_sigma_k_per_m=0.0, lateral_sigma_m=0.004, reliable_range_m=10.0)
+    values = gtsam.Values()
+    values.insert(S(0), gtsam.Pose3())
+    values.insert(S(1), gtsam.Pose3(gtsam.Rot3.Yaw(np.pi / 2), np.zeros(3)))
+
+    def prob(p, count, sensor, key):
+        return SimpleNamespace(recipe=rec, sensor_ids=["a", "b"], pose_times=np.zeros(2),
+                               fac_p_sensor=np.asarray(p, float), fac_count=np.asarray(count),
+                               fac_sensor_index=np.asarray(sensor), fac_key_index=np.asarray(key))
+
+    below = prob([[0.0, 0.0, -2.0]], [1], [0], [0])
+    assert residual_noise_m2(below, values) == pytest.approx(0.004 ** 2, rel=1e-12)
+    level = prob([[2.0, 0.0, 0.0]], [1], [0], [1])
+    assert residual_noise_m2(level, values) == pytest.approx(0.5 * (0.01 ** 2 + 0.004 ** 2), rel=1e-12)
+    # (sensor b turned a quarter about the vertical: its ray along the world y, the same variance)
+    turned = prob([[2.0, 0.0, 0.0]], [4], [1], [1])
+    assert residual_noise_m2(turned, values) == pytest.approx(0.5 * (0.01 ** 2 + 0.004 ** 2) / 4, rel=1e-12)
+    mixed = prob([[0.0, 0.0, -2.0], [2.0, 0.0, 0.0], [2.0, 0.0, 0.0]], [1, 1, 1], [0, 0, 0], [0, 1, 5])
+    assert residual_noise_m2(mixed, values) == pytest.approx(0.5 * (0.004 ** 2 + 0.5 * (0.01 ** 2 + 0.004 ** 2)))
+    assert residual_noise_m2(prob(np.zeros((0, 3)), [], [], []), values) == 0.0

@@ -1401,3 +1401,18 @@ def test_ctrl_c_at_start_up_is_one_line_and_130(case, delay_s):
     assert [ln for ln in text.splitlines() if not ln.startswith(("warning: ", "["))][-1] == "interrupted", text
     assert not out.exists()
     TALLY["clean errors"] += 1
+
+
+def test_a_sigma_whose_zero_switches_its_random_effect_off_takes_zero(case):
+    """head_shift_per_sensor_sigma_m = 0 is the documented way to switch the per-sensor departures
+    off (head_profile_per_sensor needs it so): a graph file giving it loads and calibrates, while
+    0 for a noise sigma is still refused."""
+    out = case.parent / "out" / "c.yaml"
+    (case / "g.toml").write_text('head_shift_per_sensor_sigma_m = 0.0\nhead_profile = "cv"\n'
+                                 "head_profile_per_sensor = true\n")
+    code, _, err = run_cli(["calibrate", case / "log", "-o", out, "--graph", case / "g.toml"], case, names=("g.toml",))
+    assert code == 0, err
+    assert out.exists()
+    (case / "g.toml").write_text("range_sigma_floor_m = 0.0\n")
+    code, _, err = run_cli(["calibrate", case / "log", "-o", out, "--graph", case / "g.toml"], case, names=("g.toml",))
+    assert code == EXIT_BAD_INPUT and "range_sigma_floor_m" in err, err

@@ -479,7 +479,7 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1) -> Mo
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,
                    *, jump_threshold: float = 5.0, min_jump_m: float = 0.1,
                    min_covered: int = 100, min_white_m: float = 0.002,
-                   prior_sigma_m: float | None = None) -> AmclErrorModel:
+                   prior_sigma_m: float | None = None, noise_m2: float = 0.0) -> AmclErrorModel:
     """AMCL's error model from its residuals against what the ceiling sensors saw (module
     docstring): ``t_amcl`` (sorted), per sensor (rows into it, (n, 2) AMCL's head minus the head
     that sensor saw there, world xy). Each residual is AMCL's error minus that sensor's own
@@ -487,7 +487,10 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     sensor's sightings only, where it cancels (across sensors, the sensors' offsets, which
     absorb AMCL's local average, would make a wandering error look smaller than it is). The
     white std is at least ``min_white_m``; the wandering std, when the data show one, at least
-    ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`). Jumps are found
+    ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`). A residual holds the sensor's
+    noise too, which the graph's observation factors already carry: its variance per axis,
+    averaged over the residuals (``noise_m2``), is taken off the variogram's white part (the
+    nugget), so that it is not counted twice as AMCL's. Jumps are found
     in the residuals averaged over the sensors, besides those ``assumed`` found in AMCL's own
     track (``track_jumps``, kept). Returns ``assumed`` unchanged when fewer than
     ``min_covered`` estimates are covered."""
@@ -517,7 +520,7 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     if fit is None:
         return assumed
     white, corr, tau = fit
-    white = max(white, min_white_m)
+    white = max(float(np.sqrt(max(white ** 2 - max(float(noise_m2), 0.0), 0.0))), min_white_m)
     track = np.zeros(n, bool) if assumed.track_jumps is None else assumed.track_jumps
     return AmclErrorModel(white_sigma_m=white, correlated_sigma_m=corr, correlation_s=tau, source="estimated",
                           **_exclusion(jump, track, t_amcl),

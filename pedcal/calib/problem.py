@@ -334,6 +334,9 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
     return prob
 
 
+MAX_NOISE_RHO = 0.9          # a frame-to-frame correlation of the tracker's noise beyond this is taken as this
+
+
 def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: float = 0.25,
                                min_pairs: int = 100) -> dict | None:
     """The sensors' noise from the robot's observations themselves, without any fit: two
@@ -361,34 +364,61 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     order = np.lexsort((obs_t, sensor.astype(np.int64) * (int(track.max(initial=0)) + 1) + track))
     s_o, tr_o, t_o = sensor[order], track[order], obs_t[order]
     dt = np.diff(t_o)
-    nxt = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1]) & (dt > 0.0) & (dt <= max_gap_s)
+    same = (s_o[1:] == s_o[:-1]) & (tr_o[1:] == tr_o[:-1])
+    nxt = same & (dt > 0.0) & (dt <= max_gap_s)
     i, j = order[:-1][nxt], order[1:][nxt]
     if len(i) < min_pairs:
         return None
-    R = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])[sensor[i]]
-    disp = prob.motion.displacement(obs_t, obs_t, from_index=j, to_index=i)
-    p_i = prob.obs_p_raw[i]
-    d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R, disp) - p_i
-    r = np.linalg.norm(p_i, axis=1)
-    u = p_i / r[:, None]
-    along = np.sum(d * u, axis=1)
-    a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    b1 = _cross(u, a)
-    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-    b2 = _cross(u, b1)
+    R_sensor = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])
+
+    def differences(i, j):
+        """(along, lateral 1, lateral 2, range) of observation j carried back to i's instant, less i."""
+        disp = prob.motion.displacement(obs_t, obs_t, from_index=j, to_index=i)
+        p_i = prob.obs_p_raw[i]
+        d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R_sensor[sensor[i]], disp) - p_i
+        r = np.linalg.norm(p_i, axis=1)
+        u = p_i / r[:, None]
+        a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+        b1 = _cross(u, a)
+        b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+        b2 = _cross(u, b1)
+        return np.sum(d * u, axis=1), np.sum(d * b1, axis=1), np.sum(d * b2, axis=1), r
 
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
 
-    lateral = float(np.sqrt(0.5 * (robust_sigma(np.sum(d * b1, axis=1)) ** 2
-                                   + robust_sigma(np.sum(d * b2, axis=1)) ** 2)))
+    along, l1, l2, r = differences(i, j)
+    # a tracker that smooths its output (a filter's track, correlated frame to frame: rho at one
+    # frame) makes consecutive reports alike: their difference's variance is 2 s^2 (1 - rho), two
+    # frames apart 2 s^2 (1 - rho^2) for an AR(1), so the ratio of the two is 1 + rho, and
+    # s^2 = (one frame's) / (1 - rho). rho from the observations two apart in a track (within
+    # twice the gap); 0 when they are too few or the ratio is below 1 (white noise, sampling)
+    two = same[1:] & same[:-1] & (t_o[2:] - t_o[:-2] > 0.0) & (t_o[2:] - t_o[:-2] <= 2.0 * max_gap_s)
+    rho_along = rho_lateral = 0.0
+    if two.sum() >= min_pairs:
+        along2, l12, l22, _ = differences(order[:-2][two], order[2:][two])
+        # (the ratio per range bin, the depth noise's scale changes with range)
+        ratios = []
+        edges2 = np.quantile(r, np.linspace(0.0, 1.0, 4))
+        r2 = np.linalg.norm(prob.obs_p_raw[order[:-2][two]], axis=1)
+        for lo, hi in zip(edges2[:-1], edges2[1:], strict=True):
+            m1, m2 = (r >= lo) & (r <= hi), (r2 >= lo) & (r2 <= hi)
+            if m1.sum() >= 20 and m2.sum() >= 20:
+                ratios.append((robust_sigma(along2[m2]) / max(robust_sigma(along[m1]), 1e-12)) ** 2)
+        if ratios:
+            rho_along = float(np.clip(np.median(ratios) - 1.0, 0.0, MAX_NOISE_RHO))
+        lat1 = robust_sigma(l1) ** 2 + robust_sigma(l2) ** 2
+        lat2 = robust_sigma(l12) ** 2 + robust_sigma(l22) ** 2
+        rho_lateral = float(np.clip(lat2 / max(lat1, 1e-24) - 1.0, 0.0, MAX_NOISE_RHO))
+    lateral = float(np.sqrt(0.5 * (robust_sigma(l1) ** 2 + robust_sigma(l2) ** 2) / (1.0 - rho_lateral)))
     edges = np.quantile(r, np.linspace(0.0, 1.0, 7))
     r_bin, s_bin, n_bin = [], [], []
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         m = (r >= lo) & (r <= hi)
         if m.sum() >= 20:
             r_bin.append(float(np.median(r[m])))
-            s_bin.append(robust_sigma(along[m]) / (rec.far_factor if np.median(r[m]) > rec.reliable_range_m else 1.0))
+            s_bin.append(robust_sigma(along[m]) / np.sqrt(1.0 - rho_along)
+                         / (rec.far_factor if np.median(r[m]) > rec.reliable_range_m else 1.0))
             n_bin.append(int(m.sum()))
     if len(r_bin) < 2:
         return None
@@ -398,7 +428,8 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     if k < 0.0:
         floor, k = float(np.average(s_bin, weights=w)), 0.0
     return {"range_sigma_floor_m": float(max(floor, 1e-3)), "range_sigma_k_per_m": float(k),
-            "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i))}
+            "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i)),
+            "frame_correlation": {"along": round(rho_along, 4), "lateral": round(rho_lateral, 4)}}
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -213,9 +213,14 @@ class GraphRecipe:
                 raise PedcalInputError(f"key '{k}' must be {type(default).__name__}, got {v!r}", path=path)
         if "name" not in flat:
             flat["name"] = path.stem
-        check_recipe_numbers(flat, defaults, path)
+        check_recipe_numbers(flat, defaults, path, zero_off=ZERO_OFF_SIGMAS)
         return cls(**flat)
 
+
+
+# sigmas whose 0 switches their random effect off (a graph file may give 0): each sensor's own
+# departure of the horizontal shift, which head_profile_per_sensor needs off to select them instead
+ZERO_OFF_SIGMAS = frozenset({"head_shift_per_sensor_sigma_m"})
 
 
 def observation_sigmas(recipe: GraphRecipe, range_m: np.ndarray) -> np.ndarray:

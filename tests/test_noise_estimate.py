@@ -1,0 +1,107 @@
+"""The sensors' noise estimated from consecutive observations of the robot
+(pedcal.calib.problem.estimate_observation_noise): a tracker whose noise is correlated frame to
+frame (a filtered track) is no longer taken for a quieter one."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from pedcal.calib.problem import estimate_observation_noise, prepare
+from tests.test_factorgraph import _exact_recipe, make_exact_log
+
+SIGMA_RANGE_M = 0.02
+SIGMA_LATERAL_M = 0.012
+
+
+def _noisy_log(rho: float, seed: int = 3):
+    """The exact log with an AR(1) noise of coefficient ``rho`` frame to frame added in each
+    sensor's frame (stationary: each frame's std SIGMA_RANGE_M along the ray, SIGMA_LATERAL_M
+    across), mapped to the world with the installed extrinsics the observations were made with."""
+    log = make_exact_log(seed=seed, duration=120.0)
+    rng = np.random.default_rng(seed + 100)
+    obs = log.observations.copy()
+    p_w = obs[["x", "y", "z"]].to_numpy(float)
+    out = p_w.copy()
+    for sid in obs["sensor"].unique():
+        rows = np.flatnonzero(obs["sensor"].to_numpy() == sid)
+        rows = rows[np.argsort(obs["t"].to_numpy(float)[rows], kind="stable")]
+        ext = log.sensors[sid]
+        p_s = ext.to_sensor(p_w[rows])
+        u = p_s / np.linalg.norm(p_s, axis=1, keepdims=True)
+        a = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        b1 = np.cross(u, a)
+        b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
+        b2 = np.cross(u, b1)
+        # AR(1): e_k = rho e_{k-1} + sqrt(1 - rho^2) w_k, stationary std 1
+        w = rng.normal(size=(len(rows), 3))
+        e = np.zeros_like(w)
+        e[0] = w[0]
+        for k in range(1, len(rows)):
+            e[k] = rho * e[k - 1] + np.sqrt(1.0 - rho ** 2) * w[k]
+        noise = (SIGMA_RANGE_M * e[:, :1] * u + SIGMA_LATERAL_M * e[:, 1:2] * b1 + SIGMA_LATERAL_M * e[:, 2:] * b2)
+        out[rows] = ext.to_world(p_s + noise)
+    obs[["x", "y", "z"]] = out
+    noisy = copy.copy(log)
+    noisy.observations = obs
+    return noisy
+
+
+def _estimate(rho: float):
+    log = _noisy_log(rho)
+    rec = _exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0)
+    prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
+    est = estimate_observation_noise(log, prob)
+    assert est is not None
+    return est
+
+
+def _depth_sigma(est: dict, range_m: float = 3.0) -> float:
+    return est["range_sigma_floor_m"] + est["range_sigma_k_per_m"] * range_m ** 2
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.3, 0.5])
+def test_a_frame_to_frame_correlated_noise_is_estimated_at_its_own_size(rho):
+    """Each frame's noise std is recovered within 15 % whatever its correlation (one frame's
+    difference alone gives sqrt(1 - rho) of it: 0.71 at 0.5), the correlation within 0.12 (the
+    robot's motion carried between frames adds its own error, more two frames apart: the
+    correlation comes out a little high, the sigma with it)."""
+    est = _estimate(rho)
+    assert _depth_sigma(est) == pytest.approx(SIGMA_RANGE_M, rel=0.15)
+    assert est["lateral_sigma_m"] == pytest.approx(SIGMA_LATERAL_M, rel=0.15)
+    assert est["frame_correlation"]["along"] == pytest.approx(rho, abs=0.12)
+    assert est["frame_correlation"]["lateral"] == pytest.approx(rho, abs=0.12)
+
+
+def test_a_strongly_smoothed_track_is_no_longer_taken_for_a_quiet_one():
+    """At a correlation of 0.8 one frame's difference gives 0.45 of the noise; the estimate gives
+    at least 0.75 of it and at most 1.5 (the correlation's own error weighs most there, as
+    1 / (1 - rho))."""
+    est = _estimate(0.8)
+    assert 0.75 * SIGMA_RANGE_M <= _depth_sigma(est) <= 1.5 * SIGMA_RANGE_M
+    assert 0.75 * SIGMA_LATERAL_M <= est["lateral_sigma_m"] <= 1.5 * SIGMA_LATERAL_M
+
+
+def test_the_correlation_scales_one_frames_variance_by_one_over_one_less_it():
+    """The formula pinned: with the correlation rho read from two frames apart, the depth and
+    lateral sigmas are one frame's difference's (as the estimate without correlation gives them,
+    the AR(1) set to 0 by a cap of 0) over sqrt(1 - rho)."""
+    import pedcal.calib.problem as problem
+
+    log = _noisy_log(0.6)
+    rec = _exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0)
+    prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
+    est = estimate_observation_noise(log, prob)
+    keep = problem.MAX_NOISE_RHO
+    try:
+        problem.MAX_NOISE_RHO = 0.0
+        one_frame = estimate_observation_noise(log, prob)
+    finally:
+        problem.MAX_NOISE_RHO = keep
+    rho_a, rho_l = est["frame_correlation"]["along"], est["frame_correlation"]["lateral"]
+    assert 0.4 < rho_a < 0.8 and 0.4 < rho_l < 0.8
+    assert one_frame["frame_correlation"] == {"along": 0.0, "lateral": 0.0}
+    assert est["lateral_sigma_m"] == pytest.approx(one_frame["lateral_sigma_m"] / np.sqrt(1.0 - rho_l), rel=1e-3)
+    assert _depth_sigma(est) == pytest.approx(_depth_sigma(one_frame) / np.sqrt(1.0 - rho_a), rel=1e-3)
