@@ -345,10 +345,13 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     Half the robust variance of that difference along the ray gives the depth noise, binned by
     range and fitted by ``floor + k r^2`` (times ``far_factor`` past ``reliable_range_m``, as the
     graph models it); across the ray, the lateral noise (with the latency jitter times the
-    robot's speed in it). A tracker that smooths its output makes consecutive reports alike and
-    this an underestimate, which the model check after the solve sees (a variance ratio above 1)
-    and widens the sigma for. Returns the recipe's three noise fields and the number of pairs, or
-    None with fewer than ``min_pairs`` pairs. ``prob``'s observations need not be carried yet
+    robot's speed in it). A tracker that smooths its output makes consecutive reports alike: the
+    noise's correlation from one frame to the next (an AR(1)'s rho) is read from reports two
+    frames apart and each frame's noise taken as one frame's difference's over sqrt(1 - rho)
+    (capped at MAX_NOISE_RHO); the graph still takes the observations as independent, which the
+    model check after the solve sees (a variance ratio above 1) and widens the sigma for. Returns
+    the recipe's three noise fields, the number of pairs and ``frame_correlation`` (along the ray,
+    across it), or None with fewer than ``min_pairs`` pairs. ``prob``'s observations need not be carried yet
     (their instants, stamp - latency, are taken here)."""
     rec = prob.recipe
     rows = prob.rows_used
