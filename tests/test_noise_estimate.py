@@ -105,3 +105,33 @@ def test_the_correlation_scales_one_frames_variance_by_one_over_one_less_it():
     assert one_frame["frame_correlation"] == {"along": 0.0, "lateral": 0.0}
     assert est["lateral_sigma_m"] == pytest.approx(one_frame["lateral_sigma_m"] / np.sqrt(1.0 - rho_l), rel=1e-3)
     assert _depth_sigma(est) == pytest.approx(_depth_sigma(one_frame) / np.sqrt(1.0 - rho_a), rel=1e-3)
+
+
+def test_a_correlated_trackers_factors_are_widened_by_the_root_of_its_long_run_variance_factor():
+    """noise_correlation_factor: sqrt of the mean over depth and lateral of (1 + rho) / (1 - rho),
+    pinned; 1 without an estimate or for white noise."""
+    from pedcal.calib.graph import noise_correlation_factor
+
+    assert noise_correlation_factor(None) == 1.0
+    assert noise_correlation_factor({"range_sigma_floor_m": 0.01}) == 1.0
+    assert noise_correlation_factor({"frame_correlation": {"along": 0.0, "lateral": 0.0}}) == 1.0
+    got = noise_correlation_factor({"frame_correlation": {"along": 0.6, "lateral": 0.2}})
+    assert got == pytest.approx(np.sqrt(0.5 * (1.6 / 0.4 + 1.2 / 0.8)), rel=1e-12)
+
+
+def test_the_observation_factors_carry_the_factor_and_the_model_check_does_not():
+    """The observation block's factors (robot's and people's) take their sigmas times the factor
+    over the root of their merged count; the noise model itself (the recipe's, which the model
+    check and AMCL's residuals use) stays one report's."""
+    from pedcal.calib.graph import noise_correlation_factor, observation_terms
+
+    log = _noisy_log(0.7)
+    rec = _exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0)
+    prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
+    factor = noise_correlation_factor(prob.noise_estimate)
+    assert factor > 1.5                          # (rho about 0.7: sqrt(1.7 / 0.3) = 2.4)
+    terms = observation_terms(log, prob)
+    n_pose = len(prob.pose_times)
+    count = np.asarray(prob.fac_count[prob.fac_key_index < n_pose], float)
+    assert np.allclose(terms.noise_scale[terms.is_pose], factor / np.sqrt(count), rtol=1e-12)
+    assert prob.recipe.range_sigma_floor_m == prob.noise_estimate["range_sigma_floor_m"]
