@@ -27,6 +27,13 @@ def _robot_path(t, kind="loops"):
         x = 0.3 + 0.25 * (t - t[0])
         return np.column_stack([x, np.full_like(x, 0.0), np.zeros_like(x)])
     w = 2 * np.pi / 40.0
+    if kind == "stops":
+        # the loops, standing still 3 s of every 8 (the heading the loop's tangent where it stopped)
+        tau = np.floor(t / 8.0) * 5.0 + np.minimum(np.mod(t, 8.0), 5.0)
+        x = 1.5 + 1.6 * np.cos(w * tau) + 0.4 * np.cos(3 * w * tau)
+        y = 1.2 + 1.3 * np.sin(w * tau)
+        yaw = np.arctan2(1.3 * w * np.cos(w * tau), -1.6 * w * np.sin(w * tau) - 1.2 * w * np.sin(3 * w * tau))
+        return np.column_stack([x, y, np.unwrap(yaw)])
     x = 1.5 + 1.6 * np.cos(w * t) + 0.4 * np.cos(3 * w * t)
     y = 1.2 + 1.3 * np.sin(w * t)
     dx, dy = np.gradient(x, t), np.gradient(y, t)

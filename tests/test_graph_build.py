@@ -82,8 +82,9 @@ def _observations_at(prob, values, prior) -> gtsam.NonlinearFactorGraph:
     """The robot observations' block built here, factor by factor: each measured head point's
     bearing and range (the problem's shifts all 0), its sigmas those of the range the point
     ``values`` predicts (the sensor's pose and the robot's head frame there), rounded to the
-    noise models' 1 cm, over the square root of the observations merged into it; ``prior``
-    first."""
+    noise models' 1 cm, over the square root of the observations merged into it and times the
+    noise's frame-to-frame correlation factor (graph.noise_correlation_factor); ``prior`` first."""
+    from pedcal.calib.graph import noise_correlation_factor
     assert prob.ray_shift_m == prob.horizontal_shift_m == prob.curvature_m == 0.0
     graph = gtsam.NonlinearFactorGraph()
     graph.add(prior)
@@ -92,7 +93,8 @@ def _observations_at(prob, values, prior) -> gtsam.NonlinearFactorGraph:
         T = values.atPose3(S(i))
         predicted = T.rotation().matrix().T @ (values.atPose3(X(k)).translation() - T.translation())
         noise_range = round(float(np.linalg.norm(predicted)) / 0.01) * 0.01
-        sigmas = observation_sigmas(prob.recipe, np.array([noise_range]))[0] / np.sqrt(prob.fac_count[j])
+        sigmas = (observation_sigmas(prob.recipe, np.array([noise_range]))[0]
+                  * noise_correlation_factor(prob.noise_estimate) / np.sqrt(prob.fac_count[j]))
         p = prob.fac_p_sensor[j]
         graph.add(gtsam.BearingRangeFactorPose3(S(i), X(k), gtsam.Unit3(p), float(np.linalg.norm(p)),
                                                 gtsam.noiseModel.Diagonal.Sigmas(sigmas)))

@@ -783,6 +783,22 @@ def people_sightings(prob: FactorGraphProblem, values: gtsam.Values | None, t_ma
     return seen_i, seen_p, seen_m, regressors(prob, values, seen_i, seen_m, False, measured)
 
 
+def noise_correlation_factor(noise_estimate: dict | None) -> float:
+    """How much wider each observation factor's sigmas are taken than one report's noise for a
+    tracker whose noise is correlated from frame to frame (an AR(1) of coefficient rho, the
+    noise estimate's ``frame_correlation``: :func:`pedcal.calib.problem.estimate_observation_noise`):
+    a long run of such reports holds (1 - rho) / (1 + rho) of the information of as many
+    independent ones (the AR(1)'s long-run variance is (1 + rho) / (1 - rho) times one report's),
+    and the graph takes its factors as independent. The root of that factor, its mean over the
+    depth's and the lateral correlation (the factor scales all three sigmas alike); 1 without an
+    estimate. The noise itself (the model check, AMCL's residuals) stays one report's."""
+    rho = (noise_estimate or {}).get("frame_correlation")
+    if not rho:
+        return 1.0
+    inflation = [(1.0 + float(rho[k])) / (1.0 - float(rho[k])) for k in ("along", "lateral")]
+    return float(np.sqrt(np.mean(inflation)))
+
+
 def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
                       t_max: float | None = None, insert_values: bool = False,
                       theta: dict | None = None, robust: bool = True,
@@ -872,7 +888,9 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
         return np.concatenate(parts) if parts else np.zeros(shape, dtype)
 
     count = cat(noise_count, dtype=int)
-    scale = 1.0 / np.sqrt(count)
+    # a filtered tracker's reports hold less than as many independent ones: each factor's sigmas
+    # widened by the root of the noise's long-run variance factor (noise_correlation_factor)
+    scale = noise_correlation_factor(prob.noise_estimate) / np.sqrt(count)
     if sigma_scale is not None:
         scale = scale * np.asarray(sigma_scale[factor:factor + len(count)], float)
     return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),

@@ -335,6 +335,9 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
 
 
 MAX_NOISE_RHO = 0.9          # a frame-to-frame correlation of the tracker's noise beyond this is taken as this
+STILL_M = 0.005              # the robot's head moving less than this over three reports: standing still
+STILL_MARGIN_S = 0.5         # ... and as little from this long before them to as long after
+NOISE_LAGS = 6               # the tracker noise's correlation fitted to reports 1 .. this many frames apart
 
 
 def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: float = 0.25,
@@ -375,7 +378,8 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     R_sensor = np.stack([prob.init_sensors[sid].rotation().matrix() for sid in sensor_ids])
 
     def differences(i, j):
-        """(along, lateral 1, lateral 2, range) of observation j carried back to i's instant, less i."""
+        """(along, lateral 1, lateral 2, range, the robot's move) of observation j carried back to
+        i's instant, less i, and the length of the head's move carried (m)."""
         disp = prob.motion.displacement(obs_t, obs_t, from_index=j, to_index=i)
         p_i = prob.obs_p_raw[i]
         d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R_sensor[sensor[i]], disp) - p_i
@@ -385,34 +389,45 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         b1 = _cross(u, a)
         b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
         b2 = _cross(u, b1)
-        return np.sum(d * u, axis=1), np.sum(d * b1, axis=1), np.sum(d * b2, axis=1), r
+        return np.sum(d * u, axis=1), np.sum(d * b1, axis=1), np.sum(d * b2, axis=1), r, np.linalg.norm(disp, axis=1)
 
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
 
-    along, l1, l2, r = differences(i, j)
+    along, l1, l2, r, _ = differences(i, j)
     # a tracker that smooths its output (a filter's track, correlated frame to frame: rho at one
-    # frame) makes consecutive reports alike: their difference's variance is 2 s^2 (1 - rho), two
-    # frames apart 2 s^2 (1 - rho^2) for an AR(1), so the ratio of the two is 1 + rho, and
-    # s^2 = (one frame's) / (1 - rho). rho from the observations two apart in a track (within
-    # twice the gap); 0 when they are too few or the ratio is below 1 (white noise, sampling)
-    two = same[1:] & same[:-1] & (t_o[2:] - t_o[:-2] > 0.0) & (t_o[2:] - t_o[:-2] <= 2.0 * max_gap_s)
+    # frame) makes consecutive reports alike: for an AR(1) the difference of reports k frames
+    # apart has variance 2 s^2 (1 - rho^k), one frame's 2 s^2 (1 - rho), so s^2 = one frame's /
+    # (1 - rho). rho fitted to those variances at k = 1..NOISE_LAGS (_fit_frame_correlation),
+    # from reports of a track taken while the robot stood still (its head moving less than
+    # STILL_M over them and for STILL_MARGIN_S before and after: a sensor's clock off by a tenth of
+    # a second stamps a report of the robot slowing to a stop as still): the robot's motion
+    # carried between reports adds its own error, larger the further apart, which would read as a
+    # correlation (0.5-0.9 on simulated white noise). 0 when the robot stood too little
+    # (fewer than ``min_pairs`` such pairs one frame apart)
+    lag_along, lag_lateral, lag_pairs = [], [], []
+    n_o = len(order)
+    run = np.ones(n_o, bool)
+    for k in range(1, NOISE_LAGS + 1):
+        if n_o <= k:
+            break
+        run = run[:-1] & same[k - 1:]             # reports o[q] .. o[q + k] of one sensor's track
+        span = t_o[k:] - t_o[:-k]
+        pair = run & (span > 0.0) & (span <= k * max_gap_s)
+        a, b = order[:-k][pair], order[k:][pair]
+        al, la1, la2, _, move = differences(a, b)
+        before = np.linalg.norm(prob.motion.displacement(obs_t[a] - STILL_MARGIN_S, obs_t[a]), axis=1)
+        after = np.linalg.norm(prob.motion.displacement(obs_t[b], obs_t[b] + STILL_MARGIN_S), axis=1)
+        still = (move < STILL_M) & (before < STILL_M) & (after < STILL_M)
+        if still.sum() < 30:
+            break
+        lag_along.append(robust_sigma(al[still]) ** 2)
+        lag_lateral.append(0.5 * (robust_sigma(la1[still]) ** 2 + robust_sigma(la2[still]) ** 2))
+        lag_pairs.append(int(still.sum()))
     rho_along = rho_lateral = 0.0
-    if two.sum() >= min_pairs:
-        along2, l12, l22, _ = differences(order[:-2][two], order[2:][two])
-        # (the ratio per range bin, the depth noise's scale changes with range)
-        ratios = []
-        edges2 = np.quantile(r, np.linspace(0.0, 1.0, 4))
-        r2 = np.linalg.norm(prob.obs_p_raw[order[:-2][two]], axis=1)
-        for lo, hi in zip(edges2[:-1], edges2[1:], strict=True):
-            m1, m2 = (r >= lo) & (r <= hi), (r2 >= lo) & (r2 <= hi)
-            if m1.sum() >= 20 and m2.sum() >= 20:
-                ratios.append((robust_sigma(along2[m2]) / max(robust_sigma(along[m1]), 1e-12)) ** 2)
-        if ratios:
-            rho_along = float(np.clip(np.median(ratios) - 1.0, 0.0, MAX_NOISE_RHO))
-        lat1 = robust_sigma(l1) ** 2 + robust_sigma(l2) ** 2
-        lat2 = robust_sigma(l12) ** 2 + robust_sigma(l22) ** 2
-        rho_lateral = float(np.clip(lat2 / max(lat1, 1e-24) - 1.0, 0.0, MAX_NOISE_RHO))
+    if len(lag_pairs) >= 2 and lag_pairs[0] >= min_pairs:
+        rho_along = _fit_frame_correlation(np.array(lag_along), np.array(lag_pairs))
+        rho_lateral = _fit_frame_correlation(np.array(lag_lateral), np.array(lag_pairs))
     lateral = float(np.sqrt(0.5 * (robust_sigma(l1) ** 2 + robust_sigma(l2) ** 2) / (1.0 - rho_lateral)))
     edges = np.quantile(r, np.linspace(0.0, 1.0, 7))
     r_bin, s_bin, n_bin = [], [], []
@@ -433,6 +448,23 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     return {"range_sigma_floor_m": float(max(floor, 1e-3)), "range_sigma_k_per_m": float(k),
             "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i)),
             "frame_correlation": {"along": round(rho_along, 4), "lateral": round(rho_lateral, 4)}}
+
+
+def _fit_frame_correlation(var_m2: np.ndarray, pairs: np.ndarray) -> float:
+    """The AR(1) coefficient rho of a tracker's noise from half the variances ``var_m2`` of reports
+    k = 1, 2, ... frames apart (s^2 (1 - rho^k)), by least squares in their relative errors (each
+    weighed by its pairs), s^2 in closed form at each rho of a grid 0 .. MAX_NOISE_RHO (0.005
+    apart); 0 where the variances do not grow with k (white noise)."""
+    k = np.arange(1, len(var_m2) + 1, dtype=float)
+    w = pairs / np.maximum(var_m2, 1e-30) ** 2
+    best, best_cost = 0.0, np.inf
+    for rho in np.arange(0.0, MAX_NOISE_RHO + 1e-9, 0.005):
+        g = 1.0 - rho ** k
+        s2 = float(np.sum(w * g * var_m2) / np.sum(w * g * g))
+        cost = float(np.sum(w * (var_m2 - s2 * g) ** 2))
+        if cost < best_cost:
+            best, best_cost = float(rho), cost
+    return best
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
