@@ -294,7 +294,15 @@ def network_shape(true_xy_m, err_xy_m) -> dict:
     ``rest_mm`` and ``total_mm`` (the RMS of |d_i|). With fewer than 3 sensors (or sensors within
     a micrometre RMS of their centre) the turn and scale are not determined (with 2 they would
     take up every error but the shift): they are NaN and everything not shift is in the rest.
-    With no sensor every figure is NaN."""
+    With no sensor every figure is NaN.
+
+    A sensor the method did not calibrate (status other than ok: missing, or a failed log, scored
+    at its installed pose) enters the split like any other, so its installed-pose error leaks into
+    the shift, turn and scale as well as the rest (:func:`shape_table` shows how many there were).
+    The noise floor: with white errors of sigma per axis at each of n >= 3 sensors, the turn's and
+    the scale's expected mean squares are each sigma^2 / n and the rest's 2 (n - 2) sigma^2 / n
+    (2 n values less 4 fitted), so their RMS parts are each about rest / sqrt(2 (n - 2)) (about
+    rest / 4.2 for 11 sensors); a turn or scale much above that is shared by the network."""
     p = np.asarray(true_xy_m, float).reshape(-1, 2)
     d = np.asarray(err_xy_m, float).reshape(-1, 2)
     if p.shape != d.shape:
@@ -321,12 +329,11 @@ def network_shape(true_xy_m, err_xy_m) -> dict:
             "total_mm": 1000 * math.sqrt(np.mean(np.sum(d ** 2, axis=1)))}
 
 
-def row_shape(row) -> dict | None:
-    """:func:`network_shape` of one result row's scored sensors; None when it has none or a
-    sensor lacks its true position (a row of an older results.jsonl whose log is gone)."""
+def row_shape(row) -> dict:
+    """:func:`network_shape` of one result row's scored sensors, whatever their status (each has
+    its true position: :func:`score` writes it, :func:`attach_sensor_info` reads it back from the
+    log for an older results.jsonl)."""
     scored = row.get("sensors") or []
-    if not scored or any(x.get("true_xy_m") is None for x in scored):
-        return None
     return network_shape([x["true_xy_m"] for x in scored], [[x["dx"], x["dy"]] for x in scored])
 
 
@@ -338,14 +345,13 @@ def pooled_shape(rows) -> dict | None:
     sensor of every log that has it, sqrt(sum_logs n_log ms_log / sum_logs n_log) with ms_log the
     log's mean square of that part (the pooling of the xy RMS); a log whose turn and scale are not
     determined adds 0 to them (its error is in its rest). The scale's mean and sd (ddof 1, NaN
-    for one log) over the logs where it is determined (mm per m); ``logs`` with a split, of
-    ``of`` with sensors. None when no log has a split."""
-    scored = [r for r in rows if r.get("sensors")]
-    shapes = [sh for sh in map(row_shape, scored) if sh is not None]
+    for one log) over the logs where it is determined (mm per m); ``logs``: how many logs have
+    sensors, every one counted (a failed log at its installed poses). None when none has."""
+    shapes = [row_shape(r) for r in rows if r.get("sensors")]
     if not shapes:
         return None
     n = np.array([sh["n"] for sh in shapes], float)
-    out = {"logs": len(shapes), "of": len(scored)}
+    out = {"logs": len(shapes)}
     for part in SHAPE_PARTS:
         ms = np.array([sh[f"{part}_mm"] ** 2 for sh in shapes])
         out[f"{part}_mm"] = math.sqrt(np.sum(n * np.nan_to_num(ms, nan=0.0)) / n.sum())
@@ -357,13 +363,15 @@ def pooled_shape(rows) -> dict | None:
 
 def shape_table(rows, methods, groups=None, label="family"):
     """Per group (default: per family and pooled) and method, :func:`pooled_shape`: shift / turn /
-    scale / rest (mm RMS) and the scale (mm per m) mean / sd over the logs; '-' where no log has
-    its sensors' true positions, "(k of N logs)" where only some have."""
+    scale / rest (mm RMS) and the scale (mm per m) mean / sd over the logs. As in :func:`table`
+    (from :func:`summarize`), "(k failed)" after a method's split counts its failed logs and the
+    "not ok" column its sensors not calibrated: both are in the split at their installed poses."""
     groups = by_family(rows) if groups is None else groups
     lines = ["### the network's shape: horizontal error split into shared shift, common turn, common scale "
              "and the rest", ""]
     head = (f"| {label} | logs | " + " | ".join(f"{m} shift / turn / scale / rest (mm RMS) | "
-                                                f"{m} scale (mm/m) mean / sd over logs" for m in methods) + " |")
+                                                f"{m} scale (mm/m) mean / sd over logs" for m in methods)
+            + " | not ok |")
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
 
     def num(v, fmt):
@@ -372,51 +380,39 @@ def shape_table(rows, methods, groups=None, label="family"):
     for name, g in groups:
         logs = sum(1 for r in g if r["method"] == "installed" and r.get("sensors"))
         cells = [name, str(logs)]
+        sm = {m: summarize(g, m) for m in methods}
         for m in methods:
             x = pooled_shape([r for r in g if r["method"] == m])
             if x is None:
                 cells += ["-", "-"]
                 continue
-            some = f" ({x['logs']} of {x['of']} logs)" if x["logs"] < x["of"] else ""
-            cells.append(" / ".join(f"{x[f'{p}_mm']:.1f}" for p in SHAPE_PARTS) + some)
+            failed = f" ({sm[m]['failed']} failed)" if sm[m]["failed"] else ""
+            cells.append(" / ".join(f"{x[f'{p}_mm']:.1f}" for p in SHAPE_PARTS) + failed)
             cells.append(f"{num(x['scale_mean_mm_per_m'], '+.2f')} / {num(x['scale_sd_mm_per_m'], '.2f')}")
+        cells.append(" / ".join("-" if sm[m] is None else str(sm[m]["not_ok"]) for m in methods))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def attach_true_positions(rows, out: Path) -> None:
-    """A scored sensor of an older results.jsonl (no ``true_xy_m``) gets its true horizontal
-    position from its log's truth.yaml in ``out`` when that log is there; otherwise it stays
-    without, and its row's shape split is '-'."""
-    cache = {}
-    for r in rows:
-        missing = [x for x in r.get("sensors", []) if x.get("true_xy_m") is None]
-        if not missing:
-            continue
-        key = (r["family"], r["seed"])
-        if key not in cache:
-            path = out / f"{r['family']}-{r['seed']}" / "log" / "truth.yaml"
-            cache[key] = read_network(path) if path.is_file() else {}
-        for x in missing:
-            if x["id"] in cache[key]:
-                x["true_xy_m"] = cache[key][x["id"]]["p"][:2].tolist()
-
-
 def attach_sensor_info(rows, out: Path):
-    """Each scored sensor gets its mount and head profile (from the log's xgen.json), each row
-    its AMCL jumps."""
+    """Each scored sensor gets its mount and head profile (from the log's xgen.json) and, when its
+    row lacks it (an older results.jsonl), its true horizontal position (from the log's truth.yaml);
+    each row its AMCL jumps."""
     cache = {}
     for r in rows:
         key = (r["family"], r["seed"])
         if key not in cache:
-            cache[key] = json.loads((out / f"{r['family']}-{r['seed']}" / "log" / "xgen.json").read_text())
-        info = cache[key]
+            log = out / f"{r['family']}-{r['seed']}" / "log"
+            cache[key] = json.loads((log / "xgen.json").read_text()), read_network(log / "truth.yaml")
+        info, truth = cache[key]
         per = {s["id"]: s for s in info["sensors"]}
         r["amcl_jumps"] = len(info["amcl"]["jumps"])
         shared_shift_removed(r)
         for x in r.get("sensors", []):
             x["mount"] = per[x["id"]]["mount"]
             x["profile"] = per[x["id"]]["profile"]["kind"]
+            if x.get("true_xy_m") is None:
+                x["true_xy_m"] = truth[x["id"]]["p"][:2].tolist()
 
 
 def table(rows, methods, title, groups=None, label="family"):
@@ -518,7 +514,6 @@ def print_tables(rows, methods, out: Path, title: str):
     print()
     print(table(rows, methods, title))
     print()
-    attach_true_positions(rows, out)
     print(shape_table(rows, methods))
     print()
     print(table(rows, methods, "by what the log drew (pooled over families)", by_log_nuisance(rows), "logs with"))

@@ -331,7 +331,7 @@ def _shape_rows():
     installed = {sid: {**t, "sigma_p": None, "sigma_rot_deg": None, "status": "ok"} for sid, t in truth.items()}
     est = {sid: {**t, "p": t["p"] + np.r_[0.003 * (t["p"][:2] - [10.0, 20.0]) + [0.02, 0.0], 0.0]}
            for sid, t in installed.items()}
-    base = {"family": "rooms", "seed": 0, "rc": 0}
+    base = {"family": "rooms", "seed": 0, "rc": 0, "cpu_s": 0.0, "wall_s": 0.0}
     rows = [{**base, "method": "installed", **score(truth, installed)}, {**base, "method": "m", **score(truth, est)}]
     old = json.loads(json.dumps(rows))
     for r in old:
@@ -340,26 +340,121 @@ def _shape_rows():
     return truth, rows, old
 
 
-def test_shape_table_pools_the_split_and_shows_a_dash_for_old_rows(tmp_path):
-    from bench_xgen import attach_true_positions, shape_table
+def test_shape_table_pools_the_split_and_reads_old_rows_true_positions_from_the_log(tmp_path):
+    from bench_xgen import attach_sensor_info, shape_table, shared_shift_removed
 
     truth, rows, old = _shape_rows()
+    for r in rows:
+        shared_shift_removed(r)
     line = next(x for x in shape_table(rows, ["m"]).splitlines() if x.startswith("| rooms "))
     s20 = 3.0 * math.sqrt(20.0)
-    assert line == f"| rooms | 1 | 20.0 / 0.0 / {s20:.1f} / 0.0 | +3.00 / - |"
-    # an older row without true positions, its log gone: '-', no error
-    attach_true_positions(old, tmp_path)
-    assert "| rooms | 1 | - | - |" in shape_table(old, ["m"])
-    # mixed with a row that has them: pooled over the logs that do, and said so
-    mixed = rows + [{**old[1], "seed": 1}, {**old[0], "seed": 1}]
-    assert f"20.0 / 0.0 / {s20:.1f} / 0.0 (1 of 2 logs)" in shape_table(mixed, ["m"])
-    # the log's truth.yaml where --from-results finds it: the positions are read back
+    assert line == f"| rooms | 1 | 20.0 / 0.0 / {s20:.1f} / 0.0 | +3.00 / - | 0 |"
+    # an older results.jsonl (no true positions): --from-results reads them back from the log's
+    # truth.yaml beside the xgen.json it reads anyway
     log = tmp_path / "rooms-0" / "log"
     log.mkdir(parents=True)
     log.joinpath("truth.yaml").write_text(yaml.safe_dump({"sensors": [
         {"id": sid, "position": t["p"].tolist(), "ypr_deg": [0.0, 0.0, 0.0]} for sid, t in truth.items()]}))
-    attach_true_positions(old, tmp_path)
+    log.joinpath("xgen.json").write_text(json.dumps({"amcl": {"jumps": []}, "sensors": [
+        {"id": sid, "mount": "ceiling", "profile": {"kind": "head"}} for sid in truth]}))
+    attach_sensor_info(old, tmp_path)
+    assert [x["true_xy_m"] for x in old[1]["sensors"]] == [x["true_xy_m"] for x in rows[1]["sensors"]]
     assert shape_table(old, ["m"]) == shape_table(rows, ["m"])
+
+
+def test_shape_counts_failed_logs_and_missing_sensors_at_their_installed_poses():
+    # a failed log and a sensor given up are in the split with their installed-pose errors (no
+    # reward for failure), and the table says so as the main table does
+    from bench_xgen import network_shape, pooled_shape, score, shape_table, shared_shift_removed, summarize
+
+    p = _square_network()
+    truth = {f"s{k}": {"p": np.array([x, y, 3.0]), "R": np.eye(3)} for k, (x, y) in enumerate(p)}
+    off_m = np.array([[0.05, -0.02], [0.0, 0.04], [-0.03, 0.01], [0.02, 0.02], [0.3, 0.0]])
+    installed = {sid: {**t, "p": t["p"] + np.r_[o, 0.0], "sigma_p": None, "sigma_rot_deg": None,
+                       "status": "ok"} for (sid, t), o in zip(truth.items(), off_m, strict=True)}
+    exact = {sid: {**t, "sigma_p": None, "sigma_rot_deg": None, "status": "ok"} for sid, t in truth.items()}
+    del exact["s4"]                                                   # given up: at its installed pose
+    base = {"family": "rooms", "method": "m", "rc": 0, "cpu_s": 0.0, "wall_s": 0.0}
+    failed = {**base, "seed": 0, "rc": 1, **score(truth, {}, installed), "failed": True}
+    missing = {**base, "seed": 1, **score(truth, exact, installed)}
+    rows = [failed, missing]
+    for r in rows:
+        shared_shift_removed(r)
+    gave_up = np.zeros_like(off_m)
+    gave_up[4] = off_m[4]
+    a, b = network_shape(p, off_m), network_shape(p, gave_up)
+    out = pooled_shape(rows)
+    assert out["logs"] == 2
+    for part in ("shift", "turn", "scale", "rest"):
+        assert out[f"{part}_mm"] == pytest.approx(math.sqrt((a[f"{part}_mm"] ** 2 + b[f"{part}_mm"] ** 2) / 2))
+    assert b["shift_mm"] == pytest.approx(300.0 / 5) and b["rest_mm"] > 0.0
+    sm = summarize(rows, "m")
+    assert (sm["failed"], sm["not_ok"]) == (1, 6)
+    installed_rows = [{**r, "method": "installed"} for r in rows]
+    line = next(x for x in shape_table(rows + installed_rows, ["m"]).splitlines() if x.startswith("| rooms "))
+    assert line.startswith("| rooms | 2 | " + " / ".join(f"{out[f'{q}_mm']:.1f}" for q in
+                                                          ("shift", "turn", "scale", "rest")) + " (1 failed) | ")
+    assert line.endswith(" | 6 |")
+
+
+def test_shape_scale_mean_and_sd_over_logs():
+    # the scale's mean and sample sd (ddof 1) over the logs; three logs, as two cannot tell the
+    # mean from the median
+    from bench_xgen import pooled_shape, score
+
+    p = _square_network()
+    truth = {f"s{k}": {"p": np.array([x, y, 3.0]), "R": np.eye(3)} for k, (x, y) in enumerate(p)}
+    rows = []
+    for seed, stretch in enumerate((3.0, 1.0, 0.5)):
+        est = {sid: {**t, "p": t["p"] + np.r_[1e-3 * stretch * (t["p"][:2] - [10.0, 20.0]) + [0.01, 0.0], 0.0],
+                     "sigma_p": None, "sigma_rot_deg": None, "status": "ok"} for sid, t in truth.items()}
+        rows.append({"family": "rooms", "seed": seed, "method": "m", "rc": 0, **score(truth, est)})
+    out = pooled_shape(rows[:2])
+    assert out["scale_mean_mm_per_m"] == pytest.approx(2.0)
+    assert out["scale_sd_mm_per_m"] == pytest.approx(np.std([3.0, 1.0], ddof=1))
+    out = pooled_shape(rows)
+    assert out["scale_mean_mm_per_m"] == pytest.approx(1.5)                   # the median is 1.0
+    assert out["scale_sd_mm_per_m"] == pytest.approx(np.std([3.0, 1.0, 0.5], ddof=1))
+
+
+def test_shape_parts_less_the_shift_are_the_main_tables_xy_less_shared_shift():
+    # sqrt(turn^2 + scale^2 + rest^2) pooled is summarize's xy_rel_mm; the shift is what
+    # shared_shift_removed takes out (logs of 2, 5 and 9 sensors, random errors)
+    from bench_xgen import pooled_shape, score, shared_shift_removed, summarize
+
+    rng = np.random.default_rng(17)
+    rows = []
+    for seed, n in enumerate((2, 5, 9)):
+        truth = {f"s{k}": {"p": np.r_[rng.uniform(0, 30, 2), 3.0], "R": np.eye(3)} for k in range(n)}
+        est = {sid: {**t, "p": t["p"] + np.r_[rng.normal(0.0, 0.03, 2), 0.0], "sigma_p": None,
+                     "sigma_rot_deg": None, "status": "ok"} for sid, t in truth.items()}
+        rows.append({"family": "rooms", "seed": seed, "method": "m", "rc": 0, "cpu_s": 0.0, "wall_s": 0.0,
+                     **score(truth, est)})
+        shared_shift_removed(rows[-1])
+    out, sm = pooled_shape(rows), summarize(rows, "m")
+    less_shift = math.sqrt(out["turn_mm"] ** 2 + out["scale_mm"] ** 2 + out["rest_mm"] ** 2)
+    assert less_shift == pytest.approx(sm["xy_rel_mm"], rel=1e-9)
+    s = [x for r in rows for x in r["sensors"]]
+    taken_out = 1000 * math.sqrt(np.mean([(x["dx"] - x["dx_rel"]) ** 2 + (x["dy"] - x["dy_rel"]) ** 2 for x in s]))
+    assert out["shift_mm"] == pytest.approx(taken_out, rel=1e-9)
+
+
+def test_shape_noise_floor_of_turn_and_scale():
+    # white errors of sigma per axis at n sensors: E turn_mm^2 = E scale_mm^2 = sigma^2 / n and
+    # E rest_mm^2 = 2 (n - 2) sigma^2 / n, so turn and scale are about rest / sqrt(2 (n - 2));
+    # 4000 draws: the mean square of a chi^2_1 part is within 10 % (4.5 of its 2.2 % sd)
+    from bench_xgen import network_shape
+
+    rng = np.random.default_rng(3)
+    n, sigma_mm, draws = 11, 14.0, 4000
+    p = rng.uniform(0.0, 30.0, (n, 2))
+    shapes = [network_shape(p, rng.normal(0.0, sigma_mm / 1000, (n, 2))) for _ in range(draws)]
+    ms = {part: np.mean([sh[f"{part}_mm"] ** 2 for sh in shapes]) for part in ("turn", "scale", "rest")}
+    assert ms["turn"] == pytest.approx(sigma_mm ** 2 / n, rel=0.10)
+    assert ms["scale"] == pytest.approx(sigma_mm ** 2 / n, rel=0.10)
+    assert ms["rest"] == pytest.approx(2 * (n - 2) * sigma_mm ** 2 / n, rel=0.03)
+    for part in ("turn", "scale"):
+        assert math.sqrt(ms[part]) == pytest.approx(math.sqrt(ms["rest"] / (2 * (n - 2))), rel=0.06)
 
 
 def test_shape_pooling_weights_each_log_by_its_sensors():
@@ -371,7 +466,7 @@ def test_shape_pooling_weights_each_log_by_its_sensors():
     est2 = {sid: {**t, "p": t["p"] + [0.0, 0.01 * k, 0.0], "sigma_p": None, "sigma_rot_deg": None,
                   "status": "ok"} for k, (sid, t) in enumerate(two.items())}
     out = pooled_shape([rows[1], {"method": "m", **score(two, est2)}])
-    assert out["logs"] == out["of"] == 2
+    assert out["logs"] == 2
     assert out["shift_mm"] == pytest.approx(math.sqrt((5 * 20.0 ** 2 + 2 * 5.0 ** 2) / 7))
     assert out["scale_mm"] == pytest.approx(math.sqrt(5 * 9.0 * 20.0 / 7))
     assert out["rest_mm"] == pytest.approx(math.sqrt(2 * 5.0 ** 2 / 7))
