@@ -649,7 +649,8 @@ def test_the_residuals_noise_is_the_sensors_horizontal_variance_per_axis():
     """residual_noise_m2: a point straight below its sensor has only the lateral noise
     horizontally (lateral^2 per axis); one seen horizontally along the world x has its depth
     noise along x and its lateral noise along y ((range^2 + lateral^2) / 2 per axis); a factor
-    merging n observations has 1/n of it; factors without a pose variable are left out."""
+    merging n observations has 1/n of it (g_n / n for a correlated tracker's reports:
+    graph.merged_variance_factor); factors without a pose variable are left out."""
     from types import SimpleNamespace
 
     import gtsam
@@ -663,10 +664,11 @@ def test_the_residuals_noise_is_the_sensors_horizontal_variance_per_axis():
     values.insert(S(0), gtsam.Pose3())
     values.insert(S(1), gtsam.Pose3(gtsam.Rot3.Yaw(np.pi / 2), np.zeros(3)))
 
-    def prob(p, count, sensor, key):
+    def prob(p, count, sensor, key, noise_estimate=None):
         return SimpleNamespace(recipe=rec, sensor_ids=["a", "b"], pose_times=np.zeros(2),
                                fac_p_sensor=np.asarray(p, float), fac_count=np.asarray(count),
-                               fac_sensor_index=np.asarray(sensor), fac_key_index=np.asarray(key))
+                               fac_sensor_index=np.asarray(sensor), fac_key_index=np.asarray(key),
+                               noise_estimate=noise_estimate)
 
     below = prob([[0.0, 0.0, -2.0]], [1], [0], [0])
     assert residual_noise_m2(below, values) == pytest.approx(0.004 ** 2, rel=1e-12)
@@ -678,3 +680,7 @@ def test_the_residuals_noise_is_the_sensors_horizontal_variance_per_axis():
     mixed = prob([[0.0, 0.0, -2.0], [2.0, 0.0, 0.0], [2.0, 0.0, 0.0]], [1, 1, 1], [0, 0, 0], [0, 1, 5])
     assert residual_noise_m2(mixed, values) == pytest.approx(0.5 * (0.004 ** 2 + 0.5 * (0.01 ** 2 + 0.004 ** 2)))
     assert residual_noise_m2(prob(np.zeros((0, 3)), [], [], []), values) == 0.0
+    # a tracker correlated at 0.6 frame to frame: three reports' mean has 2.04 / 3 of one's variance
+    correlated = {"frame_correlation": {"along": 0.6, "lateral": 0.6}}
+    merged = prob([[0.0, 0.0, -2.0]], [3], [0], [0], correlated)
+    assert residual_noise_m2(merged, values) == pytest.approx(0.004 ** 2 * 2.04 / 3, rel=1e-12)

@@ -70,6 +70,7 @@ def test_a_frame_to_frame_correlated_noise_is_estimated_at_its_own_size(rho):
     difference alone gives sqrt(1 - rho) of it: 0.71 at 0.5), the correlation within 0.12 (read
     from the runs of reports while the robot stood, a few hundred pairs)."""
     est = _estimate(rho)
+    assert est["still_pairs"] >= 100                  # (read while the robot stood)
     assert _depth_sigma(est) == pytest.approx(SIGMA_RANGE_M, rel=0.15)
     assert est["lateral_sigma_m"] == pytest.approx(SIGMA_LATERAL_M, rel=0.15)
     assert est["frame_correlation"]["along"] == pytest.approx(rho, abs=0.12)
@@ -118,22 +119,62 @@ def test_a_correlated_trackers_factors_are_widened_by_the_root_of_its_long_run_v
     assert got == pytest.approx(np.sqrt(0.5 * (1.6 / 0.4 + 1.2 / 0.8)), rel=1e-12)
 
 
-def test_the_observation_factors_carry_the_factor_and_the_model_check_does_not():
-    """The observation block's factors (robot's and people's) take their sigmas times the factor
-    over the root of their merged count; the noise model itself (the recipe's, which the model
-    check and AMCL's residuals use) stays one report's."""
-    from pedcal.calib.graph import noise_correlation_factor, observation_terms
+def test_the_observation_factors_carry_the_factor():
+    """The observation block's robot factors take their sigmas times the factor (here of a given
+    correlation: 0.5 along, 0.3 across) over the root of their merged count; the recipe's noise
+    stays one report's."""
+    from pedcal.calib.graph import observation_terms
 
     log = _noisy_log(0.7)
     rec = _exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0)
     prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
-    factor = noise_correlation_factor(prob.noise_estimate)
-    assert factor > 1.5                          # (rho about 0.7: sqrt(1.7 / 0.3) = 2.4)
-    terms = observation_terms(log, prob)
-    n_pose = len(prob.pose_times)
-    count = np.asarray(prob.fac_count[prob.fac_key_index < n_pose], float)
-    assert np.allclose(terms.noise_scale[terms.is_pose], factor / np.sqrt(count), rtol=1e-12)
     assert prob.recipe.range_sigma_floor_m == prob.noise_estimate["range_sigma_floor_m"]
+    prob.noise_estimate = {**prob.noise_estimate, "frame_correlation": {"along": 0.5, "lateral": 0.3}}
+    terms = observation_terms(log, prob)
+    count = np.asarray(prob.fac_count[prob.fac_key_index < len(prob.pose_times)], float)
+    want = np.sqrt(0.5 * (1.5 / 0.5 + 1.3 / 0.7)) / np.sqrt(count)
+    np.testing.assert_allclose(terms.noise_scale[terms.is_pose], want, rtol=1e-12)
+
+
+def test_sightings_further_apart_take_the_correlation_that_many_reports_apart():
+    from pedcal.calib.graph import noise_correlation_factor
+
+    est = {"frame_correlation": {"along": 0.6, "lateral": 0.6}}
+    assert noise_correlation_factor(est, gap_frames=3.0) == pytest.approx(np.sqrt(1.216 / 0.784), rel=1e-12)
+    assert noise_correlation_factor(est, gap_frames=0.5) == noise_correlation_factor(est)      # (at least one)
+
+
+def test_a_merged_factors_variance_is_that_of_its_correlated_reports_mean():
+    """g_c pinned: 1 for one report or white noise, 1 + 2 (2/3 rho + 1/3 rho^2) = 2.04 for three at
+    0.6, toward (1 + rho) / (1 - rho) for many, and equal to a direct sum over lags."""
+    from pedcal.calib.graph import merged_variance_factor
+
+    assert merged_variance_factor(0.6, 1)[()] == pytest.approx(1.0, abs=1e-12)
+    assert merged_variance_factor(0.0, [1, 5]).tolist() == [1.0, 1.0]
+    assert merged_variance_factor(0.6, 3)[()] == pytest.approx(2.04, rel=1e-12)
+    assert merged_variance_factor(0.6, 10 ** 6)[()] == pytest.approx(4.0, rel=1e-5)
+    for c in (2, 4, 7):
+        direct = 1.0 + 2.0 * sum((1.0 - k / c) * 0.8 ** k for k in range(1, c))
+        assert merged_variance_factor(0.8, c)[()] == pytest.approx(direct, rel=1e-12)
+
+
+def test_the_model_check_holds_a_correlated_trackers_merged_reports_to_their_own_variance():
+    """A log whose trackers' noise is what the model says, correlated at 0.6, its factors merging
+    about three reports each: the model check's variance ratios are near 1 (0.75-1.3), where
+    taking a merged factor's variance as one report's over its count read 1.5 and named every
+    sensor as misfitting."""
+    import warnings
+
+    from pedcal.calib.factorgraph import calibrate_factorgraph
+    from pedcal.errors import DegenerateDataWarning
+
+    log = _noisy_log(0.6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(log, graph=_exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0),
+                                    is_robot=np.ones(len(log.observations), bool))
+    ratios = res.network.extra["model_mismatch"]["variance_ratio"]
+    assert ratios and all(0.75 < r < 1.3 for r in ratios.values()), ratios
 
 
 @pytest.mark.parametrize("scenario,seed", [("paper", 0), ("corridor", 0)])
@@ -153,6 +194,7 @@ def test_the_robots_motion_carried_between_reports_is_not_read_as_a_correlation(
         warnings.simplefilter("ignore", DegenerateDataWarning)
         prob = prepare(sim.calib, GraphRecipe.load("default"), is_robot=np.ones(len(sim.calib.observations), bool))
     assert prob.noise_estimate["frame_correlation"] == {"along": 0.0, "lateral": 0.0}
+    assert prob.noise_estimate["still_pairs"] == 0           # (the simulator's robot never stands)
 
 
 def test_without_the_robot_standing_still_no_correlation_is_read():
@@ -163,3 +205,4 @@ def test_without_the_robot_standing_still_no_correlation_is_read():
     rec = _exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0)
     prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
     assert prob.noise_estimate["frame_correlation"] == {"along": 0.0, "lateral": 0.0}
+    assert prob.noise_estimate["still_pairs"] == 0

@@ -61,6 +61,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     calibrate_odometry,
     finish_network,
     head_frame,
+    merged_noise_factors,
     motion_block,
     observability,
     observation_block,
@@ -288,20 +289,25 @@ def residual_noise_m2(prob: FactorGraphProblem, result: gtsam.Values) -> float:
     """The sensors' own noise in AMCL's residuals (:func:`amcl_residuals`): each robot-observation
     factor's point, its noise's covariance in the sensor frame (the recipe's range sigma along the
     ray, its lateral one across: :func:`pedcal.calib.recipe.observation_sigmas`) over its count,
-    turned into the world with the sensor's solved rotation; its horizontal variance per axis,
-    averaged over the factors (m^2; 0 without any)."""
+    times the variance factor of that many correlated reports' mean
+    (:func:`pedcal.calib.graph.merged_noise_factors`), turned into the world with the sensor's
+    solved rotation; its horizontal variance per axis, averaged over the factors (m^2; 0 without
+    any)."""
     use = np.flatnonzero(prob.fac_key_index < len(prob.pose_times))
     if not len(use):
         return 0.0
     p = prob.fac_p_sensor[use]
     r = np.linalg.norm(p, axis=1)
-    sig = observation_sigmas(prob.recipe, r)
-    var_lateral, var_range = (sig[:, 0] * np.maximum(r, 0.3)) ** 2, sig[:, 2] ** 2
+    count = np.asarray(prob.fac_count[use], float)
+    # (a merged factor's mean of correlated reports: its variance factor, graph.merged_noise_factors)
+    g_lateral, g_depth = merged_noise_factors(prob.noise_estimate, count)
+    var_lateral = prob.recipe.lateral_sigma_m ** 2 * g_lateral / count
+    var_range = observation_sigmas(prob.recipe, r)[:, 2] ** 2 * g_depth / count
     R = np.stack([result.atPose3(S(i)).rotation().matrix() for i in range(len(prob.sensor_ids))])
     v = np.einsum("nij,nj->ni", R[prob.fac_sensor_index[use]], p / np.maximum(r, 1e-9)[:, None])
     # the world covariance lateral^2 I + (range^2 - lateral^2) v v^T; its xy trace over two axes
     xy = 0.5 * (2.0 * var_lateral + (var_range - var_lateral) * (v[:, 0] ** 2 + v[:, 1] ** 2))
-    return float(np.mean(xy / np.asarray(prob.fac_count[use], float)))
+    return float(np.mean(xy))
 
 
 def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, result: gtsam.Values, progress: bool,
@@ -466,9 +472,8 @@ def _sensor_of(name: str) -> str:
 # at most this many profile steps: each one's gradient exact, they reach the profile's optimum,
 # within a few steps where the profile is nearly quadratic; where the robust kernel's frozen
 # weights overstate its curvature (an offset the data hardly hold, Huber's down-weighted factors
-# pulling it) the steps shrink slowly and more are taken, extrapolated (the zoo's cross seed 2 with
-# its jumps left out takes 25, its depth noise estimated as a filtered tracker's, 18 before)
-MAX_PROFILE_STEPS = 30
+# pulling it) the steps shrink slowly and more are taken, extrapolated
+MAX_PROFILE_STEPS = 20
 
 
 def _estimate_nuisances(log: Log, prob: FactorGraphProblem, parts, result, progress: bool = False,
@@ -849,9 +854,12 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
     b2 = np.cross(u, b1)
     u_pred = p_pred / r_pred[:, None]
-    # the graph's sigmas: at the range as observed, over sqrt of the merged count
-    sig = (observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1))
-           / np.sqrt(prob.fac_count[use])[:, None])
+    # one report's sigmas at the range as observed, over sqrt of the merged count, times the root
+    # of the variance factor of that many correlated reports' mean (graph.merged_noise_factors)
+    count = prob.fac_count[use]
+    g_lateral, g_depth = merged_noise_factors(prob.noise_estimate, count)
+    sig = (observation_sigmas(rec, np.linalg.norm(prob.fac_p_sensor[use], axis=1)) / np.sqrt(count)[:, None]
+           * np.sqrt(np.column_stack([g_lateral, g_lateral, g_depth])))
     return np.column_stack([np.sum(u_pred * b1, axis=1) / sig[:, 0], np.sum(u_pred * b2, axis=1) / sig[:, 1],
                             (r_pred - r_meas - prob.ray_shift_m) / sig[:, 2]])
 

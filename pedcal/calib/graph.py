@@ -783,20 +783,46 @@ def people_sightings(prob: FactorGraphProblem, values: gtsam.Values | None, t_ma
     return seen_i, seen_p, seen_m, regressors(prob, values, seen_i, seen_m, False, measured)
 
 
-def noise_correlation_factor(noise_estimate: dict | None) -> float:
+def _frame_correlation(noise_estimate: dict | None) -> dict | None:
+    rho = (noise_estimate or {}).get("frame_correlation")
+    return rho if rho and any(float(v) > 0.0 for v in rho.values()) else None
+
+
+def noise_correlation_factor(noise_estimate: dict | None, gap_frames: float = 1.0) -> float:
     """How much wider each observation factor's sigmas are taken than one report's noise for a
     tracker whose noise is correlated from frame to frame (an AR(1) of coefficient rho, the
     noise estimate's ``frame_correlation``: :func:`pedcal.calib.problem.estimate_observation_noise`):
     a long run of such reports holds (1 - rho) / (1 + rho) of the information of as many
     independent ones (the AR(1)'s long-run variance is (1 + rho) / (1 - rho) times one report's),
     and the graph takes its factors as independent. The root of that factor, its mean over the
-    depth's and the lateral correlation (the factor scales all three sigmas alike); 1 without an
-    estimate. The noise itself (the model check, AMCL's residuals) stays one report's."""
-    rho = (noise_estimate or {}).get("frame_correlation")
-    if not rho:
+    depth's and the lateral correlation (the factor scales all three sigmas alike); for factors
+    ``gap_frames`` reports apart (people's sightings, one per people_sample_s) rho^gap_frames
+    in place of rho; 1 without an estimate or for white noise. The noise itself (the model
+    check, AMCL's residuals) is one report's, merged as :func:`merged_variance_factor` says."""
+    rho = _frame_correlation(noise_estimate)
+    if rho is None:
         return 1.0
-    inflation = [(1.0 + float(rho[k])) / (1.0 - float(rho[k])) for k in ("along", "lateral")]
-    return float(np.sqrt(np.mean(inflation)))
+    r = [float(rho[k]) ** max(float(gap_frames), 1.0) for k in ("along", "lateral")]
+    return float(np.sqrt(np.mean([(1.0 + x) / (1.0 - x) for x in r])))
+
+
+def merged_variance_factor(rho: float, count) -> np.ndarray:
+    """g_c: the variance of the mean of ``count`` consecutive reports of an AR(1) noise of
+    coefficient ``rho`` over one report's variance / count, 1 + 2 sum_{k<c} (1 - k/c) rho^k =
+    (1 + rho) / (1 - rho) - 2 rho (1 - rho^c) / (c (1 - rho)^2): 1 for one report or white noise,
+    toward the long-run factor (1 + rho) / (1 - rho) for many."""
+    c = np.maximum(np.asarray(count, float), 1.0)
+    rho = float(rho)
+    if rho <= 0.0:
+        return np.ones_like(c)
+    return (1.0 + rho) / (1.0 - rho) - 2.0 * rho * (1.0 - rho ** c) / (c * (1.0 - rho) ** 2)
+
+
+def merged_noise_factors(noise_estimate: dict | None, count) -> tuple[np.ndarray, np.ndarray]:
+    """(lateral, depth) variance factors g_c (:func:`merged_variance_factor`) of factors merging
+    ``count`` reports, at the noise estimate's lateral and depth correlations (ones without)."""
+    rho = _frame_correlation(noise_estimate) or {"along": 0.0, "lateral": 0.0}
+    return merged_variance_factor(rho["lateral"], count), merged_variance_factor(rho["along"], count)
 
 
 def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values | None = None, *,
@@ -889,8 +915,13 @@ def observation_terms(log: Log, prob: FactorGraphProblem, values: gtsam.Values |
 
     count = cat(noise_count, dtype=int)
     # a filtered tracker's reports hold less than as many independent ones: each factor's sigmas
-    # widened by the root of the noise's long-run variance factor (noise_correlation_factor)
+    # widened by the root of the noise's long-run variance factor (noise_correlation_factor);
+    # people's sightings, one per people_sample_s, at the correlation that many reports apart
     scale = noise_correlation_factor(prob.noise_estimate) / np.sqrt(count)
+    people_rows = ~cat(is_pose, dtype=bool)
+    if people_rows.any() and prob.noise_estimate and prob.noise_estimate.get("frame_period_s"):
+        gap = rec.people_sample_s / float(prob.noise_estimate["frame_period_s"])
+        scale[people_rows] = noise_correlation_factor(prob.noise_estimate, gap) / np.sqrt(count[people_rows])
     if sigma_scale is not None:
         scale = scale * np.asarray(sigma_scale[factor:factor + len(count)], float)
     return ObservationTerms(prior=prior, sensor=cat(sensor, dtype=int), target=cat(target, dtype=int),

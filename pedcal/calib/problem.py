@@ -335,7 +335,7 @@ def prepare(log: Log, recipe: GraphRecipe, is_robot: np.ndarray | None = None, p
 
 
 MAX_NOISE_RHO = 0.9          # a frame-to-frame correlation of the tracker's noise beyond this is taken as this
-STILL_M = 0.005              # the robot's head moving less than this over three reports: standing still
+STILL_M = 0.005              # the robot's head moving less than this between two reports: standing still
 STILL_MARGIN_S = 0.5         # ... and as little from this long before them to as long after
 NOISE_LAGS = 6               # the tracker noise's correlation fitted to reports 1 .. this many frames apart
 
@@ -349,12 +349,14 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     range and fitted by ``floor + k r^2`` (times ``far_factor`` past ``reliable_range_m``, as the
     graph models it); across the ray, the lateral noise (with the latency jitter times the
     robot's speed in it). A tracker that smooths its output makes consecutive reports alike: the
-    noise's correlation from one frame to the next (an AR(1)'s rho) is read from reports two
-    frames apart and each frame's noise taken as one frame's difference's over sqrt(1 - rho)
-    (capped at MAX_NOISE_RHO); the graph still takes the observations as independent, which the
-    model check after the solve sees (a variance ratio above 1) and widens the sigma for. Returns
-    the recipe's three noise fields, the number of pairs and ``frame_correlation`` (along the ray,
-    across it), or None with fewer than ``min_pairs`` pairs. ``prob``'s observations need not be carried yet
+    noise's correlation from one frame to the next (an AR(1)'s rho, capped at MAX_NOISE_RHO) is
+    fitted to the variances of reports 1..NOISE_LAGS frames apart taken while the robot stood
+    still, and each frame's noise is one frame's difference's over sqrt(1 - rho); the graph's
+    factors are widened for the correlation (:func:`pedcal.calib.graph.noise_correlation_factor`).
+    Returns the recipe's three noise fields, the number of pairs, ``frame_correlation`` (along the
+    ray, across it), ``still_pairs`` (pairs of consecutive reports of a still robot it was read
+    from; 0: rho taken as 0) and ``frame_period_s`` (the median time between consecutive
+    reports), or None with fewer than ``min_pairs`` pairs. ``prob``'s observations need not be carried yet
     (their instants, stamp - latency, are taken here)."""
     rec = prob.recipe
     rows = prob.rows_used
@@ -425,7 +427,8 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         lag_lateral.append(0.5 * (robust_sigma(la1[still]) ** 2 + robust_sigma(la2[still]) ** 2))
         lag_pairs.append(int(still.sum()))
     rho_along = rho_lateral = 0.0
-    if len(lag_pairs) >= 2 and lag_pairs[0] >= min_pairs:
+    read = len(lag_pairs) >= 2 and lag_pairs[0] >= min_pairs
+    if read:
         rho_along = _fit_frame_correlation(np.array(lag_along), np.array(lag_pairs))
         rho_lateral = _fit_frame_correlation(np.array(lag_lateral), np.array(lag_pairs))
     lateral = float(np.sqrt(0.5 * (robust_sigma(l1) ** 2 + robust_sigma(l2) ** 2) / (1.0 - rho_lateral)))
@@ -447,7 +450,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         floor, k = float(np.average(s_bin, weights=w)), 0.0
     return {"range_sigma_floor_m": float(max(floor, 1e-3)), "range_sigma_k_per_m": float(k),
             "lateral_sigma_m": float(max(lateral, 1e-3)), "pairs": int(len(i)),
-            "frame_correlation": {"along": round(rho_along, 4), "lateral": round(rho_lateral, 4)}}
+            "frame_correlation": {"along": round(rho_along, 4), "lateral": round(rho_lateral, 4)},
+            "still_pairs": int(lag_pairs[0]) if read else 0,
+            "frame_period_s": round(float(np.median(dt[nxt])), 6)}
 
 
 def _fit_frame_correlation(var_m2: np.ndarray, pairs: np.ndarray) -> float:
