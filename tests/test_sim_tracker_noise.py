@@ -140,7 +140,7 @@ def test_the_zoo_draws_both_kinds_from_a_stream_of_its_own(monkeypatch):
     assert not np.allclose(a.observations[["x", "y", "z"]].to_numpy(), b.observations[["x", "y", "z"]].to_numpy())
 
 
-def test_the_noise_estimate_recovers_a_correlated_trackers_noise():
+def test_the_noise_estimate_recovers_a_correlated_trackers_noise(monkeypatch):
     """End to end: a 2-minute log of the paper site, the robot alone, every nuisance off but the
     tracker's noise (k = 1.5e-3 / m, 1 cm across) correlated at rho = 0.7. The calibration's
     noise estimate (from consecutive and two-apart reports) gives each frame's noise within 25 %
@@ -162,10 +162,6 @@ def test_the_noise_estimate_recovers_a_correlated_trackers_noise():
     assert est["lateral_sigma_m"] == pytest.approx(sc.lateral_noise_m, rel=0.25)
     assert est["frame_correlation"]["along"] == pytest.approx(0.7, abs=0.1)
     assert est["frame_correlation"]["lateral"] == pytest.approx(0.7, abs=0.1)
-    monkey = problem.MAX_NOISE_RHO
-    try:
-        problem.MAX_NOISE_RHO = 0.0
-        one = estimate_observation_noise(log, prob)
-    finally:
-        problem.MAX_NOISE_RHO = monkey
+    monkeypatch.setattr(problem, "MAX_NOISE_RHO", 0.0)
+    one = estimate_observation_noise(log, prob)
     assert depth(one) < 0.7 * truth_depth and one["lateral_sigma_m"] < 0.7 * sc.lateral_noise_m
