@@ -137,6 +137,16 @@ def _tracker_noise_rho(seed: int) -> float:
     return 0.0 if rng.random() < 0.5 else float(rng.uniform(0.3, 0.85))
 
 
+def _robot_stops(seed: int) -> dict:
+    """The robot's stops of a zoo seed, from a stream of their own (so that adding them left
+    every other draw of the zoo as it was): none for half the seeds, else 1-5 s at 10-30 % of
+    the route's waypoints (a robot at its goals, or waiting for people to pass)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5709, 2]))
+    if rng.random() < 0.5:
+        return dict(robot_stop_s=0.0, robot_stop_share=0.0)
+    return dict(robot_stop_s=float(rng.uniform(1.0, 5.0)), robot_stop_share=float(rng.uniform(0.1, 0.3)))
+
+
 def sensor_clocks(sc: Scenario, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-sensor clock offsets (s) and skews (ppm) of ``n`` sensors, uniform in +-clock_offset_s
     and +-clock_skew_ppm, from a stream of their own (zeros when off)."""
@@ -173,11 +183,12 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
             "amcl": ("correlated" if sc.amcl_error == "jumps" and sc.amcl_jump_m <= 0.0
                      else "relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
                      else sc.amcl_error),
-            "tracker noise": "correlated" if sc.tracker_noise_rho > 0 else "white"}
+            "tracker noise": "correlated" if sc.tracker_noise_rho > 0 else "white",
+            "robot stops": "stops" if sc.robot_stop_s > 0 and sc.robot_stop_share > 0 else "none"}
 
 
 # each family :func:`switch_off` takes out of a drawn scenario, and the values it sets
-OFF_FAMILIES = ("head", "clock", "latency", "jumps", "mounts", "odometry", "depth", "smoothing")
+OFF_FAMILIES = ("head", "clock", "latency", "jumps", "mounts", "odometry", "depth", "smoothing", "stops")
 
 
 def switch_off(sc: Scenario, families) -> Scenario:
@@ -191,7 +202,9 @@ def switch_off(sc: Scenario, families) -> Scenario:
     observations there are, and with them the tracker's noise draws: not a paired comparison);
     ``odometry``: no scale error nor gyro bias (the odometry, when the log has one, stays);
     ``depth``: depth noise quadratic in range (the simulator's own model); ``smoothing``: the
-    tracker's noise white frame to frame (the same draws, not correlated)."""
+    tracker's noise white frame to frame (the same draws, not correlated); ``stops``: the robot
+    never stops (the same route driven without its holds; the log's time, and with it every
+    draw along it, differs: not a paired comparison)."""
     off = {}
     for family in families:
         if family not in OFF_FAMILIES:
@@ -203,7 +216,8 @@ def switch_off(sc: Scenario, families) -> Scenario:
                     "mounts": dict(sensor_height_range_m=None, wall_mounted_fraction=0.0),
                     "odometry": dict(odom_scale_error=0.0, odom_gyro_bias_dps=0.0),
                     "depth": dict(depth_noise_model="quadratic"),
-                    "smoothing": dict(tracker_noise_rho=0.0)}[family])
+                    "smoothing": dict(tracker_noise_rho=0.0),
+                    "stops": dict(robot_stop_s=0.0, robot_stop_share=0.0)}[family])
     return sc.resolve(**off) if off else sc
 
 
@@ -228,12 +242,14 @@ def draw_nuisances(rng: np.random.Generator) -> dict:
 def vary(sc: Scenario, zoo: bool = False) -> Scenario:
     """``sc`` with the nuisance zoo drawn from its seed (the draw has its own stream, so the
     layout and the installed extrinsics stay those of the seed); ``zoo`` also draws the further
-    families (:func:`draw_zoo`) from a stream of their own, after the classic draw."""
+    families (:func:`draw_zoo`) from a stream of their own, after the classic draw, and the
+    tracker noise's correlation and the robot's stops each from a stream of its own."""
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED]))
     out = sc.resolve(**draw_nuisances(rng))
     if zoo:
         out = out.resolve(**draw_zoo(np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED, 2]))),
-                          head_ramp_shape=_ramp_shape(sc.seed, -1), tracker_noise_rho=_tracker_noise_rho(sc.seed))
+                          head_ramp_shape=_ramp_shape(sc.seed, -1), tracker_noise_rho=_tracker_noise_rho(sc.seed),
+                          **_robot_stops(sc.seed))
     return out
 
 

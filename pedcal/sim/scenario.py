@@ -234,6 +234,12 @@ class Scenario:
     """Pure-pursuit lookahead distance (m): sets how smoothly corners are cut."""
     max_turn_rate_dps: float = 40.0
     """Cap of the robot's turn rate (deg/s)."""
+    robot_stop_s: float = _nuisance(0.0)
+    """How long (s) the robot stands still, its pose held, at each stopping waypoint of its
+    route (a robot at a goal, or waiting for people to pass); 0: it never stops."""
+    robot_stop_share: float = _nuisance(0.0)
+    """Share of the route's waypoints (the first and last excepted) at which the robot stops for
+    robot_stop_s, chosen from the seed in a stream of their own; 0: it never stops."""
     truth_rate_hz: float = 20.0
     """Rate of the true robot poses (truth_robot.csv) and of wheel odometry (Hz)."""
     duration_s: float | None = None
@@ -343,7 +349,8 @@ _POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "max_range_m
              "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz", "amcl_tau_s",
              "person_height_m", "head_ramp_m")
 _ANGLES_DEG = ("hfov_deg", "vfov_deg")      # > 0 and at most 180
-_SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction")
+_SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction",
+           "robot_stop_share")
 _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
            "head_offset_m", "start_time_s", "odom_scale_error", "odom_yaw_drift_deg_per_m", "odom_gyro_bias_dps",
            "latency_s", "companion_offset_m")
