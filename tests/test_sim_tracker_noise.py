@@ -140,16 +140,25 @@ def test_the_zoo_draws_both_kinds_from_a_stream_of_its_own(monkeypatch):
     assert not np.allclose(a.observations[["x", "y", "z"]].to_numpy(), b.observations[["x", "y", "z"]].to_numpy())
 
 
-def test_the_noise_estimate_recovers_a_correlated_trackers_noise(monkeypatch):
-    """End to end: a 2-minute log of the paper site, the robot alone, every nuisance off but the
-    tracker's noise (k = 1.5e-3 / m, 1 cm across) correlated at rho = 0.7. The calibration's
-    noise estimate (from consecutive and two-apart reports) gives each frame's noise within 25 %
-    (depth at the observations' median range, below reliable_range_m), its correlation within 0.1;
-    one frame's difference alone (the correlation capped at 0) gives ~sqrt(0.3) = 0.55 of it."""
+def _correlated_paper_log(**overrides):
+    """The paper site's whole route (seed 1), the robot alone, every nuisance off but the
+    tracker's noise (k = 1.5e-3 / m, 1 cm across) correlated at rho = 0.7; ``overrides`` on top."""
     sc = load_scenario("paper").resolve(noise_free=True, depth_noise_k_per_m=1.5e-3, lateral_noise_m=0.01,
-                                        tracker_noise_rho=0.7, walkers="none", false_track_rate_hz=0.0)
-    log = simulate_logs(sc, seed=1, duration_s=120.0).calib
+                                        tracker_noise_rho=0.7, walkers="none", false_track_rate_hz=0.0,
+                                        **overrides)
+    log = simulate_logs(sc, seed=1).calib
     prob = prepare(log, GraphRecipe(estimate_observation_noise=False), is_robot=np.ones(len(log.observations), bool))
+    return sc, log, prob
+
+
+def test_the_noise_estimate_recovers_a_correlated_trackers_noise(monkeypatch):
+    """End to end: the paper site's whole route with the robot standing 3 s at every waypoint
+    (the estimate reads the correlation only from reports taken while it stands), every nuisance
+    off but the tracker's noise correlated at rho = 0.7. The calibration's noise estimate gives
+    each frame's noise within 25 % (depth at the observations' median range, below
+    reliable_range_m), its correlation within 0.1; one frame's difference alone (the correlation
+    capped at 0) gives ~sqrt(0.3) = 0.55 of it."""
+    sc, log, prob = _correlated_paper_log(robot_stop_s=3.0, robot_stop_share=1.0)
     r_mid = float(np.median(np.linalg.norm(prob.obs_p_raw, axis=1)))
     assert r_mid < sc.reliable_range_m
 
@@ -165,3 +174,13 @@ def test_the_noise_estimate_recovers_a_correlated_trackers_noise(monkeypatch):
     monkeypatch.setattr(problem, "MAX_NOISE_RHO", 0.0)
     one = estimate_observation_noise(log, prob)
     assert depth(one) < 0.7 * truth_depth and one["lateral_sigma_m"] < 0.7 * sc.lateral_noise_m
+
+
+def test_a_robot_that_never_stands_reads_no_correlation():
+    """The same log with a robot that never stops: no reports taken while it stands, so the
+    estimate falls back to a correlation of 0 (the motion carried between reports would read as
+    one) and each frame's noise to one frame's difference's, ~0.55 of the truth."""
+    sc, log, prob = _correlated_paper_log()
+    est = estimate_observation_noise(log, prob)
+    assert est["frame_correlation"] == {"along": 0.0, "lateral": 0.0}
+    assert est["lateral_sigma_m"] < 0.7 * sc.lateral_noise_m
