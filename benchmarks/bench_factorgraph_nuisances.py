@@ -89,9 +89,11 @@ from pedcal.sim.scenario import CHOICES
 
 # Each family pedcal.sim.nuisances.zoo_families names, with the values the zoo can draw for it
 # (--only FAMILY=VALUE, the figures split by family): the head point the same for every sensor
-# (any kind) or one per sensor; AMCL's classic draws or the zoo's relocalizations.
+# (any kind) or one per sensor; AMCL's classic draws or the zoo's relocalizations; the tracker's
+# noise white or correlated frame to frame.
 ZOO_FAMILY_VALUES = {"head": ("per-sensor", *HEAD_KINDS), "clock": ("shared", "offsets", "skew"),
-                     "mounts": ("ceiling", "mixed", "wall"), "amcl": (*CHOICES["amcl_error"], "relocalization")}
+                     "mounts": ("ceiling", "mixed", "wall"), "amcl": (*CHOICES["amcl_error"], "relocalization"),
+                     "tracker noise": ("white", "correlated"), "robot stops": ("none", "stops")}
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:

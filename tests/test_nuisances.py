@@ -201,12 +201,15 @@ def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
     own = {"head": {"head_point", "per_sensor_head", "head_vertical_bias_m"},
            "clock": {"clock_offset_s", "clock_skew_ppm"}, "latency": {"latency_s"}, "jumps": {"amcl_jump_m"},
            "mounts": {"sensor_height_range_m", "wall_mounted_fraction"},
-           "odometry": {"odom_scale_error", "odom_gyro_bias_dps"}, "depth": {"depth_noise_model"}}
+           "odometry": {"odom_scale_error", "odom_gyro_bias_dps"}, "depth": {"depth_noise_model"},
+           "smoothing": {"tracker_noise_rho"}, "stops": {"robot_stop_s", "robot_stop_share"}}
     for family, o in off.items():      # only the family's own fields changed
         changed = {k for k in vars(sc) if getattr(o, k) != getattr(sc, k)}
-        assert changed <= own[family] and (changed or family == "depth"), family
+        assert changed <= own[family] and (changed or family in ("depth", "smoothing", "stops")), family
+    assert zoo_families(off["smoothing"])["tracker noise"] == "white"
     every = switch_off(sc, OFF_FAMILIES)
-    assert zoo_families(every) == dict(head="top", clock="shared", mounts="ceiling", amcl="correlated")
+    assert zoo_families(every) == {"head": "top", "clock": "shared", "mounts": "ceiling", "amcl": "correlated",
+                                   "tracker noise": "white", "robot stops": "none"}
     # the same layout and route: the switched-off log's truth is the drawn one's, but for the mounts
     a = simulate_logs(sc, seed=sc.seed, duration_s=30.0).calib
     b = simulate_logs(switch_off(sc, ["head", "clock", "latency"]), seed=sc.seed, duration_s=30.0).calib
@@ -215,7 +218,7 @@ def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
         np.testing.assert_allclose(a.truth[sid].position_m, b.truth[sid].position_m)
     np.testing.assert_allclose(a.truth_robot[["x", "y"]].to_numpy(), b.truth_robot[["x", "y"]].to_numpy())
     # AMCL's table, every column, the same draws (but the jumps' size), and the same sightings
-    for family in ("head", "clock", "latency", "odometry", "depth"):
+    for family in ("head", "clock", "latency", "odometry", "depth", "smoothing"):
         c = simulate_logs(off[family], seed=sc.seed, duration_s=30.0).calib
         assert c.robot.equals(a.robot), family
         pairs = sorted(map(tuple, c.observations[["sensor", "track"]].drop_duplicates().to_numpy().tolist()))

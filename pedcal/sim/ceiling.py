@@ -253,16 +253,53 @@ def coverage(net: SensorNetwork, sc: Scenario, p_world: np.ndarray) -> np.ndarra
     return np.stack([in_frustum(s.to_sensor(p_world), sc) for s in net])
 
 
-def measure(p_sensor: np.ndarray, sc: Scenario, rng: np.random.Generator) -> np.ndarray:
+def ar1_coefficients(t_capture_s: np.ndarray, new_track: np.ndarray, sc: Scenario) -> np.ndarray:
+    """Each row's AR(1) coefficient of the tracker's noise (Scenario.tracker_noise_rho) for rows
+    sorted by (sensor, entity, capture time): rho^n with n the frames since the row before, 0 at
+    the start of a track (the noise restarts)."""
+    n_frames = np.rint(np.diff(t_capture_s, prepend=t_capture_s[:1]) * sc.frame_rate_hz)
+    coef = sc.tracker_noise_rho ** np.maximum(n_frames, 1.0)
+    return np.where(new_track, 0.0, coef)
+
+
+def ar1(w: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """Stationary AR(1) of white standard draws ``w`` (N, ...) along its rows:
+    e_k = a_k e_{k-1} + sqrt(1 - a_k^2) w_k, each row's marginal law that of w_k (a_k = 0: e_k = w_k,
+    a restart). Vectorized over the tracks: one step per position within a run of a_k > 0."""
+    e = np.array(w, dtype=float, copy=True)
+    going = coef > 0.0
+    going[:1] = False               # (the first row has nothing to continue)
+    if not going.any():
+        return e
+    # each row's position within its run of continued rows (0 at a restart), a step per position
+    idx = np.arange(len(coef))
+    pos = idx - np.maximum.accumulate(np.where(going, 0, idx))
+    by_pos = np.argsort(pos, kind="stable")
+    bounds = np.searchsorted(pos[by_pos], np.arange(1, pos.max() + 2))
+    scale = np.sqrt(1.0 - coef ** 2)
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        rows = by_pos[lo:hi]
+        shape = (len(rows),) + (1,) * (e.ndim - 1)
+        e[rows] = coef[rows].reshape(shape) * e[rows - 1] + scale[rows].reshape(shape) * w[rows]
+    return e
+
+
+def measure(p_sensor: np.ndarray, sc: Scenario, rng: np.random.Generator,
+            ar1_coef: np.ndarray | None = None) -> np.ndarray:
     """Add the depth sensor's noise to true sensor-frame points (N, 3): along the ray
     sigma = k r^2 (``linear``: 2.5 k r; times far_noise_factor beyond reliable_range_m), plus
-    lateral noise."""
+    lateral noise. ``ar1_coef`` (per row, :func:`ar1_coefficients`) correlates both frame to
+    frame within a track (a tracker that filters its output), each frame's std unchanged."""
     r = np.linalg.norm(p_sensor, axis=1)
     ray = p_sensor / r[:, None]
     grow = 2.5 * r if sc.depth_noise_model == "linear" else r ** 2
     sigma_depth = sc.depth_noise_k_per_m * grow * np.where(r > sc.reliable_range_m, sc.far_noise_factor, 1.0)
-    along = ray * (rng.standard_normal(len(r)) * sigma_depth)[:, None]
+    white = ar1_coef is None or not np.any(ar1_coef > 0.0)
+    z_depth = rng.standard_normal(len(r))
+    along = ray * ((z_depth if white else ar1(z_depth, ar1_coef)) * sigma_depth)[:, None]
     lateral = rng.normal(0.0, sc.lateral_noise_m, p_sensor.shape) if sc.lateral_noise_m > 0 else 0.0
+    if sc.lateral_noise_m > 0 and not white:     # the 3-D draw correlated, then taken across the ray
+        lateral = ar1(lateral, ar1_coef)
     lateral = lateral - ray * np.sum(lateral * ray, axis=1, keepdims=True) if sc.lateral_noise_m > 0 else 0.0
     return p_sensor + along + lateral
 
@@ -355,7 +392,8 @@ def tracker_observations(true_net: SensorNetwork, installed: SensorNetwork, sc: 
         p_seen[head] = head_point(p_top[head], t_true[s_o[head]], sc)
     p_sensor = np.einsum("nji,nj->ni", R_true[s_o], p_seen - t_true[s_o])
     if len(p_sensor):
-        p_sensor = measure(p_sensor, sc, rng)
+        coef = ar1_coefficients(t_o, new_track, sc) if sc.tracker_noise_rho > 0 else None
+        p_sensor = measure(p_sensor, sc, rng, coef)
     p_world = np.einsum("nij,nj->ni", R_inst[s_o], p_sensor) + t_inst[s_o]
     jitter = np.clip(rng.normal(0.0, sc.latency_jitter_s, len(t_o)), -3 * sc.latency_jitter_s,
                      3 * sc.latency_jitter_s) if sc.latency_jitter_s > 0 else 0.0

@@ -10,8 +10,9 @@ scale or drifting in heading; a latency of 0-0.3 s; depth noise linear or quadra
 is unchanged): head points whose shift toward the sensor ramps down or saturates with horizontal
 distance (linearly, exponentially or smoothly: the shape from a stream of its own), a head model
 per sensor (each sensor running its own tracker), per-sensor clock offsets (+-0.15 s) and skews,
-mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched 10-25 deg and AMCL
-relocalizations (0.4 m held for 10 s).
+mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched 10-25 deg, AMCL
+relocalizations (0.4 m held for 10 s) and, from a stream of its own, tracker noise white or
+correlated frame to frame (rho 0.3-0.85: a tracker that filters its output).
 """
 
 from __future__ import annotations
@@ -128,6 +129,24 @@ def sensor_head_models(sc: Scenario, n: int) -> list[Scenario]:
     return [sc.resolve(**_draw_head(rng), head_ramp_shape=_ramp_shape(sc.seed, i)) for i in range(n)]
 
 
+def _tracker_noise_rho(seed: int) -> float:
+    """The tracker noise's frame-to-frame correlation of a zoo seed, from a stream of its own (so
+    that adding it left every other draw of the zoo as it was): white (0) for half the seeds,
+    else uniform in 0.3-0.85 (a tracker filtering its output at 10-30 Hz)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7AC0]))
+    return 0.0 if rng.random() < 0.5 else float(rng.uniform(0.3, 0.85))
+
+
+def _robot_stops(seed: int) -> dict:
+    """The robot's stops of a zoo seed, from a stream of their own (so that adding them left
+    every other draw of the zoo as it was): none for half the seeds, else 1-5 s at 10-30 % of
+    the route's waypoints (a robot at its goals, or waiting for people to pass)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5709, 2]))
+    if rng.random() < 0.5:
+        return dict(robot_stop_s=0.0, robot_stop_share=0.0)
+    return dict(robot_stop_s=float(rng.uniform(1.0, 5.0)), robot_stop_share=float(rng.uniform(0.1, 0.3)))
+
+
 def sensor_clocks(sc: Scenario, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-sensor clock offsets (s) and skews (ppm) of ``n`` sensors, uniform in +-clock_offset_s
     and +-clock_skew_ppm, from a stream of their own (zeros when off)."""
@@ -163,11 +182,13 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
             "mounts": ("wall" if sc.wall_mounted_fraction else "mixed" if sc.sensor_height_range_m else "ceiling"),
             "amcl": ("correlated" if sc.amcl_error == "jumps" and sc.amcl_jump_m <= 0.0
                      else "relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
-                     else sc.amcl_error)}
+                     else sc.amcl_error),
+            "tracker noise": "correlated" if sc.tracker_noise_rho > 0 else "white",
+            "robot stops": "stops" if sc.robot_stop_s > 0 and sc.robot_stop_share > 0 else "none"}
 
 
 # each family :func:`switch_off` takes out of a drawn scenario, and the values it sets
-OFF_FAMILIES = ("head", "clock", "latency", "jumps", "mounts", "odometry", "depth")
+OFF_FAMILIES = ("head", "clock", "latency", "jumps", "mounts", "odometry", "depth", "smoothing", "stops")
 
 
 def switch_off(sc: Scenario, families) -> Scenario:
@@ -180,7 +201,10 @@ def switch_off(sc: Scenario, families) -> Scenario:
     ``mounts``: every sensor on the ceiling at sensor_height_m (this one changes which
     observations there are, and with them the tracker's noise draws: not a paired comparison);
     ``odometry``: no scale error nor gyro bias (the odometry, when the log has one, stays);
-    ``depth``: depth noise quadratic in range (the simulator's own model)."""
+    ``depth``: depth noise quadratic in range (the simulator's own model); ``smoothing``: the
+    tracker's noise white frame to frame (the same draws, not correlated); ``stops``: the robot
+    never stops (the same route driven without its holds; the log's time, and with it every
+    draw along it, differs: not a paired comparison)."""
     off = {}
     for family in families:
         if family not in OFF_FAMILIES:
@@ -191,7 +215,9 @@ def switch_off(sc: Scenario, families) -> Scenario:
                     "jumps": dict(amcl_jump_m=0.0) if sc.amcl_error == "jumps" else {},
                     "mounts": dict(sensor_height_range_m=None, wall_mounted_fraction=0.0),
                     "odometry": dict(odom_scale_error=0.0, odom_gyro_bias_dps=0.0),
-                    "depth": dict(depth_noise_model="quadratic")}[family])
+                    "depth": dict(depth_noise_model="quadratic"),
+                    "smoothing": dict(tracker_noise_rho=0.0),
+                    "stops": dict(robot_stop_s=0.0, robot_stop_share=0.0)}[family])
     return sc.resolve(**off) if off else sc
 
 
@@ -216,12 +242,14 @@ def draw_nuisances(rng: np.random.Generator) -> dict:
 def vary(sc: Scenario, zoo: bool = False) -> Scenario:
     """``sc`` with the nuisance zoo drawn from its seed (the draw has its own stream, so the
     layout and the installed extrinsics stay those of the seed); ``zoo`` also draws the further
-    families (:func:`draw_zoo`) from a stream of their own, after the classic draw."""
+    families (:func:`draw_zoo`) from a stream of their own, after the classic draw, and the
+    tracker noise's correlation and the robot's stops each from a stream of its own."""
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED]))
     out = sc.resolve(**draw_nuisances(rng))
     if zoo:
         out = out.resolve(**draw_zoo(np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED, 2]))),
-                          head_ramp_shape=_ramp_shape(sc.seed, -1))
+                          head_ramp_shape=_ramp_shape(sc.seed, -1), tracker_noise_rho=_tracker_noise_rho(sc.seed),
+                          **_robot_stops(sc.seed))
     return out
 
 

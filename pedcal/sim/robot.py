@@ -78,11 +78,31 @@ def _densify(wp: np.ndarray, step_m: float = 0.02) -> tuple[np.ndarray, np.ndarr
     return np.column_stack([np.interp(s, s_wp, wp[:, 0]), np.interp(s, s_wp, wp[:, 1])]), s
 
 
+def stop_waypoints(sc: Scenario, n_waypoints: int) -> np.ndarray:
+    """Indices (ascending) of the route's waypoints at which the robot stops: each of the inner
+    ones (not the first nor the last) with probability robot_stop_share, drawn from a stream of
+    its own (so the stops change no other draw of the seed); none when robot_stop_s is 0."""
+    if sc.robot_stop_s <= 0.0 or sc.robot_stop_share <= 0.0 or n_waypoints < 3:
+        return np.zeros(0, int)
+    rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5709]))
+    return 1 + np.flatnonzero(rng.random(n_waypoints - 2) < sc.robot_stop_share)
+
+
 def drive_route(sc: Scenario) -> np.ndarray:
     """True base poses (N, 3) [x, y, yaw] every 1/truth_rate_hz s, from a pure-pursuit
-    follower of the route (a unicycle: v slows in sharp turns, turn rate capped)."""
+    follower of the route (a unicycle: v slows in sharp turns, turn rate capped). At each
+    stopping waypoint (:func:`stop_waypoints`) the follower, once its nearest point of the path
+    has reached the waypoint, holds its pose for robot_stop_s and goes on from where it stood
+    (without stops the poses are the follower's alone)."""
     step_m = 0.02
-    path, s_path = _densify(route_waypoints(sc), step_m)
+    wp = route_waypoints(sc)
+    path, s_path = _densify(wp, step_m)
+    seg = np.linalg.norm(np.diff(wp, axis=0), axis=1)
+    s_stops = np.r_[0.0, np.cumsum(seg)][stop_waypoints(sc, len(wp))].tolist()
+    n_hold = int(round(sc.robot_stop_s * sc.truth_rate_hz))
+    if n_hold == 0:
+        s_stops = []
+    next_stop = 0
     dt = 1.0 / sc.truth_rate_hz
     L = sc.lookahead_m
     n_ahead = int(round(L / step_m))
@@ -95,9 +115,9 @@ def drive_route(sc: Scenario) -> np.ndarray:
     px, py = path[:, 0].tolist(), path[:, 1].tolist()
     n_path = len(px)
     out = []
-    for k in range(max_steps):     # scalar math: this loop runs ~20 times per simulated second
+    for _ in range(max_steps):     # scalar math: this loop runs ~20 times per simulated second
         out.append((x, y, yaw))
-        if k * dt >= t_limit:
+        if (len(out) - 1) * dt >= t_limit:
             break
         best = math.inf
         for j in range(i_near, min(i_near + 25, n_path)):
@@ -107,6 +127,14 @@ def drive_route(sc: Scenario) -> np.ndarray:
         i_near = i_best
         if s_path[i_near] >= end - 0.05:
             break
+        if next_stop < len(s_stops) and s_path[i_near] >= s_stops[next_stop]:
+            next_stop += 1         # stand still: the same pose for n_hold steps
+            for _ in range(n_hold):
+                if (len(out) - 1) * dt >= t_limit:
+                    break
+                out.append((x, y, yaw))
+            if (len(out) - 1) * dt >= t_limit:
+                break
         j = min(i_near + n_ahead, n_path - 1)
         alpha = math.atan2(py[j] - y, px[j] - x) - yaw
         alpha = (alpha + math.pi) % (2 * math.pi) - math.pi

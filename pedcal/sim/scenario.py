@@ -134,6 +134,12 @@ class Scenario:
     lateral_noise_m: float = _nuisance(0.01)
     """Std of the head-top estimate across the ray, per axis (m): the blob's top is found on a
     sparse, noisy point cloud."""
+    tracker_noise_rho: float = _nuisance(0.0)
+    """Frame-to-frame correlation of the tracker's noise (depth and lateral), 0 <= rho < 1: a
+    stationary AR(1) over each track's frames, e_k = rho^n e_{k-1} + sqrt(1 - rho^2n) w_k (n the
+    frames since the track's previous report; a new track restarts it), each frame's std that of
+    the fields above. 0 is white noise; a tracker that filters its output at 10-30 Hz makes
+    consecutive reports alike (0.3-0.85)."""
     head_point: str = _nuisance("dome", off="top")
     """Which point of a head the tracker reports: ``top`` (the highest point), ``dome`` (the
     point of a dome of radius head_radius_m facing the sensor), ``shift`` (the top moved
@@ -228,6 +234,12 @@ class Scenario:
     """Pure-pursuit lookahead distance (m): sets how smoothly corners are cut."""
     max_turn_rate_dps: float = 40.0
     """Cap of the robot's turn rate (deg/s)."""
+    robot_stop_s: float = _nuisance(0.0)
+    """How long (s) the robot stands still, its pose held, at each stopping waypoint of its
+    route (a robot at a goal, or waiting for people to pass); 0: it never stops."""
+    robot_stop_share: float = _nuisance(0.0)
+    """Share of the route's waypoints (the first and last excepted) at which the robot stops for
+    robot_stop_s, chosen from the seed in a stream of their own; 0: it never stops."""
     truth_rate_hz: float = 20.0
     """Rate of the true robot poses (truth_robot.csv) and of wheel odometry (Hz)."""
     duration_s: float | None = None
@@ -337,10 +349,12 @@ _POSITIVE = ("area_m", "grid_rows", "grid_cols", "sensor_height_m", "max_range_m
              "lookahead_m", "max_turn_rate_dps", "truth_rate_hz", "duration_s", "amcl_rate_hz", "amcl_tau_s",
              "person_height_m", "head_ramp_m")
 _ANGLES_DEG = ("hfov_deg", "vfov_deg")      # > 0 and at most 180
-_SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction")
+_SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_fraction", "companion_swap_fraction",
+           "robot_stop_share")
 _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
            "head_offset_m", "start_time_s", "odom_scale_error", "odom_yaw_drift_deg_per_m", "odom_gyro_bias_dps",
            "latency_s", "companion_offset_m")
+_CORRELATIONS = ("tracker_noise_rho",)     # within [0, 1): 1 would never change
 _ITEM_KINDS = {"walker_speed_mps": ("positive", "nonnegative")}     # a list whose items differ: [mean, std]
 
 
@@ -348,6 +362,7 @@ _ITEM_KINDS = {"walker_speed_mps": ("positive", "nonnegative")}     # a list who
 _DOMAINS = {"angle": (0.0, True, 180.0, "an angle > 0 and <= 180 deg"),
             "positive": (0.0, True, math.inf, "a finite number > 0"),
             "share": (0.0, False, 1.0, "a share within [0, 1]"),
+            "correlation": (0.0, False, math.nextafter(1.0, 0.0), "a correlation within [0, 1)"),
             "signed": (-math.inf, False, math.inf, "a finite number"),
             "nonnegative": (0.0, False, math.inf, "a finite number >= 0")}
 
@@ -357,7 +372,7 @@ def _check_domain(key: str, value, source) -> None:
     if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in items):
         return
     kind = ("angle" if key in _ANGLES_DEG else "positive" if key in _POSITIVE else "share" if key in _SHARES
-            else "signed" if key in _SIGNED else "nonnegative")
+            else "correlation" if key in _CORRELATIONS else "signed" if key in _SIGNED else "nonnegative")
     for i, (v, kind_i) in enumerate(zip(items, _ITEM_KINDS.get(key, [kind] * len(items)), strict=True)):
         lo, lo_open, hi, want = _DOMAINS[kind_i]
         if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
