@@ -11,14 +11,16 @@ is unchanged): head points whose shift toward the sensor ramps down or saturates
 distance (linearly, exponentially or smoothly: the shape from a stream of its own), a head model
 per sensor (each sensor running its own tracker), per-sensor clock offsets (+-0.15 s) and skews,
 mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched 10-25 deg, AMCL
-relocalizations (0.4 m held for 10 s) and, from a stream of its own, tracker noise white or
-correlated frame to frame (rho 0.3-0.85: a tracker that filters its output).
+relocalizations (0.4 m held for 10 s) and, from streams of their own, tracker noise white or
+correlated frame to frame (rho 0.3-0.85: a tracker that filters its output) and the robot's stops
+(1-5 s at 10-30 % of its route's waypoints, half the seeds).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from pedcal.sim.robot import route_waypoints, stop_waypoints
 from pedcal.sim.scenario import Scenario
 
 HEAD_SPHERE_M = 0.1      # the head of the ``centroid`` model: a sphere of this radius
@@ -184,7 +186,15 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
                      else "relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
                      else sc.amcl_error),
             "tracker noise": "correlated" if sc.tracker_noise_rho > 0 else "white",
-            "robot stops": "stops" if sc.robot_stop_s > 0 and sc.robot_stop_share > 0 else "none"}
+            "robot stops": "stops" if _stops_realized(sc) else "none"}
+
+
+def _stops_realized(sc: Scenario) -> bool:
+    """Whether the robot stops at some waypoint of its route (drawn stops on a short route may
+    pick none: the family is what the log holds, not what was drawn)."""
+    if not (sc.robot_stop_s > 0 and sc.robot_stop_share > 0):
+        return False
+    return len(stop_waypoints(sc, len(route_waypoints(sc)))) > 0
 
 
 # each family :func:`switch_off` takes out of a drawn scenario, and the values it sets
