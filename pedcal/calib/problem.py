@@ -396,7 +396,8 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
 
-    along, l1, l2, r, _ = differences(i, j)
+    one_frame = differences(i, j)
+    along, l1, l2, r, _ = one_frame
     # a tracker that smooths its output (a filter's track, correlated frame to frame: rho at one
     # frame) makes consecutive reports alike: for an AR(1) the difference of reports k frames
     # apart has variance 2 s^2 (1 - rho^k), one frame's 2 s^2 (1 - rho), so s^2 = one frame's /
@@ -408,6 +409,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     # correlation (0.5-0.9 on simulated white noise). 0 when the robot stood too little
     # (fewer than ``min_pairs`` such pairs one frame apart)
     lag_along, lag_lateral, lag_pairs = [], [], []
+    # (each report's robot still for STILL_MARGIN_S before it and after it, taken once)
+    still_before = np.linalg.norm(prob.motion.displacement(obs_t - STILL_MARGIN_S, obs_t), axis=1) < STILL_M
+    still_after = np.linalg.norm(prob.motion.displacement(obs_t, obs_t + STILL_MARGIN_S), axis=1) < STILL_M
     n_o = len(order)
     run = np.ones(n_o, bool)
     for k in range(1, NOISE_LAGS + 1):
@@ -417,10 +421,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         span = t_o[k:] - t_o[:-k]
         pair = run & (span > 0.0) & (span <= k * max_gap_s)
         a, b = order[:-k][pair], order[k:][pair]
-        al, la1, la2, _, move = differences(a, b)
-        before = np.linalg.norm(prob.motion.displacement(obs_t[a] - STILL_MARGIN_S, obs_t[a]), axis=1)
-        after = np.linalg.norm(prob.motion.displacement(obs_t[b], obs_t[b] + STILL_MARGIN_S), axis=1)
-        still = (move < STILL_M) & (before < STILL_M) & (after < STILL_M)
+        # (one frame apart these are the pairs the noise's level is read from: their differences kept)
+        al, la1, la2, _, move = one_frame if k == 1 else differences(a, b)
+        still = (move < STILL_M) & still_before[a] & still_after[b]
         if still.sum() < 30:
             break
         lag_along.append(robust_sigma(al[still]) ** 2)
