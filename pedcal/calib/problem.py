@@ -17,7 +17,7 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.amcl_model import AmclErrorModel, amcl_period_s, amcl_white_sigma, assumed_model
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import head_interpolator
+from pedcal.calib.common import head_interpolator, ray_basis
 from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
@@ -387,10 +387,7 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R_sensor[sensor[i]], disp) - p_i
         r = np.linalg.norm(p_i, axis=1)
         u = p_i / r[:, None]
-        a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-        b1 = _cross(u, a)
-        b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-        b2 = _cross(u, b1)
+        b1, b2 = ray_basis(u)
         return np.sum(d * u, axis=1), np.sum(d * b1, axis=1), np.sum(d * b2, axis=1), r, np.linalg.norm(disp, axis=1)
 
     def robust_sigma(x):
@@ -473,14 +470,6 @@ def _fit_frame_correlation(var_m2: np.ndarray, pairs: np.ndarray) -> float:
         if cost < best_cost:
             best, best_cost = float(rho), cost
     return best
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.cross`` of rows (n, 3) x (n, 3), to the bit (each component one product less another,
-    as NumPy takes it), without its moves of the axes (a third of the noise estimate's time)."""
-    a0, a1, a2 = a.T
-    b0, b1, b2 = b.T
-    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
