@@ -179,10 +179,13 @@ def test_the_model_check_holds_a_correlated_trackers_merged_reports_to_their_own
 
 @pytest.mark.parametrize("scenario,seed", [("paper", 0), ("corridor", 0)])
 def test_the_robots_motion_carried_between_reports_is_not_read_as_a_correlation(scenario, seed):
-    """The simulator's tracker noise is white; the robot's motion carried between reports (from
-    its odometry or AMCL) adds an error that grows with the reports' distance apart in time, which
-    a correlation read from all reports took for one (0.5 and 0.8 on these logs, the zoo's
-    corridor with its clock offsets). Read while the robot stands still, it is 0 here."""
+    """The simulator's tracker noise is white here and its robot never stands still; the robot's
+    motion carried between reports (from its odometry or AMCL) adds an error that grows with the
+    reports' distance apart in time, which a correlation read from all reports took for one (0.5
+    and 0.8 on these logs, the zoo's corridor with its clock offsets). No run of reports counts as
+    the robot standing (not even with the corridor's clock offsets stamping a slowing robot as
+    still), so none is read: 0. (That a still robot's white noise reads about 0 is the first
+    test's rho = 0 case.)"""
     import warnings
 
     from pedcal.calib.recipe import GraphRecipe

@@ -368,8 +368,7 @@ def estimate_latency(log: Log, is_robot: np.ndarray, *, max_latency_s: float = 0
     is_robot = np.asarray(is_robot, bool)
     if is_robot.sum() < 4:
         return 0.0
-    sensor_col = log.observations["sensor"].astype(str).to_numpy()[is_robot]
-    codes, _ = pd.factorize(sensor_col)
+    codes, _ = pd.factorize(sensor_codes(log.observations["sensor"])[0][is_robot])
     counts = np.bincount(codes)
     keep = counts[codes] >= 3               # sensors with enough pairs for a fit
     order = np.argsort(codes[keep], kind="stable")

@@ -37,7 +37,14 @@ from pedcal.calib.amcl_model import estimate_model, jumps_moved_back, reported_s
 from pedcal.calib.clocks import CLUSTER_S as CLOCK_CLUSTER_S
 from pedcal.calib.clocks import PREFIX as CLOCK_PREFIX
 from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks, widen_for_overdispersion
-from pedcal.calib.common import CalibrationResult, FactorGraphDiagnostics, GraphKeys, HeadModel, ModelMismatch
+from pedcal.calib.common import (
+    CalibrationResult,
+    FactorGraphDiagnostics,
+    GraphKeys,
+    HeadModel,
+    ModelMismatch,
+    ray_basis,
+)
 from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's public names)
     BLOCKS,
     GRAPHS_DIR,
@@ -849,10 +856,7 @@ def robot_residuals(prob: FactorGraphProblem, result: gtsam.Values) -> np.ndarra
     r_meas = np.linalg.norm(p_meas, axis=1)
     u = p_meas / r_meas[:, None]
     r_pred = np.linalg.norm(p_pred, axis=1)
-    a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    b1 = np.cross(u, a)
-    b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-    b2 = np.cross(u, b1)
+    b1, b2 = ray_basis(u)
     u_pred = p_pred / r_pred[:, None]
     # one report's sigmas at the range as observed, over sqrt of the merged count, times the root
     # of the variance factor of that many correlated reports' mean (graph.merged_noise_factors)

@@ -803,7 +803,12 @@ def noise_correlation_factor(noise_estimate: dict | None, gap_frames: float = 1.
     if rho is None:
         return 1.0
     r = [float(rho[k]) ** max(float(gap_frames), 1.0) for k in ("along", "lateral")]
-    return float(np.sqrt(np.mean([(1.0 + x) / (1.0 - x) for x in r])))
+    return float(np.sqrt(np.mean([_long_run_factor(x) for x in r])))
+
+
+def _long_run_factor(rho: float) -> float:
+    """An AR(1)'s long-run variance over one report's, (1 + rho) / (1 - rho)."""
+    return (1.0 + rho) / (1.0 - rho)
 
 
 def merged_variance_factor(rho: float, count) -> np.ndarray:
@@ -815,7 +820,7 @@ def merged_variance_factor(rho: float, count) -> np.ndarray:
     rho = float(rho)
     if rho <= 0.0:
         return np.ones_like(c)
-    return (1.0 + rho) / (1.0 - rho) - 2.0 * rho * (1.0 - rho ** c) / (c * (1.0 - rho) ** 2)
+    return _long_run_factor(rho) - 2.0 * rho * (1.0 - rho ** c) / (c * (1.0 - rho) ** 2)
 
 
 def merged_noise_factors(noise_estimate: dict | None, count) -> tuple[np.ndarray, np.ndarray]:

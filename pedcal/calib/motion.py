@@ -132,10 +132,8 @@ class RobotMotion:
         self.amcl_head = head_interpolator(log) if head_at is None else head_at
         self.odo = odometry
         if odometry is not None:
-            amcl = log.robot.sort_values("t")
-            self.ta = amcl["t"].to_numpy(float)
-            self.yaw_a = np.unwrap(amcl["yaw"].to_numpy(float))
-            self._odo_at = pose2_interpolator(odometry)     # (sorted and unwrapped once)
+            self._amcl_yaw = pose2_interpolator(log.robot).yaw      # (sorted and unwrapped once)
+            self._odo_at = pose2_interpolator(odometry)
 
     def displacement(self, t_from: np.ndarray, t_to: np.ndarray, from_index: np.ndarray | None = None,
                      to_index: np.ndarray | None = None) -> np.ndarray:
@@ -155,7 +153,7 @@ class RobotMotion:
         h1 = pick(h_from if same else head_world(self._odo_at(t_to), self.head_offset), to_index)
         mid = 0.5 * (pick(t_from, from_index) + pick(t_to, to_index))
         # heading of the map relative to the odometry frame at that time (AMCL minus odometry)
-        rot = np.interp(mid, self.ta, self.yaw_a) - self._odo_at.yaw(mid)
+        rot = self._amcl_yaw(mid) - self._odo_at.yaw(mid)
         c, s = np.cos(rot), np.sin(rot)
         d = h1 - h0
         return np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]])

@@ -17,7 +17,7 @@ import pandas as pd
 from pedcal import frames
 from pedcal.calib.amcl_model import AmclErrorModel, amcl_period_s, amcl_white_sigma, assumed_model
 from pedcal.calib.clocks import clock_shift_sensor
-from pedcal.calib.common import head_interpolator
+from pedcal.calib.common import head_interpolator, ray_basis
 from pedcal.calib.headpoint import head_profile_shift_sensor
 from pedcal.calib.motion import RobotMotion, calibrate_odometry, smoothed_track
 from pedcal.calib.recipe import GraphRecipe, _log, observation_sigmas
@@ -387,16 +387,14 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         d = prob.obs_p_raw[j] + np.einsum("nji,nj->ni", R_sensor[sensor[i]], disp) - p_i
         r = np.linalg.norm(p_i, axis=1)
         u = p_i / r[:, None]
-        a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-        b1 = _cross(u, a)
-        b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-        b2 = _cross(u, b1)
+        b1, b2 = ray_basis(u)
         return np.sum(d * u, axis=1), np.sum(d * b1, axis=1), np.sum(d * b2, axis=1), r, np.linalg.norm(disp, axis=1)
 
     def robust_sigma(x):
         return 1.4826 * float(np.median(np.abs(x - np.median(x)))) / np.sqrt(2.0)     # one observation's
 
-    along, l1, l2, r, _ = differences(i, j)
+    one_frame = differences(i, j)
+    along, l1, l2, r, _ = one_frame
     # a tracker that smooths its output (a filter's track, correlated frame to frame: rho at one
     # frame) makes consecutive reports alike: for an AR(1) the difference of reports k frames
     # apart has variance 2 s^2 (1 - rho^k), one frame's 2 s^2 (1 - rho), so s^2 = one frame's /
@@ -408,6 +406,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
     # correlation (0.5-0.9 on simulated white noise). 0 when the robot stood too little
     # (fewer than ``min_pairs`` such pairs one frame apart)
     lag_along, lag_lateral, lag_pairs = [], [], []
+    # (each report's robot still for STILL_MARGIN_S before it and after it, taken once)
+    still_before = np.linalg.norm(prob.motion.displacement(obs_t - STILL_MARGIN_S, obs_t), axis=1) < STILL_M
+    still_after = np.linalg.norm(prob.motion.displacement(obs_t, obs_t + STILL_MARGIN_S), axis=1) < STILL_M
     n_o = len(order)
     run = np.ones(n_o, bool)
     for k in range(1, NOISE_LAGS + 1):
@@ -417,10 +418,9 @@ def estimate_observation_noise(log: Log, prob: FactorGraphProblem, max_gap_s: fl
         span = t_o[k:] - t_o[:-k]
         pair = run & (span > 0.0) & (span <= k * max_gap_s)
         a, b = order[:-k][pair], order[k:][pair]
-        al, la1, la2, _, move = differences(a, b)
-        before = np.linalg.norm(prob.motion.displacement(obs_t[a] - STILL_MARGIN_S, obs_t[a]), axis=1)
-        after = np.linalg.norm(prob.motion.displacement(obs_t[b], obs_t[b] + STILL_MARGIN_S), axis=1)
-        still = (move < STILL_M) & (before < STILL_M) & (after < STILL_M)
+        # (one frame apart these are the pairs the noise's level is read from: their differences kept)
+        al, la1, la2, _, move = one_frame if k == 1 else differences(a, b)
+        still = (move < STILL_M) & still_before[a] & still_after[b]
         if still.sum() < 30:
             break
         lag_along.append(robust_sigma(al[still]) ** 2)
@@ -470,14 +470,6 @@ def _fit_frame_correlation(var_m2: np.ndarray, pairs: np.ndarray) -> float:
         if cost < best_cost:
             best, best_cost = float(rho), cost
     return best
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.cross`` of rows (n, 3) x (n, 3), to the bit (each component one product less another,
-    as NumPy takes it), without its moves of the axes (a third of the noise estimate's time)."""
-    a0, a1, a2 = a.T
-    b0, b1, b2 = b.T
-    return np.column_stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def set_amcl_model(log: Log, prob: FactorGraphProblem, model: AmclErrorModel, *, carry: bool = True,
