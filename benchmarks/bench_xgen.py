@@ -64,7 +64,7 @@ from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: 
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from pedcal.metrics import format_clustered, sigma_honesty, within_sigma_share  # noqa: E402
+from pedcal.metrics import format_clustered, sigma_honesty, sigma_ratio_rms, within_sigma_share  # noqa: E402
 
 
 def read_network(path: Path) -> dict:
@@ -200,6 +200,8 @@ def summarize(rows, method, reports: tuple[bool, bool] | None = None):
         ratios = sensor_ratios(s, "sigma_rot_deg").reshape(-1, 1)        # the three axes pooled
         out["rot1"] = float(100 * within_sigma_share(ratios, 1.0)[0])
         out["rot2"] = float(100 * within_sigma_share(ratios, 2.0)[0])
+        # the share alone rewards a sigma that is only wide: its error / sigma RMS is below 1
+        out["rot_rms"] = float(sigma_ratio_rms(ratios)[0])
     return out
 
 
@@ -426,6 +428,11 @@ def attach_sensor_info(rows, out: Path):
                 x["true_xy_m"] = truth[x["id"]]["p"][:2].tolist()
 
 
+def rot_rms_text(rms: float) -> str:
+    """The rotation's error / sigma RMS for :func:`table`: '-' without a finite ratio."""
+    return f"{rms:.2f}" if math.isfinite(rms) else "-"
+
+
 def table(rows, methods, title, groups=None, label="family"):
     groups = by_family(rows) if groups is None else groups
     groups = [(n, g) for n, g in groups if any(r.get("sensors") for r in g if r["method"] == "installed")]
@@ -433,7 +440,7 @@ def table(rows, methods, title, groups=None, label="family"):
     head = (f"| {label} | logs | sensors | installed xy | AMCL mean | " +
             " | ".join(f"{m} xy / xy less shared shift / z (mm), yaw (deg)" for m in methods) +
             (" | graph / grid xy" if {"factorgraph", "gridsearch"} <= set(methods) else "") +
-            " | " + " | ".join(f"{m} within 1 sigma x, y, z / rot (%)" for m in methods) +
+            " | " + " | ".join(f"{m} within 1 sigma x, y, z / rot (%) (rot error / sigma RMS)" for m in methods) +
             " | " + " | ".join(f"{m} within 2 sigma x, y, z / rot (%)" for m in methods) +
             " | worst log xy (mm) | not ok | " + " | ".join(f"{m} CPU / wall (s)" for m in methods) + " |")
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
@@ -457,7 +464,8 @@ def table(rows, methods, title, groups=None, label="family"):
                 if x is None or key not in x:
                     cells.append("-")
                 else:
-                    cells.append(", ".join(f"{v:.0f}" for v in x[key]) + (f" / {x[rot]:.0f}" if rot in x else ""))
+                    cells.append(", ".join(f"{v:.0f}" for v in x[key]) + (f" / {x[rot]:.0f}" if rot in x else "")
+                                 + (f" (rms {rot_rms_text(x['rot_rms'])})" if rot == "rot1" and rot in x else ""))
         cells.append(" / ".join("-" if sm[m] is None else f"{sm[m]['worst_log_xy_mm']:.0f}" for m in methods))
         cells.append(" / ".join("-" if sm[m] is None else str(sm[m]["not_ok"]) for m in methods))
         for m in methods:
