@@ -139,7 +139,8 @@ def finite_rms(x: np.ndarray) -> float:
 
 def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
     """Each estimated clock offset's error (s) about the offsets' mean, the truth's taken about
-    its own mean, and that error over its sigma; empty when the log or the calibration has none.
+    its own mean, and that error over its sigma; empty when the log has no clock offset (a
+    calibration that estimates none gets a NaN miss for every sensor).
     A skewed clock's offset is taken at the mean time of its sensor's robot sightings in the
     calibration run, what a constant offset fitted to them estimates (the simulator stamps
     offset + skew x (t - start); at 50 ppm, a sensor that saw the robot a minute from the run's
@@ -155,7 +156,7 @@ def clock_offset_errors(sim, network) -> tuple[np.ndarray, np.ndarray]:
         t_seen = float(t_obs[mine].mean()) if mine.any() else 0.5 * (t.min() + t.max())
         offset[k] += 1e-6 * skew_ppm[k] * (t_seen - sim.scenario.start_time_s)
     est, sigma = network.extra.get(CLOCK_OFFSET_KEY) or {}, network.extra.get(SIGMA_CLOCK_OFFSET_KEY) or {}
-    if not np.any(offset) or not est:
+    if not np.any(offset):
         return np.zeros(0), np.zeros(0)
     # every sensor of the truth: one whose offset was not estimated is a NaN error, a miss (never
     # within any sigma, left out of the error RMS), so that a method does not look better for

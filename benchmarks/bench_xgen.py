@@ -64,7 +64,7 @@ from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: 
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from pedcal.metrics import format_clustered, sigma_honesty, within_sigma_share  # noqa: E402
+from pedcal.metrics import format_clustered, sigma_honesty, sigma_ratio_rms, within_sigma_share  # noqa: E402
 
 
 def read_network(path: Path) -> dict:
@@ -161,25 +161,35 @@ def reports_sigma(rows, method) -> tuple[bool, bool]:
     return (any(x["sigma_p"] is not None for x in s), any(x["sigma_rot_deg"] is not None for x in s))
 
 
+def failed_and_not_ok(rows, method) -> tuple[int, int] | None:
+    """Over ``method``'s scored rows: its failed logs (a non-zero exit or flagged failed) and its
+    sensors not calibrated (status other than ok); None when it has no scored row."""
+    rr = [r for r in rows if r["method"] == method and r.get("sensors")]
+    if not rr:
+        return None
+    return (sum(1 for r in rr if r["rc"] != 0 or r.get("failed")),
+            sum(1 for x in _errs(rr) if x["status"] != "ok"))
+
+
 def summarize(rows, method, reports: tuple[bool, bool] | None = None):
     """A method's figures over every log it was run on: a failed log counts at its installed
     poses (:func:`score`), and the sigma's coverage counts a sensor the method did not calibrate
     (status other than ok, or no sigma) as outside. ``reports``: :func:`reports_sigma` over all the
     method's rows (default: over ``rows``), whether its position / rotation coverage is shown."""
     reports = reports_sigma(rows, method) if reports is None else reports
-    rr = [r for r in rows if r["method"] == method and r.get("sensors")]
-    failed = sum(1 for r in rr if r["rc"] != 0 or r.get("failed"))
-    s = _errs(rr)
-    if not s:
+    counts = failed_and_not_ok(rows, method)
+    if counts is None:
         return None
+    rr = [r for r in rows if r["method"] == method and r.get("sensors")]
+    s = _errs(rr)
     dx, dy, dz = (np.array([x[k] for x in s]) for k in ("dx", "dy", "dz"))
-    out = {"logs": len(rr), "failed": failed, "n": len(s),
+    out = {"logs": len(rr), "failed": counts[0], "n": len(s),
            "xy_mm": 1000 * math.sqrt(np.mean(dx ** 2 + dy ** 2)), "z_mm": 1000 * math.sqrt(np.mean(dz ** 2)),
            "xy_rel_mm": 1000 * math.sqrt(np.mean([x["dx_rel"] ** 2 + x["dy_rel"] ** 2 for x in s])),
            "yaw_deg": math.sqrt(np.mean([x["yaw_deg"] ** 2 for x in s])),
            "worst_log_xy_mm": max(1000 * math.sqrt(np.mean([x["dx"] ** 2 + x["dy"] ** 2 for x in r["sensors"]]))
                                   for r in rr),
-           "not_ok": sum(1 for x in s if x["status"] != "ok"),
+           "not_ok": counts[1],
            "cpu_s": float(np.mean([r["cpu_s"] for r in rr])), "wall_s": float(np.mean([r["wall_s"] for r in rr]))}
     # (a sensor left at its prior has a sigma wide enough to hold any error: a miss, not evidence)
     if reports[0]:
@@ -190,6 +200,8 @@ def summarize(rows, method, reports: tuple[bool, bool] | None = None):
         ratios = sensor_ratios(s, "sigma_rot_deg").reshape(-1, 1)        # the three axes pooled
         out["rot1"] = float(100 * within_sigma_share(ratios, 1.0)[0])
         out["rot2"] = float(100 * within_sigma_share(ratios, 2.0)[0])
+        # the share alone rewards a sigma that is only wide: its error / sigma RMS is below 1
+        out["rot_rms"] = float(sigma_ratio_rms(ratios)[0])
     return out
 
 
@@ -364,8 +376,9 @@ def pooled_shape(rows) -> dict | None:
 def shape_table(rows, methods, groups=None, label="family"):
     """Per group (default: per family and pooled) and method, :func:`pooled_shape`: shift / turn /
     scale / rest (mm RMS) and the scale (mm per m) mean / sd over the logs. As in :func:`table`
-    (from :func:`summarize`), "(k failed)" after a method's split counts its failed logs and the
-    "not ok" column its sensors not calibrated: both are in the split at their installed poses."""
+    (:func:`failed_and_not_ok`, the counts :func:`summarize` gives), "(k failed)" after a method's
+    split counts its failed logs and the "not ok" column its sensors not calibrated: both are in
+    the split at their installed poses."""
     groups = by_family(rows) if groups is None else groups
     lines = ["### the network's shape: horizontal error split into shared shift, common turn, common scale "
              "and the rest", ""]
@@ -380,16 +393,16 @@ def shape_table(rows, methods, groups=None, label="family"):
     for name, g in groups:
         logs = sum(1 for r in g if r["method"] == "installed" and r.get("sensors"))
         cells = [name, str(logs)]
-        sm = {m: summarize(g, m) for m in methods}
+        counts = {m: failed_and_not_ok(g, m) for m in methods}
         for m in methods:
             x = pooled_shape([r for r in g if r["method"] == m])
             if x is None:
                 cells += ["-", "-"]
                 continue
-            failed = f" ({sm[m]['failed']} failed)" if sm[m]["failed"] else ""
+            failed = f" ({counts[m][0]} failed)" if counts[m][0] else ""
             cells.append(" / ".join(f"{x[f'{p}_mm']:.1f}" for p in SHAPE_PARTS) + failed)
             cells.append(f"{num(x['scale_mean_mm_per_m'], '+.2f')} / {num(x['scale_sd_mm_per_m'], '.2f')}")
-        cells.append(" / ".join("-" if sm[m] is None else str(sm[m]["not_ok"]) for m in methods))
+        cells.append(" / ".join("-" if counts[m] is None else str(counts[m][1]) for m in methods))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -415,6 +428,11 @@ def attach_sensor_info(rows, out: Path):
                 x["true_xy_m"] = truth[x["id"]]["p"][:2].tolist()
 
 
+def rot_rms_text(rms: float) -> str:
+    """The rotation's error / sigma RMS for :func:`table`: '-' without a finite ratio."""
+    return f"{rms:.2f}" if math.isfinite(rms) else "-"
+
+
 def table(rows, methods, title, groups=None, label="family"):
     groups = by_family(rows) if groups is None else groups
     groups = [(n, g) for n, g in groups if any(r.get("sensors") for r in g if r["method"] == "installed")]
@@ -422,7 +440,7 @@ def table(rows, methods, title, groups=None, label="family"):
     head = (f"| {label} | logs | sensors | installed xy | AMCL mean | " +
             " | ".join(f"{m} xy / xy less shared shift / z (mm), yaw (deg)" for m in methods) +
             (" | graph / grid xy" if {"factorgraph", "gridsearch"} <= set(methods) else "") +
-            " | " + " | ".join(f"{m} within 1 sigma x, y, z / rot (%)" for m in methods) +
+            " | " + " | ".join(f"{m} within 1 sigma x, y, z / rot (%) (rot error / sigma RMS)" for m in methods) +
             " | " + " | ".join(f"{m} within 2 sigma x, y, z / rot (%)" for m in methods) +
             " | worst log xy (mm) | not ok | " + " | ".join(f"{m} CPU / wall (s)" for m in methods) + " |")
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
@@ -446,7 +464,8 @@ def table(rows, methods, title, groups=None, label="family"):
                 if x is None or key not in x:
                     cells.append("-")
                 else:
-                    cells.append(", ".join(f"{v:.0f}" for v in x[key]) + (f" / {x[rot]:.0f}" if rot in x else ""))
+                    cells.append(", ".join(f"{v:.0f}" for v in x[key]) + (f" / {x[rot]:.0f}" if rot in x else "")
+                                 + (f" (rms {rot_rms_text(x['rot_rms'])})" if rot == "rot1" and rot in x else ""))
         cells.append(" / ".join("-" if sm[m] is None else f"{sm[m]['worst_log_xy_mm']:.0f}" for m in methods))
         cells.append(" / ".join("-" if sm[m] is None else str(sm[m]["not_ok"]) for m in methods))
         for m in methods:

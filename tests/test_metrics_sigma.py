@@ -357,3 +357,7 @@ def test_a_clock_offset_not_estimated_is_a_miss_and_the_rms_is_over_the_finite_e
     assert np.mean(np.abs(z) <= 1) == pytest.approx(2 / 3)         # c counts as outside
     assert bfn.finite_rms(err) == pytest.approx(np.sqrt(0.01 ** 2 / 2))
     assert np.isnan(bfn.finite_rms(np.full(2, np.nan)))
+    # a calibration that estimates no offset at all misses every sensor, never an empty (unscored) log
+    z, err = bfn.clock_offset_errors(sim, SimpleNamespace(extra={}))
+    assert len(z) == len(err) == 3
+    assert np.all(np.isnan(z)) and np.all(np.isnan(err))

@@ -117,3 +117,21 @@ def test_the_zoo_draws_seeds_with_and_without_stops(monkeypatch):
     assert zoo_families(off)["robot stops"] == "none"
     assert {k for k in vars(sc) if getattr(off, k) != getattr(sc, k)} == {"robot_stop_s", "robot_stop_share"}
     assert _held_runs(drive_route(sc)) and not _held_runs(drive_route(off))
+
+
+def test_a_stop_that_rounds_to_no_pose_is_no_stop():
+    """A stop of 0.02 s at 20 Hz rounds to 0 held poses: no waypoint is chosen, the family says
+    "none" and the route is the one without stops; 0.05 s rounds to 1 pose: "stops", each held
+    one pose."""
+    sc = load_scenario("paper").resolve(seed=3, duration_s=60.0, robot_stop_share=1.0)
+    assert sc.truth_rate_hz == 20.0
+    short = sc.resolve(robot_stop_s=0.02)
+    assert len(stop_waypoints(short, len(route_waypoints(short)))) == 0
+    assert zoo_families(short)["robot stops"] == "none"
+    poses = drive_route(short)
+    assert not _held_runs(poses)
+    assert np.array_equal(poses, drive_route(sc.resolve(robot_stop_s=0.0)))
+    one = sc.resolve(robot_stop_s=0.05)
+    assert zoo_families(one)["robot stops"] == "stops"
+    runs = _held_runs(drive_route(one))
+    assert runs and all(a == b for a, b in runs)

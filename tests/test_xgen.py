@@ -227,6 +227,30 @@ def test_the_exam_scores_a_failed_calibration_on_the_installed_poses_and_a_prior
     assert out["not_ok"] == 4
 
 
+def test_a_rotation_sigma_that_is_only_wide_shows_a_low_error_over_sigma_rms_beside_its_100_percent():
+    """Within 1 sigma alone, a rotation sigma 1000 x too wide scores 100 %: the error / sigma RMS
+    printed beside it (pinned: 0.5 deg on each axis over 1 deg, then over 1000 deg) shows it."""
+    from bench_xgen import score, shared_shift_removed, summarize, table
+    from scipy.spatial.transform import Rotation
+
+    truth, installed, good = _exam_world()
+    turned = {**good, "R": Rotation.from_rotvec(np.radians([0.5, 0.5, 0.5])).as_matrix()}
+    t = {"cpu_s": 1.0, "wall_s": 1.0, "amcl_mean_mm": 1.0}
+    for scale, rms, text in ((1.0, 0.5, "/ 100 (rms 0.50)"), (1000.0, 0.0005, "/ 100 (rms 0.00)")):
+        est = {**turned, "sigma_rot_deg": scale * good["sigma_rot_deg"]}
+        rows = [{"family": "f", "method": "m", "rc": 0, "failed": False, **t,
+                 **score(truth, {"a": est, "b": est}, installed)}]
+        rows += [{**rows[0], "method": "installed", **score(truth, installed, installed)}]
+        for r in rows:
+            shared_shift_removed(r)
+        out = summarize(rows, "m")
+        assert out["rot1"] == 100.0
+        assert out["rot_rms"] == pytest.approx(rms, rel=1e-6)
+        line = next(x for x in table(rows, ["m"], "t", groups=[("f", rows)]).splitlines()
+                    if x.startswith("| f "))
+        assert text in line
+
+
 def test_a_family_where_every_log_failed_shows_0_percent_coverage_not_a_dash():
     """Whether a method reports a sigma is decided over all its rows: in a family where it failed
     on every log (installed poses, no sigma) its coverage is 0 %, not left out as for a method

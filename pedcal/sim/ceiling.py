@@ -289,18 +289,22 @@ def measure(p_sensor: np.ndarray, sc: Scenario, rng: np.random.Generator,
     """Add the depth sensor's noise to true sensor-frame points (N, 3): along the ray
     sigma = k r^2 (``linear``: 2.5 k r; times far_noise_factor beyond reliable_range_m), plus
     lateral noise. ``ar1_coef`` (per row, :func:`ar1_coefficients`) correlates both frame to
-    frame within a track (a tracker that filters its output), each frame's std unchanged."""
+    frame within a track (a tracker that filters its output), each frame's std unchanged; None
+    (the caller's switch, a tracker noise rho of 0) keeps the noise white."""
     r = np.linalg.norm(p_sensor, axis=1)
     ray = p_sensor / r[:, None]
     grow = 2.5 * r if sc.depth_noise_model == "linear" else r ** 2
     sigma_depth = sc.depth_noise_k_per_m * grow * np.where(r > sc.reliable_range_m, sc.far_noise_factor, 1.0)
-    white = ar1_coef is None or not np.any(ar1_coef > 0.0)
     z_depth = rng.standard_normal(len(r))
-    along = ray * ((z_depth if white else ar1(z_depth, ar1_coef)) * sigma_depth)[:, None]
-    lateral = rng.normal(0.0, sc.lateral_noise_m, p_sensor.shape) if sc.lateral_noise_m > 0 else 0.0
-    if sc.lateral_noise_m > 0 and not white:     # the 3-D draw correlated, then taken across the ray
-        lateral = ar1(lateral, ar1_coef)
-    lateral = lateral - ray * np.sum(lateral * ray, axis=1, keepdims=True) if sc.lateral_noise_m > 0 else 0.0
+    if ar1_coef is not None:
+        z_depth = ar1(z_depth, ar1_coef)
+    along = ray * (z_depth * sigma_depth)[:, None]
+    lateral = 0.0
+    if sc.lateral_noise_m > 0:
+        lateral = rng.normal(0.0, sc.lateral_noise_m, p_sensor.shape)
+        if ar1_coef is not None:        # the 3-D draw correlated, then taken across the ray
+            lateral = ar1(lateral, ar1_coef)
+        lateral = lateral - ray * np.sum(lateral * ray, axis=1, keepdims=True)
     return p_sensor + along + lateral
 
 

@@ -191,9 +191,8 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
 
 def _stops_realized(sc: Scenario) -> bool:
     """Whether the robot stops at some waypoint of its route (drawn stops on a short route may
-    pick none: the family is what the log holds, not what was drawn)."""
-    if not (sc.robot_stop_s > 0 and sc.robot_stop_share > 0):
-        return False
+    pick none, and a stop shorter than half a truth period holds no pose: the family is what the
+    log holds, not what was drawn)."""
     return len(stop_waypoints(sc, len(route_waypoints(sc)))) > 0
 
 

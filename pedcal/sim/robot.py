@@ -69,20 +69,27 @@ def route_waypoints(sc: Scenario) -> np.ndarray:
     return wp[keep]
 
 
-def _densify(wp: np.ndarray, step_m: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """A polyline resampled every ``step_m`` and its arc length."""
-    seg = np.linalg.norm(np.diff(wp, axis=0), axis=1)
-    s_wp = np.r_[0.0, np.cumsum(seg)]
+def arc_length(wp: np.ndarray) -> np.ndarray:
+    """(N,) each point's arc length (m) along the polyline ``wp`` (N, 2), 0 at the first."""
+    return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(wp, axis=0), axis=1))]
+
+
+def _densify(wp: np.ndarray, step_m: float = 0.02) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A polyline resampled every ``step_m``, its arc length, and the arc length of each of the
+    polyline's points ``wp`` (:func:`arc_length`)."""
+    s_wp = arc_length(wp)
     s = np.arange(0.0, s_wp[-1], step_m)
     s = np.r_[s, s_wp[-1]]
-    return np.column_stack([np.interp(s, s_wp, wp[:, 0]), np.interp(s, s_wp, wp[:, 1])]), s
+    return np.column_stack([np.interp(s, s_wp, wp[:, 0]), np.interp(s, s_wp, wp[:, 1])]), s, s_wp
 
 
 def stop_waypoints(sc: Scenario, n_waypoints: int) -> np.ndarray:
     """Indices (ascending) of the route's waypoints at which the robot stops: each of the inner
     ones (not the first nor the last) with probability robot_stop_share, drawn from a stream of
-    its own (so the stops change no other draw of the seed); none when robot_stop_s is 0."""
-    if sc.robot_stop_s <= 0.0 or sc.robot_stop_share <= 0.0 or n_waypoints < 3:
+    its own (so the stops change no other draw of the seed); none when robot_stop_s holds no pose
+    (it rounds to 0 poses at truth_rate_hz, as :func:`drive_route` holds round(robot_stop_s x
+    truth_rate_hz) of them), when robot_stop_share is 0 or without an inner waypoint."""
+    if round(sc.robot_stop_s * sc.truth_rate_hz) == 0 or sc.robot_stop_share <= 0.0 or n_waypoints < 3:
         return np.zeros(0, int)
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5709]))
     return 1 + np.flatnonzero(rng.random(n_waypoints - 2) < sc.robot_stop_share)
@@ -96,12 +103,9 @@ def drive_route(sc: Scenario) -> np.ndarray:
     (without stops the poses are the follower's alone)."""
     step_m = 0.02
     wp = route_waypoints(sc)
-    path, s_path = _densify(wp, step_m)
-    seg = np.linalg.norm(np.diff(wp, axis=0), axis=1)
-    s_stops = np.r_[0.0, np.cumsum(seg)][stop_waypoints(sc, len(wp))].tolist()
-    n_hold = int(round(sc.robot_stop_s * sc.truth_rate_hz))
-    if n_hold == 0:
-        s_stops = []
+    path, s_path, s_wp = _densify(wp, step_m)
+    s_stops = s_wp[stop_waypoints(sc, len(wp))].tolist()
+    n_hold = int(round(sc.robot_stop_s * sc.truth_rate_hz))       # > 0 at any stop (stop_waypoints)
     next_stop = 0
     dt = 1.0 / sc.truth_rate_hz
     L = sc.lookahead_m

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.calib.common import interpolate_pose2
+from pedcal.sim.robot import arc_length
 from pedcal.sim.scenario import Scenario
 
 SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -51,7 +52,7 @@ def builtin_walkers(sc: Scenario, t0: float, t1: float, rng: np.random.Generator
                        rng.uniform([0.0, 0.0], [ax, ay]),
                        _border_point(rng, side_out, ax, ay, 1.0)])
         speed = max(0.4, rng.normal(*sc.walker_speed_mps))
-        s_wp = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(wp, axis=0), axis=1))]
+        s_wp = arc_length(wp)
         s = np.arange(0.0, s_wp[-1], speed * SAMPLE_DT_S)
         t = t_start + s / speed
         keep = (t >= t0 - 1.0) & (t <= t1 + 1.0)
