@@ -14,6 +14,7 @@ import os
 import time
 import warnings
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -116,8 +117,12 @@ def _nan(x) -> float:
 
 def _sensor_records(scenario: str, seed: int, method: str, network, truth, ev) -> list[dict]:
     errs = {e.id: e for e in ev.sensors}
+    # a sensor of the log left out of the returned network is a row too (status "missing", no
+    # estimate), so that the tables count it among the misses instead of never seeing it
+    missing = [SimpleNamespace(id=sid, status="missing", observations=0, position_m=np.full(3, np.nan),
+                               sigma_position_m=None, sigma_ypr_deg=None) for sid in ev.missing_sensors]
     out = []
-    for s in network:
+    for s in [*network, *missing]:
         t = truth[s.id]
         e = errs.get(s.id)
         err = np.asarray(e.position_error_mm if e else [np.nan] * 3, float)
@@ -135,19 +140,6 @@ def _sensor_records(scenario: str, seed: int, method: str, network, truth, ev) -
             est_x_m=s.position_m[0], est_y_m=s.position_m[1], est_z_m=s.position_m[2],
             head_rms_mm=_nan(e.head_rms_mm if e else None),
             head_observations=int(e.head_observations if e else 0)))
-    # a sensor of the log left out of the returned network is a row too (status "missing"), so
-    # that the tables count it among the misses instead of never seeing it
-    for sid in ev.missing_sensors:
-        t = truth.get(sid)
-        tp, ty = (np.full(3, np.nan), np.full(3, np.nan)) if t is None else (t.position_m, t.ypr_deg)
-        out.append(dict(
-            scenario=scenario, seed=seed, method=method, sensor=sid, status="missing", observations=0,
-            **{k: np.nan for k in ("err_x_mm", "err_y_mm", "err_z_mm", "err_mm", "orient_err_deg",
-                                   "sigma_x_mm", "sigma_y_mm", "sigma_z_mm", "sigma_yaw_deg",
-                                   "sigma_pitch_deg", "sigma_roll_deg")},
-            true_x_m=tp[0], true_y_m=tp[1], true_z_m=tp[2], true_yaw_deg=ty[0], true_pitch_deg=ty[1],
-            true_roll_deg=ty[2], est_x_m=np.nan, est_y_m=np.nan, est_z_m=np.nan,
-            head_rms_mm=np.nan, head_observations=0))
     return [{k: (float(v) if isinstance(v, np.floating) else v) for k, v in r.items()} for r in out]
 
 
