@@ -386,3 +386,46 @@ def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir)
     res.config = SweepConfig(scenarios=[("x", 1)], methods=["m"])
     r = sigma_consistency(res, "x").iloc[0]
     assert (r["axes"], r["missed"]) == (6, 3)
+
+
+def test_the_runs_row_counts_a_sensor_missing_from_the_returned_network_as_uncalibrated(monkeypatch):
+    """A method that leaves a sensor of the log out of its network has that sensor counted in the
+    runs row's ``sensors`` and ``no_data``, as the sensors table holds it (status "missing"):
+    dropping a sensor must not read as one failure fewer."""
+    import pedcal.demo
+    from pedcal.model import SensorNetwork
+    from pedcal.report.sweep import run_case
+
+    real = pedcal.demo.calibrate_scored
+
+    def drop_last(sim, method):
+        network, runtime_s, assoc = real(sim, method)
+        return SensorNetwork(network.sensors[:-1], network.frame, dict(network.extra)), runtime_s, assoc
+
+    monkeypatch.setattr(pedcal.demo, "calibrate_scored", drop_last)
+    case = run_case("sparse", 0, ["installed"])
+    n_log = len({r["sensor"] for r in case["sensors"]})
+    run = case["runs"][0]
+    assert n_log >= 2 and [r["status"] for r in case["sensors"]].count("missing") == 1
+    assert (run["sensors"], run["no_data"], run["ok"]) == (n_log, 1, 0)
+
+
+def test_the_covariance_floorplan_crosses_a_missing_sensor_out(results_dir):
+    """A sensor missing from the returned network is drawn as uncalibrated (a cross at its true
+    position), not as a calibrated sensor with a NaN error."""
+    from types import SimpleNamespace
+
+    from pedcal.report.figures import covariance_floorplan
+    from pedcal.report.sweep import _sensor_records
+
+    truth = {sid: SimpleNamespace(position_m=np.array([x, 0.0, 3.0]), ypr_deg=np.zeros(3))
+             for sid, x in (("a", 0.0), ("b", 2.0))}
+    net = [SimpleNamespace(id="a", status="ok", observations=5, position_m=np.array([0.01, 0.0, 3.0]),
+                           sigma_position_m=np.full(3, 0.02), sigma_ypr_deg=np.ones(3))]
+    ev = SimpleNamespace(sensors=[SimpleNamespace(id="a", position_error_mm=[10.0, 0.0, 0.0],
+                                                  orientation_error_deg=0.5, head_rms_mm=3.0,
+                                                  head_observations=5)],
+                         missing_sensors=["b"])
+    fig = covariance_floorplan(pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev)), ["m"], "t")
+    crosses = [c for c in fig.axes[0].collections if c.get_label() == "no data: not calibrated"]
+    assert len(crosses) == 1 and crosses[0].get_offsets().tolist() == [[2.0, 0.0]]
