@@ -3,6 +3,8 @@ read_log; and the shared real TurtleBot 4 bag and real AMCL CSV through the comm
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -334,3 +336,24 @@ def test_detections_and_poses_holding_nan_are_dropped_and_counted(tmp_path, capl
     assert f"2 of 20 observations rows from /people ({PEOPLE_MSGTYPE}) as sensor s01 dropped" in caplog.text
     log = read_log(out)
     assert np.isfinite(log.observations[["x", "y", "z"]].to_numpy()).all() and len(log.robot) == 19
+
+
+def test_a_bag_whose_every_amcl_pose_holds_nan_or_inf_is_refused_naming_the_topic(tmp_path):
+    """Nothing would be left of the robot's track once its NaN rows are dropped: the import stops,
+    naming the bag and the topic, and writes nothing."""
+    path = tmp_path / "nan_ros2"
+    with BagWriter(path, 2) as w:
+        ts = w.ts
+        for k in range(4):
+            t = T0 + 0.5 * k
+            cov = np.zeros(36)
+            cov[[0, 7, 35]] = (0.01, 0.02, 0.003)
+            xy = (np.nan, 0.0, 0.0) if k % 2 else (0.1 * k, np.inf, 0.0)
+            w.write("/amcl_pose", AMCL_MSGTYPE, t, make(ts, AMCL_MSGTYPE, header=header(ts, t, "map"), pose=make(
+                ts, "geometry_msgs/msg/PoseWithCovariance", pose=pose(ts, xy), covariance=cov)))
+    out = tmp_path / "log"
+    with pytest.raises(PedcalInputError, match=re.escape(
+            f"every one of the 4 robot rows from /amcl_pose ({AMCL_MSGTYPE}) holds a NaN or infinite value")) as ei:
+        import_bag(path, out)
+    assert ei.value.path == str(path)
+    assert not out.exists()
