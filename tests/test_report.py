@@ -360,9 +360,9 @@ def test_from_results_with_a_damaged_table_exits_2_naming_it(results_dir, tmp_pa
     assert "Traceback" not in err and not (tmp_path / "out").exists()
 
 
-def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir):
-    """The method returned sensor "a" only; "b" of the log is a row with status "missing" and NaN
-    errors and sigmas, so the sigma consistency counts its 3 axes among the misses."""
+def _sensor_records_of_a_kept_and_a_missing_sensor() -> pd.DataFrame:
+    """The sensors table of a method that returned sensor "a" (ok, with sigmas) of a log of "a"
+    and "b" (true positions (0, 0, 3) and (2, 0, 3) m)."""
     from types import SimpleNamespace
 
     from pedcal.report.sweep import _sensor_records
@@ -375,7 +375,13 @@ def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir)
                                                   orientation_error_deg=0.5, head_rms_mm=3.0,
                                                   head_observations=5)],
                          missing_sensors=["b"])
-    recs = pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev))
+    return pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev))
+
+
+def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir):
+    """The method returned sensor "a" only; "b" of the log is a row with status "missing" and NaN
+    errors and sigmas, so the sigma consistency counts its 3 axes among the misses."""
+    recs = _sensor_records_of_a_kept_and_a_missing_sensor()
     assert list(recs["sensor"]) == ["a", "b"] and list(recs["status"]) == ["ok", "missing"]
     b = recs.iloc[1]
     assert b["true_x_m"] == 2.0 and b["observations"] == 0
@@ -410,22 +416,11 @@ def test_the_runs_row_counts_a_sensor_missing_from_the_returned_network_as_uncal
     assert (run["sensors"], run["no_data"], run["ok"]) == (n_log, 1, 0)
 
 
-def test_the_covariance_floorplan_crosses_a_missing_sensor_out(results_dir):
+def test_the_covariance_floorplan_crosses_a_missing_sensor_out():
     """A sensor missing from the returned network is drawn as uncalibrated (a cross at its true
     position), not as a calibrated sensor with a NaN error."""
-    from types import SimpleNamespace
-
     from pedcal.report.figures import covariance_floorplan
-    from pedcal.report.sweep import _sensor_records
 
-    truth = {sid: SimpleNamespace(position_m=np.array([x, 0.0, 3.0]), ypr_deg=np.zeros(3))
-             for sid, x in (("a", 0.0), ("b", 2.0))}
-    net = [SimpleNamespace(id="a", status="ok", observations=5, position_m=np.array([0.01, 0.0, 3.0]),
-                           sigma_position_m=np.full(3, 0.02), sigma_ypr_deg=np.ones(3))]
-    ev = SimpleNamespace(sensors=[SimpleNamespace(id="a", position_error_mm=[10.0, 0.0, 0.0],
-                                                  orientation_error_deg=0.5, head_rms_mm=3.0,
-                                                  head_observations=5)],
-                         missing_sensors=["b"])
-    fig = covariance_floorplan(pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev)), ["m"], "t")
+    fig = covariance_floorplan(_sensor_records_of_a_kept_and_a_missing_sensor(), ["m"], "t")
     crosses = [c for c in fig.axes[0].collections if c.get_label() == "no data: not calibrated"]
     assert len(crosses) == 1 and crosses[0].get_offsets().tolist() == [[2.0, 0.0]]
