@@ -323,14 +323,11 @@ def cmd_follow(args) -> int:
                          target_id=args.target, progress=not args.json, density_per_10m2=args.density,
                          sensing=args.sensing, lidar=args.lidar)
     if args.output is not None:
-        from pedcal.io.atomic import atomic_dir
+        def save(a) -> int:          # follow.json and follow_log.parquet change together
+            res.save(a.output)
+            return 0
 
-        with atomic_dir(args.output) as tmp:       # follow.json and follow_log.parquet change together
-            try:
-                res.save(tmp)
-            except (PedcalInputError, OSError) as e:
-                _rename_in_error(e, str(tmp), str(args.output))
-                raise
+        _into_folder(args, "output", save)
     if args.json:
         _print_json(res.to_dict())
     else:

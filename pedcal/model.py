@@ -68,10 +68,10 @@ def sensor_codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
 
 def rows_by_code(codes: np.ndarray, n_codes: int) -> list[np.ndarray]:
     """The rows of each code 0 .. ``n_codes`` - 1, ascending, from one stable sort of the codes
-    (one pass over the rows, not one per code); negative codes (pandas' NA sentinel) in none."""
+    (one pass over the rows, not one per code)."""
     codes = np.asarray(codes)
     order = np.argsort(codes, kind="stable")
-    bounds = np.r_[0, np.cumsum(np.bincount(codes[codes >= 0], minlength=n_codes))] + np.sum(codes < 0)
+    bounds = np.r_[0, np.cumsum(np.bincount(codes, minlength=n_codes))]
     return [order[bounds[i]:bounds[i + 1]] for i in range(n_codes)]
 
 

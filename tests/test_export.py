@@ -270,3 +270,14 @@ def test_frame_names_a_launch_file_would_split_are_refused(network, tmp_path, ca
     assert f"{cal}: a sensor's frame (--prefix + id) {(argv[1] + network.ids[0])!r} is empty or holds whitespace" in err
     assert not (tmp_path / out).exists()
     assert main(["export", str(cal), "--format", "json", "-o", str(tmp_path / "t.json"), *argv]) == 0   # JSON: any text
+
+
+@pytest.mark.parametrize("fmt,out", [("tf-launch", "t.launch.py"), ("urdf", "t.urdf")])
+def test_a_parent_frame_a_launch_file_would_split_is_refused_as_the_parent_frame(network, tmp_path, capsys,
+                                                                                fmt, out):
+    cal = tmp_path / "cal.yaml"
+    network.frame = "site map"
+    write_sensors_yaml(network, cal)
+    assert main(["export", str(cal), "--format", fmt, "-o", str(tmp_path / out)]) == EXIT_BAD_INPUT
+    assert f"{cal}: the parent frame 'site map' is empty or holds whitespace" in capsys.readouterr().err
+    assert not (tmp_path / out).exists()

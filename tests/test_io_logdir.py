@@ -175,6 +175,17 @@ def test_people_csv_bad_cell_names_row_and_line(tmp_path):
         read_people_csv(tmp_path / "p.csv")
 
 
+@pytest.mark.parametrize("what,match", [("missing", "people CSV file not found"),
+                                        ("folder", "is a directory, expected a people CSV file")])
+def test_people_csv_path_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, what, match):
+    p = tmp_path / "p.csv"
+    if what == "folder":
+        p.mkdir()
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_people_csv(p)
+    assert ei.value.path == str(p)
+
+
 # ------------------------------------------------------------------------------------ bad input
 def write_good(tmp_path: Path) -> Path:
     log = make_log(5)

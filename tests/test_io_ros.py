@@ -54,6 +54,17 @@ def test_rostopic_amcl_csv_bad_input(tmp_path, shared_data):
         read_rostopic_amcl_csv(tmp_path / "b.csv")
 
 
+@pytest.mark.parametrize("what,match", [("missing", "rostopic CSV not found"),
+                                        ("folder", "is a directory, expected a rostopic CSV")])
+def test_rostopic_amcl_csv_path_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, what, match):
+    p = tmp_path / "amcl.csv"
+    if what == "folder":
+        p.mkdir()
+    with pytest.raises(PedcalInputError, match=match) as ei:
+        read_rostopic_amcl_csv(p)
+    assert ei.value.path == str(p)
+
+
 def test_ros2_bag_odometry(tmp_path, shared_data):
     bag = shared_data / "turtlebot4_ros2_bag"
     with pytest.raises(PedcalInputError, match="no localization in the bag"):

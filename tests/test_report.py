@@ -360,9 +360,9 @@ def test_from_results_with_a_damaged_table_exits_2_naming_it(results_dir, tmp_pa
     assert "Traceback" not in err and not (tmp_path / "out").exists()
 
 
-def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir):
-    """The method returned sensor "a" only; "b" of the log is a row with status "missing" and NaN
-    errors and sigmas, so the sigma consistency counts its 3 axes among the misses."""
+def _sensor_records_of_a_kept_and_a_missing_sensor() -> pd.DataFrame:
+    """The sensors table of a method that returned sensor "a" (ok, with sigmas) of a log of "a"
+    and "b" (true positions (0, 0, 3) and (2, 0, 3) m)."""
     from types import SimpleNamespace
 
     from pedcal.report.sweep import _sensor_records
@@ -375,7 +375,13 @@ def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir)
                                                   orientation_error_deg=0.5, head_rms_mm=3.0,
                                                   head_observations=5)],
                          missing_sensors=["b"])
-    recs = pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev))
+    return pd.DataFrame(_sensor_records("x", 0, "m", net, truth, ev))
+
+
+def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir):
+    """The method returned sensor "a" only; "b" of the log is a row with status "missing" and NaN
+    errors and sigmas, so the sigma consistency counts its 3 axes among the misses."""
+    recs = _sensor_records_of_a_kept_and_a_missing_sensor()
     assert list(recs["sensor"]) == ["a", "b"] and list(recs["status"]) == ["ok", "missing"]
     b = recs.iloc[1]
     assert b["true_x_m"] == 2.0 and b["observations"] == 0
@@ -386,3 +392,35 @@ def test_a_sensor_missing_from_the_returned_network_is_a_missed_row(results_dir)
     res.config = SweepConfig(scenarios=[("x", 1)], methods=["m"])
     r = sigma_consistency(res, "x").iloc[0]
     assert (r["axes"], r["missed"]) == (6, 3)
+
+
+def test_the_runs_row_counts_a_sensor_missing_from_the_returned_network_as_uncalibrated(monkeypatch):
+    """A method that leaves a sensor of the log out of its network has that sensor counted in the
+    runs row's ``sensors`` and ``no_data``, as the sensors table holds it (status "missing"):
+    dropping a sensor must not read as one failure fewer."""
+    import pedcal.demo
+    from pedcal.model import SensorNetwork
+    from pedcal.report.sweep import run_case
+
+    real = pedcal.demo.calibrate_scored
+
+    def drop_last(sim, method):
+        network, runtime_s, assoc = real(sim, method)
+        return SensorNetwork(network.sensors[:-1], network.frame, dict(network.extra)), runtime_s, assoc
+
+    monkeypatch.setattr(pedcal.demo, "calibrate_scored", drop_last)
+    case = run_case("sparse", 0, ["installed"])
+    n_log = len({r["sensor"] for r in case["sensors"]})
+    run = case["runs"][0]
+    assert n_log >= 2 and [r["status"] for r in case["sensors"]].count("missing") == 1
+    assert (run["sensors"], run["no_data"], run["ok"]) == (n_log, 1, 0)
+
+
+def test_the_covariance_floorplan_crosses_a_missing_sensor_out():
+    """A sensor missing from the returned network is drawn as uncalibrated (a cross at its true
+    position), not as a calibrated sensor with a NaN error."""
+    from pedcal.report.figures import covariance_floorplan
+
+    fig = covariance_floorplan(_sensor_records_of_a_kept_and_a_missing_sensor(), ["m"], "t")
+    crosses = [c for c in fig.axes[0].collections if c.get_label() == "no data: not calibrated"]
+    assert len(crosses) == 1 and crosses[0].get_offsets().tolist() == [[2.0, 0.0]]

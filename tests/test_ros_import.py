@@ -3,6 +3,8 @@ read_log; and the shared real TurtleBot 4 bag and real AMCL CSV through the comm
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -309,6 +311,14 @@ def test_simulated_log_through_a_bag_calibrates_alike(tmp_path, version):
         assert via_bag[s.id].status == s.status
 
 
+def _write_amcl_pose(w, t: float, xyz) -> None:
+    """One /amcl_pose message at ``t`` s: position ``xyz`` (m), heading 0, a fixed covariance."""
+    cov = np.zeros(36)
+    cov[[0, 7, 35]] = (0.01, 0.02, 0.003)
+    w.write("/amcl_pose", AMCL_MSGTYPE, t, make(w.ts, AMCL_MSGTYPE, header=header(w.ts, t, "map"), pose=make(
+        w.ts, "geometry_msgs/msg/PoseWithCovariance", pose=pose(w.ts, xyz), covariance=cov)))
+
+
 def test_detections_and_poses_holding_nan_are_dropped_and_counted(tmp_path, caplog):
     """A tracker's message with a NaN position went into observations.csv as an empty cell: the
     import succeeded and the log it wrote could not be read."""
@@ -317,11 +327,7 @@ def test_detections_and_poses_holding_nan_are_dropped_and_counted(tmp_path, capl
         ts = w.ts
         for k in range(20):
             t = T0 + 0.5 * k
-            cov = np.zeros(36)
-            cov[[0, 7, 35]] = (0.01, 0.02, 0.003)
-            xy = (0.1 * k, 0.0, 0.0) if k != 11 else (np.nan, 0.0, 0.0)
-            w.write("/amcl_pose", AMCL_MSGTYPE, t, make(ts, AMCL_MSGTYPE, header=header(ts, t, "map"), pose=make(
-                ts, "geometry_msgs/msg/PoseWithCovariance", pose=pose(ts, xy), covariance=cov)))
+            _write_amcl_pose(w, t, (0.1 * k, 0.0, 0.0) if k != 11 else (np.nan, 0.0, 0.0))
             p = (0.1 * k, 1.0, 1.7) if k not in (3, 7) else (np.inf if k == 7 else np.nan, 1.0, 1.7)
             w.write("/people", PEOPLE_MSGTYPE, t, make(ts, PEOPLE_MSGTYPE, header=header(ts, t, "map"), people=[
                 make(ts, "people_msgs/msg/Person", name="a", position=point(ts, p))]))
@@ -334,3 +340,18 @@ def test_detections_and_poses_holding_nan_are_dropped_and_counted(tmp_path, capl
     assert f"2 of 20 observations rows from /people ({PEOPLE_MSGTYPE}) as sensor s01 dropped" in caplog.text
     log = read_log(out)
     assert np.isfinite(log.observations[["x", "y", "z"]].to_numpy()).all() and len(log.robot) == 19
+
+
+def test_a_bag_whose_every_amcl_pose_holds_nan_or_inf_is_refused_naming_the_topic(tmp_path):
+    """Nothing would be left of the robot's track once its NaN rows are dropped: the import stops,
+    naming the bag and the topic, and writes nothing."""
+    path = tmp_path / "nan_ros2"
+    with BagWriter(path, 2) as w:
+        for k in range(4):
+            _write_amcl_pose(w, T0 + 0.5 * k, (np.nan, 0.0, 0.0) if k % 2 else (0.1 * k, np.inf, 0.0))
+    out = tmp_path / "log"
+    with pytest.raises(PedcalInputError, match=re.escape(
+            f"every one of the 4 robot rows from /amcl_pose ({AMCL_MSGTYPE}) holds a NaN or infinite value")) as ei:
+        import_bag(path, out)
+    assert ei.value.path == str(path)
+    assert not out.exists()

@@ -123,7 +123,7 @@ def test_sensor_codes_name_a_string_columns_missing_value_by_its_text():
 
 
 def test_rows_by_code_are_each_codes_rows_in_order():
-    codes = np.random.default_rng(2).integers(-1, 5, 200)     # -1: pandas' missing-value code
+    codes = np.random.default_rng(2).integers(0, 5, 200)      # sensor_codes gives no negative code
     groups = rows_by_code(codes, 6)
     assert len(groups) == 6
     for code, rows in enumerate(groups):

@@ -167,9 +167,9 @@ def _launch_kind(path: Path, ros_version: int | None) -> tuple[str, int]:
 def _check_frame_names(network: SensorNetwork, prefix: str, source) -> None:
     """Frame names a launch file or URDF can carry: no whitespace or control character (a launch
     file's ``args`` are split at spaces, so ``x y`` would become two arguments and shift the rest)."""
-    for name in (network.frame, *(prefix + s.id for s in network)):
+    for what, name in [("the parent frame", network.frame),
+                       *(("a sensor's frame (--prefix + id)", prefix + s.id) for s in network)]:
         if not name or any(c.isspace() or not c.isprintable() for c in name):
-            what = "the parent frame" if name == network.frame else "a sensor's frame (--prefix + id)"
             raise PedcalInputError(f"{what} {name!r} is empty or holds whitespace or a control character, which a "
                                    "launch file's args or a URDF link name cannot carry; rename it (sensors' ids, "
                                    "'frame', --prefix)", path=source)

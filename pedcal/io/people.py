@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from pedcal.errors import DegenerateDataWarning, PedcalInputError, show
+from pedcal.io.inputs import regular_file
 from pedcal.io.logdir import check_coordinates, check_times, read_table, table_source, typed_table, write_table
 from pedcal.model import PEOPLE_COLUMNS
 from pedcal.options import require_path
@@ -16,11 +17,7 @@ from pedcal.options import require_path
 
 def read_people_csv(path: str | Path) -> pd.DataFrame:
     """Read a people CSV (or .parquet); ``person`` is text; rows keep file order."""
-    path = require_path(path, "path")
-    if not path.is_file():
-        raise PedcalInputError("file not found", path=path)
-    if path.is_dir():
-        raise PedcalInputError("is a directory, expected a people CSV file", path=path)
+    path = regular_file(require_path(path, "path"), "people CSV file")
     return validate_people(read_table(path, PEOPLE_COLUMNS, ("person",)), table_source(path))
 
 

@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from pedcal.errors import PedcalInputError, show
 from pedcal.io.atomic import write_text_atomic
-from pedcal.io.inputs import not_utf8_error
+from pedcal.io.inputs import not_utf8_error, regular_file
 from pedcal.io.logdir import meta_yaml_text, parse_float_column, write_table
 from pedcal.model import OBSERVATION_COLUMNS, ODOMETRY_COLUMNS, ROBOT_COLUMNS, Meta, SensorNetwork
 from pedcal.options import check
@@ -75,9 +75,7 @@ def _parse_ns_column(values: pd.Series, path: Path, column: str) -> np.ndarray:
 # ----------------------------------------------------------------------------- rostopic echo -p CSV
 def read_rostopic_amcl_csv(path: str | Path) -> pd.DataFrame:
     """``rostopic echo -p /amcl_pose`` CSV -> robot.csv columns (rows in file order)."""
-    path = Path(path)
-    if not path.is_file():
-        raise PedcalInputError("file not found", path=path)
+    path = regular_file(path, "rostopic CSV")
     try:
         raw = pd.read_csv(path, dtype=str, keep_default_na=False)
     except UnicodeDecodeError as e:

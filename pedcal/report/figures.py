@@ -11,6 +11,7 @@ from matplotlib.patches import Ellipse
 from matplotlib.ticker import MaxNLocator
 
 from pedcal.plotting import DPI, PNG_METADATA, new_figure, save_png  # noqa: F401  (report code imports them here)
+from pedcal.report.sweep import UNCALIBRATED
 
 METHOD_COLORS = {"installed": "#7f7f7f", "alternative": "#d62728", "gridsearch": "#1f77b4",
                  "closedform": "#2ca02c", "factorgraph": "#9467bd"}
@@ -138,7 +139,7 @@ def covariance_floorplan(sensors: pd.DataFrame, methods: list[str], title: str) 
     axes = fig.subplots(len(with_sigma), 1, squeeze=False)[:, 0]
     for k, (ax, m) in enumerate(zip(axes, with_sigma, strict=True)):
         d = sensors[sensors["method"] == m]
-        calibrated = d[~d["status"].isin(["no-data", "missing"])]
+        calibrated = d[~d["status"].isin(UNCALIBRATED)]
         sizes = np.r_[calibrated["err_mm"], calibrated["sigma_x_mm"], calibrated["sigma_y_mm"]] / 1000.0
         sizes = sizes[np.isfinite(sizes)]
         typical_m = float(np.median(sizes)) if len(sizes) else 0.1
@@ -156,7 +157,7 @@ def covariance_floorplan(sensors: pd.DataFrame, methods: list[str], title: str) 
                 ax.add_patch(Ellipse((x0 + dx, y0 + dy), 2 * gain * sx / 1000.0, 2 * gain * sy / 1000.0,
                                      fill=False, color=c, lw=1.0))
         ax.plot([], [], color=c, lw=1.0, label="reported 1σ in x, y (magnified)")
-        none = d[d["status"].isin(["no-data", "missing"])]
+        none = d[d["status"].isin(UNCALIBRATED)]
         if len(none):
             ax.scatter(none["true_x_m"], none["true_y_m"], marker="x", s=80, color=c, zorder=6,
                        label="no data: not calibrated")

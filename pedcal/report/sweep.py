@@ -14,11 +14,15 @@ import os
 import time
 import warnings
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
 from pedcal.errors import DegenerateDataWarning, PedcalInputError
 
+# The statuses of a sensor a method left uncalibrated: "no-data" (returned with no estimate) and
+# "missing" (left out of the returned network, a row of the sensors table all the same).
+UNCALIBRATED = ("no-data", "missing")
 METHOD_ORDER = ("installed", "alternative", "gridsearch", "closedform", "factorgraph")
 DEFAULT_SCENARIOS = ("paper", "sparse", "mall:3")
 DEFAULT_SEEDS = 10
@@ -116,8 +120,12 @@ def _nan(x) -> float:
 
 def _sensor_records(scenario: str, seed: int, method: str, network, truth, ev) -> list[dict]:
     errs = {e.id: e for e in ev.sensors}
+    # a sensor of the log left out of the returned network is a row too (status "missing", no
+    # estimate), so that the tables count it among the misses instead of never seeing it
+    missing = [SimpleNamespace(id=sid, status="missing", observations=0, position_m=np.full(3, np.nan),
+                               sigma_position_m=None, sigma_ypr_deg=None) for sid in ev.missing_sensors]
     out = []
-    for s in network:
+    for s in [*network, *missing]:
         t = truth[s.id]
         e = errs.get(s.id)
         err = np.asarray(e.position_error_mm if e else [np.nan] * 3, float)
@@ -135,19 +143,6 @@ def _sensor_records(scenario: str, seed: int, method: str, network, truth, ev) -
             est_x_m=s.position_m[0], est_y_m=s.position_m[1], est_z_m=s.position_m[2],
             head_rms_mm=_nan(e.head_rms_mm if e else None),
             head_observations=int(e.head_observations if e else 0)))
-    # a sensor of the log left out of the returned network is a row too (status "missing"), so
-    # that the tables count it among the misses instead of never seeing it
-    for sid in ev.missing_sensors:
-        t = truth.get(sid)
-        tp, ty = (np.full(3, np.nan), np.full(3, np.nan)) if t is None else (t.position_m, t.ypr_deg)
-        out.append(dict(
-            scenario=scenario, seed=seed, method=method, sensor=sid, status="missing", observations=0,
-            **{k: np.nan for k in ("err_x_mm", "err_y_mm", "err_z_mm", "err_mm", "orient_err_deg",
-                                   "sigma_x_mm", "sigma_y_mm", "sigma_z_mm", "sigma_yaw_deg",
-                                   "sigma_pitch_deg", "sigma_roll_deg")},
-            true_x_m=tp[0], true_y_m=tp[1], true_z_m=tp[2], true_yaw_deg=ty[0], true_pitch_deg=ty[1],
-            true_roll_deg=ty[2], est_x_m=np.nan, est_y_m=np.nan, est_z_m=np.nan,
-            head_rms_mm=np.nan, head_observations=0))
     return [{k: (float(v) if isinstance(v, np.floating) else v) for k, v in r.items()} for r in out]
 
 
@@ -204,7 +199,8 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
             warnings.simplefilter("ignore", DegenerateDataWarning)
             network, runtime_s, assoc = calibrate_scored(sim, method)
             ev = evaluate(sim.eval, network)
-        statuses = [s.status or "installed" for s in network]
+        # a sensor of the log the method left out counts among the sensors and the uncalibrated
+        statuses = [s.status or "installed" for s in network] + ["missing"] * len(ev.missing_sensors)
         rms = ev.sensor_position_rms_mm
         runs.append(dict(
             scenario=scenario, seed=seed, method=method,
@@ -212,7 +208,7 @@ def run_case(scenario: str, seed: int, methods: list[str], keep_heads: bool = Fa
             sensor_rms_z_mm=rms.z, orientation_rms_deg=float(ev.orientation_rms_deg),
             head_rms_mm=_nan(ev.head_tracking_rms_mm), head_observations=int(ev.head_observations),
             sensors=len(statuses), ok=statuses.count("ok"), degenerate=statuses.count("degenerate"),
-            no_data=statuses.count("no-data"),
+            no_data=sum(statuses.count(u) for u in UNCALIBRATED),
             assoc_precision=_nan(assoc["precision"] if assoc else None),
             assoc_recall=_nan(assoc["recall"] if assoc else None),
             latency_s=_nan(network.extra.get("tracker_latency_s"))))
