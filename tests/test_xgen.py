@@ -275,6 +275,38 @@ def test_a_family_where_every_log_failed_shows_0_percent_coverage_not_a_dash():
     assert "0, 0, 0 / 0" in hard_line
 
 
+def test_per_log_table_counts_each_log_against_both_targets_and_a_failed_log_at_its_installed_poses():
+    """The issue's figures are per log: 12 mm xy on every log, 0.35x the grid search's. Three logs
+    of one family: the graph 10 mm on both sensors (grid 50 mm: 0.20x), 10 mm and 200 mm (the
+    log's RMS sqrt((0.01^2 + 0.2^2) / 2), grid 50 mm), and a failed run scored at the installed
+    500 mm (grid 10 mm: 50x); a fourth log the grid search lacks stays out of the ratio."""
+    from bench_xgen import per_log_table, score
+
+    truth, installed, good = _exam_world()
+    off = {**good, "p": np.array([0.2, 0.0, 0.0])}
+    grid = {**good, "p": np.array([0.05, 0.0, 0.0])}
+    t = {"family": "f", "rc": 0, "cpu_s": 1.0, "wall_s": 1.0}
+    rows = [{**t, "seed": 0, "method": "factorgraph", **score(truth, {"a": good, "b": good}, installed)},
+            {**t, "seed": 1, "method": "factorgraph", **score(truth, {"a": good, "b": off}, installed)},
+            {**t, "seed": 2, "method": "factorgraph", "rc": 1, "failed": True, **score(truth, {}, installed)},
+            {**t, "seed": 3, "method": "factorgraph", **score(truth, {"a": good, "b": good}, installed)}]
+    rows += [{**t, "seed": s, "method": "gridsearch", **score(truth, {"a": grid, "b": grid}, installed)}
+             for s in (0, 1)]
+    rows += [{**t, "seed": 2, "method": "gridsearch", **score(truth, {"a": good, "b": good}, installed)}]
+    text = per_log_table(rows, ["factorgraph", "gridsearch"], groups=[("f", rows)])
+    line = next(x for x in text.splitlines() if x.startswith("| f "))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    mid = 1000 * math.sqrt((0.01 ** 2 + 0.2 ** 2) / 2)
+    assert cells[1] == "4"
+    assert cells[2] == f"10.0 / {(10.0 + mid) / 2:.1f} / 500.0"     # median of 10, 10, 141.8, 500
+    assert cells[3] == "10.0 / 50.0 / 50.0"
+    assert cells[4] == "2 of 4" and cells[5] == "1 of 3"
+    assert cells[6] == f"0.20 / {mid / 50:.2f} / 50.00"
+    assert cells[7] == "1 of 3"
+    # one method alone: no ratio columns
+    assert "x grid" not in per_log_table(rows, ["factorgraph"], groups=[("f", rows)])
+
+
 def _square_network():
     """Four sensors at (10 +- 3, 20 +- 4) m (each 5 m from their centre) and one at the centre."""
     return np.array([[13.0, 24.0], [7.0, 24.0], [7.0, 16.0], [13.0, 16.0], [10.0, 20.0]])
