@@ -519,7 +519,7 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     white std is at least ``min_white_m``; the wandering std, when the data show one, at least
     ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`) with ``floor`` "hold"; with
     "consider" the model is the data's and the held one is kept beside it (``held_sigma_m``,
-    ``held_correlation_s``: :meth:`AmclErrorModel.unseen_common_sigma_m`); with "off" the data's
+    ``held_correlation_s``: :meth:`AmclErrorModel.held`); with "off" the data's
     alone. A residual holds the sensor's
     noise too, which the graph's observation factors already carry: its variance per axis,
     averaged over the residuals (``noise_m2``), is taken off the variogram's white part (the
