@@ -351,7 +351,8 @@ def run_one(scenario: str, seed: int, zoo: bool = False, recipe: dict | None = N
                 t = sim.calib.robot["t"].to_numpy(float)
                 out["amcl_model"] = dict(white_m=model.white_sigma_m, correlated_m=model.correlated_sigma_m,
                                          correlation_s=model.correlation_s, source=model.source,
-                                         floor_m=model.floor_sigma_m(float(t.max() - t.min())),
+                                         # (the model the sigma is read with: the held one, where it holds one)
+                                         floor_m=(model.held() or model).floor_sigma_m(float(t.max() - t.min())),
                                          duration_s=float(t.max() - t.min()))
             # only calibrated sensors with an error, each with its own block of the covariance
             out["z_shared"], out["z_rest"] = shared_rest_parts(ev, res.network, res.position_covariance_m2)

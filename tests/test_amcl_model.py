@@ -17,6 +17,7 @@ from pedcal.calib.amcl_model import (
     detect_steps,
     estimate_model,
     fit_variogram,
+    hold_at_floor,
     node_drift_variance,
     robust_variogram,
 )
@@ -107,6 +108,55 @@ def test_the_wandering_std_is_at_least_amcls_reported_one_at_the_rate_it_shows()
     held = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=300.0, floor_sigma_m=0.05)
     assert held[1] == pytest.approx(max(free[1], 0.05))
     assert held[1] ** 2 / held[2] == pytest.approx(free[1] ** 2 / free[2], rel=1e-6)
+
+
+def _short_visits_ou(seed: int):
+    """An OU error (5 cm, 20 s) seen in short visits (the long lags say little), as 600 s of
+    AMCL estimates at 5 Hz with the sensors' series."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 600.0, 0.2)
+    groups = _visits(rng, t, visit_s=5.0)
+    ou = np.column_stack([ou_process(rng, len(t), 0.2, 0.05, 20.0) for _ in range(2)])
+    return t, [(g, ou[g]) for g in groups]
+
+
+def test_consider_solves_with_the_datas_wander_and_keeps_the_held_one_beside_it():
+    """floor "consider": the model is the data's ("off"'s), the held one ("hold"'s, at least
+    AMCL's reported std at the rate the data show) kept beside it, and held() gives it back."""
+    t, series = _short_visits_ou(4)
+    assumed = AmclErrorModel(white_sigma_m=0.01, correlated_sigma_m=0.05, correlation_s=20.0)
+    hold, consider, off = (estimate_model(t, series, assumed, prior_sigma_m=0.08, floor=f)
+                           for f in ("hold", "consider", "off"))
+    assert 0.0 < off.correlated_sigma_m < 0.08                    # the floor binds on these data
+    assert (consider.correlated_sigma_m, consider.correlation_s) == (off.correlated_sigma_m, off.correlation_s)
+    assert (consider.held_sigma_m, consider.held_correlation_s) == \
+        pytest.approx((hold.correlated_sigma_m, hold.correlation_s), rel=1e-12)
+    assert hold.correlated_sigma_m == 0.08 and off.held_sigma_m == 0.0 and hold.held_sigma_m == 0.0
+    held = consider.held()
+    assert (held.correlated_sigma_m, held.correlation_s, held.white_sigma_m) == \
+        (consider.held_sigma_m, consider.held_correlation_s, consider.white_sigma_m)
+    assert held.held() is None and off.held() is None and hold.held() is None
+    assert consider.to_dict()["held_sigma_m"] == 0.08 and "held_sigma_m" not in off.to_dict()
+    with pytest.raises(ValueError, match="floor must be one of"):
+        estimate_model(t, series, assumed, prior_sigma_m=0.08, floor="wide")
+
+
+def test_consider_holds_nothing_where_the_data_wander_more_than_reported_or_not_at_all():
+    t, series = _short_visits_ou(4)
+    assumed = AmclErrorModel(white_sigma_m=0.01, correlated_sigma_m=0.05, correlation_s=20.0)
+    above = estimate_model(t, series, assumed, prior_sigma_m=0.001, floor="consider")
+    assert above.correlated_sigma_m > 0.001 and above.held_sigma_m == 0.0
+    rng = np.random.default_rng(7)
+    white = [(rows, rng.normal(0.0, 0.03, (len(rows), 2))) for rows, _ in series]
+    flat = estimate_model(t, white, assumed, prior_sigma_m=0.08, floor="consider")
+    assert flat.correlated_sigma_m == 0.0 and flat.held_sigma_m == 0.0
+
+
+def test_hold_at_floor_keeps_the_rate_of_wander_and_caps_the_correlation_time():
+    # variances: 0.02^2 over 10 s is 0.04^2 over 40 s
+    assert hold_at_floor(0.02 ** 2, 10.0, 0.04, 1e4) == pytest.approx((0.04 ** 2, 40.0))
+    assert hold_at_floor(0.02 ** 2, 10.0, 0.04, 25.0) == pytest.approx((0.04 ** 2, 25.0))
+    assert hold_at_floor(0.05 ** 2, 10.0, 0.04, 1e4) == (0.05 ** 2, 10.0)
 
 
 def test_error_nodes_resolve_a_wandering_error_and_are_few_without_one():
@@ -312,9 +362,46 @@ def test_the_graph_estimates_the_kind_of_amcl_error_it_was_given(kind):
         assert model.correlated_sigma_m == 0.0
         assert model.white_sigma_m == pytest.approx(sim.scenario.amcl_sigma_m, rel=0.15)
     else:
-        assert model.correlated_sigma_m == pytest.approx(sim.scenario.amcl_sigma_m, rel=0.3)
-        assert 0.4 * sim.scenario.amcl_tau_s < model.correlation_s < 2.5 * sim.scenario.amcl_tau_s
+        # the wander the sensors' sigma is read with (the held one where the reported std binds:
+        # amcl_reported_floor "consider"), and the rate of wander the residuals show
+        sigma_model = model.held() or model
+        assert sigma_model.correlated_sigma_m == pytest.approx(sim.scenario.amcl_sigma_m, rel=0.3)
+        assert 0.4 * sim.scenario.amcl_tau_s < sigma_model.correlation_s < 2.5 * sim.scenario.amcl_tau_s
+        assert model.correlated_sigma_m ** 2 / model.correlation_s == \
+            pytest.approx(sim.scenario.amcl_sigma_m ** 2 / sim.scenario.amcl_tau_s, rel=0.3)
     assert res.network.extra["amcl_error_model"]["source"] == "estimated"
+
+
+def test_consider_estimates_with_the_datas_wander_and_reads_the_sigma_under_the_held_one():
+    """amcl_reported_floor on a log whose AMCL residuals wander less than AMCL reports: "consider"
+    solves the graph "off" solves (the data's wander: the same positions, bit for bit) and
+    reads the sensors' covariance under the held model, as "hold" does: its horizontal sigma
+    within 10 % of "hold"'s (read at another solution), "off"'s below 0.8 of it."""
+    sim = simulate_logs("paper", seed=2, amcl_error="correlated")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        off, consider, hold = (calibrate_factorgraph(sim.calib, amcl_reported_floor=f)
+                               for f in ("off", "consider", "hold"))
+    model = consider.diagnostics.amcl_error_model
+    assert model.held_sigma_m > model.correlated_sigma_m > 0.0, "the reported std must bind on this log"
+    ids = [s.id for s in consider.network]
+    def positions(r):
+        return np.array([r.network[s].position_m for s in ids])
+    def sigma_xy(r):
+        return np.array([r.network[s].sigma_position_m[:2] for s in ids])
+    assert np.array_equal(positions(off), positions(consider))
+    assert not np.allclose(positions(hold), positions(consider), atol=1e-4)
+    np.testing.assert_allclose(sigma_xy(consider), sigma_xy(hold), rtol=0.1)
+    assert np.all(sigma_xy(off) < 0.8 * sigma_xy(hold))
+    assert consider.network.extra["amcl_error_model"]["held_sigma_m"] == round(model.held_sigma_m, 5)
+
+
+def test_an_unknown_amcl_reported_floor_is_refused_naming_the_key():
+    from pedcal.errors import PedcalInputError
+
+    sim = simulate_logs("paper", seed=2)
+    with pytest.raises(PedcalInputError, match="amcl_reported_floor must be hold, consider, off, got 'wide'"):
+        calibrate_factorgraph(sim.calib, amcl_reported_floor="wide")
 
 
 def test_amcl_jumps_seen_by_the_sensors_are_left_out():

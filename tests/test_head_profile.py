@@ -140,9 +140,9 @@ def _xy_rms_mm(sim, network) -> float:
 
 @pytest.mark.xfail(strict=True, reason=(
     "with the distance read at the predicted point the profile's level trades against the ray shift "
-    "under the observation noise on this log (knots 46, 33, 16, 17 mm against 36, 22, 0, 0; cv's shape "
-    "47 mm xy); read at the measured point the errors in variables happened to cancel it here (README, "
-    "the line's bias)"))
+    "under the observation noise on this log (knots 45, 32, 13, 14 mm against 36, 22, 0, 0; cv keeps the "
+    "constant shift, 36.5 mm xy); read at the measured point the errors in variables happened to cancel "
+    "it here (README, the line's bias)"))
 def test_a_shift_ramping_down_with_distance_is_recovered_at_the_knots(ramp_log):
     sim, res = ramp_log
     for mode, tolerance in (("knots", 0.008), ("cv", 0.015)):
@@ -160,9 +160,10 @@ def test_a_shift_ramping_down_with_distance_is_recovered_at_the_knots(ramp_log):
 
 
 # The ramp log's figures on the code of the expected failure above (measured, mm): the free knots'
-# error at each knot (their values 45.7, 33.1, 15.5, 17.3 against the truth's 36.3, 22.0, 0, 0),
-# cv's chosen shape's (a rise from 2.3 m: the wrong shape) and each mode's xy RMS
-RAMP_TODAY_MM = {"knots": ([9.4, 11.1, 15.5, 17.3], 27.1), "cv": ([20.8, 35.1, 57.1, 71.7], 46.7)}
+# error at each knot (their values 44.9, 31.6, 12.9, 13.5 against the truth's 36.3, 22.0, 0, 0)
+# and each mode's xy RMS; cv keeps the constant shift here (None: with AMCL's wander held at its
+# reported std in the graph it kept a rise from 2.3 m, the wrong shape, 45.1 mm xy)
+RAMP_TODAY_MM = {"knots": ([8.6, 9.6, 12.9, 13.5], 26.6), "cv": (None, 36.5)}
 RAMP_KNOT_MARGIN_MM, RAMP_XY_MARGIN_MM = 5.0, 3.0
 
 
@@ -173,11 +174,14 @@ def test_the_ramps_recovery_gets_no_worse_than_it_is(ramp_log):
     sim, res = ramp_log
     for mode, (knot_mm, xy_mm) in RAMP_TODAY_MM.items():
         prof = res[mode].diagnostics.head_model.horizontal_profile
-        assert prof is not None and len(prof["shift_m"]) == len(knot_mm), (mode, prof)
-        d = np.array(prof["distance_m"])
-        truth = 0.05 * (1.0 - np.clip(d / 2.0, 0.0, 1.0))
-        err_mm = 1000 * np.abs(np.array(prof["shift_m"]) - truth)
-        assert np.all(err_mm <= np.array(knot_mm) + RAMP_KNOT_MARGIN_MM), (mode, err_mm.round(1))
+        if knot_mm is None:
+            assert prof is None, (mode, prof)
+        else:
+            assert prof is not None and len(prof["shift_m"]) == len(knot_mm), (mode, prof)
+            d = np.array(prof["distance_m"])
+            truth = 0.05 * (1.0 - np.clip(d / 2.0, 0.0, 1.0))
+            err_mm = 1000 * np.abs(np.array(prof["shift_m"]) - truth)
+            assert np.all(err_mm <= np.array(knot_mm) + RAMP_KNOT_MARGIN_MM), (mode, err_mm.round(1))
         assert _xy_rms_mm(sim, res[mode].network) <= xy_mm + RAMP_XY_MARGIN_MM, mode
 
 
@@ -189,8 +193,8 @@ def test_without_a_height_reference_the_note_says_a_per_sensor_offset_is_a_heigh
 
 def test_the_profile_goes_through_the_yaml_and_into_evaluate(ramp_log, tmp_path):
     sim, res = ramp_log
-    back = read_sensors_yaml(write_sensors_yaml(res["cv"].network, tmp_path / "cal.yaml"))
-    assert back.extra[HEAD_MODEL_KEY]["horizontal_profile"] == res["cv"].network.extra[HEAD_MODEL_KEY][
+    back = read_sensors_yaml(write_sensors_yaml(res["knots"].network, tmp_path / "cal.yaml"))
+    assert back.extra[HEAD_MODEL_KEY]["horizontal_profile"] == res["knots"].network.extra[HEAD_MODEL_KEY][
         "horizontal_profile"]
     # on a noise-free ramp log, the true extrinsics with the true profile put the head where it
     # was; with the constant shift at its mean they do not

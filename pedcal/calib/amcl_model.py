@@ -23,7 +23,7 @@ by more than ``jump_threshold`` robust sigmas (and ``min_jump_m``) are jumps, le
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -33,6 +33,8 @@ if TYPE_CHECKING:
 
     from pedcal.model import Log
 
+# how AMCL's reported std bounds the wandering part fitted to the residuals (estimate_model)
+FLOOR_MODES = ("hold", "consider", "off")
 VARIOGRAM_LAGS_S = np.array([0.2, 0.4, 0.8, 1.6, 3.2, 6.4, 12.8, 25.6, 51.2, 102.4])
 
 
@@ -57,6 +59,12 @@ class AmclErrorModel:
     excluded_s: float = 0.0
     variogram_lags_s: list = field(default_factory=list)
     variogram_sigma_m: list = field(default_factory=list)   # sqrt of the semivariance per lag
+    # the wandering part as AMCL's reported std holds it (at least that std, at the rate of wander
+    # the residuals show: :func:`hold_at_floor`) where the graph was solved with the data's alone
+    # (recipe ``amcl_reported_floor = "consider"``): the sensors' covariance is read with it
+    # (:meth:`held`; pedcal.calib.factorgraph)
+    held_sigma_m: float = 0.0
+    held_correlation_s: float = 0.0
 
     def node_spacing_s(self, amcl_period_s: float, max_spacing_s: float) -> float:
         """Spacing of the error process's nodes: a quarter of its correlation time, at least
@@ -76,10 +84,21 @@ class AmclErrorModel:
         # variance of the mean of an OU process over T: 2 sigma^2 tau / T (1 - tau / T (1 - e^-T/tau))
         return float(self.correlated_sigma_m * np.sqrt(2.0 / x * (1.0 - (1.0 - np.exp(-x)) / x)))
 
+    def held(self) -> AmclErrorModel | None:
+        """This model with its wandering part as AMCL's reported std holds it (``held_sigma_m``,
+        ``held_correlation_s``), or None when it holds none."""
+        if not self.held_sigma_m > 0.0:
+            return None
+        return replace(self, correlated_sigma_m=self.held_sigma_m, correlation_s=self.held_correlation_s,
+                       held_sigma_m=0.0, held_correlation_s=0.0)
+
     def to_dict(self) -> dict:
-        return {"white_sigma_m": round(self.white_sigma_m, 5), "correlated_sigma_m": round(self.correlated_sigma_m, 5),
-                "correlation_s": round(self.correlation_s, 3), "source": self.source, "jumps": self.jumps,
-                "excluded_s": round(self.excluded_s, 2)}
+        out = {"white_sigma_m": round(self.white_sigma_m, 5), "correlated_sigma_m": round(self.correlated_sigma_m, 5),
+               "correlation_s": round(self.correlation_s, 3), "source": self.source, "jumps": self.jumps,
+               "excluded_s": round(self.excluded_s, 2)}
+        if self.held_sigma_m > 0.0:
+            out.update(held_sigma_m=round(self.held_sigma_m, 5), held_correlation_s=round(self.held_correlation_s, 3))
+        return out
 
 
 def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float, n_nodes: int,
@@ -254,11 +273,21 @@ def fit_variogram(lags_s: np.ndarray, gamma: np.ndarray, n_eff: np.ndarray, max_
         return float(np.sqrt(white2)), 0.0, float(default_correlation_s)
     w2, c2, log_tau = best.x
     tau = float(np.exp(log_tau))
-    if floor_sigma_m is not None and floor_sigma_m ** 2 > c2:
-        rate = c2 / tau
-        c2 = floor_sigma_m ** 2
-        tau = float(min(c2 / max(rate, 1e-12), np.exp(hi)))
+    if floor_sigma_m is not None:
+        c2, tau = hold_at_floor(c2, tau, floor_sigma_m, float(np.exp(hi)))
     return float(np.sqrt(w2)), float(np.sqrt(c2)), tau
+
+
+def hold_at_floor(correlated_m2: float, correlation_s: float, floor_sigma_m: float,
+                  max_correlation_s: float) -> tuple[float, float]:
+    """A wandering error's (variance m^2, correlation time) held at least at ``floor_sigma_m``^2 at
+    the same rate of wander (variance / correlation time, what the short lags show), the
+    correlation time at most ``max_correlation_s``; unchanged when it is at least the floor."""
+    if not floor_sigma_m ** 2 > correlated_m2:
+        return correlated_m2, correlation_s
+    rate = correlated_m2 / correlation_s
+    c2 = floor_sigma_m ** 2
+    return c2, float(min(c2 / max(rate, 1e-12), max_correlation_s))
 
 
 def jump_scale(size: np.ndarray) -> float:
@@ -479,7 +508,8 @@ def jumps_moved_back(log, threshold: float = 5.0, min_jump_m: float = 0.1) -> Mo
 def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.ndarray]], assumed: AmclErrorModel,
                    *, jump_threshold: float = 5.0, min_jump_m: float = 0.1,
                    min_covered: int = 100, min_white_m: float = 0.002,
-                   prior_sigma_m: float | None = None, noise_m2: float = 0.0) -> AmclErrorModel:
+                   prior_sigma_m: float | None = None, noise_m2: float = 0.0,
+                   floor: str = "hold") -> AmclErrorModel:
     """AMCL's error model from its residuals against what the ceiling sensors saw (module
     docstring): ``t_amcl`` (sorted), per sensor (rows into it, (n, 2) AMCL's head minus the head
     that sensor saw there, world xy). Each residual is AMCL's error minus that sensor's own
@@ -487,7 +517,10 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     sensor's sightings only, where it cancels (across sensors, the sensors' offsets, which
     absorb AMCL's local average, would make a wandering error look smaller than it is). The
     white std is at least ``min_white_m``; the wandering std, when the data show one, at least
-    ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`). A residual holds the sensor's
+    ``prior_sigma_m`` (AMCL's reported std; :func:`fit_variogram`) with ``floor`` "hold"; with
+    "consider" the model is the data's and the held one is kept beside it (``held_sigma_m``,
+    ``held_correlation_s``: :meth:`AmclErrorModel.held`); with "off" the data's
+    alone. A residual holds the sensor's
     noise too, which the graph's observation factors already carry: its variance per axis,
     averaged over the residuals (``noise_m2``), is taken off the variogram's white part (the
     nugget), so that it is not counted twice as AMCL's. Jumps are found
@@ -515,15 +548,24 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     n_eff = 0.5 * np.minimum(pairs, np.maximum(sighted_s / VARIOGRAM_LAGS_S, 1.0) * 2.0)
     # a correlation time beyond half the run cannot be told from a longer one: the run's mean error
     # is then about the wandering std either way
-    fit = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=0.5 * float(t_amcl[-1] - t_amcl[0]),
-                        floor_sigma_m=prior_sigma_m, default_correlation_s=assumed.correlation_s)
+    if floor not in FLOOR_MODES:
+        raise ValueError(f"floor must be one of {', '.join(FLOOR_MODES)}, got {floor!r}")
+    max_tau = 0.5 * float(t_amcl[-1] - t_amcl[0])
+    fit = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=max_tau,
+                        floor_sigma_m=prior_sigma_m if floor == "hold" else None,
+                        default_correlation_s=assumed.correlation_s)
     if fit is None:
         return assumed
     white, corr, tau = fit
+    held = {}
+    if floor == "consider" and prior_sigma_m is not None and corr > 0.0 and prior_sigma_m > corr:
+        # (a white error, no wandering part kept, is held at nothing: as with "hold")
+        held_m2, held_tau = hold_at_floor(corr ** 2, tau, prior_sigma_m, max(max_tau, 0.1))
+        held = dict(held_sigma_m=float(np.sqrt(held_m2)), held_correlation_s=held_tau)
     white = max(float(np.sqrt(max(white ** 2 - max(float(noise_m2), 0.0), 0.0))), min_white_m)
     track = np.zeros(n, bool) if assumed.track_jumps is None else assumed.track_jumps
     return AmclErrorModel(white_sigma_m=white, correlated_sigma_m=corr, correlation_s=tau, source="estimated",
-                          **_exclusion(jump, track, t_amcl),
+                          **held, **_exclusion(jump, track, t_amcl),
                           variogram_lags_s=VARIOGRAM_LAGS_S.tolist(),
                           variogram_sigma_m=[float(np.sqrt(v)) if np.isfinite(v) else float("nan") for v in gamma])
 
@@ -563,5 +605,6 @@ def amcl_white_sigma(amcl: pd.DataFrame) -> float:
 
 
 __all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
-           "robust_variogram", "fit_variogram", "node_drift_variance", "ar1_factor_sigmas",
+           "robust_variogram", "fit_variogram", "hold_at_floor", "FLOOR_MODES",
+           "node_drift_variance", "ar1_factor_sigmas",
            "detect_jumps", "detect_steps", "reported_sigma_m", "amcl_period_s", "VARIOGRAM_LAGS_S"]

@@ -33,7 +33,7 @@ import gtsam
 import numpy as np
 
 from pedcal.calib import blas_threads, readback
-from pedcal.calib.amcl_model import estimate_model, jumps_moved_back, reported_sigma_m
+from pedcal.calib.amcl_model import FLOOR_MODES, estimate_model, jumps_moved_back, reported_sigma_m
 from pedcal.calib.clocks import CLUSTER_S as CLOCK_CLUSTER_S
 from pedcal.calib.clocks import PREFIX as CLOCK_PREFIX
 from pedcal.calib.clocks import clock_nuisances, is_clock_nuisance, record_clocks, widen_for_overdispersion
@@ -59,6 +59,7 @@ from pedcal.calib.graph import (  # noqa: F401 (re-exported: the graph layer's p
     ObservationRhs,
     S,
     X,
+    _amcl_block,
     _log,
     _network_from_result,
     amcl_cov_body,
@@ -140,6 +141,9 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
         setattr(recipe, k, v)
     if not (recipe.robot or recipe.people):
         raise PedcalInputError("the graph recipe uses neither the robot nor people: nothing observes the sensors")
+    if recipe.amcl_reported_floor not in FLOOR_MODES:
+        raise PedcalInputError(f"amcl_reported_floor must be {', '.join(FLOOR_MODES)}, got "
+                               f"{recipe.amcl_reported_floor!r}", column="amcl_reported_floor")
     if recipe.head_curvature not in ("off", "on", "auto", "widen"):
         raise PedcalInputError(f"head_curvature must be off, on, auto or widen, got {recipe.head_curvature!r}",
                                column="head_curvature")
@@ -216,7 +220,8 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
     else:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
-    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, fg, result, shifts)
+    cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, _held_graph(log, prob, parts, fg),
+                                                                      result, shifts)
     record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body,
@@ -329,7 +334,8 @@ def _reestimate_amcl(log: Log, prob: FactorGraphProblem, parts: GraphParts, resu
     ok = np.isfinite(res[:, 0])
     model = estimate_model(t, per_sensor, prob.amcl_model,
                            prior_sigma_m=reported_sigma_m(log.robot), noise_m2=residual_noise_m2(prob, result),
-                           jump_threshold=rec.amcl_jump_threshold, min_jump_m=rec.amcl_min_jump_m)
+                           jump_threshold=rec.amcl_jump_threshold, min_jump_m=rec.amcl_min_jump_m,
+                           floor=rec.amcl_reported_floor)
     if model is prob.amcl_model:
         warnings.warn("too few AMCL estimates while a sensor saw the robot to estimate AMCL's error model; the "
                       "recipe's (correlation time, white share of the reported covariance) is kept",
@@ -917,6 +923,26 @@ def model_check(prob: FactorGraphProblem, result: gtsam.Values, threshold: float
                          misfit=(f"{len(bad)} of {len(ratio)} sensors' residuals exceed the noise model: "
                                  + ", ".join(f"{sid} x{np.sqrt(r):.2f} sigma" for sid, r in sorted(bad.items()))
                                  if bad else ""))
+
+
+def _held_graph(log: Log, prob: FactorGraphProblem, parts: GraphParts, fg):
+    """The graph the sensors' covariance is read from: ``fg`` itself, or, where AMCL's model was
+    solved with the data's wandering part and holds the one AMCL's reported std allows beside it
+    (recipe ``amcl_reported_floor = "consider"``: :meth:`AmclErrorModel.held`), ``fg`` with its
+    AMCL block built under the held one (the same nodes and keys). The residuals cannot show
+    AMCL's error averaged over a sensor's view (the sensor's pose absorbs it), so the data's
+    wander may be too small; the estimate takes the data's weights, the sigma the held model's
+    (what the graph solved under "hold" would report for the same data)."""
+    held = prob.amcl_model.held() if prob.amcl_model is not None else None
+    if held is None or not len(prob.pose_times):
+        return fg
+    solved, prob.amcl_model = prob.amcl_model, held
+    try:
+        block = gtsam.NonlinearFactorGraph()
+        _amcl_block(block, gtsam.Values(), log, prob, prob.pose_times)
+    finally:
+        prob.amcl_model = solved
+    return parts.graph(amcl=block)
 
 
 def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None):

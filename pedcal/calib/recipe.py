@@ -134,6 +134,13 @@ class GraphRecipe:
     # AMCL's error model (white std, wandering std and correlation time, jumps) estimated from the
     # residuals of a first solve (pedcal.calib.amcl_model); the three above are its starting point
     estimate_amcl_model: bool = True
+    # how AMCL's reported std bounds the wandering part fitted to the residuals, which cannot show
+    # the error's run mean (each sensor's pose absorbs AMCL's average over its view): hold (the
+    # graph takes the wander at least at the reported std, at the rate of wander the residuals
+    # show), consider (the graph takes the data's wander; the run-mean variance the held one
+    # would add is carried into the sensors' sigma as a shift they all share) or off (the data's
+    # alone). pedcal.calib.amcl_model.estimate_model
+    amcl_reported_floor: str = "consider"
     amcl_jump_threshold: float = 5.0   # robust sigmas off the running median: a jump, left out
     amcl_min_jump_m: float = 0.1       # ... and at least this far off
     # the relocalization jumps found as steps in AMCL's own track moved back by their steps (kept,
