@@ -199,7 +199,11 @@ class CalibrationResult:
     ``position_covariance_m2`` (and the sigma of ``network``) adds the shifts' share (their sigma
     times the sensors' sensitivity to them) and widens sensors whose residuals exceed the noise
     model (``diagnostics.model_mismatch``): it is never smaller than the marginals' (the 3-D sigma
-    about 10 % larger on docs/guide.md's simulated log). :meth:`reoptimize` adds factors to the
+    about 10 % larger on docs/guide.md's simulated log). Where AMCL's residuals wander less than
+    AMCL reports (recipe ``amcl_reported_floor = "consider"``, the default) ``graph`` is solved with
+    the residuals' wander and ``position_covariance_m2`` read from it with its AMCL block under the
+    wander held at AMCL's reported std (``diagnostics.amcl_error_model.held()``), which widens it
+    further. :meth:`reoptimize` adds factors to the
     graph and solves it again; :meth:`network_from_values` reads a SensorNetwork back from any
     ``gtsam.Values``."""
 

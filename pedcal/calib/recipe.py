@@ -137,9 +137,9 @@ class GraphRecipe:
     # how AMCL's reported std bounds the wandering part fitted to the residuals, which cannot show
     # the error's run mean (each sensor's pose absorbs AMCL's average over its view): hold (the
     # graph takes the wander at least at the reported std, at the rate of wander the residuals
-    # show), consider (the graph takes the data's wander; the run-mean variance the held one
-    # would add is carried into the sensors' sigma as a shift they all share) or off (the data's
-    # alone). pedcal.calib.amcl_model.estimate_model
+    # show), consider (the graph is solved with the data's wander and the sensors' covariance read
+    # from it with its AMCL block under the held one: pedcal.calib.factorgraph._held_graph) or off
+    # (the data's alone, sigma included). pedcal.calib.amcl_model.estimate_model
     amcl_reported_floor: str = "consider"
     amcl_jump_threshold: float = 5.0   # robust sigmas off the running median: a jump, left out
     amcl_min_jump_m: float = 0.1       # ... and at least this far off
