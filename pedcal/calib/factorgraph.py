@@ -221,7 +221,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
     cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, _held_graph(log, prob, parts, fg),
-                                                                      result, shifts)
+                                                                      result, shifts, solved=fg)
     record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body,
@@ -932,8 +932,12 @@ def _held_graph(log: Log, prob: FactorGraphProblem, parts: GraphParts, fg):
     AMCL block built under the held one (the same nodes and keys). The residuals cannot show
     AMCL's error averaged over a sensor's view (the sensor's pose absorbs it), so the data's
     wander may be too small; the estimate takes the data's weights, the sigma the held model's
-    (what the graph solved under "hold" would report for the same data)."""
-    held = prob.amcl_model.held() if prob.amcl_model is not None else None
+    (about what the graph solved under "hold" would report for the same data: read at the other
+    solution, with the nuisances' shares from the solved model). The sensors' marginals from it
+    also decide which directions the data leave unconstrained (:func:`_posterior`'s given
+    covariance, pedcal.calib.readback), so a sensor barely seen may be reset to its installed
+    pose along a direction the solved graph alone would have kept."""
+    held = prob.amcl_model.held() if prob.amcl_model is not None and prob.recipe.amcl else None
     if held is None or not len(prob.pose_times):
         return fg
     solved, prob.amcl_model = prob.amcl_model, held
@@ -945,7 +949,7 @@ def _held_graph(log: Log, prob: FactorGraphProblem, parts: GraphParts, fg):
     return parts.graph(amcl=block)
 
 
-def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None):
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None, solved=None):
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
@@ -965,7 +969,8 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
         # (the graph's COLAMD ordering that the solve computed, when the profile's graph is it)
-        ordering = shifts.ordering if shifts is not None and shifts.graph is fg else None
+        # (``solved``: the graph solved, of which ``fg`` may be the held copy, with the same variables)
+        ordering = shifts.ordering if shifts is not None and (shifts.graph is fg or shifts.graph is solved) else None
         blocks = marginal_covariances(fg, result, keys, ordering=ordering)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)
