@@ -221,7 +221,7 @@ def _calibrate_factorgraph(log: Log, *, progress: bool, graph, is_robot, online:
         fg = parts.graph()
     t_opt = time.perf_counter() - t_opt
     cov_body, cov_given, joint_pos, head_model, mismatch = _posterior(log, prob, _held_graph(log, prob, parts, fg),
-                                                                      result, shifts, solved=fg)
+                                                                      result, shifts)
     record_head_profile(head_model, prob, shifts)
     cov_world: dict[str, np.ndarray] = {}
     network = _network_from_result(log, prob, fg, result, progress, cov_out=cov_world, cov_body=cov_body,
@@ -949,7 +949,7 @@ def _held_graph(log: Log, prob: FactorGraphProblem, parts: GraphParts, fg):
     return parts.graph(amcl=block)
 
 
-def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None, solved=None):
+def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisances | None):
     """The sensors' covariance: the joint marginal of every sensor pose (and the head model's
     vertical offset) from the graph, plus the ray shift's share (its sigma times the sensors'
     sensitivity), each sensor's rows widened by the square root of its residuals' variance ratio
@@ -968,9 +968,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes), by
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
-        # (the graph's COLAMD ordering that the solve computed, when the profile's graph is it)
-        # (``solved``: the graph solved, of which ``fg`` may be the held copy, with the same variables)
-        ordering = shifts.ordering if shifts is not None and (shifts.graph is fg or shifts.graph is solved) else None
+        # (the graph's COLAMD ordering that the solve computed: ``fg`` is the profile's graph or its
+        # held copy (_held_graph), of the same variables; marginal_covariances checks them)
+        ordering = shifts.ordering if shifts is not None else None
         blocks = marginal_covariances(fg, result, keys, ordering=ordering)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)
