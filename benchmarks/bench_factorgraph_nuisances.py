@@ -605,7 +605,8 @@ def print_shared(groups: list[tuple[str, list[dict]]]) -> None:
     """Per group of logs, where the horizontal error's overconfidence lies: the RMS over the
     logs of AMCL's run-mean error (the simulator's truth; x, y pooled, mm) beside the graph's
     own estimate of its spread (the median over the logs of its AMCL model's run-mean sigma,
-    ``AmclErrorModel.floor_sigma_m``), the sensors' mean error (RMS over the logs, mm), and the
+    ``AmclErrorModel.floor_sigma_m``, of the held model where it holds one: the one the sigma is
+    read with), the sensors' mean error (RMS over the logs, mm), and the
     error over its sigma of that mean (shared) and of the departures from it (rest). A shared
     error/sigma far above 1 with AMCL's draws far above the model's spread is the draws'
     doing, not the sigma's."""

@@ -139,6 +139,8 @@ def test_consider_solves_with_the_datas_wander_and_keeps_the_held_one_beside_it(
     assert consider.to_dict()["held_sigma_m"] == 0.08 and "held_sigma_m" not in off.to_dict()
     with pytest.raises(ValueError, match="floor must be one of"):
         estimate_model(t, series, assumed, prior_sigma_m=0.08, floor="wide")
+    with pytest.raises(ValueError, match="floor must be one of"):        # also when it would return early
+        estimate_model(t, series, assumed, prior_sigma_m=0.08, floor="wide", min_covered=10 ** 9)
 
 
 def test_consider_holds_nothing_where_the_data_wander_more_than_reported_or_not_at_all():
@@ -365,6 +367,7 @@ def test_the_graph_estimates_the_kind_of_amcl_error_it_was_given(kind):
         # the wander the sensors' sigma is read with (the held one where the reported std binds:
         # amcl_reported_floor "consider"), and the rate of wander the residuals show
         sigma_model = model.held() or model
+        assert model.correlated_sigma_m <= sigma_model.correlated_sigma_m
         assert sigma_model.correlated_sigma_m == pytest.approx(sim.scenario.amcl_sigma_m, rel=0.3)
         assert 0.4 * sim.scenario.amcl_tau_s < sigma_model.correlation_s < 2.5 * sim.scenario.amcl_tau_s
         assert model.correlated_sigma_m ** 2 / model.correlation_s == \
@@ -394,6 +397,24 @@ def test_consider_estimates_with_the_datas_wander_and_reads_the_sigma_under_the_
     np.testing.assert_allclose(sigma_xy(consider), sigma_xy(hold), rtol=0.1)
     assert np.all(sigma_xy(off) < 0.8 * sigma_xy(hold))
     assert consider.network.extra["amcl_error_model"]["held_sigma_m"] == round(model.held_sigma_m, 5)
+
+
+def test_hold_writes_no_held_wander_and_reads_the_sigma_from_the_graph_it_solved(monkeypatch):
+    """amcl_reported_floor "hold" (the behaviour before "consider"): no held wander in the model
+    or the YAML, and the covariance is read from the very graph solved."""
+    import pedcal.calib.factorgraph as fgm
+
+    seen = []
+    held_graph = fgm._held_graph
+    monkeypatch.setattr(fgm, "_held_graph", lambda log, prob, parts, fg: seen.append(
+        (held_graph(log, prob, parts, fg), fg)) or seen[-1][0])
+    sim = simulate_logs("paper", seed=2, amcl_error="correlated")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateDataWarning)
+        res = calibrate_factorgraph(sim.calib, amcl_reported_floor="hold")
+    assert res.diagnostics.amcl_error_model.held_sigma_m == 0.0
+    assert "held_sigma_m" not in res.network.extra["amcl_error_model"]
+    assert len(seen) == 1 and seen[0][0] is seen[0][1]
 
 
 def test_an_unknown_amcl_reported_floor_is_refused_naming_the_key():

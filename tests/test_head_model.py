@@ -266,9 +266,10 @@ def test_result_carries_the_graph_keys_marginals_and_typed_diagnostics():
 def test_jittery_amcl_without_odometry_is_smoothed_not_differenced():
     # AMCL with a 5 cm white error and no wheel odometry: the robot's short-term motion from
     # differences of single AMCL estimates moves every observation by centimetres (a 14.7 mm
-    # sensor RMS on this log against 11.5 mm from AMCL smoothed; 15.9 differenced with AMCL's
-    # wander held at its reported std in the graph; before a sensor's observations at one pose
-    # were merged and AMCL's white error estimated, 80 against 32 mm)
+    # sensor RMS on this log against 11.5 mm from AMCL smoothed, whose white AMCL holds no wander;
+    # 15.9 against 11.5 with AMCL's wander held at its reported std in the graph; before a
+    # sensor's observations at one pose were merged and AMCL's white error estimated, 80 against
+    # 32 mm)
     sim = simulate_logs("corridor", seed=18, amcl_error="white", odometry=False, head_point="top",
                         head_vertical_bias_m=0.0)
     with warnings.catch_warnings():
@@ -277,7 +278,7 @@ def test_jittery_amcl_without_odometry_is_smoothed_not_differenced():
     horizontal, vertical = _offset_seen_from(res.diagnostics.head_model, 45.0)
     assert abs(horizontal) < 0.01 and abs(vertical) < 0.01      # the head top: no offset
     smooth_mm = evaluate(sim.eval, res.network).sensor_position_rms_mm.horizontal
-    assert smooth_mm < 30.0
+    assert smooth_mm < 14.5          # (11.5 today: a seeded log, the figure moves with the code only)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DegenerateDataWarning)
         rough = calibrate_factorgraph(sim.calib, amcl_smooth_above_m=1.0)      # smoothing off

@@ -150,11 +150,13 @@ def test_a_shift_ramping_down_with_distance_is_recovered_at_the_knots(ramp_log):
         assert prof is not None and prof["model"] != "constant"
         d = np.array(prof["distance_m"])
         truth = 0.05 * (1.0 - np.clip(d / 2.0, 0.0, 1.0))
-        # the free knots within 8 mm at every knot (measured: 5.2 mm at most); the shape cv keeps
-        # (a fade to the knot at 2.3 m, the true one ending at 2 m) within 15 mm (measured 12.1)
+        # what a recovery would show: the free knots within 8 mm at every knot, the shape cv keeps
+        # (a fade ending near the true 2 m) within 15 mm (today: knots 8.6-13.5 mm off, cv keeps
+        # the constant; RAMP_TODAY_MM below)
         assert np.max(np.abs(np.array(prof["shift_m"]) - truth)) < tolerance, (mode, prof)
         assert all(0.001 < s < 0.02 for s in prof["sigma_shift_m"])
-        # and the sensors sit better than under the constant shift (measured 36.1 -> 26.8 and 26.6 mm)
+        # and the sensors sit better than under the constant shift (today 36.5 -> 36.5 with cv, 26.6
+        # with the knots)
         assert _xy_rms_mm(sim, res[mode].network) < 0.85 * _xy_rms_mm(sim, res["off"].network)
     assert res["off"].diagnostics.head_model.horizontal_profile is None
 

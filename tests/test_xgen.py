@@ -279,7 +279,8 @@ def test_per_log_table_counts_each_log_against_both_targets_and_a_failed_log_at_
     """The issue's figures are per log: 12 mm xy on every log, 0.35x the grid search's. Three logs
     of one family: the graph 10 mm on both sensors (grid 50 mm: 0.20x), 10 mm and 200 mm (the
     log's RMS sqrt((0.01^2 + 0.2^2) / 2), grid 50 mm), and a failed run scored at the installed
-    500 mm (grid 10 mm: 50x); a fourth log the grid search lacks stays out of the ratio."""
+    500 mm (grid 10 mm), which counts in its method's column but not in the ratio; a fourth log
+    the grid search lacks stays out of the ratio."""
     from bench_xgen import per_log_table, score
 
     truth, installed, good = _exam_world()
@@ -301,10 +302,44 @@ def test_per_log_table_counts_each_log_against_both_targets_and_a_failed_log_at_
     assert cells[2] == f"10.0 / {(10.0 + mid) / 2:.1f} / 500.0"     # median of 10, 10, 141.8, 500
     assert cells[3] == "10.0 / 50.0 / 50.0"
     assert cells[4] == "2 of 4" and cells[5] == "1 of 3"
-    assert cells[6] == f"0.20 / {mid / 50:.2f} / 50.00"
-    assert cells[7] == "1 of 3"
+    # the failed log (seed 2) is left out of the ratio, and named beside its count
+    assert cells[6] == f"0.20 / {(0.2 + mid / 50) / 2:.2f} / {mid / 50:.2f}"
+    assert cells[7] == "1 of 2 (1 with a failed run left out)"
     # one method alone: no ratio columns
     assert "x grid" not in per_log_table(rows, ["factorgraph"], groups=[("f", rows)])
+    # the failed factor-graph log is left out of the ratio: a grid search that failed there would
+    # otherwise make it a "ratio met"
+    grid_failed = [r for r in rows if not (r["seed"] == 2 and r["method"] == "gridsearch")]
+    grid_failed += [{**t, "seed": 2, "method": "gridsearch", "rc": 1, "failed": True, **score(truth, {}, installed)}]
+    rows_ok = [r for r in grid_failed if not (r["seed"] == 2 and r["method"] == "factorgraph")]
+    rows_ok += [{**t, "seed": 2, "method": "factorgraph", **score(truth, {"a": good, "b": good}, installed)}]
+    line = next(x for x in per_log_table(rows_ok, ["factorgraph", "gridsearch"], groups=[("f", rows_ok)]).splitlines()
+                if x.startswith("| f "))
+    assert line.rstrip(" |").endswith("1 of 2 (1 with a failed run left out)")
+    # default groups: each of the generator's families and the pool
+    rooms = [{**r, "family": "rooms"} for r in rows]
+    text = per_log_table(rooms, ["factorgraph", "gridsearch"])
+    assert any(x.startswith("| rooms | 4 |") for x in text.splitlines())
+    assert any(x.startswith("| pooled | 4 |") for x in text.splitlines())
+    twice = r"more than one row for \(family, seed, method\) \[\('f', 0, 'factorgraph'\)\]"
+    with pytest.raises(ValueError, match=twice):
+        per_log_table(rows + rows[:1], ["factorgraph", "gridsearch"])
+
+
+def test_per_log_table_counts_a_log_exactly_on_either_target():
+    """<= on both targets: a log exactly at the xy target and one exactly at the ratio (2^-7 m
+    against 2^-5 m: 7.8125 mm and 0.25, exact in binary) count as met."""
+    from bench_xgen import per_log_table, score
+
+    truth, installed, good = _exam_world()
+    on = {**good, "p": np.array([2.0 ** -7, 0.0, 0.0])}
+    grid = {**good, "p": np.array([2.0 ** -5, 0.0, 0.0])}
+    t = {"family": "f", "seed": 0, "rc": 0, "cpu_s": 1.0, "wall_s": 1.0}
+    rows = [{**t, "method": "factorgraph", **score(truth, {"a": on, "b": on}, installed)},
+            {**t, "method": "gridsearch", **score(truth, {"a": grid, "b": grid}, installed)}]
+    text = per_log_table(rows, ["factorgraph", "gridsearch"], target_mm=7.8125, target_ratio=0.25, groups=[("f", rows)])
+    cells = [c.strip() for c in next(x for x in text.splitlines() if x.startswith("| f ")).strip("|").split("|")]
+    assert cells[4] == "1 of 1" and cells[7] == "1 of 1"
 
 
 def _square_network():

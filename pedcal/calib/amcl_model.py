@@ -527,6 +527,8 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     in the residuals averaged over the sensors, besides those ``assumed`` found in AMCL's own
     track (``track_jumps``, kept). Returns ``assumed`` unchanged when fewer than
     ``min_covered`` estimates are covered."""
+    if floor not in FLOOR_MODES:
+        raise ValueError(f"floor must be one of {', '.join(FLOOR_MODES)}, got {floor!r}")
     n = len(t_amcl)
     total, count = np.zeros((n, 2)), np.zeros(n)
     for rows, e in per_sensor:
@@ -548,8 +550,6 @@ def estimate_model(t_amcl: np.ndarray, per_sensor: list[tuple[np.ndarray, np.nda
     n_eff = 0.5 * np.minimum(pairs, np.maximum(sighted_s / VARIOGRAM_LAGS_S, 1.0) * 2.0)
     # a correlation time beyond half the run cannot be told from a longer one: the run's mean error
     # is then about the wandering std either way
-    if floor not in FLOOR_MODES:
-        raise ValueError(f"floor must be one of {', '.join(FLOOR_MODES)}, got {floor!r}")
     max_tau = 0.5 * float(t_amcl[-1] - t_amcl[0])
     fit = fit_variogram(VARIOGRAM_LAGS_S, gamma, n_eff, max_correlation_s=max_tau,
                         floor_sigma_m=prior_sigma_m if floor == "hold" else None,

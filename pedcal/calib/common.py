@@ -266,7 +266,8 @@ class CalibrationResult:
         ``keys``' symbols, e.g. a ``gtsam.PriorFactorPose3`` on one sensor's key) again with
         Levenberg-Marquardt from ``values``; returns a new result whose ``network``,
         ``position_covariance_m2`` and sigma are the new graph's own (its marginals: what the
-        class docstring says is held fixed stays so, and no head-model share is added).
+        class docstring says is held fixed stays so, no head-model share is added and AMCL's
+        block is the solved one, not the held one the first sigma was read with).
         ``self`` is left unchanged."""
         import gtsam
 

@@ -932,8 +932,12 @@ def _held_graph(log: Log, prob: FactorGraphProblem, parts: GraphParts, fg):
     AMCL block built under the held one (the same nodes and keys). The residuals cannot show
     AMCL's error averaged over a sensor's view (the sensor's pose absorbs it), so the data's
     wander may be too small; the estimate takes the data's weights, the sigma the held model's
-    (what the graph solved under "hold" would report for the same data)."""
-    held = prob.amcl_model.held() if prob.amcl_model is not None else None
+    (about what the graph solved under "hold" would report for the same data: read at the other
+    solution, with the nuisances' shares from the solved model). The sensors' marginals from it
+    also decide which directions the data leave unconstrained (:func:`_posterior`'s given
+    covariance, pedcal.calib.readback), so a sensor barely seen may be reset to its installed
+    pose along a direction the solved graph alone would have kept."""
+    held = prob.amcl_model.held() if prob.amcl_model is not None and prob.recipe.amcl else None
     if held is None or not len(prob.pose_times):
         return fg
     solved, prob.amcl_model = prob.amcl_model, held
@@ -964,8 +968,9 @@ def _posterior(log: Log, prob: FactorGraphProblem, fg, result, shifts: _Nuisance
         # hundreds of sensors: each one's marginal (a dense joint inverse would take minutes), by
         # selected inversion of one sparse factorization (GTSAM's Marginals re-eliminates a
         # key's whole clique for each key: quadratic in the sensors)
-        # (the graph's COLAMD ordering that the solve computed, when the profile's graph is it)
-        ordering = shifts.ordering if shifts is not None and shifts.graph is fg else None
+        # (the graph's COLAMD ordering that the solve computed: ``fg`` is the profile's graph or its
+        # held copy (_held_graph), of the same variables; marginal_covariances checks them)
+        ordering = shifts.ordering if shifts is not None else None
         blocks = marginal_covariances(fg, result, keys, ordering=ordering)
     # (what the data constrain is read from the graph's own marginal, given the nuisances: their
     # shares below widen a sensor's sigma, they do not make a direction unconstrained)

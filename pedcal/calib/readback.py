@@ -133,7 +133,9 @@ def finish_network(log: Log, prob: FactorGraphProblem, network: SensorNetwork, *
         logging.getLogger(__name__).warning(
             f"the joint covariance of {len(prob.sensor_ids)} sensors' positions ({3 * len(prob.sensor_ids)} x "
             f"{3 * len(prob.sensor_ids)}) is not computed above {JOINT_COV_MAX_SENSORS} sensors (each sensor's "
-            "marginal is); CalibrationResult.marginals().jointMarginalCovariance(keys) gives any part of it")
+            "marginal is); CalibrationResult.marginals().jointMarginalCovariance(keys) gives any part of the "
+            "solved graph's (without the head model's share, and, where AMCL's model holds a wander at its "
+            "reported std, narrower than the sigma written: CalibrationResult's docstring)")
     if prob.amcl_model is not None and prob.recipe.amcl:
         network.extra[AMCL_MODEL_KEY] = {**prob.amcl_model.to_dict(), "jumps_moved_back": prob.amcl_jumps_moved_back}
     if prob.odometry is not None and prob.odometry_estimates:
