@@ -20,6 +20,7 @@ from pedcal.io import (
     write_sensors_yaml,
 )
 from pedcal.model import Log, Meta, SensorExtrinsics, SensorNetwork
+from tests.conftest import assert_refused_for_what_it_is
 
 
 def make_network(rng, ids=("s01", "s02", "1")) -> SensorNetwork:
@@ -178,12 +179,7 @@ def test_people_csv_bad_cell_names_row_and_line(tmp_path):
 @pytest.mark.parametrize("what,match", [("missing", "people CSV file not found"),
                                         ("folder", "is a directory, expected a people CSV file")])
 def test_people_csv_path_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, what, match):
-    p = tmp_path / "p.csv"
-    if what == "folder":
-        p.mkdir()
-    with pytest.raises(PedcalInputError, match=match) as ei:
-        read_people_csv(p)
-    assert ei.value.path == str(p)
+    assert_refused_for_what_it_is(read_people_csv, tmp_path / "p.csv", what, match)
 
 
 # ------------------------------------------------------------------------------------ bad input

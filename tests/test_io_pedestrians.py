@@ -11,6 +11,7 @@ from pedcal.errors import PedcalInputError
 from pedcal.io import write_people_csv
 from pedcal.io.pedestrians import detect_kind, read_atc, read_eth_ucy, read_pedestrians, read_thor
 from pedcal.model import PEOPLE_COLUMNS
+from tests.conftest import assert_refused_for_what_it_is
 
 # file -> (kind, rows, people)
 REAL_FILES = {
@@ -100,16 +101,7 @@ def test_bad_pedestrian_files(tmp_path, content, kind, match, row, column):
                                         ("fifo", "is a FIFO .*expected a regular pedestrian file")])
 def test_a_path_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, what, match, kind):
     # (the layout's sniffing and the table's reading check the path alike: a FIFO is refused, not read)
-    import os
-
-    p = tmp_path / "people.csv"
-    if what == "folder":
-        p.mkdir()
-    elif what == "fifo":
-        os.mkfifo(p)
-    with pytest.raises(PedcalInputError, match=match) as ei:
-        read_pedestrians(p, kind=kind)
-    assert ei.value.path == str(p)
+    assert_refused_for_what_it_is(lambda p: read_pedestrians(p, kind=kind), tmp_path / "people.csv", what, match)
 
 
 def test_import_people_fps_for_renamed_recordings(shared_data, tmp_path, capsys):

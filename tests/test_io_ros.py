@@ -10,6 +10,7 @@ from pedcal.errors import PedcalInputError
 from pedcal.io.logdir import read_table
 from pedcal.io.ros import import_bag, read_bag, read_rostopic_amcl_csv
 from pedcal.model import ODOMETRY_COLUMNS, ROBOT_COLUMNS
+from tests.conftest import assert_refused_for_what_it_is
 
 
 def test_rostopic_amcl_csv_real_file(shared_data):
@@ -57,12 +58,7 @@ def test_rostopic_amcl_csv_bad_input(tmp_path, shared_data):
 @pytest.mark.parametrize("what,match", [("missing", "rostopic CSV not found"),
                                         ("folder", "is a directory, expected a rostopic CSV")])
 def test_rostopic_amcl_csv_path_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, what, match):
-    p = tmp_path / "amcl.csv"
-    if what == "folder":
-        p.mkdir()
-    with pytest.raises(PedcalInputError, match=match) as ei:
-        read_rostopic_amcl_csv(p)
-    assert ei.value.path == str(p)
+    assert_refused_for_what_it_is(read_rostopic_amcl_csv, tmp_path / "amcl.csv", what, match)
 
 
 def test_ros2_bag_odometry(tmp_path, shared_data):
