@@ -132,6 +132,12 @@ def node_drift_variance(t_s: np.ndarray, node_t0_s: float, node_spacing_s: float
     return node, change * shared
 
 
+def ar1_long_run_factor(rho: float) -> float:
+    """An AR(1) of coefficient ``rho``: its long-run variance (the variance of a long run's mean
+    times the run's length) over one value's, (1 + rho) / (1 - rho)."""
+    return (1.0 + rho) / (1.0 - rho)
+
+
 def ar1_factor_sigmas(sigma: float, a: float, n_nodes: int) -> tuple[np.ndarray, float]:
     """The AR(1) x_(m+1) = a x_m + noise of stationary std ``sigma`` on ``n_nodes`` nodes as
     factors: (the zero priors' sigma per node, the increments' x_(m+1) - x_m sigma). The
@@ -148,7 +154,7 @@ def ar1_factor_sigmas(sigma: float, a: float, n_nodes: int) -> tuple[np.ndarray,
     if n_nodes <= 1:
         return np.full(max(n_nodes, 0), float(sigma)), float("inf")
     a = float(np.clip(a, 0.0, 1.0 - 1e-12))
-    priors = np.full(n_nodes, sigma * np.sqrt((1.0 + a) / (1.0 - a)))
+    priors = np.full(n_nodes, sigma * np.sqrt(ar1_long_run_factor(a)))
     return priors, float(sigma * np.sqrt((1.0 - a * a) / max(a, 1e-12)))
 
 
@@ -606,5 +612,5 @@ def amcl_white_sigma(amcl: pd.DataFrame) -> float:
 
 __all__ = ["AmclErrorModel", "amcl_white_sigma", "amcl_cov_body", "assumed_model", "estimate_model",
            "robust_variogram", "fit_variogram", "hold_at_floor", "FLOOR_MODES",
-           "node_drift_variance", "ar1_factor_sigmas",
+           "node_drift_variance", "ar1_factor_sigmas", "ar1_long_run_factor",
            "detect_jumps", "detect_steps", "reported_sigma_m", "amcl_period_s", "VARIOGRAM_LAGS_S"]

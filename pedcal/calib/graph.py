@@ -53,7 +53,8 @@ Factors (all GTSAM built-in C++ factors)
   point as a bearing and a range, with the head point's shifts taken out: the horizontal one
   (and the curvature, when estimated) subtracted from the point, the one along the ray added to
   the range (``|p| + rho``). A sensor's observations carried to one pose are one factor, their
-  mean with sigma / sqrt(n) (:meth:`FactorGraphProblem.merge_observations`). Depth noise is
+  mean with sigma / sqrt(n) (:meth:`FactorGraphProblem.merge_observations`), widened for a
+  tracker whose noise is correlated from frame to frame (:func:`noise_correlation_factor`). Depth noise is
   ``floor + k r^2`` (doubled past the reliable range) and the lateral noise constant, both
   estimated from consecutive observations (:func:`estimate_observation_noise`) and taken at the
   range the variables predict, not the noisy one observed (:class:`Regressors`, as is the
@@ -97,6 +98,7 @@ from pedcal.calib.amcl_model import (  # noqa: F401
     amcl_period_s,
     amcl_white_sigma,
     ar1_factor_sigmas,
+    ar1_long_run_factor,
     assumed_model,
     node_drift_variance,
 )
@@ -803,12 +805,7 @@ def noise_correlation_factor(noise_estimate: dict | None, gap_frames: float = 1.
     if rho is None:
         return 1.0
     r = [float(rho[k]) ** max(float(gap_frames), 1.0) for k in ("along", "lateral")]
-    return float(np.sqrt(np.mean([_long_run_factor(x) for x in r])))
-
-
-def _long_run_factor(rho: float) -> float:
-    """An AR(1)'s long-run variance over one report's, (1 + rho) / (1 - rho)."""
-    return (1.0 + rho) / (1.0 - rho)
+    return float(np.sqrt(np.mean([ar1_long_run_factor(x) for x in r])))
 
 
 def merged_variance_factor(rho: float, count) -> np.ndarray:
@@ -820,7 +817,7 @@ def merged_variance_factor(rho: float, count) -> np.ndarray:
     rho = float(rho)
     if rho <= 0.0:
         return np.ones_like(c)
-    return _long_run_factor(rho) - 2.0 * rho * (1.0 - rho ** c) / (c * (1.0 - rho) ** 2)
+    return ar1_long_run_factor(rho) - 2.0 * rho * (1.0 - rho ** c) / (c * (1.0 - rho) ** 2)
 
 
 def merged_noise_factors(noise_estimate: dict | None, count) -> tuple[np.ndarray, np.ndarray]:
