@@ -498,8 +498,9 @@ def per_log_table(rows, methods, target_mm: float = TARGET_XY_MM, target_ratio: 
     search ratio (best / median / worst) and how many are at or below ``target_ratio``, paired by
     family and seed: a log either method lacks is left out of the ratio (counted in its own
     column), and so is a log where either failed (counted beside the ratio: a ratio met because
-    the other method failed would reward the failure). Two rows of one method for one log are
-    refused (a hand-merged results file)."""
+    the other method failed would reward the failure); among the logs that meet the ratio, those
+    where either method left a sensor not ok are counted beside it too. Two rows of one method
+    for one log are refused (a hand-merged results file)."""
     groups = by_family(rows) if groups is None else groups
     both = {"factorgraph", "gridsearch"} <= set(methods)
     head = (f"| {label} | logs | " + " | ".join(f"{m} per-log xy best / median / worst (mm)" for m in methods)
@@ -514,6 +515,10 @@ def per_log_table(rows, methods, target_mm: float = TARGET_XY_MM, target_ratio: 
         twice = sorted({k for k in seen if seen.count(k) > 1})
         raise ValueError(f"more than one row for (family, seed, method) {twice}: one row per method and log")
     failed = {(r["family"], r["seed"]) for r in rows if r["method"] in methods and (r["rc"] != 0 or r.get("failed"))}
+    # logs where a method left a sensor not calibrated (scored where it left it, a no-data sensor at
+    # its installed pose): a ratio met there may be the other method's giving up, so it is named
+    not_ok = {(r["family"], r["seed"]) for r in rows if r["method"] in methods
+              and any(x["status"] != "ok" for x in r.get("sensors") or [])}
     for name, g in groups:
         xy = {m: {(r["family"], r["seed"]): log_xy_mm(r) for r in g if r["method"] == m and r.get("sensors")}
               for m in methods}
@@ -529,8 +534,10 @@ def per_log_table(rows, methods, target_mm: float = TARGET_XY_MM, target_ratio: 
             ratio = np.array([xy["factorgraph"][k] / xy["gridsearch"][k] for k in keys])
             cells.append("-" if not len(ratio) else f"{ratio.min():.2f} / {np.median(ratio):.2f} / {ratio.max():.2f}")
             n_failed = len(both_ran & failed)
-            cells.append(f"{int(np.sum(ratio <= target_ratio))} of {len(ratio)}"
-                         + (f" ({n_failed} with a failed run left out)" if n_failed else ""))
+            met = {k for k, x in zip(keys, ratio, strict=True) if x <= target_ratio}
+            notes = ([f"{len(met & not_ok)} of them with a sensor not ok"] if met & not_ok else []) + \
+                ([f"{n_failed} with a failed run left out"] if n_failed else [])
+            cells.append(f"{len(met)} of {len(ratio)}" + (f" ({'; '.join(notes)})" if notes else ""))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

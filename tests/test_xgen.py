@@ -316,6 +316,12 @@ def test_per_log_table_counts_each_log_against_both_targets_and_a_failed_log_at_
     line = next(x for x in per_log_table(rows_ok, ["factorgraph", "gridsearch"], groups=[("f", rows_ok)]).splitlines()
                 if x.startswith("| f "))
     assert line.rstrip(" |").endswith("1 of 2 (1 with a failed run left out)")
+    # a ratio met on a log where the grid search left a sensor not ok is named beside the count
+    gave_up = [{**r, "sensors": [{**x, "status": "missing"} if x["id"] == "b" else x for x in r["sensors"]]}
+               if (r["seed"], r["method"]) == (0, "gridsearch") else r for r in rows_ok]
+    line = next(x for x in per_log_table(gave_up, ["factorgraph", "gridsearch"], groups=[("f", gave_up)]).splitlines()
+                if x.startswith("| f "))
+    assert line.rstrip(" |").endswith("1 of 2 (1 of them with a sensor not ok; 1 with a failed run left out)")
     # default groups: each of the generator's families and the pool
     rooms = [{**r, "family": "rooms"} for r in rows]
     text = per_log_table(rooms, ["factorgraph", "gridsearch"])
