@@ -101,7 +101,9 @@ def test_the_zoo_draws_seeds_with_and_without_stops(monkeypatch):
     base = load_scenario("cross")
     zoo = [vary(base.resolve(seed=s), zoo=True) for s in range(20)]
     kinds = [zoo_families(z)["robot stops"] for z in zoo]
-    assert 4 <= kinds.count("none") <= 16 and set(kinds) == {"none", "stops"}
+    # (pinned: the stream's draw for seeds 0-19, the README's "7 of seeds 0-19"; a changed stream
+    # constant or coin moves it)
+    assert kinds.count("stops") == 7 and set(kinds) == {"none", "stops"}
     for z, kind in zip(zoo, kinds, strict=True):
         if kind == "stops":
             assert 1.0 <= z.robot_stop_s <= 5.0 and 0.1 <= z.robot_stop_share <= 0.3

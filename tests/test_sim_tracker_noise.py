@@ -129,7 +129,8 @@ def test_the_zoo_draws_both_kinds_from_a_stream_of_its_own(monkeypatch):
     base = load_scenario("cross")
     zoo = [vary(base.resolve(seed=s), zoo=True) for s in range(20)]
     rhos = np.array([z.tracker_noise_rho for z in zoo])
-    assert 4 <= np.sum(rhos == 0.0) <= 16
+    # (pinned: the stream's draw for seeds 0-19, the README's "11 of seeds 0-19")
+    assert np.sum(rhos > 0.0) == 11
     assert np.all((rhos == 0.0) | ((rhos >= 0.3) & (rhos <= 0.85)))
     assert {zoo_families(z)["tracker noise"] for z in zoo} == {"white", "correlated"}
     monkeypatch.setattr(nuisances, "_tracker_noise_rho", lambda seed: 0.0)

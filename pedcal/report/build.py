@@ -179,10 +179,10 @@ def accuracy_section(ctx: ReportContext) -> str:
                        f"| {ok_only} |")
     out += ["", "`installed` is the hand-measured extrinsics the log came with; `published` is empty where "
             "the paper gives no figure (closed form and factor graph are pedcal's; the paper has no head "
-            "tracking figure for the 5-sensor experiment). The sensor position RMS counts every sensor, "
-            "whatever its status: a sensor a method could not calibrate keeps what the method returned for "
-            "it (the installed pose for the factor graph's no-data sensors); `no data` also counts a sensor "
-            "the method left out of its extrinsics. The last column counts only the "
+            "tracking figure for the 5-sensor experiment). The sensor position RMS counts every sensor a "
+            "method returned, whatever its status: a sensor a method could not calibrate keeps what the "
+            "method returned for it (the installed pose for the factor graph's no-data sensors); a sensor "
+            "the method left out of its extrinsics is counted in `no data` only. The last column counts only the "
             "sensors the method marked ok, per seed; its spread shows how much of a method's error comes from "
             "sensors it knew it could not calibrate."]
     return "\n".join(out)
