@@ -761,7 +761,9 @@ def test_the_residuals_noise_is_the_sensors_horizontal_variance_per_axis():
     horizontally (lateral^2 per axis); one seen horizontally along the world x has its depth
     noise along x and its lateral noise along y ((range^2 + lateral^2) / 2 per axis); a factor
     merging n observations has 1/n of it (g_n / n for a correlated tracker's reports:
-    graph.merged_variance_factor); factors without a pose variable are left out."""
+    graph.merged_variance_factor, the depth's and the lateral correlation each on its own axis);
+    a tilted sensor's ray counts by its horizontal share; factors without a pose variable are
+    left out."""
     from types import SimpleNamespace
 
     import gtsam
@@ -795,3 +797,17 @@ def test_the_residuals_noise_is_the_sensors_horizontal_variance_per_axis():
     correlated = {"frame_correlation": {"along": 0.6, "lateral": 0.6}}
     merged = prob([[0.0, 0.0, -2.0]], [3], [0], [0], correlated)
     assert residual_noise_m2(merged, values) == pytest.approx(0.004 ** 2 * 2.04 / 3, rel=1e-12)
+    # the depth's and the lateral correlation apart (0.6 and 0.2): three reports' variance factors
+    # 2.04 and 1 + 2 (2/3 0.2 + 1/3 0.04), each on its own axis (depth along the world x)
+    g_lateral = 1.0 + 2.0 * (2.0 / 3.0 * 0.2 + 1.0 / 3.0 * 0.04)
+    apart = prob([[2.0, 0.0, 0.0]], [3], [0], [1], {"frame_correlation": {"along": 0.6, "lateral": 0.2}})
+    assert residual_noise_m2(apart, values) == pytest.approx(0.5 * (0.01 ** 2 * 2.04 + 0.004 ** 2 * g_lateral) / 3,
+                                                             rel=1e-12)
+    # a tilted sensor (turned a quarter about the vertical, then pitched 45 deg): its ray's
+    # horizontal share is cos^2 45 = 1/2, the rest of the depth noise vertical
+    tilted_values = gtsam.Values()
+    tilted_values.insert(S(0), gtsam.Pose3(gtsam.Rot3.Ypr(np.pi / 2, np.pi / 4, 0.0), np.zeros(3)))
+    tilted_values.insert(S(1), gtsam.Pose3())
+    tilted = prob([[2.0, 0.0, 0.0]], [1], [0], [1])
+    want = 0.5 * (2.0 * 0.004 ** 2 + (0.01 ** 2 - 0.004 ** 2) * 0.5)
+    assert residual_noise_m2(tilted, tilted_values) == pytest.approx(want, rel=1e-12)

@@ -136,6 +136,36 @@ def test_the_observation_factors_carry_the_factor():
     np.testing.assert_allclose(terms.noise_scale[terms.is_pose], want, rtol=1e-12)
 
 
+def test_people_sightings_take_the_correlation_a_sampling_period_apart():
+    """The observation block's people factors, one sighting per people_sample_s, take the factor at
+    the correlation people_sample_s / frame_period_s reports apart (the robot's, one report
+    apart, unchanged); without a frame period in the estimate, the robot's."""
+    from pedcal.calib.graph import noise_correlation_factor, observation_terms
+
+    log = _noisy_log(0.7)
+    rec = _exact_recipe(estimate_observation_noise=True, reliable_range_m=10.0, people=True)
+    prob = prepare(log, rec, is_robot=np.ones(len(log.observations), bool))
+    # three people, each seen by two sensors at once (points in each sensor's frame)
+    sids = prob.sensor_ids[:2]
+    prob.people = [(10.0 + m, [(sids[0], np.array([0.3 * m, 0.2, -2.5])), (sids[1], np.array([-0.4, 0.1 * m, -2.6]))])
+                   for m in range(3)]
+    est = {**prob.noise_estimate, "frame_correlation": {"along": 0.5, "lateral": 0.3}, "frame_period_s": 0.125}
+    prob.noise_estimate = est
+    terms = observation_terms(log, prob)
+    people = ~terms.is_pose
+    assert people.sum() == 6
+    gap = prob.recipe.people_sample_s / 0.125
+    want = np.sqrt(0.5 * ((1 + 0.5 ** gap) / (1 - 0.5 ** gap) + (1 + 0.3 ** gap) / (1 - 0.3 ** gap)))
+    assert noise_correlation_factor(est, gap) == pytest.approx(want, rel=1e-12)
+    np.testing.assert_allclose(terms.noise_scale[people], want, rtol=1e-12)
+    count = np.asarray(prob.fac_count[prob.fac_key_index < len(prob.pose_times)], float)
+    np.testing.assert_allclose(terms.noise_scale[terms.is_pose], noise_correlation_factor(est) / np.sqrt(count),
+                               rtol=1e-12)
+    prob.noise_estimate = {k: v for k, v in est.items() if k != "frame_period_s"}
+    np.testing.assert_allclose(observation_terms(log, prob).noise_scale[people], noise_correlation_factor(est),
+                               rtol=1e-12)
+
+
 def test_sightings_further_apart_take_the_correlation_that_many_reports_apart():
     from pedcal.calib.graph import noise_correlation_factor
 
