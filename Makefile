@@ -31,8 +31,11 @@ $(VENV)/.installed: pyproject.toml | system-deps
 demo: setup
 	$(BIN)/pedcal demo -o $(OUT)
 
+# the suite on every core (at most TEST_WORKERS), each test file on one worker (its module's
+# fixtures built once); `.venv/bin/python -m pytest FILE` runs a part in one process
+TEST_WORKERS ?= 4
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --maxprocesses $(TEST_WORKERS) --dist loadfile
 
 bench: setup
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
