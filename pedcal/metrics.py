@@ -69,6 +69,40 @@ NOISE_KEY = "observation_noise"
 ODOMETRY_MODEL_KEY = "odometry_model"
 
 
+def network_sigma_split(extrinsics: SensorNetwork) -> dict | None:
+    """The sensors' position uncertainty split as the benches split their error: per world axis
+    (m) the std of the network's common position (the mean of its ok sensors' positions: what
+    every sensor shares, AMCL's error averaged over the run among it, and the head point's
+    height) and the root of the mean over those sensors of the variance of each one's departure
+    from that mean, from the calibrated file's joint covariance (``position_covariance_m2``).
+    With C_ij the 3 x 3 blocks of the k ok sensors, the common covariance is sum_ij C_ij / k^2 and
+    a departure's C_ii - (sum_j C_ij + sum_j C_ji) / k + the common one; the two squares add up to
+    the mean of the sensors' own variances. Returns {"common_m": [x, y, z], "relative_rms_m":
+    [x, y, z], "sensors": k}, or None without a joint covariance or an ok sensor (status ok or
+    none given; a sensor left at its installed pose would count its prior)."""
+    cov = extrinsics.extra.get(JOINT_COV_KEY)
+    if not isinstance(cov, dict) or "sensors" not in cov or "matrix" not in cov:
+        return None
+    ids = [str(i) for i in cov["sensors"]]
+    n = len(ids)
+    M = np.asarray(cov["matrix"], float)
+    if M.shape != (3 * n, 3 * n):
+        raise ValueError(f"{JOINT_COV_KEY}: a {M.shape} matrix for {n} sensors, expected {3 * n} x {3 * n}")
+    status = {s.id: s.status for s in extrinsics}
+    ok = np.array([i for i, sid in enumerate(ids) if status.get(sid, "ok") in (None, "ok")], int)
+    if not len(ok):
+        return None
+    k = len(ok)
+    C = M.reshape(n, 3, n, 3)[ok][:, :, ok, :]                   # (k, 3, k, 3): the ok sensors' blocks
+    common = np.einsum("iajb->ab", C) / k ** 2
+    row = np.einsum("iajb->iab", C)                               # sum_j C_ij, per sensor i
+    own = np.einsum("iaib->iab", C)                               # C_ii
+    departure = own - (row + row.transpose(0, 2, 1)) / k + common
+    var_common = np.clip(np.diag(common), 0.0, None)
+    var_rest = np.clip(np.mean(np.diagonal(departure, axis1=1, axis2=2), axis=0), 0.0, None)
+    return {"common_m": np.sqrt(var_common).tolist(), "relative_rms_m": np.sqrt(var_rest).tolist(), "sensors": k}
+
+
 def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float, float]:
     """(vertical offset, ray shift, horizontal shift, curvature), m, of the head point an
     extrinsics file carries: its ``head_model``, else a dome of ``head_radius_m`` (older

@@ -361,3 +361,83 @@ def test_a_clock_offset_not_estimated_is_a_miss_and_the_rms_is_over_the_finite_e
     z, err = bfn.clock_offset_errors(sim, SimpleNamespace(extra={}))
     assert len(z) == len(err) == 3
     assert np.all(np.isnan(z)) and np.all(np.isnan(err))
+
+
+def _network_with_covariance(status, seed=0):
+    """Sensors s0.. with ``status``, a seeded symmetric positive definite joint covariance
+    (3n x 3n, world axes) in the file's ``position_covariance_m2``, in the network's order."""
+    rng = np.random.default_rng(seed)
+    n = len(status)
+    A = rng.normal(0.0, 0.01, (3 * n, 3 * n))
+    M = A @ A.T + 1e-5 * np.eye(3 * n)
+    sensors = [SensorExtrinsics(f"s{i}", np.zeros(3), np.zeros(3), status=st) for i, st in enumerate(status)]
+    return SensorNetwork(sensors, extra={"position_covariance_m2": {"sensors": [s.id for s in sensors],
+                                                                    "matrix": M.tolist()}}), M
+
+
+def test_the_network_sigma_splits_into_the_common_positions_and_each_sensors_departure():
+    """network_sigma_split against the linear algebra done out: the mean of the ok sensors'
+    positions, A x, has covariance A C A^T; the departures, (I - 1 A) x, theirs; the no-data sensor
+    is no part of either (its rows changed, nothing moves); the two squares add up to the mean of
+    the ok sensors' own variances."""
+    from pedcal.metrics import network_sigma_split
+
+    net, M = _network_with_covariance(["ok", "ok", "no-data", "ok"])
+    ok = [0, 1, 3]
+    rows = np.concatenate([np.arange(3 * i, 3 * i + 3) for i in ok])
+    C = M[np.ix_(rows, rows)]
+    A = np.hstack([np.eye(3)] * 3) / 3.0                     # the mean of three positions
+    D = np.eye(9) - np.vstack([np.eye(3)] * 3) @ A           # each position less the mean
+    dep = D @ C @ D.T
+    want_rest = np.sqrt(np.mean([np.diag(dep[3 * i:3 * i + 3, 3 * i:3 * i + 3]) for i in range(3)], axis=0))
+    got = network_sigma_split(net)
+    assert got["sensors"] == 3
+    np.testing.assert_allclose(got["common_m"], np.sqrt(np.diag(A @ C @ A.T)), rtol=1e-12)
+    np.testing.assert_allclose(got["relative_rms_m"], want_rest, rtol=1e-12)
+    own = np.mean([np.diag(C[3 * i:3 * i + 3, 3 * i:3 * i + 3]) for i in range(3)], axis=0)
+    np.testing.assert_allclose(np.square(got["common_m"]) + np.square(got["relative_rms_m"]), own, rtol=1e-12)
+    M2 = M.copy()
+    M2[6:9, :] *= 7.0
+    M2[:, 6:9] *= 7.0
+    net.extra["position_covariance_m2"]["matrix"] = M2.tolist()
+    assert network_sigma_split(net) == got
+
+
+def test_the_network_sigma_split_of_a_network_fully_correlated_is_all_common():
+    """Every sensor moving as one (C_ij = C for all i, j): the common std is C's, nothing departs."""
+    from pedcal.metrics import network_sigma_split
+
+    net, _ = _network_with_covariance(["ok", "ok"])
+    C = np.diag([4e-4, 9e-4, 1e-4])
+    net.extra["position_covariance_m2"]["matrix"] = np.block([[C, C], [C, C]]).tolist()
+    got = network_sigma_split(net)
+    np.testing.assert_allclose(got["common_m"], [0.02, 0.03, 0.01], rtol=1e-12)
+    np.testing.assert_allclose(got["relative_rms_m"], 0.0, atol=1e-12)
+
+
+def test_the_network_sigma_split_needs_a_joint_covariance_and_an_ok_sensor():
+    from pedcal.metrics import network_sigma_split
+
+    net, M = _network_with_covariance(["ok", "degenerate"])
+    assert network_sigma_split(SensorNetwork(list(net))) is None                 # no joint covariance
+    assert network_sigma_split(_network_with_covariance(["no-data", "degenerate"])[0]) is None
+    one = network_sigma_split(net)                                               # the only ok sensor: all common
+    np.testing.assert_allclose(one["common_m"], np.sqrt(np.diag(M[:3, :3])), rtol=1e-12)
+    np.testing.assert_allclose(one["relative_rms_m"], 0.0, atol=1e-12)
+    net.extra["position_covariance_m2"]["matrix"] = M[:3, :3].tolist()
+    with pytest.raises(ValueError, match=r"position_covariance_m2: a \(3, 3\) matrix for 2 sensors, expected 6 x 6"):
+        network_sigma_split(net)
+
+
+def test_the_calibration_summary_states_the_network_sigma_split():
+    from pedcal.calib.common import CalibrationResult
+    from pedcal.metrics import network_sigma_split
+
+    net, _ = _network_with_covariance(["ok", "ok", "ok"], seed=3)
+    text = CalibrationResult(network=net, method="factorgraph").summary()
+    split = network_sigma_split(net)
+    common = ", ".join(f"{1000 * v:.1f}" for v in split["common_m"])
+    rest = ", ".join(f"{1000 * v:.1f}" for v in split["relative_rms_m"])
+    assert f"network sigma x, y, z: common position {common} mm" in text
+    assert f"each sensor about it {rest} mm RMS (3 sensors ok)" in text
+    assert "network sigma" not in CalibrationResult(network=SensorNetwork(list(net)), method="gridsearch").summary()

@@ -331,6 +331,16 @@ class CalibrationResult:
                          + f" (height reference: {head.height_reference})")
             if head.note:
                 lines.append(f"  {head.note}")
+        from pedcal.metrics import network_sigma_split
+
+        split = network_sigma_split(self.network)
+        if split is not None:
+            def mm(v):
+                return ", ".join(f"{1000 * x:.1f}" for x in v)
+
+            lines.append(f"network sigma x, y, z: common position {mm(split['common_m'])} mm (shared by every sensor: "
+                         "AMCL's error averaged over the run, the head point's height); each sensor about it "
+                         f"{mm(split['relative_rms_m'])} mm RMS ({split['sensors']} sensors ok)")
         mismatch = getattr(self.diagnostics, "model_mismatch", None)
         if mismatch is not None and mismatch.sensors:
             lines.append(f"model mismatch: {mismatch.misfit}; their sigma widened by that factor")
