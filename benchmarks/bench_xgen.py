@@ -43,6 +43,11 @@ worst) and how many are within 12 mm, and each log's factor graph / grid search 
 are at or below 0.35x (the calibration issue's per-log targets; a log where either method failed
 is left out of the ratio and counted beside it: a target met because the other method failed
 would reward the failure).
+Then, per method whose YAML holds the sensors' joint covariance, the sigma's honesty split as the
+error is (:func:`split_ratios`): each log's shared error (the mean of its ok sensors' errors) over
+the common position's sigma, and the RMS of their errors about it over the RMS sigma about it
+(``pedcal.metrics.network_sigma_split``), x, y, z, as the RMS over the logs (1 when honest), and
+the logs whose horizontal rest exceeds 2 sigma on an axis, named.
 Results are also written to OUT/results.jsonl; the tables are printed per family and pooled.
 """
 
@@ -69,7 +74,14 @@ from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: 
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from pedcal.metrics import format_clustered, sigma_honesty, sigma_ratio_rms, within_sigma_share  # noqa: E402
+from pedcal.io import read_sensors_yaml  # noqa: E402
+from pedcal.metrics import (  # noqa: E402
+    format_clustered,
+    network_sigma_split,
+    sigma_honesty,
+    sigma_ratio_rms,
+    within_sigma_share,
+)
 
 # the calibration issue's per-log figures: horizontal RMS within this on every log, and at most
 # this fraction of the grid search's on the same log
@@ -437,6 +449,70 @@ def attach_sensor_info(rows, out: Path):
                 x["true_xy_m"] = truth[x["id"]]["p"][:2].tolist()
 
 
+def attach_sigma_split(rows, out: Path) -> None:
+    """Each calibration row gets ``sigma_split``: :func:`pedcal.metrics.network_sigma_split` of the
+    YAML its method wrote (OUT/FAMILY-SEED/METHOD.yaml), None without the file (a failed run), a
+    joint covariance in it (the grid search writes none) or an ok sensor."""
+    for r in rows:
+        if r["method"] == "installed" or "sigma_split" in r:
+            continue
+        path = out / f"{r['family']}-{r['seed']}" / f"{r['method']}.yaml"
+        r["sigma_split"] = network_sigma_split(read_sensors_yaml(path)) if path.is_file() and r.get("rc") == 0 else None
+
+
+def split_ratios(row) -> tuple[np.ndarray, np.ndarray] | None:
+    """One row's sigma honesty split as the error is, per axis x, y, z: |t| / the common position's
+    sigma, t the mean error of the log's ok sensors, and the RMS of their errors less t over the
+    RMS sigma about the common position (the row's ``sigma_split``, over the same ok sensors);
+    NaN where a sigma is 0 (the only ok sensor has no rest). None without a split, or when its
+    sensors are not the row's ok ones."""
+    split = row.get("sigma_split")
+    ok = [x for x in row.get("sensors") or [] if x.get("status") == "ok"]
+    if not split or not ok or split["sensors"] != len(ok):
+        return None
+    e = np.array([[x["dx"], x["dy"], x["dz"]] for x in ok], float)
+    t = e.mean(axis=0)
+    rest = np.sqrt(np.mean((e - t) ** 2, axis=0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        common = np.abs(t) / np.asarray(split["common_m"], float)
+        about = rest / np.asarray(split["relative_rms_m"], float)
+    return np.where(np.isfinite(common), common, np.nan), np.where(np.isfinite(about), about, np.nan)
+
+
+def _rms_columns(a: np.ndarray) -> np.ndarray:
+    """Each column's RMS over its finite entries (NaN for a column without one)."""
+    fin = np.isfinite(a)
+    n = fin.sum(axis=0)
+    total = np.where(fin, a, 0.0) ** 2
+    return np.where(n > 0, np.sqrt(total.sum(axis=0) / np.maximum(n, 1)), np.nan)
+
+
+def split_honesty_table(rows, method, groups, title, limit: float = 2.0) -> str:
+    """Per group, :func:`split_ratios` of ``method``'s rows: the common part's and the rest's
+    error / sigma RMS over the logs, x / y / z, and the logs whose horizontal rest is over
+    ``limit`` sigma on an axis (named). "" when no row of the method has a split."""
+    lines = [f"### {title}", "",
+             f"| logs of | logs | common error / sigma RMS x / y / z | rest error / sigma RMS x / y / z | "
+             f"logs with a horizontal rest over {limit:g} sigma |", "|---|---|---|---|---|"]
+    any_row = False
+
+    def fmt(v):
+        return " / ".join("-" if not math.isfinite(x) else f"{x:.2f}" for x in v)
+
+    for name, g in groups:
+        got = [(r, split_ratios(r)) for r in g if r["method"] == method]
+        got = [(r, x) for r, x in got if x is not None]
+        if not got:
+            continue
+        any_row = True
+        common = _rms_columns(np.array([x[0] for _, x in got]))
+        rest = _rms_columns(np.array([x[1] for _, x in got]))
+        over = [f"{r['family']} {r['seed']}" for r, x in got if np.nanmax(np.r_[x[1][:2], 0.0]) > limit]
+        lines.append(f"| {name} | {len(got)} | {fmt(common)} | {fmt(rest)} | "
+                     f"{len(over)}{' (' + ', '.join(over) + ')' if over else ''} |")
+    return "\n".join(lines) if any_row else ""
+
+
 def rot_rms_text(rms: float) -> str:
     """The rotation's error / sigma RMS for :func:`table`: '-' without a finite ratio."""
     return f"{rms:.2f}" if math.isfinite(rms) else "-"
@@ -597,6 +673,7 @@ def main(argv=None):
 
 def print_tables(rows, methods, out: Path, title: str):
     attach_sensor_info(rows, out)
+    attach_sigma_split(rows, out)
     print()
     print(table(rows, methods, title))
     print()
@@ -612,6 +689,13 @@ def print_tables(rows, methods, out: Path, title: str):
     for m in methods:
         text = honesty_table(rows, m, by_family(rows) + by_log_nuisance(rows) + sensor_groups,
                              f"{m}: the sigma's honesty, intervals from a bootstrap over the logs")
+        if text:
+            print()
+            print(text)
+    for m in methods:
+        text = split_honesty_table(rows, m, by_family(rows) + by_log_nuisance(rows),
+                                   f"{m}: the sigma's honesty split as the error is: the shared part and each sensor's "
+                                   "about it")
         if text:
             print()
             print(text)
