@@ -443,3 +443,5 @@ def test_the_calibration_summary_states_the_network_sigma_split():
     assert f"network sigma x, y, z: common position {common} mm" in text
     assert f"each sensor about it {rest} mm RMS (3 sensors ok)" in text
     assert "network sigma" not in CalibrationResult(network=SensorNetwork(list(net)), method="gridsearch").summary()
+    net.extra["position_covariance_m2"]["matrix"] = np.eye(3).tolist()      # not the network's shape: no line
+    assert "network sigma" not in CalibrationResult(network=net, method="factorgraph").summary()
