@@ -451,13 +451,20 @@ def attach_sensor_info(rows, out: Path):
 
 def attach_sigma_split(rows, out: Path) -> None:
     """Each calibration row gets ``sigma_split``: :func:`pedcal.metrics.network_sigma_split` of the
-    YAML its method wrote (OUT/FAMILY-SEED/METHOD.yaml), None without the file (a failed run), a
-    joint covariance in it (the grid search writes none) or an ok sensor."""
+    YAML its method wrote (OUT/FAMILY-SEED/METHOD.yaml), None for a failed run, without the file,
+    a joint covariance in it (the grid search writes none) or an ok sensor, and for a file that
+    does not read (named on stderr: one bad file leaves the other tables be)."""
     for r in rows:
         if r["method"] == "installed" or "sigma_split" in r:
             continue
         path = out / f"{r['family']}-{r['seed']}" / f"{r['method']}.yaml"
-        r["sigma_split"] = network_sigma_split(read_sensors_yaml(path)) if path.is_file() and r.get("rc") == 0 else None
+        r["sigma_split"] = None
+        if r.get("rc") != 0 or not path.is_file():
+            continue
+        try:
+            r["sigma_split"] = network_sigma_split(read_sensors_yaml(path))
+        except (ValueError, OSError) as e:      # (PedcalInputError is a ValueError)
+            print(f"{path}: no sigma split ({e})", file=sys.stderr)
 
 
 def split_ratios(row) -> tuple[np.ndarray, np.ndarray] | None:
@@ -465,10 +472,12 @@ def split_ratios(row) -> tuple[np.ndarray, np.ndarray] | None:
     sigma, t the mean error of the log's ok sensors, and the RMS of their errors less t over the
     RMS sigma about the common position (the row's ``sigma_split``, over the same ok sensors);
     NaN where a sigma is 0 (the only ok sensor has no rest). None without a split, or when its
-    sensors are not the row's ok ones."""
+    sensors are not the row's ok ones. (The ok sensors alone, where :func:`shared_shift_removed`
+    and :func:`network_shape` take every scored sensor, those left at their installed poses too:
+    the two tables' shifts and rests differ where a method left a sensor.)"""
     split = row.get("sigma_split")
     ok = [x for x in row.get("sensors") or [] if x.get("status") == "ok"]
-    if not split or not ok or split["sensors"] != len(ok):
+    if not split or not ok or sorted(split.get("ids", [])) != sorted(x["id"] for x in ok):
         return None
     e = np.array([[x["dx"], x["dy"], x["dz"]] for x in ok], float)
     t = e.mean(axis=0)
@@ -477,14 +486,6 @@ def split_ratios(row) -> tuple[np.ndarray, np.ndarray] | None:
         common = np.abs(t) / np.asarray(split["common_m"], float)
         about = rest / np.asarray(split["relative_rms_m"], float)
     return np.where(np.isfinite(common), common, np.nan), np.where(np.isfinite(about), about, np.nan)
-
-
-def _rms_columns(a: np.ndarray) -> np.ndarray:
-    """Each column's RMS over its finite entries (NaN for a column without one)."""
-    fin = np.isfinite(a)
-    n = fin.sum(axis=0)
-    total = np.where(fin, a, 0.0) ** 2
-    return np.where(n > 0, np.sqrt(total.sum(axis=0) / np.maximum(n, 1)), np.nan)
 
 
 def split_honesty_table(rows, method, groups, title, limit: float = 2.0) -> str:
@@ -505,8 +506,8 @@ def split_honesty_table(rows, method, groups, title, limit: float = 2.0) -> str:
         if not got:
             continue
         any_row = True
-        common = _rms_columns(np.array([x[0] for _, x in got]))
-        rest = _rms_columns(np.array([x[1] for _, x in got]))
+        common = sigma_ratio_rms(np.array([x[0] for _, x in got]))
+        rest = sigma_ratio_rms(np.array([x[1] for _, x in got]))
         over = [f"{r['family']} {r['seed']}" for r, x in got if np.nanmax(np.r_[x[1][:2], 0.0]) > limit]
         lines.append(f"| {name} | {len(got)} | {fmt(common)} | {fmt(rest)} | "
                      f"{len(over)}{' (' + ', '.join(over) + ')' if over else ''} |")

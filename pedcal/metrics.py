@@ -78,8 +78,10 @@ def network_sigma_split(extrinsics: SensorNetwork) -> dict | None:
     With C_ij the 3 x 3 blocks of the k ok sensors, the common covariance is sum_ij C_ij / k^2 and
     a departure's C_ii - (sum_j C_ij + sum_j C_ji) / k + the common one; the two squares add up to
     the mean of the sensors' own variances. Returns {"common_m": [x, y, z], "relative_rms_m":
-    [x, y, z], "sensors": k}, or None without a joint covariance or an ok sensor (status ok or
-    none given; a sensor left at its installed pose would count its prior)."""
+    [x, y, z], "sensors": k, "ids": [the k sensors]}, or None without a joint covariance or an ok
+    sensor: one of the covariance's sensors with status ok or none given in ``extrinsics`` (a
+    sensor left at its installed pose would count its prior; one the network lacks is not
+    counted; a sensor outside the covariance is in neither part)."""
     cov = extrinsics.extra.get(JOINT_COV_KEY)
     if not isinstance(cov, dict) or "sensors" not in cov or "matrix" not in cov:
         return None
@@ -89,7 +91,7 @@ def network_sigma_split(extrinsics: SensorNetwork) -> dict | None:
     if M.shape != (3 * n, 3 * n):
         raise ValueError(f"{JOINT_COV_KEY}: a {M.shape} matrix for {n} sensors, expected {3 * n} x {3 * n}")
     status = {s.id: s.status for s in extrinsics}
-    ok = np.array([i for i, sid in enumerate(ids) if status.get(sid, "ok") in (None, "ok")], int)
+    ok = np.array([i for i, sid in enumerate(ids) if sid in status and status[sid] in (None, "ok")], int)
     if not len(ok):
         return None
     k = len(ok)
@@ -100,7 +102,8 @@ def network_sigma_split(extrinsics: SensorNetwork) -> dict | None:
     departure = own - (row + row.transpose(0, 2, 1)) / k + common
     var_common = np.clip(np.diag(common), 0.0, None)
     var_rest = np.clip(np.mean(np.diagonal(departure, axis1=1, axis2=2), axis=0), 0.0, None)
-    return {"common_m": np.sqrt(var_common).tolist(), "relative_rms_m": np.sqrt(var_rest).tolist(), "sensors": k}
+    return {"common_m": np.sqrt(var_common).tolist(), "relative_rms_m": np.sqrt(var_rest).tolist(), "sensors": k,
+            "ids": [ids[i] for i in ok]}
 
 
 def head_model_of(extrinsics: SensorNetwork) -> tuple[float, float, float, float]:

@@ -391,7 +391,7 @@ def test_the_network_sigma_splits_into_the_common_positions_and_each_sensors_dep
     dep = D @ C @ D.T
     want_rest = np.sqrt(np.mean([np.diag(dep[3 * i:3 * i + 3, 3 * i:3 * i + 3]) for i in range(3)], axis=0))
     got = network_sigma_split(net)
-    assert got["sensors"] == 3
+    assert got["sensors"] == 3 and got["ids"] == ["s0", "s1", "s3"]
     np.testing.assert_allclose(got["common_m"], np.sqrt(np.diag(A @ C @ A.T)), rtol=1e-12)
     np.testing.assert_allclose(got["relative_rms_m"], want_rest, rtol=1e-12)
     own = np.mean([np.diag(C[3 * i:3 * i + 3, 3 * i:3 * i + 3]) for i in range(3)], axis=0)
@@ -420,6 +420,8 @@ def test_the_network_sigma_split_needs_a_joint_covariance_and_an_ok_sensor():
 
     net, M = _network_with_covariance(["ok", "degenerate"])
     assert network_sigma_split(SensorNetwork(list(net))) is None                 # no joint covariance
+    # a sensor of the covariance the network lacks is not counted: here none ok is left
+    assert network_sigma_split(SensorNetwork(list(net)[1:], extra=net.extra)) is None
     assert network_sigma_split(_network_with_covariance(["no-data", "degenerate"])[0]) is None
     one = network_sigma_split(net)                                               # the only ok sensor: all common
     np.testing.assert_allclose(one["common_m"], np.sqrt(np.diag(M[:3, :3])), rtol=1e-12)
@@ -441,3 +443,5 @@ def test_the_calibration_summary_states_the_network_sigma_split():
     assert f"network sigma x, y, z: common position {common} mm" in text
     assert f"each sensor about it {rest} mm RMS (3 sensors ok)" in text
     assert "network sigma" not in CalibrationResult(network=SensorNetwork(list(net)), method="gridsearch").summary()
+    net.extra["position_covariance_m2"]["matrix"] = np.eye(3).tolist()      # not the network's shape: no line
+    assert "network sigma" not in CalibrationResult(network=net, method="factorgraph").summary()

@@ -574,8 +574,9 @@ def test_the_sigma_split_table_compares_each_logs_shared_error_and_rest_with_the
     """split_ratios against numbers done by hand: two ok sensors with errors (+10, -20, 0) and
     (+30, 0, +4) mm share t = (20, -10, 2) and depart by (10, 10, 2) RMS; over a common sigma
     of (10, 20, 4) and a sigma about it of (5, 20, 0) mm, (2, 0.5, 0.5) and (2, 0.5, NaN). A sensor
-    not ok is in neither; a split over another number of sensors, or none, gives no ratio.
-    attach_sigma_split reads the split from the method's YAML (none for a failed run)."""
+    not ok is in neither; a split over other sensors, or none, gives no ratio.
+    attach_sigma_split reads the split from the method's YAML: none for a failed run (its file
+    there or not), a file without a joint covariance, or one that does not read."""
     from bench_xgen import attach_sigma_split, split_honesty_table, split_ratios
 
     from pedcal.io import write_sensors_yaml
@@ -586,12 +587,13 @@ def test_the_sigma_split_table_compares_each_logs_shared_error_and_rest_with_the
                {"id": "b", "dx": 0.030, "dy": 0.0, "dz": 0.004, "status": "ok"},
                {"id": "c", "dx": 0.5, "dy": 0.5, "dz": 0.5, "status": "no-data"}]
     row = {"family": "rooms", "seed": 0, "method": "factorgraph", "rc": 0, "sensors": sensors,
-           "sigma_split": {"common_m": [0.010, 0.020, 0.004], "relative_rms_m": [0.005, 0.020, 0.0], "sensors": 2}}
+           "sigma_split": {"common_m": [0.010, 0.020, 0.004], "relative_rms_m": [0.005, 0.020, 0.0], "sensors": 2,
+                           "ids": ["b", "a"]}}
     common, rest = split_ratios(row)
     np.testing.assert_allclose(common, [2.0, 0.5, 0.5], rtol=1e-12)
     np.testing.assert_allclose(rest[:2], [2.0, 0.5], rtol=1e-12)
     assert np.isnan(rest[2])
-    assert split_ratios({**row, "sigma_split": {**row["sigma_split"], "sensors": 3}}) is None
+    assert split_ratios({**row, "sigma_split": {**row["sigma_split"], "ids": ["a", "c"]}}) is None
     assert split_ratios({**row, "sigma_split": None}) is None
     other = {**row, "seed": 1, "sigma_split": {**row["sigma_split"], "relative_rms_m": [0.010, 0.020, 0.002]}}
     table = split_honesty_table([row, other], "factorgraph", [("rooms", [row, other])], "split")
@@ -607,14 +609,16 @@ def test_the_sigma_split_table_compares_each_logs_shared_error_and_rest_with_the
     A = rng.normal(0.0, 0.01, (6, 6))
     net = SensorNetwork([SensorExtrinsics(s, np.zeros(3), np.zeros(3), status="ok") for s in ("a", "b")],
                         extra={"position_covariance_m2": {"sensors": ["a", "b"], "matrix": (A @ A.T).tolist()}})
-    (tmp_path / "rooms-0").mkdir()
-    write_sensors_yaml(net, tmp_path / "rooms-0" / "factorgraph.yaml")
+    for seed in (0, 1, 2):
+        (tmp_path / f"rooms-{seed}").mkdir()
+        write_sensors_yaml(net, tmp_path / f"rooms-{seed}" / "factorgraph.yaml")
+    write_sensors_yaml(SensorNetwork(list(net)), tmp_path / "rooms-0" / "gridsearch.yaml")   # no joint covariance
+    (tmp_path / "rooms-2" / "factorgraph.yaml").write_text("sensors: [")                    # does not read
     fresh = [{"family": "rooms", "seed": 0, "method": "factorgraph", "rc": 0},
              {"family": "rooms", "seed": 0, "method": "gridsearch", "rc": 0},
              {"family": "rooms", "seed": 1, "method": "factorgraph", "rc": 1},
+             {"family": "rooms", "seed": 2, "method": "factorgraph", "rc": 0},
              {"family": "rooms", "seed": 0, "method": "installed"}]
     attach_sigma_split(fresh, tmp_path)
-    want = network_sigma_split(net)
-    # (the file holds the covariance to 4 digits)
-    np.testing.assert_allclose(fresh[0]["sigma_split"]["common_m"], want["common_m"], rtol=1e-3)
-    assert fresh[1]["sigma_split"] is None and fresh[2]["sigma_split"] is None and "sigma_split" not in fresh[3]
+    assert fresh[0]["sigma_split"] == network_sigma_split(net)
+    assert [r["sigma_split"] for r in fresh[1:4]] == [None, None, None] and "sigma_split" not in fresh[4]

@@ -333,7 +333,10 @@ class CalibrationResult:
                 lines.append(f"  {head.note}")
         from pedcal.metrics import network_sigma_split
 
-        split = network_sigma_split(self.network)
+        try:
+            split = network_sigma_split(self.network)
+        except ValueError:          # (a covariance of another shape than the network's: no split to print)
+            split = None
         if split is not None:
             def mm(v):
                 return ", ".join(f"{1000 * x:.1f}" for x in v)
