@@ -83,13 +83,18 @@ def _densify(wp: np.ndarray, step_m: float = 0.02) -> tuple[np.ndarray, np.ndarr
     return np.column_stack([np.interp(s, s_wp, wp[:, 0]), np.interp(s, s_wp, wp[:, 1])]), s, s_wp
 
 
+def stop_poses(sc: Scenario) -> int:
+    """How many poses the robot holds at a stop: robot_stop_s at truth_rate_hz, rounded."""
+    return int(round(sc.robot_stop_s * sc.truth_rate_hz))
+
+
 def stop_waypoints(sc: Scenario, n_waypoints: int) -> np.ndarray:
     """Indices (ascending) of the route's waypoints at which the robot stops: each of the inner
     ones (not the first nor the last) with probability robot_stop_share, drawn from a stream of
     its own (so the stops change no other draw of the seed); none when robot_stop_s holds no pose
     (it rounds to 0 poses at truth_rate_hz, as :func:`drive_route` holds round(robot_stop_s x
-    truth_rate_hz) of them), when robot_stop_share is 0 or without an inner waypoint."""
-    if round(sc.robot_stop_s * sc.truth_rate_hz) == 0 or sc.robot_stop_share <= 0.0 or n_waypoints < 3:
+    truth_rate_hz) of them: :func:`stop_poses`), when robot_stop_share is 0 or without an inner waypoint."""
+    if stop_poses(sc) == 0 or sc.robot_stop_share <= 0.0 or n_waypoints < 3:
         return np.zeros(0, int)
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5709]))
     return 1 + np.flatnonzero(rng.random(n_waypoints - 2) < sc.robot_stop_share)
@@ -105,7 +110,7 @@ def drive_route(sc: Scenario) -> np.ndarray:
     wp = route_waypoints(sc)
     path, s_path, s_wp = _densify(wp, step_m)
     s_stops = s_wp[stop_waypoints(sc, len(wp))].tolist()
-    n_hold = int(round(sc.robot_stop_s * sc.truth_rate_hz))       # > 0 at any stop (stop_waypoints)
+    n_hold = stop_poses(sc)       # > 0 at any stop (stop_waypoints)
     next_stop = 0
     dt = 1.0 / sc.truth_rate_hz
     L = sc.lookahead_m
