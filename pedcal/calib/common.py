@@ -331,7 +331,7 @@ class CalibrationResult:
                          + f" (height reference: {head.height_reference})")
             if head.note:
                 lines.append(f"  {head.note}")
-        from pedcal.metrics import network_sigma_split
+        from pedcal.metrics import network_sigma_split  # (here: pedcal.metrics imports this module)
 
         try:
             split = network_sigma_split(self.network)
