@@ -137,3 +137,19 @@ def test_a_stop_that_rounds_to_no_pose_is_no_stop():
     assert zoo_families(one)["robot stops"] == "stops"
     runs = _held_runs(drive_route(one))
     assert runs and all(a == b for a, b in runs)
+
+
+def test_a_log_cut_before_its_first_stop_is_labelled_without_stops():
+    """The family is what the log holds: the paper route cut by duration_s a second before its
+    first stop begins holds none ("none", no held pose), cut a second after it began holds it
+    ("stops")."""
+    sc = load_scenario("paper").resolve(seed=3, duration_s=None, robot_stop_s=2.0, robot_stop_share=1.0)
+    runs = _held_runs(drive_route(sc))
+    assert runs
+    t_first = runs[0][0] / sc.truth_rate_hz            # (pose k at k / truth_rate_hz)
+    before = sc.resolve(duration_s=t_first - 1.0)
+    after = sc.resolve(duration_s=t_first + 1.0)
+    assert len(stop_waypoints(before, len(route_waypoints(before)))) > 0        # drawn all the same
+    assert zoo_families(before)["robot stops"] == "none" and not _held_runs(drive_route(before))
+    assert zoo_families(after)["robot stops"] == "stops" and _held_runs(drive_route(after))
+    assert zoo_families(sc)["robot stops"] == "stops"

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pedcal.sim.robot import route_waypoints, stop_waypoints
+from pedcal.sim.robot import drive_route, route_waypoints, stop_waypoints
 from pedcal.sim.scenario import Scenario
 
 HEAD_SPHERE_M = 0.1      # the head of the ``centroid`` model: a sphere of this radius
@@ -191,9 +191,16 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
 
 def _stops_realized(sc: Scenario) -> bool:
     """Whether the robot stops at some waypoint of its route (drawn stops on a short route may
-    pick none, and a stop shorter than half a truth period holds no pose: the family is what the
-    log holds, not what was drawn)."""
-    return len(stop_waypoints(sc, len(route_waypoints(sc)))) > 0
+    pick none, a stop shorter than half a truth period holds no pose, and a log cut short by
+    ``duration_s`` may end before the first stop: the family is what the log holds, not what was
+    drawn). A cut log's drive is simulated to see: a stop holds a pose unchanged from one truth
+    step to the next, which the follower's motion never does."""
+    if not len(stop_waypoints(sc, len(route_waypoints(sc)))):
+        return False
+    if sc.duration_s is None:
+        return True
+    poses = drive_route(sc)
+    return bool(np.any(np.all(np.diff(poses, axis=0) == 0.0, axis=1)))
 
 
 # each family :func:`switch_off` takes out of a drawn scenario, and the values it sets
