@@ -76,8 +76,9 @@ def network_sigma_split(extrinsics: SensorNetwork) -> dict | None:
     height) and the root of the mean over those sensors of the variance of each one's departure
     from that mean, from the calibrated file's joint covariance (``position_covariance_m2``).
     With C_ij the 3 x 3 blocks of the k ok sensors, the common covariance is sum_ij C_ij / k^2 and
-    a departure's C_ii - (sum_j C_ij + sum_j C_ji) / k + the common one; the two squares add up to
-    the mean of the sensors' own variances. Returns {"common_m": [x, y, z], "relative_rms_m":
+    a departure's variances the diagonal of C_ii - (sum_j C_ij + sum_j C_ji) / k + the common one,
+    diag C_ii - 2 diag sum_j C_ij / k + the common variances (C is symmetric); the two squares add
+    up to the mean of the sensors' own variances. Returns {"common_m": [x, y, z], "relative_rms_m":
     [x, y, z], "sensors": k, "ids": [the k sensors]}, or None without a joint covariance or an ok
     sensor: one of the covariance's sensors with status ok or none given in ``extrinsics`` (a
     sensor left at its installed pose would count its prior; one the network lacks is not
@@ -96,12 +97,11 @@ def network_sigma_split(extrinsics: SensorNetwork) -> dict | None:
         return None
     k = len(ok)
     C = M.reshape(n, 3, n, 3)[ok][:, :, ok, :]                   # (k, 3, k, 3): the ok sensors' blocks
-    common = np.einsum("iajb->ab", C) / k ** 2
-    row = np.einsum("iajb->iab", C)                               # sum_j C_ij, per sensor i
-    own = np.einsum("iaib->iab", C)                               # C_ii
-    departure = own - (row + row.transpose(0, 2, 1)) / k + common
-    var_common = np.clip(np.diag(common), 0.0, None)
-    var_rest = np.clip(np.mean(np.diagonal(departure, axis1=1, axis2=2), axis=0), 0.0, None)
+    var_common = np.einsum("iaja->a", C) / k ** 2                # diag of sum_ij C_ij / k^2
+    own = np.einsum("iaia->ia", C)                                # diag C_ii, per sensor
+    row = np.einsum("iaja->ia", C)                                # diag sum_j C_ij, per sensor
+    var_rest = np.clip(np.mean(own - 2.0 * row / k, axis=0) + var_common, 0.0, None)
+    var_common = np.clip(var_common, 0.0, None)
     return {"common_m": np.sqrt(var_common).tolist(), "relative_rms_m": np.sqrt(var_rest).tolist(), "sensors": k,
             "ids": [ids[i] for i in ok]}
 
