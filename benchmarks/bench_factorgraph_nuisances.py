@@ -93,7 +93,8 @@ from pedcal.sim.scenario import CHOICES
 # noise white or correlated frame to frame.
 ZOO_FAMILY_VALUES = {"head": ("per-sensor", *HEAD_KINDS), "clock": ("shared", "offsets", "skew"),
                      "mounts": ("ceiling", "mixed", "wall"), "amcl": (*CHOICES["amcl_error"], "relocalization"),
-                     "tracker noise": ("white", "correlated"), "robot stops": ("none", "stops")}
+                     "tracker noise": ("white", "correlated"), "robot stops": ("none", "stops"),
+                     "head sink": ("none", "sinks")}
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:

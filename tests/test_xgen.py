@@ -146,6 +146,31 @@ def test_head_profiles_shift_toward_the_sensor():
     assert np.all(np.abs(cen[:, 1]) < 1e-3)  # the surface samples are symmetric to a fraction of a mm
 
 
+def test_a_profiles_ideal_part_keeps_the_head_tops_own_coordinates():
+    top = np.array([[2.0, 0.0, 1.3], [0.5, 0.0, 1.3]])
+    sensor = np.array([0.0, 0.0, 3.0])
+    ramp = {"kind": "ramp", "shift_m": 0.08, "sat_m": 1.0, "drop0_m": 0.01, "drop1_m": 0.02}
+    both = tracked_point(ramp, top, sensor)
+    sinks = tracked_point({**ramp, "ideal": "xy"}, top, sensor)      # the horizontal shift ideal
+    shifts = tracked_point({**ramp, "ideal": "z"}, top, sensor)      # the vertical drop ideal
+    np.testing.assert_array_equal(sinks[:, :2], top[:, :2])
+    np.testing.assert_array_equal(sinks[:, 2], both[:, 2])
+    np.testing.assert_array_equal(shifts[:, :2], both[:, :2])
+    np.testing.assert_array_equal(shifts[:, 2], top[:, 2])
+
+
+def test_the_head_points_two_parts_made_ideal_apart_and_together(tmp_path):
+    runs = {}
+    for name, ideal in (("xy", ("head-xy",)), ("z", ("head-z",)), ("both", ("head-xy", "head-z")),
+                        ("head", ("head",))):
+        info = generate(tmp_path / name, seed=1, family="rooms", max_time_s=30.0, ideal=ideal)
+        runs[name] = ((tmp_path / name / "observations.csv").read_bytes(), info)
+    assert runs["both"][0] == runs["head"][0]        # both parts ideal: the head top itself
+    assert len({runs[n][0] for n in ("xy", "z", "head")}) == 3
+    assert {s["profile"].get("ideal") for s in runs["xy"][1]["sensors"]} == {"xy"}
+    assert {s["profile"].get("ideal") for s in runs["z"][1]["sensors"]} == {"z"}
+
+
 def test_ideal_log_sees_the_head_top_exactly(tmp_path):
     # with every nuisance off, each robot observation mapped back with the true extrinsics is the
     # true head top at stamp - latency (up to the files' rounding and the 20 Hz truth's interpolation)
