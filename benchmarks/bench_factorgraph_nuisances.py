@@ -30,7 +30,8 @@ part (which the robot cannot tell from the sensors' heights), its RMS over seeds
 seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time;
 the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <= 12 mm and
 <= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
-mounts, AMCL, tracker noise, robot stops, head sink): logs, horizontal RMS mean and worst (the graph's sensors missed beside it), graph /
+mounts, AMCL, tracker noise, robot stops, head sink):
+logs, horizontal RMS mean and worst (the graph's sensors missed beside it), graph /
 grid (the grid search's sensors missed beside it), and the per-sensor clock
 offsets' error about their mean (RMS) and the share within 1 and 2 sigma (the sigma's honesty per
 family is in the table below).

@@ -151,10 +151,10 @@ def test_a_ramps_shape_sets_how_its_change_spreads_over_the_distance():
 
 
 def test_a_sinking_head_point_drops_with_horizontal_distance_whatever_its_kind():
-    for kind in ("top", "shift", "dome"):
-        plain = Scenario().resolve(head_point=kind, head_shift_m=0.04, head_radius_m=0.08, head_ramp_m=2.0)
+    for kind in HEAD_KINDS:
+        plain = Scenario().resolve(head_point=kind, head_shift_m=0.04, head_radius_m=0.08, head_ramp_m=3.0)
         sunk = plain.resolve(head_sink_m=0.03)
-        for d_h, mm in ((0.0, 0.0), (0.5, 7.5), (2.0, 30.0), (3.5, 30.0)):
+        for d_h, mm in ((0.0, 0.0), (0.75, 7.5), (3.0, 30.0), (4.5, 30.0)):
             sensor = np.array([[d_h, 0.0, 2.6]])
             got = head_point(TOP, sensor, sunk)[0] - head_point(TOP, sensor, plain)[0]
             np.testing.assert_allclose(got, [0.0, 0.0, -mm / 1000], atol=1e-12, err_msg=kind)
@@ -162,8 +162,12 @@ def test_a_sinking_head_point_drops_with_horizontal_distance_whatever_its_kind()
     exp = Scenario().resolve(head_point="top", head_sink_m=0.03, head_ramp_m=2.0, head_ramp_shape="exp")
     got = head_point(TOP, np.array([[1.0, 0.0, 2.6]]), exp)[0] - TOP[0]
     np.testing.assert_allclose(got, [0.0, 0.0, -0.03 * (1 - np.exp(-1.5))], atol=1e-12)
-    assert "sinking 30 mm over 2.0 m (exp)" in head_model_truth(exp)
-    assert "sinking" not in head_model_truth(exp.resolve(head_sink_m=0.0))
+    assert head_model_truth(exp) == "top, sinking 30 mm over 2.0 m (exp), vertical bias +0 mm"
+    assert head_model_truth(exp.resolve(head_sink_m=0.0)) == "top, vertical bias +0 mm"
+    # the caller's heads stay where they were (a dome of radius 0 hands back the array it got)
+    tops = np.repeat(TOP, 2, axis=0)
+    head_point(tops, np.array([[1.0, 0.0, 2.6], [0.0, 1.0, 2.6]]), exp.resolve(head_point="dome", head_radius_m=0.0))
+    np.testing.assert_array_equal(tops, np.repeat(TOP, 2, axis=0))
 
 
 def test_each_sensors_sink_is_drawn_beside_its_head_model_and_changes_no_other_draw():

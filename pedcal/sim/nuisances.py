@@ -12,8 +12,10 @@ distance (linearly, exponentially or smoothly: the shape from a stream of its ow
 per sensor (each sensor running its own tracker), per-sensor clock offsets (+-0.15 s) and skews,
 mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched 10-25 deg, AMCL
 relocalizations (0.4 m held for 10 s) and, from streams of their own, tracker noise white or
-correlated frame to frame (rho 0.3-0.85: a tracker that filters its output) and the robot's stops
-(1-5 s at 10-30 % of its route's waypoints, half the seeds).
+correlated frame to frame (rho 0.3-0.85: a tracker that filters its output), the robot's stops
+(1-5 s at 10-30 % of its route's waypoints, half the seeds) and a head point that sinks as heads
+are seen from the side (1-4 cm at head_ramp_m, per sensor with a tracker per sensor; half the
+seeds), beyond what a dome's or a centroid's point does.
 """
 
 from __future__ import annotations
@@ -109,7 +111,8 @@ def head_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, sc: Scenario) ->
     else:
         out = p.copy()
     if sc.head_sink_m:
-        out[:, 2] -= sc.head_sink_m * ramp_share(d_h[:, 0] / sc.head_ramp_m, sc.head_ramp_shape)
+        # (a new array: a dome of radius 0 returns the caller's own)
+        out = out - np.outer(sc.head_sink_m * ramp_share(d_h[:, 0] / sc.head_ramp_m, sc.head_ramp_shape), [0, 0, 1])
     if sc.head_vertical_bias_m:
         out = out + np.array([0.0, 0.0, sc.head_vertical_bias_m])
     return out
@@ -301,7 +304,8 @@ def head_model_truth(sc: Scenario) -> str:
               "top": ""}[sc.head_point]
     sink = (f", sinking {1000 * sc.head_sink_m:.0f} mm over {sc.head_ramp_m:.1f} m ({sc.head_ramp_shape})"
             if sc.head_sink_m else "")
-    return f"{sc.head_point} {detail}{sink}, vertical bias {1000 * sc.head_vertical_bias_m:+.0f} mm".replace("  ", " ")
+    named = f"{sc.head_point} {detail}" if detail else sc.head_point
+    return f"{named}{sink}, vertical bias {1000 * sc.head_vertical_bias_m:+.0f} mm"
 
 
 def sensor_truth(sc: Scenario, ids: list[str]) -> dict:
