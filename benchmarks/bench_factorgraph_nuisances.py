@@ -2,7 +2,8 @@
 every seed draws its head-point model, AMCL error, odometry, latency and depth noise from the
 simulator's zoo (``simulate_logs(..., vary_nuisances=True)``, ``pedcal simulate --vary-nuisances``);
 with ``--zoo`` also the zoo's further families (head points that ramp or saturate with distance,
-one per sensor, per-sensor clocks, mixed heights and wall mounts, relocalizations:
+one per sensor, that sink as heads are seen from the side, per-sensor clocks, mixed heights and
+wall mounts, relocalizations:
 ``--vary-nuisances zoo``), and the figures split by family.
 
     nice -n 10 .venv/bin/python benchmarks/bench_factorgraph_nuisances.py \
@@ -29,7 +30,8 @@ part (which the robot cannot tell from the sensors' heights), its RMS over seeds
 seed, and the RMS of that mean vertical part; the factor graph's calibrate() wall and CPU time;
 the worst log's horizontal RMS and graph / grid ratio, and how many logs meet <= 12 mm and
 <= 0.35x the grid search horizontally. With ``--zoo``, per family of each nuisance (head, clock,
-mounts, AMCL): logs, horizontal RMS mean and worst (the graph's sensors missed beside it), graph /
+mounts, AMCL, tracker noise, robot stops, head sink):
+logs, horizontal RMS mean and worst (the graph's sensors missed beside it), graph /
 grid (the grid search's sensors missed beside it), and the per-sensor clock
 offsets' error about their mean (RMS) and the share within 1 and 2 sigma (the sigma's honesty per
 family is in the table below).
@@ -93,7 +95,8 @@ from pedcal.sim.scenario import CHOICES
 # noise white or correlated frame to frame.
 ZOO_FAMILY_VALUES = {"head": ("per-sensor", *HEAD_KINDS), "clock": ("shared", "offsets", "skew"),
                      "mounts": ("ceiling", "mixed", "wall"), "amcl": (*CHOICES["amcl_error"], "relocalization"),
-                     "tracker noise": ("white", "correlated"), "robot stops": ("none", "stops")}
+                     "tracker noise": ("white", "correlated"), "robot stops": ("none", "stops"),
+                     "head sink": ("none", "sinks")}
 
 
 def head_model_error_mm(sim, head) -> tuple[float, float]:

@@ -8,7 +8,7 @@ a training set: do not tune pedcal to it.
         [--families rooms lhall corridor openhall] [--methods factorgraph gridsearch] [--out DIR] [--jobs 1]
         [--graph graphs/FILE.toml]
         [--max-time 600]
-        [--ideal head noise clocks amcl people]   # diagnosis: the same worlds without these nuisances
+        [--ideal head head-xy head-z noise clocks amcl people]   # diagnosis: the same worlds without these
         [--head-profiles per-sensor|shared]       # one tracker profile per sensor (default) or per log
         [--from-results DIR]                      # the tables of an earlier run
 
@@ -48,6 +48,10 @@ error is (:func:`split_ratios`): each log's shared error (the mean of its ok sen
 the common position's sigma, and the RMS of their errors about it over the RMS sigma about it
 (``pedcal.metrics.network_sigma_split``), x, y, z, as the RMS over the logs (1 when honest), and
 the logs whose horizontal rest exceeds 2 sigma on an axis, named.
+Last, per method, how much of each sensor's horizontal error about its log's mean its tracker's
+sink would make as the sensor's tilt (:func:`sink_tilts`: the sensor's height above the head
+times the slope of a plane fitted to the true sink over its reports): both RMS, their
+correlation per axis, the least-squares gain and what is left (:func:`tilt_fit`).
 Results are also written to OUT/results.jsonl; the tables are printed per family and pooled.
 """
 
@@ -65,12 +69,13 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import yaml
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from xgen import FAMILIES, generate  # noqa: E402
-from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor  # noqa: E402
+from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor, tracked_point  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -449,6 +454,82 @@ def attach_sensor_info(rows, out: Path):
                 x["true_xy_m"] = truth[x["id"]]["p"][:2].tolist()
 
 
+def sink_tilts(log: Path) -> dict[str, np.ndarray]:
+    """Per sensor of an xgen log, the horizontal move (m, world) its tracker's sink would make as
+    the sensor's tilt: the true sink (the vertical part of the tracker's point less the head top)
+    over the robot observations it made fitted by a plane a + b (x - x_s) + c (y - y_s), times the
+    sensor's height above the head, H (b, c). Turning a sensor by a slope k lowers each point by
+    k d along its view and moves every point by k H, which its position takes back (pedcal's
+    README, the head point's two parts). The head tops are the truth's at each report's capture
+    time (stamp less the latency and the sensor's clock offset); a sensor with fewer than 20
+    reports gets none."""
+    info = json.loads((log / "xgen.json").read_text())
+    truth = read_network(log / "truth.yaml")
+    obs = pd.read_csv(log / "observations.csv")
+    obs = obs[pd.read_csv(log / "truth_observations.csv")["who"].to_numpy() == "robot"]
+    robot = pd.read_csv(log / "truth_robot.csv")
+    head = np.asarray(info["head_offset_m"], float)
+    yaw_unwrapped = np.unwrap(robot["yaw"].to_numpy())
+    out = {}
+    for s in info["sensors"]:
+        sid = str(s["id"])
+        seen = obs[obs["sensor"].astype(str) == sid]
+        if len(seen) < 20:
+            continue
+        t = seen["t"].to_numpy(float) - info["latency_s"] - s["clock_offset_s"]
+        x, y = np.interp(t, robot["t"], robot["x"]), np.interp(t, robot["t"], robot["y"])
+        yaw = np.interp(t, robot["t"], yaw_unwrapped)
+        top = np.column_stack([x + np.cos(yaw) * head[0] - np.sin(yaw) * head[1],
+                               y + np.sin(yaw) * head[0] + np.cos(yaw) * head[1], np.full(len(t), head[2])])
+        p_s = truth[sid]["p"]
+        sink = tracked_point(s["profile"], top, p_s)[:, 2] - top[:, 2]
+        A = np.column_stack([np.ones(len(t)), top[:, 0] - p_s[0], top[:, 1] - p_s[1]])
+        slope = np.linalg.lstsq(A, sink, rcond=None)[0][1:]
+        out[sid] = (p_s[2] - head[2]) * slope
+    return out
+
+
+def tilt_fit(tilt_m: np.ndarray, rest_m: np.ndarray) -> dict:
+    """How much of the sensors' horizontal errors about their log's mean (``rest_m``, (n, 2))
+    their trackers' sinks' tilts (``tilt_m``, (n, 2), :func:`sink_tilts`) explain: both RMS (mm),
+    their correlation per axis, the least-squares gain g of rest = g tilt over both axes, and the
+    RMS of rest - g tilt (mm)."""
+    tilt, rest = np.asarray(tilt_m, float), np.asarray(rest_m, float)
+    gain = float(np.sum(tilt * rest) / max(float(np.sum(tilt * tilt)), 1e-30))
+    rms = lambda v: float(1000 * np.sqrt(np.mean(np.sum(v ** 2, axis=1))))  # noqa: E731
+    corr = [float(np.corrcoef(tilt[:, a], rest[:, a])[0, 1]) if np.std(tilt[:, a]) > 0 and np.std(rest[:, a]) > 0
+            else math.nan for a in range(2)]
+    return {"sensors": len(tilt), "tilt_mm": rms(tilt), "rest_mm": rms(rest), "corr": corr, "gain": gain,
+            "left_mm": rms(rest - gain * tilt)}
+
+
+def sink_tilt_table(rows, method, out: Path) -> str:
+    """Per family and pooled, :func:`tilt_fit` of ``method``'s sensors (every scored sensor of a
+    log that calibrated, errors about the log's mean horizontal error) against their trackers'
+    sinks' tilts; "" when no log of the method calibrated."""
+    per_family: dict[str, list] = {}
+    for r in rows:
+        if r["method"] != method or r.get("failed") or not r.get("sensors"):
+            continue
+        tilts = sink_tilts(out / f"{r['family']}-{r['seed']}" / "log")
+        e = np.array([[x["dx"], x["dy"]] for x in r["sensors"]])
+        rest = e - e.mean(axis=0)
+        for x, d in zip(r["sensors"], rest, strict=True):
+            if x["id"] in tilts:
+                per_family.setdefault(r["family"], []).append((tilts[x["id"]], d))
+    if not per_family:
+        return ""
+    lines = [f"### {method}: each tracker's sink as its sensor's tilt (height above the head x the sink's slope)",
+             "", "| family | sensors | tilt RMS (mm) | rest RMS (mm) | correlation x / y | gain "
+             "| rest less gain x tilt (mm) |", "|---|---|---|---|---|---|---|"]
+    groups = list(per_family.items()) + [("pooled", [p for v in per_family.values() for p in v])]
+    for name, pairs in groups:
+        f = tilt_fit(np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs]))
+        lines.append(f"| {name} | {f['sensors']} | {f['tilt_mm']:.1f} | {f['rest_mm']:.1f} | "
+                     f"{f['corr'][0]:.2f} / {f['corr'][1]:.2f} | {f['gain']:.2f} | {f['left_mm']:.1f} |")
+    return "\n".join(lines)
+
+
 def attach_sigma_split(rows, out: Path) -> None:
     """Each calibration row gets ``sigma_split``: :func:`pedcal.metrics.network_sigma_split` of the
     YAML its method wrote (OUT/FAMILY-SEED/METHOD.yaml), None for a failed run, without the file,
@@ -697,6 +778,11 @@ def print_tables(rows, methods, out: Path, title: str):
         text = split_honesty_table(rows, m, by_family(rows) + by_log_nuisance(rows),
                                    f"{m}: the sigma's honesty split as the error is: the shared part and each sensor's "
                                    "about it")
+        if text:
+            print()
+            print(text)
+    for m in methods:
+        text = sink_tilt_table(rows, m, out)
         if text:
             print()
             print(text)

@@ -11,6 +11,7 @@ from pedcal.sim.nuisances import (
     OFF_FAMILIES,
     RAMP_SHAPES,
     draw_nuisances,
+    head_model_truth,
     head_point,
     ramp_share,
     sensor_head_models,
@@ -149,6 +150,41 @@ def test_a_ramps_shape_sets_how_its_change_spreads_over_the_distance():
     np.testing.assert_allclose(got, [0.03375, 0, 0], atol=1e-12)
 
 
+def test_a_sinking_head_point_drops_with_horizontal_distance_whatever_its_kind():
+    for kind in HEAD_KINDS:
+        plain = Scenario().resolve(head_point=kind, head_shift_m=0.04, head_radius_m=0.08, head_ramp_m=3.0)
+        sunk = plain.resolve(head_sink_m=0.03)
+        for d_h, mm in ((0.0, 0.0), (0.75, 7.5), (3.0, 30.0), (4.5, 30.0)):
+            sensor = np.array([[d_h, 0.0, 2.6]])
+            got = head_point(TOP, sensor, sunk)[0] - head_point(TOP, sensor, plain)[0]
+            np.testing.assert_allclose(got, [0.0, 0.0, -mm / 1000], atol=1e-12, err_msg=kind)
+    # the ramp's shape sets how the sink spreads over the distance, as it does the shift's
+    exp = Scenario().resolve(head_point="top", head_sink_m=0.03, head_ramp_m=2.0, head_ramp_shape="exp")
+    got = head_point(TOP, np.array([[1.0, 0.0, 2.6]]), exp)[0] - TOP[0]
+    np.testing.assert_allclose(got, [0.0, 0.0, -0.03 * (1 - np.exp(-1.5))], atol=1e-12)
+    assert head_model_truth(exp) == "top, sinking 30 mm over 2.0 m (exp), vertical bias +0 mm"
+    assert head_model_truth(exp.resolve(head_sink_m=0.0)) == "top, vertical bias +0 mm"
+    # the caller's heads stay where they were (a dome of radius 0 hands back the array it got)
+    tops = np.repeat(TOP, 2, axis=0)
+    head_point(tops, np.array([[1.0, 0.0, 2.6], [0.0, 1.0, 2.6]]), exp.resolve(head_point="dome", head_radius_m=0.0))
+    np.testing.assert_array_equal(tops, np.repeat(TOP, 2, axis=0))
+
+
+def test_each_sensors_sink_is_drawn_beside_its_head_model_and_changes_no_other_draw():
+    sc = load_scenario("paper").resolve(seed=3, per_sensor_head=True)
+    without = sensor_head_models(sc, 8)
+    with_sink = sensor_head_models(sc.resolve(head_sink_m=0.02), 8)
+    assert [m.head_sink_m for m in without] == [0.0] * 8
+    sinks = np.array([m.head_sink_m for m in with_sink])
+    assert np.all((sinks >= 0.0) & (sinks <= 0.04)) and len(set(sinks.tolist())) == 8
+    for a, b in zip(without, with_sink, strict=True):      # the kinds, shifts and shapes as they were
+        assert (a.head_point, a.head_shift_m, a.head_radius_m, a.head_ramp_m, a.head_ramp_shape) == (
+            b.head_point, b.head_shift_m, b.head_radius_m, b.head_ramp_m, b.head_ramp_shape)
+    # one tracker for every sensor: the scenario's own sink
+    assert [m.head_sink_m for m in sensor_head_models(sc.resolve(per_sensor_head=False, head_sink_m=0.02), 3)] == [
+        0.02] * 3
+
+
 def test_the_zoo_draws_ramp_shapes_from_a_stream_of_their_own():
     # the draws made before the shapes existed (paper, seeds 0-3) are unchanged
     before = [("top", 0.031, 2.394, False, ["centroid", "ramp", "top", "dome"]),
@@ -181,6 +217,8 @@ def test_zoo_leaves_the_classic_draw_alone_and_draws_every_alternative():
     assert "relocalization" in {f["amcl"] for f in fam} and "per-sensor" in {f["head"] for f in fam}
     assert {z.head_point for z in zoo} == set(HEAD_KINDS)
     assert all(abs(z.clock_offset_s) <= 0.15 for z in zoo)
+    assert {f["head sink"] for f in fam} == {"sinks", "none"}
+    assert all(0.01 <= z.head_sink_m <= 0.04 for z in zoo if z.head_sink_m)
 
 
 def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
@@ -198,7 +236,7 @@ def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
     assert zoo_families(off["mounts"])["mounts"] == "ceiling"
     assert (off["odometry"].odom_scale_error, off["odometry"].odom_gyro_bias_dps) == (0.0, 0.0)
     assert off["odometry"].odometry == sc.odometry and off["depth"].depth_noise_model == "quadratic"
-    own = {"head": {"head_point", "per_sensor_head", "head_vertical_bias_m"},
+    own = {"head": {"head_point", "per_sensor_head", "head_vertical_bias_m", "head_sink_m"},
            "clock": {"clock_offset_s", "clock_skew_ppm"}, "latency": {"latency_s"}, "jumps": {"amcl_jump_m"},
            "mounts": {"sensor_height_range_m", "wall_mounted_fraction"},
            "odometry": {"odom_scale_error", "odom_gyro_bias_dps"}, "depth": {"depth_noise_model"},
@@ -209,7 +247,7 @@ def test_switch_off_makes_one_family_ideal_and_leaves_every_other_draw():
     assert zoo_families(off["smoothing"])["tracker noise"] == "white"
     every = switch_off(sc, OFF_FAMILIES)
     assert zoo_families(every) == {"head": "top", "clock": "shared", "mounts": "ceiling", "amcl": "correlated",
-                                   "tracker noise": "white", "robot stops": "none"}
+                                   "head sink": "none", "tracker noise": "white", "robot stops": "none"}
     # the same layout and route: the switched-off log's truth is the drawn one's, but for the mounts
     a = simulate_logs(sc, seed=sc.seed, duration_s=30.0).calib
     b = simulate_logs(switch_off(sc, ["head", "clock", "latency"]), seed=sc.seed, duration_s=30.0).calib

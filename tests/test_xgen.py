@@ -146,6 +146,65 @@ def test_head_profiles_shift_toward_the_sensor():
     assert np.all(np.abs(cen[:, 1]) < 1e-3)  # the surface samples are symmetric to a fraction of a mm
 
 
+def test_a_profiles_ideal_part_keeps_the_head_tops_own_coordinates():
+    top = np.array([[2.0, 0.0, 1.3], [0.5, 0.0, 1.3]])
+    sensor = np.array([0.0, 0.0, 3.0])
+    ramp = {"kind": "ramp", "shift_m": 0.08, "sat_m": 1.0, "drop0_m": 0.01, "drop1_m": 0.02}
+    both = tracked_point(ramp, top, sensor)
+    sinks = tracked_point({**ramp, "ideal": "xy"}, top, sensor)      # the horizontal shift ideal
+    shifts = tracked_point({**ramp, "ideal": "z"}, top, sensor)      # the vertical drop ideal
+    np.testing.assert_array_equal(sinks[:, :2], top[:, :2])
+    np.testing.assert_array_equal(sinks[:, 2], both[:, 2])
+    np.testing.assert_array_equal(shifts[:, :2], both[:, :2])
+    np.testing.assert_array_equal(shifts[:, 2], top[:, 2])
+
+
+def test_the_head_points_two_parts_made_ideal_apart_and_together(tmp_path):
+    runs = {}
+    for name, ideal in (("xy", ("head-xy",)), ("z", ("head-z",)), ("both", ("head-xy", "head-z")),
+                        ("head", ("head",))):
+        info = generate(tmp_path / name, seed=1, family="rooms", max_time_s=30.0, ideal=ideal)
+        runs[name] = ((tmp_path / name / "observations.csv").read_bytes(), info)
+    assert runs["both"][0] == runs["head"][0]        # both parts ideal: the head top itself
+    assert len({runs[n][0] for n in ("xy", "z", "head")}) == 3
+    assert {s["profile"].get("ideal") for s in runs["xy"][1]["sensors"]} == {"xy"}
+    assert {s["profile"].get("ideal") for s in runs["z"][1]["sensors"]} == {"z"}
+
+
+def test_tilt_fit_splits_the_rest_into_the_gain_times_the_tilt_and_what_is_left():
+    from bench_xgen import tilt_fit
+
+    rng = np.random.default_rng(3)
+    tilt = rng.normal(0.0, 0.02, (200, 2))
+    other = rng.normal(0.0, 0.01, (200, 2))
+    other -= tilt * (np.sum(tilt * other) / np.sum(tilt * tilt))      # orthogonal to the tilt over both axes
+    f = tilt_fit(tilt, 0.5 * tilt + other)
+    assert f["gain"] == pytest.approx(0.5, abs=1e-12)
+    assert f["left_mm"] == pytest.approx(1000 * np.sqrt(np.mean(np.sum(other ** 2, axis=1))), rel=1e-12)
+    assert f["tilt_mm"] == pytest.approx(1000 * np.sqrt(np.mean(np.sum(tilt ** 2, axis=1))), rel=1e-12)
+    assert f["corr"][0] == pytest.approx(np.corrcoef(tilt[:, 0], 0.5 * tilt[:, 0] + other[:, 0])[0, 1], rel=1e-12)
+    assert f["sensors"] == 200
+
+
+def test_sink_tilts_are_none_without_a_sink_and_at_most_the_height_times_a_linear_sinks_slope(tmp_path):
+    from bench_xgen import sink_tilts
+
+    d = tmp_path / "log"
+    info = generate(d, seed=1, family="rooms", max_time_s=60.0, ideal=("head",))
+    tilts = sink_tilts(d)
+    assert tilts and all(np.all(v == 0.0) for v in tilts.values())
+    # a sink of 1 cm per metre of horizontal distance (a ramp saturating far beyond the views)
+    for s in info["sensors"]:
+        s["profile"] = {"kind": "ramp", "shift_m": 0.0, "sat_m": 100.0, "drop0_m": 0.0, "drop1_m": 1.0}
+    (d / "xgen.json").write_text(json.dumps(info))
+    tilts = sink_tilts(d)
+    truth = {s["id"]: s for s in yaml.safe_load((d / "truth.yaml").read_text())["sensors"]}
+    ratio = np.array([np.linalg.norm(v) / ((truth[sid]["position"][2] - info["head_offset_m"][2]) * 0.01)
+                      for sid, v in tilts.items()])
+    # a plane's slope of a sink read at the radial distance is at most the sink's own
+    assert np.all(ratio <= 1.0 + 1e-9) and np.max(ratio) > 0.5, ratio.round(2)
+
+
 def test_ideal_log_sees_the_head_top_exactly(tmp_path):
     # with every nuisance off, each robot observation mapped back with the true extrinsics is the
     # true head top at stamp - latency (up to the files' rounding and the 20 Hz truth's interpolation)

@@ -553,7 +553,19 @@ def draw_profile(rng):
 
 
 def tracked_point(profile, top_w, sensor_w):
-    """Where a tracker puts the head whose top is top_w (N x 3), seen from sensor_w (3,)."""
+    """Where a tracker puts the head whose top is top_w (N x 3), seen from sensor_w (3,). A
+    profile's "ideal" ("xy" or "z", IDEAL "head-xy" / "head-z") keeps the head top's own
+    horizontal or vertical coordinates: only the other part of the profile is left."""
+    out = _tracked_point(profile, top_w, sensor_w)
+    ideal = profile.get("ideal")
+    if ideal == "xy":
+        out[:, :2] = top_w[:, :2]
+    elif ideal == "z":
+        out[:, 2] = top_w[:, 2]
+    return out
+
+
+def _tracked_point(profile, top_w, sensor_w):
     to_s = sensor_w[None, :2] - top_w[:, :2]
     d = np.linalg.norm(to_s, axis=1)
     u = to_s / np.maximum(d, 1e-6)[:, None]
@@ -787,7 +799,7 @@ PATH_MODES = {"rooms": ("tour", "lawnmower"), "lhall": ("tour", "shuttle"),
               "corridor": ("tour", "shuttle"), "openhall": ("tour", "lawnmower")}
 
 
-IDEAL = ("head", "noise", "clocks", "amcl", "people")
+IDEAL = ("head", "head-xy", "head-z", "noise", "clocks", "amcl", "people")
 HEAD_PROFILE_MODES = ("per-sensor", "shared")
 
 
@@ -797,10 +809,11 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
     (also written to ``xgen.json`` in the log, beside the format's truth files).
 
     ``ideal`` switches nuisances off, for diagnosis, in the same world (every draw is still made,
-    so the rest of the log is unchanged): "head" (the tracker reports the head top), "noise" (no
-    tracker noise or outliers), "clocks" (no per-sensor offsets, skew or stamp jitter; the shared
-    latency stays), "amcl" (AMCL reports the true pose, its covariance unchanged), "people" (no
-    pedestrians, no false tracks).
+    so the rest of the log is unchanged): "head" (the tracker reports the head top), "head-xy" /
+    "head-z" (only its horizontal / vertical coordinates the head top's: the other part of each
+    tracker's profile alone; both: "head"), "noise" (no tracker noise or outliers), "clocks" (no
+    per-sensor offsets, skew or stamp jitter; the shared latency stays), "amcl" (AMCL reports the
+    true pose, its covariance unchanged), "people" (no pedestrians, no false tracks).
 
     ``head_profiles``: "per-sensor" (each tracker its own head-point profile and parameters) or
     "shared" (one tracker software for all: every sensor gets the first sensor's profile; the bias
@@ -847,8 +860,12 @@ def generate(out_dir, seed: int, family: str, max_time_s: float = 600.0, walkers
     for spec in specs.values():
         if head_profiles == "shared":
             spec.profile = dict(first)
-        if "head" in ideal:
+        if "head" in ideal or {"head-xy", "head-z"} <= set(ideal):
             spec.profile = {"kind": "none"}
+        elif "head-xy" in ideal:
+            spec.profile = {**spec.profile, "ideal": "xy"}
+        elif "head-z" in ideal:
+            spec.profile = {**spec.profile, "ideal": "z"}
         if "noise" in ideal:
             spec.noise_off = True
         if "clocks" in ideal:

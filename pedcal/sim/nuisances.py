@@ -12,8 +12,10 @@ distance (linearly, exponentially or smoothly: the shape from a stream of its ow
 per sensor (each sensor running its own tracker), per-sensor clock offsets (+-0.15 s) and skews,
 mixed mounting heights (2.6-4.5 m), wall-mounted sensors pitched 10-25 deg, AMCL
 relocalizations (0.4 m held for 10 s) and, from streams of their own, tracker noise white or
-correlated frame to frame (rho 0.3-0.85: a tracker that filters its output) and the robot's stops
-(1-5 s at 10-30 % of its route's waypoints, half the seeds).
+correlated frame to frame (rho 0.3-0.85: a tracker that filters its output), the robot's stops
+(1-5 s at 10-30 % of its route's waypoints, half the seeds) and a head point that sinks as heads
+are seen from the side (1-4 cm at head_ramp_m, per sensor with a tracker per sensor; half the
+seeds), beyond what a dome's or a centroid's point does.
 """
 
 from __future__ import annotations
@@ -108,6 +110,9 @@ def head_point(p_top_world: np.ndarray, sensor_pos: np.ndarray, sc: Scenario) ->
         out = p + np.column_stack([np.interp(elev, e_tab, h_tab)[:, None] * u_h, np.interp(elev, e_tab, z_tab)])
     else:
         out = p.copy()
+    if sc.head_sink_m:
+        # (a new array: a dome of radius 0 returns the caller's own)
+        out = out - np.outer(sc.head_sink_m * ramp_share(d_h[:, 0] / sc.head_ramp_m, sc.head_ramp_shape), [0, 0, 1])
     if sc.head_vertical_bias_m:
         out = out + np.array([0.0, 0.0, sc.head_vertical_bias_m])
     return out
@@ -122,13 +127,31 @@ def _draw_head(rng: np.random.Generator) -> dict:
                 head_shift_m=float(rng.uniform(0.02, 0.06)), head_ramp_m=float(rng.uniform(1.0, 3.0)))
 
 
+def _sensor_sinks(seed: int, n: int, sink_m: float) -> np.ndarray:
+    """Each of ``n`` sensors' sink (m): uniform in 0-2 x ``sink_m``, from a stream of its own (so
+    that adding it left every other draw as it was); zeros when ``sink_m`` is 0."""
+    if not sink_m:
+        return np.zeros(n)
+    return np.random.default_rng(np.random.SeedSequence([seed, 0x5170])).uniform(0.0, 2.0, n) * sink_m
+
+
+def _zoo_sink(seed: int) -> float:
+    """The head point's sink of a zoo seed (m), from a stream of its own: none for half the
+    seeds, else uniform in 1-4 cm (per sensor, 0-2 x that)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5170, 2]))
+    return 0.0 if rng.random() < 0.5 else float(rng.uniform(0.01, 0.04))
+
+
 def sensor_head_models(sc: Scenario, n: int) -> list[Scenario]:
     """The head model of each of ``n`` sensors: ``sc`` itself, or with per_sensor_head one drawn
-    per sensor from the seed (:func:`_draw_head`; the vertical bias stays the scenario's)."""
+    per sensor from the seed (:func:`_draw_head`, its sink :func:`_sensor_sinks`; the vertical
+    bias stays the scenario's)."""
     if not sc.per_sensor_head:
         return [sc] * n
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x4EAD]))
-    return [sc.resolve(**_draw_head(rng), head_ramp_shape=_ramp_shape(sc.seed, i)) for i in range(n)]
+    sinks = _sensor_sinks(sc.seed, n, sc.head_sink_m)
+    return [sc.resolve(**_draw_head(rng), head_ramp_shape=_ramp_shape(sc.seed, i), head_sink_m=float(sinks[i]))
+            for i in range(n)]
 
 
 def _tracker_noise_rho(seed: int) -> float:
@@ -185,6 +208,7 @@ def zoo_families(sc: Scenario) -> dict[str, str]:
             "amcl": ("correlated" if sc.amcl_error == "jumps" and sc.amcl_jump_m <= 0.0
                      else "relocalization" if sc.amcl_error == "jumps" and sc.amcl_jump_life_s[0] >= 10.0
                      else sc.amcl_error),
+            "head sink": "sinks" if sc.head_sink_m else "none",
             "tracker noise": "correlated" if sc.tracker_noise_rho > 0 else "white",
             "robot stops": "stops" if _stops_realized(sc) else "none"}
 
@@ -225,7 +249,7 @@ def switch_off(sc: Scenario, families) -> Scenario:
     for family in families:
         if family not in OFF_FAMILIES:
             raise ValueError(f"unknown nuisance family '{family}', expected one of {', '.join(OFF_FAMILIES)}")
-        off.update({"head": dict(head_point="top", per_sensor_head=False, head_vertical_bias_m=0.0),
+        off.update({"head": dict(head_point="top", per_sensor_head=False, head_vertical_bias_m=0.0, head_sink_m=0.0),
                     "clock": dict(clock_offset_s=0.0, clock_skew_ppm=0.0),
                     "latency": dict(latency_s=0.0),
                     "jumps": dict(amcl_jump_m=0.0) if sc.amcl_error == "jumps" else {},
@@ -259,12 +283,14 @@ def vary(sc: Scenario, zoo: bool = False) -> Scenario:
     """``sc`` with the nuisance zoo drawn from its seed (the draw has its own stream, so the
     layout and the installed extrinsics stay those of the seed); ``zoo`` also draws the further
     families (:func:`draw_zoo`) from a stream of their own, after the classic draw, and the
-    tracker noise's correlation and the robot's stops each from a stream of its own."""
+    tracker noise's correlation, the robot's stops and the head point's sink each from a stream of
+    its own."""
     rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED]))
     out = sc.resolve(**draw_nuisances(rng))
     if zoo:
         out = out.resolve(**draw_zoo(np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5EED, 2]))),
                           head_ramp_shape=_ramp_shape(sc.seed, -1), tracker_noise_rho=_tracker_noise_rho(sc.seed),
+                          head_sink_m=_zoo_sink(sc.seed),
                           **_robot_stops(sc.seed))
     return out
 
@@ -276,7 +302,10 @@ def head_model_truth(sc: Scenario) -> str:
               "ramp": ramp, "saturate": ramp,
               "centroid": f"top {1000 * CENTROID_CAP_M:.0f} mm of a {1000 * HEAD_SPHERE_M:.0f} mm head",
               "top": ""}[sc.head_point]
-    return f"{sc.head_point} {detail}, vertical bias {1000 * sc.head_vertical_bias_m:+.0f} mm".replace("  ", " ")
+    sink = (f", sinking {1000 * sc.head_sink_m:.0f} mm over {sc.head_ramp_m:.1f} m ({sc.head_ramp_shape})"
+            if sc.head_sink_m else "")
+    named = f"{sc.head_point} {detail}" if detail else sc.head_point
+    return f"{named}{sink}, vertical bias {1000 * sc.head_vertical_bias_m:+.0f} mm"
 
 
 def sensor_truth(sc: Scenario, ids: list[str]) -> dict:

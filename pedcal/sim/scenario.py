@@ -169,6 +169,16 @@ class Scenario:
     """Horizontal shift of the reported head point toward the sensor (m), head_point ``shift``."""
     head_vertical_bias_m: float = _nuisance(0.0)
     """Vertical bias of the reported head point (m; negative: below), any head_point."""
+    head_sink_m: float = _nuisance(0.0)
+    """How far the reported head point sinks as the head is seen more from the side (m; negative:
+    it rises), any head_point, beyond what a dome's or a centroid's point does: nothing right
+    under the sensor, head_sink_m times the share head_ramp_shape gives at d / head_ramp_m (all
+    of it at head_ramp_m and beyond, but 95 % for ``exp``), d the horizontal distance from the
+    sensor (a tracker whose point slides down the head's side as the view turns oblique). With
+    per_sensor_head each sensor's sink is drawn uniform in 0-2 x head_sink_m. Seen from one side
+    of the sensor's nadir (a tilted sensor) a sink against distance is the sensor's tilt to first
+    order: it moves that sensor's horizontal position back along its view by up to its height
+    above the head times the sink's slope (tests/test_head_sink.py)."""
     frame_loss_prob: float = _nuisance(0.02)
     """Probability a whole frame of a sensor is lost (-): network and processing drops."""
     miss_prob: float = _nuisance(0.05)
@@ -353,7 +363,7 @@ _SHARES = ("frame_loss_prob", "miss_prob", "wall_mounted_fraction", "companion_f
            "robot_stop_share")
 _SIGNED = ("row_y_m", "pitch_deg", "clock_offset_s", "clock_skew_ppm", "head_shift_m", "head_vertical_bias_m",
            "head_offset_m", "start_time_s", "odom_scale_error", "odom_yaw_drift_deg_per_m", "odom_gyro_bias_dps",
-           "latency_s", "companion_offset_m")
+           "latency_s", "companion_offset_m", "head_sink_m")
 _CORRELATIONS = ("tracker_noise_rho",)     # within [0, 1): 1 would never change
 _ITEM_KINDS = {"walker_speed_mps": ("positive", "nonnegative")}     # a list whose items differ: [mean, std]
 
