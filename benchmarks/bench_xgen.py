@@ -458,7 +458,8 @@ def sink_tilts(log: Path) -> dict[str, np.ndarray]:
     """Per sensor of an xgen log, the horizontal move (m, world) its tracker's sink would make as
     the sensor's tilt: the true sink (the vertical part of the tracker's point less the head top)
     over the robot observations it made fitted by a plane a + b (x - x_s) + c (y - y_s), times the
-    sensor's height above the head, H (b, c). Turning a sensor by a slope k lowers each point by
+    sensor's height above the head, H (b, c) (:func:`plane_slope`: read along the directions the
+    reports spread over by 10 cm or more). Turning a sensor by a slope k lowers each point by
     k d along its view and moves every point by k H, which its position takes back (pedcal's
     README, the head point's two parts). The head tops are the truth's at each report's capture
     time (stamp less the latency and the sensor's clock offset); a sensor with fewer than 20
@@ -483,10 +484,22 @@ def sink_tilts(log: Path) -> dict[str, np.ndarray]:
                                y + np.sin(yaw) * head[0] + np.cos(yaw) * head[1], np.full(len(t), head[2])])
         p_s = truth[sid]["p"]
         sink = tracked_point(s["profile"], top, p_s)[:, 2] - top[:, 2]
-        A = np.column_stack([np.ones(len(t)), top[:, 0] - p_s[0], top[:, 1] - p_s[1]])
-        slope = np.linalg.lstsq(A, sink, rcond=None)[0][1:]
-        out[sid] = (p_s[2] - head[2]) * slope
+        out[sid] = (p_s[2] - head[2]) * plane_slope(top[:, :2], sink)
     return out
+
+
+MIN_SPREAD_M = 0.1       # a plane's slope is read along directions the points spread over by this (std) or more
+
+
+def plane_slope(xy_m: np.ndarray, z_m: np.ndarray, min_spread_m: float = MIN_SPREAD_M) -> np.ndarray:
+    """The horizontal gradient (2,) of the least-squares plane z = a + g . (xy - mean), read only
+    along the principal directions of ``xy_m`` whose std is ``min_spread_m`` or more (0 across a
+    line of points: a plane's tilt across it is whatever the fit's rounding makes it)."""
+    xy = np.asarray(xy_m, float) - np.mean(xy_m, axis=0)
+    z = np.asarray(z_m, float) - np.mean(z_m)
+    u, sv, vt = np.linalg.svd(xy, full_matrices=False)
+    keep = sv / np.sqrt(max(len(xy), 1)) >= min_spread_m
+    return vt[keep].T @ ((u[:, keep].T @ z) / sv[keep])
 
 
 def tilt_fit(tilt_m: np.ndarray, rest_m: np.ndarray) -> dict:

@@ -186,6 +186,21 @@ def test_tilt_fit_splits_the_rest_into_the_gain_times_the_tilt_and_what_is_left(
     assert f["sensors"] == 200
 
 
+def test_a_planes_slope_is_read_only_along_the_directions_its_points_spread_over():
+    from bench_xgen import plane_slope
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-1.0, 1.0, (300, 2))
+    np.testing.assert_allclose(plane_slope(xy, 0.2 + 0.03 * xy[:, 0] - 0.01 * xy[:, 1]), [0.03, -0.01], atol=1e-12)
+    # points on a line along (1, 1), a hair off it: the slope along the line, none across it
+    t = rng.uniform(-1.0, 1.0, 300)
+    line = np.column_stack([t, t]) + rng.normal(0.0, 1e-4, (300, 2)) * [1.0, -1.0]
+    z = 0.02 * (line[:, 0] + line[:, 1]) / np.sqrt(2.0) + 0.5 * (line[:, 0] - line[:, 1])
+    g = plane_slope(line, z)
+    assert g @ [1.0, 1.0] / np.sqrt(2.0) == pytest.approx(0.02, rel=1e-3)
+    assert abs(g @ [1.0, -1.0] / np.sqrt(2.0)) < 1e-6          # 0.5 across, where nothing spreads: not read
+
+
 def test_sink_tilts_are_none_without_a_sink_and_at_most_the_height_times_a_linear_sinks_slope(tmp_path):
     from bench_xgen import sink_tilts
 
