@@ -69,7 +69,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -79,10 +78,12 @@ from xgen.generator import HEAD_PROFILE_MODES, IDEAL, rot_world_sensor, tracked_
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from pedcal.io import read_sensors_yaml  # noqa: E402
+from pedcal.calib.common import robot_head_at  # noqa: E402
+from pedcal.io import read_log, read_sensors_yaml  # noqa: E402
 from pedcal.metrics import (  # noqa: E402
     format_clustered,
     network_sigma_split,
+    robot_rows,
     sigma_honesty,
     sigma_ratio_rms,
     within_sigma_share,
@@ -466,25 +467,19 @@ def sink_tilts(log: Path) -> dict[str, np.ndarray]:
     reports gets none."""
     info = json.loads((log / "xgen.json").read_text())
     truth = read_network(log / "truth.yaml")
-    obs = pd.read_csv(log / "observations.csv")
-    obs = obs[pd.read_csv(log / "truth_observations.csv")["who"].to_numpy() == "robot"]
-    robot = pd.read_csv(log / "truth_robot.csv")
-    head = np.asarray(info["head_offset_m"], float)
-    yaw_unwrapped = np.unwrap(robot["yaw"].to_numpy())
+    data = read_log(log)
+    obs = data.observations[robot_rows(data)[0]]
+    head_z = float(data.meta.head_offset_m[2])
     out = {}
     for s in info["sensors"]:
         sid = str(s["id"])
         seen = obs[obs["sensor"].astype(str) == sid]
         if len(seen) < 20:
             continue
-        t = seen["t"].to_numpy(float) - info["latency_s"] - s["clock_offset_s"]
-        x, y = np.interp(t, robot["t"], robot["x"]), np.interp(t, robot["t"], robot["y"])
-        yaw = np.interp(t, robot["t"], yaw_unwrapped)
-        top = np.column_stack([x + np.cos(yaw) * head[0] - np.sin(yaw) * head[1],
-                               y + np.sin(yaw) * head[0] + np.cos(yaw) * head[1], np.full(len(t), head[2])])
+        top = robot_head_at(data, seen["t"].to_numpy(float) - info["latency_s"] - s["clock_offset_s"], truth=True)
         p_s = truth[sid]["p"]
         sink = tracked_point(s["profile"], top, p_s)[:, 2] - top[:, 2]
-        out[sid] = (p_s[2] - head[2]) * plane_slope(top[:, :2], sink)
+        out[sid] = (p_s[2] - head_z) * plane_slope(top[:, :2], sink)
     return out
 
 
@@ -509,7 +504,10 @@ def tilt_fit(tilt_m: np.ndarray, rest_m: np.ndarray) -> dict:
     RMS of rest - g tilt (mm)."""
     tilt, rest = np.asarray(tilt_m, float), np.asarray(rest_m, float)
     gain = float(np.sum(tilt * rest) / max(float(np.sum(tilt * tilt)), 1e-30))
-    rms = lambda v: float(1000 * np.sqrt(np.mean(np.sum(v ** 2, axis=1))))  # noqa: E731
+
+    def rms(v):
+        return float(1000 * np.sqrt(np.mean(np.sum(v ** 2, axis=1))))
+
     corr = [float(np.corrcoef(tilt[:, a], rest[:, a])[0, 1]) if np.std(tilt[:, a]) > 0 and np.std(rest[:, a]) > 0
             else math.nan for a in range(2)]
     return {"sensors": len(tilt), "tilt_mm": rms(tilt), "rest_mm": rms(rest), "corr": corr, "gain": gain,
